@@ -1,0 +1,54 @@
+"""`gridfleet broker`: run the embedded broker until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import signal
+
+from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet broker`; flags win over the config file."""
+    parser.add_argument("--config", metavar="FILE", help="TOML file with a [broker] table")
+    parser.add_argument("--host", help="address to bind (default 127.0.0.1: loopback only)")
+    parser.add_argument("--port", type=int, help="MQTT TCP port (default 1883; 0 picks a free one)")
+    parser.add_argument(
+        "--ws-port",
+        type=int,
+        help="MQTT-over-websocket port for the dashboard (default 9001; 0 free)",
+    )
+    parser.add_argument("--no-ws", action="store_true", help="do not open the websocket listener")
+
+
+def settings_from(args: argparse.Namespace) -> BrokerSettings:
+    """Defaults, then the config file, then the flags."""
+    settings = load_settings(args.config) if args.config else BrokerSettings()
+    changes = {
+        k: v
+        for k, v in (("host", args.host), ("port", args.port), ("ws_port", args.ws_port))
+        if v is not None
+    }
+    settings = BrokerSettings(**{**settings.__dict__, **changes})
+    if args.no_ws:
+        settings = BrokerSettings(**{**settings.__dict__, "ws_port": None})
+    return settings
+
+
+async def serve(settings: BrokerSettings) -> None:
+    """Run the broker until SIGINT or SIGTERM."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    async with EmbeddedBroker(settings) as broker:
+        ws = f" and {broker.ws_url}" if broker.ws_url else ""
+        print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)
+        await stop.wait()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of `gridfleet broker`."""
+    asyncio.run(serve(settings_from(args)))
+    return 0

@@ -1,0 +1,154 @@
+"""amqtt embedded in-process, as an async context manager that reports the ports it bound."""
+
+from __future__ import annotations
+
+import logging
+import tomllib
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+from gridfleet.errors import ConfigError
+
+log = logging.getLogger("gridfleet.broker")
+
+_SETTING_TYPES = {"host": str, "port": int, "ws_port": int, "max_connections": int}
+
+
+@dataclass(frozen=True)
+class BrokerSettings:
+    """Where the embedded broker listens; port 0 picks a free port, ws_port None disables ws."""
+
+    host: str = "127.0.0.1"
+    port: int = 1883
+    ws_port: int | None = 9001
+    max_connections: int = -1
+
+    def __post_init__(self) -> None:
+        for name in ("port", "ws_port"):
+            value = getattr(self, name)
+            if value is not None and not 0 <= value <= 65535:
+                raise ConfigError(f"broker {name} {value} is outside 0..65535")
+
+    def amqtt_config(self) -> dict[str, Any]:
+        """The amqtt configuration dictionary for these settings."""
+        listeners: dict[str, Any] = {
+            "default": {
+                "type": "tcp",
+                "bind": f"{self.host}:{self.port}",
+                "max_connections": self.max_connections,
+            },
+        }
+        if self.ws_port is not None:
+            listeners["ws"] = {
+                "type": "ws",
+                "bind": f"{self.host}:{self.ws_port}",
+                "max_connections": self.max_connections,
+            }
+        # Plugins must be explicit: amqtt's defaults (packet loggers, $SYS) halve throughput.
+        return {
+            "listeners": listeners,
+            "plugins": {
+                "amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}
+            },
+        }
+
+
+def load_settings(path: str | Path, base: BrokerSettings | None = None) -> BrokerSettings:
+    """Read a TOML file with a [broker] table (host, port, ws_port, max_connections)."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such broker config file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read broker config: {exc}") from None
+    table = data.get("broker", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{p}: [broker] must be a table")
+    changes: dict[str, Any] = {}
+    for key, value in table.items():
+        expected = _SETTING_TYPES.get(key)
+        if expected is None:
+            raise ConfigError(
+                f"{p}: unknown broker setting {key!r} (known: {', '.join(sorted(_SETTING_TYPES))})"
+            )
+        if not isinstance(value, expected) or isinstance(value, bool):
+            raise ConfigError(f"{p}: broker setting {key!r} must be {expected.__name__}")
+        changes[key] = value
+    return replace(base or BrokerSettings(), **changes)
+
+
+def _make_broker(config: dict[str, Any]) -> Any:
+    """An amqtt Broker with its retained-message leak on connect mended."""
+    from amqtt.broker import Broker  # imported late: amqtt is slow to import
+
+    class _Broker(Broker):  # type: ignore[misc]
+        # amqtt 0.12.1 replays, to every client that connects, the retained messages matching
+        # *every* filter any client ever subscribed to (it loops over the broker-wide
+        # subscription table instead of the session's own). Only send a session retained
+        # messages for filters that session itself holds.
+        async def _publish_retained_messages_for_subscription(
+            self, subscription: tuple[str, int], session: Any
+        ) -> None:
+            holders = self._subscriptions.get(subscription[0], ())
+            if any(s is session or s.client_id == session.client_id for s, _ in holders):
+                await super()._publish_retained_messages_for_subscription(subscription, session)
+
+    return _Broker(config)
+
+
+class EmbeddedBroker:
+    """amqtt running in the current event loop; `async with` starts and stops it."""
+
+    def __init__(self, settings: BrokerSettings | None = None) -> None:
+        self.settings = settings or BrokerSettings()
+        self._broker: Any = None
+        self.port: int | None = None
+        self.ws_port: int | None = None
+
+    @property
+    def url(self) -> str:
+        """The TCP URL clients connect to."""
+        return f"mqtt://{self.settings.host}:{self.port}"
+
+    @property
+    def ws_url(self) -> str | None:
+        """The websocket URL (for the dashboard), None when ws is disabled."""
+        return None if self.ws_port is None else f"ws://{self.settings.host}:{self.ws_port}"
+
+    async def start(self) -> None:
+        """Bind the listeners; raises ConfigError when a port cannot be bound."""
+        self._broker = _make_broker(self.settings.amqtt_config())
+        try:
+            await self._broker.start()
+        except Exception as exc:  # amqtt wraps bind errors in its own BrokerError
+            self._broker = None
+            raise ConfigError(f"broker cannot listen on {self.settings.host}: {exc}") from None
+        self.port = self._bound_port("default")
+        self.ws_port = self._bound_port("ws") if self.settings.ws_port is not None else None
+        log.info("broker listening on %s%s", self.url, f" and {self.ws_url}" if self.ws_url else "")
+
+    def _bound_port(self, listener: str) -> int:
+        server = self._broker._servers[listener]
+        return int(server.instance.sockets[0].getsockname()[1])
+
+    async def stop(self) -> None:
+        """Close every connection and the listeners."""
+        if self._broker is not None:
+            await self._broker.shutdown()
+            self._broker = None
+            log.info("broker stopped")
+
+    async def __aenter__(self) -> EmbeddedBroker:
+        await self.start()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.stop()

@@ -1,0 +1,29 @@
+"""The MQTT client every asyncio component uses: aiomqtt (on paho) set up from a broker URL."""
+
+from __future__ import annotations
+
+import aiomqtt
+
+from gridfleet.config import BrokerURL, parse_broker_url
+
+
+def make_client(
+    url: str | BrokerURL,
+    client_id: str,
+    will: aiomqtt.Will | None = None,
+    keepalive: int = 10,
+    max_queued_outgoing: int | None = 10_000,
+) -> aiomqtt.Client:
+    """An unconnected aiomqtt client for `url` (use it as `async with`)."""
+    broker = url if isinstance(url, BrokerURL) else parse_broker_url(url)
+    return aiomqtt.Client(
+        hostname=broker.host,
+        port=broker.port,
+        identifier=client_id,
+        transport=broker.transport,  # type: ignore[arg-type]
+        websocket_path=broker.path if broker.scheme == "ws" else None,
+        will=will,
+        keepalive=keepalive,
+        clean_session=True,
+        max_queued_outgoing_messages=max_queued_outgoing,
+    )

@@ -1,0 +1,114 @@
+"""The `gridfleet` command: one subcommand per component, each defined in its own module.
+
+Each subcommand module exposes `add_arguments(parser)` and `run(args) -> int`; it is imported
+only when its command runs, so `gridfleet --help` stays fast and components stay independent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+from types import ModuleType
+
+from gridfleet import __version__
+from gridfleet.config import DEFAULT_MQTT_URL
+from gridfleet.errors import GridfleetError
+from gridfleet.protocol.constants import DEFAULT_ROOT
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "up": ("gridfleet.up", "start everything: broker, coordinator, units and dashboard"),
+    "broker": ("broker.cli", "run the embedded MQTT broker (amqtt)"),
+    "coordinator": ("coordinator.cli", "run the coordinator: world model, jobs, planning"),
+    "robots": ("robots.cli", "run the simulated units of a scenario"),
+    "dashboard": ("dashboard.cli", "serve the browser dashboard"),
+    "device": ("gridfleet.device", "a virtual ESP32: direction LEDs and an emergency-stop key"),
+    "job": ("gridfleet.operator", "submit, cancel and list jobs; set goals; emergency stop"),
+    "simulate": ("gridfleet.simulate", "run a scenario to the end in accelerated time"),
+    "bench": ("gridfleet.bench", "benchmark the planner and the whole system"),
+}
+
+
+def _load(command: str) -> ModuleType | None:
+    module_name = COMMANDS[command][0]
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name and module_name.startswith(exc.name):
+            return None
+        raise
+
+
+def add_common(parser: argparse.ArgumentParser, *, broker: bool = True) -> None:
+    """Flags that most components share: --broker and --root."""
+    if broker:
+        parser.add_argument(
+            "--broker",
+            default=DEFAULT_MQTT_URL,
+            metavar="URL",
+            help=f"MQTT broker URL, mqtt://host:port (default {DEFAULT_MQTT_URL})",
+        )
+    parser.add_argument(
+        "--root",
+        default=DEFAULT_ROOT,
+        help=f"topic root, so fleets can share a broker (default {DEFAULT_ROOT!r})",
+    )
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser; with `only`, just that subcommand's module is imported."""
+    parser = argparse.ArgumentParser(
+        prog="gridfleet",
+        description="gridfleet: a connected robot fleet on a grid playfield, over MQTT.",
+        epilog="Run 'gridfleet <command> --help' for a command's options.",
+    )
+    parser.add_argument("--version", action="version", version=f"gridfleet {__version__}")
+    parser.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        help="default INFO",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="<command>")
+    for name, (_, help_text) in COMMANDS.items():
+        cmd = sub.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:])
+        if name == only:
+            module = _load(name)
+            if module is not None:
+                module.add_arguments(cmd)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script."""
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    command = next((a for a in args_list if a in COMMANDS), None)
+    parser = build_parser(only=command)
+    args = parser.parse_args(args_list)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    logging.basicConfig(
+        level=args.log_level, format="%(asctime)s %(levelname)-7s %(name)s: %(message)s"
+    )
+    if args.log_level != "DEBUG":
+        # amqtt narrates every state change at INFO; only our own INFO lines help an operator.
+        for noisy in ("amqtt", "transitions", "websockets", "werkzeug"):
+            logging.getLogger(noisy).setLevel(logging.WARNING)
+    module = _load(args.command)
+    if module is None:
+        print(f"gridfleet {args.command}: not available in this build", file=sys.stderr)
+        return 2
+    try:
+        return int(module.run(args) or 0)
+    except GridfleetError as exc:
+        print(f"gridfleet {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

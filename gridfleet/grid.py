@@ -1,0 +1,130 @@
+"""Grid value types: squares, directions and the static map of a playfield."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from enum import Enum
+from typing import NamedTuple
+
+import numpy as np
+import numpy.typing as npt
+
+
+class Cell(NamedTuple):
+    """A square of the playfield: x = column, y = row, (0, 0) is the top-left square."""
+
+    x: int
+    y: int
+
+    def step(self, direction: Direction) -> Cell:
+        """The neighbouring square in `direction`."""
+        return Cell(self.x + direction.dx, self.y + direction.dy)
+
+    def neighbours(self) -> Iterator[Cell]:
+        """The four orthogonal neighbours, in N E S W order."""
+        for d in Direction:
+            yield self.step(d)
+
+    def direction_to(self, other: Cell) -> Direction | None:
+        """The direction of an adjacent square, or None when `other` is not adjacent."""
+        return Direction.between(self, other)
+
+    def manhattan(self, other: Cell) -> int:
+        """Manhattan distance to `other`."""
+        return abs(self.x - other.x) + abs(self.y - other.y)
+
+
+class Direction(Enum):
+    """A heading on the grid; north is y - 1."""
+
+    N = "N"
+    E = "E"
+    S = "S"
+    W = "W"
+
+    @property
+    def dx(self) -> int:
+        """Column change of one step this way."""
+        return _DELTAS[self][0]
+
+    @property
+    def dy(self) -> int:
+        """Row change of one step this way."""
+        return _DELTAS[self][1]
+
+    @property
+    def opposite(self) -> Direction:
+        """The direction pointing back."""
+        return _OPPOSITE[self]
+
+    @staticmethod
+    def between(a: Cell, b: Cell) -> Direction | None:
+        """The direction from `a` to adjacent `b`, None when not adjacent."""
+        return _BY_DELTA.get((b.x - a.x, b.y - a.y))
+
+
+_DELTAS = {Direction.N: (0, -1), Direction.E: (1, 0), Direction.S: (0, 1), Direction.W: (-1, 0)}
+_OPPOSITE = {
+    Direction.N: Direction.S,
+    Direction.S: Direction.N,
+    Direction.E: Direction.W,
+    Direction.W: Direction.E,
+}
+_BY_DELTA = {v: k for k, v in _DELTAS.items()}
+
+
+class GridMap:
+    """The static map: which squares are blocked (walls, fixed obstacles); off the map is wall."""
+
+    __slots__ = ("blocked", "height", "name", "width")
+
+    def __init__(self, blocked: npt.ArrayLike, name: str = "map") -> None:
+        arr = np.array(blocked, dtype=bool)
+        if arr.ndim != 2 or arr.shape[0] == 0 or arr.shape[1] == 0:
+            raise ValueError(f"blocked must be a non-empty 2-D array, got shape {arr.shape}")
+        arr.setflags(write=False)
+        self.blocked: npt.NDArray[np.bool_] = arr  # indexed [y, x]
+        self.height, self.width = int(arr.shape[0]), int(arr.shape[1])
+        self.name = name
+
+    @classmethod
+    def from_rows(cls, rows: Iterable[str], name: str = "map") -> GridMap:
+        """Build from text rows where '.' is free and any of '@ O T W #' is blocked."""
+        rows = list(rows)
+        return cls([[ch in BLOCKED_CHARS for ch in row] for row in rows], name=name)
+
+    def in_bounds(self, cell: Cell) -> bool:
+        """True when `cell` lies on the map."""
+        return 0 <= cell.x < self.width and 0 <= cell.y < self.height
+
+    def is_free(self, cell: Cell) -> bool:
+        """True when `cell` is on the map and not a wall or fixed obstacle."""
+        return self.in_bounds(cell) and not bool(self.blocked[cell.y, cell.x])
+
+    def free_neighbours(self, cell: Cell) -> list[Cell]:
+        """Free orthogonal neighbours of `cell`."""
+        return [n for n in cell.neighbours() if self.is_free(n)]
+
+    def with_blocked(self, cells: Iterable[Cell]) -> GridMap:
+        """A copy with extra squares blocked (e.g. obstacles the fleet has discovered)."""
+        arr = self.blocked.copy()
+        for c in cells:
+            if self.in_bounds(c):
+                arr[c.y, c.x] = True
+        return GridMap(arr, name=self.name)
+
+    def rows(self) -> list[str]:
+        """Text rows: '.' free, '@' blocked."""
+        return ["".join("@" if b else "." for b in row) for row in self.blocked]
+
+    def free_cells(self) -> list[Cell]:
+        """Every free square, row by row."""
+        ys, xs = np.nonzero(~self.blocked)
+        return [Cell(int(x), int(y)) for y, x in zip(ys, xs, strict=True)]
+
+    def __repr__(self) -> str:
+        return f"GridMap({self.name!r}, {self.width}x{self.height})"
+
+
+FREE_CHARS = frozenset(".GES")
+BLOCKED_CHARS = frozenset("@OTW#")

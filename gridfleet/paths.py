@@ -1,0 +1,96 @@
+"""Shortest paths on a GridMap: BFS distance fields (scipy csgraph) and route extraction."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import shortest_path
+
+from gridfleet.grid import Cell, GridMap
+
+UNREACHABLE = np.iinfo(np.int32).max
+DistanceField = npt.NDArray[np.int32]  # indexed [y, x]; UNREACHABLE where no path exists
+
+
+def adjacency(grid: GridMap) -> csr_matrix:
+    """The 4-connected adjacency matrix of the free squares, indexed by y * width + x."""
+    free = ~grid.blocked
+    h, w = grid.height, grid.width
+    idx = np.arange(h * w).reshape(h, w)
+    rows: list[npt.NDArray[np.int64]] = []
+    cols: list[npt.NDArray[np.int64]] = []
+    horiz = free[:, :-1] & free[:, 1:]
+    rows.append(idx[:, :-1][horiz])
+    cols.append(idx[:, 1:][horiz])
+    vert = free[:-1, :] & free[1:, :]
+    rows.append(idx[:-1, :][vert])
+    cols.append(idx[1:, :][vert])
+    r = np.concatenate(rows)
+    c = np.concatenate(cols)
+    data = np.ones(2 * len(r), dtype=np.int8)
+    return csr_matrix((data, (np.concatenate([r, c]), np.concatenate([c, r]))), shape=(h * w,) * 2)
+
+
+def distance_field(grid: GridMap, target: Cell, graph: csr_matrix | None = None) -> DistanceField:
+    """Steps from every square to `target` (UNREACHABLE where blocked or cut off)."""
+    field = np.full((grid.height, grid.width), UNREACHABLE, dtype=np.int32)
+    if not grid.is_free(target):
+        return field
+    g = adjacency(grid) if graph is None else graph
+    dist = shortest_path(g, method="D", unweighted=True, indices=target.y * grid.width + target.x)
+    finite = np.isfinite(dist)
+    flat = field.reshape(-1)
+    flat[finite] = dist[finite].astype(np.int32)
+    return field
+
+
+def distance(field: DistanceField, cell: Cell) -> int:
+    """Distance of `cell` in `field`, UNREACHABLE when off the map."""
+    h, w = field.shape
+    if 0 <= cell.x < w and 0 <= cell.y < h:
+        return int(field[cell.y, cell.x])
+    return UNREACHABLE
+
+
+def route(field: DistanceField, start: Cell) -> list[Cell] | None:
+    """The squares after `start` down to the field's target, or None when unreachable."""
+    d = distance(field, start)
+    if d == UNREACHABLE:
+        return None
+    path: list[Cell] = []
+    here = start
+    while d > 0:
+        # Neighbours come in N E S W order, so ties are broken the same way every time.
+        here = next(n for n in here.neighbours() if distance(field, n) == d - 1)
+        path.append(here)
+        d -= 1
+    return path
+
+
+class DistanceFieldCache:
+    """Distance fields of one grid, computed once per target and kept up to `size` targets."""
+
+    def __init__(self, grid: GridMap, size: int = 4096) -> None:
+        self.grid = grid
+        self.size = size
+        self._graph = adjacency(grid)
+        self._fields: OrderedDict[Cell, DistanceField] = OrderedDict()
+
+    def get(self, target: Cell) -> DistanceField:
+        """The field towards `target`, computed on first use."""
+        field = self._fields.get(target)
+        if field is None:
+            field = distance_field(self.grid, target, self._graph)
+            self._fields[target] = field
+            if len(self._fields) > self.size:
+                self._fields.popitem(last=False)
+        else:
+            self._fields.move_to_end(target)
+        return field
+
+    def distance(self, start: Cell, target: Cell) -> int:
+        """Path length from `start` to `target` (UNREACHABLE when cut off)."""
+        return distance(self.get(target), start)

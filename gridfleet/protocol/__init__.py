@@ -1,0 +1,72 @@
+"""The gridfleet protocol: topic names, message models, codecs and device payloads.
+
+protocol.md is the human contract; this package is the same contract as code, and
+protocol/schemas/ the same again as JSON Schema. A test keeps the three in step.
+"""
+
+from gridfleet.protocol.codec import HeaderStamper, decode, encode
+from gridfleet.protocol.device import (
+    EstopSignal,
+    decode_direction,
+    decode_estop,
+    encode_direction,
+    encode_estop,
+)
+from gridfleet.protocol.messages import (
+    Action,
+    CancelJob,
+    Connection,
+    CoordinatorStatus,
+    ErrorReport,
+    Factsheet,
+    FleetMap,
+    Goal,
+    Header,
+    JobsView,
+    JobView,
+    Leds,
+    Order,
+    Reply,
+    Routes,
+    RouteView,
+    Sensors,
+    SetGoal,
+    SubmitJob,
+    UnitState,
+)
+from gridfleet.protocol.topics import TOPICS, Topics, TopicSpec, validate_id
+
+__all__ = [
+    "TOPICS",
+    "Action",
+    "CancelJob",
+    "Connection",
+    "CoordinatorStatus",
+    "ErrorReport",
+    "EstopSignal",
+    "Factsheet",
+    "FleetMap",
+    "Goal",
+    "Header",
+    "HeaderStamper",
+    "JobView",
+    "JobsView",
+    "Leds",
+    "Order",
+    "Reply",
+    "RouteView",
+    "Routes",
+    "Sensors",
+    "SetGoal",
+    "SubmitJob",
+    "TopicSpec",
+    "Topics",
+    "UnitState",
+    "decode",
+    "decode_direction",
+    "decode_estop",
+    "encode",
+    "encode_direction",
+    "encode_estop",
+    "validate_id",
+]

@@ -1,0 +1,65 @@
+"""JSON encoding and decoding of protocol messages, with errors that name the bad field."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import TypeVar
+
+from pydantic import ValidationError
+
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.messages import Header, Message
+from gridfleet.protocol.topics import validate_id
+
+M = TypeVar("M", bound=Message)
+
+
+def encode(message: Message) -> bytes:
+    """Compact JSON bytes of `message`."""
+    return message.model_dump_json(exclude_none=False).encode("utf-8")
+
+
+def decode(
+    model: type[M], payload: bytes | bytearray | str, max_bytes: int = MAX_REQUEST_BYTES
+) -> M:
+    """Parse and validate `payload` as `model`; raise ProtocolError naming the problem."""
+    name = model.__name__
+    size = len(payload.encode("utf-8") if isinstance(payload, str) else payload)
+    if size > max_bytes:
+        raise ProtocolError(f"{name}: payload of {size} bytes exceeds the limit of {max_bytes}")
+    try:
+        return model.model_validate_json(payload)
+    except ValidationError as exc:
+        raise ProtocolError(f"{name}: {describe(exc)}") from None
+
+
+def describe(exc: ValidationError) -> str:
+    """One line naming the first bad field of a validation error (and how many more there are)."""
+    errors = exc.errors(include_url=False)
+    first = errors[0]
+    where = ".".join(str(p) for p in first["loc"]) or "message"
+    if first["type"] == "json_invalid":
+        text = f"malformed JSON ({first['msg']})"
+    else:
+        text = f"field '{where}': {first['msg']}"
+    if len(errors) > 1:
+        text += f" (and {len(errors) - 1} more problem{'s' if len(errors) > 2 else ''})"
+    return text
+
+
+class HeaderStamper:
+    """Makes headers for one sender: a counter per topic kind and a UTC timestamp."""
+
+    def __init__(self, sender: str, clock: Callable[[], datetime] | None = None) -> None:
+        self.sender = validate_id(sender, "sender")
+        self._clock = clock or (lambda: datetime.now(UTC))
+        self._seq: defaultdict[str, int] = defaultdict(int)
+
+    def __call__(self, kind: str) -> Header:
+        """The next header for a message on a topic of `kind`."""
+        seq = self._seq[kind]
+        self._seq[kind] = seq + 1
+        return Header(seq=seq, timestamp=self._clock(), sender=self.sender)

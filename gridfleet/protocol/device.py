@@ -1,0 +1,72 @@
+"""Tiny device-facing payloads (direction, emergency stop): plain text, no JSON library needed."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Direction
+from gridfleet.protocol.constants import ID_PATTERN
+
+_BY_RE = re.compile(ID_PATTERN)
+MAX_ESTOP_BYTES = 512
+MAX_REASON = 200
+
+
+def encode_direction(direction: Direction | None) -> bytes:
+    """`N`, `E`, `S`, `W`, or `-` for no intended move."""
+    return b"-" if direction is None else direction.value.encode()
+
+
+def decode_direction(payload: bytes | str) -> Direction | None:
+    """Inverse of encode_direction; anything else raises ProtocolError."""
+    text = payload.decode("ascii", "replace") if isinstance(payload, bytes | bytearray) else payload
+    if text == "-":
+        return None
+    try:
+        return Direction(text)
+    except ValueError:
+        raise ProtocolError(f"direction: {text[:20]!r} is not one of N E S W -") from None
+
+
+@dataclass(frozen=True)
+class EstopSignal:
+    """The latched emergency stop: engaged or released, by whom, and why."""
+
+    engaged: bool
+    by: str
+    reason: str = ""
+
+    def __post_init__(self) -> None:
+        if not _BY_RE.match(self.by):
+            raise ProtocolError(f"estop: 'by' {self.by!r} is not a valid id")
+        if len(self.reason) > MAX_REASON or any(c in self.reason for c in "\r\n\x00"):
+            raise ProtocolError(
+                f"estop: reason must be one line of at most {MAX_REASON} characters"
+            )
+
+
+def encode_estop(signal: EstopSignal) -> bytes:
+    """`engaged|<by>|<reason>` or `released|<by>|<reason>` in UTF-8."""
+    state = "engaged" if signal.engaged else "released"
+    return f"{state}|{signal.by}|{signal.reason}".encode()
+
+
+def decode_estop(payload: bytes | str) -> EstopSignal:
+    """Parse an emergency-stop payload; anything malformed raises ProtocolError."""
+    if isinstance(payload, bytes | bytearray):
+        if len(payload) > MAX_ESTOP_BYTES:
+            raise ProtocolError(f"estop: payload of {len(payload)} bytes exceeds {MAX_ESTOP_BYTES}")
+        try:
+            text = payload.decode("utf-8")
+        except UnicodeDecodeError:
+            raise ProtocolError("estop: payload is not UTF-8") from None
+    else:
+        text = payload
+    parts = text.split("|", 2)
+    if len(parts) < 2 or parts[0] not in ("engaged", "released"):
+        raise ProtocolError(
+            f"estop: {text[:40]!r} is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'"
+        )
+    return EstopSignal(parts[0] == "engaged", parts[1], parts[2] if len(parts) == 3 else "")

@@ -1,0 +1,270 @@
+"""Message models of every JSON topic; each refuses bad values with an error naming the field."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
+
+from gridfleet.grid import Cell
+from gridfleet.protocol.constants import (
+    ID_PATTERN,
+    MAX_COORD,
+    MAX_PLANNED,
+    MAX_RELEASED,
+    MAX_TEXT,
+)
+
+Id = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
+Text = Annotated[str, StringConstraints(max_length=MAX_TEXT)]
+Coord = Annotated[int, Field(ge=0, le=MAX_COORD, strict=True)]
+
+
+def _as_cell(value: tuple[int, int]) -> Cell:
+    return Cell(value[0], value[1])
+
+
+Square = Annotated[tuple[Coord, Coord], AfterValidator(_as_cell)]
+"""A square as a JSON array [x, y]; decoded into a Cell."""
+
+Kg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+PositiveKg = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+DirectionLetter = Literal["N", "E", "S", "W", "-"]
+SensorReading = Literal["free", "wall", "obstacle", "unit"]
+UnitStatus = Literal["idle", "moving", "waiting", "stopped", "holding"]
+JobState = Literal[
+    "queued",
+    "assigned",
+    "to_pickup",
+    "loaded",
+    "to_dropoff",
+    "done",
+    "cancelled",
+    "rejected",
+    "failed",
+]
+FINAL_JOB_STATES: frozenset[str] = frozenset({"done", "cancelled", "rejected", "failed"})
+
+
+Side = Literal["N", "E", "S", "W"]
+
+
+def _all_sides() -> list[Side]:
+    return ["N", "E", "S", "W"]
+
+
+class Model(BaseModel):
+    """Base of every message: immutable, strict about unknown fields."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+
+
+class Header(Model):
+    """Carried by every JSON message: who sent it, when, and its place in the topic's sequence."""
+
+    version: Literal["1.0"] = "1.0"
+    seq: Annotated[int, Field(ge=0, strict=True)]
+    timestamp: datetime
+    sender: Id
+
+
+class Message(Model):
+    """A JSON message with its header."""
+
+    header: Header
+
+
+class Connection(Message):
+    """`units/<id>/connection`: whether a unit is online; its last will says "broken"."""
+
+    state: Literal["online", "offline", "broken"]
+
+
+class Factsheet(Message):
+    """`units/<id>/factsheet`: what a unit can do, read by allocation and the dashboard."""
+
+    capacity_kg: PositiveKg
+    step_period_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)]
+    sensors: list[Side] = Field(default_factory=_all_sides)
+    color: Annotated[str, StringConstraints(pattern=r"^#[0-9a-fA-F]{6}$")] = "#607d8b"
+    model: Annotated[str, StringConstraints(max_length=64)] = "gridfleet-sim"
+
+
+class Leds(Model):
+    """The four direction LEDs; exactly one is lit before a move, all when emergency-stopped."""
+
+    N: bool = False
+    E: bool = False
+    S: bool = False
+    W: bool = False
+
+
+class Sensors(Model):
+    """What the four distance sensors see in the neighbouring squares."""
+
+    N: SensorReading
+    E: SensorReading
+    S: SensorReading
+    W: SensorReading
+
+
+class UnitError(Model):
+    """An error a unit reports in its state (e.g. a refused order)."""
+
+    code: Annotated[str, StringConstraints(pattern=r"^[a-z_]{1,40}$")]
+    message: Text
+
+
+class UnitState(Message):
+    """`units/<id>/state`: a unit's pose and condition, sent every step and on change."""
+
+    step: Annotated[int, Field(ge=0, strict=True)]
+    position: Square
+    direction: DirectionLetter
+    status: UnitStatus
+    wait_reason: Text | None = None
+    mode: Literal["coordinated", "standalone"] = "coordinated"
+    job_id: Id | None = None
+    load_kg: Kg = 0.0
+    leds: Leds
+    sensors: Sensors
+    obstacles: Annotated[list[Square], Field(max_length=4)] = Field(default_factory=list)
+    order_id: Annotated[str, StringConstraints(max_length=128)] | None = None
+    order_update_id: Annotated[int, Field(ge=0, strict=True)] = 0
+    released: Annotated[list[Square], Field(max_length=MAX_RELEASED)] = Field(default_factory=list)
+    goal: Square | None = None
+    estop: bool = False
+    errors: Annotated[list[UnitError], Field(max_length=16)] = Field(default_factory=list)
+
+
+class Action(Model):
+    """What a unit does when it stands on `square` under an order: pick up or drop a job's item."""
+
+    kind: Literal["pick", "drop"]
+    job_id: Id
+    square: Square
+    mass_kg: PositiveKg
+
+
+class Order(Message):
+    """`units/<id>/order`: squares released to a unit, the planned rest, and an action."""
+
+    order_id: Annotated[str, StringConstraints(min_length=1, max_length=128)]
+    update_id: Annotated[int, Field(ge=1, strict=True)]
+    step: Annotated[int, Field(ge=0, strict=True)] = 0
+    released: Annotated[list[Square], Field(max_length=MAX_RELEASED)]
+    planned: Annotated[list[Square], Field(max_length=MAX_PLANNED)] = Field(default_factory=list)
+    target: Square | None = None
+    action: Action | None = None
+
+
+class Goal(Message):
+    """`units/<id>/goal`: a target for a unit that plans for itself (standalone mode); null clears."""
+
+    target: Square | None
+
+
+class FleetMap(Message):
+    """`fleet/map`: the static map and the obstacles units have discovered."""
+
+    name: Annotated[str, StringConstraints(max_length=128)]
+    width: Annotated[int, Field(ge=1, le=MAX_COORD + 1, strict=True)]
+    height: Annotated[int, Field(ge=1, le=MAX_COORD + 1, strict=True)]
+    rows: list[Annotated[str, StringConstraints(pattern=r"^[.@]+$")]]
+    obstacles: list[Square] = Field(default_factory=list)
+
+
+class JobView(Model):
+    """One job as the queue view shows it."""
+
+    id: Id
+    pickup: Square
+    dropoff: Square
+    mass_kg: PositiveKg
+    priority: Annotated[int, Field(ge=0, le=100, strict=True)] = 0
+    state: JobState
+    unit: Id | None = None
+    reason: Text | None = None
+    submitted_by: Id | None = None
+    created_step: Annotated[int, Field(ge=0, strict=True)] = 0
+    done_step: Annotated[int, Field(ge=0, strict=True)] | None = None
+
+
+class JobsView(Message):
+    """`fleet/jobs`: every job with its state and unit; finished ones stay listed."""
+
+    jobs: list[JobView]
+    counts: dict[JobState, int] = Field(default_factory=dict)
+
+
+class RouteView(Model):
+    """One unit's route as planned: released squares, the planned rest, and the target."""
+
+    released: list[Square] = Field(default_factory=list)
+    planned: list[Square] = Field(default_factory=list)
+    target: Square | None = None
+
+
+class Routes(Message):
+    """`fleet/routes`: every unit's route, for display."""
+
+    step: Annotated[int, Field(ge=0, strict=True)]
+    routes: dict[Id, RouteView]
+
+
+class Request(Message):
+    """Common fields of an operator request: an id to match the reply, and where to reply."""
+
+    request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
+    reply_to: Id | None = None  # client id: the reply goes to replies/<reply_to>
+
+
+class SubmitJob(Request):
+    """`requests/submit_job`: queue a pick-and-deliver job."""
+
+    pickup: Square
+    dropoff: Square
+    mass_kg: PositiveKg
+    priority: Annotated[int, Field(ge=0, le=100, strict=True)] = 0
+    job_id: Id | None = None
+
+
+class CancelJob(Request):
+    """`requests/cancel_job`: delete a queued job or abort an active one."""
+
+    job_id: Id
+
+
+class SetGoal(Request):
+    """`requests/set_goal`: send one unit to a square (null target clears the goal)."""
+
+    unit: Id
+    target: Square | None
+
+
+class Reply(Message):
+    """`replies/<client>`: the answer to one request."""
+
+    request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
+    accepted: bool
+    reason: Text | None = None
+    job_id: Id | None = None
+
+
+class ErrorReport(Message):
+    """`errors`: a component refused a message; says which topic and why."""
+
+    topic: Annotated[str, StringConstraints(max_length=256)]
+    reason: Text
+    request_id: Annotated[str, StringConstraints(max_length=64)] | None = None
+
+
+class CoordinatorStatus(Message):
+    """`coordinator/status`: whether the coordinator runs; its last will says "broken"."""
+
+    state: Literal["online", "offline", "broken"]
+    step: Annotated[int, Field(ge=0, strict=True)] = 0
+    step_period_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 1.0
+    estop: bool = False
+    version: Annotated[str, StringConstraints(max_length=32)] = "0"

@@ -1,0 +1,155 @@
+"""Topic names of the protocol and what travels on each (QoS, retained, payload type)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol.constants import (
+    DEFAULT_ROOT,
+    ID_PATTERN,
+    MAX_REQUEST_BYTES,
+    MAX_VIEW_BYTES,
+    TOPIC_VERSION,
+)
+
+_ID_RE = re.compile(ID_PATTERN)
+_ROOT_SEGMENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+Payload = Literal["json", "direction", "estop"]
+
+
+def validate_id(value: str, what: str = "id") -> str:
+    """Return `value` when it is a valid unit/job/client id, else raise ProtocolError naming it."""
+    if not isinstance(value, str) or not _ID_RE.match(value):
+        raise ProtocolError(
+            f"{what} {value!r} is not a valid id: 1-64 characters of letters, digits, '_', '.', '-',"
+            " starting with a letter or digit"
+        )
+    return value
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """How one kind of topic is used: pattern, QoS, retained flag, payload and size limit."""
+
+    kind: str
+    pattern: str  # relative to the prefix; {unit} / {kind} / {client} are placeholders
+    qos: int
+    retained: bool
+    payload: Payload
+    model: str | None  # name of the message model in gridfleet.protocol.messages
+    max_bytes: int
+
+
+TOPICS: dict[str, TopicSpec] = {
+    spec.kind: spec
+    for spec in (
+        TopicSpec(
+            "connection",
+            "units/{unit}/connection",
+            1,
+            True,
+            "json",
+            "Connection",
+            MAX_REQUEST_BYTES,
+        ),
+        TopicSpec(
+            "factsheet", "units/{unit}/factsheet", 1, True, "json", "Factsheet", MAX_REQUEST_BYTES
+        ),
+        TopicSpec("state", "units/{unit}/state", 0, True, "json", "UnitState", MAX_REQUEST_BYTES),
+        TopicSpec("order", "units/{unit}/order", 1, False, "json", "Order", MAX_REQUEST_BYTES),
+        TopicSpec("goal", "units/{unit}/goal", 1, False, "json", "Goal", MAX_REQUEST_BYTES),
+        TopicSpec("direction", "units/{unit}/direction", 0, True, "direction", None, 8),
+        TopicSpec("estop", "fleet/estop", 1, True, "estop", None, 512),
+        TopicSpec("map", "fleet/map", 1, True, "json", "FleetMap", MAX_VIEW_BYTES),
+        TopicSpec("jobs", "fleet/jobs", 1, True, "json", "JobsView", MAX_VIEW_BYTES),
+        TopicSpec("routes", "fleet/routes", 0, True, "json", "Routes", MAX_VIEW_BYTES),
+        TopicSpec(
+            "submit_job", "requests/submit_job", 1, False, "json", "SubmitJob", MAX_REQUEST_BYTES
+        ),
+        TopicSpec(
+            "cancel_job", "requests/cancel_job", 1, False, "json", "CancelJob", MAX_REQUEST_BYTES
+        ),
+        TopicSpec("set_goal", "requests/set_goal", 1, False, "json", "SetGoal", MAX_REQUEST_BYTES),
+        TopicSpec("reply", "replies/{client}", 1, False, "json", "Reply", MAX_REQUEST_BYTES),
+        TopicSpec("errors", "errors", 1, False, "json", "ErrorReport", MAX_REQUEST_BYTES),
+        TopicSpec(
+            "coordinator",
+            "coordinator/status",
+            1,
+            True,
+            "json",
+            "CoordinatorStatus",
+            MAX_REQUEST_BYTES,
+        ),
+    )
+}
+
+_UNIT_KINDS = {k for k, s in TOPICS.items() if s.pattern.startswith("units/")}
+
+
+class Topics:
+    """Topic names under one root, e.g. `gridfleet/v1/units/unit1/state`."""
+
+    def __init__(self, root: str = DEFAULT_ROOT) -> None:
+        segments = root.split("/")
+        if not all(_ROOT_SEGMENT_RE.match(s) for s in segments):
+            raise ProtocolError(
+                f"topic root {root!r} is not valid: '/'-separated segments of letters, digits,"
+                " '_', '.', '-' (no wildcards, no '$', no empty segment)"
+            )
+        self.root = root
+        self.prefix = f"{root}/{TOPIC_VERSION}"
+
+    def unit(self, kind: str, unit: str) -> str:
+        """The per-unit topic of `kind` (connection, factsheet, state, order, goal, direction)."""
+        if kind not in _UNIT_KINDS:
+            raise ProtocolError(f"{kind!r} is not a per-unit topic kind")
+        return f"{self.prefix}/units/{validate_id(unit, 'unit id')}/{kind}"
+
+    def all_units(self, kind: str) -> str:
+        """Wildcard filter for `kind` of every unit."""
+        if kind not in _UNIT_KINDS:
+            raise ProtocolError(f"{kind!r} is not a per-unit topic kind")
+        return f"{self.prefix}/units/+/{kind}"
+
+    def fleet(self, kind: str) -> str:
+        """A fleet-wide or coordinator topic: estop, map, jobs, routes, errors, coordinator."""
+        spec = TOPICS.get(kind)
+        if spec is None or "{" in spec.pattern:
+            raise ProtocolError(f"{kind!r} is not a fleet-wide topic kind")
+        return f"{self.prefix}/{spec.pattern}"
+
+    def request(self, kind: str) -> str:
+        """The request topic of `kind` (submit_job, cancel_job, set_goal)."""
+        spec = TOPICS.get(kind)
+        if spec is None or not spec.pattern.startswith("requests/"):
+            raise ProtocolError(f"{kind!r} is not a request kind")
+        return f"{self.prefix}/{spec.pattern}"
+
+    def reply(self, client: str) -> str:
+        """Where the coordinator answers requests of `client`."""
+        return f"{self.prefix}/replies/{validate_id(client, 'client id')}"
+
+    @property
+    def all_requests(self) -> str:
+        """Wildcard filter for every request kind."""
+        return f"{self.prefix}/requests/+"
+
+    def parse(self, topic: str) -> tuple[str, str | None]:
+        """Split a topic under this root into (kind, unit or client id); ProtocolError if unknown."""
+        if not topic.startswith(self.prefix + "/"):
+            raise ProtocolError(f"topic {topic!r} is not under {self.prefix}/")
+        rest = topic[len(self.prefix) + 1 :].split("/")
+        if len(rest) == 3 and rest[0] == "units" and rest[2] in _UNIT_KINDS:
+            return rest[2], validate_id(rest[1], "unit id")
+        if len(rest) == 2 and rest[0] == "replies":
+            return "reply", validate_id(rest[1], "client id")
+        joined = "/".join(rest)
+        for kind, spec in TOPICS.items():
+            if spec.pattern == joined:
+                return kind, None
+        raise ProtocolError(f"topic {topic!r} is not a gridfleet topic")

@@ -1,0 +1,1 @@
+"""Helpers for tests of gridfleet and of software that talks to it (brokers, waiting)."""

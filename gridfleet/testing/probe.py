@@ -1,0 +1,112 @@
+"""A paho MQTT client for tests: records every message it sees and waits for the ones it needs."""
+
+from __future__ import annotations
+
+import threading
+import uuid
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from types import TracebackType
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+
+from gridfleet.config import parse_broker_url
+from gridfleet.testing.wait import wait_for
+
+
+@dataclass(frozen=True)
+class Seen:
+    """A message as the probe received it."""
+
+    topic: str
+    payload: bytes
+    retain: bool
+    qos: int
+
+
+class MqttProbe:
+    """Connects, subscribes, records messages by topic; publish and wait helpers for tests."""
+
+    def __init__(self, url: str, client_id: str | None = None) -> None:
+        broker = parse_broker_url(url)
+        self.client = mqtt.Client(
+            CallbackAPIVersion.VERSION2,
+            client_id=client_id or f"probe-{uuid.uuid4().hex[:8]}",
+            transport="websockets" if broker.scheme == "ws" else "tcp",
+        )
+        if broker.scheme == "ws":
+            self.client.ws_set_options(path=broker.path)
+        self._broker = broker
+        self._lock = threading.Lock()
+        self.messages: defaultdict[str, list[Seen]] = defaultdict(list)
+        self._connected = threading.Event()
+        self._subacks: set[int] = set()
+        self.client.on_message = self._on_message
+        self.client.on_connect = lambda c, u, f, rc, p: self._connected.set()
+        self.client.on_subscribe = lambda c, u, mid, rcs, p: self._subacks.add(mid)
+
+    def _on_message(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
+        with self._lock:
+            self.messages[msg.topic].append(
+                Seen(msg.topic, bytes(msg.payload), msg.retain, msg.qos)
+            )
+
+    def connect(self, timeout: float = 10.0) -> MqttProbe:
+        """Connect and start paho's network thread."""
+        self.client.connect(self._broker.host, self._broker.port)
+        self.client.loop_start()
+        if not self._connected.wait(timeout):
+            raise AssertionError(f"probe could not connect to {self._broker}")
+        return self
+
+    def subscribe(self, topic: str, qos: int = 1, timeout: float = 10.0) -> None:
+        """Subscribe and wait for the broker's SUBACK."""
+        _, mid = self.client.subscribe(topic, qos)
+        wait_for(lambda: mid in self._subacks, timeout, what=f"SUBACK for {topic}")
+
+    def publish(
+        self,
+        topic: str,
+        payload: bytes | str,
+        qos: int = 1,
+        retain: bool = False,
+        timeout: float = 10.0,
+    ) -> None:
+        """Publish and wait until paho has handed it to the broker."""
+        info = self.client.publish(topic, payload, qos=qos, retain=retain)
+        info.wait_for_publish(timeout)
+
+    def received(self, topic: str) -> list[Seen]:
+        """Messages seen so far on `topic`."""
+        with self._lock:
+            return list(self.messages.get(topic, []))
+
+    def wait(
+        self, topic: str, match: Callable[[Seen], bool] = lambda m: True, timeout: float = 10.0
+    ) -> Seen:
+        """The first message on `topic` for which `match` holds (waits for it to arrive)."""
+
+        def find() -> Seen | None:
+            return next((m for m in self.received(topic) if match(m)), None)
+
+        found = wait_for(find, timeout, what=f"a matching message on {topic}")
+        assert found is not None
+        return found
+
+    def close(self) -> None:
+        """Disconnect cleanly."""
+        self.client.disconnect()
+        self.client.loop_stop()
+
+    def __enter__(self) -> MqttProbe:
+        return self.connect()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

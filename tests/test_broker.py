@@ -1,0 +1,186 @@
+"""The embedded broker carries retained messages between real clients: paho, mosquitto, websockets."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from broker.embedded import BrokerSettings, load_settings
+from gridfleet.errors import ConfigError
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.wait import wait_for
+
+needs_mosquitto = pytest.mark.skipif(
+    not shutil.which("mosquitto_pub"),
+    reason="mosquitto-clients not installed (.ci/run installs it)",
+)
+
+
+def test_paho_clients_exchange_a_retained_message(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    topic = f"{root}/retained"
+    probe_factory().publish(topic, b"kept", retain=True)
+    late = probe_factory()
+    late.subscribe(topic)
+    seen = late.wait(topic)
+    assert (seen.payload, seen.retain) == (b"kept", True)
+
+
+def test_websocket_client_sees_what_a_tcp_client_retained(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    topic = f"{root}/ws"
+    probe_factory().publish(topic, b"over tcp", retain=True)
+    ws = probe_factory(broker.ws_url)
+    ws.subscribe(topic)
+    assert ws.wait(topic).payload == b"over tcp"
+    ws.publish(f"{topic}/back", b"over ws", retain=True)
+    tcp = probe_factory()
+    tcp.subscribe(f"{topic}/back")
+    assert tcp.wait(f"{topic}/back").payload == b"over ws"
+
+
+@needs_mosquitto
+def test_mosquitto_clients_exchange_a_retained_message_with_paho(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    host, port = "127.0.0.1", str(broker.port)
+    subprocess.run(
+        [
+            "mosquitto_pub",
+            "-h",
+            host,
+            "-p",
+            port,
+            "-t",
+            f"{root}/from-mosq",
+            "-m",
+            "hello from mosquitto_pub",
+            "-r",
+            "-q",
+            "1",
+        ],
+        check=True,
+        timeout=10,
+    )
+    paho = probe_factory()
+    paho.subscribe(f"{root}/from-mosq")
+    assert paho.wait(f"{root}/from-mosq").payload == b"hello from mosquitto_pub"
+
+    paho.publish(f"{root}/from-paho", b"hello from paho", retain=True)
+    out = subprocess.run(
+        [
+            "mosquitto_sub",
+            "-h",
+            host,
+            "-p",
+            port,
+            "-t",
+            f"{root}/from-paho",
+            "-C",
+            "1",
+            "-W",
+            "10",
+            "-v",
+        ],
+        check=True,
+        timeout=15,
+        capture_output=True,
+        text=True,
+    )
+    assert out.stdout.strip() == f"{root}/from-paho hello from paho"
+
+
+def test_late_client_sees_every_retained_topic_at_once(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    writer = probe_factory()
+    for i in range(20):
+        writer.publish(f"{root}/units/u{i}/state", f"s{i}".encode(), retain=True)
+    late = probe_factory()
+    late.subscribe(f"{root}/units/+/state")
+    wait_for(lambda: sum(len(late.received(f"{root}/units/u{i}/state")) for i in range(20)) == 20)
+
+
+def test_broker_restarts_on_the_same_ports(fresh_broker: BrokerThread) -> None:
+    port, ws_port = fresh_broker.port, fresh_broker.ws_port
+    fresh_broker.restart()
+    assert (fresh_broker.port, fresh_broker.ws_port) == (port, ws_port)
+    with MqttProbe(fresh_broker.url) as probe:
+        probe.subscribe("x/y")
+
+
+def test_cli_broker_starts_prints_its_urls_and_stops_cleanly(tmp_path: Path) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gridfleet.cli", "broker", "--port", "0", "--ws-port", "0"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        match = re.search(r"listening on (mqtt://\S+) and (ws://\S+)", line)
+        assert match, line
+        with MqttProbe(match.group(1)) as tcp, MqttProbe(match.group(2)) as ws:
+            tcp.publish("cli/t", b"1", retain=True)
+            ws.subscribe("cli/t")
+            assert ws.wait("cli/t").payload == b"1"
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=15)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+
+
+def test_settings_come_from_a_config_file(tmp_path: Path) -> None:
+    path = tmp_path / "broker.toml"
+    path.write_text('[broker]\nport = 1999\nws_port = 9999\nhost = "127.0.0.1"\n')
+    assert load_settings(path) == BrokerSettings(port=1999, ws_port=9999)
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("[broker]\nport = 'x'\n", "must be int"),
+        ("[broker]\nprot = 1\n", "unknown broker setting 'prot'"),
+        ("[broker]\nport = 70000\n", "outside 0..65535"),
+        ("[broker\n", "cannot read broker config"),
+    ],
+)
+def test_bad_config_files_are_refused(tmp_path: Path, text: str, problem: str) -> None:
+    path = tmp_path / "broker.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=problem):
+        load_settings(path)
+
+
+def test_a_taken_port_is_a_clear_error(broker: BrokerThread) -> None:
+    taken = BrokerThread(BrokerSettings(port=broker.port, ws_port=None))
+    with pytest.raises(ConfigError, match="cannot listen"):
+        taken.start()
+
+
+def test_a_new_client_gets_only_the_retained_messages_it_subscribed_to(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    # amqtt 0.12.1 replays every filter's retained messages to each new client; ours must not.
+    probe_factory().publish(f"{root}/a", b"for a", retain=True)
+    probe_factory().publish(f"{root}/b", b"for b", retain=True)
+    first = probe_factory()
+    first.subscribe(f"{root}/a")
+    first.wait(f"{root}/a")
+    second = probe_factory()
+    second.subscribe(f"{root}/b")
+    second.wait(f"{root}/b")
+    # The retained message of b arrived after SUBACK; a leak of a would have come before it.
+    assert second.received(f"{root}/a") == []
+    assert len(second.received(f"{root}/b")) == 1

@@ -1,0 +1,68 @@
+"""protocol.md, the code and the JSON Schemas say the same thing."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import pytest
+
+from gridfleet.protocol import TOPICS, decode, decode_direction, decode_estop, messages
+from gridfleet.protocol.schemas import SCHEMA_DIR, render, schemas
+
+DOC = Path(__file__).resolve().parent.parent / "protocol.md"
+BLOCK_RE = re.compile(r"^```(json|text) (\w+)\n(.*?)^```", re.S | re.M)
+
+
+def examples() -> list[tuple[str, str, str]]:
+    return [(lang, kind, body) for lang, kind, body in BLOCK_RE.findall(DOC.read_text())]
+
+
+def test_every_topic_kind_has_an_example() -> None:
+    covered = {kind for _, kind, _ in examples()}
+    assert covered == set(TOPICS), f"missing examples: {set(TOPICS) - covered}"
+
+
+@pytest.mark.parametrize(
+    ("lang", "kind", "body"), examples(), ids=[f"{k}-{i}" for i, (_, k, _) in enumerate(examples())]
+)
+def test_example_parses_with_the_code_and_validates_against_the_schema(
+    lang: str, kind: str, body: str
+) -> None:
+    spec = TOPICS[kind]
+    if spec.payload == "direction":
+        decode_direction(body.strip())
+        return
+    if spec.payload == "estop":
+        decode_estop(body.strip())
+        return
+    assert lang == "json" and spec.model is not None
+    model = getattr(messages, spec.model)
+    decoded = decode(model, body.encode(), spec.max_bytes)
+    schema: dict[str, Any] = json.loads((SCHEMA_DIR / f"{spec.model}.json").read_text())
+    jsonschema.validate(json.loads(body), schema)
+    # The example says exactly what the code would send for the same message.
+    assert json.loads(decoded.model_dump_json()).keys() == json.loads(body).keys()
+
+
+def test_committed_schemas_match_the_code() -> None:
+    for name, schema in schemas().items():
+        path = SCHEMA_DIR / f"{name}.json"
+        assert path.exists(), f"{path} missing: run python -m gridfleet.protocol.schemas"
+        assert path.read_text() == render(schema), (
+            f"{path} is out of date: run python -m gridfleet.protocol.schemas"
+        )
+
+
+def test_topic_table_matches_the_code() -> None:
+    text = DOC.read_text()
+    for kind, spec in TOPICS.items():
+        pattern = spec.pattern.replace("{unit}", "<unit>").replace("{client}", "<client>")
+        row = re.search(rf"^\| {kind} \| `{re.escape(pattern)}` \|(.*)$", text, re.M)
+        assert row, f"protocol.md has no topic-table row for {kind}"
+        cells = [c.strip() for c in row.group(1).split("|")]
+        assert cells[1] == str(spec.qos), f"{kind}: QoS in doc {cells[1]} != code {spec.qos}"
+        assert cells[2] == ("yes" if spec.retained else "no"), f"{kind}: retained flag differs"

@@ -1,0 +1,124 @@
+"""Maps and scenarios load, and every kind of bad file fails with one clear line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from gridfleet.errors import MapError, ScenarioError
+from gridfleet.grid import Cell, GridMap
+from gridfleet.maps import format_map, load_map, parse_map
+from gridfleet.scenario import load_scenario
+
+ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "maps"
+MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@..\n....\n"
+
+
+def test_playfield_loads(playfield: Path) -> None:
+    s = load_scenario(playfield)
+    assert (s.grid.width, s.grid.height) == (10, 10)
+    assert len(s.units) == 4 and len({u.capacity for u in s.units}) == 4
+    assert len(s.hidden_obstacles) == 2 and s.jobs
+    for cell in s.hidden_obstacles:
+        assert s.grid.is_free(cell), "hidden obstacles are not on the static map"
+    assert s.unit("unit1").start == Cell(0, 0)
+
+
+def test_map_round_trips_and_reads_walls() -> None:
+    grid = parse_map(MAP)
+    assert not grid.is_free(Cell(1, 1)) and grid.is_free(Cell(0, 0))
+    assert not grid.is_free(Cell(-1, 0)) and not grid.is_free(Cell(4, 0)), "off the map is wall"
+    assert parse_map(format_map(grid)).rows() == grid.rows()
+
+
+@pytest.mark.skipif(not ANCHORS.exists(), reason="shared anchors not beside the checkout")
+def test_public_benchmark_maps_load() -> None:
+    grid = load_map(ANCHORS / "random-32-32-20.map")
+    assert (grid.width, grid.height) == (32, 32)
+    assert len(grid.free_cells()) == 819
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("type octile\nheight 3\nwidth 4\nmap\n....\n.X..\n....\n", ":6: unknown character 'X'"),
+        ("type octile\nheight 3\nwidth 4\nmap\n....\n...\n....\n", ":6: row has 3 squares"),
+        ("type octile\nheight 3\nwidth 4\nmap\n....\n....\n", "only 2 rows"),
+        ("type octile\nheight 2\nwidth 4\nmap\n....\n....\n....\n", ":7: more rows"),
+        ("type octile\nheight x\nwidth 4\nmap\n....\n", "height 'x' is not a whole number"),
+        ("type octile\nwidth 4\nmap\n....\n", "no 'height'"),
+        ("hello\n", ":1: unknown header line"),
+        ("type octile\nheight 1\nwidth 1\n", "no 'map' line"),
+    ],
+)
+def test_bad_maps_fail_with_one_clear_line(tmp_path: Path, text: str, problem: str) -> None:
+    path = tmp_path / "bad.map"
+    path.write_text(text)
+    with pytest.raises(MapError) as info:
+        load_map(path)
+    message = str(info.value)
+    assert "\n" not in message and str(path) in message and problem in message
+
+
+UNIT = '[[units]]\nid = "u1"\nstart = [0, 0]\ncapacity = 5.0\n'
+
+
+@pytest.mark.parametrize(
+    ("body", "line", "problem"),
+    [
+        ('map = "m.map"\n' + UNIT.replace("[0, 0]", "[1, 1]"), 2, "is on a wall"),
+        ('map = "m.map"\n' + UNIT + UNIT.replace('"u1"', '"u2"'), 6, "is taken by unit 'u1'"),
+        ('map = "m.map"\n' + UNIT + UNIT, 6, "id used twice"),
+        ('map = "m.map"\n' + UNIT.replace("[0, 0]", "[4, 0]"), 2, "off the 4x3 map"),
+        ('map = "m.map"\n' + UNIT.replace("[0, 0]", "[0]"), 2, "must be [x, y]"),
+        ('map = "m.map"\n' + UNIT.replace("5.0", "0"), 2, "'capacity' must be greater than 0"),
+        ('map = "m.map"\n' + UNIT.replace('"u1"', '"u/1"'), 2, "not a valid id"),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [3, 2]\nmass = 0\n',
+            2,
+            "'mass' must be greater than 0",
+        ),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [3, 2]\nmass = -2.5\n',
+            2,
+            "'mass' must be greater than 0",
+        ),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [9, 9]\nmass = 1\n',
+            2,
+            "dropoff [9, 9] is off",
+        ),
+        ('map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [1, 1]\nmass = 1\n', 2, "on a wall"),
+        ('map = "m.map"\nhidden_obstacles = [[1, 1]]\n', 2, "hidden obstacle [1, 1] is on a wall"),
+        ('map = "m.map"\nhidden_obstacles = [[0, 0]]\n' + UNIT, 3, "is a hidden obstacle"),
+        ('map = "m.map"\n[[goals]]\nunit = "ghost"\ntarget = [0, 0]\n', 2, "unknown unit 'ghost'"),
+        ('map = "m.map"\nspeed = 3\n', 2, "unknown key 'speed'"),
+        ('map = "m.map"\n' + UNIT + 'colour = "red"\n', 2, "unknown key 'colour'"),
+        ('map = "nope.map"\n', 1, "no such map file"),
+        ('map = "m.map"\nunits = [\n', 2, "not valid TOML"),
+        ("units = []\n", 1, "'map' must name a .map file"),
+    ],
+)
+def test_bad_scenarios_fail_with_one_clear_line(
+    tmp_path: Path, body: str, line: int, problem: str
+) -> None:
+    (tmp_path / "m.map").write_text(MAP)
+    path = tmp_path / "bad.toml"
+    path.write_text(body)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}:{line}:"), message
+    assert problem in message
+
+
+def test_missing_scenario_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match="no such scenario file"):
+        load_scenario(tmp_path / "absent.toml")
+
+
+def test_gridmap_refuses_a_bad_array() -> None:
+    with pytest.raises(ValueError, match="non-empty 2-D"):
+        GridMap([])
