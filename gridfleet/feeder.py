@@ -1,0 +1,236 @@
+"""An operator client that submits a scenario's jobs and goals, and (demo) keeps jobs coming."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import random
+import uuid
+from collections.abc import Sequence
+from pathlib import Path
+
+import aiomqtt
+
+from gridfleet.bus import make_client
+from gridfleet.errors import GridfleetError, ProtocolError
+from gridfleet.grid import Cell
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+from gridfleet.protocol import (
+    TOPICS,
+    CoordinatorStatus,
+    HeaderStamper,
+    JobsView,
+    Reply,
+    SetGoal,
+    SubmitJob,
+    Topics,
+    decode,
+    encode,
+)
+from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
+from gridfleet.scenario import Scenario, load_scenario
+
+log = logging.getLogger("gridfleet.feeder")
+
+
+class Operator:
+    """Sends requests to the coordinator and awaits their replies; tracks the job queue view."""
+
+    def __init__(self, client: aiomqtt.Client, topics: Topics, client_id: str) -> None:
+        self.client = client
+        self.topics = topics
+        self.client_id = client_id
+        self.stamp = HeaderStamper(client_id)
+        self.jobs: JobsView | None = None
+        self.jobs_changed = asyncio.Event()
+        self.coordinator_online = asyncio.Event()
+        self._pending: dict[str, asyncio.Future[Reply]] = {}
+        self._count = 0
+
+    async def start(self) -> None:
+        """Subscribe to replies and the queue view."""
+        await self.client.subscribe(self.topics.reply(self.client_id), qos=1)
+        await self.client.subscribe(self.topics.fleet("jobs"), qos=1)
+        await self.client.subscribe(self.topics.fleet("coordinator"), qos=1)
+
+    async def listen(self) -> None:
+        """Route inbound messages until the client disconnects."""
+        async for message in self.client.messages:
+            payload = (
+                bytes(message.payload) if isinstance(message.payload, bytes | bytearray) else b""
+            )
+            try:
+                kind, _ = self.topics.parse(str(message.topic))
+                if kind == "reply":
+                    reply = decode(Reply, payload)
+                    future = self._pending.pop(reply.request_id, None)
+                    if future is not None and not future.done():
+                        future.set_result(reply)
+                elif kind == "jobs":
+                    self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+                    self.jobs_changed.set()
+                elif kind == "coordinator":
+                    status = decode(CoordinatorStatus, payload)
+                    if status.state == "online":
+                        self.coordinator_online.set()
+                    else:
+                        self.coordinator_online.clear()
+            except ProtocolError as exc:
+                log.warning("ignored a bad message on %s: %s", message.topic, exc)
+
+    def _next_id(self) -> str:
+        self._count += 1
+        return f"{self.client_id}-{self._count}"
+
+    async def _send(self, kind: str, request: Request, timeout: float) -> Reply:
+        future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
+        self._pending[request.request_id] = future
+        await self.client.publish(self.topics.request(kind), encode(request), qos=1)
+        try:
+            return await asyncio.wait_for(future, timeout)
+        except TimeoutError:
+            self._pending.pop(request.request_id, None)
+            raise GridfleetError(
+                f"no reply from the coordinator to {kind} within {timeout:.0f} s"
+            ) from None
+
+    async def submit_job(
+        self,
+        pickup: Cell,
+        dropoff: Cell,
+        mass_kg: float,
+        job_id: str | None = None,
+        priority: int = 0,
+        timeout: float = 10.0,
+    ) -> Reply:
+        """Queue a job; returns the coordinator's reply."""
+        request = SubmitJob(
+            header=self.stamp("submit_job"),
+            request_id=self._next_id(),
+            reply_to=self.client_id,
+            pickup=pickup,
+            dropoff=dropoff,
+            mass_kg=mass_kg,
+            priority=priority,
+            job_id=job_id,
+        )
+        return await self._send("submit_job", request, timeout)
+
+    async def set_goal(self, unit: str, target: Cell | None, timeout: float = 10.0) -> Reply:
+        """Send one unit to `target` (None clears its goal)."""
+        request = SetGoal(
+            header=self.stamp("set_goal"),
+            request_id=self._next_id(),
+            reply_to=self.client_id,
+            unit=unit,
+            target=target,
+        )
+        return await self._send("set_goal", request, timeout)
+
+    def active_jobs(self) -> int:
+        """Jobs in the queue view that are not final."""
+        if self.jobs is None:
+            return 0
+        return sum(1 for j in self.jobs.jobs if j.state not in FINAL_JOB_STATES)
+
+
+async def submit_scenario(operator: Operator, scenario: Scenario) -> list[Reply]:
+    """Submit every job and goal of `scenario`; job ids default to `<scenario>-job-<n>`."""
+    replies = []
+    for n, job in enumerate(scenario.jobs, start=1):
+        job_id = job.id or f"{scenario.name}-job-{n}"
+        reply = await operator.submit_job(job.pickup, job.dropoff, job.mass, job_id, job.priority)
+        log.info("job %s: %s", job_id, "queued" if reply.accepted else f"refused: {reply.reason}")
+        replies.append(reply)
+    for goal in scenario.goals:
+        reply = await operator.set_goal(goal.unit, goal.target)
+        log.info(
+            "goal %s -> %s: %s",
+            goal.unit,
+            list(goal.target),
+            "set" if reply.accepted else f"refused: {reply.reason}",
+        )
+        replies.append(reply)
+    return replies
+
+
+def random_job(
+    scenario: Scenario, rng: random.Random, fields: DistanceFieldCache
+) -> tuple[Cell, Cell, float]:
+    """A job some unit can carry between two distinct squares reachable from the units."""
+    free = scenario.grid.free_cells()
+    heaviest = max(u.capacity for u in scenario.units)
+    home = scenario.units[0].start
+    while True:
+        pickup, dropoff = rng.sample(free, 2)
+        if UNREACHABLE not in (fields.distance(home, pickup), fields.distance(home, dropoff)):
+            return pickup, dropoff, round(rng.uniform(0.5, heaviest), 1)
+
+
+async def feed(
+    url: str,
+    root: str,
+    scenario: Scenario,
+    demo: bool,
+    step: float,
+    keep_active: int,
+    seed: int | None = None,
+) -> None:
+    """Submit the scenario's work; in demo mode keep `keep_active` jobs in the queue forever."""
+    client_id = f"feeder-{uuid.uuid4().hex[:6]}"
+    topics = Topics(root)
+    async with make_client(url, client_id) as client:
+        operator = Operator(client, topics, client_id)
+        await operator.start()
+        listener = asyncio.create_task(operator.listen())
+        try:
+            await operator.coordinator_online.wait()
+            await submit_scenario(operator, scenario)
+            if not demo:
+                return
+            rng = random.Random(seed)
+            fields = DistanceFieldCache(scenario.grid)
+            while True:
+                await operator.jobs_changed.wait()
+                operator.jobs_changed.clear()
+                while operator.active_jobs() < keep_active:
+                    pickup, dropoff, mass = random_job(scenario, rng, fields)
+                    await operator.submit_job(pickup, dropoff, mass)
+                    await asyncio.sleep(step)  # pacing for the demo, not synchronisation
+        finally:
+            listener.cancel()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`python -m gridfleet.feeder`: run by `gridfleet up` as its operator component."""
+    parser = argparse.ArgumentParser(prog="gridfleet-feeder")
+    parser.add_argument("--broker", required=True)
+    parser.add_argument("--root", default="gridfleet")
+    parser.add_argument("--scenario", required=True, type=Path)
+    parser.add_argument("--demo", action="store_true")
+    parser.add_argument("--step", type=float, default=0.5)
+    parser.add_argument("--keep-active", type=int, default=6)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
+    try:
+        asyncio.run(
+            feed(
+                args.broker,
+                args.root,
+                load_scenario(args.scenario),
+                args.demo,
+                args.step,
+                args.keep_active,
+            )
+        )
+    except GridfleetError as exc:
+        print(f"feeder: error: {exc}")
+        return 2
+    except KeyboardInterrupt:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

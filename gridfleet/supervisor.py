@@ -1,0 +1,176 @@
+"""Runs components as child processes: prefixed logs, restart on death, ordered clean shutdown."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import re
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TextIO
+
+log = logging.getLogger("gridfleet.up")
+
+
+@dataclass
+class ChildSpec:
+    """One component: its command line and, optionally, a line that says it is ready."""
+
+    name: str
+    argv: list[str]
+    ready: re.Pattern[str] | None = None
+    restart: bool = True
+    env: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class Child:
+    """A running component and what the supervisor knows of it."""
+
+    spec: ChildSpec
+    process: asyncio.subprocess.Process | None = None
+    ready_match: re.Match[str] | None = None
+    ready_event: asyncio.Event = field(default_factory=asyncio.Event)
+    restarts: int = 0
+    started_at: float = 0.0
+
+
+class Supervisor:
+    """Starts children in order, prefixes their output, restarts the dead, stops all in reverse."""
+
+    def __init__(
+        self,
+        out: TextIO | None = None,
+        restart_delay: float = 1.0,
+        max_restarts: int = 5,
+        stop_timeout: float = 10.0,
+    ) -> None:
+        self.out = out or sys.stdout
+        self.restart_delay = restart_delay
+        self.max_restarts = max_restarts
+        self.stop_timeout = stop_timeout
+        self.children: list[Child] = []
+        self._stopping = False
+        self._watchers: list[asyncio.Task[None]] = []
+        self.failed = asyncio.Event()  # a child died too often: the whole system stops
+
+    def say(self, name: str, line: str) -> None:
+        """Print one line with the component's name in front."""
+        self.out.write(f"[{name:<11}] {line}\n")
+        self.out.flush()
+
+    async def start(self, spec: ChildSpec, ready_timeout: float = 60.0) -> Child:
+        """Start a child; when it has a ready pattern, wait until its output matches."""
+        child = Child(spec)
+        self.children.append(child)
+        await self._spawn(child)
+        self._watchers.append(asyncio.create_task(self._watch(child)))
+        if spec.ready is not None:
+            try:
+                await asyncio.wait_for(child.ready_event.wait(), ready_timeout)
+            except TimeoutError:
+                raise RuntimeError(
+                    f"{spec.name} did not become ready in {ready_timeout:.0f} s"
+                ) from None
+        return child
+
+    async def _spawn(self, child: Child) -> None:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", **child.spec.env}
+        # A session of its own: a terminal's Ctrl-C reaches only the supervisor, which then stops
+        # the children in a safe order (units first, broker last).
+        child.process = await asyncio.create_subprocess_exec(
+            *child.spec.argv,
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+            stdin=asyncio.subprocess.DEVNULL,
+            env=env,
+            start_new_session=True,
+        )
+        child.started_at = time.monotonic()
+        self.say(child.spec.name, f"started (pid {child.process.pid})")
+
+    async def _pump(self, child: Child) -> None:
+        proc = child.process
+        assert proc is not None and proc.stdout is not None
+        while True:
+            raw = await proc.stdout.readline()
+            if not raw:
+                return
+            line = raw.decode("utf-8", "replace").rstrip()
+            self.say(child.spec.name, line)
+            if child.spec.ready is not None and not child.ready_event.is_set():
+                match = child.spec.ready.search(line)
+                if match:
+                    child.ready_match = match
+                    child.ready_event.set()
+
+    async def _watch(self, child: Child) -> None:
+        while True:
+            await self._pump(child)
+            assert child.process is not None
+            code = await child.process.wait()
+            if self._stopping:
+                return
+            self.say(child.spec.name, f"exited with code {code}")
+            if not child.spec.restart:
+                return
+            if child.restarts >= self.max_restarts:
+                self.say(child.spec.name, f"died {child.restarts + 1} times; giving up")
+                self.failed.set()
+                return
+            child.restarts += 1
+            self.say(
+                child.spec.name,
+                f"restarting in {self.restart_delay:.0f} s "
+                f"(restart {child.restarts} of {self.max_restarts})",
+            )
+            await asyncio.sleep(self.restart_delay)
+            if self._stopping:
+                return
+            child.ready_event.clear()
+            await self._spawn(child)
+
+    async def stop(self) -> None:
+        """Stop every child, last started first: SIGTERM, then SIGKILL after the timeout."""
+        self._stopping = True
+        for child in reversed(self.children):
+            proc = child.process
+            if proc is None or proc.returncode is not None:
+                continue
+            proc.send_signal(signal.SIGTERM)
+            try:
+                await asyncio.wait_for(proc.wait(), self.stop_timeout)
+                self.say(child.spec.name, f"stopped (code {proc.returncode})")
+            except TimeoutError:
+                proc.kill()
+                await proc.wait()
+                self.say(child.spec.name, "did not stop in time; killed")
+        for task in self._watchers:
+            task.cancel()
+        await asyncio.gather(*self._watchers, return_exceptions=True)
+
+    def pids(self) -> list[int]:
+        """Process ids of the children now running."""
+        return [
+            c.process.pid
+            for c in self.children
+            if c.process is not None and c.process.returncode is None
+        ]
+
+
+async def run_until_signal(supervisor: Supervisor, body: Callable[[], object] | None = None) -> int:
+    """Wait for SIGINT/SIGTERM (or a child that keeps dying), then stop everything."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    waiters = [asyncio.create_task(stop.wait()), asyncio.create_task(supervisor.failed.wait())]
+    await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+    for w in waiters:
+        w.cancel()
+    await supervisor.stop()
+    return 1 if supervisor.failed.is_set() else 0
