@@ -1,0 +1,62 @@
+"""A listener on a whole fleet's topics: unit states, jobs, routes, and a count of messages."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import aiomqtt
+
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
+
+log = logging.getLogger("gridfleet.monitor")
+
+
+class FleetMonitor:
+    """Subscribes to `<root>/v1/#` at QoS 0 and keeps the latest view of the fleet."""
+
+    def __init__(self, client: aiomqtt.Client, topics: Topics, record: bool = False) -> None:
+        self.client = client
+        self.topics = topics
+        self.record = record
+        self.history: list[UnitState] = []  # every state seen, when `record` is set
+        self.routes: list[Routes] = []  # every routes view seen, when `record` is set
+        self.states: dict[str, UnitState] = {}
+        self.jobs: JobsView | None = None
+        self.map: FleetMap | None = None
+        self.step = 0
+        self.messages = 0
+        self.changed = asyncio.Event()
+
+    async def start(self) -> None:
+        """Subscribe to everything under the root."""
+        await self.client.subscribe(f"{self.topics.prefix}/#", qos=0)
+
+    async def listen(self) -> None:
+        """Consume messages until the client disconnects."""
+        async for message in self.client.messages:
+            self.messages += 1
+            payload = message.payload if isinstance(message.payload, bytes | bytearray) else b""
+            try:
+                kind, unit = self.topics.parse(str(message.topic))
+                if kind == "state" and unit is not None:
+                    state = decode(UnitState, bytes(payload))
+                    self.states[unit] = state
+                    if self.record:
+                        self.history.append(state)
+                elif kind == "jobs":
+                    self.jobs = decode(JobsView, bytes(payload), TOPICS["jobs"].max_bytes)
+                elif kind == "map":
+                    self.map = decode(FleetMap, bytes(payload), TOPICS["map"].max_bytes)
+                elif kind == "routes":
+                    routes = decode(Routes, bytes(payload), TOPICS["routes"].max_bytes)
+                    self.step = max(self.step, routes.step)
+                    if self.record:
+                        self.routes.append(routes)
+                else:
+                    continue
+            except ProtocolError as exc:
+                log.warning("ignored a bad message on %s: %s", message.topic, exc)
+                continue
+            self.changed.set()

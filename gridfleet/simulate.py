@@ -1,0 +1,230 @@
+"""`gridfleet simulate`: run a scenario on the real components, over MQTT, to the end."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import logging
+import sys
+import tempfile
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from broker.embedded import BrokerSettings, EmbeddedBroker
+from gridfleet.bus import make_client
+from gridfleet.cli import add_common
+from gridfleet.feeder import Operator, submit_scenario
+from gridfleet.grid import Cell
+from gridfleet.monitor import FleetMonitor
+from gridfleet.protocol import Topics
+from gridfleet.protocol.messages import FINAL_JOB_STATES
+from gridfleet.scenario import Scenario, load_scenario
+
+log = logging.getLogger("gridfleet.simulate")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet simulate`."""
+    parser.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    parser.add_argument(
+        "--step",
+        type=float,
+        default=0.02,
+        help="step period in seconds (default 0.02: accelerated time)",
+    )
+    parser.add_argument(
+        "--max-steps",
+        type=int,
+        default=2000,
+        help="give up after this many coordinator steps (default 2000)",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object as the result")
+    add_common(parser)
+    parser.set_defaults(broker=None)
+
+
+@dataclass
+class GoalProgress:
+    """A goal of the scenario and when it was first reached."""
+
+    unit: str
+    target: Cell
+    step: int | None = None
+
+
+@dataclass
+class Outcome:
+    """The result of one simulation run."""
+
+    steps: int = 0
+    finished: bool = False
+    collisions: int = 0
+    prevented: int = 0
+    messages: int = 0
+    wall_time_s: float = 0.0
+    units: list[dict[str, Any]] = field(default_factory=list)
+    jobs: list[dict[str, Any]] = field(default_factory=list)
+    goals: list[dict[str, Any]] = field(default_factory=list)
+    monitor: FleetMonitor | None = field(default=None, repr=False)  # for tests; not in the JSON
+
+    @property
+    def ok(self) -> bool:
+        """Everything finished with zero collisions."""
+        return self.finished and self.collisions == 0
+
+    def as_json(self) -> dict[str, Any]:
+        """The documented JSON shape."""
+        return {
+            "steps": self.steps,
+            "finished": self.finished,
+            "collisions": self.collisions,
+            "prevented": self.prevented,
+            "units": self.units,
+            "jobs": self.jobs,
+            "goals": self.goals,
+            "messages": self.messages,
+            "wall_time_s": self.wall_time_s,
+        }
+
+
+def _all_done(monitor: FleetMonitor, scenario: Scenario, goals: list[GoalProgress]) -> bool:
+    for goal in goals:
+        state = monitor.states.get(goal.unit)
+        if goal.step is None and state is not None and state.position == goal.target:
+            goal.step = monitor.step
+    jobs = monitor.jobs.jobs if monitor.jobs is not None else []
+    jobs_done = len(jobs) >= len(scenario.jobs) and all(j.state in FINAL_JOB_STATES for j in jobs)
+    return jobs_done and all(g.step is not None for g in goals)
+
+
+async def simulate(
+    scenario: Scenario, step: float, max_steps: int, root: str, broker_url: str | None = None
+) -> Outcome:
+    """Run broker, coordinator and units in this process until the scenario is done."""
+    from coordinator.service import Coordinator
+    from robots.fleet import Fleet
+
+    started = time.monotonic()
+    outcome = Outcome()
+    goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
+    topics = Topics(root)
+    async with contextlib.AsyncExitStack() as stack:
+        if broker_url is None:
+            broker = await stack.enter_async_context(
+                EmbeddedBroker(BrokerSettings(port=0, ws_port=None))
+            )
+            broker_url = broker.url
+        db_dir = stack.enter_context(tempfile.TemporaryDirectory(prefix="gridfleet-sim-"))
+        stop = asyncio.Event()
+        coordinator = Coordinator(
+            broker_url, scenario.grid, root=root, step=step, db_path=Path(db_dir) / "jobs.db"
+        )
+        fleet = Fleet(scenario, broker_url, root=root, step=step)
+        tasks = [asyncio.create_task(coordinator.run(stop)), asyncio.create_task(fleet.run(stop))]
+        client_id = f"simulate-{uuid.uuid4().hex[:6]}"
+        client = await stack.enter_async_context(make_client(broker_url, client_id))
+        monitor_client = await stack.enter_async_context(make_client(broker_url, client_id + "-m"))
+        operator = Operator(client, topics, client_id)
+        monitor = FleetMonitor(monitor_client, topics, record=record)
+        outcome.monitor = monitor
+        await operator.start()
+        await monitor.start()
+        listeners = [asyncio.create_task(operator.listen()), asyncio.create_task(monitor.listen())]
+        try:
+            await asyncio.wait_for(fleet.ready.wait(), 30)
+            await asyncio.wait_for(operator.coordinator_online.wait(), 30)
+            await submit_scenario(operator, scenario)
+            while monitor.step < max_steps and not _all_done(monitor, scenario, goals):
+                for t in tasks:
+                    if t.done():
+                        t.result()  # a component that died ends the run with its error
+                monitor.changed.clear()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(monitor.changed.wait(), 10 * step + 1)
+            outcome.finished = _all_done(monitor, scenario, goals)
+        finally:
+            stop.set()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            for listener in listeners:
+                listener.cancel()
+        world = fleet.world
+        outcome.steps = monitor.step
+        outcome.collisions = world.collisions
+        outcome.prevented = world.prevented
+        outcome.messages = monitor.messages
+        outcome.units = [
+            {
+                "id": u.id,
+                "capacity": u.capacity,
+                "position": list(world.position(u.id)),
+                "moves": world.moves[u.id],
+            }
+            for u in scenario.units
+        ]
+        jobs = monitor.jobs.jobs if monitor.jobs is not None else []
+        outcome.jobs = [
+            {
+                "id": j.id,
+                "pickup": list(j.pickup),
+                "dropoff": list(j.dropoff),
+                "mass": j.mass_kg,
+                "state": j.state,
+                "unit": j.unit,
+                "done_step": j.done_step,
+                "reason": j.reason,
+            }
+            for j in jobs
+        ]
+        outcome.goals = [
+            {
+                "unit": g.unit,
+                "target": list(g.target),
+                "reached": g.step is not None,
+                "step": g.step,
+            }
+            for g in goals
+        ]
+    outcome.wall_time_s = round(time.monotonic() - started, 3)
+    return outcome
+
+
+def summary(outcome: Outcome, scenario: Scenario) -> str:
+    """A few human lines about the run."""
+    done = sum(1 for j in outcome.jobs if j["state"] == "done")
+    lines = [
+        f"{scenario.name}: {'finished' if outcome.finished else 'NOT finished'} in "
+        f"{outcome.steps} steps ({outcome.wall_time_s:.1f} s), {outcome.collisions} collisions,"
+        f" {outcome.prevented} prevented moves, {outcome.messages} messages",
+        f"jobs: {done} done of {len(outcome.jobs)}",
+    ]
+    for job in outcome.jobs:
+        if job["state"] != "done":
+            lines.append(
+                f"  {job['id']}: {job['state']}" + (f" ({job['reason']})" if job["reason"] else "")
+            )
+    for goal in outcome.goals:
+        lines.append(
+            f"goal {goal['unit']} -> {goal['target']}: "
+            + (f"reached at step {goal['step']}" if goal["reached"] else "not reached")
+        )
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of `gridfleet simulate`."""
+    scenario = load_scenario(args.scenario)
+    if args.json:
+        # Keep stdout for the one JSON object.
+        logging.getLogger().setLevel(logging.WARNING)
+    outcome = asyncio.run(simulate(scenario, args.step, args.max_steps, args.root, args.broker))
+    if args.json:
+        json.dump(outcome.as_json(), sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print(summary(outcome, scenario))
+    return 0 if outcome.ok else 1
