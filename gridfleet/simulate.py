@@ -103,7 +103,12 @@ def _all_done(monitor: FleetMonitor, scenario: Scenario, goals: list[GoalProgres
 
 
 async def simulate(
-    scenario: Scenario, step: float, max_steps: int, root: str, broker_url: str | None = None
+    scenario: Scenario,
+    step: float,
+    max_steps: int,
+    root: str,
+    broker_url: str | None = None,
+    record: bool = False,
 ) -> Outcome:
     """Run broker, coordinator and units in this process until the scenario is done."""
     from coordinator.service import Coordinator
