@@ -1,0 +1,113 @@
+"""`gridfleet up` brings the whole system up, and Ctrl-C leaves nothing running."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from gridfleet.protocol import Connection, Topics, decode
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.wait import wait_for
+
+pytestmark = pytest.mark.slow
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+class Output:
+    """Collects a process's output lines in a thread, so tests can wait for a line."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.lines: list[str] = []
+        assert proc.stdout is not None
+        stream = proc.stdout
+        self._thread = threading.Thread(
+            target=lambda: self.lines.extend(iter(stream.readline, "")), daemon=True
+        )
+        self._thread.start()
+
+    def wait(self, pattern: str, timeout: float = 60) -> re.Match[str]:
+        regex = re.compile(pattern)
+        return wait_for(
+            lambda: next((m for m in map(regex.search, list(self.lines)) if m), None),
+            timeout,
+            what=f"output matching {pattern!r}",
+        )
+
+    @property
+    def text(self) -> str:
+        return "".join(self.lines)
+
+
+def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
+    broker: BrokerThread,
+    root: str,
+    tmp_path: Path,
+    probe_factory: Callable[..., MqttProbe],
+    playfield: Path,
+) -> None:
+    topics = Topics(root)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gridfleet.cli",
+            "up",
+            "--broker",
+            broker.url,
+            "--broker-ws",
+            broker.ws_url,
+            "--root",
+            root,
+            "--port",
+            "0",
+            "--step",
+            "0.05",
+            "--db",
+            str(tmp_path / "jobs.db"),
+            "--scenario",
+            str(playfield),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    out = Output(proc)
+    try:
+        out.wait(r"gridfleet is running: open http://127\.0\.0\.1:\d+", timeout=90)
+        probe = probe_factory()
+        probe.subscribe(topics.all_units("state"), qos=0)
+        # Every unit of the playfield is online and moving through the real components.
+        for unit in ("unit1", "unit2", "unit3", "unit4"):
+            probe.wait(topics.unit("state", unit), timeout=30)
+        probe.subscribe(topics.fleet("jobs"))
+        probe.wait(topics.fleet("jobs"), lambda m: b"playfield-job-1" in m.payload, timeout=30)
+        pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", out.text)]
+        assert len(pids) >= 4
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text[-3000:]
+    assert "Traceback" not in out.text
+    wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
+    # Each unit said "offline" on its way out.
+    checker = probe_factory()
+    checker.subscribe(topics.all_units("connection"))
+    for unit in ("unit1", "unit2", "unit3", "unit4"):
+        seen = checker.wait(topics.unit("connection", unit))
+        assert decode(Connection, seen.payload).state == "offline"
