@@ -1,0 +1,353 @@
+"""The pure core of one unit: orders, emergency stop, holding, LEDs, route following, own planning.
+
+No sockets and no clock: the I/O shell feeds it sensor readings, orders, the emergency stop and
+how long ago the last order came, and performs the move it asks for in the world.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+from typing import Literal
+
+from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance_field, route
+from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MAX_TEXT, MIN_TIMEOUT_S
+from gridfleet.protocol.messages import (
+    Action,
+    Header,
+    Leds,
+    Order,
+    Sensors,
+    UnitError,
+    UnitState,
+    UnitStatus,
+)
+from robots.world import Reading
+
+Mode = Literal["coordinated", "standalone"]
+OrderOutcome = Literal["accepted", "stale", "refused", "ignored"]
+MAX_ERRORS = 16
+AVOID_STEPS = 4  # how long a standalone unit keeps out of a square where a unit blocked it
+
+_NO_SENSORS: dict[Direction, Reading] = dict.fromkeys(Direction, "free")
+_THING = {"wall": "a wall", "obstacle": "an obstacle", "unit": "another unit"}
+
+
+def sq(cell: Cell) -> str:
+    """A square as protocol.md writes it: [x, y]."""
+    return f"[{cell.x}, {cell.y}]"
+
+
+@dataclass(frozen=True)
+class Intent:
+    """What the unit wants to do next: a move (or None) with the status and reason if it cannot."""
+
+    move: Direction | None
+    status: UnitStatus
+    reason: str | None = None
+
+
+class UnitLogic:
+    """One unit's decisions; every input is a method call, every output a field or return value."""
+
+    def __init__(
+        self,
+        unit_id: str,
+        grid: GridMap,
+        start: Cell,
+        capacity_kg: float,
+        step_s: float,
+        mode: Mode = "coordinated",
+        goal: Cell | None = None,
+    ) -> None:
+        self.unit_id = unit_id
+        self.grid = grid
+        self.position = start
+        self.capacity_kg = capacity_kg
+        self.step_s = step_s
+        self.mode: Mode = mode
+        self.goal = goal
+        self.step = 0
+        self.status: UnitStatus = "idle"
+        self.wait_reason: str | None = None
+        self.direction: Direction | None = None  # intended move of the coming step (the LEDs)
+        self.sensors: dict[Direction, Reading] = dict(_NO_SENSORS)
+        self.estop = False
+        self.estop_known = True  # the shell sets False until it has read the retained value
+        self.connected = True
+        self.coordinator_step_s = step_s
+        self.order_id: str | None = None
+        self.order_update_id = 0
+        self.released: list[Cell] = []
+        self.action: Action | None = None
+        self._acted: tuple[str | None, int, str] | None = None
+        self.job_id: str | None = None
+        self.load_kg = 0.0
+        self.known_obstacles: set[Cell] = set()
+        self.new_obstacles: list[Cell] = []
+        self.errors: list[UnitError] = []
+        self._fields = DistanceFieldCache(grid)
+        self._avoid: dict[Cell, int] = {}
+        self._waited = 0
+        # Units give way after different waits, so two of them never step aside in lock-step.
+        self.patience = 2 + zlib.crc32(unit_id.encode()) % 4
+
+    # ---- inputs -------------------------------------------------------------------------------
+
+    @property
+    def hold_timeout_s(self) -> float:
+        """How long a coordinated unit waits for an order before it holds still (protocol §8)."""
+        return max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * max(self.step_s, self.coordinator_step_s))
+
+    def error(self, code: str, message: str) -> None:
+        """Report a problem in the next state's `errors`."""
+        self.errors.append(UnitError(code=code, message=message[:MAX_TEXT]))
+        del self.errors[:-MAX_ERRORS]
+
+    def on_order(self, order: Order) -> OrderOutcome:
+        """Take an order: stale ones change nothing, bad ones are refused with a `bad_order` error."""
+        if self.mode != "coordinated":
+            return "ignored"
+        if order.order_id == self.order_id and order.update_id <= self.order_update_id:
+            return "stale"
+        released = [Cell(*c) for c in order.released]
+        if self.position in released:
+            # The unit already drove the leading squares (the order was planned from an older
+            # state): it follows on from where it stands.
+            released = released[released.index(self.position) + 1 :]
+        problem = self._check_route(released)
+        if problem is None and order.action is not None:
+            square = Cell(*order.action.square)
+            if not self.grid.is_free(square):
+                problem = f"action square {sq(square)} is off the map or on a wall"
+        if problem is not None:
+            self.error("bad_order", f"order {order.order_id!r} update {order.update_id}: {problem}")
+            return "refused"
+        self.order_id = order.order_id
+        self.order_update_id = order.update_id
+        self.released = released
+        if self.action != order.action:
+            self.action = order.action
+        return "accepted"
+
+    def _check_route(self, released: list[Cell]) -> str | None:
+        here = self.position
+        for i, cell in enumerate(released):
+            if not self.grid.in_bounds(cell):
+                return f"released square {sq(cell)} is off the {self.grid.width}x{self.grid.height} map"
+            if not self.grid.is_free(cell):
+                return f"released square {sq(cell)} is a wall"
+            if here.manhattan(cell) != 1:
+                before = "the unit's square" if i == 0 else "the square before it"
+                return f"released square {sq(cell)} is not adjacent to {before} {sq(here)}"
+            here = cell
+        return None
+
+    def on_goal(self, target: Cell | None) -> bool:
+        """Set or clear the standalone goal; a goal off the map or on a wall is refused."""
+        if self.mode != "standalone":
+            return False
+        if target is not None and (not self.grid.is_free(target) or target in self.known_obstacles):
+            self.error("bad_goal", f"goal {sq(target)} is off the map, on a wall or an obstacle")
+            return False
+        self.goal = target
+        self._avoid.clear()
+        self._waited = 0
+        return True
+
+    def on_estop(self, engaged: bool) -> None:
+        """The latched emergency stop; engaging drops every released square (orders resume it)."""
+        self.estop_known = True
+        if engaged and not self.estop:
+            self.released = []
+        self.estop = engaged
+
+    def sense(self, readings: dict[Direction, Reading]) -> None:
+        """Take fresh sensor readings; an obstacle seen for the first time is reported once."""
+        self.sensors = dict(readings)
+        for d, reading in readings.items():
+            cell = self.position.step(d)
+            # Fixed obstacles are on everyone's map already: only report what the map lacks.
+            if (
+                reading == "obstacle"
+                and self.grid.is_free(cell)
+                and cell not in self.known_obstacles
+            ):
+                self.known_obstacles.add(cell)
+                self.new_obstacles.append(cell)
+                self._fields = DistanceFieldCache(self.grid.with_blocked(self.known_obstacles))
+
+    # ---- the step -----------------------------------------------------------------------------
+
+    def begin_step(
+        self, readings: dict[Direction, Reading], since_order_s: float | None
+    ) -> Direction | None:
+        """Start a step: the move to make now, or None to stay (status says why)."""
+        self.step += 1
+        self.sense(readings)
+        intent = self._intent(since_order_s, waiting_counts=True)
+        self.status, self.wait_reason = intent.status, intent.reason
+        if intent.move is not None and intent.move != self.direction:
+            # The LEDs must show a move before it is made: show it now, move next step.
+            self.direction = intent.move
+            self.status, self.wait_reason = "waiting", "showing the new direction before moving"
+            return None
+        if intent.move is None:
+            self.direction = None
+        return intent.move
+
+    def end_step(
+        self,
+        moved: Direction | None,
+        readings: dict[Direction, Reading],
+        since_order_s: float | None,
+    ) -> None:
+        """Finish a step: `moved` is the move the world performed (None if none or refused)."""
+        if moved is not None:
+            self.position = self.position.step(moved)
+            self.status, self.wait_reason = "moving", None
+            if self.released and self.released[0] == self.position:
+                self.released.pop(0)
+            self._waited = 0
+        elif self.direction is not None and self.status == "moving":
+            self.status = "waiting"
+            self.wait_reason = (
+                f"the world refused the move to {sq(self.position.step(self.direction))}"
+            )
+        self.sense(readings)
+        self._act()
+        self.refresh(since_order_s)
+
+    def refresh(self, since_order_s: float | None) -> None:
+        """Recompute the intended move (the LEDs) after anything changed between steps."""
+        intent = self._intent(since_order_s, waiting_counts=False)
+        self.direction = intent.move
+        if intent.status in ("stopped", "holding") or self.status in ("stopped", "holding"):
+            self.status, self.wait_reason = intent.status, intent.reason
+
+    def _intent(self, since_order_s: float | None, waiting_counts: bool) -> Intent:
+        if self.estop:
+            return Intent(None, "stopped", "emergency stop engaged")
+        if not self.estop_known:
+            return Intent(None, "holding", "waiting to read the emergency stop")
+        if not self.connected:
+            return Intent(None, "holding", "lost the broker; reconnecting")
+        if self.mode == "coordinated":
+            if since_order_s is not None and since_order_s > self.hold_timeout_s:
+                self.released = []
+                return Intent(
+                    None, "holding", f"no order from the coordinator for {since_order_s:.1f} s"
+                )
+            self._act()
+            return self._follow_order()
+        return self._follow_goal(waiting_counts)
+
+    def _follow_order(self) -> Intent:
+        if not self.released:
+            return Intent(None, "idle")
+        nxt = self.released[0]
+        d = self.position.direction_to(nxt)
+        if d is None:  # cannot happen: orders are checked to be contiguous
+            self.released = []
+            return Intent(None, "idle")
+        reading = self.sensors[d]
+        if reading != "free":
+            return Intent(
+                None, "waiting", f"released square {sq(nxt)} is blocked by {_THING[reading]}"
+            )
+        return Intent(d, "moving")
+
+    def _act(self) -> None:
+        a = self.action
+        if a is None or self.released or self.position != a.square or self.estop:
+            return
+        key = (self.order_id, self.order_update_id, f"{a.kind}:{a.job_id}")
+        if self._acted is not None and self._acted[0] == key[0] and self._acted[2] == key[2]:
+            return
+        self._acted = key
+        if a.kind == "pick":
+            if self.job_id == a.job_id:
+                return
+            if self.job_id is not None:
+                self.error("bad_action", f"cannot pick {a.job_id!r}: carrying {self.job_id!r}")
+            elif self.load_kg + a.mass_kg > self.capacity_kg:
+                self.error(
+                    "over_capacity",
+                    f"cannot pick {a.job_id!r} of {a.mass_kg} kg: capacity {self.capacity_kg} kg",
+                )
+            else:
+                self.job_id, self.load_kg = a.job_id, self.load_kg + a.mass_kg
+        elif self.job_id == a.job_id:
+            self.job_id, self.load_kg = None, 0.0
+
+    def _follow_goal(self, waiting_counts: bool) -> Intent:
+        if self.goal is None:
+            return Intent(None, "idle")
+        if self.position == self.goal:
+            return Intent(None, "idle", None)
+        self._avoid = {c: until for c, until in self._avoid.items() if until > self.step}
+        path = self._plan(avoid=True) or self._plan(avoid=False)
+        if not path:
+            return Intent(None, "waiting", f"no known route to the goal {sq(self.goal)}")
+        nxt = path[0]
+        d = self.position.direction_to(nxt)
+        assert d is not None
+        reading = self.sensors[d]
+        if reading == "free":
+            return Intent(d, "moving")
+        if reading == "unit" and waiting_counts:
+            self._waited += 1
+            if self._waited >= self.patience:
+                # Waited long enough: route around that unit for a while.
+                self._avoid[nxt] = self.step + AVOID_STEPS
+                self._waited = 0
+        return Intent(None, "waiting", f"next square {sq(nxt)} is blocked by {_THING[reading]}")
+
+    def _plan(self, avoid: bool) -> list[Cell] | None:
+        assert self.goal is not None
+        if avoid:
+            if not self._avoid:
+                return None
+            grid = self._fields.grid.with_blocked(c for c in self._avoid if c != self.goal)
+            field = distance_field(grid, self.goal)
+        else:
+            field = self._fields.get(self.goal)
+        if int(field[self.position.y, self.position.x]) == UNREACHABLE:
+            return None
+        return route(field, self.position)
+
+    # ---- outputs ------------------------------------------------------------------------------
+
+    def leds(self) -> Leds:
+        """All four when emergency-stopped, else exactly the LED of the intended move (or none)."""
+        if self.estop:
+            return Leds(N=True, E=True, S=True, W=True)
+        d = self.direction
+        return Leds(N=d is Direction.N, E=d is Direction.E, S=d is Direction.S, W=d is Direction.W)
+
+    def report(self, header: Header) -> UnitState:
+        """The state message; obstacles and errors in it are reported once, then forgotten."""
+        state = UnitState(
+            header=header,
+            step=self.step,
+            position=self.position,
+            direction="-" if self.direction is None else self.direction.value,
+            status=self.status,
+            wait_reason=self.wait_reason,
+            mode=self.mode,
+            job_id=self.job_id,
+            load_kg=self.load_kg,
+            leds=self.leds(),
+            sensors=Sensors(**{d.value: r for d, r in self.sensors.items()}),
+            obstacles=[(c.x, c.y) for c in self.new_obstacles[:4]],
+            order_id=self.order_id,
+            order_update_id=self.order_update_id,
+            released=[(c.x, c.y) for c in self.released],
+            goal=self.goal,
+            estop=self.estop,
+            errors=self.errors,
+        )
+        self.new_obstacles = self.new_obstacles[4:]
+        self.errors = []
+        return state
