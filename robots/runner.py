@@ -30,7 +30,7 @@ from gridfleet.protocol import (
     encode_direction,
 )
 from gridfleet.protocol.constants import MAX_TEXT
-from robots.unit import UnitLogic
+from robots.unit import UnitLogic, step_in
 from robots.world import WorldSim
 
 log = logging.getLogger(__name__)
@@ -192,10 +192,7 @@ class UnitRunner:
             and self._now() >= self._estop_deadline
         ):
             self.logic.estop_known = True  # no retained stop on the broker: it is not engaged
-        since = self.since_order_s()
-        move = self.logic.begin_step(self.world.sense(self.id), since)
-        moved = move if move is not None and self.world.move(self.id, move) else None
-        self.logic.end_step(moved, self.world.sense(self.id), since)
+        step_in(self.world, self.logic, self.since_order_s())
 
     # ---- inbound ----------------------------------------------------------------------------
 

@@ -23,7 +23,7 @@ from gridfleet.protocol.messages import (
     UnitState,
     UnitStatus,
 )
-from robots.world import Reading
+from robots.world import Reading, WorldSim
 
 Mode = Literal["coordinated", "standalone"]
 OrderOutcome = Literal["accepted", "stale", "refused", "ignored"]
@@ -351,3 +351,11 @@ class UnitLogic:
         self.new_obstacles = self.new_obstacles[4:]
         self.errors = []
         return state
+
+
+def step_in(world: WorldSim, logic: UnitLogic, since_order_s: float | None) -> Direction | None:
+    """One step of `logic` in `world`: sense, decide, move atomically; the move made, if any."""
+    move = logic.begin_step(world.sense(logic.unit_id), since_order_s)
+    moved = move if move is not None and world.move(logic.unit_id, move) else None
+    logic.end_step(moved, world.sense(logic.unit_id), since_order_s)
+    return moved
