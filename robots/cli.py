@@ -52,9 +52,7 @@ def build(args: argparse.Namespace) -> Fleet:
         units = [u.strip() for u in args.units.split(",") if u.strip()]
         if not units:
             raise ConfigError("--units: give at least one unit id")
-    return Fleet(
-        scenario, args.broker, root=args.root, units=units, step_s=args.step, mode=args.mode
-    )
+    return Fleet(scenario, args.broker, root=args.root, units=units, step=args.step, mode=args.mode)
 
 
 def run(args: argparse.Namespace) -> int:

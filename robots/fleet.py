@@ -26,7 +26,7 @@ class Fleet:
         *,
         root: str = DEFAULT_ROOT,
         units: Sequence[str] | None = None,
-        step_s: float = DEFAULT_STEP_S,
+        step: float = DEFAULT_STEP_S,
         mode: Mode = "coordinated",
         goals: Mapping[str, Cell] | None = None,
         reconnect_s: float = 0.1,
@@ -40,8 +40,8 @@ class Fleet:
                 )
         if not local:
             raise ConfigError(f"no units to run: scenario {scenario.name!r} has none")
-        if not 0 < step_s <= 60:
-            raise ConfigError(f"step period {step_s} s is outside 0 < s <= 60")
+        if not 0 < step <= 60:
+            raise ConfigError(f"step period {step} s is outside 0 < s <= 60")
         self.scenario = scenario
         self.topics = Topics(root)
         self.world = WorldSim.from_scenario(scenario)
@@ -59,7 +59,7 @@ class Fleet:
                 scenario.grid,
                 spec.start,
                 spec.capacity,
-                step_s,
+                step,
                 mode=mode,
                 goal=wanted.get(spec.id),
             )

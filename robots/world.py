@@ -56,6 +56,10 @@ class WorldSim:
         """How many collisions happened (vertex, swap, into a wall or obstacle)."""
         return len(self.log)
 
+    def position(self, unit_id: str) -> Cell:
+        """Where `unit_id` is (KeyError for an unknown unit)."""
+        return self.positions[unit_id]
+
     def square(self, cell: Cell, exclude: str | None = None) -> Reading:
         """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
         if not self.grid.in_bounds(cell):

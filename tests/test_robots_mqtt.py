@@ -55,7 +55,7 @@ async def running(
     sc: Scenario, url: str, root: str, mode: Mode = "coordinated", **kw: object
 ) -> AsyncIterator[Fleet]:
     """A fleet running in this event loop until the block ends; then it stops cleanly."""
-    fleet = Fleet(sc, url, root=root, step_s=kw.pop("step_s", STEP), mode=mode, **kw)  # type: ignore[arg-type]
+    fleet = Fleet(sc, url, root=root, step=kw.pop("step", STEP), mode=mode, **kw)  # type: ignore[arg-type]
     stop = asyncio.Event()
     task = asyncio.create_task(fleet.run(stop))
     try:
@@ -332,7 +332,7 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
 ) -> None:
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root, step_s=0.05, reconnect_s=1.0) as fleet:
+    async with running(sc, broker.url, root, step=0.05, reconnect_s=1.0) as fleet:
         runner = fleet.runners["u1"]
         c.order("u1", "o1", 1, [(x, 0) for x in range(1, 20)])
         await async_wait_for(lambda: fleet.world.moves["u1"] >= 1)
