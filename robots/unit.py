@@ -6,6 +6,7 @@ how long ago the last order came, and performs the move it asks for in the world
 
 from __future__ import annotations
 
+import random
 import zlib
 from dataclasses import dataclass
 from typing import Literal
@@ -29,6 +30,9 @@ Mode = Literal["coordinated", "standalone"]
 OrderOutcome = Literal["accepted", "stale", "refused", "ignored"]
 MAX_ERRORS = 16
 AVOID_STEPS = 4  # how long a standalone unit keeps out of a square where a unit blocked it
+PAUSE_STEPS = 3  # how long a unit that stepped aside stays there to let the other pass
+QUIET_STEPS = 3  # steps without the other unit in front that end giving way
+DETOUR_MAX = 4  # extra steps a unit accepts to route around another rather than give way
 
 _NO_SENSORS: dict[Direction, Reading] = dict.fromkeys(Direction, "free")
 _THING = {"wall": "a wall", "obstacle": "an obstacle", "unit": "another unit"}
@@ -90,8 +94,15 @@ class UnitLogic:
         self._fields = DistanceFieldCache(grid)
         self._avoid: dict[Cell, int] = {}
         self._waited = 0
-        # Units give way after different waits, so two of them never step aside in lock-step.
-        self.patience = 2 + zlib.crc32(unit_id.encode()) % 4
+        self._yield_from: Direction | None = None  # giving way to a unit on this side
+        self._quiet = 0
+        self._pause_until = 0
+        self._gave_way = False  # gave way since its last progress: next time it routes around
+        self._best = UNREACHABLE  # closest it has been to the goal (progress resets _gave_way)
+        # Units give way after different, re-drawn waits, so two of them never do it in
+        # lock-step; the generator is seeded by the id, so runs repeat exactly.
+        self._rng = random.Random(zlib.crc32(unit_id.encode()))
+        self.patience = self._rng.randint(2, 6)
 
     # ---- inputs -------------------------------------------------------------------------------
 
@@ -154,6 +165,10 @@ class UnitLogic:
         self.goal = target
         self._avoid.clear()
         self._waited = 0
+        self._yield_from = None
+        self._pause_until = 0
+        self._gave_way = False
+        self._best = UNREACHABLE
         return True
 
     def on_estop(self, engaged: bool) -> None:
@@ -210,6 +225,13 @@ class UnitLogic:
             if self.released and self.released[0] == self.position:
                 self.released.pop(0)
             self._waited = 0
+            if self._yield_from is not None and moved not in (
+                self._yield_from,
+                self._yield_from.opposite,
+            ):
+                # Stepped aside: stay a few steps so the other unit can pass.
+                self._yield_from = None
+                self._pause_until = self.step + PAUSE_STEPS
         elif self.direction is not None and self.status == "moving":
             self.status = "waiting"
             self.wait_reason = (
@@ -282,14 +304,21 @@ class UnitLogic:
             self.job_id, self.load_kg = None, 0.0
 
     def _follow_goal(self, waiting_counts: bool) -> Intent:
-        if self.goal is None:
+        if self.goal is None or self.position == self.goal:
+            self._yield_from = None
             return Intent(None, "idle")
-        if self.position == self.goal:
-            return Intent(None, "idle", None)
+        if self.step < self._pause_until:
+            return Intent(None, "waiting", "giving way to another unit")
+        if self._yield_from is not None:
+            intent = self._give_way(self._yield_from, waiting_counts)
+            if intent is not None:
+                return intent
         self._avoid = {c: until for c, until in self._avoid.items() if until > self.step}
         path = self._plan(avoid=True) or self._plan(avoid=False)
         if not path:
             return Intent(None, "waiting", f"no known route to the goal {sq(self.goal)}")
+        if len(path) < self._best:
+            self._best, self._gave_way = len(path), False
         nxt = path[0]
         d = self.position.direction_to(nxt)
         assert d is not None
@@ -299,17 +328,43 @@ class UnitLogic:
         if reading == "unit" and waiting_counts:
             self._waited += 1
             if self._waited >= self.patience:
-                # Waited long enough: route around that unit for a while.
-                self._avoid[nxt] = self.step + AVOID_STEPS
                 self._waited = 0
+                self.patience = self._rng.randint(2, 6)
+                around = self._plan(avoid=True, extra=nxt)
+                if around and (len(around) <= len(path) + DETOUR_MAX or self._gave_way):
+                    # Waited long enough and there is another way: route around that unit
+                    # until the detour is driven.
+                    self._avoid[nxt] = self.step + max(AVOID_STEPS, len(around))
+                else:
+                    # No way around (a corridor) or a long one: give way by stepping aside or
+                    # backing off; if that does not help, the next time it takes the detour.
+                    self._yield_from, self._quiet, self._gave_way = d, 0, True
         return Intent(None, "waiting", f"next square {sq(nxt)} is blocked by {_THING[reading]}")
 
-    def _plan(self, avoid: bool) -> list[Cell] | None:
+    def _give_way(self, blocker: Direction, waiting_counts: bool) -> Intent | None:
+        """Step aside from, or back off before, a unit on side `blocker`; None when done."""
+        if self.sensors[blocker] != "unit":
+            if waiting_counts:
+                self._quiet += 1
+            if self._quiet >= QUIET_STEPS:
+                self._yield_from = None
+                return None
+            return Intent(None, "waiting", "giving way to another unit")
+        if waiting_counts:
+            self._quiet = 0
+        sides = [d for d in Direction if d not in (blocker, blocker.opposite)]
+        for d in [*sides, blocker.opposite]:
+            if self.sensors[d] == "free":
+                return Intent(d, "moving")
+        return Intent(None, "waiting", "giving way to another unit, but boxed in")
+
+    def _plan(self, avoid: bool, extra: Cell | None = None) -> list[Cell] | None:
         assert self.goal is not None
         if avoid:
-            if not self._avoid:
+            blocked = {*self._avoid, *([extra] if extra is not None else [])} - {self.goal}
+            if not blocked:
                 return None
-            grid = self._fields.grid.with_blocked(c for c in self._avoid if c != self.goal)
+            grid = self._fields.grid.with_blocked(blocked)
             field = distance_field(grid, self.goal)
         else:
             field = self._fields.get(self.goal)

@@ -238,3 +238,20 @@ def test_standalone_goal_on_a_wall_is_refused() -> None:
     assert not u.on_goal(Cell(2, 0)) and not u.on_goal(Cell(5, 0))
     assert u.goal is None and [e.code for e in u.errors] == ["bad_goal", "bad_goal"]
     assert u.on_goal(Cell(1, 0)) and u.goal == Cell(1, 0)
+
+
+def test_standalone_units_swap_ends_of_a_corridor_through_its_only_bay() -> None:
+    grid = GridMap.from_rows(["@@@@.@@@@", ".........", "@@@@@@@@@"])
+    for a_id, b_id in (("west", "east"), ("unit1", "unit2"), ("a", "b"), ("x", "y")):
+        world = WorldSim(grid, (), {a_id: Cell(0, 1), b_id: Cell(8, 1)})
+        units = [
+            UnitLogic(a_id, grid, Cell(0, 1), 1.0, 0.1, mode="standalone", goal=Cell(8, 1)),
+            UnitLogic(b_id, grid, Cell(8, 1), 1.0, 0.1, mode="standalone", goal=Cell(0, 1)),
+        ]
+        for _ in range(400):
+            for u in units:
+                step_in(world, u, None)
+            if all(u.position == u.goal for u in units):
+                break
+        assert [u.position for u in units] == [Cell(8, 1), Cell(0, 1)], (a_id, b_id)
+        assert world.collisions == 0
