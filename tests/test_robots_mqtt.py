@@ -388,3 +388,49 @@ async def test_standalone_units_cross_the_playfield_without_collisions(
         assert fleet.world.collisions == 0
         print(f"prevented moves: {fleet.world.prevented}, moves: {fleet.world.moves}")
         await async_wait_for(lambda: all(lg.status == "idle" for lg in fleet.logic.values()))
+
+
+async def test_units_in_another_process_are_seen_through_their_state(
+    tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
+) -> None:
+    sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (2, 1)})
+    c = Coordinator(probe_factory(), topics)
+    async with (
+        running(sc, broker.url, root, units=["u1"]) as here,
+        running(sc, broker.url, root, units=["u2"]) as there,
+    ):
+        assert set(here.runners) == {"u1"} and set(there.runners) == {"u2"}
+        c.order("u2", "o1", 1, [(2, 2), (3, 2)])
+        await async_wait_for(lambda: here.world.positions["u2"] == Cell(3, 2), what="u2 seen moved")
+        c.order("u2", "o1", 2, [(3, 1)])
+        await async_wait_for(lambda: here.world.positions["u2"] == Cell(3, 1))
+        # u2 (simulated elsewhere) stands on a square released to u1: u1's sensor sees a unit.
+        c.order("u1", "o1", 1, [(1, 1), (2, 1), (3, 1), (4, 1)])
+        s = await c.until_state("u1", lambda s: s.position == Cell(2, 1) and s.status == "waiting")
+        assert s.sensors.E == "unit" and s.obstacles == []
+        await steps(here, "u1", 5)
+        assert here.world.positions["u1"] == Cell(2, 1)
+        assert here.world.collisions == 0 and there.world.collisions == 0
+        assert here.world.moves["u1"] == 2 and there.world.moves["u2"] == 3
+
+
+async def test_malformed_goal_and_estop_payloads_are_refused_and_reported(
+    tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
+) -> None:
+    sc = scenario(tmp_path, [".....", ".@..."], {"u1": (0, 0)})
+    c = Coordinator(probe_factory(), topics)
+    stamp = HeaderStamper("operator")
+    async with running(sc, broker.url, root, mode="standalone") as fleet:
+        goal_topic = topics.unit("goal", "u1")
+        c.probe.publish(goal_topic, b'{"target": [1, 1]}')  # no header
+        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(1, 1))))  # a wall
+        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(7, 0))))  # off map
+        c.estop(True, payload=b"maybe|operator|")
+        await async_wait_for(lambda: len(c.errors()) >= 4, what="four error reports")
+        assert [e.topic for e in c.errors()].count(goal_topic) == 3
+        await steps(fleet, "u1", 3)
+        lg = fleet.logic["u1"]
+        assert lg.goal is None and not lg.estop and fleet.world.moves["u1"] == 0
+        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(4, 1))))
+        s = await c.until_state("u1", lambda s: s.position == Cell(4, 1) and s.status == "idle")
+        assert s.goal == Cell(4, 1) and s.mode == "standalone"
