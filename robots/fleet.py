@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 from collections.abc import Mapping, Sequence
 
+from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -31,6 +32,7 @@ class Fleet:
         goals: Mapping[str, Cell] | None = None,
         reconnect_s: float = 0.1,
     ) -> None:
+        parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
         known = [u.id for u in scenario.units]
         local = list(known if units is None else units)
         for uid in local:

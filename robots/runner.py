@@ -91,6 +91,13 @@ class UnitRunner:
                     await self._session(stop)
                     delay = self.reconnect_s
                 except aiomqtt.MqttError as exc:
+                    if self._client is None and delay == self.reconnect_s:
+                        log.warning(
+                            "%s: cannot reach the broker at %s (%s); retrying",
+                            self.id,
+                            self.url,
+                            exc,
+                        )
                     self._lost(f"{exc}")
                     with contextlib.suppress(TimeoutError):
                         await asyncio.wait_for(stop.wait(), delay)
