@@ -91,7 +91,7 @@ class UnitLogic:
         self.known_obstacles: set[Cell] = set()
         self.new_obstacles: list[Cell] = []
         self.errors: list[UnitError] = []
-        self._fields = DistanceFieldCache(grid)
+        self._fields_cache: DistanceFieldCache | None = None  # built on first standalone plan
         self._avoid: dict[Cell, int] = {}
         self._waited = 0
         self._yield_from: Direction | None = None  # giving way to a unit on this side
@@ -191,7 +191,7 @@ class UnitLogic:
             ):
                 self.known_obstacles.add(cell)
                 self.new_obstacles.append(cell)
-                self._fields = DistanceFieldCache(self.grid.with_blocked(self.known_obstacles))
+                self._fields_cache = None  # the known map changed: plan on the new one
 
     # ---- the step -----------------------------------------------------------------------------
 
@@ -357,6 +357,13 @@ class UnitLogic:
             if self.sensors[d] == "free":
                 return Intent(d, "moving")
         return Intent(None, "waiting", "giving way to another unit, but boxed in")
+
+    @property
+    def _fields(self) -> DistanceFieldCache:
+        """Distance fields on the map as this unit knows it (static map plus sensed obstacles)."""
+        if self._fields_cache is None:
+            self._fields_cache = DistanceFieldCache(self.grid.with_blocked(self.known_obstacles))
+        return self._fields_cache
 
     def _plan(self, avoid: bool, extra: Cell | None = None) -> list[Cell] | None:
         assert self.goal is not None
