@@ -11,6 +11,7 @@ from pathlib import Path
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
+    CoordinatorStatus,
     ErrorReport,
     EstopSignal,
     Goal,
@@ -434,3 +435,25 @@ async def test_malformed_goal_and_estop_payloads_are_refused_and_reported(
         c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(4, 1))))
         s = await c.until_state("u1", lambda s: s.position == Cell(4, 1) and s.status == "idle")
         assert s.goal == Cell(4, 1) and s.mode == "standalone"
+
+
+async def test_unit_holds_without_orders_and_resumes_when_they_come_back(
+    tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
+) -> None:
+    sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
+    c = Coordinator(probe_factory(), topics)
+    status = CoordinatorStatus(header=c.stamp("coordinator"), state="online", step_period_s=0.3)
+    c.probe.publish(topics.fleet("coordinator"), encode(status), retain=True)
+    async with running(sc, broker.url, root) as fleet:
+        lg = fleet.logic["u1"]
+        await async_wait_for(lambda: lg.coordinator_step_s == 0.3, what="coordinator status read")
+        assert lg.hold_timeout_s == 3 * 0.3
+        c.order("u1", "o1", 1, [(1, 1)])
+        await c.until_state("u1", lambda s: s.position == Cell(1, 1))
+        s = await c.until_state(
+            "u1", lambda s: s.status == "holding" and s.position == Cell(1, 1), timeout=5
+        )
+        assert s.wait_reason is not None and "no order" in s.wait_reason
+        c.order("u1", "o1", 2, [(2, 1)])
+        s = await c.until_state("u1", lambda s: s.position == Cell(2, 1))
+        assert fleet.world.moves["u1"] == 2
