@@ -245,8 +245,15 @@ class UnitLogic:
         """Recompute the intended move (the LEDs) after anything changed between steps."""
         intent = self._intent(since_order_s, waiting_counts=False)
         self.direction = intent.move
-        if intent.status in ("stopped", "holding") or self.status in ("stopped", "holding"):
+        if intent.status in ("stopped", "holding"):
             self.status, self.wait_reason = intent.status, intent.reason
+        elif self.status in ("stopped", "holding"):
+            # Resuming: it has not moved yet, so it is not `moving` before its next step.
+            if intent.status == "idle":
+                self.status, self.wait_reason = "idle", None
+            else:
+                self.status = "waiting"
+                self.wait_reason = intent.reason or "resuming: moves at the next step"
 
     def _intent(self, since_order_s: float | None, waiting_counts: bool) -> Intent:
         if self.estop:
