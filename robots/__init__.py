@@ -1,0 +1,1 @@
+"""Simulated units of gridfleet and the world simulation they live in."""

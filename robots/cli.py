@@ -1,0 +1,83 @@
+"""`gridfleet robots`: run the simulated units of a scenario (all, or a subset) on a broker."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+
+from gridfleet.cli import add_common
+from gridfleet.config import parse_broker_url
+from gridfleet.errors import ConfigError
+from gridfleet.protocol.constants import DEFAULT_STEP_S
+from gridfleet.scenario import load_scenario
+from robots.fleet import Fleet
+
+log = logging.getLogger("robots")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet robots`."""
+    add_common(parser)
+    parser.add_argument("--scenario", required=True, metavar="FILE", help="scenario .toml file")
+    parser.add_argument(
+        "--units",
+        default=None,
+        metavar="ID,ID",
+        help="run only these units (comma-separated); others are seen through their state",
+    )
+    parser.add_argument(
+        "--step",
+        type=float,
+        default=DEFAULT_STEP_S,
+        metavar="SECONDS",
+        help=f"step period (default {DEFAULT_STEP_S})",
+    )
+    parser.add_argument(
+        "--mode",
+        choices=["coordinated", "standalone"],
+        default="coordinated",
+        help="follow the coordinator's orders, or plan to the scenario's goals (default coordinated)",
+    )
+
+
+def build(args: argparse.Namespace) -> Fleet:
+    """The fleet the arguments describe; bad input raises a GridfleetError with one clear line."""
+    parse_broker_url(args.broker)
+    scenario = load_scenario(args.scenario)
+    units = None
+    if args.units is not None:
+        units = [u.strip() for u in args.units.split(",") if u.strip()]
+        if not units:
+            raise ConfigError("--units: give at least one unit id")
+    return Fleet(scenario, args.broker, root=args.root, units=units, step=args.step, mode=args.mode)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run until Ctrl-C or SIGTERM; every unit says "offline" on the way out."""
+    fleet = build(args)
+    asyncio.run(_main(fleet))
+    return 0
+
+
+async def _main(fleet: Fleet) -> None:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError):
+            loop.add_signal_handler(sig, stop.set)
+    log.info(
+        "running %s on %s (%s)",
+        ", ".join(fleet.runners),
+        fleet.runners[next(iter(fleet.runners))].url,
+        fleet.logic[next(iter(fleet.runners))].mode,
+    )
+    await fleet.run(stop)
+    log.info(
+        "stopped: %d moves, %d collisions, %d prevented",
+        sum(fleet.world.moves.values()),
+        fleet.world.collisions,
+        fleet.world.prevented,
+    )

@@ -1,0 +1,94 @@
+"""`gridfleet robots`: one-line errors for user mistakes, and a clean stop on SIGTERM."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from gridfleet.protocol import Connection, Topics, decode
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.wait import wait_for
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "gridfleet.cli", "robots", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (["--units", "unit1,unit9"], "unknown unit 'unit9'"),
+        (["--step", "0"], "step period 0.0 s is outside"),
+        (["--broker", "http://x"], "scheme must be mqtt:// or ws://"),
+    ],
+)
+def test_user_mistakes_are_one_line_errors(
+    playfield: Path, extra: list[str], expected: str
+) -> None:
+    out = cli("--scenario", str(playfield), *extra)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert (
+        len(lines) == 1 and expected in lines[0] and lines[0].startswith("gridfleet robots: error:")
+    )
+
+
+def test_bad_scenario_is_a_one_line_error(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text('map = "nowhere.map"\n')
+    out = cli("--scenario", str(bad))
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+    assert "nowhere.map" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_sigterm_stops_every_unit_with_offline(
+    broker: BrokerThread, root: str, topics: Topics, playfield: Path
+) -> None:
+    with MqttProbe(broker.url) as probe:
+        probe.subscribe(topics.all_units("connection"))
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "gridfleet.cli",
+                "robots",
+                "--broker",
+                broker.url,
+                "--root",
+                root,
+                "--scenario",
+                str(playfield),
+                "--units",
+                "unit1,unit3",
+                "--step",
+                "0.05",
+            ],
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        try:
+
+            def states(uid: str) -> list[str]:
+                seen = probe.received(topics.unit("connection", uid))
+                return [decode(Connection, m.payload).state for m in seen]
+
+            wait_for(lambda: states("unit1") == ["online"] and states("unit3") == ["online"], 20)
+            proc.send_signal(signal.SIGTERM)
+            assert proc.wait(20) == 0
+            wait_for(lambda: states("unit1")[-1] == "offline" and states("unit3")[-1] == "offline")
+            assert states("unit2") == [] and states("unit4") == []
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            _, err = proc.communicate()
+        assert "Traceback" not in err
