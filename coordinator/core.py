@@ -31,7 +31,12 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE
 from gridfleet.protocol import Action, CancelJob, RouteView, SetGoal, SubmitJob
-from gridfleet.protocol.constants import MAX_PLANNED
+from gridfleet.protocol.constants import (
+    HOLD_AFTER_STEPS,
+    MAX_PLANNED,
+    MIN_TIMEOUT_S,
+    STALE_AFTER_STEPS,
+)
 
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 
@@ -70,6 +75,7 @@ class Track:
     unacked: set[Cell] = field(default_factory=set)  # every square sent since the last ack
     target: Cell | None = None
     waiting: int = 0
+    lost_since: float | None = None  # when we stopped hearing from it (None: active)
 
 
 @dataclass
@@ -193,16 +199,24 @@ class CoordinatorCore:
         self.step_no += 1
         units = [u for u in self.world.units.values() if u.state is not None]
         active = {u.id for u in units if self.world.is_active(u, now)}
+        for u in units:
+            track = self.tracks.setdefault(u.id, Track())
+            if u.id in active:
+                track.lost_since = None
+            elif track.lost_since is None:
+                track.lost_since = now
         self._progress_jobs(units, active)
         settled = {u.id for u in units if u.id in active and self._settled(u)}
         if not self.estop:
             self._allocate(units, active, settled)
         targets = {u.id: self._target(u) for u in units}
-        moves = self._plan(units, active, settled, targets)
+        moves = self._plan(units, active, settled, targets, now)
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:
-            if u.connection in ("offline", "broken"):
+            if u.id not in active:
+                # Lost units get no orders: a unit that is alive but cut off holds still after
+                # 3 step periods without orders (protocol.md §8).
                 routes[u.id] = RouteView()
                 continue
             order = self._order_for(u, u.id in settled, moves.get(u.id), targets[u.id])
@@ -322,10 +336,15 @@ class CoordinatorCore:
             return Action(kind="drop", job_id=job.id, square=job.dropoff, mass_kg=job.mass_kg)
         return Action(kind="pick", job_id=job.id, square=job.pickup, mass_kg=job.mass_kg)
 
-    def _reserved(self, u: UnitRecord) -> set[Cell]:
+    def _reserved(self, u: UnitRecord, now: float) -> set[Cell]:
         assert u.state is not None
-        out = set(cells(u.state.released))
         t = self.tracks.get(u.id)
+        if t is not None and t.lost_since is not None:
+            period = max(self.world.step_period_s, self.world.stale_after_s(u) / STALE_AFTER_STEPS)
+            hold_after = max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * period) + period
+            if now - t.lost_since > hold_after:
+                return set()  # it holds still by now: only its last square stays reserved
+        out = set(cells(u.state.released))
         if t is not None and not self._acked(u):
             out |= t.unacked
         return out
@@ -336,6 +355,7 @@ class CoordinatorCore:
         active: set[str],
         settled: set[str],
         targets: dict[str, Cell | None],
+        now: float,
     ) -> dict[str, Cell]:
         if self.estop:
             return {}
@@ -351,7 +371,7 @@ class CoordinatorCore:
             movable = u.id in settled and u.id in active and not u.state.estop
             movable = movable and u.state.mode == "coordinated"
             agents[u.id] = AgentSpec(pos, targets[u.id] if movable else None, frozen=not movable)
-            reserved |= self._reserved(u) - {pos}
+            reserved |= self._reserved(u, now) - {pos}
         if reserved & seen:
             reserved -= seen  # a unit stands there: it is an agent, frozen or not
         urgency = {}
