@@ -372,8 +372,8 @@ class CoordinatorCore:
             movable = movable and u.state.mode == "coordinated"
             agents[u.id] = AgentSpec(pos, targets[u.id] if movable else None, frozen=not movable)
             reserved |= self._reserved(u, now) - {pos}
-        if reserved & seen:
-            reserved -= seen  # a unit stands there: it is an agent, frozen or not
+        # A reserved square may hold another unit (a follower waits for it to leave): that unit
+        # may stay or leave, but nobody else may be released into it.
         urgency = {}
         for u in units:
             job = self.jobs.of_unit(u.id)
