@@ -122,9 +122,9 @@ def simulate(
         positions = [u.position for u in units]
         assert len(set(positions)) == len(positions), f"collision at step {t}"
         for u in units:
-            if rng.random() < p_state or now - (world.units[u.id].state_at or 0) >= 3:
-                if world.on_state(u.id, u.state(stamps[u.id]), now):
-                    core.on_new_obstacles()
+            heard = rng.random() < p_state or now - (world.units[u.id].state_at or 0) >= 3
+            if heard and world.on_state(u.id, u.state(stamps[u.id]), now):
+                core.on_new_obstacles()
         if all(j.final for j in core.jobs.jobs.values()):
             return core, units, t
     raise AssertionError(
