@@ -234,6 +234,8 @@ class Coordinator:
             self._jobs_dirty = True
         self._persist()
         for unit_id, plan in result.orders.items():
+            if self.core.estop and plan.released:
+                continue  # the stop arrived while this step was being sent: its holds already went
             await self._send_order(unit_id, plan)
         routes = Routes(header=self.stamp("routes"), step=result.step, routes=result.routes)
         await self._publish("routes", self.topics.fleet("routes"), routes)
