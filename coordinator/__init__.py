@@ -1,0 +1,1 @@
+"""The coordinator: world model, jobs, allocation, planning and the emergency stop."""

@@ -1,0 +1,88 @@
+"""Job allocation: queued jobs to idle units under capacity, minimising total true travel.
+
+Pure: units (square, free capacity) and jobs (pickup, dropoff, mass, priority) in, pairs out.
+Costs are path lengths from BFS distance fields (not straight lines); the optimum comes from an
+assignment solver (Hungarian method, `scipy.optimize.linear_sum_assignment`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from gridfleet.grid import Cell
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+
+INFEASIBLE = 1e12  # cost of a pair that must never be chosen (filtered after solving)
+
+
+@dataclass(frozen=True)
+class UnitSlot:
+    """An idle unit: where it is and how much more it can carry."""
+
+    id: str
+    position: Cell
+    capacity_kg: float
+
+
+@dataclass(frozen=True)
+class JobRequest:
+    """A queued job as allocation sees it."""
+
+    id: str
+    pickup: Cell
+    dropoff: Cell
+    mass_kg: float
+    priority: int = 0
+
+
+def feasible(cache: DistanceFieldCache, unit: UnitSlot, job: JobRequest) -> int | None:
+    """Travel of `unit` to do `job` (to pickup, then to dropoff), or None if it cannot."""
+    if job.mass_kg > unit.capacity_kg:
+        return None
+    to_pickup = cache.distance(unit.position, job.pickup)
+    if to_pickup == UNREACHABLE:
+        return None
+    carry = cache.distance(job.pickup, job.dropoff)
+    if carry == UNREACHABLE:
+        return None
+    return to_pickup + carry
+
+
+def allocate(
+    cache: DistanceFieldCache, units: Sequence[UnitSlot], jobs: Sequence[JobRequest]
+) -> dict[str, str]:
+    """Job id → unit id for an optimal set of pairs; capacity and reachability always hold.
+
+    Higher-priority jobs win when there are more jobs than units: each priority point outweighs
+    any travel on the map. Among equal priorities the total travel is minimal.
+    """
+    if not units or not jobs:
+        return {}
+    grid = cache.grid
+    weight = float(grid.width * grid.height * 2 + 1)  # more than any travel on this map
+    cost = np.full((len(jobs), len(units)), INFEASIBLE)
+    for r, job in enumerate(jobs):
+        for c, unit in enumerate(units):
+            travel = feasible(cache, unit, job)
+            if travel is not None:
+                cost[r, c] = travel - weight * job.priority
+    rows, cols = linear_sum_assignment(cost)
+    return {
+        jobs[r].id: units[c].id
+        for r, c in zip(rows.tolist(), cols.tolist(), strict=True)
+        if cost[r, c] < INFEASIBLE / 2
+    }
+
+
+def capacity_reason(mass_kg: float, capacities: Sequence[float]) -> str | None:
+    """Why no known unit could ever carry `mass_kg`, or None when one could (or none known)."""
+    if not capacities:
+        return None
+    largest = max(capacities)
+    if mass_kg > largest:
+        return f"mass {mass_kg} kg exceeds every unit's capacity (largest {largest} kg)"
+    return None

@@ -1,0 +1,58 @@
+"""`gridfleet coordinator`: run the coordinator service on a map."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import signal
+
+from coordinator.service import Coordinator
+from coordinator.store import default_db_path
+from gridfleet.cli import add_common
+from gridfleet.errors import ConfigError
+from gridfleet.maps import load_map
+from gridfleet.protocol.constants import DEFAULT_STEP_S
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet coordinator`."""
+    add_common(parser)
+    parser.add_argument("--map", required=True, metavar="FILE", help="Moving AI .map file")
+    parser.add_argument(
+        "--step",
+        type=float,
+        default=DEFAULT_STEP_S,
+        metavar="S",
+        help=f"step period in seconds (default {DEFAULT_STEP_S})",
+    )
+    parser.add_argument(
+        "--db", default=None, metavar="PATH", help=f"job database (default {default_db_path()})"
+    )
+    parser.add_argument("--client-id", default="coordinator", help="MQTT client id and sender")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run until interrupted (SIGINT/SIGTERM)."""
+    if not 0 < args.step <= 60:
+        raise ConfigError(f"--step {args.step}: must be in (0, 60] seconds")
+    grid = load_map(args.map)
+    coordinator = Coordinator(
+        args.broker,
+        grid,
+        root=args.root,
+        step_s=args.step,
+        db_path=args.db,
+        client_id=args.client_id,
+    )
+
+    async def main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(NotImplementedError):
+                loop.add_signal_handler(sig, stop.set)
+        await coordinator.run(stop)
+
+    asyncio.run(main())
+    return 0

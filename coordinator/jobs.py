@@ -1,0 +1,134 @@
+"""Jobs and their life cycle (protocol.md §5.3, §6): pure, no storage, no clock.
+
+queued → assigned → to_pickup → loaded → to_dropoff → done; or cancelled / rejected / failed.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from gridfleet.grid import Cell
+from gridfleet.protocol import Header, JobsView, JobView
+from gridfleet.protocol.messages import FINAL_JOB_STATES
+
+ACTIVE_STATES = frozenset({"assigned", "to_pickup", "loaded", "to_dropoff"})
+CARRYING_STATES = frozenset({"loaded", "to_dropoff"})
+
+
+@dataclass
+class Job:
+    """One job and where it is in its life cycle."""
+
+    id: str
+    pickup: Cell
+    dropoff: Cell
+    mass_kg: float
+    priority: int = 0
+    state: str = "queued"
+    unit: str | None = None
+    reason: str | None = None
+    submitted_by: str | None = None
+    created_step: int = 0
+    done_step: int | None = None
+    order: int = 0  # submission order, so views and allocation are stable
+
+    @property
+    def final(self) -> bool:
+        """Done, cancelled, rejected or failed: it never changes again."""
+        return self.state in FINAL_JOB_STATES
+
+    def view(self) -> JobView:
+        """As the queue view shows it."""
+        return JobView(
+            id=self.id,
+            pickup=self.pickup,
+            dropoff=self.dropoff,
+            mass_kg=self.mass_kg,
+            priority=self.priority,
+            state=self.state,  # type: ignore[arg-type]
+            unit=self.unit,
+            reason=self.reason,
+            submitted_by=self.submitted_by,
+            created_step=self.created_step,
+            done_step=self.done_step,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data for storage."""
+        d = asdict(self)
+        d["pickup"] = list(self.pickup)
+        d["dropoff"] = list(self.dropoff)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Job:
+        """Inverse of to_dict."""
+        d = dict(d)
+        d["pickup"] = Cell(*d["pickup"])
+        d["dropoff"] = Cell(*d["dropoff"])
+        return cls(**d)
+
+
+class JobBook:
+    """Every job the coordinator knows, in submission order; `changed` lists jobs to persist."""
+
+    def __init__(self, jobs: list[Job] | None = None) -> None:
+        self.jobs: dict[str, Job] = {}
+        self.changed: set[str] = set()
+        self._next = 1
+        for job in sorted(jobs or [], key=lambda j: j.order):
+            self.jobs[job.id] = job
+        self._next = 1 + max((j.order for j in self.jobs.values()), default=0)
+
+    def new_id(self) -> str:
+        """A free id `job-<n>`."""
+        n = self._next
+        while f"job-{n}" in self.jobs:
+            n += 1
+        return f"job-{n}"
+
+    def add(self, job: Job) -> Job:
+        """Register a new job (its id must be free)."""
+        if job.id in self.jobs:
+            raise ValueError(f"job id {job.id!r} is taken")
+        job.order = self._next
+        self._next += 1
+        self.jobs[job.id] = job
+        self.changed.add(job.id)
+        return job
+
+    def get(self, job_id: str) -> Job | None:
+        """The job with `job_id`, if any."""
+        return self.jobs.get(job_id)
+
+    def set(self, job: Job, state: str, **fields: Any) -> None:
+        """Move `job` to `state` (and set other fields); final jobs never change."""
+        if job.final:
+            raise ValueError(f"job {job.id} is already {job.state}")
+        job.state = state
+        for key, value in fields.items():
+            setattr(job, key, value)
+        self.changed.add(job.id)
+
+    def queued(self) -> list[Job]:
+        """Jobs waiting for a unit, in submission order."""
+        return [j for j in self.jobs.values() if j.state == "queued"]
+
+    def active(self) -> list[Job]:
+        """Jobs under way (assigned to a unit)."""
+        return [j for j in self.jobs.values() if j.state in ACTIVE_STATES]
+
+    def of_unit(self, unit_id: str) -> Job | None:
+        """The job `unit_id` is working on, if any."""
+        return next((j for j in self.active() if j.unit == unit_id), None)
+
+    def view(self, header: Header) -> JobsView:
+        """The retained queue view."""
+        counts = Counter(j.state for j in self.jobs.values())
+        return JobsView(
+            header=header,
+            jobs=[j.view() for j in self.jobs.values()],
+            counts=dict(counts),  # type: ignore[arg-type]
+        )

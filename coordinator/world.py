@@ -1,0 +1,146 @@
+"""World model: the map, obstacles units reported, and the latest word of every unit.
+
+Pure: messages and a caller-supplied time (`now`, seconds on a monotonic clock) in; queries out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitState
+from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
+
+Square = tuple[int, int]
+
+
+def cell(square: Square) -> Cell:
+    """A decoded message square as a Cell (they already are at run time; this tells mypy)."""
+    return square if isinstance(square, Cell) else Cell(square[0], square[1])
+
+
+def cells(squares: list[Square]) -> list[Cell]:
+    """Every square of a message list as a Cell."""
+    return [cell(s) for s in squares]
+
+
+@dataclass
+class UnitRecord:
+    """What the coordinator knows about one unit."""
+
+    id: str
+    connection: str | None = None  # online / offline / broken; None until heard
+    factsheet: Factsheet | None = None
+    state: UnitState | None = None
+    state_at: float | None = None  # when the latest state arrived (monotonic seconds)
+
+    @property
+    def position(self) -> Cell | None:
+        """Where its latest state says it is."""
+        return None if self.state is None else cell(self.state.position)
+
+    @property
+    def capacity_kg(self) -> float | None:
+        """Its capacity from the factsheet (None until known)."""
+        return None if self.factsheet is None else self.factsheet.capacity_kg
+
+
+@dataclass
+class World:
+    """The map plus everything units told us; `grid` includes discovered obstacles."""
+
+    base: GridMap
+    step_period_s: float = 1.0
+    obstacles: set[Cell] = field(default_factory=set)
+    units: dict[str, UnitRecord] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._grid = self.base.with_blocked(self.obstacles)
+
+    @property
+    def grid(self) -> GridMap:
+        """Static map with every discovered obstacle blocked."""
+        return self._grid
+
+    def unit(self, unit_id: str) -> UnitRecord:
+        """The record of `unit_id`, created on first mention."""
+        rec = self.units.get(unit_id)
+        if rec is None:
+            rec = self.units[unit_id] = UnitRecord(unit_id)
+        return rec
+
+    def check_square(self, square: Square, what: str) -> None:
+        """Raise ProtocolError when a square is off the map or blocked (wall or known obstacle)."""
+        c = cell(square)
+        if not self.base.in_bounds(c):
+            raise ProtocolError(
+                f"{what} {list(c)} is off the {self.base.width}x{self.base.height} map"
+            )
+        if self.base.blocked[c.y, c.x]:
+            raise ProtocolError(f"{what} {list(c)} is on a wall")
+        if c in self.obstacles:
+            raise ProtocolError(f"{what} {list(c)} is on a known obstacle")
+
+    def on_connection(self, unit_id: str, msg: Connection) -> None:
+        """A unit said it is online, offline or broken."""
+        self.unit(unit_id).connection = msg.state
+
+    def on_factsheet(self, unit_id: str, msg: Factsheet) -> None:
+        """A unit described itself."""
+        self.unit(unit_id).factsheet = msg
+
+    def on_state(self, unit_id: str, msg: UnitState, now: float) -> list[Cell]:
+        """A unit's state; returns obstacles new to the fleet. Bad squares raise, change nothing."""
+        self.check_square(msg.position, "position")
+        new = []
+        for c in cells(msg.obstacles):
+            if (
+                self.base.in_bounds(c)
+                and not self.base.blocked[c.y, c.x]
+                and c not in self.obstacles
+                and not any(u.position == c for u in self.units.values())
+                and c != msg.position
+            ):
+                new.append(c)
+        rec = self.unit(unit_id)
+        rec.state = msg
+        rec.state_at = now
+        if new:
+            self.obstacles.update(new)
+            self._grid = self.base.with_blocked(self.obstacles)
+        return new
+
+    def stale_after_s(self, rec: UnitRecord) -> float:
+        """How long a unit's state may be silent before it counts as lost."""
+        period = rec.factsheet.step_period_s if rec.factsheet else self.step_period_s
+        return max(MIN_TIMEOUT_S, STALE_AFTER_STEPS * period)
+
+    def is_active(self, rec: UnitRecord, now: float) -> bool:
+        """Online (not offline/broken) with a fresh state."""
+        if rec.connection in ("offline", "broken") or rec.state is None or rec.state_at is None:
+            return False
+        return now - rec.state_at <= self.stale_after_s(rec)
+
+    def capacities(self) -> list[float]:
+        """Capacities of every unit with a factsheet that has not said it is offline."""
+        return [
+            u.factsheet.capacity_kg
+            for u in self.units.values()
+            if u.factsheet is not None and u.connection != "offline"
+        ]
+
+    def _sorted_obstacles(self) -> list[Square]:
+        ordered = sorted(self.obstacles, key=lambda c: (c.y, c.x))
+        return list(ordered)
+
+    def fleet_map(self, header: Header) -> FleetMap:
+        """The retained map view: static rows plus discovered obstacles."""
+        return FleetMap(
+            header=header,
+            name=self.base.name,
+            width=self.base.width,
+            height=self.base.height,
+            rows=self.base.rows(),
+            obstacles=self._sorted_obstacles(),
+        )

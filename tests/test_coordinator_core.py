@@ -1,0 +1,177 @@
+"""The pure coordinator core with fake units, late and lost messages: safe, and every job done."""
+
+from __future__ import annotations
+
+import random
+from datetime import UTC, datetime
+
+import pytest
+from coordinator_fakes import FakeUnit
+
+from coordinator.core import CoordinatorCore
+from coordinator.jobs import JobBook
+from coordinator.world import World
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import (
+    Connection,
+    Factsheet,
+    Header,
+    HeaderStamper,
+    Order,
+    SetGoal,
+    SubmitJob,
+)
+
+ROWS = [
+    "..........",
+    "..........",
+    "..@@......",
+    "..@.......",
+    "......@...",
+    "......@...",
+    "..........",
+    "...@@.....",
+    "..........",
+    "..........",
+]
+
+
+def header(sender: str = "t") -> Header:
+    return Header(seq=0, timestamp=datetime.now(UTC), sender=sender)
+
+
+def make_order(plan: object) -> Order:
+    return Order(
+        header=header("coordinator"),
+        order_id=plan.order_id,  # type: ignore[attr-defined]
+        update_id=plan.update_id,  # type: ignore[attr-defined]
+        step=plan.step,  # type: ignore[attr-defined]
+        released=plan.released,  # type: ignore[attr-defined]
+        planned=plan.planned,  # type: ignore[attr-defined]
+        target=plan.target,  # type: ignore[attr-defined]
+        action=plan.action,  # type: ignore[attr-defined]
+    )
+
+
+def check_released_disjoint(units: list[FakeUnit]) -> None:
+    """No square is released to two units, and no two units are released into each other."""
+    claimed: dict[Cell, str] = {}
+    for u in units:
+        for c in u.released:
+            assert c not in claimed, f"{c} released to {claimed[c]} and {u.id}"
+            claimed[c] = u.id
+    for u in units:
+        for other in units:
+            if u is not other and u.released and other.released:
+                swap = u.released[0] == other.position and other.released[0] == u.position
+                assert not swap, f"{u.id} and {other.id} released into each other"
+
+
+def simulate(
+    n_units: int,
+    n_jobs: int,
+    seed: int,
+    p_state: float,
+    p_order: float,
+    steps: int = 1500,
+    hidden: set[Cell] | None = None,
+) -> tuple[CoordinatorCore, list[FakeUnit], int]:
+    rng = random.Random(seed)
+    grid = GridMap.from_rows(ROWS)
+    free = [c for c in grid.free_cells() if c not in (hidden or set())]
+    world = World(grid, step_period_s=1.0)
+    core = CoordinatorCore(world, JobBook(), nonce="n", seed=seed)
+    spots = rng.sample(free, n_units)
+    units = [
+        FakeUnit(f"u{i}", spots[i], rng.choice([2.0, 5.0, 10.0, 20.0])) for i in range(n_units)
+    ]
+    units[0].capacity_kg = 20.0
+    stamps = {u.id: HeaderStamper(u.id) for u in units}
+    now = 0.0
+    for u in units:
+        world.on_connection(u.id, Connection(header=header(u.id), state="online"))
+        world.on_factsheet(
+            u.id, Factsheet(header=header(u.id), capacity_kg=u.capacity_kg, step_period_s=1.0)
+        )
+        world.on_state(u.id, u.state(stamps[u.id]), now)
+    for j in range(n_jobs):
+        p, d = rng.sample(free, 2)
+        req = SubmitJob(
+            header=header(),
+            request_id=f"r{j}",
+            pickup=p,  # type: ignore[arg-type]
+            dropoff=d,  # type: ignore[arg-type]
+            mass_kg=rng.choice([0.5, 1.5, 4.0, 8.0, 15.0]),
+        )
+        assert core.submit(req, "t").accepted
+    pending: list[tuple[int, str, object]] = []  # (deliver at step, unit, message)
+    for t in range(steps):
+        now += 1.0
+        result = core.step(now)
+        for uid, plan in result.orders.items():
+            if rng.random() < p_order:
+                pending.append((t + rng.choice([0, 0, 1]), uid, make_order(plan)))
+        due = [m for m in pending if m[0] <= t]
+        pending = [m for m in pending if m[0] > t]
+        by_id = {u.id: u for u in units}
+        for _, uid, order in due:
+            by_id[uid].on_order(order, grid)  # type: ignore[arg-type]
+        check_released_disjoint(units)
+        for u in rng.sample(units, len(units)):
+            u.tick({o.position for o in units if o is not u}, hidden or set())
+        positions = [u.position for u in units]
+        assert len(set(positions)) == len(positions), f"collision at step {t}"
+        for u in units:
+            heard = rng.random() < p_state or now - (world.units[u.id].state_at or 0) >= 3
+            if heard and world.on_state(u.id, u.state(stamps[u.id]), now):
+                core.on_new_obstacles()
+        if all(j.final for j in core.jobs.jobs.values()):
+            return core, units, t
+    raise AssertionError(
+        f"jobs not finished after {steps} steps: "
+        f"{[(j.id, j.state, j.unit) for j in core.jobs.jobs.values() if not j.final]}"
+    )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jobs_finish_safely_with_reliable_messages(seed: int) -> None:
+    core, _, _ = simulate(4, 12, seed, p_state=1.0, p_order=1.0)
+    assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_jobs_finish_safely_with_late_and_lost_messages(seed: int) -> None:
+    core, _, _ = simulate(8, 20, seed, p_state=0.6, p_order=0.7)
+    assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
+
+
+def test_hidden_obstacles_are_reported_and_planned_around() -> None:
+    core, _, _ = simulate(4, 10, 7, p_state=1.0, p_order=1.0, hidden={Cell(5, 1), Cell(8, 5)})
+    assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
+
+
+def test_goal_pins_a_unit_until_reached() -> None:
+    grid = GridMap.from_rows(ROWS)
+    world = World(grid)
+    core = CoordinatorCore(world, JobBook(), nonce="n")
+    unit = FakeUnit("u", Cell(0, 0), 5.0)
+    stamp = HeaderStamper("u")
+    world.on_connection("u", Connection(header=header("u"), state="online"))
+    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=5, step_period_s=1))
+    world.on_state("u", unit.state(stamp), 0.0)
+    bad = core.set_goal(SetGoal(header=header(), request_id="g", unit="nobody", target=(1, 1)))  # type: ignore[arg-type]
+    assert not bad.accepted and "unknown unit" in (bad.reason or "")
+    wall = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(2, 2)))  # type: ignore[arg-type]
+    assert not wall.accepted and "wall" in (wall.reason or "")
+    ok = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(9, 3)))  # type: ignore[arg-type]
+    assert ok.accepted
+    for t in range(1, 60):
+        result = core.step(float(t))
+        unit.on_order(make_order(result.orders["u"]), grid)
+        unit.tick(set(), set())
+        world.on_state("u", unit.state(stamp), float(t))
+        if unit.position == Cell(9, 3):
+            break
+    assert unit.position == Cell(9, 3)
+    core.step(100.0)
+    assert core.goals == {}

@@ -1,0 +1,173 @@
+"""Planner on ASCII grids: every plan validator-clean, every unit reaches its target in time."""
+
+from __future__ import annotations
+
+import pytest
+
+from coordinator.planner import AgentSpec, Planner, plan_step
+from coordinator.validate import validate_plan, validate_step
+from gridfleet.grid import Cell, GridMap
+
+
+def parse(text: str) -> tuple[GridMap, dict[str, Cell], dict[str, Cell]]:
+    """'#' wall, '.' free, 'A'-'Z' a unit's start, 'a'-'z' its target (on a free square)."""
+    rows = [r for r in (line.strip() for line in text.strip().splitlines()) if r]
+    starts: dict[str, Cell] = {}
+    goals: dict[str, Cell] = {}
+    for y, row in enumerate(rows):
+        for x, ch in enumerate(row):
+            if ch.isupper():
+                starts[ch] = Cell(x, y)
+            elif ch.islower():
+                goals[ch.upper()] = Cell(x, y)
+    grid = GridMap.from_rows("".join("@" if ch == "#" else "." for ch in row) for row in rows)
+    return grid, starts, goals
+
+
+def run(
+    grid: GridMap, starts: dict[str, Cell], goals: dict[str, Cell], bound: int, seed: int = 0
+) -> tuple[list[list[Cell]], int]:
+    """Plan until every unit has reached its target; returns the plan and the steps taken.
+
+    As in the coordinator, a unit's errand ends when it stands on its target (a pick, a drop, a
+    reached goal); from then on it has no target and may be pushed aside by the others.
+    """
+    planner = Planner(grid, seed=seed)
+    names = sorted(starts)
+    here = dict(starts)
+    pending = {a: goals[a] for a in names if a in goals and goals[a] != here[a]}
+    plan = [[here[a] for a in names]]
+    for t in range(bound):
+        if not pending:
+            return plan, t
+        nxt = planner.step({a: AgentSpec(here[a], pending.get(a)) for a in names})
+        here = nxt
+        plan.append([here[a] for a in names])
+        pending = {a: g for a, g in pending.items() if here[a] != g}
+    raise AssertionError(f"units {sorted(pending)} did not reach their targets in {bound} steps")
+
+
+def assert_clean(grid: GridMap, plan: list[list[Cell]]) -> None:
+    bad = validate_plan(grid, plan)
+    assert bad == [], bad[:5]
+
+
+def test_corridor_with_one_passing_bay() -> None:
+    # A and B cross a corridor with one side bay; one must step into the bay to let the other by.
+    text = """
+    ###########
+    #####.#####
+    #A.......B#
+    ###########
+    """
+    grid, starts, _ = parse(text)
+    goals = {"A": starts["B"], "B": starts["A"]}
+    plan, steps = run(grid, starts, goals, bound=60)
+    assert_clean(grid, plan)
+    assert steps >= 8
+
+
+def test_dead_end() -> None:
+    # A sits deep in a dead end and must get out; B wants to go to the end of it.
+    text = """
+    ########
+    #A....##
+    ####.###
+    #b...a.#
+    ########
+    """
+    grid, _, _ = parse(text)
+    starts = {"A": Cell(1, 1), "B": Cell(4, 3)}
+    goals = {"A": Cell(5, 3), "B": Cell(1, 1)}
+    plan, _ = run(grid, starts, goals, bound=80)
+    assert_clean(grid, plan)
+
+
+def test_four_way_crossing() -> None:
+    text = """
+    ###.###
+    ###.###
+    ###.###
+    .......
+    ###.###
+    ###.###
+    ###.###
+    """
+    grid, _, _ = parse(text)
+    starts = {"N": Cell(3, 0), "S": Cell(3, 6), "W": Cell(0, 3), "E": Cell(6, 3)}
+    goals = {"N": Cell(3, 6), "S": Cell(3, 0), "W": Cell(6, 3), "E": Cell(0, 3)}
+    plan, _ = run(grid, starts, goals, bound=120)
+    assert_clean(grid, plan)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_dense_room(seed: int) -> None:
+    import numpy as np
+
+    grid = GridMap.from_rows(["......"] * 6)
+    rng = np.random.default_rng(seed)
+    cells = [Cell(x, y) for y in range(6) for x in range(6)]
+    picks = rng.permutation(len(cells))
+    n = 24  # two thirds of the room is full
+    starts = {f"u{i}": cells[int(picks[i])] for i in range(n)}
+    goal_picks = rng.permutation(len(cells))
+    goals = {f"u{i}": cells[int(goal_picks[i])] for i in range(n)}
+    plan, _ = run(grid, starts, goals, bound=400, seed=seed)
+    assert_clean(grid, plan)
+
+
+def test_new_obstacle_causes_reroute() -> None:
+    text = """
+    #######
+    #A...a#
+    #.###.#
+    #.....#
+    #######
+    """
+    grid, starts, goals = parse(text)
+    planner = Planner(grid)
+    first = planner.step({"A": AgentSpec(starts["A"], goals["A"])})
+    assert first["A"] == Cell(2, 1)  # straight along the top
+    planner.add_obstacles([Cell(3, 1)])
+    here = starts["A"]
+    trail = [here]
+    for _ in range(30):
+        if here == goals["A"]:
+            break
+        here = planner.step({"A": AgentSpec(here, goals["A"])})["A"]
+        trail.append(here)
+    assert here == goals["A"]
+    assert Cell(3, 1) not in trail
+    assert Cell(1, 2) in trail  # went round by the bottom
+    assert validate_plan(planner.grid, [[c] for c in trail]) == []
+
+
+def test_never_rotates_even_when_a_rotation_would_be_fastest() -> None:
+    # Four units on a 2x2 block each want the next square clockwise: a rotation is optimal
+    # for a synchronous planner but would deadlock asynchronous units.
+    grid = GridMap.from_rows(["....", "....", "....", "...."])
+    starts = [Cell(1, 1), Cell(2, 1), Cell(2, 2), Cell(1, 2)]
+    targets = [starts[1], starts[2], starts[3], starts[0]]
+    for seed in range(20):
+        nxt = plan_step(grid, starts, targets, seed=seed)
+        assert validate_step(grid, starts, nxt) == []
+
+
+def test_frozen_units_and_reserved_squares_are_respected() -> None:
+    grid = GridMap.from_rows(["....."])
+    planner = Planner(grid)
+    out = planner.step(
+        {"A": AgentSpec(Cell(0, 0), Cell(4, 0)), "B": AgentSpec(Cell(2, 0), None, frozen=True)},
+        reserved=[Cell(1, 0)],
+    )
+    assert out == {"A": Cell(0, 0), "B": Cell(2, 0)}
+
+
+def test_follows_a_unit_that_moves_away() -> None:
+    grid = GridMap.from_rows(["....."])
+    planner = Planner(grid)
+    out = planner.step(
+        {"A": AgentSpec(Cell(0, 0), Cell(4, 0)), "B": AgentSpec(Cell(1, 0), Cell(4, 0))}
+    )
+    assert out["B"] == Cell(2, 0)
+    assert out["A"] == Cell(1, 0)

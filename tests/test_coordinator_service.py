@@ -1,0 +1,342 @@
+"""The coordinator service over a real broker, with test-only fake units that follow the protocol."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+from coordinator_fakes import FakeFleet, FakeUnit
+
+from coordinator.service import Coordinator
+from gridfleet.grid import Cell, GridMap
+from gridfleet.maps import load_map
+from gridfleet.protocol import (
+    CancelJob,
+    EstopSignal,
+    HeaderStamper,
+    JobsView,
+    Reply,
+    SubmitJob,
+    Topics,
+    decode,
+    encode,
+    encode_estop,
+)
+from gridfleet.protocol.constants import MAX_VIEW_BYTES
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.wait import async_wait_for
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+STEP = 0.03
+PLAYFIELD_UNITS = [
+    ("unit1", (0, 0), 2.0),
+    ("unit2", (9, 0), 5.0),
+    ("unit3", (0, 9), 10.0),
+    ("unit4", (9, 9), 20.0),
+]
+
+
+def playfield_grid() -> GridMap:
+    return load_map(MAPS / "playfield.map")
+
+
+@dataclass
+class Rig:
+    """A running coordinator, a fleet of fake units and an operator probe."""
+
+    coordinator: Coordinator
+    fleet: FakeFleet
+    probe: MqttProbe
+    topics: Topics
+    stamp: HeaderStamper
+    stop_coord: asyncio.Event
+    coord_task: asyncio.Task[None]
+
+    def jobs(self) -> JobsView | None:
+        seen = self.probe.received(self.topics.fleet("jobs"))
+        return decode(JobsView, seen[-1].payload, MAX_VIEW_BYTES) if seen else None
+
+    def job_state(self, job_id: str) -> str | None:
+        view = self.jobs()
+        if view is None:
+            return None
+        return next((j.state for j in view.jobs if j.id == job_id), None)
+
+    def submit(
+        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass: float, job_id: str
+    ) -> None:
+        req = SubmitJob(
+            header=self.stamp("submit_job"),
+            request_id=f"r-{job_id}",
+            reply_to="tester",
+            pickup=pickup,  # type: ignore[arg-type]
+            dropoff=dropoff,  # type: ignore[arg-type]
+            mass_kg=mass,
+            job_id=job_id,
+        )
+        self.probe.publish(self.topics.request("submit_job"), encode(req))
+
+    def reply(self, request_id: str) -> Reply | None:
+        for m in self.probe.received(self.topics.reply("tester")):
+            r = decode(Reply, m.payload)
+            if r.request_id == request_id:
+                return r
+        return None
+
+    async def restart_coordinator(self, broker: str, db: Path, grid: GridMap) -> None:
+        self.stop_coord.set()
+        await self.coord_task
+        self.coordinator = Coordinator(broker, grid, root=self.topics.root, step_s=STEP, db_path=db)
+        self.stop_coord = asyncio.Event()
+        self.coord_task = asyncio.create_task(self.coordinator.run(self.stop_coord))
+        await asyncio.wait_for(self.coordinator.ready.wait(), 10)
+
+
+@contextlib.asynccontextmanager
+async def rig(
+    broker: BrokerThread,
+    root: str,
+    tmp_path: Path,
+    units: list[tuple[str, tuple[int, int], float]] = PLAYFIELD_UNITS,
+    hidden: set[Cell] | None = None,
+) -> AsyncIterator[Rig]:
+    grid = playfield_grid()
+    topics = Topics(root)
+    probe = MqttProbe(broker.url, "tester").connect()
+    probe.subscribe(topics.fleet("jobs"), qos=1)
+    probe.subscribe(topics.reply("tester"), qos=1)
+    probe.subscribe(topics.fleet("errors"), qos=1)
+    probe.subscribe(topics.fleet("coordinator"), qos=1)
+    probe.subscribe(topics.fleet("map"), qos=1)
+    probe.subscribe(topics.all_units("order"), qos=1)
+    fleet = FakeFleet(
+        broker.url,
+        root,
+        grid,
+        [FakeUnit(uid, Cell(*pos), cap, step_s=STEP) for uid, pos, cap in units],
+        hidden=hidden,
+    )
+    await fleet.start_all()
+    coordinator = Coordinator(
+        broker.url, grid, root=root, step_s=STEP, db_path=tmp_path / "jobs.db"
+    )
+    stop_coord = asyncio.Event()
+    coord_task = asyncio.create_task(coordinator.run(stop_coord))
+    await asyncio.wait_for(coordinator.ready.wait(), 10)
+    stop_fleet = asyncio.Event()
+    fleet_task = asyncio.create_task(fleet.run(stop_fleet, STEP))
+    r = Rig(coordinator, fleet, probe, topics, HeaderStamper("tester"), stop_coord, coord_task)
+    try:
+        yield r
+    finally:
+        stop_fleet.set()
+        await fleet_task
+        r.stop_coord.set()
+        await r.coord_task
+        await fleet.close()
+        probe.close()
+
+
+JOBS_12 = [
+    ((1, 1), (8, 8), 1.5),
+    ((8, 1), (1, 8), 4.0),
+    ((5, 0), (5, 9), 8.0),
+    ((0, 5), (9, 5), 15.0),  # only unit4 can carry it
+    ((3, 3), (7, 0), 1.0),
+    ((9, 2), (0, 2), 3.0),
+    ((4, 8), (4, 1), 12.0),  # only unit4
+    ((1, 6), (8, 3), 6.0),
+    ((7, 7), (2, 0), 0.5),
+    ((0, 1), (9, 8), 9.5),
+    ((6, 6), (3, 9), 18.0),  # only unit4
+    ((8, 9), (1, 4), 2.0),
+]
+
+
+async def test_four_units_complete_twelve_jobs_within_capacity(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path) as r:
+        for i, (p, d, m) in enumerate(JOBS_12):
+            r.submit(p, d, m, f"job-{i}")
+        await async_wait_for(
+            lambda: (
+                (v := r.jobs()) is not None and sum(1 for j in v.jobs if j.state == "done") == 12
+            ),
+            timeout=45,
+            what="12 jobs done",
+        )
+        view = r.jobs()
+        assert view is not None
+        caps = {uid: cap for uid, _, cap in PLAYFIELD_UNITS}
+        for j in view.jobs:
+            assert j.unit is not None and j.mass_kg <= caps[j.unit]
+        assert r.fleet.collisions == 0
+
+
+async def test_impossible_and_invalid_jobs_are_refused(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path) as r:
+        await async_wait_for(lambda: len(r.coordinator.world.capacities()) == 4, what="factsheets")
+        r.submit((1, 1), (1, 2), 50.0, "heavy")
+        r.submit((2, 2), (1, 1), 1.0, "on-wall")  # (2, 2) is a wall
+        r.submit((12, 3), (1, 1), 1.0, "off-map")
+        got = await async_wait_for(lambda: r.reply("r-heavy"), what="reply")
+        assert not got.accepted and got.reason is not None and "largest 20.0 kg" in got.reason
+        wall = await async_wait_for(lambda: r.reply("r-on-wall"), what="reply")
+        assert not wall.accepted and "wall" in (wall.reason or "")
+        off = await async_wait_for(lambda: r.reply("r-off-map"), what="reply")
+        assert not off.accepted and "off the 10x10 map" in (off.reason or "")
+        await async_wait_for(lambda: r.job_state("heavy") == "rejected", what="rejected listed")
+        assert r.job_state("on-wall") is None and r.job_state("off-map") is None
+        r.submit((1, 1), (1, 2), 1.0, "heavy")  # duplicate id
+        dup = await async_wait_for(
+            lambda: [
+                m for m in r.probe.received(r.topics.reply("tester")) if b"is taken" in m.payload
+            ],
+            what="duplicate refused",
+        )
+        assert dup
+
+
+async def test_cancel_a_queued_and_an_active_job(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    # One unit only, so the second job waits in the queue while the first is under way.
+    async with rig(broker, root, tmp_path, units=[("unit4", (9, 9), 20.0)]) as r:
+        r.submit((0, 0), (0, 9), 1.0, "far")
+        await async_wait_for(lambda: r.job_state("far") in ("to_pickup",), what="far under way")
+        r.submit((9, 8), (9, 0), 1.0, "waiting")
+        await async_wait_for(lambda: r.job_state("waiting") == "queued", what="queued")
+        for job_id in ("waiting", "far"):
+            req = CancelJob(
+                header=r.stamp("cancel_job"),
+                request_id=f"c-{job_id}",
+                reply_to="tester",
+                job_id=job_id,
+            )
+            r.probe.publish(r.topics.request("cancel_job"), encode(req))
+            rep = await async_wait_for(lambda j=job_id: r.reply(f"c-{j}"), what="cancel reply")
+            assert rep.accepted
+        await async_wait_for(
+            lambda: r.job_state("far") == "cancelled" and r.job_state("waiting") == "cancelled",
+            what="both cancelled",
+        )
+        # The unit is free again and takes new work.
+        r.submit((8, 9), (7, 9), 1.0, "after")
+        await async_wait_for(
+            lambda: r.job_state("after") == "done", timeout=20, what="new job done"
+        )
+        # Cancelling a final job is refused.
+        req = CancelJob(
+            header=r.stamp("cancel_job"), request_id="c-again", reply_to="tester", job_id="far"
+        )
+        r.probe.publish(r.topics.request("cancel_job"), encode(req))
+        again = await async_wait_for(lambda: r.reply("c-again"), what="reply")
+        assert not again.accepted
+
+
+async def test_estop_halts_releases_and_release_resumes(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path) as r:
+        r.submit((0, 5), (9, 5), 15.0, "long")
+        await async_wait_for(lambda: r.job_state("long") == "to_pickup", what="under way")
+        r.probe.publish(
+            r.topics.fleet("estop"), encode_estop(EstopSignal(True, "tester", "test")), retain=True
+        )
+        await async_wait_for(lambda: r.coordinator.core.estop, what="estop seen")
+        # From now on every order holds.
+        mark = {t: len(r.probe.received(t)) for t in (r.topics.unit("order", "unit4"),)}
+        topic = r.topics.unit("order", "unit4")
+        await async_wait_for(lambda: len(r.probe.received(topic)) > mark[topic] + 5, what="orders")
+        later = [json.loads(m.payload) for m in r.probe.received(topic)[mark[topic] :]]
+        assert all(o["released"] == [] for o in later)
+        before = r.fleet.units["unit4"].position
+        await async_wait_for(lambda: r.coordinator.core.step_no > 0, what="steps")
+        steps0 = r.fleet.steps
+        await async_wait_for(lambda: r.fleet.steps > steps0 + 5, what="fleet steps")
+        assert r.fleet.units["unit4"].position == before
+        # Malformed estop payloads are ignored and never release.
+        r.probe.publish(r.topics.fleet("estop"), b"released", retain=True)
+        await async_wait_for(lambda: r.coordinator.errors_sent > 0, what="error report")
+        assert r.coordinator.core.estop
+        r.probe.publish(
+            r.topics.fleet("estop"), encode_estop(EstopSignal(False, "tester", "ok")), retain=True
+        )
+        await async_wait_for(
+            lambda: r.job_state("long") == "done", timeout=30, what="resumed and done"
+        )
+        r.probe.publish(r.topics.fleet("estop"), b"", retain=True)
+
+
+async def test_lost_unit_job_is_requeued_and_finished_by_another(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    units = [("unit2", (9, 0), 5.0), ("unit3", (0, 9), 10.0)]
+    async with rig(broker, root, tmp_path, units=units) as r:
+        r.submit((8, 1), (8, 6), 4.0, "j")
+        await async_wait_for(lambda: r.job_state("j") == "to_pickup", what="assigned")
+        view = r.jobs()
+        assert view is not None
+        first = next(j.unit for j in view.jobs if j.id == "j")
+        assert first == "unit2"  # nearer
+        await r.fleet.kill("unit2")
+        await async_wait_for(lambda: r.job_state("j") == "done", timeout=30, what="done by another")
+        view = r.jobs()
+        assert view is not None
+        assert next(j.unit for j in view.jobs if j.id == "j") == "unit3"
+
+
+async def test_restart_mid_run_loses_no_job(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path) as r:
+        for i, (p, d, m) in enumerate(JOBS_12[:6]):
+            r.submit(p, d, m, f"job-{i}")
+        await async_wait_for(
+            lambda: (v := r.jobs()) is not None and len(v.jobs) == 6, what="6 listed"
+        )
+        await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
+        assert len(r.coordinator.core.jobs.jobs) == 6
+        await async_wait_for(
+            lambda: (v := r.jobs()) is not None and sum(j.state == "done" for j in v.jobs) == 6,
+            timeout=45,
+            what="all 6 done after the restart",
+        )
+        assert r.fleet.collisions == 0
+
+
+async def test_hidden_obstacle_is_merged_into_the_map(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    # The only short way from the pickup to the dropoff crosses a hidden obstacle at (2, 4).
+    async with rig(
+        broker, root, tmp_path, units=[("unit1", (0, 4), 2.0)], hidden={Cell(2, 4)}
+    ) as r:
+        r.submit((1, 4), (3, 4), 1.0, "through")
+        await async_wait_for(lambda: r.job_state("through") == "done", timeout=30, what="done")
+        fleet_map = r.probe.received(r.topics.fleet("map"))
+        assert any(b"[2,4]" in m.payload for m in fleet_map)
+
+
+@pytest.mark.parametrize("kind", ["submit_job", "cancel_job", "set_goal"])
+async def test_malformed_requests_are_refused_and_change_nothing(
+    broker: BrokerThread, root: str, tmp_path: Path, kind: str
+) -> None:
+    async with rig(broker, root, tmp_path, units=[("unit1", (0, 0), 2.0)]) as r:
+        await async_wait_for(lambda: r.jobs() is not None, what="jobs view")
+        topic = r.topics.request(kind)
+        bad = [b"{", b"[]", b"null", b'{"header": 1}', b"x" * 20000, "ü".encode() * 3, b"\xff\xfe"]
+        for payload in bad:
+            r.probe.publish(topic, payload)
+        await async_wait_for(lambda: r.coordinator.errors_sent >= len(bad), what="all refused")
+        assert r.coordinator.core.jobs.jobs == {}
+        assert r.coordinator.core.goals == {}
