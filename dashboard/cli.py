@@ -64,13 +64,7 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from(args)
     if not settings.mqtt_bundle.is_file():
         log.warning("%s", INSTALL_HINT)
-    server = DashboardServer(create_app(settings), args.host, args.port)
-    log.info(
-        "dashboard on http://%s:%d (broker %s, root %r)",
-        args.host,
-        args.port,
-        settings.broker_ws,
-        settings.root,
-    )
+    server = DashboardServer(create_app(settings), args.host, args.port).bind()
+    log.info("dashboard on %s (broker %s, root %r)", server.url, settings.broker_ws, settings.root)
     server.serve_forever()
     return 0

@@ -30,9 +30,16 @@ class DashboardServer:
         """e.g. http://127.0.0.1:5000"""
         return f"http://{self.host}:{self.port}"
 
+    def bind(self) -> DashboardServer:
+        """Open the listening socket (so `url` is known) without serving yet; returns self."""
+        if self._server is None:
+            self._server = make_server(self.host, self.requested_port, self.app, threaded=True)
+        return self
+
     def start(self) -> DashboardServer:
         """Bind and serve in a daemon thread; returns self."""
-        self._server = make_server(self.host, self.requested_port, self.app, threaded=True)
+        self.bind()
+        assert self._server is not None
         self._thread = threading.Thread(
             target=self._server.serve_forever, name="gridfleet-dashboard", daemon=True
         )
@@ -40,8 +47,9 @@ class DashboardServer:
         return self
 
     def serve_forever(self) -> None:
-        """Bind and serve in this thread until interrupted."""
-        self._server = make_server(self.host, self.requested_port, self.app, threaded=True)
+        """Bind (unless bound) and serve in this thread until interrupted."""
+        self.bind()
+        assert self._server is not None
         try:
             self._server.serve_forever()
         finally:

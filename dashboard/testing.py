@@ -92,9 +92,14 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
         colors: dict[str, str] | None = None,
         client_id: str = "dash-test",
         wait_connected: bool = True,
+        **settings_kw: Any,
     ) -> OpenDashboard:
         settings = DashboardSettings(
-            broker_ws=broker_ws or broker.ws_url, root=root, map=grid, colors=colors or {}
+            broker_ws=broker_ws or broker.ws_url,
+            root=root,
+            map=grid,
+            colors=colors or {},
+            **settings_kw,
         )
         server = DashboardServer(create_app(settings)).start()
         context = chromium.new_context(viewport=VIEWPORT)

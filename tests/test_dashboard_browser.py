@@ -15,6 +15,7 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     Connection,
+    CoordinatorStatus,
     Factsheet,
     FleetMap,
     HeaderStamper,
@@ -202,6 +203,8 @@ def test_units_appear_at_their_positions_and_move(
     expect(page.locator("#map")).to_have_attribute(
         "data-units", "unit1@1,0 unit2@9,0 unit3@0,9 unit4@9,9"
     )
+    fleet.state("unit2", (9, 1), "S", "waiting", obstacles=[(7, 2)])
+    expect(page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
     fleet.connection("unit3", "broken")
     expect(row(dash, "unit3").locator(".link")).to_have_text("broken")
 
@@ -209,6 +212,7 @@ def test_units_appear_at_their_positions_and_move(
     fleet.probe.publish(fleet.topics.unit("state", "unit2"), b"{not json", qos=0)
     fleet.probe.publish(fleet.topics.fleet("estop"), b"maybe|x|y", qos=1)
     fleet.state("unit2", (8, 0), "W", "moving")
+    fleet.state("unit1", (1, 0), "E", "moving", job_id="job-1", load_kg=1.5)
     expect(row(dash, "unit2").locator(".pos")).to_have_text("[8, 0]")
     expect(page.locator("body")).not_to_have_attribute("data-estop", "engaged")
     expect(page.locator("#log")).to_contain_text("malformed JSON")
@@ -259,10 +263,18 @@ def test_live_playfield_screenshot(
             ),
         ]
     )
+    fleet._send(
+        "coordinator",
+        fleet.topics.fleet("coordinator"),
+        lambda h: CoordinatorStatus(header=h, state="online", step=42, step_period_s=1.0),
+        "coordinator",
+    )
     dash = open_dashboard(root)
     expect(dash.page.locator("#map")).to_have_attribute(
         "data-units", "unit1@3,1 unit2@8,2 unit3@1,8 unit4@4,4"
     )
+    expect(dash.page.locator("#coord")).to_have_text("coordinator: online, step 42")
+    expect(dash.page.locator("#map")).to_have_attribute("data-obstacles", "4,5*")
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(4)
     expect(dash.page.locator("#finished-counts")).to_have_text("done 1 · rejected 1")
     shot = dash.screenshot("dashboard-playfield")
@@ -428,6 +440,7 @@ def test_set_goal_by_clicking_the_map(
 
 def test_stop_button_engages_and_hold_releases(
     open_dashboard: Callable[..., OpenDashboard],
+    broker: BrokerThread,
     fleet: FakeFleet,
     grid: GridMap,
     root: str,
@@ -443,7 +456,7 @@ def test_stop_button_engages_and_hold_releases(
     signal = decode_estop(seen.payload)
     assert signal.by == "dashboard" and seen.qos == 1
     # Retained: a newcomer learns the stop from the broker.
-    late = MqttProbe(fleet.probe._broker.__str__()).connect()
+    late = MqttProbe(broker.url).connect()
     try:
         late.subscribe(estop_topic)
         assert decode_estop(late.wait(estop_topic).payload).engaged
@@ -513,3 +526,11 @@ def test_reconnects_after_broker_restart(
         dash.page.locator("#stop").click()
         assert decode_estop(probe.wait(topics.fleet("estop")).payload).engaged
     assert dash.errors == []
+
+
+def test_missing_mqtt_js_says_how_to_install(
+    open_dashboard: Callable[..., OpenDashboard], root: str, tmp_path: Path
+) -> None:
+    dash = open_dashboard(root, wait_connected=False, node_modules=tmp_path)
+    expect(dash.page.locator("#fatal")).to_contain_text("run 'npm ci' in the dashboard/ folder")
+    expect(dash.page.locator("#conn")).to_have_attribute("data-state", "failed")

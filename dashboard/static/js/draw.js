@@ -56,7 +56,9 @@ export function drawFleet(canvas, view, now, ui) {
     g.stroke();
   }
   // Discovered obstacles; new ones flash.
-  for (const o of view.knownObstacles(now)) {
+  const obstacles = view.knownObstacles(now);
+  canvas.dataset.obstacles = obstacles.map((o) => `${o.x},${o.y}${o.fresh ? "*" : ""}`).sort().join(" ");
+  for (const o of obstacles) {
     const [sx, sy] = at(o.x, o.y);
     g.fillStyle = "#6d4c41";
     g.fillRect(sx, sy, c, c);
@@ -174,9 +176,11 @@ export function drawFleet(canvas, view, now, ui) {
 function drawTarget(g, [cx, cy], c, color) {
   g.strokeStyle = color;
   g.lineWidth = Math.max(2, c * 0.08);
+  // Two rings: a target, leaving room for a pickup/dropoff letter inside.
+  g.beginPath();
+  g.arc(cx, cy, c * 0.44, 0, 2 * Math.PI);
+  g.stroke();
   g.beginPath();
   g.arc(cx, cy, c * 0.3, 0, 2 * Math.PI);
-  g.moveTo(cx - c * 0.2, cy - c * 0.2); g.lineTo(cx + c * 0.2, cy + c * 0.2);
-  g.moveTo(cx + c * 0.2, cy - c * 0.2); g.lineTo(cx - c * 0.2, cy + c * 0.2);
   g.stroke();
 }

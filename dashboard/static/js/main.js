@@ -362,6 +362,7 @@ class Dashboard {
       const td = tr.querySelector(".seen");
       if (!u || !td) continue;
       td.textContent = u.lastSeen == null ? "never" : `${Math.max(0, Math.round((now - u.lastSeen) / 1000))} s ago`;
+      tr.classList.toggle("silent", this.view.isSilent(u, now));
     }
   }
 

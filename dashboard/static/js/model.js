@@ -94,6 +94,13 @@ export class FleetView {
     });
   }
 
+  /** A unit whose state has been silent for 5 step periods (≥ 0.5 s), as protocol.md §8 says. */
+  isSilent(u, now) {
+    if (u.lastSeen == null) return false;
+    const period = u.factsheet?.step_period_s ?? 1;
+    return now - u.lastSeen > Math.max(500, 5 * period * 1000);
+  }
+
   activeJobs() { return this.jobs.filter((j) => !FINAL_JOB_STATES.has(j.state)); }
   finishedJobs() { return this.jobs.filter((j) => FINAL_JOB_STATES.has(j.state)); }
 
