@@ -249,10 +249,10 @@ def test_live_playfield_screenshot(
     )
     fleet.jobs(
         [
-            job("job-1", "loaded", "unit1", pickup=(1, 1), dropoff=(8, 8)),
-            job("job-2", "to_pickup", "unit2", pickup=(8, 1), dropoff=(1, 8), mass_kg=4.0),
-            job("job-3", "queued", None, pickup=(5, 0), dropoff=(5, 9), mass_kg=8.0),
-            job("job-4", "to_pickup", "unit3", pickup=(0, 5), dropoff=(9, 5), mass_kg=15.0),
+            job("job-1", "to_dropoff", "unit1", pickup=(1, 1), dropoff=(8, 1)),
+            job("job-2", "to_pickup", "unit2", pickup=(8, 8), dropoff=(1, 8), mass_kg=4.0),
+            job("job-3", "to_pickup", "unit3", pickup=(0, 5), dropoff=(5, 9), mass_kg=8.0),
+            job("job-4", "queued", None, pickup=(5, 0), dropoff=(9, 5), mass_kg=15.0),
             job("job-0", "done", "unit4", pickup=(2, 0), dropoff=(9, 2)),
             job(
                 "job-9",

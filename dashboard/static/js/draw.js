@@ -60,10 +60,10 @@ export function drawFleet(canvas, view, now, ui) {
   canvas.dataset.obstacles = obstacles.map((o) => `${o.x},${o.y}${o.fresh ? "*" : ""}`).sort().join(" ");
   for (const o of obstacles) {
     const [sx, sy] = at(o.x, o.y);
-    g.fillStyle = "#6d4c41";
+    g.fillStyle = o.fresh && Math.floor(now / 300) % 2 === 0 ? "#ff8f00" : "#6d4c41";
     g.fillRect(sx, sy, c, c);
-    if (o.fresh && Math.floor(now / 250) % 2 === 0) {
-      g.strokeStyle = "#ff6f00";
+    if (o.fresh) {
+      g.strokeStyle = "#e65100";
       g.lineWidth = Math.max(2, c * 0.12);
       g.strokeRect(sx + 2, sy + 2, c - 4, c - 4);
     }
