@@ -72,7 +72,7 @@ export class Stamper {
 
 /** `engaged|<by>|<reason>` or `released|<by>|<reason>`; the reason is one line, ≤ 200 chars. */
 export function encodeEstop(engaged, by, reason) {
-  const line = String(reason).replace(/[\r\n\0|]/g, " ").slice(0, 200);
+  const line = String(reason).replace(/[\r\n\0]/g, " ").slice(0, 200);
   return `${engaged ? "engaged" : "released"}|${by}|${line}`;
 }
 
