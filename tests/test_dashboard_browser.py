@@ -217,6 +217,12 @@ def test_units_appear_at_their_positions_and_move(
     expect(page.locator("body")).not_to_have_attribute("data-estop", "engaged")
     expect(page.locator("#log")).to_contain_text("malformed JSON")
 
+    # The map scales with the window.
+    big = float(page.locator("#map").get_attribute("data-cell") or 0)
+    page.set_viewport_size({"width": 900, "height": 600})
+    expect(page.locator("#map")).not_to_have_attribute("data-cell", str(int(big)))
+    assert 0 < float(page.locator("#map").get_attribute("data-cell") or 0) < big
+
     # A reload recovers the full view from retained messages alone.
     page.reload()
     dash.wait_connected()
@@ -534,3 +540,25 @@ def test_missing_mqtt_js_says_how_to_install(
     dash = open_dashboard(root, wait_connected=False, node_modules=tmp_path)
     expect(dash.page.locator("#fatal")).to_contain_text("run 'npm ci' in the dashboard/ folder")
     expect(dash.page.locator("#conn")).to_have_attribute("data-state", "failed")
+
+
+def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
+    open_dashboard: Callable[..., OpenDashboard],
+    fresh_broker: BrokerThread,
+    grid: GridMap,
+    root: str,
+    topics: Topics,
+) -> None:
+    dash = open_dashboard(root, broker_ws=fresh_broker.ws_url, grid=grid)
+    fresh_broker.stop()
+    expect(dash.page.locator("#conn")).not_to_have_attribute("data-state", "connected")
+    dash.page.locator("#stop").click()
+    # The page shows the stop at once, even before any broker has it.
+    expect(dash.page.locator("body")).to_have_attribute("data-estop", "engaged")
+    expect(dash.page.locator("#estop-banner")).to_contain_text("sending")
+    fresh_broker.start()
+    dash.wait_connected()
+    with MqttProbe(fresh_broker.url) as probe:
+        probe.subscribe(topics.fleet("estop"))  # retained: it arrived while we were away
+        assert decode_estop(probe.wait(topics.fleet("estop")).payload).engaged
+    expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by dashboard")
