@@ -39,22 +39,8 @@ export function drawFleet(canvas, view, now, ui) {
     g.fillText("waiting for the map (fleet/map)…", 20, 30);
     return L;
   }
-  // Floor and walls.
-  for (let y = 0; y < map.height; y++) {
-    for (let x = 0; x < map.width; x++) {
-      const [sx, sy] = at(x, y);
-      g.fillStyle = map.rows[y][x] === "." ? "#fafafa" : "#37474f";
-      g.fillRect(sx, sy, c, c);
-    }
-  }
-  if (c >= 6) {
-    g.strokeStyle = "#d0d4d8";
-    g.lineWidth = 1;
-    g.beginPath();
-    for (let x = 0; x <= map.width; x++) { g.moveTo(L.ox + x * c + 0.5, L.oy); g.lineTo(L.ox + x * c + 0.5, L.oy + map.height * c); }
-    for (let y = 0; y <= map.height; y++) { g.moveTo(L.ox, L.oy + y * c + 0.5); g.lineTo(L.ox + map.width * c, L.oy + y * c + 0.5); }
-    g.stroke();
-  }
+  // Floor, walls and grid lines change only with the map or the window: drawn once, then copied.
+  g.drawImage(baseLayer(map, L, dpr), 0, 0, L.w, L.h);
   // Discovered obstacles; new ones flash.
   const obstacles = view.knownObstacles(now);
   canvas.dataset.obstacles = obstacles.map((o) => `${o.x},${o.y}${o.fresh ? "*" : ""}`).sort().join(" ");
@@ -171,6 +157,39 @@ export function drawFleet(canvas, view, now, ui) {
   canvas.dataset.ox = String(L.ox);
   canvas.dataset.oy = String(L.oy);
   return L;
+}
+
+const baseCache = { map: null, key: "", canvas: null };
+
+function baseLayer(map, L, dpr) {
+  const key = `${L.w}x${L.h}@${dpr}`;
+  if (baseCache.map === map && baseCache.key === key) return baseCache.canvas;
+  const canvas = baseCache.canvas ?? document.createElement("canvas");
+  canvas.width = Math.round(L.w * dpr);
+  canvas.height = Math.round(L.h * dpr);
+  const g = canvas.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, L.w, L.h);
+  const c = L.cell;
+  g.fillStyle = "#fafafa";
+  g.fillRect(L.ox, L.oy, map.width * c, map.height * c);
+  g.fillStyle = "#37474f";
+  for (let y = 0; y < map.height; y++) {
+    const row = map.rows[y];
+    for (let x = 0; x < map.width; x++) {
+      if (row[x] !== ".") g.fillRect(L.ox + x * c, L.oy + y * c, c, c);
+    }
+  }
+  if (c >= 6) {
+    g.strokeStyle = "#d0d4d8";
+    g.lineWidth = 1;
+    g.beginPath();
+    for (let x = 0; x <= map.width; x++) { g.moveTo(L.ox + x * c + 0.5, L.oy); g.lineTo(L.ox + x * c + 0.5, L.oy + map.height * c); }
+    for (let y = 0; y <= map.height; y++) { g.moveTo(L.ox, L.oy + y * c + 0.5); g.lineTo(L.ox + map.width * c, L.oy + y * c + 0.5); }
+    g.stroke();
+  }
+  Object.assign(baseCache, { map, key, canvas });
+  return canvas;
 }
 
 function drawTarget(g, [cx, cy], c, color) {
