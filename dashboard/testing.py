@@ -52,6 +52,58 @@ class OpenDashboard:
         )
         canvas.click(position={"x": ox + (x + 0.5) * cell, "y": oy + (y + 0.5) * cell})
 
+    def drawn_units(self) -> dict[str, tuple[int, int]]:
+        """Where the map canvas last drew each unit."""
+        text = self.page.locator("#map").get_attribute("data-units") or ""
+        found: dict[str, tuple[int, int]] = {}
+        for item in text.split():
+            unit, _, square = item.partition("@")
+            x, y = square.split(",")
+            found[unit] = (int(x), int(y))
+        return found
+
+    def submit_job(
+        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass_kg: float, priority: int = 0
+    ) -> None:
+        """Fill the job form and press "queue job" (as an operator would)."""
+        form = self.page.locator("#job-form")
+        values = {
+            "px": pickup[0],
+            "py": pickup[1],
+            "dx": dropoff[0],
+            "dy": dropoff[1],
+            "mass": mass_kg,
+            "priority": priority,
+        }
+        for name, value in values.items():
+            form.locator(f"input[name={name}]").fill(str(value))
+        form.locator("button[type=submit]").click()
+
+    def set_goal(self, unit: str, target: tuple[int, int]) -> None:
+        """Choose `unit` and send it to `target` with the goal form."""
+        form = self.page.locator("#goal-form")
+        form.locator("select[name=unit]").select_option(unit)
+        form.locator("input[name=x]").fill(str(target[0]))
+        form.locator("input[name=y]").fill(str(target[1]))
+        form.locator("button[type=submit]").click()
+
+    def cancel_job(self, job_id: str) -> None:
+        """Press the job's "delete" button in the queue."""
+        self.page.locator(f"#jobs button[data-cancel='{job_id}']").click()
+
+    def press_stop(self) -> None:
+        """One click on STOP."""
+        self.page.locator("#stop").click()
+
+    def hold_release(self) -> None:
+        """Press and hold "hold to release" until the page has released the stop."""
+        self.page.locator("#release").hover()
+        self.page.mouse.down()
+        try:
+            self.page.wait_for_selector("#release", state="hidden", timeout=10000)
+        finally:
+            self.page.mouse.up()
+
     def screenshot(self, name: str) -> Path:
         """Save a full-page screenshot under test-artifacts/ and return its path."""
         ARTIFACTS.mkdir(exist_ok=True)

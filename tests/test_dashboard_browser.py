@@ -203,6 +203,7 @@ def test_units_appear_at_their_positions_and_move(
     expect(page.locator("#map")).to_have_attribute(
         "data-units", "unit1@1,0 unit2@9,0 unit3@0,9 unit4@9,9"
     )
+    assert dash.drawn_units()["unit1"] == (1, 0)
     fleet.state("unit2", (9, 1), "S", "waiting", obstacles=[(7, 2)])
     expect(page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
     fleet.connection("unit3", "broken")
@@ -296,10 +297,7 @@ def test_submit_job_through_the_form(
 ) -> None:
     playfield_fleet(fleet, grid)
     dash = open_dashboard(root)
-    form = dash.page.locator("#job-form")
-    for name, value in (("px", "1"), ("py", "1"), ("dx", "8"), ("dy", "8"), ("mass", "1.5")):
-        form.locator(f"input[name={name}]").fill(value)
-    form.locator("button[type=submit]").click()
+    dash.submit_job((1, 1), (8, 8), 1.5)
 
     seen = fleet.probe.wait(topics.request("submit_job"))
     request = decode(SubmitJob, seen.payload)
@@ -385,11 +383,7 @@ def test_rejection_is_shown_in_words(
     expect(feedback).to_have_attribute("data-kind", "refused")
 
     # A refusal that comes only on `errors` (with our request id) is shown the same way.
-    dash.page.locator("#goal-unit").select_option("unit2")
-    goal_form = dash.page.locator("#goal-form")
-    goal_form.locator("input[name=x]").fill("2")
-    goal_form.locator("input[name=y]").fill("2")
-    goal_form.locator("button[type=submit]").click()
+    dash.set_goal("unit2", (2, 2))
     goal = decode(SetGoal, fleet.probe.wait(topics.request("set_goal")).payload)
     fleet._send(
         "errors",
@@ -415,7 +409,7 @@ def test_delete_publishes_cancel_job(
     playfield_fleet(fleet, grid)
     fleet.jobs([job("job-3", "queued"), job("job-4", "to_pickup", "unit2")])
     dash = open_dashboard(root)
-    dash.page.locator("#jobs button[data-cancel='job-4']").click()
+    dash.cancel_job("job-4")
     request = decode(CancelJob, fleet.probe.wait(topics.request("cancel_job")).payload)
     assert request.job_id == "job-4" and request.reply_to == dash.client_id
     fleet.reply(dash.client_id, request.request_id, True, None)
@@ -477,10 +471,8 @@ def test_stop_button_engages_and_hold_releases(
     release.hover()
     page.mouse.down()
     page.mouse.up()
-    release.hover()
-    page.mouse.down()
+    dash.hold_release()
     fleet.probe.wait(estop_topic, lambda m: not decode_estop(m.payload).engaged, timeout=5)
-    page.mouse.up()
     releases = [m for m in fleet.probe.received(estop_topic) if not decode_estop(m.payload).engaged]
     assert len(releases) == 1 and decode_estop(releases[0].payload).by == "dashboard"
     expect(page.locator("body")).to_have_attribute("data-estop", "released")

@@ -272,6 +272,7 @@ class Dashboard {
 
   sendGoal(unit, target) {
     if (!unit) { this.feedback("goal", "refused", "choose a unit first (list or map)"); return; }
+    if (target && !this.view.map) { this.feedback("goal", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
     if (target && !this.view.onMap(target[0], target[1])) {
       this.feedback("goal", "refused", `[${target}] is not a square of the map`); return;
     }
@@ -284,6 +285,7 @@ class Dashboard {
     const pickup = sq("px", "py"), dropoff = sq("dx", "dy");
     const mass = Number(f.mass.value), priority = Number(f.priority.value || 0);
     const jobId = f.job_id.value.trim() || null;
+    if (!this.view.map) { this.feedback("job", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
     for (const [name, s] of [["pickup", pickup], ["dropoff", dropoff]]) {
       if (!this.view.onMap(s[0], s[1])) { this.feedback("job", "refused", `${name} [${s}] is not a square of the map`); return; }
     }
