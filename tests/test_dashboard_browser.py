@@ -464,6 +464,13 @@ def test_stop_button_engages_and_hold_releases(
         late.close()
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
     expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
+    # The banner changes the layout; the map is redrawn to fit its box again.
+    page.wait_for_function(
+        """() => {
+            const c = document.querySelector('#map'), box = c.parentElement.getBoundingClientRect();
+            return Number(c.dataset.oy) + 10 * Number(c.dataset.cell) <= box.height;
+        }"""
+    )
     dash.screenshot("dashboard-stopped")
 
     # A short press does not release; holding for 1.5 s does.

@@ -64,7 +64,8 @@ class Dashboard {
   run() {
     this.connect();
     this.bindControls();
-    window.addEventListener("resize", () => { this.dirty = true; });
+    // The map's box changes with the window and with the page around it (e.g. the stop banner).
+    new ResizeObserver(() => { this.dirty = true; }).observe($("#canvas-wrap"));
     const frame = () => {
       const now = Date.now();
       // Redraw on change, and while a fresh obstacle flashes.
