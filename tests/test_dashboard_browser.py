@@ -436,6 +436,11 @@ def test_set_goal_by_clicking_the_map(
     dash.click_square(9, 3)
     request = decode(SetGoal, fleet.probe.wait(topics.request("set_goal")).payload)
     assert (request.unit, request.target, request.reply_to) == ("unit2", (9, 3), dash.client_id)
+    dash.page.locator("#goal-clear").click()
+    cleared = fleet.probe.wait(
+        topics.request("set_goal"), lambda m: decode(SetGoal, m.payload).target is None
+    )
+    assert decode(SetGoal, cleared.payload).unit == "unit2"
 
 
 def test_stop_button_engages_and_hold_releases(
