@@ -62,3 +62,7 @@ def probe_factory(broker: BrokerThread) -> Iterator[Callable[..., MqttProbe]]:
 def playfield() -> Path:
     """The course's playfield scenario."""
     return MAPS / "playfield.toml"
+
+
+# Browser fixtures of the dashboard (`chromium`, `open_dashboard`), usable by any test.
+pytest_plugins = ["dashboard.testing"]

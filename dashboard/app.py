@@ -1,0 +1,40 @@
+"""The Flask app: the page, its static files, the MQTT.js bundle from node_modules, and settings."""
+
+from __future__ import annotations
+
+from flask import Flask, Response, jsonify, send_from_directory
+
+from dashboard.settings import INSTALL_HINT, PACKAGE_DIR, DashboardSettings, settings_payload
+
+STATIC = PACKAGE_DIR / "static"
+
+
+def create_app(settings: DashboardSettings) -> Flask:
+    """A Flask app serving the dashboard for `settings`."""
+    app = Flask(__name__, static_folder=str(STATIC), static_url_path="/static")
+    # The page is small and changes with upgrades: never let a browser run yesterday's code.
+    app.config["SEND_FILE_MAX_AGE_DEFAULT"] = 0
+    app.extensions["gridfleet_settings"] = settings
+
+    @app.get("/")
+    def index() -> Response:
+        return send_from_directory(STATIC, "index.html")
+
+    @app.get("/api/settings")
+    def api_settings() -> Response:
+        return jsonify(settings_payload(settings, settings.mqtt_bundle.is_file()))
+
+    @app.get("/vendor/mqtt.esm.js")
+    def mqtt_bundle() -> Response:
+        bundle = settings.mqtt_bundle
+        if not bundle.is_file():
+            # A module that throws says what to do, in the console and to the page's loader.
+            body = f"throw new Error({INSTALL_HINT!r});\n"
+            return Response(body, status=503, mimetype="text/javascript")
+        return send_from_directory(bundle.parent, bundle.name, mimetype="text/javascript")
+
+    @app.get("/healthz")
+    def healthz() -> Response:
+        return jsonify({"ok": True})
+
+    return app

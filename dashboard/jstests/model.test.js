@@ -1,0 +1,64 @@
+// FleetView: the page's pure model of the fleet, fed with message text.
+import assert from "node:assert/strict";
+import { test } from "node:test";
+import { FleetView, HIGHLIGHT_MS } from "../static/js/model.js";
+
+const state = (pos, extra = {}) => JSON.stringify({ header: {}, step: 1, position: pos, direction: "-", status: "idle", ...extra });
+const MAP = { name: "m", width: 3, height: 2, rows: ["..@", "..."], obstacles: [] };
+
+test("units come from connection, factsheet and state", () => {
+  const v = new FleetView();
+  assert.equal(v.apply("connection", "u1", JSON.stringify({ state: "online" }), 0), null);
+  v.apply("factsheet", "u1", JSON.stringify({ capacity_kg: 5, step_period_s: 0.1, color: "#112233" }), 0);
+  v.apply("state", "u1", state([1, 0]), 100);
+  const u = v.units.get("u1");
+  assert.equal(u.connection, "online");
+  assert.deepEqual(u.state.position, [1, 0]);
+  assert.equal(u.lastSeen, 100);
+  assert.equal(v.colorOf("u1"), "#112233");
+  assert.equal(v.colorOf("nobody"), "#607d8b");
+});
+
+test("bad input is reported and changes nothing", () => {
+  const v = new FleetView();
+  v.apply("state", "u1", state([1, 0]), 0);
+  assert.match(v.apply("state", "u1", "{oops", 1), /malformed JSON/);
+  assert.match(v.apply("state", "u1", JSON.stringify({ step: 2 }), 1), /without a position/);
+  assert.match(v.apply("map", null, JSON.stringify({ width: 3 }), 1), /without rows/);
+  assert.deepEqual(v.units.get("u1").state.position, [1, 0]);
+  v.apply("estop", null, "engaged|device1|x", 2);
+  assert.match(v.apply("estop", null, "nonsense", 3), /invalid emergency-stop/);
+  assert.equal(v.stopped, true, "an invalid payload never releases");
+});
+
+test("a cleared retained message removes the unit", () => {
+  const v = new FleetView();
+  v.apply("state", "u1", state([0, 0]), 0);
+  v.apply("state", "u1", "", 1);
+  assert.equal(v.units.has("u1"), false);
+});
+
+test("obstacles are highlighted while new, then plain", () => {
+  const v = new FleetView(MAP);
+  v.apply("state", "u1", state([0, 0], { obstacles: [[1, 1]] }), 1000);
+  v.apply("map", null, JSON.stringify({ ...MAP, obstacles: [[1, 1], [0, 1]] }), 2000);
+  assert.deepEqual(v.knownObstacles(2000), [{ x: 1, y: 1, fresh: true }, { x: 0, y: 1, fresh: true }]);
+  assert.deepEqual(v.knownObstacles(1000 + HIGHLIGHT_MS).map((o) => o.fresh), [false, true]);
+  assert.equal(v.isFree(1, 1), false);
+  assert.equal(v.isFree(2, 0), false);
+  assert.equal(v.isFree(1, 0), true);
+  assert.equal(v.onMap(2, 1), true);
+  assert.equal(v.onMap(3, 0), false);
+});
+
+test("jobs split into active and finished; silent units", () => {
+  const v = new FleetView();
+  v.apply("jobs", null, JSON.stringify({ jobs: [{ id: "a", state: "queued" }, { id: "b", state: "done" }, { id: "c", state: "failed" }], counts: { done: 1 } }), 0);
+  assert.deepEqual(v.activeJobs().map((j) => j.id), ["a"]);
+  assert.deepEqual(v.finishedJobs().map((j) => j.id), ["b", "c"]);
+  v.apply("factsheet", "u1", JSON.stringify({ capacity_kg: 1, step_period_s: 0.2 }), 0);
+  v.apply("state", "u1", state([0, 0]), 0);
+  const u = v.units.get("u1");
+  assert.equal(v.isSilent(u, 900), false);
+  assert.equal(v.isSilent(u, 1100), true);
+});

@@ -1,0 +1,435 @@
+// The page: connects to the broker, keeps a FleetView, renders it, and sends operator requests.
+
+import { drawFleet, squareAt } from "./draw.js";
+import { FleetView } from "./model.js";
+import {
+  encodeEstop, ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor,
+} from "./protocol.js";
+
+const $ = (sel) => document.querySelector(sel);
+const HOLD_MS = 1500; // release needs a deliberate press-and-hold
+const ESTOP_BY = "dashboard";
+
+function fatal(text) {
+  const el = $("#fatal");
+  el.textContent = text;
+  el.hidden = false;
+  $("#conn").dataset.state = "failed";
+  $("#conn").textContent = "no MQTT client";
+}
+
+async function start() {
+  let settings;
+  try {
+    const res = await fetch("/api/settings");
+    settings = await res.json();
+  } catch (e) {
+    fatal(`cannot load /api/settings from the dashboard server: ${e}`);
+    return;
+  }
+  if (!settings.mqtt_js.available) {
+    fatal(settings.mqtt_js.hint);
+    return;
+  }
+  let mqtt;
+  try {
+    mqtt = (await import("/vendor/mqtt.esm.js")).default;
+  } catch (e) {
+    fatal(`cannot load MQTT.js (${e.message}). ${settings.mqtt_js.hint ?? ""}`);
+    return;
+  }
+  const params = new URLSearchParams(location.search);
+  const wanted = params.get("client");
+  const clientId = wanted && ID_RE.test(wanted) ? wanted : makeClientId(settings.client_prefix);
+  new Dashboard(mqtt, settings, clientId).run();
+}
+
+class Dashboard {
+  constructor(mqtt, settings, clientId) {
+    this.mqttLib = mqtt;
+    this.settings = settings;
+    this.clientId = clientId;
+    this.topics = topicsFor(settings.root);
+    this.view = new FleetView(settings.map, settings.colors ?? {});
+    this.stamper = new Stamper(clientId);
+    this.pending = new Map(); // request_id -> {form, what}
+    this.nextRequest = 1;
+    this.ui = { mode: "none", selectedUnit: null, pending: null, jobClicks: [] };
+    this.layout = null;
+    this.dirty = true;
+    this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
+    document.body.dataset.clientId = clientId;
+  }
+
+  run() {
+    this.connect();
+    this.bindControls();
+    // The map's box changes with the window and with the page around it (e.g. the stop banner).
+    new ResizeObserver(() => { this.dirty = true; }).observe($("#canvas-wrap"));
+    const frame = () => {
+      const now = Date.now();
+      // Redraw on change, and while a fresh obstacle flashes.
+      if (this.dirty || this.view.knownObstacles(now).some((o) => o.fresh)) {
+        this.render(now);
+        this.dirty = false;
+      }
+      requestAnimationFrame(frame);
+    };
+    requestAnimationFrame(frame);
+    setInterval(() => this.renderSeen(Date.now()), 500);
+  }
+
+  // ---- MQTT ----
+  connect() {
+    const subs = subscriptions(this.topics, this.clientId);
+    this.client = this.mqttLib.connect(this.settings.broker_ws, {
+      clientId: this.clientId,
+      clean: true,
+      reconnectPeriod: 1000,
+      connectTimeout: 5000,
+      keepalive: 30,
+      resubscribe: false, // we subscribe on every connect ourselves, so a restarted broker gets them
+    });
+    const conn = $("#conn");
+    const setConn = (state, text) => { conn.dataset.state = state; conn.textContent = text; this.renderEstop(); };
+    this.client.on("connect", () => {
+      this.client.subscribe(subs, (err) => {
+        if (err) { setConn("failed", `subscribe failed: ${err.message}`); return; }
+        setConn("connected", "broker: connected");
+      });
+    });
+    this.client.on("reconnect", () => setConn("reconnecting", "broker: reconnecting…"));
+    this.client.on("close", () => { if (conn.dataset.state === "connected") setConn("reconnecting", "broker: connection lost, reconnecting…"); });
+    this.client.on("offline", () => setConn("reconnecting", "broker: offline, reconnecting…"));
+    this.client.on("error", (err) => this.log(`broker error: ${err.message}`));
+    this.client.on("message", (topic, payload) => this.onMessage(topic, payload));
+  }
+
+  onMessage(topic, payload) {
+    const parsed = parseTopic(this.topics.prefix, topic);
+    if (!parsed) return;
+    const text = new TextDecoder().decode(payload);
+    if (parsed.kind === "reply") {
+      if (parsed.id === this.clientId) this.onReply(text);
+      return;
+    }
+    const problem = this.view.apply(parsed.kind, parsed.id, text, Date.now());
+    if (problem) this.log(problem);
+    if (parsed.kind === "errors" && !problem) this.onError(this.view.lastError);
+    if (parsed.kind === "estop") this.localStop = false;
+    this.dirty = true;
+  }
+
+  onReply(text) {
+    let reply;
+    try { reply = JSON.parse(text); } catch { this.log("ignored a malformed reply"); return; }
+    const req = this.pending.get(reply.request_id);
+    if (!req) return;
+    this.pending.delete(reply.request_id);
+    if (reply.accepted) {
+      const extra = reply.job_id ? ` (job ${reply.job_id})` : "";
+      this.feedback(req.form, "ok", `${req.what}: accepted${extra}`);
+    } else {
+      this.feedback(req.form, "refused", `${req.what}: refused — ${reply.reason ?? "no reason given"}`);
+    }
+  }
+
+  onError(err) {
+    if (!err) return;
+    const req = err.request_id ? this.pending.get(err.request_id) : null;
+    if (req) {
+      this.pending.delete(err.request_id);
+      this.feedback(req.form, "refused", `${req.what}: refused — ${err.reason}`);
+    }
+    this.log(`${err.header?.sender ?? "?"} refused a message on ${err.topic}: ${err.reason}`);
+  }
+
+  request(kind, form, what, body) {
+    const request_id = `${this.clientId}-${this.nextRequest++}`.slice(-64);
+    const msg = { header: this.stamper.header(kind), request_id, reply_to: this.clientId, ...body };
+    this.pending.set(request_id, { form, what });
+    this.client.publish(this.topics.request(kind), JSON.stringify(msg), { qos: 1, retain: false });
+    const note = this.client.connected ? "sent, waiting for the coordinator…" : "queued: not connected to the broker";
+    this.feedback(form, "pending", `${what}: ${note}`);
+    return request_id;
+  }
+
+  publishEstop(engaged, reason) {
+    const payload = encodeEstop(engaged, ESTOP_BY, reason);
+    this.client.publish(this.topics.estop, payload, { qos: 1, retain: true });
+  }
+
+  // ---- controls ----
+  bindControls() {
+    $("#stop").addEventListener("click", () => {
+      this.localStop = true;
+      this.publishEstop(true, `operator pressed STOP on ${this.clientId}`);
+      this.log("STOP pressed: emergency stop sent");
+      this.renderEstop();
+    });
+    this.bindRelease($("#release"));
+    for (const r of document.querySelectorAll("input[name=clickmode]")) {
+      r.addEventListener("change", () => {
+        this.ui.mode = r.value;
+        this.ui.jobClicks = [];
+        this.ui.pending = null;
+        this.dirty = true;
+      });
+    }
+    const canvas = $("#map");
+    canvas.addEventListener("click", (ev) => this.onMapClick(ev));
+    canvas.addEventListener("mousemove", (ev) => {
+      const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
+      $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
+    });
+    $("#goal-unit").addEventListener("change", (ev) => { this.ui.selectedUnit = ev.target.value || null; this.dirty = true; });
+    $("#goal-form").addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      const f = ev.target;
+      this.sendGoal(f.unit.value, [Number(f.x.value), Number(f.y.value)]);
+    });
+    $("#goal-clear").addEventListener("click", () => this.sendGoal($("#goal-unit").value, null));
+    $("#job-form").addEventListener("submit", (ev) => { ev.preventDefault(); this.submitJob(ev.target); });
+    $("#jobs tbody").addEventListener("click", (ev) => {
+      const btn = ev.target.closest("button[data-cancel]");
+      if (!btn) return;
+      const id = btn.dataset.cancel;
+      this.request("cancel_job", "cancel", `delete job ${id}`, { job_id: id });
+    });
+    $("#units tbody").addEventListener("click", (ev) => {
+      const row = ev.target.closest("tr[data-unit]");
+      if (row) this.selectUnit(row.dataset.unit);
+    });
+  }
+
+  bindRelease(btn) {
+    let timer = null, startedAt = 0, raf = null;
+    const fill = btn.querySelector(".fill");
+    const cancel = () => {
+      clearTimeout(timer); timer = null;
+      cancelAnimationFrame(raf);
+      fill.style.width = "0%";
+      btn.classList.remove("holding");
+    };
+    const grow = () => {
+      fill.style.width = `${Math.min(100, ((Date.now() - startedAt) / HOLD_MS) * 100)}%`;
+      if (timer) raf = requestAnimationFrame(grow);
+    };
+    const begin = (ev) => {
+      ev.preventDefault();
+      if (timer) return;
+      startedAt = Date.now();
+      btn.classList.add("holding");
+      timer = setTimeout(() => {
+        timer = null;
+        cancel();
+        this.localStop = false;
+        this.publishEstop(false, `released by operator on ${this.clientId}`);
+        this.log("emergency stop released by operator");
+      }, HOLD_MS);
+      raf = requestAnimationFrame(grow);
+    };
+    btn.addEventListener("pointerdown", begin);
+    btn.addEventListener("keydown", (ev) => { if ((ev.key === " " || ev.key === "Enter") && !ev.repeat) begin(ev); });
+    for (const e of ["pointerup", "pointerleave", "pointercancel", "keyup", "blur"]) btn.addEventListener(e, cancel);
+  }
+
+  selectUnit(id) {
+    this.ui.selectedUnit = id;
+    $("#goal-unit").value = id;
+    this.dirty = true;
+  }
+
+  onMapClick(ev) {
+    if (!this.layout) return;
+    const sq = squareAt(this.layout, ev.offsetX, ev.offsetY);
+    if (!sq) return;
+    const [x, y] = sq;
+    const here = [...this.view.units.values()].find((u) => u.state && u.state.position[0] === x && u.state.position[1] === y);
+    if (this.ui.mode === "goal") {
+      if (here && here.id !== this.ui.selectedUnit) { this.selectUnit(here.id); return; }
+      const f = $("#goal-form");
+      f.x.value = x; f.y.value = y;
+      this.sendGoal(f.unit.value, sq);
+    } else if (this.ui.mode === "job") {
+      const f = $("#job-form");
+      if (this.ui.jobClicks.length !== 1) {
+        this.ui.jobClicks = [sq];
+        f.px.value = x; f.py.value = y; f.dx.value = ""; f.dy.value = "";
+        this.ui.pending = sq;
+        this.feedback("job", "info", `pickup [${x}, ${y}]: now click the dropoff square`);
+      } else {
+        this.ui.jobClicks = [];
+        this.ui.pending = null;
+        f.dx.value = x; f.dy.value = y;
+        this.feedback("job", "info", `dropoff [${x}, ${y}]: set the mass and press “queue job”`);
+        f.mass.focus();
+      }
+      this.dirty = true;
+    } else if (here) {
+      this.selectUnit(here.id);
+    }
+  }
+
+  sendGoal(unit, target) {
+    if (!unit) { this.feedback("goal", "refused", "choose a unit first (list or map)"); return; }
+    if (target && !this.view.map) { this.feedback("goal", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
+    if (target && !this.view.onMap(target[0], target[1])) {
+      this.feedback("goal", "refused", `[${target}] is not a square of the map`); return;
+    }
+    const what = target ? `goal [${target[0]}, ${target[1]}] for ${unit}` : `clear the goal of ${unit}`;
+    this.request("set_goal", "goal", what, { unit, target });
+  }
+
+  submitJob(f) {
+    const sq = (a, b) => [Number(f[a].value), Number(f[b].value)];
+    const pickup = sq("px", "py"), dropoff = sq("dx", "dy");
+    const mass = Number(f.mass.value), priority = Number(f.priority.value || 0);
+    const jobId = f.job_id.value.trim() || null;
+    if (!this.view.map) { this.feedback("job", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
+    for (const [name, s] of [["pickup", pickup], ["dropoff", dropoff]]) {
+      if (!this.view.onMap(s[0], s[1])) { this.feedback("job", "refused", `${name} [${s}] is not a square of the map`); return; }
+    }
+    if (!(mass > 0) || !Number.isFinite(mass)) { this.feedback("job", "refused", "mass must be more than 0 kg"); return; }
+    if (!Number.isInteger(priority) || priority < 0 || priority > 100) { this.feedback("job", "refused", "priority must be a whole number 0–100"); return; }
+    if (jobId && !ID_RE.test(jobId)) { this.feedback("job", "refused", "job id: letters, digits, _ . - only (max 64)"); return; }
+    this.request("submit_job", "job", `job [${pickup}] → [${dropoff}], ${mass} kg`, {
+      pickup, dropoff, mass_kg: mass, priority, job_id: jobId,
+    });
+  }
+
+  feedback(form, kind, text) {
+    const el = $(`#${form}-feedback`);
+    el.dataset.kind = kind;
+    el.textContent = text;
+  }
+
+  log(text) {
+    const li = document.createElement("li");
+    li.textContent = `${new Date().toLocaleTimeString()} ${text}`;
+    const ul = $("#log");
+    ul.prepend(li);
+    while (ul.children.length > 50) ul.lastChild.remove();
+  }
+
+  // ---- rendering ----
+  render(now) {
+    this.layout = drawFleet($("#map"), this.view, now, this.ui);
+    const m = this.view.map;
+    $("#map-name").textContent = m ? `${m.name} ${m.width} x ${m.height}` : "no map yet";
+    this.renderUnits(now);
+    this.renderJobs();
+    this.renderEstop();
+    this.renderCoordinator();
+  }
+
+  renderUnits(now) {
+    const tbody = $("#units tbody");
+    const ids = [...this.view.units.keys()].sort();
+    tbody.replaceChildren(...ids.map((id) => {
+      const u = this.view.units.get(id);
+      const s = u.state;
+      const tr = document.createElement("tr");
+      tr.dataset.unit = id;
+      tr.dataset.link = u.connection ?? "unknown";
+      if (id === this.ui.selectedUnit) tr.classList.add("selected");
+      const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
+      const status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+      const cells = [
+        id, u.connection ?? "?", s ? `[${s.position[0]}, ${s.position[1]}]` : "—", status,
+        s?.job_id ?? "—", s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "",
+      ];
+      const names = ["id", "link", "pos", "status", "job", "load", "seen"];
+      cells.forEach((text, i) => {
+        const td = document.createElement("td");
+        td.className = names[i];
+        td.textContent = text;
+        if (i === 0) { td.style.borderLeft = `6px solid ${this.view.colorOf(id)}`; }
+        if (i === 3 && s) td.title = s.wait_reason ?? "";
+        tr.append(td);
+      });
+      return tr;
+    }));
+    this.renderSeen(now);
+    const sel = $("#goal-unit");
+    const current = sel.value;
+    if ([...sel.options].map((o) => o.value).join() !== ids.join()) {
+      sel.replaceChildren(...ids.map((id) => new Option(id, id)));
+      sel.value = ids.includes(current) ? current : (this.ui.selectedUnit ?? ids[0] ?? "");
+    }
+  }
+
+  renderSeen(now) {
+    for (const tr of document.querySelectorAll("#units tbody tr")) {
+      const u = this.view.units.get(tr.dataset.unit);
+      const td = tr.querySelector(".seen");
+      if (!u || !td) continue;
+      td.textContent = u.lastSeen == null ? "never" : `${Math.max(0, Math.round((now - u.lastSeen) / 1000))} s ago`;
+      tr.classList.toggle("silent", this.view.isSilent(u, now));
+    }
+  }
+
+  renderJobs() {
+    const active = this.view.activeJobs();
+    const row = (cells, cls) => {
+      const tr = document.createElement("tr");
+      for (const [text, name] of cells) {
+        const td = document.createElement("td");
+        td.textContent = text;
+        if (name) td.className = name;
+        tr.append(td);
+      }
+      if (cls) tr.className = cls;
+      return tr;
+    };
+    $("#jobs tbody").replaceChildren(...active.map((j) => {
+      const tr = row([[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
+        [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]], `job-${j.state}`);
+      tr.dataset.job = j.id;
+      const td = document.createElement("td");
+      const b = document.createElement("button");
+      b.type = "button";
+      b.dataset.cancel = j.id;
+      b.textContent = "delete";
+      b.title = `delete job ${j.id}`;
+      td.append(b);
+      tr.append(td);
+      return tr;
+    }));
+    $("#queue-count").textContent = `(${active.length})`;
+    const finished = this.view.finishedJobs();
+    $("#finished tbody").replaceChildren(...finished.map((j) => {
+      const tr = row([[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [j.reason ?? "", "reason"]], `job-${j.state}`);
+      tr.dataset.job = j.id;
+      return tr;
+    }));
+    const counts = {};
+    for (const j of finished) counts[j.state] = (counts[j.state] ?? 0) + 1;
+    for (const [k, v] of Object.entries(this.view.counts)) if (k in counts || ["done", "cancelled", "rejected", "failed"].includes(k)) counts[k] = v;
+    $("#finished-counts").textContent = Object.entries(counts).map(([k, v]) => `${k} ${v}`).join(" · ");
+  }
+
+  renderEstop() {
+    const e = this.view.estop;
+    const stopped = this.view.stopped || this.localStop;
+    document.body.dataset.estop = stopped ? "engaged" : (e ? "released" : "unknown");
+    const banner = $("#estop-banner");
+    banner.hidden = !stopped;
+    if (stopped) {
+      banner.textContent = e?.engaged
+        ? `EMERGENCY STOP — engaged by ${e.by}${e.reason ? ": " + e.reason : ""}`
+        : "EMERGENCY STOP — sending…";
+    }
+    $("#stop").textContent = stopped ? "STOPPED" : "STOP";
+    $("#release").hidden = !this.view.stopped;
+  }
+
+  renderCoordinator() {
+    const c = this.view.coordinator;
+    const el = $("#coord");
+    el.dataset.state = c?.state ?? "unknown";
+    el.textContent = c ? `coordinator: ${c.state}, step ${c.step}` : "coordinator: not seen";
+  }
+}
+
+start();

@@ -1,0 +1,124 @@
+// The fleet as the page knows it, built only from MQTT messages. Pure: no DOM, no network, no clock
+// (callers pass `now` in milliseconds).
+
+import { decodeEstop, FINAL_JOB_STATES } from "./protocol.js";
+
+export const HIGHLIGHT_MS = 4000; // how long a newly discovered obstacle stays highlighted
+const key = (sq) => `${sq[0]},${sq[1]}`;
+
+export class FleetView {
+  constructor(initialMap = null, colors = {}) {
+    this.map = initialMap; // {name, width, height, rows, obstacles}
+    this.colors = colors; // fallback unit colours, e.g. from the scenario
+    this.units = new Map(); // id -> {id, connection, factsheet, state, lastSeen}
+    this.jobs = []; // JobView objects
+    this.counts = {};
+    this.routes = {}; // unit -> {released, planned, target}
+    this.coordinator = null;
+    this.estop = null; // {engaged, by, reason} or null when nobody has said
+    this.obstacles = new Map(); // "x,y" -> first seen (ms)
+    this.lastError = null;
+  }
+
+  unit(id) {
+    let u = this.units.get(id);
+    if (!u) {
+      u = { id, connection: null, factsheet: null, state: null, lastSeen: null };
+      this.units.set(id, u);
+    }
+    return u;
+  }
+
+  /** Apply one message; returns a string describing a problem, or null. */
+  apply(kind, id, text, now) {
+    if (kind === "estop") {
+      if (text === "") { this.estop = null; return null; }
+      const signal = decodeEstop(text);
+      if (!signal) return `ignored an invalid emergency-stop payload: ${text.slice(0, 60)}`;
+      this.estop = signal;
+      return null;
+    }
+    if (text === "") { // a cleared retained message
+      if (id && (kind === "state" || kind === "connection" || kind === "factsheet")) {
+        const u = this.units.get(id);
+        if (u) { u[kind] = null; if (!u.state && !u.connection && !u.factsheet) this.units.delete(id); }
+      }
+      return null;
+    }
+    let msg;
+    try {
+      msg = JSON.parse(text);
+    } catch (e) {
+      return `ignored malformed JSON on ${kind}${id ? " of " + id : ""}`;
+    }
+    if (typeof msg !== "object" || msg === null) return `ignored a non-object on ${kind}`;
+    switch (kind) {
+      case "connection": this.unit(id).connection = msg.state; break;
+      case "factsheet": this.unit(id).factsheet = msg; break;
+      case "state": {
+        if (!Array.isArray(msg.position)) return `ignored a state of ${id} without a position`;
+        const u = this.unit(id);
+        u.state = msg;
+        u.lastSeen = now;
+        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, now);
+        break;
+      }
+      case "map": {
+        if (!Array.isArray(msg.rows)) return "ignored a map without rows";
+        this.map = msg;
+        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, now);
+        break;
+      }
+      case "jobs":
+        this.jobs = Array.isArray(msg.jobs) ? msg.jobs : [];
+        this.counts = msg.counts ?? {};
+        break;
+      case "routes": this.routes = msg.routes ?? {}; break;
+      case "coordinator": this.coordinator = msg; break;
+      case "errors": this.lastError = msg; break;
+      default: break;
+    }
+    return null;
+  }
+
+  noteObstacle(sq, now) {
+    const k = key(sq);
+    if (!this.obstacles.has(k)) this.obstacles.set(k, now);
+  }
+
+  /** Obstacles known from the map or from units' reports, each with whether it is new. */
+  knownObstacles(now) {
+    return Array.from(this.obstacles, ([k, t]) => {
+      const [x, y] = k.split(",").map(Number);
+      return { x, y, fresh: now - t < HIGHLIGHT_MS };
+    });
+  }
+
+  /** A unit whose state has been silent for 5 step periods (≥ 0.5 s), as protocol.md §8 says. */
+  isSilent(u, now) {
+    if (u.lastSeen == null) return false;
+    const period = u.factsheet?.step_period_s ?? 1;
+    return now - u.lastSeen > Math.max(500, 5 * period * 1000);
+  }
+
+  activeJobs() { return this.jobs.filter((j) => !FINAL_JOB_STATES.has(j.state)); }
+  finishedJobs() { return this.jobs.filter((j) => FINAL_JOB_STATES.has(j.state)); }
+
+  colorOf(id) {
+    return this.units.get(id)?.factsheet?.color ?? this.colors[id] ?? "#607d8b";
+  }
+
+  /** True when (x, y) lies on the map and is not a wall. */
+  isFree(x, y) {
+    const m = this.map;
+    if (!m || x < 0 || y < 0 || x >= m.width || y >= m.height) return false;
+    return m.rows[y][x] === "." && !this.obstacles.has(`${x},${y}`);
+  }
+
+  onMap(x, y) {
+    const m = this.map;
+    return !!m && Number.isInteger(x) && Number.isInteger(y) && x >= 0 && y >= 0 && x < m.width && y < m.height;
+  }
+
+  get stopped() { return !!this.estop?.engaged; }
+}

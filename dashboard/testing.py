@@ -1,0 +1,172 @@
+"""Pytest fixtures and helpers for driving the dashboard in real Chromium (a pytest plugin).
+
+Load it with `pytest_plugins = ["dashboard.testing"]` (tests/conftest.py does). Fixtures:
+`chromium` (one headless browser per session) and `open_dashboard` (serve the app on a free port
+and open it in a fresh page, connected to a broker).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from dashboard.app import create_app
+from dashboard.server import DashboardServer
+from dashboard.settings import DashboardSettings
+from gridfleet.grid import GridMap
+from gridfleet.testing.broker_thread import BrokerThread
+
+CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+ARTIFACTS = Path(__file__).resolve().parent.parent / "test-artifacts"
+VIEWPORT = {"width": 1440, "height": 900}
+
+
+@dataclass
+class OpenDashboard:
+    """A dashboard served for one test and the Playwright page showing it."""
+
+    page: Any  # playwright.sync_api.Page
+    server: DashboardServer
+    client_id: str
+    errors: list[str]  # uncaught exceptions in the page
+
+    def click_square(self, x: int, y: int) -> None:
+        """Click the centre of square (x, y) on the map canvas."""
+        canvas = self.page.locator("#map")
+        cell, ox, oy = (
+            float(canvas.get_attribute(f"data-{k}") or "nan") for k in ("cell", "ox", "oy")
+        )
+        canvas.click(position={"x": ox + (x + 0.5) * cell, "y": oy + (y + 0.5) * cell})
+
+    def drawn_units(self) -> dict[str, tuple[int, int]]:
+        """Where the map canvas last drew each unit."""
+        text = self.page.locator("#map").get_attribute("data-units") or ""
+        found: dict[str, tuple[int, int]] = {}
+        for item in text.split():
+            unit, _, square = item.partition("@")
+            x, y = square.split(",")
+            found[unit] = (int(x), int(y))
+        return found
+
+    def submit_job(
+        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass_kg: float, priority: int = 0
+    ) -> None:
+        """Fill the job form and press "queue job" (as an operator would)."""
+        form = self.page.locator("#job-form")
+        values = {
+            "px": pickup[0],
+            "py": pickup[1],
+            "dx": dropoff[0],
+            "dy": dropoff[1],
+            "mass": mass_kg,
+            "priority": priority,
+        }
+        for name, value in values.items():
+            form.locator(f"input[name={name}]").fill(str(value))
+        form.locator("button[type=submit]").click()
+
+    def set_goal(self, unit: str, target: tuple[int, int]) -> None:
+        """Choose `unit` and send it to `target` with the goal form."""
+        form = self.page.locator("#goal-form")
+        form.locator("select[name=unit]").select_option(unit)
+        form.locator("input[name=x]").fill(str(target[0]))
+        form.locator("input[name=y]").fill(str(target[1]))
+        form.locator("button[type=submit]").click()
+
+    def cancel_job(self, job_id: str) -> None:
+        """Press the job's "delete" button in the queue."""
+        self.page.locator(f"#jobs button[data-cancel='{job_id}']").click()
+
+    def press_stop(self) -> None:
+        """One click on STOP."""
+        self.page.locator("#stop").click()
+
+    def hold_release(self) -> None:
+        """Press and hold "hold to release" until the page has released the stop."""
+        self.page.locator("#release").hover()
+        self.page.mouse.down()
+        try:
+            self.page.wait_for_selector("#release", state="hidden", timeout=10000)
+        finally:
+            self.page.mouse.up()
+
+    def screenshot(self, name: str) -> Path:
+        """Save a full-page screenshot under test-artifacts/ and return its path."""
+        ARTIFACTS.mkdir(exist_ok=True)
+        path = ARTIFACTS / f"{re.sub(r'[^A-Za-z0-9_.-]', '_', name)}.png"
+        self.page.screenshot(path=str(path))
+        return path
+
+    def wait_connected(self, timeout_ms: float = 15000) -> None:
+        """Wait until the page says it is connected to the broker (and subscribed)."""
+        self.page.wait_for_selector("#conn[data-state=connected]", timeout=timeout_ms)
+
+
+@pytest.fixture(scope="session")
+def chromium() -> Iterator[Any]:
+    """One headless Debian Chromium for the whole session (skips when it is not installed)."""
+    if not CHROMIUM.exists():
+        pytest.skip(f"{CHROMIUM} is not installed (apt-get install chromium; .ci/run does)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(
+            executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS
+        )
+        yield browser
+        browser.close()
+
+
+@pytest.fixture
+def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[..., OpenDashboard]]:
+    """Factory: serve the dashboard for a topic root and open it connected to a broker."""
+    opened: list[tuple[Any, DashboardServer]] = []
+
+    def open_(
+        root: str,
+        *,
+        broker_ws: str | None = None,
+        grid: GridMap | None = None,
+        colors: dict[str, str] | None = None,
+        client_id: str = "dash-test",
+        wait_connected: bool = True,
+        **settings_kw: Any,
+    ) -> OpenDashboard:
+        settings = DashboardSettings(
+            broker_ws=broker_ws or broker.ws_url,
+            root=root,
+            map=grid,
+            colors=colors or {},
+            **settings_kw,
+        )
+        server = DashboardServer(create_app(settings)).start()
+        context = chromium.new_context(viewport=VIEWPORT)
+        opened.append((context, server))
+        page = context.new_page()
+        page.set_default_timeout(10000)
+        errors: list[str] = []
+        page.on("pageerror", lambda exc: errors.append(str(exc)))
+        page.goto(f"{server.url}/?client={client_id}")
+        handle = OpenDashboard(page, server, client_id, errors)
+        if wait_connected:
+            handle.wait_connected()
+        return handle
+
+    yield open_
+    for context, server in opened:
+        context.close()
+        server.stop()
