@@ -257,3 +257,54 @@ def test_device_command_refuses_bad_ids() -> None:
     )
     assert out.returncode == 2
     assert "unit id" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_device_command_on_a_terminal_highlights_the_lit_arrow_and_quits_on_q(
+    broker: BrokerThread, topics: Topics, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    import pty
+    import select
+
+    main_fd, tty_fd = pty.openpty()
+    p = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "gridfleet.cli",
+            "device",
+            "--broker",
+            broker.url,
+            "--unit",
+            "unit1",
+            "--root",
+            root,
+        ],
+        stdin=tty_fd,
+        stdout=tty_fd,
+        stderr=subprocess.PIPE,
+    )
+    os.close(tty_fd)
+    seen = bytearray()
+
+    def screen_has(needle: bytes) -> bool:
+        while select.select([main_fd], [], [], 0)[0]:
+            try:
+                seen.extend(os.read(main_fd, 65536))
+            except OSError:
+                break
+        return needle in seen
+
+    try:
+        probe = probe_factory()
+        wait_for(lambda: screen_has(b"unit unit1") or p.poll() is not None, 15)
+        assert p.poll() is None
+        probe.publish(topics.unit("direction", "unit1"), "E", qos=0, retain=True)
+        lit_east = "\x1b[1;42;30m \u2192 \x1b[0m".encode()
+        wait_for(lambda: screen_has(lit_east), 15, what="the east arrow highlighted")
+        os.write(main_fd, b"q")
+        assert p.wait(15) == 0
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait(10)
+        os.close(main_fd)
