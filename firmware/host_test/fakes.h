@@ -46,8 +46,9 @@ class FakeMqtt : public gf::MqttTransport {
     return true;
   }
   bool connected() override { return isConnected; }
+  void disconnect() override { isConnected = false; }  // clean: no will
   bool subscribe(const std::string& topic, uint8_t qos) override {
-    if (!isConnected) return false;
+    if (!isConnected || failSubscribe) return false;
     subscriptions[topic] = qos;
     auto it = retained.find(topic);
     if (it != retained.end()) inbox.emplace_back(topic, it->second);
@@ -92,6 +93,7 @@ class FakeMqtt : public gf::MqttTransport {
   bool brokerUp = true;
   bool isConnected = false;
   bool dropPublishes = false;
+  bool failSubscribe = false;
   int connectCalls = 0;
   std::string clientId;
   Msg will;

@@ -210,6 +210,20 @@ TEST_CASE("reconnect attempts back off, grow, cap, and do not block the loop") {
   CHECK(r.mqtt.connectCalls - before == 2);  // at once, then after 100 ms
 }
 
+TEST_CASE("a session whose subscriptions fail is dropped and retried with back-off") {
+  Rig r;
+  r.mqtt.failSubscribe = true;
+  r.tick();
+  CHECK_FALSE(r.device.online());
+  CHECK_FALSE(r.mqtt.connected());
+  r.run(r.config.mqttBackoffInitialMs - 1);
+  CHECK(r.mqtt.connectCalls == 1);
+  r.mqtt.failSubscribe = false;
+  r.run(2);
+  CHECK(r.mqtt.connectCalls == 2);
+  CHECK(r.device.online());
+}
+
 TEST_CASE("without WiFi it does not try MQTT, restarts joining with back-off, shows offline") {
   Rig r;
   r.link.isUp = false;

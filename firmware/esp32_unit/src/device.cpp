@@ -68,6 +68,8 @@ void Device::connectIfDue(uint32_t now) {
   ok = ok && mqtt_.subscribe(directionTopic_, 0);
   ok = ok && mqtt_.subscribe(estopTopic_, 1);
   if (!ok) {
+    // A half-set-up session would miss the stop: drop it and try again later.
+    mqtt_.disconnect();
     waitMs_ = mqttBackoff_.next();
     return;
   }

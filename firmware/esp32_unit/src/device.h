@@ -19,6 +19,7 @@ class MqttTransport {
   virtual bool connect(const std::string& clientId, const std::string& willTopic,
                        const std::string& willPayload) = 0;
   virtual bool connected() = 0;
+  virtual void disconnect() = 0;
   virtual bool subscribe(const std::string& topic, uint8_t qos) = 0;
   // QoS 0 (all PubSubClient can send); true when handed to the socket.
   virtual bool publish(const std::string& topic, const std::string& payload, bool retained) = 0;

@@ -20,6 +20,7 @@ class PubSubTransport : public MqttTransport {
     return client_.connect(clientId.c_str(), willTopic.c_str(), 1, true, willPayload.c_str());
   }
   bool connected() override { return client_.connected(); }
+  void disconnect() override { client_.disconnect(); }
   bool subscribe(const std::string& topic, uint8_t qos) override {
     return client_.subscribe(topic.c_str(), qos);
   }

@@ -52,6 +52,7 @@ class PubSubClient {
     return isConnected;
   }
   bool connected() { return isConnected; }
+  void disconnect() { isConnected = false; }
   bool subscribe(const char* topic, uint8_t qos) {
     subscriptions.emplace_back(topic, qos);
     return isConnected;
