@@ -10,7 +10,14 @@ from typing import Any
 import jsonschema
 import pytest
 
-from gridfleet.protocol import TOPICS, decode, decode_direction, decode_estop, messages
+from gridfleet.protocol import (
+    TOPICS,
+    decode,
+    decode_device_connection,
+    decode_direction,
+    decode_estop,
+    messages,
+)
 from gridfleet.protocol.schemas import SCHEMA_DIR, render, schemas
 
 DOC = Path(__file__).resolve().parent.parent / "protocol.md"
@@ -39,6 +46,9 @@ def test_example_parses_with_the_code_and_validates_against_the_schema(
     if spec.payload == "estop":
         decode_estop(body.strip())
         return
+    if spec.payload == "device_connection":
+        decode_device_connection(body.strip())
+        return
     assert lang == "json" and spec.model is not None
     model = getattr(messages, spec.model)
     decoded = decode(model, body.encode(), spec.max_bytes)
@@ -61,6 +71,7 @@ def test_topic_table_matches_the_code() -> None:
     text = DOC.read_text()
     for kind, spec in TOPICS.items():
         pattern = spec.pattern.replace("{unit}", "<unit>").replace("{client}", "<client>")
+        pattern = pattern.replace("{device}", "<device>")
         row = re.search(rf"^\| {kind} \| `{re.escape(pattern)}` \|(.*)$", text, re.M)
         assert row, f"protocol.md has no topic-table row for {kind}"
         cells = [c.strip() for c in row.group(1).split("|")]

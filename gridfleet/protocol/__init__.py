@@ -6,9 +6,12 @@ protocol/schemas/ the same again as JSON Schema. A test keeps the three in step.
 
 from gridfleet.protocol.codec import HeaderStamper, decode, encode
 from gridfleet.protocol.device import (
+    DeviceConnection,
     EstopSignal,
+    decode_device_connection,
     decode_direction,
     decode_estop,
+    encode_device_connection,
     encode_direction,
     encode_estop,
 )
@@ -42,6 +45,7 @@ __all__ = [
     "CancelJob",
     "Connection",
     "CoordinatorStatus",
+    "DeviceConnection",
     "ErrorReport",
     "EstopSignal",
     "Factsheet",
@@ -63,9 +67,11 @@ __all__ = [
     "Topics",
     "UnitState",
     "decode",
+    "decode_device_connection",
     "decode_direction",
     "decode_estop",
     "encode",
+    "encode_device_connection",
     "encode_direction",
     "encode_estop",
     "validate_id",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from typing import Literal, cast
 
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Direction
@@ -70,3 +71,22 @@ def decode_estop(payload: bytes | str) -> EstopSignal:
             f"estop: {text[:40]!r} is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'"
         )
     return EstopSignal(parts[0] == "engaged", parts[1], parts[2] if len(parts) == 3 else "")
+
+
+DeviceConnection = Literal["online", "offline", "broken"]
+_DEVICE_STATES = ("online", "offline", "broken")
+
+
+def encode_device_connection(state: DeviceConnection) -> bytes:
+    """`online`, `offline` or `broken` (the last will), plain ASCII."""
+    if state not in _DEVICE_STATES:
+        raise ProtocolError(f"device connection: {state!r} is not one of online offline broken")
+    return state.encode()
+
+
+def decode_device_connection(payload: bytes | str) -> DeviceConnection:
+    """Inverse of encode_device_connection; anything else raises ProtocolError."""
+    text = payload.decode("ascii", "replace") if isinstance(payload, bytes | bytearray) else payload
+    if text not in _DEVICE_STATES:
+        raise ProtocolError(f"device connection: {text[:20]!r} is not one of online offline broken")
+    return cast(DeviceConnection, text)

@@ -18,7 +18,7 @@ from gridfleet.protocol.constants import (
 _ID_RE = re.compile(ID_PATTERN)
 _ROOT_SEGMENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
-Payload = Literal["json", "direction", "estop"]
+Payload = Literal["json", "direction", "estop", "device_connection"]
 
 
 def validate_id(value: str, what: str = "id") -> str:
@@ -85,6 +85,15 @@ TOPICS: dict[str, TopicSpec] = {
             "CoordinatorStatus",
             MAX_REQUEST_BYTES,
         ),
+        TopicSpec(
+            "device_connection",
+            "devices/{device}/connection",
+            1,
+            True,
+            "device_connection",
+            None,
+            16,
+        ),
     )
 }
 
@@ -134,6 +143,13 @@ class Topics:
         """Where the coordinator answers requests of `client`."""
         return f"{self.prefix}/replies/{validate_id(client, 'client id')}"
 
+    def device(self, kind: str, device: str) -> str:
+        """A per-device topic (device_connection): plain text, for firmware without JSON."""
+        spec = TOPICS.get(kind)
+        if spec is None or not spec.pattern.startswith("devices/"):
+            raise ProtocolError(f"{kind!r} is not a per-device topic kind")
+        return f"{self.prefix}/{spec.pattern.format(device=validate_id(device, 'device id'))}"
+
     @property
     def all_requests(self) -> str:
         """Wildcard filter for every request kind."""
@@ -146,6 +162,8 @@ class Topics:
         rest = topic[len(self.prefix) + 1 :].split("/")
         if len(rest) == 3 and rest[0] == "units" and rest[2] in _UNIT_KINDS:
             return rest[2], validate_id(rest[1], "unit id")
+        if len(rest) == 3 and rest[0] == "devices" and rest[2] == "connection":
+            return "device_connection", validate_id(rest[1], "device id")
         if len(rest) == 2 and rest[0] == "replies":
             return "reply", validate_id(rest[1], "client id")
         joined = "/".join(rest)

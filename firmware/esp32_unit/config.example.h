@@ -1,0 +1,32 @@
+// gridfleet ESP32 device: copy this file to config.h (git-ignored) and fill it in.
+#pragma once
+
+// WiFi (2.4 GHz; the ESP32 cannot join 5 GHz networks).
+#define GF_WIFI_SSID "your-network"
+#define GF_WIFI_PASSWORD "your-password"
+
+// MQTT broker: the machine running `gridfleet broker` / `gridfleet up` (not 127.0.0.1: that
+// would be the ESP32 itself). Plain TCP MQTT, default port 1883.
+#define GF_MQTT_HOST "192.168.1.10"
+#define GF_MQTT_PORT 1883
+
+// Which unit's direction to show, this device's own id (its MQTT client id and the `<by>` of
+// its stop), and the topic root (`--root` of the other components; default "gridfleet").
+// Ids: 1-64 letters, digits, '_', '.', '-', starting with a letter or digit.
+#define GF_UNIT_ID "unit1"
+#define GF_DEVICE_ID "esp32-unit1"
+#define GF_TOPIC_ROOT "gridfleet"
+
+// GPIO pins (ESP32 DevKit numbering). LEDs are active high through a series resistor; the
+// button connects its pin to GND and uses the internal pull-up (an external 10 kOhm is better).
+#define GF_PIN_LED_N 25
+#define GF_PIN_LED_E 26
+#define GF_PIN_LED_S 27
+#define GF_PIN_LED_W 14
+#define GF_PIN_BUTTON 33
+
+// Timing (milliseconds).
+#define GF_DEBOUNCE_MS 50
+#define GF_STOP_RETRY_MS 2000
+#define GF_MQTT_BACKOFF_INITIAL_MS 500
+#define GF_MQTT_BACKOFF_MAX_MS 30000

@@ -1,0 +1,88 @@
+// gridfleet ESP32 device: four direction LEDs show where its unit is about to move, and a push
+// button engages the fleet-wide emergency stop. All behaviour lives in src/ (tested on a PC);
+// this file only wires it to WiFi, PubSubClient, the pins and the button interrupt.
+#include <Arduino.h>
+#include <PubSubClient.h>
+#include <WiFi.h>
+
+#include <atomic>
+
+#include "config.h"
+#include "src/device.h"
+#include "src/pubsub_transport.h"
+
+WiFiClient wifiClient;
+PubSubClient mqttClient(wifiClient);
+gf::PubSubTransport transport(mqttClient);
+gf::WiFiLink wifiLink(GF_WIFI_SSID, GF_WIFI_PASSWORD);
+gf::ArduinoClock arduinoClock;
+gf::Device* device = nullptr;
+bool configOk = false;
+
+// Set by the interrupt, taken by the loop: no network calls and no allocation in the ISR.
+std::atomic<bool> buttonEdge{false};
+
+void IRAM_ATTR onButtonFalling() { buttonEdge.store(true); }
+
+void onMqttMessage(char* topic, uint8_t* payload, unsigned int length) {
+  if (device != nullptr) device->onMessage(topic, payload, length);
+}
+
+gf::DeviceConfig makeConfig() {
+  gf::DeviceConfig config;
+  config.root = GF_TOPIC_ROOT;
+  config.unit = GF_UNIT_ID;
+  config.device = GF_DEVICE_ID;
+  config.debounceMs = GF_DEBOUNCE_MS;
+  config.stopRetryMs = GF_STOP_RETRY_MS;
+  config.mqttBackoffInitialMs = GF_MQTT_BACKOFF_INITIAL_MS;
+  config.mqttBackoffMaxMs = GF_MQTT_BACKOFF_MAX_MS;
+  return config;
+}
+
+void showLeds(const gf::Leds& leds) {
+  digitalWrite(GF_PIN_LED_N, leds.n ? HIGH : LOW);
+  digitalWrite(GF_PIN_LED_E, leds.e ? HIGH : LOW);
+  digitalWrite(GF_PIN_LED_S, leds.s ? HIGH : LOW);
+  digitalWrite(GF_PIN_LED_W, leds.w ? HIGH : LOW);
+}
+
+void setup() {
+  Serial.begin(115200);
+  pinMode(GF_PIN_LED_N, OUTPUT);
+  pinMode(GF_PIN_LED_E, OUTPUT);
+  pinMode(GF_PIN_LED_S, OUTPUT);
+  pinMode(GF_PIN_LED_W, OUTPUT);
+  pinMode(GF_PIN_BUTTON, INPUT_PULLUP);
+  attachInterrupt(digitalPinToInterrupt(GF_PIN_BUTTON), onButtonFalling, FALLING);
+
+  static gf::DeviceConfig config = makeConfig();
+  std::string problem = config.problem();
+  if (!problem.empty()) {
+    Serial.println(("gridfleet: config.h: " + problem).c_str());
+    return;  // loop() then blinks the stop pattern and does nothing else
+  }
+  configOk = true;
+  WiFi.setAutoReconnect(true);
+  mqttClient.setServer(GF_MQTT_HOST, GF_MQTT_PORT);
+  mqttClient.setCallback(onMqttMessage);
+  // Room for the longest estop payload (512 bytes) plus topic and header; longer ones are dropped.
+  mqttClient.setBufferSize(768);
+  mqttClient.setKeepAlive(10);
+  // connect() blocks until the broker answers or this many seconds pass: keep the loop lively.
+  mqttClient.setSocketTimeout(2);
+  static gf::Device dev(config, transport, wifiLink, arduinoClock);
+  device = &dev;
+  Serial.println(("gridfleet: device " + config.device + " shows unit " + config.unit).c_str());
+}
+
+void loop() {
+  if (!configOk) {
+    showLeds(gf::ledsFor(gf::Direction::None, true, false, millis()));
+    return;
+  }
+  bool edge = buttonEdge.exchange(false);
+  bool pressed = digitalRead(GF_PIN_BUTTON) == LOW;  // pull-up: pressed reads LOW
+  device->tick(edge, pressed);
+  showLeds(device->leds());
+}

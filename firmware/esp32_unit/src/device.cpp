@@ -1,0 +1,109 @@
+#include "device.h"
+
+namespace gf {
+
+std::string DeviceConfig::problem() const {
+  if (!isValidRoot(root)) return "topic root '" + root + "' is not valid";
+  if (!isValidId(unit)) return "unit id '" + unit + "' is not a valid id";
+  if (!isValidId(device)) return "device id '" + device + "' is not a valid id";
+  return "";
+}
+
+Device::Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock)
+    : config_(config),
+      mqtt_(mqtt),
+      link_(link),
+      clock_(clock),
+      directionTopic_(gf::directionTopic(config.root, config.unit)),
+      estopTopic_(gf::estopTopic(config.root)),
+      connectionTopic_(deviceConnectionTopic(config.root, config.device)),
+      stopPayload_(buttonEstopPayload(config.device)),
+      debouncer_(config.debounceMs),
+      mqttBackoff_(config.mqttBackoffInitialMs, config.mqttBackoffMaxMs),
+      linkBackoff_(config.linkBackoffInitialMs, config.linkBackoffMaxMs),
+      stop_(config.stopRetryMs) {}
+
+void Device::tick(bool buttonEdge, bool buttonPressed) {
+  const uint32_t now = clock_.nowMs();
+  // The button first: a press is recorded whatever the network is doing.
+  if (debouncer_.update(buttonEdge, buttonPressed, now)) stop_.press();
+
+  if (!link_.up()) {
+    if (online_) lost();
+    // WiFi.begin() returns at once; give each try time to join before starting over.
+    if (!linkStarted_ || uint32_t(now - linkStartMs_) >= linkWaitMs_) {
+      link_.begin();
+      linkStarted_ = true;
+      linkStartMs_ = now;
+      linkWaitMs_ = linkBackoff_.next();
+    }
+    return;
+  }
+  linkBackoff_.reset();
+  linkStarted_ = false;
+
+  if (online_ && !mqtt_.connected()) lost();
+  if (!online_) connectIfDue(now);
+  if (!online_) return;
+
+  mqtt_.loop();  // may deliver messages, may find the connection gone
+  if (!mqtt_.connected()) {
+    lost();
+    return;
+  }
+  if (stop_.due(now) && mqtt_.publish(estopTopic_, stopPayload_, true)) stop_.sent(now);
+}
+
+void Device::connectIfDue(uint32_t now) {
+  if (attempted_ && uint32_t(now - lastAttemptMs_) < waitMs_) return;
+  attempted_ = true;
+  lastAttemptMs_ = now;
+  ++connectAttempts_;
+  if (!mqtt_.connect(config_.device, connectionTopic_, "broken")) {
+    waitMs_ = mqttBackoff_.next();
+    return;
+  }
+  bool ok = mqtt_.publish(connectionTopic_, "online", true);
+  // Direction is high-rate: QoS 0 (amqtt upgrades delivery to the subscription's QoS).
+  ok = ok && mqtt_.subscribe(directionTopic_, 0);
+  ok = ok && mqtt_.subscribe(estopTopic_, 1);
+  if (!ok) {
+    // A half-set-up session would miss the stop: drop it and try again later.
+    mqtt_.disconnect();
+    waitMs_ = mqttBackoff_.next();
+    return;
+  }
+  mqttBackoff_.reset();
+  waitMs_ = 0;
+  online_ = true;
+}
+
+void Device::lost() {
+  online_ = false;
+  stop_.connectionLost();
+  // Reconnect at once the first time; the back-off grows only with failed attempts.
+  attempted_ = false;
+}
+
+void Device::onMessage(const std::string& topic, const uint8_t* payload, size_t len) {
+  if (topic == directionTopic_) {
+    Direction d;
+    if (parseDirection(payload, len, d)) direction_ = d;
+    return;
+  }
+  if (topic == estopTopic_) {
+    EstopKind kind = parseEstop(payload, len);
+    if (kind == EstopKind::Invalid) return;
+    estopEngaged_ = kind == EstopKind::Engaged;
+    if (estopEngaged_ && len == stopPayload_.size() &&
+        stopPayload_.compare(0, len, reinterpret_cast<const char*>(payload), len) == 0) {
+      stop_.confirmed();
+    }
+  }
+}
+
+Leds Device::leds() const {
+  return ledsFor(direction_, estopEngaged_ || stop_.pending(), online_, clock_.nowMs());
+}
+
+}  // namespace gf

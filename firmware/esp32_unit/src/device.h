@@ -1,0 +1,109 @@
+// The device's behaviour with the network and the clock injected: the .ino only wires it to
+// WiFi, PubSubClient, the LED pins and the button interrupt.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "leds.h"
+#include "protocol.h"
+#include "timing.h"
+
+namespace gf {
+
+// An MQTT 3.1.1 client (PubSubClient on the ESP32, a fake in the host tests).
+class MqttTransport {
+ public:
+  virtual ~MqttTransport() = default;
+  // Connect with clean session and a last will (QoS 1, retained); true when connected.
+  virtual bool connect(const std::string& clientId, const std::string& willTopic,
+                       const std::string& willPayload) = 0;
+  virtual bool connected() = 0;
+  virtual void disconnect() = 0;
+  virtual bool subscribe(const std::string& topic, uint8_t qos) = 0;
+  // QoS 0 (all PubSubClient can send); true when handed to the socket.
+  virtual bool publish(const std::string& topic, const std::string& payload, bool retained) = 0;
+  // Pump the connection: incoming messages reach Device::onMessage from here.
+  virtual void loop() = 0;
+};
+
+// The network link under MQTT (WiFi on the ESP32).
+class NetLink {
+ public:
+  virtual ~NetLink() = default;
+  virtual bool up() = 0;
+  // Start (or restart) joining the network; must not block.
+  virtual void begin() = 0;
+};
+
+class Clock {
+ public:
+  virtual ~Clock() = default;
+  virtual uint32_t nowMs() = 0;  // wraps like millis()
+};
+
+struct DeviceConfig {
+  std::string root = "gridfleet";
+  std::string unit = "unit1";
+  std::string device = "esp32-unit1";
+  uint32_t debounceMs = 50;
+  uint32_t stopRetryMs = 2000;
+  uint32_t mqttBackoffInitialMs = 500;
+  uint32_t mqttBackoffMaxMs = 30000;
+  uint32_t linkBackoffInitialMs = 10000;
+  uint32_t linkBackoffMaxMs = 60000;
+
+  // Empty when usable, else what is wrong (ids and root as protocol.md defines them).
+  std::string problem() const;
+};
+
+class Device {
+ public:
+  Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock);
+
+  // One pass of the main loop: `buttonEdge` is the interrupt's flag (taken and cleared by the
+  // caller), `buttonPressed` the pin level now.
+  void tick(bool buttonEdge, bool buttonPressed);
+  // Every message the MQTT client receives; anything unexpected or malformed changes nothing.
+  void onMessage(const std::string& topic, const uint8_t* payload, size_t len);
+
+  Leds leds() const;  // what the LEDs should show now
+  bool online() const { return online_; }
+  Direction direction() const { return direction_; }
+  bool estopEngaged() const { return estopEngaged_; }
+  bool stopPending() const { return stop_.pending(); }
+  uint32_t connectAttempts() const { return connectAttempts_; }
+  const std::string& directionTopic() const { return directionTopic_; }
+  const std::string& estopTopic() const { return estopTopic_; }
+  const std::string& connectionTopic() const { return connectionTopic_; }
+  const std::string& stopPayload() const { return stopPayload_; }
+
+ private:
+  void connectIfDue(uint32_t now);
+  void lost();
+
+  DeviceConfig config_;
+  MqttTransport& mqtt_;
+  NetLink& link_;
+  Clock& clock_;
+  std::string directionTopic_;
+  std::string estopTopic_;
+  std::string connectionTopic_;
+  std::string stopPayload_;
+  Debouncer debouncer_;
+  Backoff mqttBackoff_;
+  Backoff linkBackoff_;
+  PendingStop stop_;
+  bool online_ = false;
+  bool attempted_ = false;
+  uint32_t lastAttemptMs_ = 0;
+  uint32_t waitMs_ = 0;
+  bool linkStarted_ = false;
+  uint32_t linkStartMs_ = 0;
+  uint32_t linkWaitMs_ = 0;
+  uint32_t connectAttempts_ = 0;
+  Direction direction_ = Direction::None;
+  bool estopEngaged_ = false;
+};
+
+}  // namespace gf

@@ -1,0 +1,131 @@
+#include "protocol.h"
+
+namespace gf {
+namespace {
+
+bool idChar(char c) {
+  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
+         c == '.' || c == '-';
+}
+
+bool alnum(char c) {
+  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9');
+}
+
+// Counts characters of valid UTF-8; returns false on any malformed sequence.
+bool utf8Chars(const uint8_t* p, size_t len, size_t& chars) {
+  chars = 0;
+  size_t i = 0;
+  while (i < len) {
+    uint8_t b = p[i];
+    size_t extra = 0;
+    uint32_t cp = 0;
+    if (b < 0x80) {
+      extra = 0;
+      cp = b;
+    } else if ((b & 0xE0) == 0xC0) {
+      extra = 1;
+      cp = b & 0x1F;
+    } else if ((b & 0xF0) == 0xE0) {
+      extra = 2;
+      cp = b & 0x0F;
+    } else if ((b & 0xF8) == 0xF0) {
+      extra = 3;
+      cp = b & 0x07;
+    } else {
+      return false;
+    }
+    if (i + extra >= len && extra > 0) return false;  // truncated sequence
+    for (size_t k = 1; k <= extra; ++k) {
+      if ((p[i + k] & 0xC0) != 0x80) return false;
+      cp = (cp << 6) | (p[i + k] & 0x3F);
+    }
+    // Overlong forms and surrogates are not valid UTF-8 (Python refuses them too).
+    static const uint32_t kMin[4] = {0, 0x80, 0x800, 0x10000};
+    if (cp < kMin[extra] || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return false;
+    i += extra + 1;
+    ++chars;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool isValidId(const std::string& id) {
+  if (id.empty() || id.size() > 64 || !alnum(id[0])) return false;
+  for (char c : id) {
+    if (!idChar(c)) return false;
+  }
+  return true;
+}
+
+bool isValidRoot(const std::string& root) {
+  size_t start = 0;
+  while (true) {
+    size_t slash = root.find('/', start);
+    size_t end = slash == std::string::npos ? root.size() : slash;
+    size_t n = end - start;
+    if (n == 0 || n > 64) return false;
+    for (size_t i = start; i < end; ++i) {
+      if (!idChar(root[i])) return false;
+    }
+    if (slash == std::string::npos) return true;
+    start = slash + 1;
+  }
+}
+
+std::string directionTopic(const std::string& root, const std::string& unit) {
+  return root + "/v1/units/" + unit + "/direction";
+}
+
+std::string estopTopic(const std::string& root) { return root + "/v1/fleet/estop"; }
+
+std::string deviceConnectionTopic(const std::string& root, const std::string& device) {
+  return root + "/v1/devices/" + device + "/connection";
+}
+
+bool parseDirection(const uint8_t* payload, size_t len, Direction& out) {
+  if (payload == nullptr || len != 1) return false;
+  switch (payload[0]) {
+    case 'N': out = Direction::N; return true;
+    case 'E': out = Direction::E; return true;
+    case 'S': out = Direction::S; return true;
+    case 'W': out = Direction::W; return true;
+    case '-': out = Direction::None; return true;
+    default: return false;
+  }
+}
+
+EstopKind parseEstop(const uint8_t* payload, size_t len) {
+  if (payload == nullptr || len > kMaxEstopBytes) return EstopKind::Invalid;
+  const std::string text(reinterpret_cast<const char*>(payload), len);
+  EstopKind kind;
+  size_t pos;
+  if (text.rfind("engaged|", 0) == 0) {
+    kind = EstopKind::Engaged;
+    pos = 8;
+  } else if (text.rfind("released|", 0) == 0) {
+    kind = EstopKind::Released;
+    pos = 9;
+  } else {
+    return EstopKind::Invalid;
+  }
+  size_t bar = text.find('|', pos);
+  std::string by = text.substr(pos, bar == std::string::npos ? std::string::npos : bar - pos);
+  if (!isValidId(by)) return EstopKind::Invalid;
+  if (bar == std::string::npos) return kind;
+  const uint8_t* reason = payload + bar + 1;
+  size_t reasonLen = len - bar - 1;
+  for (size_t i = 0; i < reasonLen; ++i) {
+    if (reason[i] == '\r' || reason[i] == '\n' || reason[i] == '\0') return EstopKind::Invalid;
+  }
+  size_t chars = 0;
+  if (!utf8Chars(reason, reasonLen, chars) || chars > kMaxReasonChars) return EstopKind::Invalid;
+  return kind;
+}
+
+std::string buttonEstopPayload(const std::string& device) {
+  return "engaged|" + device + "|button";
+}
+
+}  // namespace gf

@@ -1,0 +1,57 @@
+// Adapters from the Device's interfaces to PubSubClient, WiFi and millis() (ESP32 build; the
+// host build compiles them against the stand-in headers in firmware/host_test/stubs/).
+#pragma once
+
+#include <Arduino.h>
+#include <PubSubClient.h>
+#include <WiFi.h>
+
+#include "device.h"
+
+namespace gf {
+
+class PubSubTransport : public MqttTransport {
+ public:
+  explicit PubSubTransport(PubSubClient& client) : client_(client) {}
+
+  bool connect(const std::string& clientId, const std::string& willTopic,
+               const std::string& willPayload) override {
+    // PubSubClient always asks for a clean session; the will is QoS 1 and retained.
+    return client_.connect(clientId.c_str(), willTopic.c_str(), 1, true, willPayload.c_str());
+  }
+  bool connected() override { return client_.connected(); }
+  void disconnect() override { client_.disconnect(); }
+  bool subscribe(const std::string& topic, uint8_t qos) override {
+    return client_.subscribe(topic.c_str(), qos);
+  }
+  bool publish(const std::string& topic, const std::string& payload, bool retained) override {
+    return client_.publish(topic.c_str(), reinterpret_cast<const uint8_t*>(payload.data()),
+                           static_cast<unsigned int>(payload.size()), retained);
+  }
+  void loop() override { client_.loop(); }
+
+ private:
+  PubSubClient& client_;
+};
+
+class WiFiLink : public NetLink {
+ public:
+  WiFiLink(const char* ssid, const char* password) : ssid_(ssid), password_(password) {}
+  bool up() override { return WiFi.status() == WL_CONNECTED; }
+  void begin() override {
+    WiFi.mode(WIFI_STA);
+    WiFi.disconnect();
+    WiFi.begin(ssid_, password_);  // returns at once; the ESP32 joins in the background
+  }
+
+ private:
+  const char* ssid_;
+  const char* password_;
+};
+
+class ArduinoClock : public Clock {
+ public:
+  uint32_t nowMs() override { return static_cast<uint32_t>(millis()); }
+};
+
+}  // namespace gf

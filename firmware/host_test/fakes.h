@@ -1,0 +1,134 @@
+// Test doubles for the Device's injected parts: a tiny in-memory broker, a link and a clock.
+#pragma once
+
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "../esp32_unit/src/device.h"
+
+namespace gft {
+
+class FakeClock : public gf::Clock {
+ public:
+  uint32_t nowMs() override { return now; }
+  void advance(uint32_t ms) { now += ms; }
+  uint32_t now = 1000;
+};
+
+class FakeLink : public gf::NetLink {
+ public:
+  bool up() override { return isUp; }
+  void begin() override { ++begins; }
+  bool isUp = true;
+  int begins = 0;
+};
+
+// Behaves like a broker with one client: keeps retained values, delivers to subscriptions on
+// loop() (as PubSubClient does), and records what the device published.
+class FakeMqtt : public gf::MqttTransport {
+ public:
+  struct Msg {
+    std::string topic;
+    std::string payload;
+    bool retained;
+  };
+
+  bool connect(const std::string& clientId, const std::string& willTopic,
+               const std::string& willPayload) override {
+    ++connectCalls;
+    if (!brokerUp) return false;
+    isConnected = true;
+    this->clientId = clientId;
+    will = {willTopic, willPayload, true};
+    subscriptions.clear();
+    return true;
+  }
+  bool connected() override { return isConnected; }
+  void disconnect() override { isConnected = false; }  // clean: no will
+  bool subscribe(const std::string& topic, uint8_t qos) override {
+    if (!isConnected || failSubscribe) return false;
+    subscriptions[topic] = qos;
+    auto it = retained.find(topic);
+    if (it != retained.end()) inbox.emplace_back(topic, it->second);
+    return true;
+  }
+  bool publish(const std::string& topic, const std::string& payload, bool isRetained) override {
+    if (!isConnected) return false;
+    published.push_back({topic, payload, isRetained});
+    if (dropPublishes) return true;  // handed to the socket, lost on the way (QoS 0)
+    route(topic, payload, isRetained);
+    return true;
+  }
+  void loop() override {
+    auto batch = std::move(inbox);
+    inbox.clear();
+    for (auto& [topic, payload] : batch) {
+      if (device != nullptr) {
+        device->onMessage(topic, reinterpret_cast<const uint8_t*>(payload.data()),
+                          payload.size());
+      }
+    }
+  }
+
+  // Test side: another client publishes.
+  void route(const std::string& topic, const std::string& payload, bool isRetained) {
+    if (isRetained) retained[topic] = payload;
+    if (isConnected && subscriptions.count(topic)) inbox.emplace_back(topic, payload);
+  }
+  // The connection drops: the broker publishes the will.
+  void drop() {
+    isConnected = false;
+    inbox.clear();
+    if (!will.topic.empty()) retained[will.topic] = will.payload;
+  }
+  int count(const std::string& topic, const std::string& payload) const {
+    int n = 0;
+    for (const auto& m : published) n += m.topic == topic && m.payload == payload;
+    return n;
+  }
+
+  gf::Device* device = nullptr;
+  bool brokerUp = true;
+  bool isConnected = false;
+  bool dropPublishes = false;
+  bool failSubscribe = false;
+  int connectCalls = 0;
+  std::string clientId;
+  Msg will;
+  std::map<std::string, uint8_t> subscriptions;
+  std::map<std::string, std::string> retained;
+  std::vector<std::pair<std::string, std::string>> inbox;
+  std::vector<Msg> published;
+};
+
+// A device wired to the fakes, with helpers to run its loop.
+struct Rig {
+  explicit Rig(gf::DeviceConfig cfg = defaultConfig()) : config(std::move(cfg)), device(config, mqtt, link, clock) {
+    mqtt.device = &device;
+  }
+  static gf::DeviceConfig defaultConfig() {
+    gf::DeviceConfig c;
+    c.root = "t/fw";
+    c.unit = "unit1";
+    c.device = "dev1";
+    return c;
+  }
+  // Run the loop for `ms` milliseconds in 1 ms passes with the button as given.
+  void run(uint32_t ms, bool pressed = false) {
+    for (uint32_t i = 0; i < ms; ++i) {
+      device.tick(false, pressed);
+      clock.advance(1);
+    }
+  }
+  void tick(bool edge = false, bool pressed = false) { device.tick(edge, pressed); }
+
+  gf::DeviceConfig config;
+  FakeClock clock;
+  FakeLink link;
+  FakeMqtt mqtt;
+  gf::Device device;
+};
+
+}  // namespace gft

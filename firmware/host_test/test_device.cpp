@@ -1,0 +1,263 @@
+#include <doctest/doctest.h>
+
+#include <string>
+
+#include "fakes.h"
+
+using gf::Direction;
+using gft::Rig;
+
+namespace {
+const std::string kDir = "t/fw/v1/units/unit1/direction";
+const std::string kEstop = "t/fw/v1/fleet/estop";
+const std::string kConn = "t/fw/v1/devices/dev1/connection";
+const std::string kStop = "engaged|dev1|button";
+
+// One physical press: the interrupt fires on each bounce, the loop runs every millisecond.
+void bouncyPress(Rig& r) {
+  for (int i = 0; i < 10; ++i) {
+    r.tick(true, i % 2 == 0);
+    r.clock.advance(1);
+  }
+  r.run(150, true);  // held
+  for (int i = 0; i < 6; ++i) {
+    r.tick(true, i % 2 == 1);
+    r.clock.advance(1);
+  }
+  r.run(200, false);
+}
+}  // namespace
+
+TEST_CASE("connects with its last will, says online, subscribes to direction and estop") {
+  Rig r;
+  r.tick();
+  CHECK(r.device.online());
+  CHECK(r.mqtt.clientId == "dev1");
+  CHECK(r.mqtt.will.topic == kConn);
+  CHECK(r.mqtt.will.payload == "broken");
+  CHECK(r.mqtt.count(kConn, "online") == 1);
+  CHECK(r.mqtt.subscriptions.at(kDir) == 0);
+  CHECK(r.mqtt.subscriptions.at(kEstop) == 1);
+  CHECK(r.mqtt.retained.at(kConn) == "online");
+}
+
+TEST_CASE("LEDs follow the unit's direction messages") {
+  Rig r;
+  r.tick();
+  for (auto [payload, want] : {std::pair{"N", gf::Leds{true, false, false, false}},
+                               std::pair{"E", gf::Leds{false, true, false, false}},
+                               std::pair{"S", gf::Leds{false, false, true, false}},
+                               std::pair{"W", gf::Leds{false, false, false, true}},
+                               std::pair{"-", gf::Leds{}}}) {
+    r.mqtt.route(kDir, payload, true);
+    r.tick();
+    CHECK(r.device.leds() == want);
+  }
+}
+
+TEST_CASE("retained direction and estop are read on connect") {
+  Rig r;
+  r.mqtt.route(kDir, "S", true);
+  r.mqtt.route(kEstop, "released|dashboard|ok", true);
+  r.tick();  // connect, subscribe
+  r.tick();  // retained values delivered
+  CHECK(r.device.direction() == Direction::S);
+  CHECK_FALSE(r.device.estopEngaged());
+  CHECK(r.device.leds() == gf::Leds{false, false, true, false});
+}
+
+TEST_CASE("the stop pattern wins over the direction until released") {
+  Rig r;
+  r.tick();
+  r.mqtt.route(kDir, "E", true);
+  r.mqtt.route(kEstop, "engaged|dashboard|operator pressed STOP", true);
+  r.tick();
+  CHECK(r.device.estopEngaged());
+  r.clock.now = 0;
+  CHECK(r.device.leds().count() == 4);
+  r.clock.now = gf::kBlinkHalfPeriodMs;
+  CHECK(r.device.leds().count() == 0);
+  r.mqtt.route(kEstop, "released|dashboard|checked", true);
+  r.tick();
+  CHECK(r.device.leds() == gf::Leds{false, true, false, false});
+}
+
+TEST_CASE("malformed or oversized payloads change nothing") {
+  Rig r;
+  r.tick();
+  r.mqtt.route(kDir, "W", true);
+  r.mqtt.route(kEstop, "engaged|dashboard|stop", true);
+  r.tick();
+  const std::string oversized = "released|dashboard|" + std::string(600, 'x');
+  for (const std::string& bad : {std::string(""), std::string("north"), std::string("X"),
+                                 std::string("N\n"), std::string(100, 'N')}) {
+    r.mqtt.route(kDir, bad, true);
+  }
+  for (const std::string& bad : {std::string(""), std::string("released"), std::string("stop"),
+                                 std::string("released||x"), std::string("released|a|b\nc"),
+                                 oversized}) {
+    r.mqtt.route(kEstop, bad, true);
+  }
+  r.tick();
+  CHECK(r.device.direction() == Direction::W);
+  CHECK(r.device.estopEngaged());
+  // Messages on topics it did not ask for are ignored too.
+  r.device.onMessage("t/fw/v1/units/unit2/direction", reinterpret_cast<const uint8_t*>("N"), 1);
+  CHECK(r.device.direction() == Direction::W);
+}
+
+TEST_CASE("a bouncy button press yields exactly one stop message") {
+  Rig r;
+  r.tick();
+  bouncyPress(r);
+  r.run(5000);  // far past the retry period: confirmed, so never sent again
+  CHECK(r.mqtt.count(kEstop, kStop) == 1);
+  CHECK(r.mqtt.published.back().retained);
+  CHECK(r.mqtt.retained.at(kEstop) == kStop);
+  CHECK(r.device.estopEngaged());
+  CHECK_FALSE(r.device.stopPending());
+}
+
+TEST_CASE("two separate presses send two stops") {
+  Rig r;
+  r.tick();
+  bouncyPress(r);
+  r.mqtt.route(kEstop, "released|dashboard|checked", true);
+  r.run(10);
+  bouncyPress(r);
+  CHECK(r.mqtt.count(kEstop, kStop) == 2);
+}
+
+TEST_CASE("a press while disconnected is sent after reconnect, once") {
+  Rig r;
+  r.tick();
+  r.mqtt.drop();
+  r.mqtt.brokerUp = false;
+  CHECK(r.mqtt.retained.at(kConn) == "broken");  // the will
+  r.run(10);
+  CHECK_FALSE(r.device.online());
+  bouncyPress(r);
+  CHECK(r.device.stopPending());
+  CHECK(r.device.leds().count() % 4 == 0);  // the stop pattern shows the press at once
+  r.run(3000);
+  CHECK(r.mqtt.count(kEstop, kStop) == 0);
+  r.mqtt.brokerUp = true;
+  r.run(40000);  // within the longest back-off
+  CHECK(r.device.online());
+  CHECK(r.mqtt.count(kEstop, kStop) == 1);
+  CHECK(r.mqtt.retained.at(kEstop) == kStop);
+  CHECK(r.mqtt.retained.at(kConn) == "online");
+  CHECK_FALSE(r.device.stopPending());
+}
+
+TEST_CASE("a press whose publish is lost is retried until it comes back") {
+  Rig r;
+  r.tick();
+  r.mqtt.dropPublishes = true;
+  bouncyPress(r);
+  CHECK(r.mqtt.count(kEstop, kStop) == 1);
+  r.run(r.config.stopRetryMs);
+  CHECK(r.mqtt.count(kEstop, kStop) == 2);
+  r.mqtt.dropPublishes = false;
+  r.run(r.config.stopRetryMs);
+  CHECK(r.mqtt.count(kEstop, kStop) == 3);
+  r.run(10 * r.config.stopRetryMs);
+  CHECK(r.mqtt.count(kEstop, kStop) == 3);
+  CHECK_FALSE(r.device.stopPending());
+}
+
+TEST_CASE("a press is not confirmed by someone else's engaged") {
+  Rig r;
+  r.tick();
+  r.mqtt.dropPublishes = true;
+  bouncyPress(r);
+  r.mqtt.route(kEstop, "engaged|dashboard|x", true);
+  r.run(10);
+  CHECK(r.device.stopPending());
+}
+
+TEST_CASE("reconnect attempts back off, grow, cap, and do not block the loop") {
+  gf::DeviceConfig cfg = Rig::defaultConfig();
+  cfg.mqttBackoffInitialMs = 100;
+  cfg.mqttBackoffMaxMs = 1600;
+  Rig r(cfg);
+  r.mqtt.brokerUp = false;
+  std::vector<uint32_t> attemptsAt;
+  for (uint32_t t = 0; t < 10000; ++t) {
+    int before = r.mqtt.connectCalls;
+    r.tick();
+    if (r.mqtt.connectCalls != before) attemptsAt.push_back(r.clock.now);
+    r.clock.advance(1);
+  }
+  REQUIRE(attemptsAt.size() >= 8);
+  std::vector<uint32_t> gaps;
+  for (size_t i = 1; i < attemptsAt.size(); ++i) gaps.push_back(attemptsAt[i] - attemptsAt[i - 1]);
+  CHECK(gaps[0] == 100);
+  CHECK(gaps[1] == 200);
+  CHECK(gaps[2] == 400);
+  CHECK(gaps[3] == 800);
+  CHECK(gaps[4] == 1600);
+  CHECK(gaps[5] == 1600);
+  CHECK(gaps.back() == 1600);
+  // Once the broker is back the next attempt succeeds and the back-off starts over.
+  r.mqtt.brokerUp = true;
+  r.run(1600);
+  CHECK(r.device.online());
+  r.mqtt.drop();
+  r.mqtt.brokerUp = false;
+  int before = r.mqtt.connectCalls;
+  r.run(150);
+  CHECK(r.mqtt.connectCalls - before == 2);  // at once, then after 100 ms
+}
+
+TEST_CASE("a session whose subscriptions fail is dropped and retried with back-off") {
+  Rig r;
+  r.mqtt.failSubscribe = true;
+  r.tick();
+  CHECK_FALSE(r.device.online());
+  CHECK_FALSE(r.mqtt.connected());
+  r.run(r.config.mqttBackoffInitialMs - 1);
+  CHECK(r.mqtt.connectCalls == 1);
+  r.mqtt.failSubscribe = false;
+  r.run(2);
+  CHECK(r.mqtt.connectCalls == 2);
+  CHECK(r.device.online());
+}
+
+TEST_CASE("without WiFi it does not try MQTT, restarts joining with back-off, shows offline") {
+  Rig r;
+  r.link.isUp = false;
+  r.run(10);
+  CHECK(r.link.begins == 1);
+  CHECK(r.mqtt.connectCalls == 0);
+  CHECK(r.device.leds().count() == 1);  // the offline chase
+  r.run(r.config.linkBackoffInitialMs);
+  CHECK(r.link.begins == 2);
+  r.link.isUp = true;
+  r.run(2);
+  CHECK(r.device.online());
+  r.mqtt.route(kDir, "N", true);
+  r.run(2);
+  CHECK(r.device.leds() == gf::Leds{true, false, false, false});
+  // WiFi goes: offline pattern at once, MQTT reconnects after it returns.
+  r.link.isUp = false;
+  r.mqtt.drop();
+  r.run(2);
+  CHECK_FALSE(r.device.online());
+  r.link.isUp = true;
+  r.run(2);
+  CHECK(r.device.online());
+}
+
+TEST_CASE("invalid configuration is reported") {
+  gf::DeviceConfig c = Rig::defaultConfig();
+  CHECK(c.problem().empty());
+  c.unit = "unit 1";
+  CHECK(c.problem().find("unit id") != std::string::npos);
+  c = Rig::defaultConfig();
+  c.root = "a/+";
+  CHECK(c.problem().find("root") != std::string::npos);
+  c = Rig::defaultConfig();
+  c.device = "";
+  CHECK(c.problem().find("device id") != std::string::npos);
+}

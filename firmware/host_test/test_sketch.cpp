@@ -1,0 +1,72 @@
+// Runs the real esp32_unit.ino (compiled against the stand-in headers) through setup() and
+// loop(): the wiring of pins, interrupt, WiFi and PubSubClient to the Device.
+#include <doctest/doctest.h>
+
+#include <Arduino.h>
+#include <PubSubClient.h>
+#include <WiFi.h>
+#include <config.h>
+
+#include <string>
+
+void setup();
+void loop();
+extern PubSubClient mqttClient;
+
+namespace {
+const std::string kRoot = GF_TOPIC_ROOT;
+const std::string kDir = kRoot + "/v1/units/" GF_UNIT_ID "/direction";
+const std::string kEstop = kRoot + "/v1/fleet/estop";
+
+void loops(int n) {
+  for (int i = 0; i < n; ++i) {
+    loop();
+    host::nowMs += 1;
+  }
+}
+}  // namespace
+
+TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the device") {
+  setup();
+  CHECK(host::pinMode[GF_PIN_LED_N] == OUTPUT);
+  CHECK(host::pinMode[GF_PIN_LED_W] == OUTPUT);
+  CHECK(host::pinMode[GF_PIN_BUTTON] == INPUT_PULLUP);
+  REQUIRE(host::isr.count(GF_PIN_BUTTON) == 1);
+  CHECK(mqttClient.host == GF_MQTT_HOST);
+  CHECK(mqttClient.port == GF_MQTT_PORT);
+  CHECK(mqttClient.bufferSize >= 512 + 100);
+
+  loops(3);  // joins WiFi, connects MQTT
+  CHECK(WiFi.begins == 1);
+  CHECK(WiFi.lastSsid == GF_WIFI_SSID);
+  REQUIRE(mqttClient.connected());
+  CHECK(mqttClient.clientId == GF_DEVICE_ID);
+  CHECK(mqttClient.will == kRoot + "/v1/devices/" GF_DEVICE_ID "/connection");
+  CHECK(mqttClient.willPayload == "broken");
+  CHECK(mqttClient.willQos == 1);
+  CHECK(mqttClient.willRetain);
+
+  mqttClient.inbox.emplace_back(kDir, "E");
+  loops(2);
+  CHECK(host::pinOut[GF_PIN_LED_E] == HIGH);
+  CHECK(host::pinOut[GF_PIN_LED_N] == LOW);
+  CHECK(host::pinOut[GF_PIN_LED_S] == LOW);
+  CHECK(host::pinOut[GF_PIN_LED_W] == LOW);
+
+  // The button: the interrupt only sets a flag; the loop publishes, retained.
+  host::pinIn[GF_PIN_BUTTON] = LOW;
+  host::isr[GF_PIN_BUTTON]();
+  host::isr[GF_PIN_BUTTON]();  // a bounce
+  loops(100);
+  host::pinIn[GF_PIN_BUTTON] = HIGH;
+  loops(100);
+  int stops = 0;
+  for (const auto& m : mqttClient.published) {
+    if (m.topic == kEstop) {
+      ++stops;
+      CHECK(m.payload == "engaged|" GF_DEVICE_ID "|button");
+      CHECK(m.retained);
+    }
+  }
+  CHECK(stops == 1);
+}

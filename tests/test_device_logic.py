@@ -1,0 +1,128 @@
+"""The virtual device's pure core: LEDs from direction and estop, the stop key, bad input."""
+
+from __future__ import annotations
+
+import pytest
+
+from gridfleet.device_logic import DeviceLogic, render_plain
+from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
+
+T = Topics("t/logic")
+DIR = T.unit("direction", "unit1")
+ESTOP = T.fleet("estop")
+
+
+def online_logic() -> DeviceLogic:
+    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0)
+    logic.connected()
+    return logic
+
+
+@pytest.mark.parametrize("side", ["N", "E", "S", "W"])
+def test_each_direction_lights_exactly_its_led(side: str) -> None:
+    logic = online_logic()
+    assert logic.on_message(DIR, side.encode()) is None
+    lit = [s for s in "NESW" if getattr(logic.leds, s)]
+    assert lit == [side]
+    assert logic.pattern == "direction"
+
+
+def test_no_move_lights_nothing() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"E")
+    logic.on_message(DIR, b"-")
+    assert logic.leds == Leds()
+
+
+def test_stop_wins_over_direction_until_released() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"S")
+    logic.on_message(ESTOP, b"engaged|dashboard|operator pressed STOP")
+    assert logic.pattern == "stop" and logic.leds == Leds(N=True, E=True, S=True, W=True)
+    logic.on_message(DIR, b"W")  # direction changes underneath still do not show
+    assert logic.pattern == "stop"
+    logic.on_message(ESTOP, b"released|dashboard|checked")
+    assert logic.leds == Leds(W=True)
+
+
+def test_offline_shows_nothing_but_the_stop_still_shows() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"N")
+    logic.disconnected()
+    assert logic.pattern == "offline" and logic.leds == Leds()
+    logic.press()
+    assert logic.pattern == "stop"
+
+
+@pytest.mark.parametrize(
+    ("topic", "payload"),
+    [
+        (DIR, b"X"),
+        (DIR, b"NE"),
+        (DIR, b""),
+        (DIR, b"N" * 100_000),
+        (ESTOP, b"stop"),
+        (ESTOP, b"released"),
+        (ESTOP, b"released||reason"),
+        (ESTOP, b"released|a|two\nlines"),
+        (ESTOP, b"released|a|\xff\xfe"),
+        (ESTOP, b"released|a|" + b"x" * 600),
+        (T.unit("direction", "unit2"), b"N"),
+        (T.unit("state", "unit1"), b"{}"),
+        ("other/v1/fleet/estop", b"released|a|b"),
+    ],
+)
+def test_bad_or_unexpected_messages_change_nothing(topic: str, payload: bytes) -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"E")
+    logic.on_message(ESTOP, b"engaged|dashboard|x")
+    before = (logic.direction, logic.estop, logic.leds, logic.pending_stop)
+    refusal = logic.on_message(topic, payload)
+    assert refusal is not None and refusal.topic == topic and refusal.reason
+    assert (logic.direction, logic.estop, logic.leds, logic.pending_stop) == before
+
+
+def test_press_is_pending_until_its_own_engaged_comes_back() -> None:
+    logic = online_logic()
+    assert not logic.stop_due(0.0)
+    logic.press()
+    logic.press()  # a second press while pending is the same stop
+    assert logic.stop_due(10.0)
+    assert logic.stop_payload == encode_estop(EstopSignal(True, "dev1", "button"))
+    logic.stop_sent(10.0)
+    assert not logic.stop_due(10.5)
+    assert logic.next_stop_in(10.5) == pytest.approx(0.5)
+    assert logic.stop_due(11.0)  # not seen yet: send again
+    logic.on_message(ESTOP, b"engaged|dashboard|someone else")
+    assert logic.pending_stop  # someone else's stop does not confirm ours
+    logic.on_message(ESTOP, logic.stop_payload)
+    assert not logic.pending_stop and not logic.stop_due(99.0)
+    assert logic.next_stop_in(99.0) is None
+
+
+def test_press_while_offline_is_sent_on_the_next_session() -> None:
+    logic = online_logic()
+    logic.disconnected()
+    logic.press()
+    assert not logic.stop_due(0.0)
+    logic.connected()
+    assert logic.stop_due(0.0)
+    logic.stop_sent(0.0)
+    logic.disconnected()
+    logic.connected()
+    assert logic.stop_due(0.1)  # a new session sends at once
+
+
+def test_plain_rendering() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"E")
+    assert render_plain(logic) == "leds=.#.. direction=E estop=unknown link=online"
+    logic.press()
+    assert render_plain(logic) == ("leds=#### direction=E estop=unknown link=online stop=pending")
+
+
+def test_bad_ids_are_refused() -> None:
+    with pytest.raises(Exception, match="unit id"):
+        DeviceLogic(T, "unit/1", "dev1")
+    with pytest.raises(Exception, match="device id"):
+        DeviceLogic(T, "unit1", "")
