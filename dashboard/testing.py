@@ -116,9 +116,11 @@ class OpenDashboard:
         self.page.wait_for_selector("#conn[data-state=connected]", timeout=timeout_ms)
 
 
-@pytest.fixture(scope="session")
+# Module scope, not session: Playwright's sync API keeps an event loop running on this thread
+# while it is open, which would break every async test collected after it.
+@pytest.fixture(scope="module")
 def chromium() -> Iterator[Any]:
-    """One headless Debian Chromium for the whole session (skips when it is not installed)."""
+    """One headless Debian Chromium per test module (skips when it is not installed)."""
     if not CHROMIUM.exists():
         pytest.skip(f"{CHROMIUM} is not installed (apt-get install chromium; .ci/run does)")
     from playwright.sync_api import sync_playwright

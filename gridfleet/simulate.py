@@ -127,7 +127,7 @@ async def simulate(
         db_dir = stack.enter_context(tempfile.TemporaryDirectory(prefix="gridfleet-sim-"))
         stop = asyncio.Event()
         coordinator = Coordinator(
-            broker_url, scenario.grid, root=root, step=step, db_path=Path(db_dir) / "jobs.db"
+            broker_url, scenario.grid, root=root, step_s=step, db_path=Path(db_dir) / "jobs.db"
         )
         fleet = Fleet(scenario, broker_url, root=root, step=step)
         tasks = [asyncio.create_task(coordinator.run(stop)), asyncio.create_task(fleet.run(stop))]
