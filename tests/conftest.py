@@ -9,8 +9,10 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import Topics
+from gridfleet.scenario import Scenario, load_scenario
 from gridfleet.testing.broker_thread import BrokerThread
 from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.services import ServiceThread, coordinator_thread, fleet_thread
 
 REPO = Path(__file__).resolve().parent.parent
 MAPS = REPO / "maps"
@@ -66,3 +68,27 @@ def playfield() -> Path:
 
 # Browser fixtures of the dashboard (`chromium`, `open_dashboard`), usable by any test.
 pytest_plugins = ["dashboard.testing"]
+
+
+@pytest.fixture
+def run_system(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> Iterator[Callable[..., tuple[ServiceThread, ServiceThread]]]:
+    """Factory: the real coordinator and units of a scenario on the session broker, in threads."""
+    running: list[ServiceThread] = []
+
+    def start(
+        scenario: Path | Scenario, step_s: float = 0.05
+    ) -> tuple[ServiceThread, ServiceThread]:
+        loaded = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        coordinator = coordinator_thread(
+            loaded, broker.url, root=root, step_s=step_s, db_path=tmp_path / "jobs.db"
+        ).start()
+        running.append(coordinator)
+        fleet = fleet_thread(loaded, broker.url, root=root, step_s=step_s).start()
+        running.append(fleet)
+        return coordinator, fleet
+
+    yield start
+    for service in reversed(running):
+        service.stop()

@@ -1,0 +1,139 @@
+"""Run the coordinator and simulated units in background threads, for sync and async tests alike."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Protocol, Self
+
+from gridfleet.scenario import Scenario
+
+if TYPE_CHECKING:
+    from coordinator.service import Coordinator
+    from robots.fleet import Fleet
+    from robots.world import WorldSim
+
+
+class Service(Protocol):
+    """What a runnable component offers: `ready` once online, `run` until `stop` is set."""
+
+    ready: asyncio.Event
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Run until `stop` is set."""
+
+
+class ServiceThread:
+    """One service in its own thread and event loop; `with` starts it and waits until it is ready."""
+
+    def __init__(self, make: Callable[[], Service], name: str) -> None:
+        self.name = name
+        self._make = make
+        self._service: Service | None = None
+        self._loop = asyncio.new_event_loop()
+        self._stop: asyncio.Event | None = None
+        self._ready: Future[None] = Future()
+        self._done: Future[None] = Future()
+        self._thread = threading.Thread(target=self._main, name=name, daemon=True)
+
+    def _main(self) -> None:
+        asyncio.set_event_loop(self._loop)
+        try:
+            self._loop.run_until_complete(self._run())
+        except BaseException as exc:  # surfaced by stop(), and by start() if it never got ready
+            self._done.set_exception(exc)
+        else:
+            self._done.set_result(None)
+        finally:
+            self._loop.close()
+
+    @property
+    def service(self) -> Service:
+        """The running service object (made in its own thread: sqlite and loops are per thread)."""
+        assert self._service is not None, f"{self.name} not started"
+        return self._service
+
+    async def _run(self) -> None:
+        self._stop = asyncio.Event()
+        self._service = service = self._make()
+
+        async def watch() -> None:
+            await service.ready.wait()
+            self._ready.set_result(None)
+
+        watcher = asyncio.create_task(watch())
+        try:
+            await service.run(self._stop)
+        finally:
+            watcher.cancel()
+
+    def start(self, timeout: float = 30.0) -> Self:
+        """Start the service and wait until it says it is ready."""
+        self._thread.start()
+        for _ in range(int(timeout / 0.05)):
+            if self._ready.done():
+                return self
+            if self._done.done():
+                self._done.result()  # it died while starting: raise its error here
+                raise RuntimeError(f"{self.name} ended before it was ready")
+            self._thread.join(0.05)
+        raise TimeoutError(f"{self.name} not ready after {timeout} s")
+
+    def stop(self, timeout: float = 30.0) -> None:
+        """Ask the service to stop cleanly, wait for it, and raise any error it ended with."""
+        if self._thread.is_alive() and self._stop is not None:
+            self._loop.call_soon_threadsafe(self._stop.set)
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise TimeoutError(f"{self.name} did not stop within {timeout} s")
+        self._done.result(0)
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(
+        self, et: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.stop()
+
+
+def coordinator_thread(
+    scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
+) -> ServiceThread:
+    """The real coordinator for a scenario's map, with its job store at `db_path`."""
+    from coordinator.service import Coordinator
+
+    def make() -> Coordinator:
+        return Coordinator(
+            broker_url, scenario.grid, root=root, step_s=step_s, db_path=db_path, **kw
+        )
+
+    return ServiceThread(make, "gridfleet-coordinator")
+
+
+def fleet_thread(
+    scenario: Scenario,
+    broker_url: str,
+    *,
+    root: str,
+    step_s: float,
+    units: Sequence[str] | None = None,
+    **kw: Any,
+) -> ServiceThread:
+    """The scenario's simulated units (all, or a subset) over the real broker."""
+    from robots.fleet import Fleet
+
+    def make() -> Fleet:
+        return Fleet(scenario, broker_url, root=root, step=step_s, units=units, **kw)
+
+    return ServiceThread(make, "gridfleet-units")
+
+
+def world_of(fleet: ServiceThread) -> WorldSim:
+    """The ground-truth world simulation of a running fleet."""
+    service: Fleet = fleet.service  # type: ignore[assignment]
+    return service.world

@@ -1,0 +1,46 @@
+"""The test harness that runs the real coordinator and units in threads."""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from gridfleet.protocol import HeaderStamper, SetGoal, Topics, encode
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.services import ServiceThread, world_of
+from gridfleet.testing.wait import wait_for
+
+
+def test_system_runs_a_goal_and_stops_cleanly(
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+    playfield: Path,
+) -> None:
+    _, fleet = run_system(playfield)
+    world = world_of(fleet)
+    probe = probe_factory()
+    goal = SetGoal(
+        header=HeaderStamper("tester")("set_goal"), request_id="g1", unit="unit2", target=(8, 8)
+    )
+    probe.publish(topics.request("set_goal"), encode(goal))
+    wait_for(lambda: world.positions["unit2"] == (8, 8), timeout=30, what="unit2 at its goal")
+    assert world.collisions == 0
+
+
+class _Broken:
+    """A service that fails while starting."""
+
+    def __init__(self) -> None:
+        self.ready = asyncio.Event()
+
+    async def run(self, stop: asyncio.Event) -> None:
+        raise ValueError("no such broker")
+
+
+def test_a_service_that_dies_while_starting_raises_its_error() -> None:
+    with pytest.raises(ValueError, match="no such broker"):
+        ServiceThread(_Broken, "broken").start(timeout=5)
