@@ -229,8 +229,13 @@ class Planner:
             cands = [*self._nbrs[here], here]
             d_here = [dist(i, c) for c in cands]
             # Ties: a free square first, then one whose unit is still on its way, and only then
-            # push a unit off its target (pushing settled units invites livelock).
-            keys = [(d, _crowding(c), rand()) for c, d in zip(cands, d_here, strict=True)]
+            # push a unit off its target (pushing settled units invites livelock). A unit
+            # without an errand stays put: every square is as good to it, so it would wander.
+            idle = fields[i] is None
+            keys = [
+                (d, int(idle and c != here), _crowding(c), rand())
+                for c, d in zip(cands, d_here, strict=True)
+            ]
             ranked = [c for _, c in sorted(zip(keys, cands, strict=True), key=lambda kc: kc[0])]
             # Swap emulation: when two units must pass each other in a corridor, the one in
             # front backs off (candidates reversed) and pulls the other along behind it.

@@ -171,3 +171,15 @@ def test_follows_a_unit_that_moves_away() -> None:
     )
     assert out["B"] == Cell(2, 0)
     assert out["A"] == Cell(1, 0)
+
+
+def test_a_unit_without_an_errand_stays_put_unless_pushed() -> None:
+    grid = GridMap.from_rows(["....."] * 5)
+    planner = Planner(grid, seed=3)
+    idle = {"A": AgentSpec(Cell(2, 2)), "B": AgentSpec(Cell(0, 0))}
+    for _ in range(30):
+        assert planner.step(idle) == {"A": Cell(2, 2), "B": Cell(0, 0)}
+    # In a corridor, an idle unit in the way is pushed ahead of the one with an errand.
+    corridor = Planner(GridMap.from_rows(["....."]), seed=3)
+    moved = corridor.step({"A": AgentSpec(Cell(0, 0), Cell(4, 0)), "B": AgentSpec(Cell(1, 0))})
+    assert moved == {"A": Cell(1, 0), "B": Cell(2, 0)}

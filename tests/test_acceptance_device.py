@@ -1,0 +1,319 @@
+"""Acceptance: a unit shows its intended direction, the device follows it, its stop halts the fleet.
+
+Everything runs for real over the session broker: the coordinator and the simulated units of a
+shipped scenario (the `run_system` fixture), the virtual device (`gridfleet.device`) and an
+operator probe that sends goals, reads every unit's state and watches the topics the dashboard
+reads.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+from collections.abc import Callable
+from pathlib import Path
+
+from gridfleet.device import VirtualDevice
+from gridfleet.device_logic import DeviceLogic
+from gridfleet.grid import Cell, Direction
+from gridfleet.protocol import (
+    CoordinatorStatus,
+    EstopSignal,
+    HeaderStamper,
+    Leds,
+    Reply,
+    SetGoal,
+    Topics,
+    UnitState,
+    decode,
+    decode_estop,
+    encode,
+    encode_estop,
+)
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.services import ServiceThread, world_of
+from gridfleet.testing.wait import async_wait_for, wait_for
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+STEP_S = 0.05
+ALL = Leds(N=True, E=True, S=True, W=True)
+RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
+
+
+def lit(leds: Leds) -> set[str]:
+    """The sides whose LED is lit."""
+    return {side for side, on in leds.model_dump().items() if on}
+
+
+class Operator:
+    """A probe that sends goals and the release, and reads states and the dashboard's topics."""
+
+    def __init__(self, probe: MqttProbe, topics: Topics, units: list[str]) -> None:
+        self.probe = probe
+        self.topics = topics
+        self.units = units
+        self.name = "acceptance-op"
+        self.stamp = HeaderStamper(self.name)
+        self._requests = itertools.count()
+        probe.subscribe(topics.all_units("state"), qos=0)  # high rate: QoS 0 (protocol §2)
+        probe.subscribe(topics.fleet("estop"), qos=1)
+        probe.subscribe(topics.fleet("coordinator"), qos=1)
+        probe.subscribe(topics.reply(self.name), qos=1)
+
+    def states(self, unit: str) -> list[UnitState]:
+        """Every state of `unit` seen so far, in the order it was published."""
+        return [
+            decode(UnitState, m.payload)
+            for m in self.probe.received(self.topics.unit("state", unit))
+        ]
+
+    def last(self, unit: str) -> UnitState | None:
+        """The newest state of `unit`, if any."""
+        seen = self.probe.received(self.topics.unit("state", unit))
+        return decode(UnitState, seen[-1].payload) if seen else None
+
+    def replies(self) -> dict[str, Reply]:
+        """Replies to this operator by request id."""
+        seen = self.probe.received(self.topics.reply(self.name))
+        return {r.request_id: r for r in (decode(Reply, m.payload) for m in seen)}
+
+    def set_goal(self, unit: str, target: Cell) -> None:
+        """Send `unit` to `target` through the coordinator; retried until the coordinator knows it."""
+
+        def accepted() -> bool:
+            rid = f"goal-{unit}-{next(self._requests)}"
+            msg = SetGoal(
+                header=self.stamp("set_goal"),
+                request_id=rid,
+                reply_to=self.name,
+                unit=unit,
+                target=(target.x, target.y),
+            )
+            self.probe.publish(self.topics.request("set_goal"), encode(msg))
+            reply = wait_for(lambda: self.replies().get(rid), 10, what=f"reply to {rid}")
+            assert reply.accepted or "unknown unit" in (reply.reason or ""), reply.reason
+            return reply.accepted
+
+        wait_for(accepted, 10, interval=STEP_S, what=f"goal {target} for {unit} accepted")
+
+    def release(self) -> None:
+        """The operator's deliberate release, as the dashboard's release control sends it."""
+        payload = encode_estop(EstopSignal(False, self.name, "area checked"))
+        self.probe.publish(self.topics.fleet("estop"), payload, qos=1, retain=True)
+
+    def estop_signals(self) -> list[EstopSignal]:
+        """Every estop value seen on the topic the dashboard reads."""
+        return [decode_estop(m.payload) for m in self.probe.received(self.topics.fleet("estop"))]
+
+    def coordinator_estop(self) -> bool | None:
+        """The `estop` flag of the coordinator's newest status (shown by the dashboard too)."""
+        seen = self.probe.received(self.topics.fleet("coordinator"))
+        return decode(CoordinatorStatus, seen[-1].payload).estop if seen else None
+
+    def stepped_past(self, marks: dict[str, int], n: int) -> bool:
+        """Whether every unit has published a state at least `n` steps after its mark."""
+        for unit, mark in marks.items():
+            state = self.last(unit)
+            if state is None or state.step < mark + n:
+                return False
+        return True
+
+
+def check_intentions(unit: str, states: list[UnitState]) -> int:
+    """Check one unit's published states against protocol §4.3; returns the moves it checked.
+
+    Every state lights exactly the LED of its `direction` (none for `-`), all four while
+    stopped; every move between two consecutive states (no QoS 0 gap in `seq`) is one square in
+    the direction the earlier state showed; a unit that showed a direction and then stepped
+    either made exactly that move or was stopped or holding.
+    """
+    moves = 0
+    for s in states:
+        if s.estop or s.status == "stopped":
+            assert s.estop and s.status == "stopped", f"{unit} step {s.step}: {s.status} {s.estop}"
+            assert lit(s.leds) == set("NESW"), f"{unit} step {s.step}: stop pattern {s.leds}"
+        else:
+            want = set() if s.direction == "-" else {s.direction}
+            assert lit(s.leds) == want, f"{unit} step {s.step}: {s.leds} for {s.direction}"
+    for before, after in itertools.pairwise(states):
+        if after.header.seq != before.header.seq + 1:
+            continue  # a state lost on QoS 0: nothing to compare across the gap
+        here, there = Cell(*before.position), Cell(*after.position)
+        if after.step == before.step:
+            assert there == here, f"{unit} moved without a step at {before.step}"
+            continue
+        if before.direction == "-" or before.estop:
+            assert there == here, f"{unit} moved {here}->{there} without showing a direction"
+            continue
+        if after.status in ("stopped", "holding"):
+            assert there == here, f"{unit} moved while {after.status}"
+            continue
+        expected = here.step(Direction(before.direction))
+        assert there == expected, (
+            f"{unit} showed {before.direction} at {here} (step {before.step}) "
+            f"but is at {there} ({after.status}: {after.wait_reason})"
+        )
+        moves += 1
+    return moves
+
+
+# -- test_05: the unit's own LEDs --------------------------------------------------------------
+
+
+def test_05_the_unit_shows_its_intended_direction_every_step(
+    run_system: RunSystem, probe_factory: Callable[..., MqttProbe], topics: Topics
+) -> None:
+    from gridfleet.scenario import load_scenario
+
+    scenario = load_scenario(MAPS / "crossing.toml")
+    units = [u.id for u in scenario.units]
+    goals = {g.unit: Cell(*g.target) for g in scenario.goals}
+    assert sorted(goals) == sorted(units)  # every unit crosses to the opposite arm: they meet
+    op = Operator(probe_factory(), topics, units)
+    _, fleet = run_system(scenario, step_s=STEP_S)
+    world = world_of(fleet)
+    for unit, target in goals.items():
+        op.set_goal(unit, target)
+    wait_for(lambda: all(world.moves[u] >= 2 for u in units), 15, what="every unit under way")
+
+    # An emergency stop in the middle of the crossing, so stopped states are checked too.
+    op.probe.publish(
+        topics.fleet("estop"), encode_estop(EstopSignal(True, "tester", "test")), retain=True
+    )
+    wait_for(lambda: all((s := op.last(u)) and s.estop for u in units), 5, what="all stopped")
+    marks = {u: op.last(u).step for u in units}  # type: ignore[union-attr]
+    wait_for(lambda: op.stepped_past(marks, 3), 5, what="three steps while stopped")
+    op.release()
+
+    wait_for(
+        lambda: all(world.positions[u] == g for u, g in goals.items()),
+        30,
+        what="every unit at its goal",
+    )
+    wait_for(
+        lambda: all((s := op.last(u)) and s.status == "idle" and s.direction == "-" for u in units),
+        5,
+        what="every unit idle",
+    )
+    assert world.collisions == 0
+    checked = {u: check_intentions(u, op.states(u)) for u in units}
+    stopped = {u: sum(s.status == "stopped" for s in op.states(u)) for u in units}
+    # Nothing vacuous: every unit's whole crossing was compared, and it was seen stopped.
+    for unit in units:
+        assert checked[unit] >= world.moves[unit] - 2, (unit, checked, world.moves)
+        assert checked[unit] >= 6 and stopped[unit] >= 3, (unit, checked, stopped)
+
+
+# -- test_06: the (virtual) device -------------------------------------------------------------
+
+
+def dedup(seq: list[Leds]) -> list[Leds]:
+    """`seq` without repeats of the previous entry: the changes a person would see."""
+    return [x for i, x in enumerate(seq) if i == 0 or x != seq[i - 1]]
+
+
+async def test_06_direction_on_the_device_and_its_emergency_stop_works(
+    run_system: RunSystem,
+    probe_factory: Callable[..., MqttProbe],
+    broker: BrokerThread,
+    topics: Topics,
+    root: str,
+) -> None:
+    from gridfleet.scenario import load_scenario
+
+    scenario = load_scenario(MAPS / "playfield.toml")
+    units = [u.id for u in scenario.units]
+    starts = {u.id: u.start for u in scenario.units}
+    op = await asyncio.to_thread(lambda: Operator(probe_factory(), topics, units))
+    _, fleet = await asyncio.to_thread(run_system, scenario, STEP_S)
+    world = world_of(fleet)
+
+    shown: list[Leds] = []  # every LED state the device showed, in order
+
+    def record(logic: DeviceLogic) -> None:
+        if logic.online:
+            shown.append(logic.leds)
+
+    device = VirtualDevice(broker.url, "unit1", root, device_id="dev-accept", on_change=record)
+    stop = asyncio.Event()
+    task = asyncio.create_task(device.run(stop))
+    try:
+        await async_wait_for(lambda: device.online or task.done(), what="device online")
+        assert not task.done(), task.exception()
+        await async_wait_for(
+            lambda: all((s := op.last(u)) and s.status == "idle" for u in units), what="idle"
+        )
+        assert device.leds == Leds()  # unit1 stands still: nothing lit
+
+        # 1. The device follows unit1 while all four units cross the field.
+        goals = {"unit1": Cell(9, 3), "unit2": Cell(0, 3), "unit3": Cell(9, 6), "unit4": Cell(0, 6)}
+        first = len(op.states("unit1"))
+        for unit, target in goals.items():
+            await asyncio.to_thread(op.set_goal, unit, target)
+        await async_wait_for(
+            lambda: all(world.positions[u] == g for u, g in goals.items()),
+            30,
+            what="every unit at its goal",
+        )
+        await async_wait_for(
+            lambda: (s := op.last("unit1")) and s.direction == "-" and device.leds == Leds(),
+            5,
+            what="unit1 and the device at rest",
+        )
+        states = op.states("unit1")[first:]
+        check_intentions("unit1", states)
+        unit_shows = dedup([s.leds for s in states])
+        # Each state's LEDs were shown by the device, in the same order, nothing else in between.
+        assert dedup(shown)[-len(unit_shows) :] == unit_shows, (dedup(shown), unit_shows)
+        assert len(unit_shows) >= 4 and {"E", "S"} <= {d for x in unit_shows for d in lit(x)}
+
+        # 2. Its stop key halts every unit while they drive back to where they started.
+        for unit in units:
+            await asyncio.to_thread(op.set_goal, unit, starts[unit])
+        moved = dict(world.moves)
+        await async_wait_for(
+            lambda: all(world.moves[u] >= moved[u] + 2 for u in units), 15, what="under way"
+        )
+        device.press()
+        assert device.leds == ALL  # the press shows at once, before the broker confirms it
+        await async_wait_for(
+            lambda: all((s := op.last(u)) and s.estop for u in units), 5, what="all units stopped"
+        )
+        first_stopped = {u: next(s for s in op.states(u) if s.estop) for u in units}
+        held = dict(world.positions)
+        moves = dict(world.moves)
+        marks = {u: op.last(u).step for u in units}  # type: ignore[union-attr]
+        await async_wait_for(lambda: op.stepped_past(marks, 5), 5, what="five steps stopped")
+        assert world.positions == held and world.moves == moves
+        for unit in units:
+            # Halted within one step: where it stood when it said stopped, it still stands.
+            assert Cell(*first_stopped[unit].position) == held[unit]
+            last = op.last(unit)
+            assert last is not None and last.status == "stopped" and lit(last.leds) == set("NESW")
+        # Visible where the dashboard looks: the retained estop topic and the coordinator status.
+        engaged = op.estop_signals()[-1]
+        assert (engaged.engaged, engaged.by, engaged.reason) == (True, "dev-accept", "button")
+        await async_wait_for(lambda: op.coordinator_estop() is True, 5, what="coordinator stop")
+        late = await asyncio.to_thread(probe_factory)  # a dashboard opened now
+        await asyncio.to_thread(late.subscribe, topics.fleet("estop"), 1)
+        seen = await async_wait_for(lambda: late.received(topics.fleet("estop")), what="retained")
+        assert seen[0].retain and decode_estop(seen[0].payload) == engaged
+        await async_wait_for(lambda: not device.logic.pending_stop, what="stop confirmed")
+        assert device.leds == ALL
+        assert sum(s.engaged for s in op.estop_signals()) == 1  # one press, one stop
+
+        # 3. Only a deliberate release lets them go on; they all get home, nobody collided.
+        await asyncio.to_thread(op.release)
+        await async_wait_for(lambda: device.leds != ALL, 5, what="device shows direction again")
+        await async_wait_for(
+            lambda: all(world.positions[u] == starts[u] for u in units),
+            30,
+            what="every unit back at its start",
+        )
+        await async_wait_for(lambda: device.leds == Leds(), 5, what="device at rest")
+        assert world.collisions == 0
+        assert op.coordinator_estop() is False
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 10)
