@@ -25,6 +25,7 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
     decode,
+    decode_direction,
     decode_estop,
     encode,
     encode_direction,
@@ -68,6 +69,7 @@ class UnitRunner:
         self._started = 0.0
         self._estop_deadline: float | None = None
         self._sent_direction: bytes | None = None
+        self._publishing = asyncio.Lock()
 
     # ---- time -------------------------------------------------------------------------------
 
@@ -293,13 +295,17 @@ class UnitRunner:
 
     async def publish_state(self) -> None:
         """Publish the state (and the direction when it changed); skipped while disconnected."""
-        if self._client is None:
-            return
-        await self._publish("state", self.logic.report(self._stamp("state")))
-        direction = encode_direction(self.logic.direction)
-        if direction != self._sent_direction:
-            await self._send(self.topics.unit("direction", self.id), "direction", direction)
-            self._sent_direction = direction
+        # The step loop and message handlers both publish: one at a time, and the direction is
+        # taken with the state it belongs to, so the device sees every change, in order.
+        async with self._publishing:
+            if self._client is None:
+                return
+            state = self.logic.report(self._stamp("state"))
+            await self._publish("state", state)
+            direction = encode_direction(decode_direction(state.direction))
+            if direction != self._sent_direction:
+                await self._send(self.topics.unit("direction", self.id), "direction", direction)
+                self._sent_direction = direction
 
     async def _report(self, topic: str, reason: str) -> None:
         report = ErrorReport(

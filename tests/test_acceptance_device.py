@@ -60,6 +60,7 @@ class Operator:
         probe.subscribe(topics.fleet("estop"), qos=1)
         probe.subscribe(topics.fleet("coordinator"), qos=1)
         probe.subscribe(topics.reply(self.name), qos=1)
+        probe.subscribe(topics.all_units("direction"), qos=0)
 
     def states(self, unit: str) -> list[UnitState]:
         """Every state of `unit` seen so far, in the order it was published."""
@@ -67,6 +68,10 @@ class Operator:
             decode(UnitState, m.payload)
             for m in self.probe.received(self.topics.unit("state", unit))
         ]
+
+    def directions(self, unit: str) -> list[bytes]:
+        """Every payload seen on `unit`'s device topic `direction`."""
+        return [m.payload for m in self.probe.received(self.topics.unit("direction", unit))]
 
     def last(self, unit: str) -> UnitState | None:
         """The newest state of `unit`, if any."""
@@ -126,9 +131,10 @@ def check_intentions(unit: str, states: list[UnitState]) -> int:
     Every state lights exactly the LED of its `direction` (none for `-`), all four while
     stopped; every move between two consecutive states (no QoS 0 gap in `seq`) is one square in
     the direction the earlier state showed; a unit that showed a direction and then stepped
-    either made exactly that move or was stopped or holding.
+    either made exactly that move, or was stopped or holding, or its own sensor saw a unit still
+    in the square it was released.
     """
-    moves = 0
+    moves = waits = 0
     for s in states:
         if s.estop or s.status == "stopped":
             assert s.estop and s.status == "stopped", f"{unit} step {s.step}: {s.status} {s.estop}"
@@ -149,12 +155,18 @@ def check_intentions(unit: str, states: list[UnitState]) -> int:
         if after.status in ("stopped", "holding"):
             assert there == here, f"{unit} moved while {after.status}"
             continue
+        if there == here and after.wait_reason and "blocked by another unit" in after.wait_reason:
+            # Released behind a unit that had not left yet: its own sensor saw it, so it waited
+            # (protocol §4.4 rule 4) and shows the direction again, or another, next.
+            waits += 1
+            continue
         expected = here.step(Direction(before.direction))
         assert there == expected, (
             f"{unit} showed {before.direction} at {here} (step {before.step}) "
             f"but is at {there} ({after.status}: {after.wait_reason})"
         )
         moves += 1
+    assert waits <= moves, f"{unit} waited behind units {waits} times for {moves} moves"
     return moves
 
 
@@ -198,6 +210,11 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
     )
     assert world.collisions == 0
     checked = {u: check_intentions(u, op.states(u)) for u in units}
+    for unit in units:
+        # The device topic carries every change of the state's direction, in order.
+        changes = [s.direction.encode() for s in op.states(unit)]
+        changes = [d for i, d in enumerate(changes) if i == 0 or d != changes[i - 1]]
+        assert op.directions(unit) == changes, unit
     stopped = {u: sum(s.status == "stopped" for s in op.states(u)) for u in units}
     # Nothing vacuous: every unit's whole crossing was compared, and it was seen stopped.
     for unit in units:
