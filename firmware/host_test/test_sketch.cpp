@@ -55,8 +55,10 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
 
   // The button: the interrupt only sets a flag; the loop publishes, retained.
   host::pinIn[GF_PIN_BUTTON] = LOW;
+  const auto publishedBefore = mqttClient.published.size();
   host::isr[GF_PIN_BUTTON]();
   host::isr[GF_PIN_BUTTON]();  // a bounce
+  CHECK(mqttClient.published.size() == publishedBefore);  // nothing sent from the interrupt
   loops(100);
   host::pinIn[GF_PIN_BUTTON] = HIGH;
   loops(100);

@@ -1,0 +1,131 @@
+"""The ESP32 firmware as a person and CI meet it: host tests from a clean checkout, a README that
+matches the configuration, the sketch and the PlatformIO project."""
+
+from __future__ import annotations
+
+import configparser
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+FW = REPO / "firmware"
+README = (FW / "README.md").read_text()
+CONFIG = (FW / "esp32_unit" / "config.example.h").read_text()
+SKETCH = (FW / "esp32_unit" / "esp32_unit.ino").read_text()
+DEFINES = dict(re.findall(r"^#define (GF_\w+) (.+)$", CONFIG, re.MULTILINE))
+
+
+def tracked(under: str) -> list[str]:
+    """Files git tracks under `under` (what a clean clone has)."""
+    out = subprocess.run(
+        ["git", "ls-files", "-z", under], cwd=REPO, capture_output=True, check=True, timeout=30
+    )
+    return [p for p in out.stdout.decode().split("\0") if p]
+
+
+def have_toolchain() -> bool:
+    """g++ and doctest, which `.ci/run` installs."""
+    return shutil.which("g++") is not None and Path("/usr/include/doctest/doctest.h").exists()
+
+
+@pytest.mark.skipif(
+    not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
+)
+def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
+    files = tracked("firmware")
+    assert "firmware/esp32_unit/config.h" not in files  # the real config is never committed
+    for name in files:
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / name, tmp_path / name)
+    out = subprocess.run(
+        ["make", "-C", str(tmp_path / "firmware"), "-j2", "test"],
+        capture_output=True,
+        text=True,
+        timeout=180,
+    )
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    results = re.findall(r"test cases:\s+(\d+) \|\s+(\d+) passed \|\s+(\d+) failed", out.stdout)
+    assert len(results) == 2, out.stdout[-2000:]  # the logic tests and the sketch test both ran
+    for total, passed, failed in results:
+        assert int(total) > 0 and total == passed and failed == "0"
+    assert int(results[0][0]) >= 20  # the logic suite, not an empty shell
+
+
+def test_make_test_runs_the_host_tests_and_ci_installs_their_compiler() -> None:
+    out = subprocess.run(
+        ["make", "-n", "test"], cwd=REPO, capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0, out.stderr
+    assert "build/unit_tests" in out.stdout and "build/sketch_test" in out.stdout
+    ci = (REPO / ".ci" / "run").read_text()
+    packages = re.search(r"packages=\(([^)]*)\)", ci)
+    assert packages is not None and {"g++", "doctest-dev", "make"} <= set(packages[1].split())
+    assert "make test" in ci
+
+
+def test_the_real_config_is_git_ignored_and_the_example_is_tracked() -> None:
+    ignored = subprocess.run(
+        ["git", "check-ignore", "-q", "firmware/esp32_unit/config.h"], cwd=REPO, timeout=30
+    )
+    assert ignored.returncode == 0
+    assert "firmware/esp32_unit/config.example.h" in tracked("firmware")
+    assert "cp config.example.h config.h" in README
+
+
+def test_every_setting_is_documented_and_used_by_the_sketch() -> None:
+    assert len(DEFINES) >= 12
+    configure = README[README.index("## Configure") : README.index("## Build and flash")]
+    for name in DEFINES:
+        documented = name in configure or (name.startswith("GF_PIN_") and "`GF_PIN_*`" in configure)
+        assert documented, f"{name} is not explained in firmware/README.md's Configure section"
+        assert name in SKETCH, f"{name} is set in config.h but the sketch never uses it"
+
+
+def test_wiring_table_and_diagram_match_the_default_pins() -> None:
+    wiring = README[README.index("## Wiring") : README.index("## Configure")]
+    table = dict(re.findall(r"^\| (LED [NESW]|button) \| GPIO (\d+) \|", wiring, re.MULTILINE))
+    pins = {f"LED {s}": DEFINES[f"GF_PIN_LED_{s}"] for s in "NESW"}
+    pins["button"] = DEFINES["GF_PIN_BUTTON"]
+    assert table == pins
+    for what, pin in pins.items():
+        # The diagram shows each pin; every LED goes through a series resistor.
+        line = next((x for x in wiring.splitlines() if f"GPIO{pin} " in x), None)
+        assert line is not None, f"GPIO{pin} ({what}) is missing from the diagram"
+        if what.startswith("LED"):
+            assert "R]--|>|" in line and what in line
+    assert "BUTTON" in wiring and "GND" in wiring and "pull-up" in wiring
+    assert "INPUT_PULLUP" in SKETCH and "FALLING" in SKETCH  # as the README says
+
+
+def test_platformio_project_builds_the_sketch_for_esp32dev_with_pubsubclient() -> None:
+    ini = configparser.ConfigParser()
+    ini.read(FW / "platformio.ini")
+    env = ini["env:esp32dev"]
+    assert (env["platform"], env["board"], env["framework"]) == (
+        "espressif32",
+        "esp32dev",
+        "arduino",
+    )
+    assert "PubSubClient" in env["lib_deps"]
+    src = FW / ini["platformio"]["src_dir"]
+    # arduino-cli and the IDE need the sketch file named after its folder.
+    assert (src / f"{src.name}.ino").is_file()
+    for include in re.findall(r'#include "(src/[^"]+)"', SKETCH):
+        assert (src / include).is_file(), include
+
+
+def test_readme_explains_how_to_build_and_flash_and_says_no_esp32_build_happened() -> None:
+    build = README[README.index("## Build and flash") : README.index("## How it works")]
+    for needle in (
+        "PubSubClient",
+        "arduino-cli compile --fqbn esp32:esp32:esp32 esp32_unit",
+        "arduino-cli upload",
+        "pio run -t upload",
+        "ESP32 Dev Module",
+    ):
+        assert needle in build, needle
+    assert "has **not** been compiled for the ESP32" in README
