@@ -295,12 +295,14 @@ class UnitRunner:
 
     async def publish_state(self) -> None:
         """Publish the state (and the direction when it changed); skipped while disconnected."""
-        # The step loop and message handlers both publish: one at a time, and the direction is
-        # taken with the state it belongs to, so the device sees every change, in order.
+        if self._client is None:
+            return
+        # Taken now, before any await: a step must not overtake the state that showed its move.
+        state = self.logic.report(self._stamp("state"))
+        # The step loop and message handlers both publish: one at a time, in the order taken
+        # (asyncio.Lock is first come, first served), each state with its own direction, so the
+        # device sees every change in order.
         async with self._publishing:
-            if self._client is None:
-                return
-            state = self.logic.report(self._stamp("state"))
             await self._publish("state", state)
             direction = encode_direction(decode_direction(state.direction))
             if direction != self._sent_direction:

@@ -12,6 +12,7 @@ import asyncio
 import itertools
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from gridfleet.device import VirtualDevice
 from gridfleet.device_logic import DeviceLogic
@@ -334,3 +335,69 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
     finally:
         stop.set()
         await asyncio.wait_for(task, 10)
+
+
+# -- test_06, seen by a person: the dashboard in a real browser ---------------------------------
+# Sync and last in this module: Playwright keeps an event loop on the thread while it is open.
+
+
+class DeviceService:
+    """The virtual device as a ServiceThread service: ready once online; press from any thread."""
+
+    def __init__(self, device: VirtualDevice) -> None:
+        self.device = device
+        self.ready = asyncio.Event()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        device.on_change = lambda logic: self.ready.set() if logic.online else None
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Run the device until `stop` is set."""
+        self._loop = asyncio.get_running_loop()
+        await self.device.run(stop)
+
+    def press(self) -> None:
+        """Press the stop key (the device's loop does the work)."""
+        assert self._loop is not None
+        self._loop.call_soon_threadsafe(self.device.press)
+
+
+def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_fleet(
+    run_system: RunSystem,
+    probe_factory: Callable[..., MqttProbe],
+    open_dashboard: Callable[..., Any],
+    broker: BrokerThread,
+    topics: Topics,
+    root: str,
+) -> None:
+    from playwright.sync_api import expect
+
+    from gridfleet.scenario import load_scenario
+
+    scenario = load_scenario(MAPS / "playfield.toml")
+    units = [u.id for u in scenario.units]
+    op = Operator(probe_factory(), topics, units)
+    _, fleet = run_system(scenario, step_s=STEP_S)
+    world = world_of(fleet)
+    virtual = VirtualDevice(broker.url, "unit2", root, device_id="dev-dash")
+    service = DeviceService(virtual)
+    with ServiceThread(lambda: service, "virtual-device"):
+        dash = open_dashboard(root, grid=scenario.grid)
+        op.set_goal("unit2", Cell(0, 9))
+        wait_for(lambda: world.moves["unit2"] >= 2, 15, what="unit2 under way")
+        service.press()
+        expect(dash.page.locator("body")).to_have_attribute("data-estop", "engaged")
+        expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by dev-dash")
+        wait_for(lambda: (s := op.last("unit2")) and s.estop, 5, what="unit2 stopped")
+        held = world.positions["unit2"]
+        mark = {"unit2": op.last("unit2").step}  # type: ignore[union-attr]
+        wait_for(lambda: op.stepped_past(mark, 5), 5, what="five steps stopped")
+        assert world.positions["unit2"] == held
+        # The operator's deliberate release, with the dashboard's own control.
+        dash.hold_release()
+        expect(dash.page.locator("body")).to_have_attribute("data-estop", "released")
+        released = op.estop_signals()[-1]
+        assert not released.engaged and dash.client_id in released.reason
+        wait_for(lambda: not virtual.logic.estop_engaged, 5, what="device sees the release")
+        wait_for(lambda: world.positions["unit2"] == Cell(0, 9), 30, what="unit2 at its goal")
+        assert world.collisions == 0
+        assert dash.errors == []
