@@ -37,6 +37,19 @@ from robots.world import WorldSim
 log = logging.getLogger(__name__)
 
 
+async def cancel_and_wait(task: asyncio.Task[None]) -> None:
+    """Cancel `task` and wait until it has ended, whatever it ended with.
+
+    Python 3.11's asyncio.wait_for (aiomqtt's publish uses it) swallows a cancel that arrives as
+    the publish completes, and the task runs on: so cancel again until it is really done.
+    """
+    while not task.done():
+        task.cancel()
+        await asyncio.wait({task}, timeout=0.2)
+    if not task.cancelled():
+        task.exception()  # retrieved: an error at shutdown is not worth a warning
+
+
 class UnitRunner:
     """Runs one simulated unit: connects with a last will, follows its topics, steps in the world."""
 
@@ -105,9 +118,7 @@ class UnitRunner:
                         await asyncio.wait_for(stop.wait(), delay)
                     delay = min(delay * 2, self.max_reconnect_s)
         finally:
-            ticker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await ticker
+            await cancel_and_wait(ticker)
 
     def _lost(self, why: str) -> None:
         if self._client is not None:
@@ -169,9 +180,7 @@ class UnitRunner:
             if receiver.done():
                 receiver.result()  # raises the MqttError that ended the session
                 return
-            receiver.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await receiver
+            await cancel_and_wait(receiver)
             await self._publish(
                 "connection", Connection(header=self._stamp("connection"), state="offline")
             )
