@@ -39,6 +39,7 @@ from gridfleet.protocol.constants import (
 )
 
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
+FOLLOW_PATIENCE = 3  # coordinator steps a follower waits for its leader to leave before re-planning
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,8 @@ class Track:
     target: Cell | None = None
     waiting: int = 0
     lost_since: float | None = None  # when we stopped hearing from it (None: active)
+    follow: Cell | None = None  # planned into a square its occupant is leaving: released once empty
+    follow_steps: int = 0  # steps it has waited for `follow` to empty
 
 
 @dataclass
@@ -362,6 +365,8 @@ class CoordinatorCore:
         agents: dict[str, AgentSpec] = {}
         reserved: set[Cell] = set()
         seen: set[Cell] = set()
+        following: dict[str, Cell] = {}
+        released_to_others: set[Cell] = set()  # squares units may still drive into
         for u in units:
             assert u.state is not None
             pos = cell(u.state.position)
@@ -370,8 +375,20 @@ class CoordinatorCore:
             seen.add(pos)
             movable = u.id in settled and u.id in active and not u.state.estop
             movable = movable and u.state.mode == "coordinated"
+            held = self._reserved(u, now) - {pos}
+            reserved |= held
+            released_to_others |= held
+            t = self.tracks.setdefault(u.id, Track())
+            if t.follow is not None and movable and t.follow_steps < FOLLOW_PATIENCE:
+                # It keeps its planned square (nobody else may take it) and waits for it to empty.
+                following[u.id] = t.follow
+                reserved.add(t.follow)
+                t.follow_steps += 1
+                # Frozen for this step, but with its target, so it keeps its priority.
+                agents[u.id] = AgentSpec(pos, targets[u.id], frozen=True)
+                continue
+            t.follow = None
             agents[u.id] = AgentSpec(pos, targets[u.id] if movable else None, frozen=not movable)
-            reserved |= self._reserved(u, now) - {pos}
         # A reserved square may hold another unit (a follower waits for it to leave): that unit
         # may stay or leave, but nobody else may be released into it.
         urgency = {}
@@ -379,7 +396,25 @@ class CoordinatorCore:
             job = self.jobs.of_unit(u.id)
             if job is not None:
                 urgency[u.id] = float(job.priority)
-        return self.planner.step(agents, reserved=reserved, urgency=urgency)
+        moves = self.planner.step(agents, reserved=reserved, urgency=urgency)
+        # Never release a square another unit stands on, not even one it leaves this very step:
+        # units keep their own clocks, so "it leaves as I enter" is a collision when it is late.
+        # The follower keeps that square as planned and gets it once the leader's state shows
+        # it has gone.
+        out: dict[str, Cell] = {}
+        for uid, nxt in moves.items():
+            if nxt == agents[uid].position:
+                continue
+            if nxt in seen:
+                track = self.tracks[uid]
+                track.follow, track.follow_steps = nxt, 0
+            else:
+                out[uid] = nxt
+        for uid, square in following.items():
+            if square not in seen and square not in released_to_others:
+                out[uid] = square
+                self.tracks[uid].follow = None
+        return out
 
     def _order_for(
         self, u: UnitRecord, settled: bool, move: Cell | None, target: Cell | None

@@ -109,6 +109,7 @@ async def simulate(
     root: str,
     broker_url: str | None = None,
     record: bool = False,
+    sensors_see_units: bool = True,
 ) -> Outcome:
     """Run broker, coordinator and units in this process until the scenario is done."""
     from coordinator.service import Coordinator
@@ -129,7 +130,9 @@ async def simulate(
         coordinator = Coordinator(
             broker_url, scenario.grid, root=root, step_s=step, db_path=Path(db_dir) / "jobs.db"
         )
-        fleet = Fleet(scenario, broker_url, root=root, step=step)
+        fleet = Fleet(
+            scenario, broker_url, root=root, step=step, sensors_see_units=sensors_see_units
+        )
         tasks = [asyncio.create_task(coordinator.run(stop)), asyncio.create_task(fleet.run(stop))]
         client_id = f"simulate-{uuid.uuid4().hex[:6]}"
         client = await stack.enter_async_context(make_client(broker_url, client_id))

@@ -60,6 +60,12 @@ def check_released_disjoint(units: list[FakeUnit]) -> None:
         for c in u.released:
             assert c not in claimed, f"{c} released to {claimed[c]} and {u.id}"
             claimed[c] = u.id
+    # Layer one of the safety model on its own: a released square never holds another unit,
+    # not even one about to leave it (units run on their own clocks).
+    standing = {u.position: u.id for u in units}
+    for u in units:
+        for c in u.released:
+            assert standing.get(c, u.id) == u.id, f"{c} released to {u.id} holds {standing[c]}"
     for u in units:
         for other in units:
             if u is not other and u.released and other.released:
