@@ -18,6 +18,7 @@ from typing import Any
 from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.cli import add_common
+from gridfleet.errors import ConfigError
 from gridfleet.feeder import Operator, submit_scenario
 from gridfleet.grid import Cell
 from gridfleet.monitor import FleetMonitor
@@ -225,6 +226,10 @@ def summary(outcome: Outcome, scenario: Scenario) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet simulate`."""
+    if not 0 < args.step <= 60:
+        raise ConfigError(f"--step {args.step}: the step period must be in 0 < s <= 60")
+    if args.max_steps < 1:
+        raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
     scenario = load_scenario(args.scenario)
     if args.json:
         # Keep stdout for the one JSON object.
