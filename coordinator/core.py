@@ -39,6 +39,8 @@ from gridfleet.protocol.constants import (
 )
 
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
+LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
+LOST_CARRYING_MIN_S = 10.0
 FOLLOW_PATIENCE = 3  # coordinator steps a follower waits for its leader to leave before re-planning
 
 
@@ -208,7 +210,7 @@ class CoordinatorCore:
                 track.lost_since = None
             elif track.lost_since is None:
                 track.lost_since = now
-        self._progress_jobs(units, active)
+        self._progress_jobs(units, active, now)
         settled = {u.id for u in units if u.id in active and self._settled(u)}
         if not self.estop:
             self._allocate(units, active, settled)
@@ -243,7 +245,7 @@ class CoordinatorCore:
             return True
         return u.state.order_id == t.order_id and u.state.order_update_id >= t.content_update
 
-    def _progress_jobs(self, units: list[UnitRecord], active: set[str]) -> None:
+    def _progress_jobs(self, units: list[UnitRecord], active: set[str], now: float) -> None:
         by_id = {u.id: u for u in units}
         for job in self.jobs.active():
             rec = by_id.get(job.unit or "")
@@ -252,13 +254,19 @@ class CoordinatorCore:
             st = rec.state
             if rec.id not in active:
                 if job.state in CARRYING_STATES:
-                    self.jobs.set(
-                        job,
-                        "failed",
-                        reason=f"unit {rec.id} was lost carrying the item, last seen at "
-                        f"{list(st.position)}",
-                        done_step=self.step_no,
-                    )
+                    # The item is on that unit: nobody else can finish the job. A unit that is
+                    # only late (a busy machine, a network hiccup) carries on when it is heard
+                    # again, so wait for it; give up once it has said goodbye or stayed away.
+                    lost_since = self.tracks[rec.id].lost_since
+                    away = 0.0 if lost_since is None else now - lost_since
+                    if rec.connection == "offline" or away > self._give_up_after_s(rec):
+                        self.jobs.set(
+                            job,
+                            "failed",
+                            reason=f"unit {rec.id} was lost carrying the item, last seen at "
+                            f"{list(st.position)}",
+                            done_step=self.step_no,
+                        )
                 else:
                     self.jobs.set(
                         job, "queued", unit=None, reason=f"unit {rec.id} was lost; re-queued"
@@ -289,6 +297,10 @@ class CoordinatorCore:
             rec = by_id.get(unit_id)
             if rec is not None and rec.position == goal:
                 del self.goals[unit_id]
+
+    def _give_up_after_s(self, rec: UnitRecord) -> float:
+        """How long a unit carrying an item may stay silent before its job fails."""
+        return max(LOST_CARRYING_MIN_S, LOST_CARRYING_STEPS * self.world.stale_after_s(rec))
 
     def _allocate(self, units: list[UnitRecord], active: set[str], settled: set[str]) -> None:
         capacities = self.world.capacities()

@@ -18,7 +18,7 @@ from typing import Any
 from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.cli import add_common
-from gridfleet.errors import ConfigError
+from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.feeder import Operator, submit_scenario
 from gridfleet.grid import Cell
 from gridfleet.monitor import FleetMonitor
@@ -27,6 +27,7 @@ from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario
 
 log = logging.getLogger("gridfleet.simulate")
+STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -148,10 +149,18 @@ async def simulate(
             await asyncio.wait_for(fleet.ready.wait(), 30)
             await asyncio.wait_for(operator.coordinator_online.wait(), 30)
             await submit_scenario(operator, scenario)
+            last_step, last_progress = monitor.step, time.monotonic()
             while monitor.step < max_steps and not _all_done(monitor, scenario, goals):
-                for t in tasks:
+                for t in tasks + listeners:
                     if t.done():
                         t.result()  # a component that died ends the run with its error
+                if monitor.step != last_step:
+                    last_step, last_progress = monitor.step, time.monotonic()
+                elif time.monotonic() - last_progress > STALL_S + 50 * step:
+                    raise GridfleetError(
+                        f"no coordinator step for {STALL_S + 50 * step:.0f} s (stuck at step "
+                        f"{monitor.step}): the run cannot go on"
+                    )
                 monitor.changed.clear()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(monitor.changed.wait(), 10 * step + 1)
