@@ -227,7 +227,12 @@ class Planner:
         def pibt(i: int) -> bool:
             here = pos[i]
             cands = [*self._nbrs[here], here]
-            d_here = [dist(i, c) for c in cands]
+            if fields[i] is None:
+                # No errand: it stays unless pushed, then any free neighbour will do. (Every
+                # square is at distance 0 from no target: without this it would walk at random.)
+                d_here = [0 if c == here else 1 for c in cands]
+            else:
+                d_here = [dist(i, c) for c in cands]
             # Ties: a free square first, then one whose unit is still on its way, and only then
             # push a unit off its target (pushing settled units invites livelock).
             keys = [(d, _crowding(c), rand()) for c, d in zip(cands, d_here, strict=True)]
