@@ -30,6 +30,7 @@ from gridfleet.protocol import (
     encode_direction,
 )
 from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.tasks import cancel_and_wait
 from robots.unit import UnitLogic, step_in
 from robots.world import WorldSim
 
@@ -167,9 +168,7 @@ class UnitRunner:
             if receiver.done():
                 receiver.result()  # raises the MqttError that ended the session
                 return
-            receiver.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await receiver
+            await cancel_and_wait(receiver)
             await self._publish(
                 "connection", Connection(header=self._stamp("connection"), state="offline")
             )

@@ -23,7 +23,7 @@ from playwright.sync_api import expect
 
 from dashboard.testing import OpenDashboard
 from gridfleet.grid import Cell
-from gridfleet.protocol import TOPICS, FleetMap, JobsView, Topics, UnitState, decode
+from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
 from gridfleet.scenario import load_scenario
 from gridfleet.testing.probe import MqttProbe
@@ -71,6 +71,21 @@ class Live:
     def jobs(self) -> JobsView | None:
         """The coordinator's latest queue view."""
         return self.latest(JobsView, self.topics.fleet("jobs"), "jobs")
+
+    def routes(self) -> Routes | None:
+        """The coordinator's latest routes."""
+        return self.latest(Routes, self.topics.fleet("routes"), "routes")
+
+    def routes_through(self, square: tuple[int, int]) -> list[str]:
+        """Units whose latest route (released or planned) runs through `square`."""
+        routes = self.routes()
+        if routes is None:
+            return []
+        return [
+            u
+            for u, r in routes.routes.items()
+            if square in [tuple(c) for c in [*r.released, *r.planned]]
+        ]
 
     def positions(self) -> dict[str, tuple[int, int]]:
         """Where every unit really is (the world simulation's ground truth)."""
@@ -121,6 +136,7 @@ def live(
         probe.subscribe(topics.all_units("state"), qos=0)
         probe.subscribe(topics.fleet("jobs"))
         probe.subscribe(topics.fleet("map"))
+        probe.subscribe(topics.fleet("routes"), qos=0)
         _, fleet = run_system(PLAYFIELD, step_s=step_s)
         dash = open_dashboard(root)
         # The page knows the real fleet: the coordinator's map and every unit where it stands.
@@ -146,6 +162,14 @@ def unit_rows(live: Live) -> dict[str, dict[str, str]]:
                 (td) => [td.className, td.textContent]))]))"""
     )
     return rows
+
+
+def playfield_jobs() -> list[tuple[str, tuple[int, int], tuple[int, int], float]]:
+    """The playfield scenario's jobs as (id, pickup, dropoff, mass)."""
+    return [
+        (f"job-{i + 1}", (j.pickup.x, j.pickup.y), (j.dropoff.x, j.dropoff.y), j.mass)
+        for i, j in enumerate(SCENARIO.jobs)
+    ]
 
 
 def obstacles_drawn(live: Live) -> set[tuple[int, int]]:
@@ -188,6 +212,18 @@ def test_03_obstacle_sensed_by_a_unit_shows_on_the_dashboard(live: Callable[...,
     # On the page's map, highlighted as just discovered ("*"), and nothing that was not sensed.
     expect(system.page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
     assert (4, 5) not in obstacles_drawn(system)  # the other hidden obstacle: nobody saw it yet
+    # The coordinator plans around it: straight down would be shortest, the route goes round.
+    system.goal("unit2", (7, 4))
+    wait_for(lambda: system.world.positions["unit2"] == (7, 4), timeout=15, what="unit2 at (7, 4)")
+    routes = [
+        decode(Routes, m.payload, TOPICS["routes"].max_bytes)
+        for m in system.probe.received(system.topics.fleet("routes"))
+    ]
+    assert any(r.routes.get("unit2") and r.routes["unit2"].target == (7, 4) for r in routes)
+    for r in routes:
+        view = r.routes.get("unit2")
+        if view is not None and view.target == (7, 4):
+            assert (7, 2) not in [tuple(c) for c in [*view.released, *view.planned]], view
     # A reload recovers it from the coordinator's retained map alone.
     system.page.reload()
     system.dash.wait_connected()
@@ -331,10 +367,7 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
 def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[..., Live]) -> None:
     system = live(step_s=0.1)
     # The playfield's jobs, and one more 15 kg job that must wait for unit4 (the only one able).
-    jobs = [
-        (f"job-{i + 1}", (j.pickup.x, j.pickup.y), (j.dropoff.x, j.dropoff.y), j.mass)
-        for i, j in enumerate(SCENARIO.jobs)
-    ]
+    jobs = playfield_jobs()
     jobs.append(("job-5", (2, 9), (9, 6), 15.0))
     for job_id, pickup, dropoff, mass in jobs:
         system.submit(job_id, pickup, dropoff, mass)
@@ -404,28 +437,44 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
 def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     """docs/dashboard.png: the page on the real playfield, mid-run (see the module docstring)."""
     system = live(step_s=0.25)
-    jobs = [
-        (f"job-{i + 1}", (j.pickup.x, j.pickup.y), (j.dropoff.x, j.dropoff.y), j.mass)
-        for i, j in enumerate(SCENARIO.jobs)
-    ]
+    # A short job first, so the picture has a finished one.
+    system.submit("job-0", (1, 0), (3, 0), 1.0)
+    wait_for(
+        lambda: system.page_jobs().get("job-0", {}).get("state") == "done",
+        timeout=20,
+        what="job-0 done",
+    )
+    # The 15 kg job first, so unit4 (the only one able) takes it and unit3 the 8 kg one: the
+    # whole fleet at work. job-5 then waits for unit4.
+    jobs = sorted(playfield_jobs(), key=lambda j: -j[3])
+    jobs.append(("job-5", (2, 9), (9, 6), 15.0))
     for job_id, pickup, dropoff, mass in jobs:
         system.submit(job_id, pickup, dropoff, mass)
     system.dash.submit_job((0, 5), (9, 5), 50, job_id="too-heavy")
     expect(system.page.locator("#job-feedback")).to_have_attribute("data-kind", "refused")
 
-    # Mid-run: a job done, others under way with routes drawn, one more waiting in the queue.
-    wait_for(
-        lambda: any(r["state"] == "done" for r in system.page_jobs().values()),
-        timeout=30,
-        what="a job done",
-    )
-    system.submit("job-5", (2, 9), (9, 6), 15.0)
-    wait_for(
-        lambda: sum(r["table"] == "jobs" for r in system.page_jobs().values()) >= 2,
-        what="jobs under way",
+    # Mid-run: three units under way (arrows and routes), an item on board, a job waiting.
+    def mid_run() -> bool:
+        arrows = system.page.locator("#map").get_attribute("data-headings") or ""
+        heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
+        moving = [u for u, r in unit_rows(system).items() if r["status"] == "moving"]
+        states = {r["state"] for r in system.page_jobs().values()}
+        # Not in the instant between a unit's discovery and the re-plan around it (one step).
+        known = obstacles_drawn(system)
+        return (
+            not any(system.routes_through(sq) for sq in known)
+            and len(set(heading) & set(moving)) >= 3
+            and bool(states & {"loaded", "to_dropoff"})
+            and system.page_jobs().get("job-5", {}).get("state") == "queued"
+        )
+
+    wait_for(mid_run, timeout=20, what="units under way, an item on board, a job waiting")
+    expect(system.page.locator("#coord")).to_have_text(
+        re.compile(r"^coordinator: online, step [1-9][0-9]*$")
     )
     shot = system.dash.screenshot("dashboard-real-playfield")
     assert shot.stat().st_size > 10_000
     if os.environ.get("GRIDFLEET_REFRESH_DOCS"):
         shutil.copyfile(shot, DOCS_SHOT)
+    assert system.world.collisions == 0
     assert system.dash.errors == []

@@ -428,7 +428,7 @@ class Dashboard {
     const c = this.view.coordinator;
     const el = $("#coord");
     el.dataset.state = c?.state ?? "unknown";
-    el.textContent = c ? `coordinator: ${c.state}, step ${c.step}` : "coordinator: not seen";
+    el.textContent = c ? `coordinator: ${c.state}, step ${this.view.coordinatorStep()}` : "coordinator: not seen";
   }
 }
 
