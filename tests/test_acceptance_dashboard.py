@@ -4,8 +4,8 @@ Real broker, real coordinator, real simulated units (threads, `run_system`) and 
 Chromium: nothing between them is faked. The world simulation (`world_of`) is the ground truth the
 page is checked against; a probe only listens.
 
-`GRIDFLEET_REFRESH_DOCS=1 pytest tests/test_acceptance_dashboard.py -k screenshot` also copies the
-live screenshot to docs/dashboard.png (`make screenshot` does that).
+`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/test_acceptance_dashboard.py -k screenshot` also
+copies the live screenshot (test-artifacts/dashboard-real-playfield.png) to docs/dashboard.png.
 """
 
 from __future__ import annotations
@@ -468,11 +468,19 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
             and system.page_jobs().get("job-5", {}).get("state") == "queued"
         )
 
-    wait_for(mid_run, timeout=20, what="units under way, an item on board, a job waiting")
+    def picture() -> Path | None:
+        # Kept only when the moment held from before the picture until after it.
+        if not mid_run():
+            return None
+        shot = system.dash.screenshot("dashboard-real-playfield")
+        return shot if mid_run() else None
+
+    shot = wait_for(
+        picture, timeout=20, interval=0.05, what="units under way, an item on board, a job waiting"
+    )
     expect(system.page.locator("#coord")).to_have_text(
         re.compile(r"^coordinator: online, step [1-9][0-9]*$")
     )
-    shot = system.dash.screenshot("dashboard-real-playfield")
     assert shot.stat().st_size > 10_000
     if os.environ.get("GRIDFLEET_REFRESH_DOCS"):
         shutil.copyfile(shot, DOCS_SHOT)
