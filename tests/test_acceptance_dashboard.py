@@ -111,7 +111,7 @@ class Live:
     ) -> None:
         """Queue a job with the page's form and wait for the coordinator's answer."""
         self.dash.submit_job(pickup, dropoff, mass, job_id=job_id)
-        expect(self.page.locator("#job-feedback")).to_contain_text(f"(job {job_id})")
+        expect(self.page.locator("#job-feedback")).to_contain_text(f": accepted (job {job_id})")
 
     def goal(self, unit: str, target: tuple[int, int]) -> None:
         """Set a goal with the page's form and wait for the coordinator to accept it."""
@@ -282,10 +282,13 @@ def test_08_jobs_entered_on_the_page_are_done_deleted_or_refused(
         assert rows[job_id]["table"] == "finished" and unit == truth[job_id].unit
         assert CAPACITY[unit] >= mass, f"{job_id} ({mass} kg) done by {unit}"
         assert system.seen_jobs[job_id] & {"assigned", "to_pickup", "loaded", "to_dropoff"}
-        # The unit really carried it: it was at the pickup loaded, and is at the dropoff now
-        # (the unit stays there: no other job needs it).
-        loaded = [s.position for s in system.states(unit) if s.job_id == job_id]
-        assert tuple(truth[job_id].pickup) in loaded
+        # The unit really carried it: loaded at the pickup, then at the dropoff, then empty.
+        states = system.states(unit)
+        carrying = [i for i, s in enumerate(states) if s.job_id == job_id]
+        assert carrying and states[carrying[0]].position == tuple(truth[job_id].pickup)
+        after = states[carrying[-1] + 1 :]
+        assert after and after[0].position == tuple(truth[job_id].dropoff)
+        assert after[0].job_id is None and after[0].load_kg == 0
     assert rows["heavy-1"]["unit"] == "unit4"
     assert truth["heavy-2"].state == "cancelled" and truth["heavy-2"].unit is None
     assert [j.state for j in view.jobs if j.mass_kg == 50] == ["rejected"]
@@ -319,9 +322,9 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
     assert len(under_way) >= 3, f"too late to test the stop: only {under_way} under way"
 
     # One click on STOP: every unit stops within one step of the stop reaching the broker.
-    system.dash.press_stop()
     estop_topic = system.topics.fleet("estop")
-    system.probe.subscribe(estop_topic)  # retained: the probe gets the stop as it stands
+    system.probe.subscribe(estop_topic)  # hears the stop when the units do
+    system.dash.press_stop()
     system.probe.wait(estop_topic, lambda m: m.payload.startswith(b"engaged|dashboard"))
     moves_at_stop = dict(world.moves)
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
@@ -403,8 +406,10 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
         }
         count = system.page.locator("#queue-count").text_content()
         counts = system.page.locator("#finished-counts").text_content()
+        as_coordinator = {j.id: (j.state, j.unit or "—") for j in view.jobs if j.id in pending}
         return (
             shown_pending == pending
+            and {j: (rows[j]["state"], rows[j]["unit"]) for j in pending} == as_coordinator
             and shown_done == done
             and count == f"({len(pending)})"
             and counts == f"done {len(done)}"

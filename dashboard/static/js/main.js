@@ -128,8 +128,8 @@ class Dashboard {
     if (!req) return;
     this.pending.delete(reply.request_id);
     if (reply.accepted) {
-      // "(job id)" tells which id a new job got; a request that named the job already says it.
-      const extra = reply.job_id && !req.what.includes(reply.job_id) ? ` (job ${reply.job_id})` : "";
+      // "(job id)" tells which id a new job got; a delete already names its job.
+      const extra = reply.job_id && req.form !== "cancel" ? ` (job ${reply.job_id})` : "";
       this.feedback(req.form, "ok", `${req.what}: accepted${extra}`);
     } else {
       this.feedback(req.form, "refused", `${req.what}: refused — ${reply.reason ?? "no reason given"}`);
