@@ -41,6 +41,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.messages import Message
+from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.coordinator")
 
@@ -127,9 +128,7 @@ class Coordinator:
             try:
                 await self._step_loop(stop, receiver)
             finally:
-                receiver.cancel()
-                with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
-                    await receiver
+                await cancel_and_wait(receiver)
             if stop.is_set():
                 with contextlib.suppress(aiomqtt.MqttError):
                     await self._publish_status("offline")
@@ -221,8 +220,7 @@ class Coordinator:
                 job_id=outcome.job_id,
             )
             await self._publish("reply", self.topics.reply(req.reply_to), reply)
-        if self.core.jobs.changed:
-            self._jobs_dirty = True
+        if self._jobs_dirty:  # set by _persist above: the queue view follows at once
             await self._publish_views()
 
     # ---- the step ----------------------------------------------------------------------

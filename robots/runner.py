@@ -31,6 +31,7 @@ from gridfleet.protocol import (
     encode_direction,
 )
 from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.tasks import cancel_and_wait
 from robots.unit import UnitLogic, step_in
 from robots.world import WorldSim
 
