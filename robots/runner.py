@@ -38,19 +38,6 @@ from robots.world import WorldSim
 log = logging.getLogger(__name__)
 
 
-async def cancel_and_wait(task: asyncio.Task[None]) -> None:
-    """Cancel `task` and wait until it has ended, whatever it ended with.
-
-    Python 3.11's asyncio.wait_for (aiomqtt's publish uses it) swallows a cancel that arrives as
-    the publish completes, and the task runs on: so cancel again until it is really done.
-    """
-    while not task.done():
-        task.cancel()
-        await asyncio.wait({task}, timeout=0.2)
-    if not task.cancelled():
-        task.exception()  # retrieved: an error at shutdown is not worth a warning
-
-
 class UnitRunner:
     """Runs one simulated unit: connects with a last will, follows its topics, steps in the world."""
 
