@@ -23,6 +23,7 @@ from gridfleet.protocol import (
     HeaderStamper,
     JobsView,
     Reply,
+    Routes,
     SetGoal,
     SubmitJob,
     Topics,
@@ -46,6 +47,8 @@ class Operator:
         self.jobs: JobsView | None = None
         self.jobs_changed = asyncio.Event()
         self.coordinator_online = asyncio.Event()
+        self.planned_units: set[str] = set()  # units in the coordinator's latest routes view
+        self.routes_changed = asyncio.Event()
         self._pending: dict[str, asyncio.Future[Reply]] = {}
         self._count = 0
 
@@ -54,6 +57,7 @@ class Operator:
         await self.client.subscribe(self.topics.reply(self.client_id), qos=1)
         await self.client.subscribe(self.topics.fleet("jobs"), qos=1)
         await self.client.subscribe(self.topics.fleet("coordinator"), qos=1)
+        await self.client.subscribe(self.topics.fleet("routes"), qos=0)
 
     async def listen(self) -> None:
         """Route inbound messages until the client disconnects."""
@@ -71,6 +75,10 @@ class Operator:
                 elif kind == "jobs":
                     self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
                     self.jobs_changed.set()
+                elif kind == "routes":
+                    routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
+                    self.planned_units = set(routes.routes)
+                    self.routes_changed.set()
                 elif kind == "coordinator":
                     status = decode(CoordinatorStatus, payload)
                     if status.state == "online":
@@ -139,6 +147,19 @@ class Operator:
         )
         return await self._send("cancel_job", request, timeout)
 
+    async def wait_for_units(self, units: Sequence[str], timeout: float = 30.0) -> None:
+        """Wait until the coordinator plans for every unit in `units` (it knows their state)."""
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while missing := sorted(set(units) - self.planned_units):
+            self.routes_changed.clear()
+            try:
+                await asyncio.wait_for(self.routes_changed.wait(), deadline - loop.time())
+            except TimeoutError:
+                raise GridfleetError(
+                    f"the coordinator has not heard from {', '.join(missing)} within {timeout:.0f} s"
+                ) from None
+
     def active_jobs(self) -> int:
         """Jobs in the queue view that are not final."""
         if self.jobs is None:
@@ -148,6 +169,8 @@ class Operator:
 
 async def submit_scenario(operator: Operator, scenario: Scenario) -> list[Reply]:
     """Submit every job and goal of `scenario`; job ids default to `<scenario>-job-<n>`."""
+    # A goal for a unit the coordinator has not heard from yet would be refused as unknown.
+    await operator.wait_for_units([u.id for u in scenario.units])
     replies = []
     for n, job in enumerate(scenario.jobs, start=1):
         job_id = job.id or f"{scenario.name}-job-{n}"

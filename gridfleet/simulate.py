@@ -57,6 +57,7 @@ class GoalProgress:
     unit: str
     target: Cell
     step: int | None = None
+    refused: str | None = None  # the coordinator's reason, when it refused the goal
 
 
 @dataclass
@@ -76,8 +77,8 @@ class Outcome:
 
     @property
     def ok(self) -> bool:
-        """Everything finished with zero collisions."""
-        return self.finished and self.collisions == 0
+        """Everything finished, every goal reached, and zero collisions."""
+        return self.finished and self.collisions == 0 and all(g["reached"] for g in self.goals)
 
     def as_json(self) -> dict[str, Any]:
         """The documented JSON shape."""
@@ -94,14 +95,14 @@ class Outcome:
         }
 
 
-def _all_done(monitor: FleetMonitor, scenario: Scenario, goals: list[GoalProgress]) -> bool:
+def _all_done(monitor: FleetMonitor, accepted_jobs: int, goals: list[GoalProgress]) -> bool:
     for goal in goals:
         state = monitor.states.get(goal.unit)
         if goal.step is None and state is not None and state.position == goal.target:
             goal.step = monitor.step
     jobs = monitor.jobs.jobs if monitor.jobs is not None else []
-    jobs_done = len(jobs) >= len(scenario.jobs) and all(j.state in FINAL_JOB_STATES for j in jobs)
-    return jobs_done and all(g.step is not None for g in goals)
+    jobs_done = len(jobs) >= accepted_jobs and all(j.state in FINAL_JOB_STATES for j in jobs)
+    return jobs_done and all(g.step is not None or g.refused for g in goals)
 
 
 async def simulate(
@@ -120,6 +121,7 @@ async def simulate(
     started = time.monotonic()
     outcome = Outcome()
     goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
+    refused_jobs: list[dict[str, Any]] = []
     topics = Topics(root)
     async with contextlib.AsyncExitStack() as stack:
         if broker_url is None:
@@ -148,9 +150,27 @@ async def simulate(
         try:
             await asyncio.wait_for(fleet.ready.wait(), 30)
             await asyncio.wait_for(operator.coordinator_online.wait(), 30)
-            await submit_scenario(operator, scenario)
+            replies = await submit_scenario(operator, scenario)
+            # A refused job or goal can never finish: don't wait for it (it shows in the result).
+            accepted_jobs = sum(r.accepted for r in replies[: len(scenario.jobs)])
+            for n, (job, reply) in enumerate(zip(scenario.jobs, replies, strict=False), start=1):
+                if not reply.accepted:
+                    refused_jobs.append(
+                        {
+                            "id": job.id or f"{scenario.name}-job-{n}",
+                            "pickup": list(job.pickup),
+                            "dropoff": list(job.dropoff),
+                            "mass": job.mass,
+                            "state": "rejected",
+                            "unit": None,
+                            "done_step": None,
+                            "reason": reply.reason,
+                        }
+                    )
+            for goal, reply in zip(goals, replies[len(scenario.jobs) :], strict=True):
+                goal.refused = None if reply.accepted else (reply.reason or "refused")
             last_step, last_progress = monitor.step, time.monotonic()
-            while monitor.step < max_steps and not _all_done(monitor, scenario, goals):
+            while monitor.step < max_steps and not _all_done(monitor, accepted_jobs, goals):
                 for t in tasks + listeners:
                     if t.done():
                         t.result()  # a component that died ends the run with its error
@@ -164,7 +184,7 @@ async def simulate(
                 monitor.changed.clear()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(monitor.changed.wait(), 10 * step + 1)
-            outcome.finished = _all_done(monitor, scenario, goals)
+            outcome.finished = _all_done(monitor, accepted_jobs, goals)
         finally:
             stop.set()
             await asyncio.gather(*tasks, return_exceptions=True)
@@ -197,13 +217,14 @@ async def simulate(
                 "reason": j.reason,
             }
             for j in jobs
-        ]
+        ] + refused_jobs
         outcome.goals = [
             {
                 "unit": g.unit,
                 "target": list(g.target),
                 "reached": g.step is not None,
                 "step": g.step,
+                **({"reason": g.refused} if g.refused else {}),
             }
             for g in goals
         ]

@@ -26,7 +26,7 @@ from gridfleet.testing.wait import wait_for
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05
-MAX_STEPS = 1500
+MAX_STEPS = 600  # a few times what any of these scenarios needs; ends well inside the timeout
 
 Run = Callable[..., "tuple[Scenario, Outcome]"]
 
@@ -46,7 +46,13 @@ def run_scenario(broker: BrokerThread, root: str) -> Run:
             record=True,
             sensors_see_units=sensors_see_units,
         )
-        assert outcome.finished, f"{name} did not finish in {MAX_STEPS} steps: {outcome.jobs}"
+        if not outcome.finished:
+            tail = "\n".join(
+                f"{s.step} {s.header.sender} {list(s.position)} {s.status} {s.wait_reason} "
+                f"released={s.released} update={s.order_update_id}"
+                for s in monitor_of(outcome).history[-30:]
+            )
+            pytest.fail(f"{name} did not finish in {outcome.steps} steps: {outcome.jobs}\n{tail}")
         return scenario, outcome
 
     return run  # type: ignore[return-value]
