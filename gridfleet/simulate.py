@@ -217,7 +217,10 @@ async def simulate(
                 "reason": j.reason,
             }
             for j in jobs
-        ] + refused_jobs
+        ]
+        # Some refusals are also kept in the queue view (as `rejected`): list each job once.
+        listed = {j.id for j in jobs}
+        outcome.jobs += [j for j in refused_jobs if j["id"] not in listed]
         outcome.goals = [
             {
                 "unit": g.unit,
