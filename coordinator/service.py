@@ -17,7 +17,7 @@ from coordinator.jobs import JobBook
 from coordinator.store import JobStore, default_db_path
 from coordinator.world import World
 from gridfleet import __version__
-from gridfleet.bus import make_client
+from gridfleet.bus import cancel_and_wait, make_client
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
@@ -127,9 +127,7 @@ class Coordinator:
             try:
                 await self._step_loop(stop, receiver)
             finally:
-                receiver.cancel()
-                with contextlib.suppress(asyncio.CancelledError, aiomqtt.MqttError):
-                    await receiver
+                await cancel_and_wait(receiver)
             if stop.is_set():
                 with contextlib.suppress(aiomqtt.MqttError):
                     await self._publish_status("offline")
