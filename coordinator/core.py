@@ -15,8 +15,9 @@ and the views to publish. Safety rules (protocol.md §4.4, §8) live here:
 
 Lost units (connection offline/broken or state silent for 5 step periods): their squares stay
 reserved; a job not yet picked up goes back to the queue; a job whose item the unit had already
-picked up becomes `failed` (the item is on a unit nobody can reach; an operator must recover it),
-with a reason naming the unit and the square where it was last seen.
+picked up stays with that unit (nobody else can finish it), with a reason naming the unit and the
+square where it was last seen, and goes on when the unit comes back still carrying it (a transient
+silence, e.g. an overloaded broker, must not strand an item); an operator may cancel it.
 """
 
 from __future__ import annotations
@@ -249,18 +250,22 @@ class CoordinatorCore:
             st = rec.state
             if rec.id not in active:
                 if job.state in CARRYING_STATES:
-                    self.jobs.set(
-                        job,
-                        "failed",
-                        reason=f"unit {rec.id} was lost carrying the item, last seen at "
-                        f"{list(st.position)}",
-                        done_step=self.step_no,
+                    # The item is on the unit: nobody else can finish the job. A unit that was
+                    # only silent for a while (an overloaded broker, a reconnect) comes back
+                    # still carrying it and goes on; an operator may cancel the job meanwhile.
+                    reason = (
+                        f"unit {rec.id} was lost carrying the item, last seen at "
+                        f"{list(st.position)}; waiting for it to come back"
                     )
+                    if job.reason != reason:
+                        self.jobs.set(job, job.state, reason=reason)
                 else:
                     self.jobs.set(
                         job, "queued", unit=None, reason=f"unit {rec.id} was lost; re-queued"
                     )
                 continue
+            if job.state in CARRYING_STATES and job.reason is not None and st.job_id == job.id:
+                self.jobs.set(job, job.state, reason=None)  # its unit is back, still carrying it
             if job.state in ("assigned", "to_pickup"):
                 if st.job_id == job.id:
                     self.jobs.set(job, "loaded", reason=None)

@@ -175,3 +175,40 @@ def test_goal_pins_a_unit_until_reached() -> None:
     assert unit.position == Cell(9, 3)
     core.step(100.0)
     assert core.goals == {}
+
+
+def test_a_unit_silent_while_carrying_keeps_its_job_and_finishes_it_when_back() -> None:
+    grid = GridMap.from_rows(ROWS)
+    world = World(grid, step_period_s=1.0)
+    core = CoordinatorCore(world, JobBook(), nonce="n")
+    unit = FakeUnit("u", Cell(0, 0), 5.0)
+    stamp = HeaderStamper("u")
+    world.on_connection("u", Connection(header=header("u"), state="online"))
+    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=5, step_period_s=1))
+    world.on_state("u", unit.state(stamp), 0.0)
+    req = SubmitJob(header=header(), request_id="r", pickup=(1, 0), dropoff=(9, 9), mass_kg=2)  # type: ignore[arg-type]
+    job_id = core.submit(req, "t").job_id
+    assert job_id is not None
+    job = core.jobs.jobs[job_id]
+    now = 0.0
+
+    def run(until: object, silent: bool = False) -> None:
+        nonlocal now
+        for _ in range(100):
+            now += 1.0
+            result = core.step(now)
+            if "u" in result.orders and not silent:
+                unit.on_order(make_order(result.orders["u"]), grid)
+            unit.tick(set(), set())
+            if not silent:
+                world.on_state("u", unit.state(stamp), now)
+            if until():  # type: ignore[operator]
+                return
+        raise AssertionError(f"job {job.state}, unit at {unit.position}")
+
+    run(lambda: job.state == "to_dropoff")
+    # Silent for longer than the staleness timeout: the unit counts as lost, the item is on it.
+    run(lambda: job.reason is not None, silent=True)
+    assert job.state == "to_dropoff" and "lost carrying" in (job.reason or "")
+    run(lambda: job.state == "done")
+    assert job.reason is None and unit.load_kg == 0
