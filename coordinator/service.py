@@ -270,11 +270,8 @@ class Coordinator:
         for unit_id, plan in result.orders.items():
             if self.core.estop and plan.released:
                 continue  # the stop arrived while this step was being sent: its holds already went
-            track = self.core.tracks.get(unit_id)
-            if not plan.released:
-                self._awaiting.pop(unit_id, None)
-            elif track is not None and plan.update_id == track.content_update:
-                self._awaiting[unit_id] = (plan.order_id, plan.update_id)
+            # Every order is acknowledged by the unit's next state (its `order_update_id`).
+            self._awaiting[unit_id] = (plan.order_id, plan.update_id)
             await self._send_order(unit_id, plan)
         routes = Routes(header=self.stamp("routes"), step=result.step, routes=result.routes)
         await self._publish("routes", self.topics.fleet("routes"), routes)
