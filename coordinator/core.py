@@ -15,9 +15,8 @@ and the views to publish. Safety rules (protocol.md §4.4, §8) live here:
 
 Lost units (connection offline/broken or state silent for 5 step periods): their squares stay
 reserved; a job not yet picked up goes back to the queue; a job whose item the unit had already
-picked up stays with that unit (nobody else can finish it), with a reason naming the unit and the
-square where it was last seen, and goes on when the unit comes back still carrying it (a transient
-silence, e.g. an overloaded broker, must not strand an item); an operator may cancel it.
+picked up becomes `failed` (the item is on a unit nobody can reach; an operator must recover it),
+with a reason naming the unit and the square where it was last seen.
 """
 
 from __future__ import annotations
@@ -40,6 +39,9 @@ from gridfleet.protocol.constants import (
 )
 
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
+LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
+LOST_CARRYING_MIN_S = 10.0
+FOLLOW_PATIENCE = 3  # coordinator steps a follower waits for its leader to leave before re-planning
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,8 @@ class Track:
     target: Cell | None = None
     waiting: int = 0
     lost_since: float | None = None  # when we stopped hearing from it (None: active)
+    follow: Cell | None = None  # planned into a square its occupant is leaving: released once empty
+    follow_steps: int = 0  # steps it has waited for `follow` to empty
 
 
 @dataclass
@@ -206,7 +210,7 @@ class CoordinatorCore:
                 track.lost_since = None
             elif track.lost_since is None:
                 track.lost_since = now
-        self._progress_jobs(units, active)
+        self._progress_jobs(units, active, now)
         settled = {u.id for u in units if u.id in active and self._settled(u)}
         if not self.estop:
             self._allocate(units, active, settled)
@@ -241,7 +245,7 @@ class CoordinatorCore:
             return True
         return u.state.order_id == t.order_id and u.state.order_update_id >= t.content_update
 
-    def _progress_jobs(self, units: list[UnitRecord], active: set[str]) -> None:
+    def _progress_jobs(self, units: list[UnitRecord], active: set[str], now: float) -> None:
         by_id = {u.id: u for u in units}
         for job in self.jobs.active():
             rec = by_id.get(job.unit or "")
@@ -250,22 +254,24 @@ class CoordinatorCore:
             st = rec.state
             if rec.id not in active:
                 if job.state in CARRYING_STATES:
-                    # The item is on the unit: nobody else can finish the job. A unit that was
-                    # only silent for a while (an overloaded broker, a reconnect) comes back
-                    # still carrying it and goes on; an operator may cancel the job meanwhile.
-                    reason = (
-                        f"unit {rec.id} was lost carrying the item, last seen at "
-                        f"{list(st.position)}; waiting for it to come back"
-                    )
-                    if job.reason != reason:
-                        self.jobs.set(job, job.state, reason=reason)
+                    # The item is on that unit: nobody else can finish the job. A unit that is
+                    # only late (a busy machine, a network hiccup) carries on when it is heard
+                    # again, so wait for it; give up once it has said goodbye or stayed away.
+                    lost_since = self.tracks[rec.id].lost_since
+                    away = 0.0 if lost_since is None else now - lost_since
+                    if rec.connection == "offline" or away > self._give_up_after_s(rec):
+                        self.jobs.set(
+                            job,
+                            "failed",
+                            reason=f"unit {rec.id} was lost carrying the item, last seen at "
+                            f"{list(st.position)}",
+                            done_step=self.step_no,
+                        )
                 else:
                     self.jobs.set(
                         job, "queued", unit=None, reason=f"unit {rec.id} was lost; re-queued"
                     )
                 continue
-            if job.state in CARRYING_STATES and job.reason is not None and st.job_id == job.id:
-                self.jobs.set(job, job.state, reason=None)  # its unit is back, still carrying it
             if job.state in ("assigned", "to_pickup"):
                 if st.job_id == job.id:
                     self.jobs.set(job, "loaded", reason=None)
@@ -291,6 +297,10 @@ class CoordinatorCore:
             rec = by_id.get(unit_id)
             if rec is not None and rec.position == goal:
                 del self.goals[unit_id]
+
+    def _give_up_after_s(self, rec: UnitRecord) -> float:
+        """How long a unit carrying an item may stay silent before its job fails."""
+        return max(LOST_CARRYING_MIN_S, LOST_CARRYING_STEPS * self.world.stale_after_s(rec))
 
     def _allocate(self, units: list[UnitRecord], active: set[str], settled: set[str]) -> None:
         capacities = self.world.capacities()
@@ -367,6 +377,8 @@ class CoordinatorCore:
         agents: dict[str, AgentSpec] = {}
         reserved: set[Cell] = set()
         seen: set[Cell] = set()
+        following: dict[str, Cell] = {}
+        released_to_others: set[Cell] = set()  # squares units may still drive into
         for u in units:
             assert u.state is not None
             pos = cell(u.state.position)
@@ -375,8 +387,20 @@ class CoordinatorCore:
             seen.add(pos)
             movable = u.id in settled and u.id in active and not u.state.estop
             movable = movable and u.state.mode == "coordinated"
+            held = self._reserved(u, now) - {pos}
+            reserved |= held
+            released_to_others |= held
+            t = self.tracks.setdefault(u.id, Track())
+            if t.follow is not None and movable and t.follow_steps < FOLLOW_PATIENCE:
+                # It keeps its planned square (nobody else may take it) and waits for it to empty.
+                following[u.id] = t.follow
+                reserved.add(t.follow)
+                t.follow_steps += 1
+                # Frozen for this step, but with its target, so it keeps its priority.
+                agents[u.id] = AgentSpec(pos, targets[u.id], frozen=True)
+                continue
+            t.follow = None
             agents[u.id] = AgentSpec(pos, targets[u.id] if movable else None, frozen=not movable)
-            reserved |= self._reserved(u, now) - {pos}
         # A reserved square may hold another unit (a follower waits for it to leave): that unit
         # may stay or leave, but nobody else may be released into it.
         urgency = {}
@@ -384,7 +408,25 @@ class CoordinatorCore:
             job = self.jobs.of_unit(u.id)
             if job is not None:
                 urgency[u.id] = float(job.priority)
-        return self.planner.step(agents, reserved=reserved, urgency=urgency)
+        moves = self.planner.step(agents, reserved=reserved, urgency=urgency)
+        # Never release a square another unit stands on, not even one it leaves this very step:
+        # units keep their own clocks, so "it leaves as I enter" is a collision when it is late.
+        # The follower keeps that square as planned and gets it once the leader's state shows
+        # it has gone.
+        out: dict[str, Cell] = {}
+        for uid, nxt in moves.items():
+            if nxt == agents[uid].position:
+                continue
+            if nxt in seen:
+                track = self.tracks[uid]
+                track.follow, track.follow_steps = nxt, 0
+            else:
+                out[uid] = nxt
+        for uid, square in following.items():
+            if square not in seen and square not in released_to_others:
+                out[uid] = square
+                self.tracks[uid].follow = None
+        return out
 
     def _order_for(
         self, u: UnitRecord, settled: bool, move: Cell | None, target: Cell | None

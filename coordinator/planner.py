@@ -154,10 +154,10 @@ class Planner:
                 seen += 1
             return False
 
-        def _crowding(cell: int) -> int:
+        def _crowding(i: int, cell: int) -> int:
             k = occupant.get(cell)
-            if k is None:
-                return 0
+            if k is None or k == i:
+                return 0  # its own square is not crowded: an idle unit stays unless pushed
             return 2 if settled[k] else 1
 
         def corridor_ahead(v_back: int, v_front: int) -> tuple[int, int, int]:
@@ -224,19 +224,26 @@ class Planner:
                     return k
             return None
 
-        def pibt(i: int) -> bool:
+        def pibt(i: int, pusher: int | None = None) -> bool:
             here = pos[i]
             cands = [*self._nbrs[here], here]
             d_here = [dist(i, c) for c in cands]
             # Ties: a free square first, then one whose unit is still on its way, and only then
-            # push a unit off its target (pushing settled units invites livelock).
-            keys = [(d, _crowding(c), rand()) for c, d in zip(cands, d_here, strict=True)]
+            # push a unit off its target (pushing settled units invites livelock); then staying
+            # put, then the square farthest from the pusher's way (a side square, not the
+            # corridor it is coming down).
+            keys = [
+                (d, _crowding(i, c), c != here, 0 if pusher is None else -dist(pusher, c), rand())
+                for c, d in zip(cands, d_here, strict=True)
+            ]
             ranked = [c for _, c in sorted(zip(keys, cands, strict=True), key=lambda kc: kc[0])]
             # Swap emulation: when two units must pass each other in a corridor, the one in
-            # front backs off (candidates reversed) and pulls the other along behind it.
+            # front backs off (worst square first, a side square off the partner's way before
+            # the corridor) and pulls the other along behind it.
             partner = swap_partner(i, ranked[0])
             if partner is not None:
-                ranked.reverse()
+                back = [(-d, -dist(partner, c), rand()) for c, d in zip(cands, d_here, strict=True)]
+                ranked = [c for _, c in sorted(zip(back, cands, strict=True), key=lambda kc: kc[0])]
             for rank, c in enumerate(ranked):
                 if c in taken:
                     continue
@@ -254,7 +261,7 @@ class Planner:
                     return True
                 nxt[i] = c
                 taken[c] = i
-                if k is not None and not pibt(k):
+                if k is not None and not pibt(k, i):
                     continue  # the pushed unit could not move: it stays and holds its square
                 if (
                     rank == 0

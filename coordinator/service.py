@@ -17,7 +17,7 @@ from coordinator.jobs import JobBook
 from coordinator.store import JobStore, default_db_path
 from coordinator.world import World
 from gridfleet import __version__
-from gridfleet.bus import cancel_and_wait, make_client
+from gridfleet.bus import make_client
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
@@ -41,6 +41,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES, MIN_TIMEOUT_S
 from gridfleet.protocol.messages import Message
+from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.coordinator")
 
@@ -254,8 +255,7 @@ class Coordinator:
                 job_id=outcome.job_id,
             )
             await self._publish("reply", self.topics.reply(req.reply_to), reply)
-        if self.core.jobs.changed:
-            self._jobs_dirty = True
+        if self._jobs_dirty:  # set by _persist above: the queue view follows at once
             await self._publish_views()
 
     # ---- the step ----------------------------------------------------------------------

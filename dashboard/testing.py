@@ -63,7 +63,12 @@ class OpenDashboard:
         return found
 
     def submit_job(
-        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass_kg: float, priority: int = 0
+        self,
+        pickup: tuple[int, int],
+        dropoff: tuple[int, int],
+        mass_kg: float,
+        priority: int = 0,
+        job_id: str | None = None,
     ) -> None:
         """Fill the job form and press "queue job" (as an operator would)."""
         form = self.page.locator("#job-form")
@@ -74,6 +79,7 @@ class OpenDashboard:
             "dy": dropoff[1],
             "mass": mass_kg,
             "priority": priority,
+            "job_id": job_id or "",
         }
         for name, value in values.items():
             form.locator(f"input[name={name}]").fill(str(value))

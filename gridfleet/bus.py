@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
-from typing import Any
-
 import aiomqtt
 
 from gridfleet.config import BrokerURL, parse_broker_url
@@ -30,16 +27,3 @@ def make_client(
         clean_session=True,
         max_queued_outgoing_messages=max_queued_outgoing,
     )
-
-
-async def cancel_and_wait(task: asyncio.Task[Any], poll_s: float = 0.05) -> BaseException | None:
-    """Cancel `task` and wait until it has ended; its exception (None if cancelled or returned).
-
-    On Python 3.11 `asyncio.wait_for` (aiomqtt awaits every publish with it) can swallow a
-    cancellation that lands as the publish completes, so one `cancel()` may leave a receiving
-    task running for ever and `await task` never returns: cancel again until it is done.
-    """
-    while not task.done():
-        task.cancel()
-        await asyncio.wait({task}, timeout=poll_s)
-    return None if task.cancelled() else task.exception()

@@ -13,6 +13,8 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
+import aiomqtt
+
 from gridfleet import __version__
 from gridfleet.config import DEFAULT_MQTT_URL
 from gridfleet.errors import GridfleetError
@@ -105,6 +107,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(module.run(args) or 0)
     except GridfleetError as exc:
         print(f"gridfleet {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except aiomqtt.MqttError as exc:
+        # One-shot commands (job, simulate with --broker) fail fast; services retry on their own.
+        where = getattr(args, "broker", None) or "the broker"
+        print(f"gridfleet {args.command}: error: MQTT with {where}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

@@ -18,6 +18,7 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import (
     TOPICS,
+    CancelJob,
     CoordinatorStatus,
     HeaderStamper,
     JobsView,
@@ -127,6 +128,16 @@ class Operator:
             target=target,
         )
         return await self._send("set_goal", request, timeout)
+
+    async def cancel_job(self, job_id: str, timeout: float = 10.0) -> Reply:
+        """Delete a queued job or abort an active one."""
+        request = CancelJob(
+            header=self.stamp("cancel_job"),
+            request_id=self._next_id(),
+            reply_to=self.client_id,
+            job_id=job_id,
+        )
+        return await self._send("cancel_job", request, timeout)
 
     def active_jobs(self) -> int:
         """Jobs in the queue view that are not final."""

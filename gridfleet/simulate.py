@@ -18,6 +18,7 @@ from typing import Any
 from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.cli import add_common
+from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.feeder import Operator, submit_scenario
 from gridfleet.grid import Cell
 from gridfleet.monitor import FleetMonitor
@@ -26,6 +27,7 @@ from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario
 
 log = logging.getLogger("gridfleet.simulate")
+STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -109,6 +111,7 @@ async def simulate(
     root: str,
     broker_url: str | None = None,
     record: bool = False,
+    sensors_see_units: bool = True,
 ) -> Outcome:
     """Run broker, coordinator and units in this process until the scenario is done."""
     from coordinator.service import Coordinator
@@ -129,7 +132,9 @@ async def simulate(
         coordinator = Coordinator(
             broker_url, scenario.grid, root=root, step_s=step, db_path=Path(db_dir) / "jobs.db"
         )
-        fleet = Fleet(scenario, broker_url, root=root, step=step)
+        fleet = Fleet(
+            scenario, broker_url, root=root, step=step, sensors_see_units=sensors_see_units
+        )
         tasks = [asyncio.create_task(coordinator.run(stop)), asyncio.create_task(fleet.run(stop))]
         client_id = f"simulate-{uuid.uuid4().hex[:6]}"
         client = await stack.enter_async_context(make_client(broker_url, client_id))
@@ -144,10 +149,18 @@ async def simulate(
             await asyncio.wait_for(fleet.ready.wait(), 30)
             await asyncio.wait_for(operator.coordinator_online.wait(), 30)
             await submit_scenario(operator, scenario)
+            last_step, last_progress = monitor.step, time.monotonic()
             while monitor.step < max_steps and not _all_done(monitor, scenario, goals):
-                for t in tasks:
+                for t in tasks + listeners:
                     if t.done():
                         t.result()  # a component that died ends the run with its error
+                if monitor.step != last_step:
+                    last_step, last_progress = monitor.step, time.monotonic()
+                elif time.monotonic() - last_progress > STALL_S + 50 * step:
+                    raise GridfleetError(
+                        f"no coordinator step for {STALL_S + 50 * step:.0f} s (stuck at step "
+                        f"{monitor.step}): the run cannot go on"
+                    )
                 monitor.changed.clear()
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(monitor.changed.wait(), 10 * step + 1)
@@ -222,6 +235,10 @@ def summary(outcome: Outcome, scenario: Scenario) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet simulate`."""
+    if not 0 < args.step <= 60:
+        raise ConfigError(f"--step {args.step}: the step period must be in 0 < s <= 60")
+    if args.max_steps < 1:
+        raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
     scenario = load_scenario(args.scenario)
     if args.json:
         # Keep stdout for the one JSON object.

@@ -31,6 +31,7 @@ class Fleet:
         mode: Mode = "coordinated",
         goals: Mapping[str, Cell] | None = None,
         reconnect_s: float = 0.1,
+        sensors_see_units: bool = True,
     ) -> None:
         parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
         known = [u.id for u in scenario.units]
@@ -46,7 +47,7 @@ class Fleet:
             raise ConfigError(f"step period {step} s is outside 0 < s <= 60")
         self.scenario = scenario
         self.topics = Topics(root)
-        self.world = WorldSim.from_scenario(scenario)
+        self.world = WorldSim.from_scenario(scenario, sensors_see_units=sensors_see_units)
         for spec in scenario.units:
             if spec.id not in local:
                 self.world.place(spec.id, spec.start)  # best guess until its state arrives

@@ -10,7 +10,7 @@ import uuid
 
 import aiomqtt
 
-from gridfleet.bus import cancel_and_wait, make_client
+from gridfleet.bus import make_client
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -30,6 +30,7 @@ from gridfleet.protocol import (
     encode_direction,
 )
 from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.tasks import cancel_and_wait
 from robots.unit import UnitLogic, step_in
 from robots.world import WorldSim
 
@@ -106,9 +107,9 @@ class UnitRunner:
                         await asyncio.wait_for(stop.wait(), delay)
                     delay = min(delay * 2, self.max_reconnect_s)
         finally:
-            error = await cancel_and_wait(ticker)
-            if error is not None:
-                raise error
+            ticker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await ticker
 
     def _lost(self, why: str) -> None:
         if self._client is not None:

@@ -28,6 +28,10 @@ class WorldSim:
     reads `obstacle`; another unit reads `unit`. `move` never performs a move into a blocked or
     occupied square: it refuses and counts it in `prevented`. `force_move` performs moves without
     checks (scripted bad moves for tests) and counts what they collide with in `collisions`.
+
+    With `sensors_see_units` off, sensors read other units as `free`: units then trust their
+    orders alone, so every move the coordinator's orders lead into an occupied square shows up
+    in `prevented`. Tests use it to check the coordinator without the units' own safety layer.
     """
 
     def __init__(
@@ -35,8 +39,11 @@ class WorldSim:
         grid: GridMap,
         hidden: Iterable[Cell] = (),
         units: Mapping[str, Cell] | None = None,
+        *,
+        sensors_see_units: bool = True,
     ) -> None:
         self.grid = grid
+        self.sensors_see_units = sensors_see_units
         self.hidden: frozenset[Cell] = frozenset(hidden)
         self.positions: dict[str, Cell] = dict(units or {})
         self.remote: set[str] = set()  # units simulated elsewhere, known from their state
@@ -45,10 +52,13 @@ class WorldSim:
         self.log: list[Collision] = []
 
     @classmethod
-    def from_scenario(cls, scenario: Scenario) -> WorldSim:
+    def from_scenario(cls, scenario: Scenario, *, sensors_see_units: bool = True) -> WorldSim:
         """The world of `scenario` with every unit on its start square."""
         return cls(
-            scenario.grid, scenario.hidden_obstacles, {u.id: u.start for u in scenario.units}
+            scenario.grid,
+            scenario.hidden_obstacles,
+            {u.id: u.start for u in scenario.units},
+            sensors_see_units=sensors_see_units,
         )
 
     @property
@@ -62,6 +72,10 @@ class WorldSim:
 
     def square(self, cell: Cell, exclude: str | None = None) -> Reading:
         """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
+        reading = self._truth(cell, exclude)
+        return "free" if reading == "unit" and not self.sensors_see_units else reading
+
+    def _truth(self, cell: Cell, exclude: str | None) -> Reading:
         if not self.grid.in_bounds(cell):
             return "wall"
         if not self.grid.is_free(cell) or cell in self.hidden:
@@ -78,7 +92,7 @@ class WorldSim:
     def move(self, unit_id: str, direction: Direction) -> bool:
         """Move one square if it is free; otherwise refuse, count it as prevented, return False."""
         target = self.positions[unit_id].step(direction)
-        if self.square(target, exclude=unit_id) != "free":
+        if self._truth(target, exclude=unit_id) != "free":
             self.prevented += 1
             return False
         self._apply({unit_id: direction})

@@ -57,9 +57,17 @@ def test_steps_wait_for_acknowledgements_of_moves(
     acked: dict[str, object] = {"order_id": None, "update_id": 0}
     stop = threading.Event()
 
+    frozen = threading.Event()
+
     def heartbeat() -> None:
-        # A unit whose states keep coming but acknowledge only what `acked` says (late acks).
+        # A unit whose states keep coming; it acknowledges holds at once, but once a move has
+        # come it acknowledges only what `acked` says (a unit whose acks are late).
         while not stop.is_set():
+            orders = [json.loads(m.payload) for m in unit.received(order_topic)]
+            if any(o["released"] for o in orders):
+                frozen.set()
+            if orders and not frozen.is_set():
+                acked.update(order_id=orders[-1]["order_id"], update_id=orders[-1]["update_id"])
             state = UnitState(
                 header=stamp("state"),
                 step=0,

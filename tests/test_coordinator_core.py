@@ -60,6 +60,12 @@ def check_released_disjoint(units: list[FakeUnit]) -> None:
         for c in u.released:
             assert c not in claimed, f"{c} released to {claimed[c]} and {u.id}"
             claimed[c] = u.id
+    # Layer one of the safety model on its own: a released square never holds another unit,
+    # not even one about to leave it (units run on their own clocks).
+    standing = {u.position: u.id for u in units}
+    for u in units:
+        for c in u.released:
+            assert standing.get(c, u.id) == u.id, f"{c} released to {u.id} holds {standing[c]}"
     for u in units:
         for other in units:
             if u is not other and u.released and other.released:
@@ -177,38 +183,65 @@ def test_goal_pins_a_unit_until_reached() -> None:
     assert core.goals == {}
 
 
-def test_a_unit_silent_while_carrying_keeps_its_job_and_finishes_it_when_back() -> None:
+def _carrying_unit() -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper, float]:
+    """One unit under way to the dropoff with a job's item on board."""
     grid = GridMap.from_rows(ROWS)
     world = World(grid, step_period_s=1.0)
     core = CoordinatorCore(world, JobBook(), nonce="n")
-    unit = FakeUnit("u", Cell(0, 0), 5.0)
+    unit = FakeUnit("u", Cell(0, 0), 10.0)
     stamp = HeaderStamper("u")
     world.on_connection("u", Connection(header=header("u"), state="online"))
-    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=5, step_period_s=1))
+    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=10, step_period_s=1))
     world.on_state("u", unit.state(stamp), 0.0)
-    req = SubmitJob(header=header(), request_id="r", pickup=(1, 0), dropoff=(9, 9), mass_kg=2)  # type: ignore[arg-type]
-    job_id = core.submit(req, "t").job_id
-    assert job_id is not None
-    job = core.jobs.jobs[job_id]
+    req = SubmitJob(header=header(), request_id="r", pickup=(0, 1), dropoff=(9, 9), mass_kg=1.0)  # type: ignore[arg-type]
+    assert core.submit(req, "t").accepted
     now = 0.0
+    while core.jobs.jobs[next(iter(core.jobs.jobs))].state != "to_dropoff":
+        now += 1.0
+        assert now < 30, "never loaded"
+        unit.on_order(make_order(core.step(now).orders["u"]), grid)
+        unit.tick(set(), set())
+        world.on_state("u", unit.state(stamp), now)
+    return core, world, unit, stamp, now
 
-    def run(until: object, silent: bool = False) -> None:
-        nonlocal now
-        for _ in range(100):
-            now += 1.0
-            result = core.step(now)
-            if "u" in result.orders and not silent:
-                unit.on_order(make_order(result.orders["u"]), grid)
-            unit.tick(set(), set())
-            if not silent:
-                world.on_state("u", unit.state(stamp), now)
-            if until():  # type: ignore[operator]
-                return
-        raise AssertionError(f"job {job.state}, unit at {unit.position}")
 
-    run(lambda: job.state == "to_dropoff")
-    # Silent for longer than the staleness timeout: the unit counts as lost, the item is on it.
-    run(lambda: job.reason is not None, silent=True)
-    assert job.state == "to_dropoff" and "lost carrying" in (job.reason or "")
-    run(lambda: job.state == "done")
-    assert job.reason is None and unit.load_kg == 0
+def _run_to_end(
+    core: CoordinatorCore, world: World, unit: FakeUnit, stamp: HeaderStamper, now: float
+) -> str:
+    job = next(iter(core.jobs.jobs.values()))
+    for _ in range(60):
+        now += 1.0
+        result = core.step(now)
+        if "u" in result.orders:
+            unit.on_order(make_order(result.orders["u"]), world.grid)
+        unit.tick(set(), set())
+        world.on_state("u", unit.state(stamp), now)
+        if job.final:
+            break
+    return job.state
+
+
+def test_a_carrying_unit_that_is_only_late_finishes_its_job() -> None:
+    core, world, unit, stamp, now = _carrying_unit()
+    for _ in range(30):  # 30 s of silence: lost for a while, but the item is on board
+        now += 1.0
+        core.step(now)
+    job = next(iter(core.jobs.jobs.values()))
+    assert job.state == "to_dropoff" and job.unit == "u"
+    assert _run_to_end(core, world, unit, stamp, now) == "done"
+
+
+def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
+    core, _, _, _, now = _carrying_unit()
+    for _ in range(200):
+        now += 1.0
+        core.step(now)
+    job = next(iter(core.jobs.jobs.values()))
+    assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
+
+
+def test_a_carrying_unit_that_goes_offline_fails_its_job_at_once() -> None:
+    core, world, _, _, now = _carrying_unit()
+    world.on_connection("u", Connection(header=header("u"), state="offline"))
+    core.step(now + 1.0)
+    assert next(iter(core.jobs.jobs.values())).state == "failed"

@@ -171,3 +171,74 @@ def test_follows_a_unit_that_moves_away() -> None:
     )
     assert out["B"] == Cell(2, 0)
     assert out["A"] == Cell(1, 0)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_corridor_pass_takes_the_bay_without_dithering(seed: int) -> None:
+    # The unit at the bay steps into it, the other passes: a few steps over the straight run,
+    # not rounds of backing off and pushing back.
+    text = """
+    ###########
+    #####.#####
+    #A.......B#
+    ###########
+    """
+    grid, starts, _ = parse(text)
+    goals = {"A": starts["B"], "B": starts["A"]}
+    plan, steps = run(grid, starts, goals, bound=60, seed=seed)
+    assert_clean(grid, plan)
+    assert steps <= 8 + 4, steps
+
+
+def test_a_unit_without_errand_stays_put() -> None:
+    grid, starts, _ = parse(
+        """
+        .....
+        ..A..
+        .....
+        """
+    )
+    planner = Planner(grid, seed=3)
+    for _ in range(20):
+        assert planner.step({"A": AgentSpec(starts["A"])}) == {"A": starts["A"]}
+
+
+def test_an_idle_unit_pushed_aside_settles_again() -> None:
+    # Found on the live dashboard: idle units walked about at random (every square is at
+    # distance 0 from "no target"). An idle unit stays; it steps aside only for a unit that
+    # needs its square, and then stays again.
+    grid, starts, _ = parse(
+        """
+        #######
+        #A...B#
+        #.....#
+        #######
+        """
+    )
+    planner = Planner(grid, seed=3)
+    here = dict(starts)
+    for _ in range(30):
+        here = planner.step({a: AgentSpec(here[a]) for a in here})
+        assert here == starts
+    grid, starts, goals = parse(
+        """
+        #######
+        #b.A.B#
+        ###.###
+        #######
+        """
+    )
+    planner = Planner(grid, seed=3)
+    here = dict(starts)
+    plan = [[here[a] for a in sorted(here)]]
+    for _ in range(20):
+        here = planner.step({"A": AgentSpec(here["A"]), "B": AgentSpec(here["B"], goals["B"])})
+        plan.append([here[a] for a in sorted(here)])
+        if here["B"] == goals["B"]:
+            break
+    assert here["B"] == goals["B"]
+    assert_clean(grid, plan)
+    settled = dict(here)
+    for _ in range(20):
+        here = planner.step({a: AgentSpec(here[a]) for a in here})
+        assert here == settled

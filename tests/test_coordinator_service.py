@@ -340,3 +340,45 @@ async def test_malformed_requests_are_refused_and_change_nothing(
         await async_wait_for(lambda: r.coordinator.errors_sent >= len(bad), what="all refused")
         assert r.coordinator.core.jobs.jobs == {}
         assert r.coordinator.core.goals == {}
+
+
+async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    # Found on the live dashboard: a job the operator queued, deleted or got refused showed in
+    # the queue only a step later (or, while stopped, not until something else changed).
+    topics = Topics(root)
+    coordinator = Coordinator(
+        broker.url, playfield_grid(), root=root, step_s=30.0, db_path=tmp_path / "jobs.db"
+    )
+    stop = asyncio.Event()
+    task = asyncio.create_task(coordinator.run(stop))
+    try:
+        await asyncio.wait_for(coordinator.ready.wait(), 10)
+        with MqttProbe(broker.url, "tester") as probe:
+            probe.subscribe(topics.fleet("jobs"), qos=1)
+            stamp = HeaderStamper("tester")
+
+            def listed(job_id: str, state: str) -> bool:
+                for m in probe.received(topics.fleet("jobs")):
+                    view = decode(JobsView, m.payload, MAX_VIEW_BYTES)
+                    if any(j.id == job_id and j.state == state for j in view.jobs):
+                        return True
+                return False
+
+            submit = SubmitJob(
+                header=stamp("submit_job"),
+                request_id="r1",
+                pickup=(1, 1),  # type: ignore[arg-type]
+                dropoff=(8, 8),  # type: ignore[arg-type]
+                mass_kg=1.0,
+                job_id="j1",
+            )
+            probe.publish(topics.request("submit_job"), encode(submit))
+            await async_wait_for(lambda: listed("j1", "queued"), timeout=5, what="j1 queued")
+            cancel = CancelJob(header=stamp("cancel_job"), request_id="r2", job_id="j1")
+            probe.publish(topics.request("cancel_job"), encode(cancel))
+            await async_wait_for(lambda: listed("j1", "cancelled"), timeout=5, what="j1 cancelled")
+    finally:
+        stop.set()
+        await task

@@ -566,3 +566,30 @@ def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
         probe.subscribe(topics.fleet("estop"))  # retained: it arrived while we were away
         assert decode_estop(probe.wait(topics.fleet("estop")).payload).engaged
     expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by dashboard")
+
+
+def test_rows_survive_renders_so_clicks_are_not_lost(
+    open_dashboard: Callable[..., OpenDashboard], fleet: FakeFleet, grid: GridMap, root: str
+) -> None:
+    # Found against the real fleet: rows were rebuilt on every message (units report every
+    # step), so the "delete" button under the pointer was replaced and the click was lost.
+    playfield_fleet(fleet, grid)
+    fleet.jobs([job("job-3", "queued")])
+    dash = open_dashboard(root)
+    button = dash.page.locator("#jobs button[data-cancel='job-3']")
+    expect(button).to_be_visible()
+    kept_button = button.element_handle()
+    kept_row = row(dash, "unit1").element_handle()
+    fleet.state("unit1", (1, 0), "E", "moving")
+    expect(row(dash, "unit1").locator(".pos")).to_have_text("[1, 0]")
+    fleet.jobs([job("job-3", "to_pickup", "unit2"), job("job-4", "queued")])
+    expect(dash.page.locator("#jobs tr[data-job='job-3'] .unit")).to_have_text("unit2")
+    expect(dash.page.locator("#jobs tbody tr")).to_have_count(2)
+    assert kept_button.evaluate("b => b.isConnected")
+    assert kept_row.evaluate("tr => tr.isConnected")
+    # Finished jobs leave the queue; the rest keep their rows.
+    fleet.jobs([job("job-3", "done", "unit2"), job("job-4", "queued")])
+    expect(dash.page.locator("#finished tr[data-job='job-3'] .state")).to_have_text("done")
+    expect(dash.page.locator("#jobs tbody tr")).to_have_count(1)
+    assert not kept_button.evaluate("b => b.isConnected")
+    assert dash.errors == []

@@ -62,3 +62,38 @@ test("jobs split into active and finished; silent units", () => {
   assert.equal(v.isSilent(u, 900), false);
   assert.equal(v.isSilent(u, 1100), true);
 });
+
+test("the coordinator's step comes from its routes too (its status is sent only on changes)", () => {
+  const v = new FleetView();
+  assert.equal(v.coordinatorStep(), null);
+  v.apply("coordinator", null, JSON.stringify({ state: "online", step: 0, step_period_s: 1 }), 0);
+  assert.equal(v.coordinatorStep(), 0);
+  v.apply("routes", null, JSON.stringify({ step: 42, routes: {} }), 1);
+  assert.equal(v.coordinatorStep(), 42);
+  v.apply("coordinator", null, JSON.stringify({ state: "online", step: 43, step_period_s: 1 }), 2);
+  assert.equal(v.coordinatorStep(), 43);
+});
+
+test("a unit's heading: its direction, else the first square of its route", () => {
+  const v = new FleetView();
+  assert.equal(v.heading("u1"), "-");
+  v.apply("state", "u1", state([2, 2], { direction: "W" }), 0);
+  assert.equal(v.heading("u1"), "W");
+  v.apply("state", "u1", state([2, 2]), 1);
+  assert.equal(v.heading("u1"), "-");
+  v.apply("routes", null, JSON.stringify({ step: 3, routes: { u1: { released: [], planned: [[2, 3], [2, 4]] } } }), 2);
+  assert.equal(v.heading("u1"), "S");
+  v.apply("routes", null, JSON.stringify({ step: 4, routes: { u1: { released: [[3, 2]], planned: [] } } }), 3);
+  assert.equal(v.heading("u1"), "E");
+  v.apply("routes", null, JSON.stringify({ step: 5, routes: { u1: { released: [[5, 5]], planned: [] } } }), 4);
+  assert.equal(v.heading("u1"), "-", "a route that does not start next to the unit says nothing");
+});
+
+test("a heading from routes sent before the unit's last move starts after its square", () => {
+  const v = new FleetView();
+  v.apply("routes", null, JSON.stringify({ step: 3, routes: { u1: { released: [[1, 0]], planned: [[1, 1], [1, 2]] } } }), 0);
+  v.apply("state", "u1", state([0, 0]), 1);
+  assert.equal(v.heading("u1"), "E");
+  v.apply("state", "u1", state([1, 0]), 2); // moved into its released square; no new order yet
+  assert.equal(v.heading("u1"), "S");
+});

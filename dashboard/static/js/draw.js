@@ -105,6 +105,7 @@ export function drawFleet(canvas, view, now, ui) {
   }
   // Units on top.
   const drawn = [];
+  const headings = [];
   for (const u of view.units.values()) {
     if (!u.state) continue;
     const [x, y] = u.state.position;
@@ -119,7 +120,9 @@ export function drawFleet(canvas, view, now, ui) {
     g.lineWidth = ui.selectedUnit === u.id ? 4 : 1.5;
     g.strokeStyle = ui.selectedUnit === u.id ? "#000" : "#fff";
     g.stroke();
-    const d = ARROW[u.state.direction];
+    const heading = view.heading(u.id);
+    headings.push(`${u.id}:${heading}`);
+    const d = ARROW[heading];
     if (d) {
       g.fillStyle = "#fff";
       g.beginPath();
@@ -139,9 +142,15 @@ export function drawFleet(canvas, view, now, ui) {
     }
     g.globalAlpha = 1;
     if (c >= 18) {
-      g.fillStyle = "#000";
       g.font = `${Math.max(8, Math.floor(c * 0.22))}px sans-serif`;
-      g.fillText(u.id, cx, cy + c * 0.58 > L.oy + map.height * c ? cy - c * 0.55 : cy + c * 0.55);
+      const ly = cy + c * 0.58 > L.oy + map.height * c ? cy - c * 0.55 : cy + c * 0.55;
+      // A white halo keeps the name readable over routes and markers in the next square.
+      g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+      g.lineWidth = 3;
+      g.lineJoin = "round";
+      g.strokeText(u.id, cx, ly);
+      g.fillStyle = "#000";
+      g.fillText(u.id, cx, ly);
     }
     drawn.push(`${u.id}@${x},${y}`);
   }
@@ -153,6 +162,7 @@ export function drawFleet(canvas, view, now, ui) {
   }
   // What was drawn, for people using assistive tools and for tests.
   canvas.dataset.units = drawn.sort().join(" ");
+  canvas.dataset.headings = headings.sort().join(" ");
   canvas.dataset.cell = String(c);
   canvas.dataset.ox = String(L.ox);
   canvas.dataset.oy = String(L.oy);

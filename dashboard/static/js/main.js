@@ -2,6 +2,7 @@
 
 import { drawFleet, squareAt } from "./draw.js";
 import { FleetView } from "./model.js";
+import { syncRows } from "./rows.js";
 import {
   encodeEstop, ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor,
 } from "./protocol.js";
@@ -127,7 +128,8 @@ class Dashboard {
     if (!req) return;
     this.pending.delete(reply.request_id);
     if (reply.accepted) {
-      const extra = reply.job_id ? ` (job ${reply.job_id})` : "";
+      // "(job id)" tells which id a new job got; a delete already names its job.
+      const extra = reply.job_id && req.form !== "cancel" ? ` (job ${reply.job_id})` : "";
       this.feedback(req.form, "ok", `${req.what}: accepted${extra}`);
     } else {
       this.feedback(req.form, "refused", `${req.what}: refused — ${reply.reason ?? "no reason given"}`);
@@ -138,7 +140,8 @@ class Dashboard {
     if (!err) return;
     const req = err.request_id ? this.pending.get(err.request_id) : null;
     if (req) {
-      this.pending.delete(err.request_id);
+      // Kept pending: the coordinator's reply follows with the reason alone (the error report
+      // names the message type too); whichever comes, the operator sees why.
       this.feedback(req.form, "refused", `${req.what}: refused — ${err.reason}`);
     }
     this.log(`${err.header?.sender ?? "?"} refused a message on ${err.topic}: ${err.reason}`);
@@ -326,30 +329,33 @@ class Dashboard {
   renderUnits(now) {
     const tbody = $("#units tbody");
     const ids = [...this.view.units.keys()].sort();
-    tbody.replaceChildren(...ids.map((id) => {
-      const u = this.view.units.get(id);
-      const s = u.state;
-      const tr = document.createElement("tr");
-      tr.dataset.unit = id;
-      tr.dataset.link = u.connection ?? "unknown";
-      if (id === this.ui.selectedUnit) tr.classList.add("selected");
-      const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
-      const status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
-      const cells = [
-        id, u.connection ?? "?", s ? `[${s.position[0]}, ${s.position[1]}]` : "—", status,
-        s?.job_id ?? "—", s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "",
-      ];
-      const names = ["id", "link", "pos", "status", "job", "load", "seen"];
-      cells.forEach((text, i) => {
-        const td = document.createElement("td");
-        td.className = names[i];
-        td.textContent = text;
-        if (i === 0) { td.style.borderLeft = `6px solid ${this.view.colorOf(id)}`; }
-        if (i === 3 && s) td.title = s.wait_reason ?? "";
-        tr.append(td);
-      });
-      return tr;
-    }));
+    syncRows(tbody, ids, {
+      keyName: "unit",
+      key: (id) => id,
+      cells: (id) => {
+        const u = this.view.units.get(id);
+        const s = u.state;
+        const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
+        const status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+        return [
+          [id, "id"], [u.connection ?? "?", "link"],
+          [s ? `[${s.position[0]}, ${s.position[1]}]` : "—", "pos"], [status, "status"],
+          [s?.job_id ?? "—", "job"], [s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "load"],
+        ];
+      },
+      extra: (tr, id, fresh) => {
+        const u = this.view.units.get(id);
+        if (fresh) {
+          const seen = document.createElement("td");
+          seen.className = "seen";
+          tr.append(seen);
+        }
+        tr.dataset.link = u.connection ?? "unknown";
+        tr.classList.toggle("selected", id === this.ui.selectedUnit);
+        tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
+        tr.children[3].title = u.state?.wait_reason ?? "";
+      },
+    });
     this.renderSeen(now);
     const sel = $("#goal-unit");
     const current = sel.value;
@@ -371,38 +377,32 @@ class Dashboard {
 
   renderJobs() {
     const active = this.view.activeJobs();
-    const row = (cells, cls) => {
-      const tr = document.createElement("tr");
-      for (const [text, name] of cells) {
+    syncRows($("#jobs tbody"), active, {
+      keyName: "job",
+      key: (j) => j.id,
+      cells: (j) => [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
+        [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]],
+      extra: (tr, j, fresh) => {
+        tr.className = `job-${j.state}`;
+        if (!fresh) return;
         const td = document.createElement("td");
-        td.textContent = text;
-        if (name) td.className = name;
+        const b = document.createElement("button");
+        b.type = "button";
+        b.dataset.cancel = j.id;
+        b.textContent = "delete";
+        b.title = `delete job ${j.id}`;
+        td.append(b);
         tr.append(td);
-      }
-      if (cls) tr.className = cls;
-      return tr;
-    };
-    $("#jobs tbody").replaceChildren(...active.map((j) => {
-      const tr = row([[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
-        [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]], `job-${j.state}`);
-      tr.dataset.job = j.id;
-      const td = document.createElement("td");
-      const b = document.createElement("button");
-      b.type = "button";
-      b.dataset.cancel = j.id;
-      b.textContent = "delete";
-      b.title = `delete job ${j.id}`;
-      td.append(b);
-      tr.append(td);
-      return tr;
-    }));
+      },
+    });
     $("#queue-count").textContent = `(${active.length})`;
     const finished = this.view.finishedJobs();
-    $("#finished tbody").replaceChildren(...finished.map((j) => {
-      const tr = row([[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [j.reason ?? "", "reason"]], `job-${j.state}`);
-      tr.dataset.job = j.id;
-      return tr;
-    }));
+    syncRows($("#finished tbody"), finished, {
+      keyName: "job",
+      key: (j) => j.id,
+      cells: (j) => [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [j.reason ?? "", "reason"]],
+      extra: (tr, j) => { tr.className = `job-${j.state}`; },
+    });
     const counts = {};
     for (const j of finished) counts[j.state] = (counts[j.state] ?? 0) + 1;
     for (const [k, v] of Object.entries(this.view.counts)) if (k in counts || ["done", "cancelled", "rejected", "failed"].includes(k)) counts[k] = v;
@@ -428,7 +428,7 @@ class Dashboard {
     const c = this.view.coordinator;
     const el = $("#coord");
     el.dataset.state = c?.state ?? "unknown";
-    el.textContent = c ? `coordinator: ${c.state}, step ${c.step}` : "coordinator: not seen";
+    el.textContent = c ? `coordinator: ${c.state}, step ${this.view.coordinatorStep()}` : "coordinator: not seen";
   }
 }
 

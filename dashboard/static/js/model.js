@@ -14,6 +14,7 @@ export class FleetView {
     this.jobs = []; // JobView objects
     this.counts = {};
     this.routes = {}; // unit -> {released, planned, target}
+    this.routesStep = null; // the coordinator's step, from its routes (published every step)
     this.coordinator = null;
     this.estop = null; // {engaged, by, reason} or null when nobody has said
     this.obstacles = new Map(); // "x,y" -> first seen (ms)
@@ -73,7 +74,10 @@ export class FleetView {
         this.jobs = Array.isArray(msg.jobs) ? msg.jobs : [];
         this.counts = msg.counts ?? {};
         break;
-      case "routes": this.routes = msg.routes ?? {}; break;
+      case "routes":
+        this.routes = msg.routes ?? {};
+        if (Number.isInteger(msg.step)) this.routesStep = msg.step;
+        break;
       case "coordinator": this.coordinator = msg; break;
       case "errors": this.lastError = msg; break;
       default: break;
@@ -99,6 +103,30 @@ export class FleetView {
     if (u.lastSeen == null) return false;
     const period = u.factsheet?.step_period_s ?? 1;
     return now - u.lastSeen > Math.max(500, 5 * period * 1000);
+  }
+
+  /** The coordinator's latest step: its status says it only on changes, its routes every step. */
+  coordinatorStep() {
+    const steps = [this.coordinator?.step, this.routesStep].filter(Number.isInteger);
+    return steps.length ? Math.max(...steps) : null;
+  }
+
+  /**
+   * Where unit `id` is heading: its reported direction, or, between a step and its next order
+   * (when a unit reports "-"), the first square of its planned route; "-" when neither says.
+   */
+  heading(id) {
+    const s = this.units.get(id)?.state;
+    if (!s) return "-";
+    if (s.direction && s.direction !== "-") return s.direction;
+    const r = this.routes[id];
+    // The routes may date from before the unit's last move: skip the square it now stands on.
+    const path = [...(r?.released ?? []), ...(r?.planned ?? [])];
+    const at = path.findIndex((sq) => sq[0] === s.position[0] && sq[1] === s.position[1]);
+    const next = path[at + 1];
+    if (!next) return "-";
+    const [dx, dy] = [next[0] - s.position[0], next[1] - s.position[1]];
+    return { "0,-1": "N", "1,0": "E", "0,1": "S", "-1,0": "W" }[`${dx},${dy}`] ?? "-";
   }
 
   activeJobs() { return this.jobs.filter((j) => !FINAL_JOB_STATES.has(j.state)); }

@@ -1,0 +1,494 @@
+"""Acceptance items 3, 8 and 9 (DESIGN.md §6): the dashboard in Chromium on the REAL system.
+
+Real broker, real coordinator, real simulated units (threads, `run_system`) and the page in headless
+Chromium: nothing between them is faked. The world simulation (`world_of`) is the ground truth the
+page is checked against; a probe only listens.
+
+`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/test_acceptance_dashboard.py -k screenshot` also
+copies the live screenshot (test-artifacts/dashboard-real-playfield.png) to docs/dashboard.png.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+from playwright.sync_api import expect
+
+from dashboard.testing import OpenDashboard
+from gridfleet.grid import Cell
+from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
+from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
+from gridfleet.scenario import load_scenario
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.services import ServiceThread, world_of
+from gridfleet.testing.wait import wait_for
+from robots.world import WorldSim
+
+pytestmark = pytest.mark.browser
+
+REPO = Path(__file__).resolve().parent.parent
+PLAYFIELD = REPO / "maps" / "playfield.toml"
+SCENARIO = load_scenario(PLAYFIELD)
+CAPACITY = {u.id: u.capacity for u in SCENARIO.units}
+STARTS = {u.id: u.start for u in SCENARIO.units}
+DOCS_SHOT = REPO / "docs" / "dashboard.png"
+
+M = TypeVar("M", bound=Message)
+
+
+@dataclass
+class Live:
+    """The running system, the page showing it, and a probe listening to what they say."""
+
+    world: WorldSim
+    dash: OpenDashboard
+    probe: MqttProbe
+    topics: Topics
+    step_s: float
+    seen_jobs: dict[str, set[str]] = field(default_factory=dict)
+
+    @property
+    def page(self) -> Any:
+        return self.dash.page
+
+    def latest(self, model: type[M], topic: str, kind: str) -> M | None:
+        """The last message the probe saw on `topic`, decoded."""
+        got = self.probe.received(topic)
+        return decode(model, got[-1].payload, TOPICS[kind].max_bytes) if got else None
+
+    def states(self, unit: str) -> list[UnitState]:
+        """Every state `unit` published since the probe subscribed."""
+        topic = self.topics.unit("state", unit)
+        return [decode(UnitState, m.payload) for m in self.probe.received(topic)]
+
+    def jobs(self) -> JobsView | None:
+        """The coordinator's latest queue view."""
+        return self.latest(JobsView, self.topics.fleet("jobs"), "jobs")
+
+    def routes(self) -> Routes | None:
+        """The coordinator's latest routes."""
+        return self.latest(Routes, self.topics.fleet("routes"), "routes")
+
+    def routes_through(self, square: tuple[int, int]) -> list[str]:
+        """Units whose latest route (released or planned) runs through `square`."""
+        routes = self.routes()
+        if routes is None:
+            return []
+        return [
+            u
+            for u, r in routes.routes.items()
+            if square in [tuple(c) for c in [*r.released, *r.planned]]
+        ]
+
+    def positions(self) -> dict[str, tuple[int, int]]:
+        """Where every unit really is (the world simulation's ground truth)."""
+        return {u: (c.x, c.y) for u, c in dict(self.world.positions).items()}
+
+    def page_jobs(self) -> dict[str, dict[str, str]]:
+        """Every job row on the page: its table (jobs or finished), state, unit and reason."""
+        rows: dict[str, dict[str, str]] = self.page.evaluate(
+            """() => Object.fromEntries([...document.querySelectorAll(
+                    '#jobs tbody tr, #finished tbody tr')].map((tr) => [tr.dataset.job, {
+                table: tr.closest('table').id,
+                state: tr.querySelector('.state').textContent,
+                unit: tr.querySelector('.unit').textContent,
+                reason: tr.querySelector('.reason')?.textContent ?? '',
+            }]))"""
+        )
+        for job_id, row in rows.items():
+            self.seen_jobs.setdefault(job_id, set()).add(row["state"])
+        return rows
+
+    def submit(
+        self, job_id: str, pickup: tuple[int, int], dropoff: tuple[int, int], mass: float
+    ) -> None:
+        """Queue a job with the page's form and wait for the coordinator's answer."""
+        self.dash.submit_job(pickup, dropoff, mass, job_id=job_id)
+        expect(self.page.locator("#job-feedback")).to_contain_text(f": accepted (job {job_id})")
+
+    def goal(self, unit: str, target: tuple[int, int]) -> None:
+        """Set a goal with the page's form and wait for the coordinator to accept it."""
+        self.dash.set_goal(unit, target)
+        expect(self.page.locator("#goal-feedback")).to_have_text(
+            f"goal [{target[0]}, {target[1]}] for {unit}: accepted"
+        )
+
+
+@pytest.fixture
+def live(
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    open_dashboard: Callable[..., OpenDashboard],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+    root: str,
+) -> Iterator[Callable[..., Live]]:
+    """Factory: the playfield's coordinator and units running, the page open and showing them."""
+
+    def start(step_s: float = 0.05) -> Live:
+        probe = probe_factory()
+        probe.subscribe(topics.all_units("state"), qos=0)
+        probe.subscribe(topics.fleet("jobs"))
+        probe.subscribe(topics.fleet("map"))
+        probe.subscribe(topics.fleet("routes"), qos=0)
+        _, fleet = run_system(PLAYFIELD, step_s=step_s)
+        dash = open_dashboard(root)
+        # The page knows the real fleet: the coordinator's map and every unit where it stands.
+        expect(dash.page.locator("#map-name")).to_have_text("playfield 10 x 10")
+        expect(dash.page.locator("#coord")).to_contain_text("coordinator: online")
+        live = Live(world_of(fleet), dash, probe, topics, step_s)
+        expect(dash.page.locator("#map")).to_have_attribute("data-units", drawn(live.positions()))
+        return live
+
+    yield start
+
+
+def drawn(positions: dict[str, tuple[int, int]]) -> str:
+    """The map canvas's `data-units` for these positions."""
+    return " ".join(sorted(f"{u}@{x},{y}" for u, (x, y) in positions.items()))
+
+
+def unit_rows(live: Live) -> dict[str, dict[str, str]]:
+    """The units panel: per unit, its link, square, status, job and load as shown."""
+    rows: dict[str, dict[str, str]] = live.page.evaluate(
+        """() => Object.fromEntries([...document.querySelectorAll('#units tbody tr')].map(
+            (tr) => [tr.dataset.unit, Object.fromEntries([...tr.children].map(
+                (td) => [td.className, td.textContent]))]))"""
+    )
+    return rows
+
+
+def playfield_jobs() -> list[tuple[str, tuple[int, int], tuple[int, int], float]]:
+    """The playfield scenario's jobs as (id, pickup, dropoff, mass)."""
+    return [
+        (f"job-{i + 1}", (j.pickup.x, j.pickup.y), (j.dropoff.x, j.dropoff.y), j.mass)
+        for i, j in enumerate(SCENARIO.jobs)
+    ]
+
+
+def obstacles_drawn(live: Live) -> set[tuple[int, int]]:
+    """The squares the map canvas draws as discovered obstacles."""
+    text = live.page.locator("#map").get_attribute("data-obstacles") or ""
+    found = set()
+    for item in text.split():
+        x, y = item.rstrip("*").split(",")
+        found.add((int(x), int(y)))
+    return found
+
+
+# ---- item 3 ------------------------------------------------------------------------------------
+
+
+def test_03_obstacle_sensed_by_a_unit_shows_on_the_dashboard(live: Callable[..., Live]) -> None:
+    system = live()
+    hidden = Cell(7, 2)
+    # Hidden: in the world's truth, not on the map the coordinator starts from, not on the page.
+    assert hidden in system.world.hidden and SCENARIO.grid.is_free(hidden)
+    fleet_map = system.latest(FleetMap, system.topics.fleet("map"), "map")
+    assert fleet_map is not None and [7, 2] not in [list(o) for o in fleet_map.obstacles]
+    assert obstacles_drawn(system) == set()
+
+    # unit2 goes to (7, 1), next to the hidden obstacle: its south sensor sees it.
+    system.goal("unit2", (7, 1))
+    wait_for(lambda: system.world.positions["unit2"] == (7, 1), timeout=15, what="unit2 at (7, 1)")
+    # unit2 reports what its sensor saw (the state published after that step's move).
+    system.probe.wait(
+        system.topics.unit("state", "unit2"),
+        lambda m: [7, 2] in [list(o) for o in decode(UnitState, m.payload).obstacles],
+    )
+    system.probe.wait(
+        system.topics.fleet("map"),
+        lambda m: (
+            [7, 2]
+            in [list(o) for o in decode(FleetMap, m.payload, TOPICS["map"].max_bytes).obstacles]
+        ),
+    )
+    # On the page's map, highlighted as just discovered ("*"), and nothing that was not sensed.
+    expect(system.page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
+    assert (4, 5) not in obstacles_drawn(system)  # the other hidden obstacle: nobody saw it yet
+    # The coordinator plans around it: straight down would be shortest, the route goes round.
+    system.goal("unit2", (7, 4))
+    wait_for(lambda: system.world.positions["unit2"] == (7, 4), timeout=15, what="unit2 at (7, 4)")
+    routes = [
+        decode(Routes, m.payload, TOPICS["routes"].max_bytes)
+        for m in system.probe.received(system.topics.fleet("routes"))
+    ]
+    assert any(r.routes.get("unit2") and r.routes["unit2"].target == (7, 4) for r in routes)
+    for r in routes:
+        view = r.routes.get("unit2")
+        if view is not None and view.target == (7, 4):
+            assert (7, 2) not in [tuple(c) for c in [*view.released, *view.planned]], view
+    # A reload recovers it from the coordinator's retained map alone.
+    system.page.reload()
+    system.dash.wait_connected()
+    wait_for(lambda: obstacles_drawn(system) == {(7, 2)}, what="(7, 2) drawn after a reload")
+    assert system.world.collisions == 0
+    assert system.dash.errors == []
+
+
+# ---- item 8 ------------------------------------------------------------------------------------
+
+
+def test_08_jobs_entered_on_the_page_are_done_deleted_or_refused(
+    live: Callable[..., Live],
+) -> None:
+    system = live(step_s=0.1)
+    jobs_topic = system.topics.fleet("jobs")
+    # Two 15 kg jobs: only unit4 (20 kg) carries them, so the second waits in the queue.
+    system.submit("heavy-1", (1, 1), (8, 1), 15)
+    system.submit("heavy-2", (1, 8), (8, 8), 15)
+    system.submit("light-1", (5, 0), (5, 9), 4)  # unit2, unit3 or unit4; never unit1 (2 kg)
+
+    # heavy-2 is listed as queued (pending) while unit4 works on heavy-1; the operator deletes it.
+    wait_for(
+        lambda: (
+            system.page_jobs().get("heavy-2", {}).get("state") == "queued"
+            and system.page_jobs().get("heavy-1", {}).get("unit") == "unit4"
+        ),
+        what="heavy-1 with unit4 and heavy-2 queued on the page",
+    )
+    system.dash.cancel_job("heavy-2")
+    expect(system.page.locator("#cancel-feedback")).to_have_text("delete job heavy-2: accepted")
+    cancelled = system.page.locator("#finished tr[data-job='heavy-2']")
+    expect(cancelled.locator(".state")).to_have_text("cancelled")
+    expect(cancelled.locator(".reason")).to_contain_text("cancelled by dash-test")
+    expect(system.page.locator("#jobs tr[data-job='heavy-2']")).to_have_count(0)
+
+    # A job no unit can carry: the coordinator's reason, in words, next to the form.
+    system.dash.submit_job((0, 5), (9, 5), 50)
+    reason = "mass 50.0 kg exceeds every unit's capacity (largest 20.0 kg)"
+    feedback = system.page.locator("#job-feedback")
+    expect(feedback).to_have_attribute("data-kind", "refused")
+    expect(feedback).to_have_text(re.compile(rf"refused — {re.escape(reason)}$"))
+
+    # The others get done, each by a unit whose capacity covers it, seen on the page as it goes.
+    def finished() -> bool:
+        rows = system.page_jobs()
+        return all(rows.get(j, {}).get("state") == "done" for j in ("heavy-1", "light-1"))
+
+    wait_for(finished, timeout=30, what="heavy-1 and light-1 done on the page")
+    rows = system.page_jobs()
+    view = system.jobs()
+    assert view is not None
+    truth = {j.id: j for j in view.jobs}
+    for job_id, mass in (("heavy-1", 15), ("light-1", 4)):
+        unit = rows[job_id]["unit"]
+        assert rows[job_id]["table"] == "finished" and unit == truth[job_id].unit
+        assert CAPACITY[unit] >= mass, f"{job_id} ({mass} kg) done by {unit}"
+        assert system.seen_jobs[job_id] & {"assigned", "to_pickup", "loaded", "to_dropoff"}
+        # The unit really carried it: loaded at the pickup, then at the dropoff, then empty.
+        states = system.states(unit)
+        carrying = [i for i, s in enumerate(states) if s.job_id == job_id]
+        assert carrying and states[carrying[0]].position == tuple(truth[job_id].pickup)
+        after = states[carrying[-1] + 1 :]
+        assert after and after[0].position == tuple(truth[job_id].dropoff)
+        assert after[0].job_id is None and after[0].load_kg == 0
+    assert rows["heavy-1"]["unit"] == "unit4"
+    assert truth["heavy-2"].state == "cancelled" and truth["heavy-2"].unit is None
+    assert [j.state for j in view.jobs if j.mass_kg == 50] == ["rejected"]
+    expect(system.page.locator("#queue-count")).to_have_text("(0)")
+    expect(system.page.locator("#finished-counts")).to_have_text(
+        "done 2 · cancelled 1 · rejected 1"
+    )
+    assert len(system.probe.received(jobs_topic)) >= 5
+    assert system.world.collisions == 0
+    assert system.dash.errors == []
+
+
+def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live]) -> None:
+    system = live(step_s=0.1)
+    page, world = system.page, system.world
+    # Click a unit on the map to choose it, then the square it should go to.
+    page.locator("input[name=clickmode][value=goal]").check()
+    system.dash.click_square(0, 9)
+    expect(page.locator("#units tr.selected")).to_have_attribute("data-unit", "unit3")
+    system.dash.click_square(9, 1)
+    expect(page.locator("#goal-feedback")).to_have_text("goal [9, 1] for unit3: accepted")
+    goals = {"unit3": (9, 1), "unit1": (9, 8), "unit2": (0, 8), "unit4": (0, 1)}
+    for unit in ("unit1", "unit2", "unit4"):
+        system.goal(unit, goals[unit])
+    wait_for(
+        lambda: all(world.moves[u] >= 2 for u in goals),
+        timeout=10,
+        what="every unit under way",
+    )
+    under_way = [u for u in goals if system.positions()[u] != goals[u]]
+    assert len(under_way) >= 3, f"too late to test the stop: only {under_way} under way"
+
+    # One click on STOP: every unit stops within one step of the stop reaching the broker.
+    estop_topic = system.topics.fleet("estop")
+    system.probe.subscribe(estop_topic)  # hears the stop when the units do
+    system.dash.press_stop()
+    system.probe.wait(estop_topic, lambda m: m.payload.startswith(b"engaged|dashboard"))
+    moves_at_stop = dict(world.moves)
+    expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
+    expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
+    expect(page.locator("#stop")).to_have_text("STOPPED")
+    wait_for(
+        lambda: all(system.states(u)[-1].status == "stopped" for u in goals),
+        what="every unit reporting stopped",
+    )
+    stopped_at = system.positions()
+    stopped_moves = dict(world.moves)
+    assert all(stopped_moves[u] - moves_at_stop[u] <= 1 for u in goals), (
+        moves_at_stop,
+        stopped_moves,
+    )
+    # Several steps later (counted by the units' own state reports) nobody has moved.
+    since = {u: system.states(u)[-1].step for u in goals}
+    wait_for(
+        lambda: all(system.states(u)[-1].step >= since[u] + 5 for u in goals),
+        what="five more steps of every unit",
+    )
+    assert system.positions() == stopped_at and dict(world.moves) == stopped_moves
+    expect(page.locator("#map")).to_have_attribute("data-units", drawn(stopped_at))
+    statuses = {u: row["status"] for u, row in unit_rows(system).items()}
+    assert statuses == dict.fromkeys(goals, "stopped: emergency stop engaged")
+    system.dash.screenshot("acceptance-dashboard-stopped")
+
+    # The deliberate release (press and hold) resumes motion; every unit reaches its goal.
+    system.dash.hold_release()
+    expect(page.locator("body")).to_have_attribute("data-estop", "released")
+    expect(page.locator("#estop-banner")).to_be_hidden()
+    wait_for(
+        lambda: system.positions() == goals, timeout=30, what="every unit at its goal after release"
+    )
+    assert sum(world.moves.values()) > sum(stopped_moves.values())
+    expect(page.locator("#map")).to_have_attribute("data-units", drawn(goals))
+    assert world.collisions == 0
+    assert system.dash.errors == []
+
+
+# ---- item 9 ------------------------------------------------------------------------------------
+
+
+def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[..., Live]) -> None:
+    system = live(step_s=0.1)
+    # The playfield's jobs, and one more 15 kg job that must wait for unit4 (the only one able).
+    jobs = playfield_jobs()
+    jobs.append(("job-5", (2, 9), (9, 6), 15.0))
+    for job_id, pickup, dropoff, mass in jobs:
+        system.submit(job_id, pickup, dropoff, mass)
+
+    # As the units move, the page draws and lists each one where the world has it.
+    matched: set[str] = set()
+
+    def tracks_the_world() -> bool:
+        truth = system.positions()
+        on_page = system.dash.drawn_units()
+        listed = {u: row["pos"] for u, row in unit_rows(system).items()}
+        as_listed = {u: f"[{x}, {y}]" for u, (x, y) in truth.items()}
+        if on_page == truth and listed == as_listed and truth != STARTS:
+            matched.add(drawn(truth))
+        return len(matched) >= 5
+
+    wait_for(tracks_the_world, timeout=20, interval=0.02, what="five moving snapshots matched")
+
+    # Mid-run: pending and done jobs listed, with counts, as the coordinator has them.
+    def lists_match_the_coordinator() -> bool:
+        view = system.jobs()
+        if view is None:
+            return False
+        done = {j.id for j in view.jobs if j.state == "done"}
+        pending = {j.id for j in view.jobs if j.state not in FINAL_JOB_STATES}
+        if not done or not pending:
+            return False
+        rows = system.page_jobs()
+        shown_pending = {j for j, r in rows.items() if r["table"] == "jobs"}
+        shown_done = {
+            j for j, r in rows.items() if r["table"] == "finished" and r["state"] == "done"
+        }
+        count = system.page.locator("#queue-count").text_content()
+        counts = system.page.locator("#finished-counts").text_content()
+        as_coordinator = {j.id: (j.state, j.unit or "—") for j in view.jobs if j.id in pending}
+        return (
+            shown_pending == pending
+            and {j: (rows[j]["state"], rows[j]["unit"]) for j in pending} == as_coordinator
+            and shown_done == done
+            and count == f"({len(pending)})"
+            and counts == f"done {len(done)}"
+        )
+
+    wait_for(lists_match_the_coordinator, timeout=30, what="pending and done jobs listed")
+
+    # At the end: every job done by a unit able to carry it, the queue empty, the counts right.
+    wait_for(
+        lambda: (
+            all(r["state"] == "done" for r in system.page_jobs().values())
+            and len(system.page_jobs()) == len(jobs)
+        ),
+        timeout=40,
+        what="every job done on the page",
+    )
+    expect(system.page.locator("#queue-count")).to_have_text("(0)")
+    expect(system.page.locator("#finished-counts")).to_have_text(f"done {len(jobs)}")
+    rows = system.page_jobs()
+    for job_id, _, _, mass in jobs:
+        assert CAPACITY[rows[job_id]["unit"]] >= mass, (job_id, rows[job_id])
+    assert "queued" in system.seen_jobs["job-5"]  # it was listed as pending before unit4 took it
+    expect(system.page.locator("#map")).to_have_attribute("data-units", drawn(system.positions()))
+    assert system.world.collisions == 0
+    assert system.dash.errors == []
+
+
+# ---- the README's picture ----------------------------------------------------------------------
+
+
+def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
+    """docs/dashboard.png: the page on the real playfield, mid-run (see the module docstring)."""
+    system = live(step_s=0.25)
+    # A short job first, so the picture has a finished one.
+    system.submit("job-0", (1, 0), (3, 0), 1.0)
+    wait_for(
+        lambda: system.page_jobs().get("job-0", {}).get("state") == "done",
+        timeout=20,
+        what="job-0 done",
+    )
+    # The 15 kg job first, so unit4 (the only one able) takes it and unit3 the 8 kg one: the
+    # whole fleet at work. job-5 then waits for unit4.
+    jobs = sorted(playfield_jobs(), key=lambda j: -j[3])
+    jobs.append(("job-5", (2, 9), (9, 6), 15.0))
+    for job_id, pickup, dropoff, mass in jobs:
+        system.submit(job_id, pickup, dropoff, mass)
+    system.dash.submit_job((0, 5), (9, 5), 50, job_id="too-heavy")
+    expect(system.page.locator("#job-feedback")).to_have_attribute("data-kind", "refused")
+
+    # Mid-run: three units under way (arrows and routes), an item on board, a job waiting.
+    def mid_run() -> bool:
+        arrows = system.page.locator("#map").get_attribute("data-headings") or ""
+        heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
+        moving = [u for u, r in unit_rows(system).items() if r["status"] == "moving"]
+        states = {r["state"] for r in system.page_jobs().values()}
+        # Not in the instant between a unit's discovery and the re-plan around it (one step).
+        known = obstacles_drawn(system)
+        return (
+            not any(system.routes_through(sq) for sq in known)
+            and len(set(heading) & set(moving)) >= 3
+            and bool(states & {"loaded", "to_dropoff"})
+            and system.page_jobs().get("job-5", {}).get("state") == "queued"
+        )
+
+    def picture() -> Path | None:
+        # Kept only when the moment held from before the picture until after it.
+        if not mid_run():
+            return None
+        shot = system.dash.screenshot("dashboard-real-playfield")
+        return shot if mid_run() else None
+
+    shot = wait_for(
+        picture, timeout=20, interval=0.05, what="units under way, an item on board, a job waiting"
+    )
+    expect(system.page.locator("#coord")).to_have_text(
+        re.compile(r"^coordinator: online, step [1-9][0-9]*$")
+    )
+    assert shot.stat().st_size > 10_000
+    if os.environ.get("GRIDFLEET_REFRESH_DOCS"):
+        shutil.copyfile(shot, DOCS_SHOT)
+    assert system.world.collisions == 0
+    assert system.dash.errors == []

@@ -1,0 +1,115 @@
+"""`gridfleet job`: an operator drives the real coordinator and units from the command line."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics, decode_estop
+from gridfleet.testing.broker_thread import BrokerThread
+from gridfleet.testing.probe import MqttProbe
+from gridfleet.testing.services import ServiceThread, world_of
+from gridfleet.testing.wait import wait_for
+
+
+@pytest.fixture
+def job(broker: BrokerThread, root: str) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """Run `gridfleet job ARGS` against the session broker under this test's root."""
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "gridfleet",
+                "job",
+                "--broker",
+                broker.url,
+                "--root",
+                root,
+                *list(args),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            check=False,
+        )
+
+    return run
+
+
+def test_submit_list_cancel_goal_and_refusal(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    playfield: Path,
+) -> None:
+    _, fleet = run_system(playfield)
+    world = world_of(fleet)
+    out = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "1.5", "--id", "crate")
+    assert (out.returncode, out.stdout.strip()) == (0, "accepted: job crate"), out.stderr
+    heavy = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "500")
+    assert heavy.returncode == 1
+    assert heavy.stdout.startswith("refused: ") and "capacity" in heavy.stdout
+    listed = job("list")
+    assert listed.returncode == 0 and "crate" in listed.stdout
+    out = job("goal", "unit3", "5,5")
+    assert (out.returncode, out.stdout.strip()) == (0, "accepted"), out.stderr
+    wait_for(lambda: world.positions["unit3"] == Cell(5, 5), timeout=30, what="unit3 at 5,5")
+    wait_for(lambda: "done" in job("list").stdout, timeout=60, interval=0.5, what="crate done")
+    cancel = job("cancel", "nonexistent")
+    assert cancel.returncode == 1 and "nonexistent" in cancel.stdout
+    wall = job("goal", "unit1", "99,99")
+    assert wall.returncode == 1 and wall.stdout.startswith("refused: ")
+
+
+def test_stop_and_release_are_latched_on_the_fleet_topic(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+) -> None:
+    assert job("stop", "--reason", "spill in aisle 3").returncode == 0
+    late = probe_factory()  # retained: a client that connects later sees it
+    late.subscribe(topics.fleet("estop"))
+    signal = decode_estop(late.wait(topics.fleet("estop"), lambda m: m.retain).payload)
+    assert signal.engaged and signal.reason == "spill in aisle 3"
+    assert job("release").returncode == 0
+    later = probe_factory()
+    later.subscribe(topics.fleet("estop"))
+    assert not decode_estop(later.wait(topics.fleet("estop")).payload).engaged
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["submit", "--pickup", "1;1", "--dropoff", "2,2", "--mass", "1"], "not a square"),
+        (["goal", "unit1"], "one of the arguments"),
+        (["--timeout", "1", "list"], "is the coordinator running?"),
+        (["--timeout", "1", "cancel", "j1"], "the coordinator is not online"),
+        (["stop", "--reason", "two\nlines"], "one line"),
+    ],
+)
+def test_mistakes_are_one_line(
+    job: Callable[..., subprocess.CompletedProcess[str]], args: list[str], message: str
+) -> None:
+    out = job(*args)
+    assert out.returncode == 2
+    assert "Traceback" not in out.stderr and message in out.stderr.strip().splitlines()[-1]
+
+
+def test_unreachable_broker_is_one_line() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "gridfleet", "job", "--broker", "mqtt://127.0.0.1:1", "list"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [
+        "gridfleet job: error: MQTT with mqtt://127.0.0.1:1: [Errno 111] Connection refused"
+    ]

@@ -1,0 +1,92 @@
+"""`gridfleet simulate` runs every shipped scenario to the end, safely, as a user runs it."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gridfleet.scenario import load_scenario
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+SCENARIOS = sorted(MAPS.glob("*.toml"))
+
+
+def simulate(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "gridfleet", "simulate", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        check=False,
+    )
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
+def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
+    out = simulate(str(path), "--step", "0.05", "--max-steps", "3000", "--json")
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    result: dict[str, Any] = json.loads(out.stdout)
+    assert result["finished"] is True
+    assert result["collisions"] == 0
+    scenario = load_scenario(path)
+    capacity = {u.id: u.capacity for u in scenario.units}
+    assert [u["id"] for u in result["units"]] == list(capacity)
+    for unit in result["units"]:
+        assert set(unit) >= {"id", "capacity", "position", "moves"}
+        assert unit["capacity"] == capacity[unit["id"]]
+    assert len(result["jobs"]) == len(scenario.jobs)
+    for job in result["jobs"]:
+        assert set(job) >= {"id", "pickup", "dropoff", "mass", "state", "unit", "done_step"}
+        if job["mass"] <= max(capacity.values()):
+            assert job["state"] == "done", job
+            assert capacity[job["unit"]] >= job["mass"], job
+            assert isinstance(job["done_step"], int)
+        else:
+            assert job["state"] == "rejected" and "capacity" in job["reason"], job
+    assert [(g["unit"], g["target"]) for g in result["goals"]] == [
+        (g.unit, list(g.target)) for g in scenario.goals
+    ]
+    for goal in result["goals"]:
+        assert goal["reached"] is True and isinstance(goal["step"], int)
+        assert (
+            next(u["position"] for u in result["units"] if u["id"] == goal["unit"])
+            == (goal["target"])
+        )
+    assert result["messages"] > 0 and result["steps"] > 0
+
+
+def test_a_run_that_cannot_finish_in_time_says_so_and_exits_1() -> None:
+    out = simulate(str(MAPS / "playfield.toml"), "--max-steps", "3", "--json")
+    assert out.returncode == 1
+    result = json.loads(out.stdout)
+    assert result["finished"] is False and result["steps"] >= 3
+
+
+def test_human_summary() -> None:
+    out = simulate(str(MAPS / "corridor.toml"), "--step", "0.05")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("corridor: finished in ")
+    assert "0 collisions" in out.stdout and "goal west -> [8, 1]: reached at step" in out.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["absent.toml"], "absent.toml: no such scenario file"),
+        ([str(MAPS / "corridor.map")], "corridor.map"),
+        ([str(MAPS / "corridor.toml"), "--step", "0"], "step"),
+        ([str(MAPS / "corridor.toml"), "--max-steps", "0"], "max-steps"),
+    ],
+)
+def test_bad_input_is_one_clear_line(args: list[str], message: str) -> None:
+    out = simulate(*args)
+    assert out.returncode == 2, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("gridfleet simulate: error:"), out.stderr
+    assert message in lines[0]
