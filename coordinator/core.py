@@ -210,6 +210,7 @@ class CoordinatorCore:
                 track.lost_since = None
             elif track.lost_since is None:
                 track.lost_since = now
+        self._adopt_carried(units, active)
         self._progress_jobs(units, active, now)
         settled = {u.id for u in units if u.id in active and self._settled(u)}
         if not self.estop:
@@ -244,6 +245,17 @@ class CoordinatorCore:
         if t is None or t.order_id is None:
             return True
         return u.state.order_id == t.order_id and u.state.order_update_id >= t.content_update
+
+    def _adopt_carried(self, units: list[UnitRecord], active: set[str]) -> None:
+        # A unit that reports carrying a job we think is not picked up yet (it picked the item up
+        # just before a coordinator restart, whose store still had the job waiting) has it.
+        for u in units:
+            st = u.state
+            if st is None or st.job_id is None or u.id not in active:
+                continue
+            job = self.jobs.get(st.job_id)
+            if job is not None and not job.final and job.state not in CARRYING_STATES:
+                self.jobs.set(job, "loaded", unit=u.id, reason=None)
 
     def _progress_jobs(self, units: list[UnitRecord], active: set[str], now: float) -> None:
         by_id = {u.id: u for u in units}

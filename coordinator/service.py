@@ -39,11 +39,15 @@ from gridfleet.protocol import (
     decode_estop,
     encode,
 )
-from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.constants import MAX_REQUEST_BYTES, MIN_TIMEOUT_S
 from gridfleet.protocol.messages import Message
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.coordinator")
+
+# Longest a step waits past its period for units to acknowledge the moves of the previous step:
+# half the shortest hold timeout, so units never hold for want of orders while we wait.
+ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
 _REQUESTS: dict[str, type[SubmitJob] | type[CancelJob] | type[SetGoal]] = {
     "submit_job": SubmitJob,
@@ -84,6 +88,9 @@ class Coordinator:
         self._client: aiomqtt.Client | None = None
         self._map_dirty = True
         self._jobs_dirty = True
+        # Moves sent and not yet acknowledged by the unit's state: unit -> (order id, update id).
+        self._awaiting: dict[str, tuple[str, int]] = {}
+        self._acked = asyncio.Event()
 
     # ---- lifecycle ---------------------------------------------------------------------
 
@@ -141,16 +148,43 @@ class Coordinator:
             if receiver.done():
                 receiver.result()  # re-raises the broker error
                 return
+            ticked = self.clock()
             await self.tick()
             next_at += self.step_s
             delay = max(0.0, next_at - self.clock())
             if delay == 0.0:
                 next_at = self.clock()
-            stop_wait = asyncio.create_task(stop.wait())
-            await asyncio.wait(
-                {stop_wait, receiver}, timeout=delay, return_when=asyncio.FIRST_COMPLETED
-            )
-            stop_wait.cancel()
+            await self._pause(stop, receiver, delay)
+            # Back-pressure: when states come back late (an overloaded broker), a step before
+            # the units acknowledged the last moves would only add load; they could not move.
+            ack_by = ticked + max(self.step_s, ACK_WAIT_S)
+            if self._awaiting and not stop.is_set() and self.clock() < ack_by:
+                self._acked.clear()
+                await self._pause(stop, receiver, ack_by - self.clock(), self._acked)
+                next_at = max(next_at, self.clock())
+
+    async def _pause(
+        self,
+        stop: asyncio.Event,
+        receiver: asyncio.Task[None],
+        timeout: float,
+        until: asyncio.Event | None = None,
+    ) -> None:
+        waits = {asyncio.create_task(stop.wait())}
+        if until is not None:
+            waits.add(asyncio.create_task(until.wait()))
+        await asyncio.wait({*waits, receiver}, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+        for w in waits:
+            w.cancel()
+
+    def _note_ack(self, unit_id: str, state: UnitState) -> None:
+        awaited = self._awaiting.get(unit_id)
+        if awaited is not None and (
+            state.order_id == awaited[0] and state.order_update_id >= awaited[1]
+        ):
+            del self._awaiting[unit_id]
+            if not self._awaiting:
+                self._acked.set()
 
     async def _receive(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
@@ -173,6 +207,7 @@ class Coordinator:
                 self.world.on_factsheet(ident, decode(Factsheet, payload))
             elif kind == "state" and ident is not None:
                 msg = decode(UnitState, payload)
+                self._note_ack(ident, msg)
                 if self.world.on_state(ident, msg, self.clock()):
                     self.core.on_new_obstacles()
                     self._map_dirty = True
@@ -231,9 +266,12 @@ class Coordinator:
         if self.core.jobs.changed:
             self._jobs_dirty = True
         self._persist()
+        self._awaiting = {u: a for u, a in self._awaiting.items() if u in result.orders}
         for unit_id, plan in result.orders.items():
             if self.core.estop and plan.released:
                 continue  # the stop arrived while this step was being sent: its holds already went
+            # Every order is acknowledged by the unit's next state (its `order_update_id`).
+            self._awaiting[unit_id] = (plan.order_id, plan.update_id)
             await self._send_order(unit_id, plan)
         routes = Routes(header=self.stamp("routes"), step=result.step, routes=result.routes)
         await self._publish("routes", self.topics.fleet("routes"), routes)
@@ -254,6 +292,8 @@ class Coordinator:
 
     async def _send_holds(self) -> None:
         # The emergency stop wins at once: every unit gets a hold now, not at the next step.
+        self._awaiting.clear()
+        self._acked.set()
         for u in list(self.world.units.values()):
             if u.state is None or u.connection in ("offline", "broken"):
                 continue

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Cell, GridMap
+from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitState
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
@@ -94,13 +94,18 @@ class World:
         """A unit's state; returns obstacles new to the fleet. Bad squares raise, change nothing."""
         self.check_square(msg.position, "position")
         new = []
-        for c in cells(msg.obstacles):
+        # Besides the obstacles it reports once, every state's sensors show what is next to the
+        # unit: a restarted coordinator (or one that missed the report) learns them again there.
+        here = cell(msg.position)
+        seen = [here.step(d) for d in Direction if getattr(msg.sensors, d.value) == "obstacle"]
+        for c in [*cells(msg.obstacles), *seen]:
             if (
                 self.base.in_bounds(c)
                 and not self.base.blocked[c.y, c.x]
                 and c not in self.obstacles
                 and not any(u.position == c for u in self.units.values())
                 and c != msg.position
+                and c not in new
             ):
                 new.append(c)
         rec = self.unit(unit_id)

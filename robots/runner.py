@@ -71,6 +71,7 @@ class UnitRunner:
         self._estop_deadline: float | None = None
         self._sent_direction: bytes | None = None
         self._publishing = asyncio.Lock()
+        self.killed = False  # set by kill(): gone for good, as a unit that lost power
 
     # ---- time -------------------------------------------------------------------------------
 
@@ -89,11 +90,13 @@ class UnitRunner:
         ticker = asyncio.create_task(self._ticks(stop), name=f"{self.id}-ticks")
         delay = self.reconnect_s
         try:
-            while not stop.is_set():
+            while not stop.is_set() and not self.killed:
                 try:
                     await self._session(stop)
                     delay = self.reconnect_s
                 except aiomqtt.MqttError as exc:
+                    if self.killed:
+                        return
                     if self._client is None and delay == self.reconnect_s:
                         log.warning(
                             "%s: cannot reach the broker at %s (%s); retrying",
@@ -178,14 +181,14 @@ class UnitRunner:
     async def _ticks(self, stop: asyncio.Event) -> None:
         step_s = self.logic.step_s
         due = self._now()
-        while not stop.is_set():
+        while not stop.is_set() and not self.killed:
             due += step_s
             delay = due - self._now()
             if delay < -step_s:  # fell far behind (e.g. a long pause): do not catch up in a burst
                 due = self._now()
             elif delay > 0:
                 await asyncio.sleep(delay)
-            if stop.is_set():
+            if stop.is_set() or self.killed:
                 return
             self.tick()
             await self.publish_state()
@@ -333,3 +336,12 @@ class UnitRunner:
         sock = client._client.socket()
         if isinstance(sock, socket.socket):
             sock.shutdown(socket.SHUT_RDWR)
+
+    def kill(self) -> None:
+        """Die abruptly, as a unit losing power (for tests): no "offline", no reconnect, no steps.
+
+        The connection is cut without a DISCONNECT, so the broker publishes the last will
+        ("broken"); the unit stays where it is in the world.
+        """
+        self.killed = True
+        self.drop_connection()

@@ -54,10 +54,13 @@ def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
     ]
     for goal in result["goals"]:
         assert goal["reached"] is True and isinstance(goal["step"], int)
-        assert (
-            next(u["position"] for u in result["units"] if u["id"] == goal["unit"])
-            == (goal["target"])
-        )
+        # A reached goal releases the unit, which may then take a job that is still queued.
+        later = [j for j in result["jobs"] if j["unit"] == goal["unit"] and j["state"] == "done"]
+        if not any(j["done_step"] > goal["step"] for j in later):
+            assert (
+                next(u["position"] for u in result["units"] if u["id"] == goal["unit"])
+                == (goal["target"])
+            )
     assert result["messages"] > 0 and result["steps"] > 0
 
 

@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar
 
 from gridfleet.scenario import Scenario
 
@@ -16,6 +16,8 @@ if TYPE_CHECKING:
     from coordinator.service import Coordinator
     from robots.fleet import Fleet
     from robots.world import WorldSim
+
+T = TypeVar("T")
 
 
 class Service(Protocol):
@@ -91,6 +93,19 @@ class ServiceThread:
         if self._thread.is_alive():
             raise TimeoutError(f"{self.name} did not stop within {timeout} s")
         self._done.result(0)
+
+    def call(self, fn: Callable[[], T], timeout: float = 10.0) -> T:
+        """Run `fn` in the service's own thread and event loop (no races with it); its result."""
+        result: Future[T] = Future()
+
+        def run() -> None:
+            try:
+                result.set_result(fn())
+            except BaseException as exc:  # handed to the caller below
+                result.set_exception(exc)
+
+        self._loop.call_soon_threadsafe(run)
+        return result.result(timeout)
 
     def __enter__(self) -> Self:
         return self.start()

@@ -1,0 +1,62 @@
+"""The coordinator's world model learns obstacles from reports and from every state's sensors."""
+
+from __future__ import annotations
+
+from coordinator.world import World
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
+
+ROWS = ["....", ".@..", "...."]
+
+
+def state(position: tuple[int, int], sensors: dict[str, str], reported: list[Cell]) -> UnitState:
+    return UnitState(
+        header=HeaderStamper("u")("state"),
+        step=1,
+        position=position,  # type: ignore[arg-type]
+        direction="-",
+        status="idle",
+        leds=Leds(),
+        sensors=Sensors(**{"N": "free", "E": "free", "S": "free", "W": "free", **sensors}),  # type: ignore[arg-type]
+        obstacles=reported,  # type: ignore[arg-type]
+    )
+
+
+def test_an_obstacle_seen_by_a_sensor_is_learnt_without_a_report() -> None:
+    world = World(GridMap.from_rows(ROWS))
+    # A restarted coordinator never saw the one-time report: the sensors still show it.
+    new = world.on_state("u", state((2, 0), {"S": "obstacle"}, []), 0.0)
+    assert new == [Cell(2, 1)]
+    assert not world.grid.is_free(Cell(2, 1))
+    assert world.on_state("u", state((2, 0), {"S": "obstacle"}, [Cell(2, 1)]), 1.0) == []
+
+
+def test_walls_units_and_off_map_readings_are_not_obstacles() -> None:
+    world = World(GridMap.from_rows(ROWS))
+    world.on_state("v", state((0, 0), {}, []), 0.0)
+    # From [1, 0]: N is off the map, W is where unit v stands.
+    new = world.on_state("u", state((1, 0), {"N": "obstacle", "W": "obstacle"}, []), 0.0)
+    assert new == []
+    new = world.on_state("u", state((0, 1), {"E": "obstacle", "N": "obstacle"}, []), 1.0)
+    assert new == []  # from [0, 1]: E [1, 1] is a wall on the map, N [0, 0] holds unit v
+    assert world.obstacles == set()
+
+
+def test_a_restarted_coordinator_adopts_a_job_a_unit_reports_carrying() -> None:
+    from coordinator.core import CoordinatorCore
+    from coordinator.jobs import Job, JobBook
+    from gridfleet.protocol import Connection, Factsheet
+
+    # The store still had the job waiting (the unit picked it up just before the restart).
+    job = Job(id="j", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=4.0, state="to_pickup")
+    core = CoordinatorCore(World(GridMap.from_rows(ROWS)), JobBook([job]), nonce="n")
+    world = core.world
+    assert job.state == "queued"  # re-queued on restart
+    stamp = HeaderStamper("u")
+    world.on_connection("u", Connection(header=stamp("connection"), state="online"))
+    world.on_factsheet("u", Factsheet(header=stamp("factsheet"), capacity_kg=5, step_period_s=1))
+    carrying = state((0, 0), {}, []).model_copy(update={"job_id": "j", "load_kg": 4.0})
+    world.on_state("u", carrying, 0.0)
+    core.step(1.0)
+    assert (job.state, job.unit) == ("loaded", "u")
+    assert core.step(2.0).orders["u"].target == Cell(3, 2)  # on to the dropoff
