@@ -70,7 +70,6 @@ class UnitRunner:
         self._started = 0.0
         self._estop_deadline: float | None = None
         self._sent_direction: bytes | None = None
-        self._publishing = asyncio.Lock()
         self.killed = False  # set by kill(): gone for good, as a unit that lost power
 
     # ---- time -------------------------------------------------------------------------------
@@ -299,15 +298,18 @@ class UnitRunner:
             return
         # Taken now, before any await: a step must not overtake the state that showed its move.
         state = self.logic.report(self._stamp("state"))
-        # The step loop and message handlers both publish: one at a time, in the order taken
-        # (asyncio.Lock is first come, first served), each state with its own direction, so the
-        # device sees every change in order.
-        async with self._publishing:
-            await self._publish("state", state)
-            direction = encode_direction(decode_direction(state.direction))
-            if direction != self._sent_direction:
-                await self._send(self.topics.unit("direction", self.id), "direction", direction)
-                self._sent_direction = direction
+        # The step loop and message handlers both publish. Each send is a task and asyncio starts
+        # tasks in the order they were made; paho queues a message in that first, synchronous
+        # part of aiomqtt's publish, so states and directions leave in the order taken. Nothing
+        # waits for an acknowledgement while holding anything: a publish stuck on a dropped
+        # connection must not hold back the states sent on the next one.
+        sends = [asyncio.ensure_future(self._publish("state", state))]
+        direction = encode_direction(decode_direction(state.direction))
+        if direction != self._sent_direction:
+            self._sent_direction = direction
+            topic = self.topics.unit("direction", self.id)
+            sends.append(asyncio.ensure_future(self._send(topic, "direction", direction)))
+        await asyncio.gather(*sends)
 
     async def _report(self, topic: str, reason: str) -> None:
         report = ErrorReport(
