@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import logging
 import random
+import time
 import uuid
 from collections.abc import Sequence
 from pathlib import Path
@@ -167,13 +168,15 @@ class Operator:
         return sum(1 for j in self.jobs.jobs if j.state not in FINAL_JOB_STATES)
 
 
-async def submit_scenario(operator: Operator, scenario: Scenario) -> list[Reply]:
-    """Submit every job and goal of `scenario`; job ids default to `<scenario>-job-<n>`."""
+async def submit_scenario(
+    operator: Operator, scenario: Scenario, run_tag: str | None = None
+) -> list[Reply]:
+    """Submit every job and goal of `scenario`; job ids default to `<scenario>[-<tag>]-job-<n>`."""
     # A goal for a unit the coordinator has not heard from yet would be refused as unknown.
     await operator.wait_for_units([u.id for u in scenario.units])
     replies = []
     for n, job in enumerate(scenario.jobs, start=1):
-        job_id = job.id or f"{scenario.name}-job-{n}"
+        job_id = job.id or f"{scenario.name}{f'-{run_tag}' if run_tag else ''}-job-{n}"
         reply = await operator.submit_job(job.pickup, job.dropoff, job.mass, job_id, job.priority)
         log.info("job %s: %s", job_id, "queued" if reply.accepted else f"refused: {reply.reason}")
         replies.append(reply)
@@ -220,7 +223,9 @@ async def feed(
         listener = asyncio.create_task(operator.listen())
         try:
             await operator.coordinator_online.wait()
-            await submit_scenario(operator, scenario)
+            # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's
+            # jobs from clashing with the ids of the last one.
+            await submit_scenario(operator, scenario, run_tag=time.strftime("%H%M%S"))
             if not demo:
                 return
             rng = random.Random(seed)

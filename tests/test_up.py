@@ -96,7 +96,10 @@ def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
         for unit in ("unit1", "unit2", "unit3", "unit4"):
             probe.wait(topics.unit("state", unit), timeout=30)
         probe.subscribe(topics.fleet("jobs"))
-        probe.wait(topics.fleet("jobs"), lambda m: b"playfield-job-1" in m.payload, timeout=30)
+        # The scenario's jobs, tagged with this run (the job store outlives runs: ids must not
+        # clash with the last run's).
+        tagged = re.compile(rb'"playfield-\d{6}-job-1"')
+        probe.wait(topics.fleet("jobs"), lambda m: tagged.search(m.payload) is not None, timeout=30)
         pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", out.text)]
         assert len(pids) >= 4
     finally:
