@@ -35,6 +35,7 @@ from gridfleet.protocol import (
     encode_device_connection,
 )
 from gridfleet.protocol.constants import DEFAULT_ROOT
+from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.device")
 
@@ -126,9 +127,9 @@ class VirtualDevice:
             try:
                 await self._send_loop(client, reader, stopper)
             finally:
+                # cancel_and_wait: a single cancel() can be lost in Python 3.11 (see gridfleet.tasks).
                 for task in (reader, stopper):
-                    task.cancel()
-                await asyncio.gather(reader, stopper, return_exceptions=True)
+                    await cancel_and_wait(task)
             if reader.done() and not reader.cancelled() and reader.exception() is not None:
                 raise reader.exception()  # type: ignore[misc]
             if stop.is_set():
