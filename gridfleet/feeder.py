@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import random
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 
 import aiomqtt
@@ -32,7 +33,8 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
-from gridfleet.scenario import Scenario, load_scenario
+from gridfleet.scenario import JobSpec, Scenario, load_scenario
+from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.feeder")
 
@@ -168,6 +170,24 @@ class Operator:
         return sum(1 for j in self.jobs.jobs if j.state not in FINAL_JOB_STATES)
 
 
+@contextlib.asynccontextmanager
+async def operator_session(url: str, topics: Topics, client_id: str) -> AsyncIterator[Operator]:
+    """A connected Operator, subscribed and listening in the background until the block ends."""
+    async with make_client(url, client_id) as client:
+        operator = Operator(client, topics, client_id)
+        await operator.start()
+        listener = asyncio.create_task(operator.listen())
+        try:
+            yield operator
+        finally:
+            await cancel_and_wait(listener)
+
+
+def scenario_job_id(scenario: Scenario, n: int, job: JobSpec, run_tag: str | None = None) -> str:
+    """The id the scenario's `n`-th job (from 1) is submitted under."""
+    return job.id or f"{scenario.name}{f'-{run_tag}' if run_tag else ''}-job-{n}"
+
+
 async def submit_scenario(
     operator: Operator, scenario: Scenario, run_tag: str | None = None
 ) -> list[Reply]:
@@ -176,7 +196,7 @@ async def submit_scenario(
     await operator.wait_for_units([u.id for u in scenario.units])
     replies = []
     for n, job in enumerate(scenario.jobs, start=1):
-        job_id = job.id or f"{scenario.name}{f'-{run_tag}' if run_tag else ''}-job-{n}"
+        job_id = scenario_job_id(scenario, n, job, run_tag)
         reply = await operator.submit_job(job.pickup, job.dropoff, job.mass, job_id, job.priority)
         log.info("job %s: %s", job_id, "queued" if reply.accepted else f"refused: {reply.reason}")
         replies.append(reply)
@@ -217,28 +237,22 @@ async def feed(
     """Submit the scenario's work; in demo mode keep `keep_active` jobs in the queue forever."""
     client_id = f"feeder-{uuid.uuid4().hex[:6]}"
     topics = Topics(root)
-    async with make_client(url, client_id) as client:
-        operator = Operator(client, topics, client_id)
-        await operator.start()
-        listener = asyncio.create_task(operator.listen())
-        try:
-            await operator.coordinator_online.wait()
-            # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's
-            # jobs from clashing with the ids of the last one.
-            await submit_scenario(operator, scenario, run_tag=time.strftime("%H%M%S"))
-            if not demo:
-                return
-            rng = random.Random(seed)
-            fields = DistanceFieldCache(scenario.grid)
-            while True:
-                await operator.jobs_changed.wait()
-                operator.jobs_changed.clear()
-                while operator.active_jobs() < keep_active:
-                    pickup, dropoff, mass = random_job(scenario, rng, fields)
-                    await operator.submit_job(pickup, dropoff, mass)
-                    await asyncio.sleep(step)  # pacing for the demo, not synchronisation
-        finally:
-            listener.cancel()
+    async with operator_session(url, topics, client_id) as operator:
+        await operator.coordinator_online.wait()
+        # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's
+        # jobs from clashing with the ids of the last one.
+        await submit_scenario(operator, scenario, run_tag=time.strftime("%H%M%S"))
+        if not demo:
+            return
+        rng = random.Random(seed)
+        fields = DistanceFieldCache(scenario.grid)
+        while True:
+            await operator.jobs_changed.wait()
+            operator.jobs_changed.clear()
+            while operator.active_jobs() < keep_active:
+                pickup, dropoff, mass = random_job(scenario, rng, fields)
+                await operator.submit_job(pickup, dropoff, mass)
+                await asyncio.sleep(step)  # pacing for the demo, not synchronisation
 
 
 def main(argv: Sequence[str] | None = None) -> int:

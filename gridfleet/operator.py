@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import sys
 import uuid
-from collections.abc import AsyncIterator
 from typing import TextIO
 
-from gridfleet.bus import make_client
 from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError, GridfleetError
-from gridfleet.feeder import Operator
+from gridfleet.feeder import operator_session
 from gridfleet.grid import Cell
 from gridfleet.protocol import TOPICS, EstopSignal, JobsView, Reply, encode_estop
 from gridfleet.protocol.topics import Topics
@@ -57,19 +54,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     release.add_argument("--reason", default="operator", help="one line, shown to everybody")
 
 
-@contextlib.asynccontextmanager
-async def connected(args: argparse.Namespace, client_id: str) -> AsyncIterator[Operator]:
-    """An operator client subscribed to replies and the queue view, listening in the background."""
-    async with make_client(args.broker, client_id) as client:
-        operator = Operator(client, Topics(args.root), client_id)
-        await operator.start()
-        listener = asyncio.create_task(operator.listen())
-        try:
-            yield operator
-        finally:
-            listener.cancel()
-
-
 def print_jobs(view: JobsView, out: TextIO) -> None:
     """The queue as a table, active jobs first."""
     print(f"{'job':<24} {'state':<11} {'unit':<10} {'mass':>6}  pickup -> dropoff", file=out)
@@ -82,7 +66,7 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
 async def act(args: argparse.Namespace, out: TextIO) -> int:
     """Do what the action says and print the outcome; 1 when the coordinator refused it."""
     client_id = f"cli-{uuid.uuid4().hex[:6]}"
-    async with connected(args, client_id) as operator:
+    async with operator_session(args.broker, Topics(args.root), client_id) as operator:
         if args.action in ("stop", "release"):
             signal = EstopSignal(args.action == "stop", client_id, args.reason)
             spec = TOPICS["estop"]

@@ -19,10 +19,10 @@ from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError, GridfleetError
-from gridfleet.feeder import Operator, submit_scenario
+from gridfleet.feeder import Operator, scenario_job_id, submit_scenario
 from gridfleet.grid import Cell
 from gridfleet.monitor import FleetMonitor
-from gridfleet.protocol import Topics
+from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario
 
@@ -121,7 +121,7 @@ async def simulate(
     started = time.monotonic()
     outcome = Outcome()
     goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
-    refused_jobs: list[dict[str, Any]] = []
+    refused_jobs: list[JobView] = []
     topics = Topics(root)
     async with contextlib.AsyncExitStack() as stack:
         if broker_url is None:
@@ -156,16 +156,14 @@ async def simulate(
             for n, (job, reply) in enumerate(zip(scenario.jobs, replies, strict=False), start=1):
                 if not reply.accepted:
                     refused_jobs.append(
-                        {
-                            "id": job.id or f"{scenario.name}-job-{n}",
-                            "pickup": list(job.pickup),
-                            "dropoff": list(job.dropoff),
-                            "mass": job.mass,
-                            "state": "rejected",
-                            "unit": None,
-                            "done_step": None,
-                            "reason": reply.reason,
-                        }
+                        JobView(
+                            id=scenario_job_id(scenario, n, job),
+                            pickup=job.pickup,
+                            dropoff=job.dropoff,
+                            mass_kg=job.mass,
+                            state="rejected",
+                            reason=reply.reason,
+                        )
                     )
             for goal, reply in zip(goals, replies[len(scenario.jobs) :], strict=True):
                 goal.refused = None if reply.accepted else (reply.reason or "refused")
@@ -204,7 +202,10 @@ async def simulate(
             }
             for u in scenario.units
         ]
-        jobs = monitor.jobs.jobs if monitor.jobs is not None else []
+        # Some refusals are also kept in the queue view (as `rejected`): list each job once.
+        jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
+        listed = {j.id for j in jobs}
+        jobs += [j for j in refused_jobs if j.id not in listed]
         outcome.jobs = [
             {
                 "id": j.id,
@@ -218,9 +219,6 @@ async def simulate(
             }
             for j in jobs
         ]
-        # Some refusals are also kept in the queue view (as `rejected`): list each job once.
-        listed = {j.id for j in jobs}
-        outcome.jobs += [j for j in refused_jobs if j["id"] not in listed]
         outcome.goals = [
             {
                 "unit": g.unit,
