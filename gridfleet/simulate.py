@@ -202,10 +202,11 @@ async def simulate(
             }
             for u in scenario.units
         ]
-        # Some refusals are also kept in the queue view (as `rejected`): list each job once.
+        # Some refusals are also kept in the queue view (as `rejected`): list each job once. A
+        # refused duplicate of an accepted id is a job of its own and stays listed.
         jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
-        listed = {j.id for j in jobs}
-        jobs += [j for j in refused_jobs if j.id not in listed]
+        in_view = {j.id for j in jobs if j.state == "rejected"}
+        jobs += [j for j in refused_jobs if j.id not in in_view]
         outcome.jobs = [
             {
                 "id": j.id,
