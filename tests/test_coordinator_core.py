@@ -156,15 +156,32 @@ def test_hidden_obstacles_are_reported_and_planned_around() -> None:
     assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
 
 
-def test_goal_pins_a_unit_until_reached() -> None:
-    grid = GridMap.from_rows(ROWS)
-    world = World(grid)
+def one_unit(capacity_kg: float) -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper]:
+    """A core on ROWS with one fake unit `u` at (0, 0), online and heard from."""
+    world = World(GridMap.from_rows(ROWS), step_period_s=1.0)
     core = CoordinatorCore(world, JobBook(), nonce="n")
-    unit = FakeUnit("u", Cell(0, 0), 5.0)
+    unit = FakeUnit("u", Cell(0, 0), capacity_kg)
     stamp = HeaderStamper("u")
     world.on_connection("u", Connection(header=header("u"), state="online"))
-    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=5, step_period_s=1))
+    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=capacity_kg, step_period_s=1))
     world.on_state("u", unit.state(stamp), 0.0)
+    return core, world, unit, stamp
+
+
+def step_one(
+    core: CoordinatorCore, world: World, unit: FakeUnit, stamp: HeaderStamper, now: float
+) -> bool:
+    """One coordinator step; the unit follows its order (if it got one) and reports back."""
+    result = core.step(now)
+    if "u" in result.orders:
+        unit.on_order(make_order(result.orders["u"]), world.grid)
+    unit.tick(set(), set())
+    world.on_state("u", unit.state(stamp), now)
+    return "u" in result.orders
+
+
+def test_goal_pins_a_unit_until_reached() -> None:
+    core, world, unit, stamp = one_unit(5.0)
     bad = core.set_goal(SetGoal(header=header(), request_id="g", unit="nobody", target=(1, 1)))  # type: ignore[arg-type]
     assert not bad.accepted and "unknown unit" in (bad.reason or "")
     wall = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(2, 2)))  # type: ignore[arg-type]
@@ -172,10 +189,7 @@ def test_goal_pins_a_unit_until_reached() -> None:
     ok = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(9, 3)))  # type: ignore[arg-type]
     assert ok.accepted
     for t in range(1, 60):
-        result = core.step(float(t))
-        unit.on_order(make_order(result.orders["u"]), grid)
-        unit.tick(set(), set())
-        world.on_state("u", unit.state(stamp), float(t))
+        assert step_one(core, world, unit, stamp, float(t))
         if unit.position == Cell(9, 3):
             break
     assert unit.position == Cell(9, 3)
@@ -185,23 +199,14 @@ def test_goal_pins_a_unit_until_reached() -> None:
 
 def _carrying_unit() -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper, float]:
     """One unit under way to the dropoff with a job's item on board."""
-    grid = GridMap.from_rows(ROWS)
-    world = World(grid, step_period_s=1.0)
-    core = CoordinatorCore(world, JobBook(), nonce="n")
-    unit = FakeUnit("u", Cell(0, 0), 10.0)
-    stamp = HeaderStamper("u")
-    world.on_connection("u", Connection(header=header("u"), state="online"))
-    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=10, step_period_s=1))
-    world.on_state("u", unit.state(stamp), 0.0)
+    core, world, unit, stamp = one_unit(10.0)
     req = SubmitJob(header=header(), request_id="r", pickup=(0, 1), dropoff=(9, 9), mass_kg=1.0)  # type: ignore[arg-type]
     assert core.submit(req, "t").accepted
     now = 0.0
     while core.jobs.jobs[next(iter(core.jobs.jobs))].state != "to_dropoff":
         now += 1.0
         assert now < 30, "never loaded"
-        unit.on_order(make_order(core.step(now).orders["u"]), grid)
-        unit.tick(set(), set())
-        world.on_state("u", unit.state(stamp), now)
+        assert step_one(core, world, unit, stamp, now)
     return core, world, unit, stamp, now
 
 
@@ -211,11 +216,7 @@ def _run_to_end(
     job = next(iter(core.jobs.jobs.values()))
     for _ in range(60):
         now += 1.0
-        result = core.step(now)
-        if "u" in result.orders:
-            unit.on_order(make_order(result.orders["u"]), world.grid)
-        unit.tick(set(), set())
-        world.on_state("u", unit.state(stamp), now)
+        step_one(core, world, unit, stamp, now)
         if job.final:
             break
     return job.state
