@@ -32,6 +32,20 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import UnitError
 
+# A 10 x 10 room with a few walls: the pure-core tests' shared playground.
+ROOM_ROWS = [
+    "..........",
+    "..........",
+    "..@@......",
+    "..@.......",
+    "......@...",
+    "......@...",
+    "..........",
+    "...@@.....",
+    "..........",
+    "..........",
+]
+
 
 @dataclass
 class FakeUnit:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from coordinator_fakes import ROOM_ROWS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -9,20 +10,7 @@ from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reas
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 
-ROOM = GridMap.from_rows(
-    [
-        "..........",
-        "..........",
-        "..@@......",
-        "..@.......",
-        "......@...",
-        "......@...",
-        "..........",
-        "...@@.....",
-        "..........",
-        "..........",
-    ]
-)
+ROOM = GridMap.from_rows(ROOM_ROWS)
 CACHE = DistanceFieldCache(ROOM)
 FREE = ROOM.free_cells()
 

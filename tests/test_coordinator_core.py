@@ -6,7 +6,7 @@ import random
 from datetime import UTC, datetime
 
 import pytest
-from coordinator_fakes import FakeUnit
+from coordinator_fakes import ROOM_ROWS, FakeUnit
 
 from coordinator.core import CoordinatorCore
 from coordinator.jobs import JobBook
@@ -22,18 +22,7 @@ from gridfleet.protocol import (
     SubmitJob,
 )
 
-ROWS = [
-    "..........",
-    "..........",
-    "..@@......",
-    "..@.......",
-    "......@...",
-    "......@...",
-    "..........",
-    "...@@.....",
-    "..........",
-    "..........",
-]
+ROWS = ROOM_ROWS
 
 
 def header(sender: str = "t") -> Header:
