@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future
+from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar
@@ -76,13 +76,12 @@ class ServiceThread:
     def start(self, timeout: float = 30.0) -> Self:
         """Start the service and wait until it says it is ready."""
         self._thread.start()
-        for _ in range(int(timeout / 0.05)):
-            if self._ready.done():
-                return self
-            if self._done.done():
-                self._done.result()  # it died while starting: raise its error here
-                raise RuntimeError(f"{self.name} ended before it was ready")
-            self._thread.join(0.05)
+        wait([self._ready, self._done], timeout, return_when=FIRST_COMPLETED)
+        if self._ready.done():
+            return self
+        if self._done.done():
+            self._done.result()  # it died while starting: raise its error here
+            raise RuntimeError(f"{self.name} ended before it was ready")
         raise TimeoutError(f"{self.name} not ready after {timeout} s")
 
     def stop(self, timeout: float = 30.0) -> None:
