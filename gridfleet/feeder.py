@@ -13,6 +13,7 @@ from collections.abc import AsyncIterator, Sequence
 from pathlib import Path
 
 import aiomqtt
+from pydantic import ValidationError
 
 from gridfleet.bus import make_client
 from gridfleet.errors import GridfleetError, ProtocolError
@@ -32,6 +33,7 @@ from gridfleet.protocol import (
     decode,
     encode,
 )
+from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
 from gridfleet.scenario import JobSpec, Scenario, load_scenario
 from gridfleet.tasks import cancel_and_wait
@@ -95,6 +97,21 @@ class Operator:
         self._count += 1
         return f"{self.client_id}-{self._count}"
 
+    async def _request(
+        self, kind: str, model: type[Request], timeout: float, **fields: object
+    ) -> Reply:
+        """Build a request (a bad value is a ProtocolError naming its field), send, await reply."""
+        try:
+            request = model(
+                header=self.stamp(kind),
+                request_id=self._next_id(),
+                reply_to=self.client_id,
+                **fields,
+            )
+        except ValidationError as exc:
+            raise ProtocolError(f"{kind}: {describe(exc)}") from None
+        return await self._send(kind, request, timeout)
+
     async def _send(self, kind: str, request: Request, timeout: float) -> Reply:
         future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
         self._pending[request.request_id] = future
@@ -117,38 +134,24 @@ class Operator:
         timeout: float = 10.0,
     ) -> Reply:
         """Queue a job; returns the coordinator's reply."""
-        request = SubmitJob(
-            header=self.stamp("submit_job"),
-            request_id=self._next_id(),
-            reply_to=self.client_id,
+        return await self._request(
+            "submit_job",
+            SubmitJob,
+            timeout,
             pickup=pickup,
             dropoff=dropoff,
             mass_kg=mass_kg,
             priority=priority,
             job_id=job_id,
         )
-        return await self._send("submit_job", request, timeout)
 
     async def set_goal(self, unit: str, target: Cell | None, timeout: float = 10.0) -> Reply:
         """Send one unit to `target` (None clears its goal)."""
-        request = SetGoal(
-            header=self.stamp("set_goal"),
-            request_id=self._next_id(),
-            reply_to=self.client_id,
-            unit=unit,
-            target=target,
-        )
-        return await self._send("set_goal", request, timeout)
+        return await self._request("set_goal", SetGoal, timeout, unit=unit, target=target)
 
     async def cancel_job(self, job_id: str, timeout: float = 10.0) -> Reply:
         """Delete a queued job or abort an active one."""
-        request = CancelJob(
-            header=self.stamp("cancel_job"),
-            request_id=self._next_id(),
-            reply_to=self.client_id,
-            job_id=job_id,
-        )
-        return await self._send("cancel_job", request, timeout)
+        return await self._request("cancel_job", CancelJob, timeout, job_id=job_id)
 
     async def wait_for_units(self, units: Sequence[str], timeout: float = 30.0) -> None:
         """Wait until the coordinator plans for every unit in `units` (it knows their state)."""
