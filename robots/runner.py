@@ -328,7 +328,12 @@ class UnitRunner:
         try:
             await client.publish(topic, payload, qos=spec.qos, retain=spec.retained)
         except aiomqtt.MqttError as exc:
-            self._lost(str(exc))
+            # A send still pending on a connection already replaced (its acknowledgement timed
+            # out long after a reconnect) says nothing about the live one: leave that alone.
+            if client is self._client:
+                self._lost(str(exc))
+            else:
+                log.debug("%s: a send on an earlier connection failed (%s)", self.id, exc)
 
     def drop_connection(self) -> None:
         """Cut the TCP connection without a DISCONNECT, as a pulled cable would (for tests)."""

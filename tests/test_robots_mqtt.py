@@ -8,6 +8,8 @@ from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
 
+import aiomqtt
+
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
@@ -350,6 +352,34 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
         )  # the released rest was dropped: no order, no move
         c.order("u1", "o2", 1, [(held.x + 1, 0)])
         await c.until_state("u1", lambda s: s.position == Cell(held.x + 1, 0))
+
+
+async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_alone(
+    tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
+) -> None:
+    # A QoS 1 send on a cut connection fails only when its acknowledgement times out, which can
+    # be after the unit has reconnected; that failure must not take the new connection down.
+    sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
+    c = Coordinator(probe_factory(), topics)
+    async with running(sc, broker.url, root, step=0.05, reconnect_s=0.2) as fleet:
+        runner = fleet.runners["u1"]
+        old = runner._client
+        assert old is not None
+        timed_out = asyncio.Event()
+
+        async def publish_never_acknowledged(*args: object, **kwargs: object) -> None:
+            await timed_out.wait()
+            raise aiomqtt.MqttError("Operation timed out")
+
+        old.publish = publish_never_acknowledged  # type: ignore[method-assign]
+        pending = asyncio.ensure_future(runner._send(topics.unit("state", "u1"), "state", b"{}"))
+        runner.drop_connection()
+        await async_wait_for(lambda: runner.connects == 2 and runner.online.is_set())
+        timed_out.set()
+        await pending
+        assert runner._client is not None and fleet.logic["u1"].connected
+        c.order("u1", "o1", 1, [(1, 0)])
+        await c.until_state("u1", lambda s: s.position == Cell(1, 0))
 
 
 async def test_units_reconnect_after_a_broker_restart(
