@@ -230,6 +230,8 @@ def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
         job_id = t.get("id")
         if job_id is not None and (not isinstance(job_id, str) or not _ID_RE.match(job_id)):
             raise where.error(line, f"{what}: id {job_id!r} is not a valid id")
+        if job_id is not None and any(j.id == job_id for j in jobs):
+            raise where.error(line, f"{what}: id {job_id!r} used twice")
         jobs.append(JobSpec(pickup, dropoff, mass, priority, job_id))
 
     goals: list[GoalSpec] = []
@@ -239,6 +241,8 @@ def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
         uid = t.get("unit")
         if not any(u.id == uid for u in units):
             raise where.error(line, f"goal #{i + 1}: unknown unit {uid!r}")
+        if any(g.unit == uid for g in goals):
+            raise where.error(line, f"goal #{i + 1}: unit {uid!r} already has a goal")
         target = square(t.get("target"), line, f"goal #{i + 1}: target")
         if target in hidden:
             raise where.error(line, f"goal #{i + 1}: target {list(target)} is a hidden obstacle")

@@ -93,6 +93,17 @@ UNIT = '[[units]]\nid = "u1"\nstart = [0, 0]\ncapacity = 5.0\n'
         ('map = "m.map"\nhidden_obstacles = [[1, 1]]\n', 2, "hidden obstacle [1, 1] is on a wall"),
         ('map = "m.map"\nhidden_obstacles = [[0, 0]]\n' + UNIT, 3, "is a hidden obstacle"),
         ('map = "m.map"\n[[goals]]\nunit = "ghost"\ntarget = [0, 0]\n', 2, "unknown unit 'ghost'"),
+        (
+            'map = "m.map"\n'
+            + '[[jobs]]\nid = "a"\npickup = [0, 0]\ndropoff = [3, 2]\nmass = 1\n' * 2,
+            7,
+            "job #2: id 'a' used twice",
+        ),
+        (
+            'map = "m.map"\n' + UNIT + '[[goals]]\nunit = "u1"\ntarget = [3, 2]\n' * 2,
+            9,
+            "goal #2: unit 'u1' already has a goal",
+        ),
         ('map = "m.map"\nspeed = 3\n', 2, "unknown key 'speed'"),
         ('map = "m.map"\n' + UNIT + 'colour = "red"\n', 2, "unknown key 'colour'"),
         ('map = "nope.map"\n', 1, "no such map file"),
