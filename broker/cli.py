@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import signal
 
 from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
+from gridfleet.tasks import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,10 +38,7 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
 
 async def serve(settings: BrokerSettings) -> None:
     """Run the broker until SIGINT or SIGTERM."""
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     async with EmbeddedBroker(settings) as broker:
         ws = f" and {broker.ws_url}" if broker.ws_url else ""
         print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)

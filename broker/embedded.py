@@ -128,7 +128,9 @@ class EmbeddedBroker:
             raise ConfigError(f"broker cannot listen on {self.settings.host}: {exc}") from None
         self.port = self._bound_port("default")
         self.ws_port = self._bound_port("ws") if self.settings.ws_port is not None else None
-        log.info("broker listening on %s%s", self.url, f" and {self.ws_url}" if self.ws_url else "")
+        log.debug(
+            "broker listening on %s%s", self.url, f" and {self.ws_url}" if self.ws_url else ""
+        )
 
     def _bound_port(self, listener: str) -> int:
         server = self._broker._servers[listener]

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
-import signal
 
 from coordinator.service import Coordinator
 from coordinator.store import default_db_path
@@ -13,6 +11,7 @@ from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError
 from gridfleet.maps import load_map
 from gridfleet.protocol.constants import DEFAULT_STEP_S
+from gridfleet.tasks import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,12 +46,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     async def main() -> None:
-        stop = asyncio.Event()
-        loop = asyncio.get_running_loop()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError):
-                loop.add_signal_handler(sig, stop.set)
-        await coordinator.run(stop)
+        await coordinator.run(stop_on_signals())
 
     asyncio.run(main())
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 
 from dashboard.app import create_app
 from dashboard.server import DashboardServer
@@ -66,5 +67,11 @@ def run(args: argparse.Namespace) -> int:
         log.warning("%s", INSTALL_HINT)
     server = DashboardServer(create_app(settings), args.host, args.port).bind()
     log.info("dashboard on %s (broker %s, root %r)", server.url, settings.broker_ws, settings.root)
+    # SIGTERM is how `gridfleet up` (and systemd) ask for a stop: leave cleanly with code 0.
+    signal.signal(signal.SIGTERM, _leave)
     server.serve_forever()
     return 0
+
+
+def _leave(signum: int, frame: object) -> None:
+    raise SystemExit(0)

@@ -11,7 +11,6 @@ import asyncio
 import contextlib
 import logging
 import os
-import signal
 import sys
 import termios
 import time
@@ -35,7 +34,7 @@ from gridfleet.protocol import (
     encode_device_connection,
 )
 from gridfleet.protocol.constants import DEFAULT_ROOT
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.tasks import cancel_and_wait, stop_on_signals
 
 log = logging.getLogger("gridfleet.device")
 
@@ -289,7 +288,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 async def _main(args: argparse.Namespace) -> int:
     loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
+    stop = stop_on_signals()
     term = Terminal(sys.stdout, sys.stdin)
     try:
         device = VirtualDevice(
@@ -297,8 +296,6 @@ async def _main(args: argparse.Namespace) -> int:
         )
     except ProtocolError as exc:
         raise ConfigError(str(exc)) from None
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(sig, stop.set)
     term.start_keys(loop, device.press, stop.set)
     term.draw(device.logic)
     blinker: asyncio.Task[None] | None = None

@@ -36,7 +36,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
 from gridfleet.scenario import JobSpec, Scenario, load_scenario
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.tasks import cancel_and_wait, stop_on_signals, until_stopped
 
 log = logging.getLogger("gridfleet.feeder")
 
@@ -270,22 +270,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
     try:
-        asyncio.run(
-            feed(
-                args.broker,
-                args.root,
-                load_scenario(args.scenario),
-                args.demo,
-                args.step,
-                args.keep_active,
-            )
-        )
+        scenario = load_scenario(args.scenario)
+        asyncio.run(_main(args, scenario))
     except GridfleetError as exc:
         print(f"feeder: error: {exc}")
         return 2
-    except KeyboardInterrupt:
-        return 0
     return 0
+
+
+async def _main(args: argparse.Namespace, scenario: Scenario) -> None:
+    # Stopped by `gridfleet up` with SIGTERM, perhaps mid-submission: that is a clean exit.
+    work = feed(args.broker, args.root, scenario, args.demo, args.step, args.keep_active)
+    await until_stopped(work, stop_on_signals())
 
 
 if __name__ == "__main__":

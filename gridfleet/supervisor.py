@@ -13,6 +13,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TextIO
 
+from gridfleet.tasks import stop_on_signals
+
 log = logging.getLogger("gridfleet.up")
 
 
@@ -164,10 +166,7 @@ class Supervisor:
 
 async def run_until_signal(supervisor: Supervisor, body: Callable[[], object] | None = None) -> int:
     """Wait for SIGINT/SIGTERM (or a child that keeps dying), then stop everything."""
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     waiters = [asyncio.create_task(stop.wait()), asyncio.create_task(supervisor.failed.wait())]
     await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
     for w in waiters:

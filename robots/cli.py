@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import logging
-import signal
 
 from gridfleet.cli import add_common
 from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
+from gridfleet.tasks import stop_on_signals
 from robots.fleet import Fleet
 
 log = logging.getLogger("robots")
@@ -63,11 +62,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _main(fleet: Fleet) -> None:
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = stop_on_signals()
     log.info(
         "running %s on %s (%s)",
         ", ".join(fleet.runners),
