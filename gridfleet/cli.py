@@ -29,7 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "device": ("gridfleet.device", "a virtual ESP32: direction LEDs and an emergency-stop key"),
     "job": ("gridfleet.operator", "submit, cancel and list jobs; set goals; emergency stop"),
     "simulate": ("gridfleet.simulate", "run a scenario to the end in accelerated time"),
-    "bench": ("gridfleet.bench", "benchmark the planner and the whole system"),
+    "bench": ("bench.cli", "benchmark the planner and the whole system"),
 }
 
 

@@ -1,0 +1,24 @@
+"""`gridfleet bench`: run one of the benchmarks and report medians."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+# name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
+BENCHES: dict[str, tuple[str, str]] = {}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add one subcommand per benchmark."""
+    sub = parser.add_subparsers(dest="bench", metavar="<bench>", required=True)
+    for name, (module_name, help_text) in BENCHES.items():
+        module = importlib.import_module(module_name)
+        cmd = sub.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:])
+        module.add_arguments(cmd)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the chosen benchmark."""
+    module = importlib.import_module(BENCHES[args.bench][0])
+    return int(module.run(args) or 0)
