@@ -6,7 +6,9 @@ import argparse
 import importlib
 
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
-BENCHES: dict[str, tuple[str, str]] = {}
+BENCHES: dict[str, tuple[str, str]] = {
+    "planner": ("bench.planner_cli", "the planner alone on public MAPF instances (no broker)"),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
