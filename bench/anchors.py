@@ -15,6 +15,7 @@ from typing import Any
 from gridfleet.errors import ConfigError, MapError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
+from gridfleet.textfile import read_text
 
 ANCHORS_ENV = "GRIDFLEET_ANCHORS"
 
@@ -81,10 +82,8 @@ def load_instance(path: str | Path, maps: Path | None = None) -> LifelongInstanc
     """Load a lifelong instance (JSON, see anchors/README.md); its map is looked up in `maps`."""
     p = Path(path)
     try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such instance file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_text(p, "instance", ConfigError))
+    except json.JSONDecodeError as exc:
         raise ConfigError(f"{p}: not a readable JSON instance: {exc}") from None
     if not isinstance(data, dict):
         raise ConfigError(f"{p}: expected a JSON object")
@@ -139,12 +138,7 @@ def load_scen(path: str | Path, maps: Path | None = None) -> tuple[GridMap, list
     The map is the one the scenario names, looked up in `maps` (default: the scenario's folder).
     """
     p = Path(path)
-    try:
-        lines = p.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read scenario: {exc}") from None
+    lines = read_text(p, "scenario", ConfigError).splitlines()
     if not lines or not lines[0].startswith("version"):
         raise ConfigError(f"{p}:1: expected 'version 1'")
     agents = []
