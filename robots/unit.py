@@ -254,6 +254,11 @@ class UnitLogic:
             else:
                 self.status = "waiting"
                 self.wait_reason = intent.reason or "resuming: moves at the next step"
+        elif self.status == "idle" and intent.move is not None:
+            # A new order between steps: the LEDs show the move now, so the state must not say idle.
+            self.status, self.wait_reason = "waiting", "moves at the next step"
+        elif self.status == "waiting" and intent.status == "idle":
+            self.status, self.wait_reason = "idle", None  # what it waited for went away
 
     def _intent(self, since_order_s: float | None, waiting_counts: bool) -> Intent:
         if self.estop:

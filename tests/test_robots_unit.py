@@ -59,6 +59,19 @@ def test_unit_drives_its_released_squares_and_no_further() -> None:
     assert u.released == [] and u.status == "idle" and u.direction is None
 
 
+def test_state_and_leds_agree_when_an_order_arrives_or_goes_between_steps() -> None:
+    world, u = setup()
+    assert u.status == "idle"
+    u.on_order(order("o1", 1, [(1, 1)]))
+    u.refresh(0.0)
+    assert (u.direction, u.status) == (E, "waiting")  # LEDs lit: not idle
+    u.on_order(order("o2", 1, []))  # the coordinator takes the release back
+    u.refresh(0.0)
+    assert (u.direction, u.status) == (None, "idle")
+    step_in(world, u, 0.0)
+    assert u.position == START and u.status == "idle"
+
+
 def test_leds_show_exactly_the_intended_move_before_it_is_made() -> None:
     world, u = setup()
     u.on_order(order("o1", 1, [(1, 1), (1, 2), (2, 2)]))
