@@ -6,7 +6,9 @@ import argparse
 import importlib
 
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
-BENCHES: dict[str, tuple[str, str]] = {}
+BENCHES: dict[str, tuple[str, str]] = {
+    "system": ("bench.system_cli", "the whole system over a real broker: throughput, stop latency"),
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
