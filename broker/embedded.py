@@ -10,6 +10,7 @@ from types import TracebackType
 from typing import Any
 
 from gridfleet.errors import ConfigError
+from gridfleet.textfile import read_text
 
 log = logging.getLogger("gridfleet.broker")
 
@@ -59,10 +60,8 @@ def load_settings(path: str | Path, base: BrokerSettings | None = None) -> Broke
     """Read a TOML file with a [broker] table (host, port, ws_port, max_connections)."""
     p = Path(path)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such broker config file") from None
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(read_text(p, "broker config", ConfigError))
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: cannot read broker config: {exc}") from None
     table = data.get("broker", {})
     if not isinstance(table, dict):

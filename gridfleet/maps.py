@@ -6,6 +6,7 @@ from pathlib import Path
 
 from gridfleet.errors import MapError
 from gridfleet.grid import BLOCKED_CHARS, FREE_CHARS, GridMap
+from gridfleet.textfile import read_text
 
 MAX_MAP_SIDE = 4096
 
@@ -69,13 +70,7 @@ def _dimension(header: dict[str, str], key: str, source: str) -> int:
 def load_map(path: str | Path) -> GridMap:
     """Load a `.map` file; every problem raises MapError naming the file."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise MapError(f"{p}: no such map file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapError(f"{p}: cannot read map: {exc}") from None
-    return parse_map(text, source=str(p))
+    return parse_map(read_text(p, "map", MapError), source=str(p))
 
 
 def format_map(grid: GridMap) -> str:

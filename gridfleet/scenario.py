@@ -12,6 +12,7 @@ from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol.constants import ID_PATTERN
+from gridfleet.textfile import read_text
 
 _ID_RE = re.compile(ID_PATTERN)
 _COLOR_RE = re.compile(r"^#[0-9a-fA-F]{6}$")
@@ -108,12 +109,7 @@ class _Where:
 def load_scenario(path: str | Path) -> Scenario:
     """Load and validate a scenario; every problem raises ScenarioError naming file and line."""
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(f"{p}: no such scenario file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(f"{p}: cannot read scenario: {exc}") from None
+    text = read_text(p, "scenario", ScenarioError)
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

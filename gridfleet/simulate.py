@@ -202,8 +202,8 @@ async def simulate(
             }
             for u in scenario.units
         ]
-        # Some refusals are also kept in the queue view (as `rejected`): list each job once. A
-        # refused duplicate of an accepted id is a job of its own and stays listed.
+        # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
+        # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
         jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
         in_view = {j.id for j in jobs if j.state == "rejected"}
         jobs += [j for j in refused_jobs if j.id not in in_view]

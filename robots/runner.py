@@ -31,7 +31,7 @@ from gridfleet.protocol import (
     encode_direction,
 )
 from gridfleet.protocol.constants import MAX_TEXT
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.tasks import cancel_and_wait, until_stopped
 from robots.unit import UnitLogic, step_in
 from robots.world import WorldSim
 
@@ -161,16 +161,10 @@ class UnitRunner:
             self.logic.refresh(self.since_order_s())
             await self.publish_state()
             self.online.set()
-            receiver = asyncio.create_task(self._receive(client))
-            stopper = asyncio.create_task(stop.wait())
-            try:
-                await asyncio.wait({receiver, stopper}, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                stopper.cancel()
-            if receiver.done():
-                receiver.result()  # raises the MqttError that ended the session
+            # Raises the MqttError that ends the session; returns when `stop` is set.
+            await until_stopped(self._receive(client), stop)
+            if not stop.is_set():
                 return
-            await cancel_and_wait(receiver)
             await self._publish(
                 "connection", Connection(header=self._stamp("connection"), state="offline")
             )

@@ -95,19 +95,19 @@ def test_bad_input_is_one_clear_line(args: list[str], message: str) -> None:
     assert message in lines[0]
 
 
-def test_a_job_refused_at_submission_is_listed_with_its_reason(tmp_path: Path) -> None:
+def test_a_job_refused_at_submission_is_listed_once_with_its_reason(tmp_path: Path) -> None:
     (tmp_path / "corridor.map").write_text((MAPS / "corridor.map").read_text())
-    (tmp_path / "dup.toml").write_text(
+    (tmp_path / "heavy.toml").write_text(
         'map = "corridor.map"\n'
         '[[units]]\nid = "west"\nstart = [0, 1]\ncapacity = 5.0\n'
         '[[jobs]]\npickup = [1, 1]\ndropoff = [2, 1]\nmass = 1.0\nid = "crate"\n'
-        '[[jobs]]\npickup = [1, 1]\ndropoff = [3, 1]\nmass = 2.0\nid = "crate"\n'
+        '[[jobs]]\npickup = [1, 1]\ndropoff = [3, 1]\nmass = 9.0\nid = "piano"\n'
     )
-    out = simulate(str(tmp_path / "dup.toml"), "--step", "0.05", "--json")
+    out = simulate(str(tmp_path / "heavy.toml"), "--step", "0.05", "--json")
     assert out.returncode == 0, out.stderr
     jobs = json.loads(out.stdout)["jobs"]
     assert [(j["id"], j["state"], j["dropoff"]) for j in jobs] == [
         ("crate", "done", [2, 1]),
-        ("crate", "rejected", [3, 1]),
+        ("piano", "rejected", [3, 1]),
     ]
-    assert "taken" in jobs[1]["reason"]
+    assert "5" in jobs[1]["reason"] and "9" in jobs[1]["reason"]  # mass against capacity

@@ -1,0 +1,234 @@
+"""`gridfleet bench planner`: the planner alone on public MAPF instances, medians reported."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any, TypeVar
+
+from bench.anchors import find_anchors, lifelong_instances, load_instance, load_scen
+from bench.runs import (
+    LifelongResult,
+    OneShotResult,
+    Timing,
+    random_instance,
+    run_lifelong,
+    run_one_shot,
+)
+from gridfleet.errors import ConfigError, MapError
+from gridfleet.maps import load_map
+
+log = logging.getLogger("gridfleet.bench")
+
+SUITES = ("lifelong", "oneshot", "scale")
+SCEN = "random-32-32-10-random-1.scen"
+R = TypeVar("R", LifelongResult, OneShotResult)
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected whole numbers like 50,100, got {text!r}"
+        ) from None
+    if not values or any(v < 1 for v in values):
+        raise argparse.ArgumentTypeError(f"expected counts of at least 1, got {text!r}")
+    return values
+
+
+def _positive(text: str) -> int:
+    values = _counts(text)
+    if len(values) != 1:
+        raise argparse.ArgumentTypeError(f"expected one whole number, got {text!r}")
+    return values[0]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet bench planner`."""
+    parser.add_argument("--anchors", help="benchmark data folder (default $GRIDFLEET_ANCHORS)")
+    parser.add_argument(
+        "--suite",
+        default=",".join(SUITES),
+        help=f"which runs, comma-separated (default {','.join(SUITES)})",
+    )
+    parser.add_argument(
+        "--instances", help="lifelong instances by name, comma-separated (default: all)"
+    )
+    parser.add_argument(
+        "--horizon", type=_positive, help="cap every lifelong run at this many ticks"
+    )
+    parser.add_argument(
+        "--agents",
+        type=_counts,
+        default=[50, 100, 200, 400],
+        help="one-shot agent counts (default 50,100,200,400)",
+    )
+    parser.add_argument("--scen", default=SCEN, help=f"one-shot Moving AI scenario ({SCEN})")
+    parser.add_argument("--scale-map", default="warehouse_large.map", help="map of the scale run")
+    parser.add_argument(
+        "--scale-agents", type=_counts, default=[1000], help="agents of the scale run (1000)"
+    )
+    parser.add_argument("--scale-ticks", type=_positive, default=100, help="ticks (100)")
+    parser.add_argument("--repeat", type=_positive, default=1, help="runs of each (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="planner and scale-run seed")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the chosen suites and print their medians."""
+    suites = [s.strip() for s in args.suite.split(",") if s.strip()]
+    unknown = sorted(set(suites) - set(SUITES))
+    if unknown or not suites:
+        raise ConfigError(f"--suite: unknown {unknown or suites} (known: {', '.join(SUITES)})")
+    anchors = find_anchors(args.anchors)
+    report: dict[str, list[dict[str, Any]]] = {}
+    if "lifelong" in suites:
+        report["lifelong"] = _lifelong(anchors, args)
+    if "oneshot" in suites:
+        report["oneshot"] = _oneshot(anchors, args)
+    if "scale" in suites:
+        report["scale"] = _scale(anchors, args)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        _print_tables(report)
+    unsafe = sum(row["violations"] for rows in report.values() for row in rows)
+    if unsafe:
+        log.error("the planner made %d unsafe moves (see 'violations')", unsafe)
+        return 1
+    return 0
+
+
+def _repeat(runs: int, once: Callable[[], R]) -> tuple[R, Timing]:
+    """The first result and the timing of the run with the median median step time."""
+    results = [once() for _ in range(runs)]
+    by_median = sorted(results, key=lambda r: r.timing.median_ms)
+    return results[0], by_median[len(by_median) // 2].timing
+
+
+def _timing(t: Timing) -> dict[str, float]:
+    return {"ms_p50": t.median_ms, "ms_p95": t.p95_ms, "ms_max": t.max_ms}
+
+
+def _lifelong(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
+    paths = lifelong_instances(anchors)
+    if args.instances:
+        wanted = [n.strip() for n in args.instances.split(",") if n.strip()]
+        known = {p.stem: p for p in paths}
+        missing = [n for n in wanted if n not in known]
+        if missing:
+            raise ConfigError(f"--instances: no {missing} in {anchors / 'instances'}")
+        paths = [known[n] for n in wanted]
+    rows = []
+    for path in paths:
+        instance = load_instance(path, anchors / "maps")
+        log.info("lifelong %s: %d agents", instance.name, instance.agents)
+        result, timing = _repeat(
+            args.repeat, partial(run_lifelong, instance, args.horizon, seed=args.seed)
+        )
+        rows.append(
+            {
+                "instance": result.name,
+                "agents": result.agents,
+                "ticks": result.ticks,
+                "tasks_finished": result.tasks_finished,
+                "tasks_available": result.tasks_available,
+                "stream_exhausted_at": result.exhausted_at,
+                "best_in_competition": instance.best_tasks_finished,
+                "competition_model": instance.action_model,
+                "violations": result.violations,
+                **_timing(timing),
+            }
+        )
+    return rows
+
+
+def _oneshot(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
+    grid, agents = load_scen(anchors / "maps" / args.scen)
+    rows = []
+    for n in args.agents:
+        if n > len(agents):
+            raise ConfigError(f"--agents: {args.scen} has {len(agents)} agents, not {n}")
+        log.info("one-shot %s: %d agents", args.scen, n)
+        result, timing = _repeat(
+            args.repeat, partial(run_one_shot, grid, agents[:n], max_steps=1000, seed=args.seed)
+        )
+        ratio = result.sum_of_costs / result.lower_bound if result.sum_of_costs else None
+        rows.append(
+            {
+                "agents": n,
+                "solved": result.solved,
+                "at_goal": result.at_goal,
+                "makespan": result.makespan,
+                "sum_of_costs": result.sum_of_costs,
+                "lower_bound": result.lower_bound,
+                "soc_over_lower_bound": ratio,
+                "violations": result.violations,
+                **_timing(timing),
+            }
+        )
+    return rows
+
+
+def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
+    grid = _map(anchors / "maps" / args.scale_map)
+    rows = []
+    for n in args.scale_agents:
+        try:
+            instance = random_instance(grid, n, args.scale_ticks, seed=args.seed)
+        except ValueError as exc:
+            raise ConfigError(f"--scale-agents: {exc}") from None
+        log.info("scale %s: %d agents, %d ticks", grid.name, n, args.scale_ticks)
+        result, timing = _repeat(args.repeat, partial(run_lifelong, instance, seed=args.seed))
+        steady = Timing(timing.seconds[1:]) if len(timing.seconds) > 1 else timing
+        rows.append(
+            {
+                "map": grid.name,
+                "agents": n,
+                "ticks": result.ticks,
+                "tasks_finished": result.tasks_finished,
+                "first_tick_s": timing.seconds[0] if timing.seconds else 0.0,
+                "violations": result.violations,
+                **_timing(steady),
+            }
+        )
+    return rows
+
+
+def _map(path: Path) -> Any:
+    try:
+        return load_map(path)
+    except MapError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _print_tables(report: dict[str, list[dict[str, Any]]]) -> None:
+    titles = {
+        "lifelong": "lifelong MAPF, League of Robot Runners instances (tasks finished in the "
+        "horizon; the competition's robots turn in place (MAPF_T), ours move 4-connected)",
+        "oneshot": "one-shot MAPF, Moving AI scenario (sum of costs over the no-other-agents bound)",
+        "scale": "scale: random errands on a large map (first tick computes distance fields)",
+    }
+    for suite, rows in report.items():
+        print(f"\n{titles[suite]}")
+        if not rows:
+            print("  (nothing to run)")
+            continue
+        keys = list(rows[0])
+        cells = [[_fmt(row[k]) for k in keys] for row in rows]
+        widths = [max(len(k), *(len(c[i]) for c in cells)) for i, k in enumerate(keys)]
+        print("  " + "  ".join(k.rjust(w) for k, w in zip(keys, widths, strict=True)))
+        for c in cells:
+            print("  " + "  ".join(v.rjust(w) for v, w in zip(c, widths, strict=True)))
+    print("\nms_*: planner time per step on this machine (the run with the median median)")
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.2f}" if value < 100 else f"{value:.0f}"
+    return "-" if value is None else str(value)

@@ -1,0 +1,207 @@
+"""The planner benchmark runs, pure: instances in, results out (the clock is injected).
+
+Every step the planner makes is checked by the plan validator (vertex, swap, rotation, walls,
+jumps) outside the timed part; a benchmark that counted an unsafe plan as throughput would lie.
+"""
+
+from __future__ import annotations
+
+import random
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.sparse.csgraph import connected_components
+
+from bench.anchors import LifelongInstance, ScenAgent
+from coordinator.planner import AgentSpec, Planner
+from coordinator.validate import validate_step
+from gridfleet.grid import Cell, GridMap
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency
+
+Clock = Callable[[], float]
+
+
+class StepPlanner(Protocol):
+    """What the runs need of a planner: one step for every agent (coordinator.planner.Planner)."""
+
+    def step(self, agents: dict[str, AgentSpec]) -> dict[str, Cell]:
+        """Next square of every agent."""
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Seconds the planner took for each step."""
+
+    seconds: tuple[float, ...]
+
+    @property
+    def median_ms(self) -> float:
+        """Median step time in milliseconds."""
+        return 1000 * statistics.median(self.seconds) if self.seconds else 0.0
+
+    @property
+    def p95_ms(self) -> float:
+        """95th-percentile step time in milliseconds."""
+        return 1000 * float(np.percentile(self.seconds, 95)) if self.seconds else 0.0
+
+    @property
+    def max_ms(self) -> float:
+        """Slowest step in milliseconds (the first step computes most distance fields)."""
+        return 1000 * max(self.seconds) if self.seconds else 0.0
+
+
+@dataclass(frozen=True)
+class LifelongResult:
+    """What a lifelong run achieved within its horizon."""
+
+    name: str
+    agents: int
+    ticks: int
+    tasks_finished: int
+    tasks_available: int
+    exhausted_at: int | None  # tick at which the task stream ran out, if it did
+    violations: int
+    timing: Timing
+
+
+@dataclass(frozen=True)
+class OneShotResult:
+    """A one-shot MAPF run: every agent to its goal."""
+
+    agents: int
+    solved: bool
+    at_goal: int  # agents on their goals when the run ended
+    makespan: int | None  # first step with every agent on its goal
+    sum_of_costs: int | None  # per agent: the step after which it never left its goal
+    lower_bound: int  # sum of shortest-path lengths, ignoring the other agents
+    violations: int
+    timing: Timing
+
+
+def run_lifelong(
+    instance: LifelongInstance,
+    horizon: int | None = None,
+    seed: int = 0,
+    clock: Clock = time.perf_counter,
+    planner: StepPlanner | None = None,
+) -> LifelongResult:
+    """Run `instance` for `horizon` ticks (default: its own); an agent takes the next task when done."""
+    ticks = instance.horizon if horizon is None else horizon
+    names = [str(i) for i in range(instance.agents)]
+    position = dict(zip(names, instance.starts, strict=True))
+    errands: dict[str, list[Cell]] = {a: list(instance.tasks[i]) for i, a in enumerate(names)}
+    revealed = instance.agents
+    finished = violations = 0
+    exhausted_at: int | None = None
+    planner = planner or Planner(instance.grid, seed=seed)
+    seconds = []
+    for tick in range(ticks):
+        agents = {a: AgentSpec(position[a], errands[a][0] if errands[a] else None) for a in names}
+        started = clock()
+        after = planner.step(agents)
+        seconds.append(clock() - started)
+        before_cells = [position[a] for a in names]
+        after_cells = [after[a] for a in names]
+        violations += len(validate_step(instance.grid, before_cells, after_cells, tick))
+        position = after
+        for a in names:
+            if errands[a] and position[a] == errands[a][0]:
+                errands[a].pop(0)
+                if errands[a]:
+                    continue
+                finished += 1
+                if revealed < len(instance.tasks):
+                    errands[a] = list(instance.tasks[revealed])
+                    revealed += 1
+                elif exhausted_at is None:
+                    exhausted_at = tick
+    return LifelongResult(
+        name=instance.name,
+        agents=instance.agents,
+        ticks=ticks,
+        tasks_finished=finished,
+        tasks_available=len(instance.tasks),
+        exhausted_at=exhausted_at,
+        violations=violations,
+        timing=Timing(tuple(seconds)),
+    )
+
+
+def run_one_shot(
+    grid: GridMap,
+    agents: Sequence[ScenAgent],
+    max_steps: int,
+    seed: int = 0,
+    clock: Clock = time.perf_counter,
+    planner: StepPlanner | None = None,
+) -> OneShotResult:
+    """Move every agent to its goal; stop when all are there at once or after `max_steps`."""
+    names = [str(i) for i in range(len(agents))]
+    goal = {a: agents[i].goal for i, a in enumerate(names)}
+    position = {a: agents[i].start for i, a in enumerate(names)}
+    fields = DistanceFieldCache(grid)
+    lower_bound = sum(fields.distance(s.start, s.goal) for s in agents)
+    if any(fields.distance(s.start, s.goal) == UNREACHABLE for s in agents):
+        raise ValueError("an agent's goal cannot be reached from its start")
+    arrived = {a: 0 if position[a] == goal[a] else None for a in names}
+    planner = planner or Planner(grid, seed=seed)
+    seconds = []
+    violations = 0
+    makespan: int | None = 0 if all(v == 0 for v in arrived.values()) else None
+    step = 0
+    while makespan is None and step < max_steps:
+        specs = {a: AgentSpec(position[a], goal[a]) for a in names}
+        started = clock()
+        after = planner.step(specs)
+        seconds.append(clock() - started)
+        violations += len(
+            validate_step(grid, [position[a] for a in names], [after[a] for a in names], step)
+        )
+        step += 1
+        for a in names:
+            if after[a] != goal[a]:
+                arrived[a] = None
+            elif arrived[a] is None:
+                arrived[a] = step
+        position = after
+        if all(v is not None for v in arrived.values()):
+            makespan = step
+    costs = [v for v in arrived.values() if v is not None]
+    return OneShotResult(
+        agents=len(agents),
+        solved=makespan is not None,
+        at_goal=sum(position[a] == goal[a] for a in names),
+        makespan=makespan,
+        sum_of_costs=sum(costs) if makespan is not None else None,
+        lower_bound=lower_bound,
+        violations=violations,
+        timing=Timing(tuple(seconds)),
+    )
+
+
+def random_instance(
+    grid: GridMap, agents: int, horizon: int, seed: int = 0, name: str | None = None
+) -> LifelongInstance:
+    """A lifelong instance with random starts and one-errand tasks in the grid's largest region."""
+    labels = connected_components(adjacency(grid), directed=False)[1].reshape(grid.height, -1)
+    free = ~grid.blocked
+    biggest = np.bincount(labels[free]).argmax()
+    ys, xs = np.nonzero(free & (labels == biggest))
+    cells = [Cell(int(x), int(y)) for x, y in zip(xs, ys, strict=True)]
+    if agents < 1 or agents > len(cells):
+        raise ValueError(f"{agents} agents do not fit the {len(cells)} connected free squares")
+    rng = random.Random(seed)
+    starts = rng.sample(cells, agents)
+    # Enough tasks that the stream does not run out: even short errands take a few ticks.
+    tasks = tuple((rng.choice(cells),) for _ in range(agents * (1 + horizon // 4)))
+    return LifelongInstance(
+        name=name or f"{grid.name}-{agents}",
+        grid=grid,
+        starts=tuple(starts),
+        tasks=tasks,
+        horizon=horizon,
+    )

@@ -1,0 +1,254 @@
+"""The planner benchmark: its data loaders, its runs (checked by the validator) and its CLI."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bench.anchors import LifelongInstance, ScenAgent, find_anchors, load_instance, load_scen
+from bench.runs import random_instance, run_lifelong, run_one_shot
+from coordinator.planner import AgentSpec
+from gridfleet.errors import ConfigError
+from gridfleet.grid import Cell, GridMap
+
+CORRIDOR = GridMap.from_rows(["....."])
+BAY = GridMap.from_rows([".....", "@@.@@"])  # a corridor with one passing bay
+SHARED_ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors"
+
+
+def ticker() -> object:
+    """A fake clock that advances 1 ms per reading: timings become exact."""
+    now = [0.0]
+
+    def clock() -> float:
+        now[0] += 0.001
+        return now[0]
+
+    return clock
+
+
+def write_anchors(root: Path) -> Path:
+    """A tiny anchors folder: one map, one lifelong instance, one Moving AI scenario."""
+    (root / "maps").mkdir(parents=True)
+    (root / "instances").mkdir()
+    (root / "maps" / "tiny.map").write_text(
+        "type octile\nheight 3\nwidth 6\nmap\n......\n.@@@@.\n......\n"
+    )
+    instance = {
+        "name": "TINY",
+        "map": "tiny.map",
+        "team_size": 2,
+        "horizon": 40,
+        "starts": [[0, 0], [2, 5]],
+        "tasks": [[[0, 5]], [[2, 0]], [[0, 0]], [[2, 5]]],
+        "best_tasks_finished": 3,
+        "action_model": "MAPF_T",
+    }
+    (root / "instances" / "TINY.json").write_text(json.dumps(instance))
+    (root / "instances" / "STARTS-ONLY.json").write_text('{"map": "tiny.map", "starts": []}')
+    (root / "maps" / "tiny.scen").write_text(
+        "version 1\n0\ttiny.map\t6\t3\t0\t0\t5\t2\t7\n0\ttiny.map\t6\t3\t5\t2\t0\t0\t7\n"
+    )
+    return root
+
+
+# ---- loaders ---------------------------------------------------------------------------------
+
+
+def test_an_instance_loads_with_rows_and_columns_turned_into_squares(tmp_path: Path) -> None:
+    inst = load_instance(write_anchors(tmp_path) / "instances" / "TINY.json")
+    assert inst.starts == (Cell(0, 0), Cell(5, 2))  # [row, col] -> Cell(x=col, y=row)
+    assert inst.tasks[0] == (Cell(5, 0),) and inst.agents == 2 and inst.horizon == 40
+    assert inst.best_tasks_finished == 3 and inst.action_model == "MAPF_T"
+
+
+@pytest.mark.parametrize(
+    ("change", "problem"),
+    [
+        ({"starts": [[1, 1], [0, 0]]}, "[1, 1] is not a free square"),
+        ({"starts": [[0, 0], [0, 0]]}, "two agents start on one square"),
+        ({"starts": [[0, "a"]]}, "whole numbers"),
+        ({"tasks": [[[0, 5]]]}, "a non-empty task for every agent"),
+        ({"tasks": [[[0, 5]], []]}, "a non-empty task for every agent"),
+        ({"horizon": 0}, "'horizon' must be a whole number"),
+        ({"map": "nope.map"}, "no such map file"),
+        ({"tasks": None}, "no 'tasks'"),
+    ],
+)
+def test_a_bad_instance_is_one_error_naming_the_file(
+    tmp_path: Path, change: dict[str, object], problem: str
+) -> None:
+    path = write_anchors(tmp_path) / "instances" / "TINY.json"
+    data = {**json.loads(path.read_text()), **change}
+    path.write_text(json.dumps({k: v for k, v in data.items() if v is not None}))
+    with pytest.raises(ConfigError, match=re.escape(problem)) as info:
+        load_instance(path)
+    assert str(path) in str(info.value)
+
+
+def test_an_unreadable_instance_is_one_error(tmp_path: Path) -> None:
+    path = write_anchors(tmp_path) / "instances" / "TINY.json"
+    path.write_text("{not json")
+    with pytest.raises(ConfigError, match="not a readable JSON instance"):
+        load_instance(path)
+
+
+def test_a_moving_ai_scenario_loads_its_map_and_agents(tmp_path: Path) -> None:
+    grid, agents = load_scen(write_anchors(tmp_path) / "maps" / "tiny.scen")
+    assert (grid.width, grid.height) == (6, 3)
+    assert agents == [ScenAgent(Cell(0, 0), Cell(5, 2)), ScenAgent(Cell(5, 2), Cell(0, 0))]
+
+
+@pytest.mark.parametrize(
+    ("body", "problem"),
+    [
+        ("0\ttiny.map\t6\t3\t0\t0\t5\t2\t7\n", "expected 'version 1'"),
+        ("version 1\n0\ttiny.map\t6\t3\t0\t0\n", "expected 9 tab-separated fields"),
+        ("version 1\n0\ttiny.map\t6\t3\t0\tx\t5\t2\t7\n", "whole numbers"),
+        ("version 1\n0\ttiny.map\t6\t3\t1\t1\t5\t2\t7\n", "start [1, 1] is not free"),
+        ("version 1\n0\tnope.map\t6\t3\t0\t0\t5\t2\t7\n", "no such map file"),
+        ("version 1\n", "no agents"),
+    ],
+)
+def test_a_bad_scenario_line_is_named(tmp_path: Path, body: str, problem: str) -> None:
+    path = write_anchors(tmp_path) / "maps" / "tiny.scen"
+    path.write_text(body)
+    with pytest.raises(ConfigError, match=re.escape(problem)):
+        load_scen(path)
+
+
+def test_missing_benchmark_data_says_how_to_point_at_it(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="pass --anchors DIR"):
+        find_anchors(tmp_path / "nothing")
+
+
+@pytest.mark.skipif(not SHARED_ANCHORS.is_dir(), reason="the public benchmark data is not here")
+def test_every_shipped_benchmark_file_loads() -> None:
+    for path in sorted((SHARED_ANCHORS / "instances").glob("*.json")):
+        if json.loads(path.read_text()).get("tasks"):
+            inst = load_instance(path)
+            assert inst.agents == json.loads(path.read_text())["team_size"]
+    grid, agents = load_scen(SHARED_ANCHORS / "maps" / "random-32-32-10-random-1.scen")
+    assert len(agents) > 400 and grid.width == 32
+
+
+# ---- runs ------------------------------------------------------------------------------------
+
+
+def test_lifelong_counts_finished_tasks_and_notices_the_stream_running_out() -> None:
+    # One agent runs the corridor end to end: 4 ticks a task, three tasks in all.
+    tasks = ((Cell(4, 0),), (Cell(0, 0),), (Cell(4, 0),))
+    inst = LifelongInstance("run", CORRIDOR, (Cell(0, 0),), tasks, horizon=20)
+    result = run_lifelong(inst, clock=ticker())  # type: ignore[arg-type]
+    assert (result.tasks_finished, result.exhausted_at, result.violations) == (3, 11, 0)
+    assert result.ticks == 20 and result.timing.median_ms == pytest.approx(1.0)
+    capped = run_lifelong(inst, horizon=8)
+    assert (capped.tasks_finished, capped.exhausted_at) == (2, None)
+
+
+def test_a_multi_errand_task_finishes_when_its_last_errand_is_reached() -> None:
+    inst = LifelongInstance("errands", CORRIDOR, (Cell(0, 0),), ((Cell(4, 0), Cell(2, 0)),), 6)
+    assert run_lifelong(inst).tasks_finished == 1  # 4 ticks out, 2 back
+
+
+class Teleporter:
+    """A broken planner: every agent jumps straight to its target."""
+
+    def step(self, agents: dict[str, AgentSpec]) -> dict[str, Cell]:
+        return {a: s.target or s.position for a, s in agents.items()}
+
+
+def test_an_unsafe_planner_is_caught_by_the_validator() -> None:
+    inst = LifelongInstance(
+        "bad", CORRIDOR, (Cell(0, 0), Cell(4, 0)), ((Cell(4, 0),), (Cell(0, 0),)), 3
+    )
+    result = run_lifelong(inst, planner=Teleporter())
+    assert result.violations > 0
+    shot = run_one_shot(CORRIDOR, [ScenAgent(Cell(0, 0), Cell(3, 0))], 5, planner=Teleporter())
+    assert shot.violations == 1  # a jump of three squares
+
+
+def test_one_shot_swap_through_a_bay_is_solved_above_the_lower_bound() -> None:
+    agents = [ScenAgent(Cell(0, 0), Cell(4, 0)), ScenAgent(Cell(4, 0), Cell(0, 0))]
+    result = run_one_shot(BAY, agents, max_steps=50)
+    assert result.solved and result.violations == 0 and result.at_goal == 2
+    assert result.lower_bound == 8
+    assert result.sum_of_costs is not None and result.sum_of_costs > result.lower_bound
+    assert result.makespan is not None and result.makespan >= 4
+
+
+def test_one_shot_out_of_steps_is_reported_unsolved() -> None:
+    result = run_one_shot(CORRIDOR, [ScenAgent(Cell(0, 0), Cell(4, 0))], max_steps=2)
+    assert not result.solved and result.makespan is None and result.at_goal == 0
+
+
+def test_random_instances_stay_in_the_largest_region() -> None:
+    grid = GridMap.from_rows(["..@.....", "..@.....", "..@....."])  # 6 squares left, 15 right
+    inst = random_instance(grid, 10, horizon=20, seed=3)
+    assert len(set(inst.starts)) == 10 and all(c.x >= 3 for c in inst.starts)
+    assert all(t[0].x >= 3 for t in inst.tasks)
+    assert random_instance(grid, 10, horizon=20, seed=3) == inst  # seeded: the same again
+    with pytest.raises(ValueError, match="do not fit"):
+        random_instance(grid, 16, horizon=5)
+
+
+# ---- the command ---------------------------------------------------------------------------
+
+
+def bench(*args: str) -> subprocess.CompletedProcess[str]:
+    cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
+
+
+def test_the_command_reports_every_suite_as_json(tmp_path: Path) -> None:
+    anchors = write_anchors(tmp_path)
+    out = bench(
+        "--anchors", str(anchors), "--scen", "tiny.scen", "--agents", "1,2",
+        "--scale-map", "tiny.map", "--scale-agents", "3", "--scale-ticks", "10", "--json",
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    (life,) = report["lifelong"]  # the starts-only file is not a lifelong instance
+    assert life["instance"] == "TINY" and life["best_in_competition"] == 3
+    assert life["tasks_finished"] >= 2 and life["violations"] == 0 and life["ms_p50"] > 0
+    assert [r["agents"] for r in report["oneshot"]] == [1, 2]
+    assert all(r["solved"] and r["sum_of_costs"] >= r["lower_bound"] for r in report["oneshot"])
+    (scale,) = report["scale"]
+    assert scale["agents"] == 3 and scale["ticks"] == 10 and scale["violations"] == 0
+
+
+def test_the_command_prints_tables_by_default(tmp_path: Path) -> None:
+    out = bench("--anchors", str(write_anchors(tmp_path)), "--suite", "lifelong")
+    assert out.returncode == 0, out.stderr
+    assert "TINY" in out.stdout and "tasks_finished" in out.stdout and "MAPF_T" in out.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "problem"),
+    [
+        (["--suite", "fastest"], "--suite: unknown ['fastest']"),
+        (["--instances", "NOPE"], "--instances: no ['NOPE']"),
+        (["--agents", "5", "--suite", "oneshot", "--scen", "tiny.scen"], "has 2 agents, not 5"),
+        (["--agents", "0"], "expected counts of at least 1"),
+        (["--repeat", "two"], "expected whole numbers"),
+        (["--suite", "scale", "--scale-map", "tiny.map", "--scale-agents", "99"], "do not fit"),
+    ],
+)
+def test_bad_arguments_are_one_line_and_exit_2(
+    tmp_path: Path, args: list[str], problem: str
+) -> None:
+    out = bench("--anchors", str(write_anchors(tmp_path)), *args)
+    assert out.returncode == 2 and problem in out.stderr, out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_no_benchmark_data_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    out = bench("--anchors", str(tmp_path))
+    assert (
+        out.returncode == 2 and "no benchmark data" in out.stderr and "Traceback" not in out.stderr
+    )
