@@ -38,7 +38,11 @@ async def broker_for(url: str | None) -> AsyncIterator[str]:
         return
     args = ["-m", "gridfleet", "broker", "--host", "127.0.0.1", "--port", "0", "--no-ws"]
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, *args, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL
+        sys.executable,
+        *args,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.DEVNULL,
+        start_new_session=True,  # Ctrl-C reaches the bench, which stops the broker last
     )
     try:
         assert proc.stdout is not None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import logging
 import sys
@@ -13,7 +14,7 @@ from bench.system import run_system
 from bench.system_result import SystemResult, summarise
 from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
-from gridfleet.tasks import stop_on_signals, until_stopped
+from gridfleet.tasks import stop_on_signals
 
 
 def unit_counts(text: str) -> list[int]:
@@ -131,8 +132,19 @@ async def _bench(args: argparse.Namespace, results: list[list[SystemResult]]) ->
 async def _main(args: argparse.Namespace, results: list[list[SystemResult]]) -> bool:
     """True when the bench ran to the end; False when Ctrl-C stopped it (cleanly)."""
     stop = stop_on_signals()
-    await until_stopped(_bench(args, results), stop)
-    return not stop.is_set()
+    work = asyncio.create_task(_bench(args, results))
+    stopper = asyncio.create_task(stop.wait())
+    await asyncio.wait({work, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    stopper.cancel()
+    if stop.is_set() and not work.done():
+        # One cancellation: it ends the wait under way and lets every cleanup run to its end
+        # (services stopped before their broker), which a repeated cancel would cut short.
+        work.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await work
+        return False
+    work.result()
+    return True
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import socket
 import subprocess
 import sys
@@ -99,3 +100,21 @@ def test_generated_map_fits_the_fleet(units: int, tmp_path: Any) -> None:
     assert all(fields.distance(free[0], c) != UNREACHABLE for c in free)  # one connected region
     scenario = make_scenario(units, seed=3, directory=tmp_path)
     assert len({u.start for u in scenario.units}) == units
+
+
+def test_ctrl_c_stops_cleanly_and_reports_the_finished_runs() -> None:
+    with subprocess.Popen(
+        [sys.executable, "-m", "gridfleet", "bench", "system", "--units", "4", "--step", "0.05",
+         "--duration", "1", "--warmup", "0.3", "--repeat", "3", "--estops", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    ) as proc:  # fmt: skip
+        assert proc.stderr is not None
+        first = proc.stderr.readline()  # the progress line of run 1: run 2 is under way now
+        assert "run 1/3" in first, first
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=90)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in out + err
+    lines = out.strip().splitlines()
+    assert lines[-1].startswith("interrupted")
+    assert lines[2].split()[0] == "4"  # the finished run is in the table
