@@ -8,6 +8,7 @@ import importlib
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
 BENCHES: dict[str, tuple[str, str]] = {
     "planner": ("bench.planner_cli", "the planner alone on public MAPF instances (no broker)"),
+    "system": ("bench.system_cli", "the whole system over a real broker: throughput, stop latency"),
 }
 
 

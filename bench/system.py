@@ -1,0 +1,227 @@
+"""The system bench: the real coordinator and simulated units over a real broker, measured.
+
+Work: a stream of random feasible jobs, topped up so that as many are active (not final) as
+there are units; every unit stays busy and allocation, planning and the job store all work.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import random
+import statistics
+import tempfile
+import time
+import uuid
+from collections.abc import AsyncIterator
+from datetime import UTC, datetime
+from pathlib import Path
+
+from bench.system_broker import broker_for
+from bench.system_monitor import BenchMonitor
+from bench.system_result import SystemResult
+from bench.system_scenario import make_scenario
+from gridfleet.bus import make_client
+from gridfleet.errors import ConfigError
+from gridfleet.feeder import Operator, operator_session, random_job
+from gridfleet.grid import Cell
+from gridfleet.paths import DistanceFieldCache
+from gridfleet.protocol import TOPICS, EstopSignal, Reply, Topics, encode_estop
+from gridfleet.scenario import Scenario
+from gridfleet.tasks import cancel_and_wait
+from gridfleet.testing.services import ServiceThread, coordinator_thread, fleet_thread, world_of
+
+STOP_WAIT_S = 20.0  # an engagement not shown by every unit within this is reported as None
+
+
+@contextlib.asynccontextmanager
+async def running(service: ServiceThread) -> AsyncIterator[ServiceThread]:
+    """Start a service thread (off this loop: start blocks) and stop it when the block ends."""
+    await asyncio.to_thread(service.start, 60.0)
+    try:
+        yield service
+    finally:
+        await asyncio.to_thread(service.stop, 60.0)
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+async def _keep_jobs(
+    operator: Operator, scenario: Scenario, seed: int, submitted: list[int]
+) -> None:
+    """Keep as many jobs active as there are units: submit the deficit whenever the view changes."""
+    rng = random.Random(seed)
+    fields = DistanceFieldCache(scenario.grid)
+    target = len(scenario.units)
+    limit = asyncio.Semaphore(8)  # requests in flight: aiomqtt warns above 10 pending publishes
+
+    async def submit(job: tuple[Cell, Cell, float]) -> Reply:
+        async with limit:
+            return await operator.submit_job(*job)
+
+    while True:
+        deficit = target - operator.active_jobs() if operator.jobs is not None else target
+        if deficit > 0:
+            jobs = [random_job(scenario, rng, fields) for _ in range(deficit)]
+            replies = await asyncio.gather(*(submit(job) for job in jobs), return_exceptions=True)
+            # A reply that timed out (an overloaded broker) is a job less, not the end of the run.
+            submitted[0] += sum(isinstance(r, Reply) and r.accepted for r in replies)
+        operator.jobs_changed.clear()
+        await operator.jobs_changed.wait()
+
+
+async def _estop(operator: Operator, engaged: bool) -> None:
+    spec = TOPICS["estop"]
+    signal = EstopSignal(engaged, operator.client_id, "system bench")
+    topic = operator.topics.fleet("estop")
+    await operator.client.publish(topic, encode_estop(signal), qos=spec.qos, retain=spec.retained)
+
+
+async def _stop_trials(
+    operator: Operator, monitor: BenchMonitor, fleet: ServiceThread, trials: int, step_s: float
+) -> tuple[list[float | None], list[float | None], int]:
+    """Engage and release the fleet stop `trials` times; latencies and moves made while stopped."""
+    seen_ms: list[float | None] = []
+    applied_ms: list[float | None] = []
+    moved = 0
+    world = world_of(fleet)
+    for _ in range(trials):
+        monitor.expect(True)
+        wall, t0 = datetime.now(UTC), time.monotonic()
+        await _estop(operator, True)
+        try:
+            await asyncio.wait_for(monitor.all_shown.wait(), STOP_WAIT_S)
+        except TimeoutError:
+            # An overloaded broker: further trials would only take as long; none of them count.
+            seen_ms += [None] * (trials - len(seen_ms))
+            applied_ms += [None] * (trials - len(applied_ms))
+            await _estop(operator, False)
+            break
+        shown = list(monitor.shown.values())
+        seen_ms.append(round((max(s.seen for s in shown) - t0) * 1000, 2))
+        last = max(s.stamped for s in shown)
+        applied_ms.append(round((last - wall).total_seconds() * 1000, 2))
+        before = fleet.call(lambda: sum(world.moves.values()))
+        await asyncio.sleep(3 * step_s)  # pacing: give a stopped unit three steps to misbehave
+        moved += fleet.call(lambda: sum(world.moves.values())) - before
+        monitor.expect(False)
+        await _estop(operator, False)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(monitor.all_shown.wait(), STOP_WAIT_S)
+        await asyncio.sleep(max(0.3, 5 * step_s))  # pacing: let the fleet get moving again
+    return seen_ms, applied_ms, moved
+
+
+async def run_system(
+    units: int,
+    step_s: float,
+    duration_s: float,
+    seed: int = 0,
+    broker_url: str | None = None,
+    estops: int = 3,
+    warmup_s: float | None = None,
+) -> SystemResult:
+    """Run the whole system with `units` simulated units and measure it (see the module doc)."""
+    if units < 1:
+        raise ConfigError(f"{units} units: give at least 1")
+    if not 0 < step_s <= 60:
+        raise ConfigError(f"step {step_s} s: the step period must be in 0 < s <= 60")
+    if duration_s <= 0:
+        raise ConfigError(f"duration {duration_s} s: give a positive number of seconds")
+    if estops < 1:
+        raise ConfigError(f"{estops} emergency-stop trials: give at least 1")
+    warmup = warmup_s if warmup_s is not None else max(1.0, 10 * step_s)
+    root = f"bench-{uuid.uuid4().hex[:8]}"
+    topics = Topics(root)
+    with tempfile.TemporaryDirectory(prefix="gridfleet-bench-") as tmp:
+        scenario = make_scenario(units, seed, Path(tmp))
+        async with broker_for(broker_url) as url:
+            coordinator = coordinator_thread(
+                scenario,
+                url,
+                root=root,
+                step_s=step_s,
+                db_path=Path(tmp) / "jobs.db",
+                seed=seed,
+                client_id=f"{root}-coordinator",
+            )
+            fleet = fleet_thread(scenario, url, root=root, step_s=step_s)
+            async with contextlib.AsyncExitStack() as stack:
+                monitor_client = await stack.enter_async_context(
+                    make_client(url, f"{root}-monitor")
+                )
+                monitor = BenchMonitor(monitor_client, topics, units)
+                await monitor.start()
+                listener = asyncio.create_task(monitor.listen())
+                stack.push_async_callback(cancel_and_wait, listener)
+                operator = await stack.enter_async_context(
+                    operator_session(url, topics, f"{root}-operator")
+                )
+                await stack.enter_async_context(running(coordinator))
+                await stack.enter_async_context(running(fleet))
+                await operator.wait_for_units([u.id for u in scenario.units], timeout=60)
+                submitted = [0]
+                feeder = asyncio.create_task(_keep_jobs(operator, scenario, seed, submitted))
+                stack.push_async_callback(cancel_and_wait, feeder)
+                world = world_of(fleet)
+                await asyncio.sleep(warmup)  # pacing: the warm-up, not synchronisation
+                moves0 = fleet.call(lambda: sum(world.moves.values()))
+                kinds0, step0, sub0 = dict(monitor.by_kind), monitor.step, submitted[0]
+                done0 = operator.jobs.counts.get("done", 0) if operator.jobs else 0
+                t0 = time.monotonic()
+                monitor.measuring = True
+                await asyncio.sleep(duration_s)  # pacing: the measured window
+                monitor.measuring = False
+                elapsed = time.monotonic() - t0
+                moves = fleet.call(lambda: sum(world.moves.values())) - moves0
+                kinds = {k: v - kinds0.get(k, 0) for k, v in monitor.by_kind.items()}
+                steps = monitor.step - step0
+                done = (operator.jobs.counts.get("done", 0) if operator.jobs else 0) - done0
+                jobs_submitted = submitted[0] - sub0
+                await cancel_and_wait(feeder)
+                seen, applied, moved = await _stop_trials(operator, monitor, fleet, estops, step_s)
+                collisions, prevented = fleet.call(lambda: (world.collisions, world.prevented))
+            if broker_url is not None:
+                await _clear_retained(url, monitor.retained_topics)
+    total = sum(kinds.values())
+    latencies = [v * 1000 for v in monitor.latencies]
+    return SystemResult(
+        units=units,
+        step_s=step_s,
+        broker=broker_url or "embedded amqtt",
+        map_size=(scenario.grid.width, scenario.grid.height),
+        free_squares=len(scenario.grid.free_cells()),
+        duration_s=round(elapsed, 3),
+        messages=total,
+        messages_per_s=round(total / elapsed, 1),
+        per_kind_per_s={k: round(v / elapsed, 1) for k, v in sorted(kinds.items()) if v},
+        steps=steps,
+        step_rate=round(steps / elapsed, 2),
+        nominal_step_rate=round(1 / step_s, 2),
+        moves_per_unit_s=round(moves / units / elapsed, 3),
+        jobs_done=done,
+        jobs_submitted=jobs_submitted,
+        state_latency_ms_p50=_round(statistics.median(latencies) if latencies else None),
+        state_latency_ms_p99=_round(_percentile(latencies, 0.99)),
+        estop_ms=tuple(seen),
+        estop_applied_ms=tuple(applied),
+        moved_while_stopped=moved,
+        collisions=collisions,
+        prevented=prevented,
+    )
+
+
+def _round(value: float | None) -> float | None:
+    return None if value is None else round(value, 2)
+
+
+async def _clear_retained(url: str, topics: set[str]) -> None:
+    """Leave an external broker as it was: an empty retained message deletes each one."""
+    async with make_client(url, f"bench-clean-{uuid.uuid4().hex[:6]}") as client:
+        for topic in sorted(topics):
+            await client.publish(topic, b"", qos=1, retain=True)

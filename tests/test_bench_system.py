@@ -1,0 +1,120 @@
+"""`gridfleet bench system` end to end: a small run through the CLI, and bad arguments."""
+
+from __future__ import annotations
+
+import json
+import signal
+import socket
+import subprocess
+import sys
+from typing import Any
+
+import pytest
+
+from bench.system_scenario import FILL, bench_grid, make_scenario
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+from gridfleet.testing.broker_thread import BrokerThread
+
+
+def bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    """Run `python -m gridfleet bench system ARGS` and capture its output."""
+    return subprocess.run(
+        [sys.executable, "-m", "gridfleet", "bench", "system", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_small_run_reports_every_figure(broker: BrokerThread) -> None:
+    # Against the test broker (a real external broker as far as the bench knows).
+    done = bench(
+        "--units", "5", "--step", "0.05", "--duration", "2", "--warmup", "0.5",
+        "--repeat", "1", "--estops", "2", "--broker", broker.url, "--json",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    out: dict[str, Any] = json.loads(done.stdout)
+    assert out["finished"] is True
+    (run,) = out["runs"]
+    assert run["units"] == 5 and run["broker"] == broker.url
+    assert run["messages"] > 0 and run["messages_per_s"] > 0
+    assert run["per_kind_per_s"]["state"] > 0 and run["per_kind_per_s"]["order"] > 0
+    assert run["steps"] > 0 and run["step_rate"] > 0 and run["nominal_step_rate"] == 20.0
+    assert run["moves_per_unit_s"] > 0
+    assert run["jobs_submitted"] >= 0 and run["jobs_done"] >= 0
+    assert run["state_latency_ms_p50"] is not None
+    assert run["state_latency_ms_p99"] >= run["state_latency_ms_p50"]
+    assert len(run["estop_ms"]) == 2 and all(v is not None and v > 0 for v in run["estop_ms"])
+    assert all(v is not None for v in run["estop_applied_ms"])
+    assert run["collisions"] == 0 and run["moved_while_stopped"] == 0
+    assert run["prevented"] >= 0
+    (summary,) = out["summary"]
+    assert summary["units"] == 5 and summary["runs"] == 1
+    assert summary["step_rate"]["median"] == run["step_rate"]
+
+
+def test_embedded_broker_table() -> None:
+    # No --broker: the bench starts its own amqtt; the plain output is a table with one row.
+    done = bench(
+        "--units", "4", "--step", "0.05", "--duration", "1", "--warmup", "0.3",
+        "--repeat", "1", "--estops", "1",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.strip().splitlines()
+    assert "embedded amqtt" in lines[0]
+    assert lines[1].split()[0] == "units" and lines[2].split()[0] == "4"
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--units", "0"], "--units 0"),
+        (["--units", "5,-3"], "--units -3"),
+        (["--step", "-0.1"], "--step -0.1"),
+        (["--duration", "0"], "--duration 0"),
+        (["--repeat", "0"], "--repeat 0"),
+        (["--broker", "mqtt://127.0.0.1:{closed}"], "cannot reach the broker"),
+        (["--broker", "http://nowhere"], "http://nowhere"),
+    ],
+)
+def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
+    # A port bound but not listening refuses connections for as long as this socket is held.
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        args = [a.format(closed=held.getsockname()[1]) for a in args]
+        done = bench(*args, "--repeat" if "--repeat" not in args else "--seed", "1", timeout=30)
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr + done.stdout
+    message = (done.stderr + done.stdout).strip()
+    assert len(message.splitlines()) == 1, message
+    assert says in message
+
+
+@pytest.mark.parametrize("units", [1, 6, 50, 200])
+def test_generated_map_fits_the_fleet(units: int, tmp_path: Any) -> None:
+    grid = bench_grid(units, seed=3)
+    free = grid.free_cells()
+    assert units / len(free) <= FILL + 0.01  # room to move
+    assert units / len(free) >= 0.08 or units < 10  # but busy (small maps have a minimum size)
+    fields = DistanceFieldCache(grid)
+    assert all(fields.distance(free[0], c) != UNREACHABLE for c in free)  # one connected region
+    scenario = make_scenario(units, seed=3, directory=tmp_path)
+    assert len({u.start for u in scenario.units}) == units
+
+
+def test_ctrl_c_stops_cleanly_and_reports_the_finished_runs() -> None:
+    with subprocess.Popen(
+        [sys.executable, "-m", "gridfleet", "bench", "system", "--units", "4", "--step", "0.05",
+         "--duration", "1", "--warmup", "0.3", "--repeat", "3", "--estops", "1"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    ) as proc:  # fmt: skip
+        assert proc.stderr is not None
+        first = proc.stderr.readline()  # the progress line of run 1: run 2 is under way now
+        assert "run 1/3" in first, first
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=90)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in out + err
+    lines = out.strip().splitlines()
+    assert lines[-1].startswith("interrupted")
+    assert lines[2].split()[0] == "4"  # the finished run is in the table
