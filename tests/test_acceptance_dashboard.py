@@ -440,6 +440,7 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
 # ---- the README's picture ----------------------------------------------------------------------
 
 
+@pytest.mark.timeout(120)  # waits for a moment of the run, which a loaded machine makes rarer
 def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     """docs/dashboard.png: the page on the real playfield, mid-run (see the module docstring)."""
     system = live(step_s=0.25)
@@ -459,7 +460,8 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     system.dash.submit_job((0, 5), (9, 5), 50, job_id="too-heavy")
     expect(system.page.locator("#job-feedback")).to_have_attribute("data-kind", "refused")
 
-    # Mid-run: three units under way (arrows and routes), an item on board, a job waiting.
+    # Mid-run: three units under way (arrows lit, two of them moving this very step), an item on
+    # board, a job waiting.
     def mid_run() -> bool:
         arrows = system.page.locator("#map").get_attribute("data-headings") or ""
         heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
@@ -469,7 +471,8 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
         known = obstacles_drawn(system)
         return (
             not any(system.routes_through(sq) for sq in known)
-            and len(set(heading) & set(moving)) >= 3
+            and len(heading) >= 3
+            and len(set(heading) & set(moving)) >= 2
             and bool(states & {"loaded", "to_dropoff"})
             and system.page_jobs().get("job-5", {}).get("state") == "queued"
         )
@@ -482,7 +485,7 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
         return shot if mid_run() else None
 
     shot = wait_for(
-        picture, timeout=20, interval=0.05, what="units under way, an item on board, a job waiting"
+        picture, timeout=45, interval=0.05, what="units under way, an item on board, a job waiting"
     )
     expect(system.page.locator("#coord")).to_have_text(
         re.compile(r"^coordinator: online, step [1-9][0-9]*$")
