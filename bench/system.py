@@ -22,6 +22,7 @@ from bench.system_monitor import BenchMonitor
 from bench.system_result import SystemResult
 from bench.system_scenario import make_scenario
 from gridfleet.bus import make_client
+from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
 from gridfleet.feeder import Operator, operator_session, random_job
 from gridfleet.grid import Cell
@@ -129,8 +130,7 @@ async def run_system(
     """Run the whole system with `units` simulated units and measure it (see the module doc)."""
     if units < 1:
         raise ConfigError(f"{units} units: give at least 1")
-    if not 0 < step_s <= 60:
-        raise ConfigError(f"step {step_s} s: the step period must be in 0 < s <= 60")
+    check_step(step_s)
     if duration_s <= 0:
         raise ConfigError(f"duration {duration_s} s: give a positive number of seconds")
     if estops < 1:

@@ -12,7 +12,7 @@ from typing import Any, TextIO
 
 from bench.system import run_system
 from bench.system_result import SystemResult, summarise
-from gridfleet.config import parse_broker_url
+from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.tasks import stop_on_signals
 
@@ -56,8 +56,7 @@ def check(args: argparse.Namespace) -> None:
     bad = [n for n in args.units if n < 1]
     if bad:
         raise ConfigError(f"--units {bad[0]}: every unit count must be at least 1")
-    if not 0 < args.step <= 60:
-        raise ConfigError(f"--step {args.step}: the step period must be in 0 < s <= 60")
+    check_step(args.step)
     if not args.duration > 0:
         raise ConfigError(f"--duration {args.duration}: give a positive number of seconds")
     if args.warmup is not None and not args.warmup >= 0:

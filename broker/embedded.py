@@ -120,11 +120,23 @@ class EmbeddedBroker:
     async def start(self) -> None:
         """Bind the listeners; raises ConfigError when a port cannot be bound."""
         self._broker = _make_broker(self.settings.amqtt_config())
+        amqtt_log = logging.getLogger("amqtt.broker")
+        level = amqtt_log.level
+        # amqtt logs a bind failure with a traceback; ours below is the one line a user needs.
+        amqtt_log.setLevel(logging.CRITICAL)
         try:
             await self._broker.start()
         except Exception as exc:  # amqtt wraps bind errors in its own BrokerError
             self._broker = None
-            raise ConfigError(f"broker cannot listen on {self.settings.host}: {exc}") from None
+            ports = f"port {self.settings.port}" + (
+                f" or {self.settings.ws_port}" if self.settings.ws_port is not None else ""
+            )
+            raise ConfigError(
+                f"broker cannot listen on {self.settings.host} {ports} ({exc}): is another "
+                "broker running? Pick other ports (0 picks free ones)"
+            ) from None
+        finally:
+            amqtt_log.setLevel(level)
         self.port = self._bound_port("default")
         self.ws_port = self._bound_port("ws") if self.settings.ws_port is not None else None
         log.debug(

@@ -8,7 +8,7 @@ import asyncio
 from coordinator.service import Coordinator
 from coordinator.store import default_db_path
 from gridfleet.cli import add_common
-from gridfleet.errors import ConfigError
+from gridfleet.config import check_step
 from gridfleet.maps import load_map
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.tasks import stop_on_signals
@@ -33,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run until interrupted (SIGINT/SIGTERM)."""
-    if not 0 < args.step <= 60:
-        raise ConfigError(f"--step {args.step}: must be in (0, 60] seconds")
+    check_step(args.step)
     grid = load_map(args.map)
     coordinator = Coordinator(
         args.broker,

@@ -46,3 +46,15 @@ def parse_broker_url(url: str) -> BrokerURL:
     if scheme == "tcp":
         scheme = "mqtt"
     return BrokerURL(scheme, parts.hostname, port or _DEFAULT_PORTS[scheme], parts.path or "/")
+
+
+MAX_STEP_S = 60.0
+
+
+def check_step(step_s: float, flag: str = "--step") -> float:
+    """`step_s` when it is a usable step period; otherwise ConfigError in the words every command uses."""
+    if not 0 < step_s <= MAX_STEP_S:
+        raise ConfigError(
+            f"{flag} {step_s:g}: the step period must be in (0, {MAX_STEP_S:g}] seconds"
+        )
+    return step_s

@@ -19,3 +19,7 @@ class ProtocolError(GridfleetError):
 
 class ConfigError(GridfleetError):
     """A setting (URL, flag, config file) is invalid."""
+
+
+class ComponentError(GridfleetError):
+    """A component of the system could not start or keep running."""

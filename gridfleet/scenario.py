@@ -259,3 +259,10 @@ def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
         goals=tuple(goals),
         description=description,
     )
+
+
+def with_units(scenario: Scenario) -> Scenario:
+    """`scenario`, when it has units to run; a map-only scenario raises ScenarioError."""
+    if not scenario.units:
+        raise ScenarioError(f"{scenario.path}: no units to run (add [[units]] tables)")
+    return scenario

@@ -18,13 +18,14 @@ from typing import Any
 from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.cli import add_common
+from gridfleet.config import check_step
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.feeder import Operator, scenario_job_id, submit_scenario
 from gridfleet.grid import Cell
 from gridfleet.monitor import FleetMonitor
 from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.messages import FINAL_JOB_STATES
-from gridfleet.scenario import Scenario, load_scenario
+from gridfleet.scenario import Scenario, load_scenario, with_units
 
 log = logging.getLogger("gridfleet.simulate")
 STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
@@ -258,11 +259,10 @@ def summary(outcome: Outcome, scenario: Scenario) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet simulate`."""
-    if not 0 < args.step <= 60:
-        raise ConfigError(f"--step {args.step}: the step period must be in 0 < s <= 60")
+    check_step(args.step)
     if args.max_steps < 1:
         raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
-    scenario = load_scenario(args.scenario)
+    scenario = with_units(load_scenario(args.scenario))
     if args.json:
         # Keep stdout for the one JSON object.
         logging.getLogger().setLevel(logging.WARNING)

@@ -9,10 +9,12 @@ import re
 import signal
 import sys
 import time
+from asyncio import FIRST_COMPLETED
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TextIO
 
+from gridfleet.errors import ComponentError
 from gridfleet.tasks import stop_on_signals
 
 log = logging.getLogger("gridfleet.up")
@@ -39,6 +41,9 @@ class Child:
     ready_event: asyncio.Event = field(default_factory=asyncio.Event)
     restarts: int = 0
     started_at: float = 0.0
+    last_line: str = ""
+    ever_ready: bool = False
+    gone: asyncio.Event = field(default_factory=asyncio.Event)  # exited and not restarted
 
 
 class Supervisor:
@@ -72,12 +77,18 @@ class Supervisor:
         await self._spawn(child)
         self._watchers.append(asyncio.create_task(self._watch(child)))
         if spec.ready is not None:
+            waits = [asyncio.ensure_future(e.wait()) for e in (child.ready_event, child.gone)]
             try:
-                await asyncio.wait_for(child.ready_event.wait(), ready_timeout)
-            except TimeoutError:
-                raise RuntimeError(
-                    f"{spec.name} did not become ready in {ready_timeout:.0f} s"
-                ) from None
+                await asyncio.wait(waits, timeout=ready_timeout, return_when=FIRST_COMPLETED)
+            finally:
+                for w in waits:
+                    w.cancel()
+            if child.gone.is_set():
+                # Dying before it ever got ready is a setting (a busy port), not bad luck: it
+                # would only die again, so say why now instead of restarting it.
+                raise ComponentError(f"{spec.name} did not start: {child.last_line or 'no output'}")
+            if not child.ready_event.is_set():
+                raise ComponentError(f"{spec.name} did not become ready in {ready_timeout:.0f} s")
         return child
 
     async def _spawn(self, child: Child) -> None:
@@ -104,10 +115,13 @@ class Supervisor:
                 return
             line = raw.decode("utf-8", "replace").rstrip()
             self.say(child.spec.name, line)
+            if line.strip():
+                child.last_line = line.strip()
             if child.spec.ready is not None and not child.ready_event.is_set():
                 match = child.spec.ready.search(line)
                 if match:
                     child.ready_match = match
+                    child.ever_ready = True
                     child.ready_event.set()
 
     async def _watch(self, child: Child) -> None:
@@ -118,10 +132,13 @@ class Supervisor:
             if self._stopping:
                 return
             self.say(child.spec.name, f"exited with code {code}")
-            if not child.spec.restart:
+            never_ready = child.spec.ready is not None and not child.ever_ready
+            if not child.spec.restart or never_ready:
+                child.gone.set()
                 return
             if child.restarts >= self.max_restarts:
                 self.say(child.spec.name, f"died {child.restarts + 1} times; giving up")
+                child.gone.set()
                 self.failed.set()
                 return
             child.restarts += 1

@@ -9,8 +9,9 @@ import sys
 from pathlib import Path
 
 from gridfleet.cli import add_common
+from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
-from gridfleet.scenario import load_scenario
+from gridfleet.scenario import load_scenario, with_units
 from gridfleet.supervisor import ChildSpec, Supervisor, run_until_signal
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
@@ -62,7 +63,9 @@ def _cli(*args: str) -> list[str]:
 
 async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
     """Start every component in order; returns the dashboard URL."""
-    scenario = load_scenario(args.scenario)
+    # Checked here, not by each component after the broker is up: one line, nothing started.
+    check_step(args.step)
+    scenario = with_units(load_scenario(args.scenario))
     if args.broker is None:
         broker = await supervisor.start(
             ChildSpec(

@@ -10,7 +10,7 @@ from gridfleet.cli import add_common
 from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_STEP_S
-from gridfleet.scenario import load_scenario
+from gridfleet.scenario import load_scenario, with_units
 from gridfleet.tasks import stop_on_signals
 from robots.fleet import Fleet
 
@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def build(args: argparse.Namespace) -> Fleet:
     """The fleet the arguments describe; bad input raises a GridfleetError with one clear line."""
     parse_broker_url(args.broker)
-    scenario = load_scenario(args.scenario)
+    scenario = with_units(load_scenario(args.scenario))
     units = None
     if args.units is not None:
         units = [u.strip() for u in args.units.split(",") if u.strip()]

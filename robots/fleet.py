@@ -6,7 +6,7 @@ import asyncio
 import contextlib
 from collections.abc import Mapping, Sequence
 
-from gridfleet.config import parse_broker_url
+from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -43,8 +43,7 @@ class Fleet:
                 )
         if not local:
             raise ConfigError(f"no units to run: scenario {scenario.name!r} has none")
-        if not 0 < step <= 60:
-            raise ConfigError(f"step period {step} s is outside 0 < s <= 60")
+        check_step(step)
         self.scenario = scenario
         self.topics = Topics(root)
         self.world = WorldSim.from_scenario(scenario, sensors_see_units=sensors_see_units)

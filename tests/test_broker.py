@@ -184,3 +184,17 @@ def test_a_new_client_gets_only_the_retained_messages_it_subscribed_to(
     # The retained message of b arrived after SUBACK; a leak of a would have come before it.
     assert second.received(f"{root}/a") == []
     assert len(second.received(f"{root}/b")) == 1
+
+
+def test_a_busy_port_is_one_line_and_exit_2(broker: BrokerThread) -> None:
+    # The session broker holds its port: a second broker on it must say so, not dump a traceback.
+    out = subprocess.run(
+        [sys.executable, "-m", "gridfleet", "broker", "--port", str(broker.port), "--no-ws"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert out.returncode == 2, out.stderr
+    assert out.stderr.strip().count("\n") == 0 and "Traceback" not in out.stderr + out.stdout
+    assert f"cannot listen on 127.0.0.1 port {broker.port}" in out.stderr

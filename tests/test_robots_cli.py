@@ -28,7 +28,7 @@ def cli(*args: str) -> subprocess.CompletedProcess[str]:
     ("extra", "expected"),
     [
         (["--units", "unit1,unit9"], "unknown unit 'unit9'"),
-        (["--step", "0"], "step period 0.0 s is outside"),
+        (["--step", "0"], "--step 0: the step period must be in (0, 60] seconds"),
         (["--broker", "http://x"], "scheme must be mqtt:// or ws://"),
     ],
 )

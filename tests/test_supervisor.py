@@ -9,6 +9,7 @@ import sys
 
 import pytest
 
+from gridfleet.errors import ComponentError
 from gridfleet.supervisor import ChildSpec, Supervisor
 from gridfleet.testing.wait import async_wait_for
 
@@ -67,6 +68,22 @@ async def test_a_child_that_ignores_sigterm_is_killed() -> None:
 
 async def test_a_child_that_never_gets_ready_is_an_error() -> None:
     sup = Supervisor(out=io.StringIO())
-    with pytest.raises(RuntimeError, match="did not become ready"):
+    with pytest.raises(ComponentError, match="did not become ready"):
         await sup.start(ChildSpec("mute", SLEEPER, ready=re.compile("never")), ready_timeout=0.5)
     await sup.stop()
+
+
+async def test_a_child_that_dies_before_it_is_ready_fails_at_once_with_its_last_words() -> None:
+    out = io.StringIO()
+    sup = Supervisor(out=out, restart_delay=0.01)
+    doomed = [
+        sys.executable,
+        "-c",
+        "import sys; print('port 1883 is in use', flush=True); sys.exit(2)",
+    ]
+    with pytest.raises(ComponentError, match="broker did not start: port 1883 is in use"):
+        await sup.start(
+            ChildSpec("broker", doomed, ready=re.compile("listening")), ready_timeout=30
+        )
+    await sup.stop()
+    assert "restarting" not in out.getvalue()  # it would only die again

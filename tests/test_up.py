@@ -119,3 +119,31 @@ def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
     for unit in ("unit1", "unit2", "unit3", "unit4"):
         seen = checker.wait(topics.unit("connection", unit))
         assert decode(Connection, seen.payload).state == "offline"
+
+
+def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
+    broker: BrokerThread,
+) -> None:
+    out = subprocess.run(
+        [
+            sys.executable, "-m", "gridfleet", "up", "--mqtt-port", str(broker.port),
+            "--ws-port", "0", "--port", "0",
+        ],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert out.returncode == 2, out.stdout[-2000:] + out.stderr
+    assert "Traceback" not in out.stdout + out.stderr and "restarting" not in out.stdout
+    assert "broker did not start" in out.stderr and f"port {broker.port}" in out.stderr
+    pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", out.stdout)]
+    assert pids and not any(alive(p) for p in pids)
+
+
+def test_up_refuses_a_bad_step_before_starting_anything() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "gridfleet", "up", "--step", "-1", "--mqtt-port", "0"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert out.returncode == 2 and "started" not in out.stdout
+    assert out.stderr.strip() == (
+        "gridfleet up: error: --step -1: the step period must be in (0, 60] seconds"
+    )
