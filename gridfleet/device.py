@@ -154,7 +154,8 @@ class VirtualDevice:
                     retain=estop.retained,
                 )
                 self.logic.stop_sent(now)
-                log.info("emergency stop sent: %s", self.logic.stop_payload.decode())
+                # The screen shows the stop; a log line would be drawn across it.
+                log.debug("emergency stop sent: %s", self.logic.stop_payload.decode())
             self._wake.clear()
             waker = asyncio.create_task(self._wake.wait())
             timeout = self.logic.next_stop_in(time.monotonic())
@@ -255,7 +256,11 @@ class Terminal:
                 elif word in ("q", "quit"):
                     on_quit()
 
-        loop.add_reader(fd, readable)
+        try:
+            loop.add_reader(fd, readable)
+        except OSError:
+            # A regular file or /dev/null cannot be watched: it has no key presses to give.
+            log.debug("stdin cannot be watched; the stop key is off (signals still stop)")
 
     def close(self, loop: asyncio.AbstractEventLoop) -> None:
         """Restore the terminal."""

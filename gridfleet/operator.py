@@ -24,7 +24,20 @@ def square(text: str) -> Cell:
         x, y = (int(part) for part in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a square 'x,y'") from None
+    if x < 0 or y < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: squares start at 0,0 (top left)")
     return Cell(x, y)
+
+
+def kilograms(text: str) -> float:
+    """A mass in kg, more than 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of kg") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: a mass must be more than 0 kg")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,9 +48,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     submit = sub.add_parser("submit", help="queue a pick-and-deliver job")
-    submit.add_argument("--pickup", type=square, required=True, metavar="X,Y")
-    submit.add_argument("--dropoff", type=square, required=True, metavar="X,Y")
-    submit.add_argument("--mass", type=float, required=True, metavar="KG")
+    submit.add_argument(
+        "--pickup", type=square, required=True, metavar="X,Y", help="square to fetch from"
+    )
+    submit.add_argument(
+        "--dropoff", type=square, required=True, metavar="X,Y", help="square to deliver to"
+    )
+    submit.add_argument(
+        "--mass", type=kilograms, required=True, metavar="KG", help="the item's mass in kg"
+    )
     submit.add_argument("--priority", type=int, default=0, help="0-100, higher goes first")
     submit.add_argument("--id", dest="job_id", help="job id (default: the coordinator picks one)")
     cancel = sub.add_parser("cancel", help="delete a queued job or abort an active one")
@@ -59,7 +78,7 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
     print(f"{'job':<24} {'state':<11} {'unit':<10} {'mass':>6}  pickup -> dropoff", file=out)
     for job in sorted(view.jobs, key=lambda j: (j.state in ("done", "cancelled"), j.id)):
         route = f"{list(job.pickup)} -> {list(job.dropoff)}"
-        line = f"{job.id:<24} {job.state:<11} {job.unit or '-':<10} {job.mass_kg:>6g}  {route}"
+        line = f"{job.id:<24} {job.state:<11} {job.unit or '-':<10} {job.mass_kg:>6.2f}  {route}"
         print(line + (f"  ({job.reason})" if job.reason else ""), file=out)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -252,3 +253,18 @@ def test_no_benchmark_data_is_one_line_and_exit_2(tmp_path: Path) -> None:
     assert (
         out.returncode == 2 and "no benchmark data" in out.stderr and "Traceback" not in out.stderr
     )
+
+
+def test_a_reader_that_went_away_ends_the_command_quietly(tmp_path: Path) -> None:
+    # As `gridfleet bench planner | head -1`: the pipe's reading end is gone before the tables.
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", "--suite", "lifelong"]
+        out = subprocess.run(
+            [*cmd, "--anchors", str(write_anchors(tmp_path))],
+            stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120, check=False,
+        )  # fmt: skip
+    finally:
+        os.close(write_end)
+    assert out.returncode == 141 and "Traceback" not in out.stderr, out.stderr

@@ -153,11 +153,11 @@ async def test_press_while_broker_is_down_is_sent_after_reconnect(
 class Proc:
     """`gridfleet device` in a subprocess, its stdout collected line by line."""
 
-    def __init__(self, *args: str) -> None:
+    def __init__(self, *args: str, stdin: int = subprocess.PIPE) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.p = subprocess.Popen(
             [sys.executable, "-m", "gridfleet.cli", "device", *args],
-            stdin=subprocess.PIPE,
+            stdin=stdin,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             env=env,
@@ -190,8 +190,8 @@ class Proc:
 def proc_factory() -> Iterator[Callable[..., Proc]]:
     made: list[Proc] = []
 
-    def make(*args: str) -> Proc:
-        made.append(Proc(*args))
+    def make(*args: str, stdin: int = subprocess.PIPE) -> Proc:
+        made.append(Proc(*args, stdin=stdin))
         return made[-1]
 
     yield make
@@ -227,6 +227,19 @@ def test_device_command_shows_leds_stops_and_exits_cleanly(
     assert proc.p.stderr is not None and "Traceback" not in proc.p.stderr.read().decode()
     watcher.wait(conn, lambda m: m.payload == b"offline")
     assert len(watcher.received(topics.fleet("estop"))) == 1
+
+
+def test_device_command_with_stdin_from_dev_null_runs_without_keys(
+    broker: BrokerThread, root: str, proc_factory: Callable[..., Proc]
+) -> None:
+    # As under a service manager: no terminal and no pipe to read keys from.
+    proc = proc_factory(
+        "--broker", broker.url, "--unit", "u9", "--root", root, stdin=subprocess.DEVNULL
+    )
+    proc.wait_line("link=online")
+    proc.p.send_signal(signal.SIGINT)
+    assert proc.p.wait(15) == 0
+    assert proc.p.stderr is not None and "Traceback" not in proc.p.stderr.read().decode()
 
 
 def test_device_command_killed_leaves_its_last_will(

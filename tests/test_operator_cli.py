@@ -61,9 +61,9 @@ def test_submit_list_cancel_goal_and_refusal(
     assert (out.returncode, out.stdout.strip()) == (0, "accepted"), out.stderr
     wait_for(lambda: world.positions["unit3"] == Cell(5, 5), timeout=30, what="unit3 at 5,5")
     wait_for(lambda: "done" in job("list").stdout, timeout=60, interval=0.5, what="crate done")
-    negative = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "-1")
+    negative = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass=-1")
     assert negative.returncode == 2 and "Traceback" not in negative.stderr
-    assert "mass_kg" in negative.stderr.strip().splitlines()[-1]
+    assert "a mass must be more than 0 kg" in negative.stderr.strip().splitlines()[-1]
     cancel = job("cancel", "nonexistent")
     assert cancel.returncode == 1 and "nonexistent" in cancel.stdout
     wall = job("goal", "unit1", "99,99")
@@ -90,6 +90,8 @@ def test_stop_and_release_are_latched_on_the_fleet_topic(
     ("args", "message"),
     [
         (["submit", "--pickup", "1;1", "--dropoff", "2,2", "--mass", "1"], "not a square"),
+        (["submit", "--pickup=-1,3", "--dropoff", "2,2", "--mass", "1"], "squares start at 0,0"),
+        (["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "nan"], "more than 0 kg"),
         (["goal", "unit1"], "one of the arguments"),
         (["--timeout", "1", "list"], "is the coordinator running?"),
         (["--timeout", "1", "cancel", "j1"], "the coordinator is not online"),
