@@ -47,19 +47,20 @@ class ScenAgent:
 
 
 def find_anchors(given: str | Path | None) -> Path:
-    """The benchmark data folder: `given`, else $GRIDFLEET_ANCHORS, else ../shared/anchors."""
-    candidates = [Path(given)] if given else []
-    if not candidates and os.environ.get(ANCHORS_ENV):
-        candidates.append(Path(os.environ[ANCHORS_ENV]))
-    if not candidates:
-        candidates.append(Path.cwd().parent / "shared" / "anchors")
-    folder = candidates[0]
-    if not (folder / "maps").is_dir():
-        raise ConfigError(
-            f"no benchmark data in {folder} (it needs maps/ and instances/): pass --anchors DIR "
-            f"or set {ANCHORS_ENV}; see bench/README.md"
-        )
-    return folder
+    """The benchmark data folder: `given`, else $GRIDFLEET_ANCHORS, else shared/anchors beside
+    the checkout (or beside the current folder)."""
+    if given or os.environ.get(ANCHORS_ENV):
+        candidates = [Path(given or os.environ[ANCHORS_ENV])]
+    else:
+        checkout = Path(__file__).resolve().parents[1]
+        candidates = [p.parent / "shared" / "anchors" for p in (checkout, Path.cwd())]
+    for folder in candidates:
+        if (folder / "maps").is_dir():
+            return folder
+    raise ConfigError(
+        f"no benchmark data in {' or '.join(map(str, candidates))} (it needs maps/ and "
+        f"instances/): pass --anchors DIR or set {ANCHORS_ENV}; see bench/README.md"
+    )
 
 
 def _cells(value: Any, where: str, grid: GridMap) -> tuple[Cell, ...]:

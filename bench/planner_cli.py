@@ -50,7 +50,11 @@ def _positive(text: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet bench planner`."""
-    parser.add_argument("--anchors", help="benchmark data folder (default $GRIDFLEET_ANCHORS)")
+    parser.add_argument(
+        "--anchors",
+        help="benchmark data folder (default $GRIDFLEET_ANCHORS, else shared/anchors beside "
+        "the checkout)",
+    )
     parser.add_argument(
         "--suite",
         default=",".join(SUITES),

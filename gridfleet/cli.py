@@ -44,14 +44,20 @@ def _load(command: str) -> ModuleType | None:
         raise
 
 
-def add_common(parser: argparse.ArgumentParser, *, broker: bool = True) -> None:
-    """Flags that most components share: --broker and --root."""
+def add_common(
+    parser: argparse.ArgumentParser, *, broker: bool = True, own_broker: str | None = None
+) -> None:
+    """Flags that most components share: --broker and --root.
+
+    `own_broker` says what a command that starts its own broker does without --broker (the
+    default is then None).
+    """
     if broker:
         parser.add_argument(
             "--broker",
-            default=DEFAULT_MQTT_URL,
+            default=None if own_broker else DEFAULT_MQTT_URL,
             metavar="URL",
-            help=f"MQTT broker URL, mqtt://host:port (default {DEFAULT_MQTT_URL})",
+            help=f"MQTT broker URL, mqtt://host:port (default {own_broker or DEFAULT_MQTT_URL})",
         )
     parser.add_argument(
         "--root",

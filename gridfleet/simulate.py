@@ -47,8 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="give up after this many coordinator steps (default 2000)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object as the result")
-    add_common(parser)
-    parser.set_defaults(broker=None)
+    add_common(parser, own_broker="an embedded broker on a free port")
 
 
 @dataclass
@@ -184,13 +183,14 @@ async def simulate(
                 with contextlib.suppress(TimeoutError):
                     await asyncio.wait_for(monitor.changed.wait(), 10 * step + 1)
             outcome.finished = _all_done(monitor, accepted_jobs, goals)
+            # Taken now: the coordinator may step once more while the run shuts down.
+            outcome.steps = monitor.step
         finally:
             stop.set()
             await asyncio.gather(*tasks, return_exceptions=True)
             for listener in listeners:
                 listener.cancel()
         world = fleet.world
-        outcome.steps = monitor.step
         outcome.collisions = world.collisions
         outcome.prevented = world.prevented
         outcome.messages = monitor.messages

@@ -36,8 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--demo", action="store_true", help="keep a stream of random feasible jobs coming"
     )
-    add_common(parser)
-    parser.set_defaults(broker=None)
+    add_common(parser, own_broker="the embedded broker, on --mqtt-port")
     parser.add_argument(
         "--mqtt-port",
         type=int,
