@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Literal
 
 from gridfleet.grid import Cell, Direction, GridMap
@@ -45,9 +46,13 @@ class WorldSim:
         self.grid = grid
         self.sensors_see_units = sensors_see_units
         self.hidden: frozenset[Cell] = frozenset(hidden)
-        self.positions: dict[str, Cell] = dict(units or {})
+        self._positions: dict[str, Cell] = dict(units or {})
+        # Who stands where, kept with `positions`: a sensor reading must not scan the whole fleet.
+        self._occupants: dict[Cell, set[str]] = {}
+        for uid, cell in self._positions.items():
+            self._occupants.setdefault(cell, set()).add(uid)
         self.remote: set[str] = set()  # units simulated elsewhere, known from their state
-        self.moves: dict[str, int] = dict.fromkeys(self.positions, 0)
+        self.moves: dict[str, int] = dict.fromkeys(self._positions, 0)
         self.prevented = 0
         self.log: list[Collision] = []
 
@@ -62,13 +67,18 @@ class WorldSim:
         )
 
     @property
+    def positions(self) -> Mapping[str, Cell]:
+        """Every unit's square (read-only: `place`, `remove` and moves keep the index with it)."""
+        return MappingProxyType(self._positions)
+
+    @property
     def collisions(self) -> int:
         """How many collisions happened (vertex, swap, into a wall or obstacle)."""
         return len(self.log)
 
     def position(self, unit_id: str) -> Cell:
         """Where `unit_id` is (KeyError for an unknown unit)."""
-        return self.positions[unit_id]
+        return self._positions[unit_id]
 
     def square(self, cell: Cell, exclude: str | None = None) -> Reading:
         """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
@@ -80,18 +90,19 @@ class WorldSim:
             return "wall"
         if not self.grid.is_free(cell) or cell in self.hidden:
             return "obstacle"
-        if any(c == cell and u != exclude for u, c in self.positions.items()):
+        there = self._occupants.get(cell)
+        if there and (len(there) > 1 or exclude not in there):
             return "unit"
         return "free"
 
     def sense(self, unit_id: str) -> dict[Direction, Reading]:
         """The four distance sensors of `unit_id`: what is in each neighbouring square."""
-        here = self.positions[unit_id]
+        here = self._positions[unit_id]
         return {d: self.square(here.step(d), exclude=unit_id) for d in Direction}
 
     def move(self, unit_id: str, direction: Direction) -> bool:
         """Move one square if it is free; otherwise refuse, count it as prevented, return False."""
-        target = self.positions[unit_id].step(direction)
+        target = self._positions[unit_id].step(direction)
         if self._truth(target, exclude=unit_id) != "free":
             self.prevented += 1
             return False
@@ -106,34 +117,48 @@ class WorldSim:
 
     def place(self, unit_id: str, cell: Cell) -> None:
         """Put a unit simulated elsewhere on `cell` (learnt from its published state)."""
-        self.positions[unit_id] = cell
+        self._relocate(unit_id, cell)
         self.remote.add(unit_id)
         self.moves.setdefault(unit_id, 0)
 
     def remove(self, unit_id: str) -> None:
         """Forget a unit simulated elsewhere."""
-        self.positions.pop(unit_id, None)
+        cell = self._positions.pop(unit_id, None)
+        if cell is not None:
+            self._leave(unit_id, cell)
         self.remote.discard(unit_id)
+
+    def _relocate(self, unit_id: str, cell: Cell) -> None:
+        old = self._positions.get(unit_id)
+        if old is not None:
+            self._leave(unit_id, old)
+        self._positions[unit_id] = cell
+        self._occupants.setdefault(cell, set()).add(unit_id)
+
+    def _leave(self, unit_id: str, cell: Cell) -> None:
+        there = self._occupants.get(cell)
+        if there is not None:
+            there.discard(unit_id)
+            if not there:
+                del self._occupants[cell]
 
     def _apply(self, moves: Mapping[str, Direction]) -> None:
         # Every move of one call happens in the same instant, so swaps can be seen.
-        old = dict(self.positions)
+        old = {uid: self._positions[uid] for uid in moves}
         for uid, d in moves.items():
-            self.positions[uid] = old[uid].step(d)
+            self._relocate(uid, old[uid].step(d))
             self.moves[uid] = self.moves.get(uid, 0) + 1
         for uid in moves:
-            cell = self.positions[uid]
+            cell = self._positions[uid]
             if not self.grid.in_bounds(cell):
                 self.log.append(Collision("wall", (uid,), cell))
             elif not self.grid.is_free(cell) or cell in self.hidden:
                 self.log.append(Collision("obstacle", (uid,), cell))
-        seen: dict[Cell, list[str]] = {}
-        for uid, cell in self.positions.items():
-            seen.setdefault(cell, []).append(uid)
-        for cell, uids in seen.items():
-            if len(uids) > 1 and any(u in moves for u in uids):
+        for cell in dict.fromkeys(self._positions[uid] for uid in moves):  # each square once
+            uids = self._occupants[cell]
+            if len(uids) > 1:
                 self.log.append(Collision("vertex", tuple(sorted(uids)), cell))
         for a in moves:
             for b in moves:
-                if a < b and self.positions[a] == old[b] and self.positions[b] == old[a]:
-                    self.log.append(Collision("swap", (a, b), self.positions[a]))
+                if a < b and self._positions[a] == old[b] and self._positions[b] == old[a]:
+                    self.log.append(Collision("swap", (a, b), self._positions[a]))

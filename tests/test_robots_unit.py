@@ -127,14 +127,14 @@ def test_an_order_planned_from_an_older_state_follows_on_from_where_the_unit_sta
 
 def test_unit_waits_for_a_released_square_its_sensor_sees_occupied() -> None:
     world, u = setup()
-    world.positions["other"] = Cell(1, 1)
+    world.place("other", Cell(1, 1))
     u.on_order(order("o1", 1, [(1, 1)]))
     u.refresh(0.0)
     run(world, u, 4)
     assert u.position == Cell(0, 1) and u.status == "waiting"
     assert u.wait_reason is not None and "another unit" in u.wait_reason
     assert (world.collisions, world.prevented) == (0, 0)
-    del world.positions["other"]
+    world.remove("other")
     run(world, u, 3)
     assert u.position == Cell(1, 1)
 

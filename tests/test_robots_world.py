@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gridfleet.grid import Cell, Direction, GridMap
 from robots.world import Reading, WorldSim
@@ -110,3 +112,41 @@ def test_remote_units_are_placed_from_their_state() -> None:
     assert w.sense("a")[E] == "unit" and "z" in w.remote
     w.place("z", Cell(2, 0))
     assert w.sense("a")[E] == "free"
+
+
+Action = tuple[str, str, int, int]  # (kind, unit, x or direction index, y)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["move", "force", "place", "remove"]),
+            st.sampled_from(["a", "b", "c", "r"]),
+            st.integers(0, 3),
+            st.integers(0, 2),
+        ),
+        max_size=40,
+    )
+)
+def test_sensors_always_agree_with_where_the_units_are(actions: list[Action]) -> None:
+    # The world keeps an index of who stands where; whatever happens, sensors must read the
+    # same as a scan of every unit's square would.
+    world = world_of("a...", "..b.", "c..@")
+    for kind, unit, a, b in actions:
+        if kind == "place":
+            world.place(unit, Cell(a, b))
+        elif kind == "remove" and unit == "r":
+            world.remove(unit)
+        elif unit in world.positions and kind == "move":
+            world.move(unit, list(Direction)[a])
+        elif unit in world.positions and kind == "force":
+            world.force_move({unit: list(Direction)[a]})
+    for y in range(-1, 4):
+        for x in range(-1, 5):
+            cell = Cell(x, y)
+            for asking in [None, *world.positions]:
+                scan = any(c == cell and u != asking for u, c in world.positions.items())
+                assert (world.square(cell, exclude=asking) == "unit") == (
+                    scan and world.grid.is_free(cell) and cell not in world.hidden
+                )
