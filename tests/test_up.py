@@ -54,6 +54,7 @@ class Output:
         return "".join(self.lines)
 
 
+@pytest.mark.timeout(240)  # its waits (start 90 s, stop 60 s) are the limits that matter
 def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
     broker: BrokerThread,
     root: str,
