@@ -48,6 +48,9 @@ log = logging.getLogger("gridfleet.coordinator")
 # Longest a step waits past its period for units to acknowledge the moves of the previous step:
 # half the shortest hold timeout, so units never hold for want of orders while we wait.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
+# A burst of requests (a script queueing hundreds of jobs) gets one queue view per this period,
+# not one per request: each view lists every job, so one per request grows as the square.
+VIEWS_BATCH_S = 0.05
 
 _REQUESTS: dict[str, type[SubmitJob] | type[CancelJob] | type[SetGoal]] = {
     "submit_job": SubmitJob,
@@ -91,6 +94,8 @@ class Coordinator:
         # Moves sent and not yet acknowledged by the unit's state: unit -> (order id, update id).
         self._awaiting: dict[str, tuple[str, int]] = {}
         self._acked = asyncio.Event()
+        self._views_at = -VIEWS_BATCH_S  # loop time of the last views published for a request
+        self._views_later: asyncio.Task[None] | None = None
 
     # ---- lifecycle ---------------------------------------------------------------------
 
@@ -136,6 +141,8 @@ class Coordinator:
                 await self._step_loop(stop, receiver)
             finally:
                 await cancel_and_wait(receiver)
+                if self._views_later is not None:
+                    await cancel_and_wait(self._views_later)
             if stop.is_set():
                 with contextlib.suppress(aiomqtt.MqttError):
                     await self._publish_status("offline")
@@ -255,7 +262,22 @@ class Coordinator:
                 job_id=outcome.job_id,
             )
             await self._publish("reply", self.topics.reply(req.reply_to), reply)
-        if self._jobs_dirty:  # set by _persist above: the queue view follows at once
+        if self._jobs_dirty:  # set by _persist above
+            await self._views_soon()
+
+    async def _views_soon(self) -> None:
+        """Publish the changed views now, or once the batch period is over (one pending at most)."""
+        wait = self._views_at + VIEWS_BATCH_S - asyncio.get_running_loop().time()
+        if wait <= 0:
+            self._views_at = asyncio.get_running_loop().time()
+            await self._publish_views()
+        elif self._views_later is None or self._views_later.done():
+            self._views_later = asyncio.create_task(self._views_after(wait))
+
+    async def _views_after(self, delay: float) -> None:
+        await asyncio.sleep(delay)  # pacing: the end of the batch period, not synchronisation
+        self._views_at = asyncio.get_running_loop().time()
+        with contextlib.suppress(aiomqtt.MqttError):  # the receiver sees a lost broker first
             await self._publish_views()
 
     # ---- the step ----------------------------------------------------------------------

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from coordinator_fakes import FakeFleet, FakeUnit
 
-from coordinator.service import Coordinator
+from coordinator.service import VIEWS_BATCH_S, Coordinator
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol import (
@@ -382,3 +382,51 @@ async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
     finally:
         stop.set()
         await task
+
+
+async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_last_at_once(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    # A step of 60 s: every view after the first comes from the requests, none from a step.
+    topics = Topics(root)
+    probe = MqttProbe(broker.url, "burst").connect()
+    probe.subscribe(topics.fleet("jobs"), qos=1)
+    probe.subscribe(topics.reply("burst"), qos=1)
+    coordinator = Coordinator(
+        broker.url, playfield_grid(), root=root, step_s=60, db_path=tmp_path / "jobs.db"
+    )
+    stop = asyncio.Event()
+    task = asyncio.create_task(coordinator.run(stop))
+    try:
+        await asyncio.wait_for(coordinator.ready.wait(), 10)
+        await async_wait_for(lambda: probe.received(topics.fleet("jobs")), what="first view")
+        views_before = len(probe.received(topics.fleet("jobs")))
+        stamp = HeaderStamper("burst")
+        for i in range(40):
+            req = SubmitJob(
+                header=stamp("submit_job"), request_id=f"r{i}", reply_to="burst",
+                pickup=(1, 1), dropoff=(8, 8), mass_kg=1.0, job_id=f"b{i}",
+            )  # fmt: skip
+            probe.publish(topics.request("submit_job"), encode(req))
+        replies = await async_wait_for(
+            lambda: (r := probe.received(topics.reply("burst"))) and len(r) == 40 and r,
+            what="40 replies",
+        )
+        views = await async_wait_for(
+            lambda: (
+                [
+                    v
+                    for v in probe.received(topics.fleet("jobs"))[views_before:]
+                    if len(decode(JobsView, v.payload, MAX_VIEW_BYTES).jobs) == 40
+                ]
+                and probe.received(topics.fleet("jobs"))[views_before:]
+            ),
+            timeout=5,  # the trailing view, long before the next step
+            what="a view listing all 40 jobs",
+        )
+        burst_s = replies[-1].at - replies[0].at
+        assert len(views) <= 2 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
+    finally:
+        stop.set()
+        await task
+        probe.close()

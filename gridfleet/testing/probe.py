@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 import uuid
 from collections import defaultdict
 from collections.abc import Callable
@@ -24,6 +25,7 @@ class Seen:
     payload: bytes
     retain: bool
     qos: int
+    at: float = 0.0  # time.monotonic() when it arrived
 
 
 class MqttProbe:
@@ -50,7 +52,7 @@ class MqttProbe:
     def _on_message(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
         with self._lock:
             self.messages[msg.topic].append(
-                Seen(msg.topic, bytes(msg.payload), msg.retain, msg.qos)
+                Seen(msg.topic, bytes(msg.payload), msg.retain, msg.qos, time.monotonic())
             )
 
     def connect(self, timeout: float = 10.0) -> MqttProbe:
