@@ -42,7 +42,6 @@ class Child:
     restarts: int = 0
     started_at: float = 0.0
     last_line: str = ""
-    ever_ready: bool = False
     gone: asyncio.Event = field(default_factory=asyncio.Event)  # exited and not restarted
 
 
@@ -121,7 +120,6 @@ class Supervisor:
                 match = child.spec.ready.search(line)
                 if match:
                     child.ready_match = match
-                    child.ever_ready = True
                     child.ready_event.set()
 
     async def _watch(self, child: Child) -> None:
@@ -132,7 +130,8 @@ class Supervisor:
             if self._stopping:
                 return
             self.say(child.spec.name, f"exited with code {code}")
-            never_ready = child.spec.ready is not None and not child.ever_ready
+            # ready_match outlives restarts: it says whether the child was ever ready.
+            never_ready = child.spec.ready is not None and child.ready_match is None
             if not child.spec.restart or never_ready:
                 child.gone.set()
                 return
