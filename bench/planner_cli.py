@@ -19,7 +19,7 @@ from bench.runs import (
     run_lifelong,
     run_one_shot,
 )
-from gridfleet.errors import ConfigError, MapError
+from gridfleet.errors import ConfigError
 from gridfleet.maps import load_map
 
 log = logging.getLogger("gridfleet.bench")
@@ -180,7 +180,7 @@ def _oneshot(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
 
 
 def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
-    grid = _map(anchors / "maps" / args.scale_map)
+    grid = load_map(anchors / "maps" / args.scale_map)
     rows = []
     for n in args.scale_agents:
         try:
@@ -202,13 +202,6 @@ def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
             }
         )
     return rows
-
-
-def _map(path: Path) -> Any:
-    try:
-        return load_map(path)
-    except MapError as exc:
-        raise ConfigError(str(exc)) from None
 
 
 def _print_tables(report: dict[str, list[dict[str, Any]]]) -> None:

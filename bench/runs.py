@@ -10,7 +10,7 @@ import random
 import statistics
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -82,6 +82,27 @@ class OneShotResult:
     timing: Timing
 
 
+@dataclass
+class _CheckedPlanner:
+    """Steps a planner, timing each step and checking it with the plan validator (untimed)."""
+
+    planner: StepPlanner
+    grid: GridMap
+    clock: Clock
+    seconds: list[float] = field(default_factory=list)
+    violations: int = 0
+
+    def step(self, specs: dict[str, AgentSpec]) -> dict[str, Cell]:
+        """The planner's next squares for `specs`."""
+        started = self.clock()
+        after = self.planner.step(specs)
+        self.seconds.append(self.clock() - started)
+        before = [s.position for s in specs.values()]
+        moved = [after[a] for a in specs]
+        self.violations += len(validate_step(self.grid, before, moved, len(self.seconds) - 1))
+        return after
+
+
 def run_lifelong(
     instance: LifelongInstance,
     horizon: int | None = None,
@@ -95,19 +116,12 @@ def run_lifelong(
     position = dict(zip(names, instance.starts, strict=True))
     errands: dict[str, list[Cell]] = {a: list(instance.tasks[i]) for i, a in enumerate(names)}
     revealed = instance.agents
-    finished = violations = 0
+    finished = 0
     exhausted_at: int | None = None
-    planner = planner or Planner(instance.grid, seed=seed)
-    seconds = []
+    checked = _CheckedPlanner(planner or Planner(instance.grid, seed=seed), instance.grid, clock)
     for tick in range(ticks):
         agents = {a: AgentSpec(position[a], errands[a][0] if errands[a] else None) for a in names}
-        started = clock()
-        after = planner.step(agents)
-        seconds.append(clock() - started)
-        before_cells = [position[a] for a in names]
-        after_cells = [after[a] for a in names]
-        violations += len(validate_step(instance.grid, before_cells, after_cells, tick))
-        position = after
+        position = checked.step(agents)
         for a in names:
             if errands[a] and position[a] == errands[a][0]:
                 errands[a].pop(0)
@@ -126,8 +140,8 @@ def run_lifelong(
         tasks_finished=finished,
         tasks_available=len(instance.tasks),
         exhausted_at=exhausted_at,
-        violations=violations,
-        timing=Timing(tuple(seconds)),
+        violations=checked.violations,
+        timing=Timing(tuple(checked.seconds)),
     )
 
 
@@ -144,23 +158,15 @@ def run_one_shot(
     goal = {a: agents[i].goal for i, a in enumerate(names)}
     position = {a: agents[i].start for i, a in enumerate(names)}
     fields = DistanceFieldCache(grid)
-    lower_bound = sum(fields.distance(s.start, s.goal) for s in agents)
-    if any(fields.distance(s.start, s.goal) == UNREACHABLE for s in agents):
+    shortest = [fields.distance(s.start, s.goal) for s in agents]
+    if UNREACHABLE in shortest:
         raise ValueError("an agent's goal cannot be reached from its start")
     arrived = {a: 0 if position[a] == goal[a] else None for a in names}
-    planner = planner or Planner(grid, seed=seed)
-    seconds = []
-    violations = 0
+    checked = _CheckedPlanner(planner or Planner(grid, seed=seed), grid, clock)
     makespan: int | None = 0 if all(v == 0 for v in arrived.values()) else None
     step = 0
     while makespan is None and step < max_steps:
-        specs = {a: AgentSpec(position[a], goal[a]) for a in names}
-        started = clock()
-        after = planner.step(specs)
-        seconds.append(clock() - started)
-        violations += len(
-            validate_step(grid, [position[a] for a in names], [after[a] for a in names], step)
-        )
+        after = checked.step({a: AgentSpec(position[a], goal[a]) for a in names})
         step += 1
         for a in names:
             if after[a] != goal[a]:
@@ -177,9 +183,9 @@ def run_one_shot(
         at_goal=sum(position[a] == goal[a] for a in names),
         makespan=makespan,
         sum_of_costs=sum(costs) if makespan is not None else None,
-        lower_bound=lower_bound,
-        violations=violations,
-        timing=Timing(tuple(seconds)),
+        lower_bound=sum(shortest),
+        violations=checked.violations,
+        timing=Timing(tuple(checked.seconds)),
     )
 
 
