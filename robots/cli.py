@@ -7,10 +7,9 @@ import asyncio
 import logging
 
 from gridfleet.cli import add_common
-from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_STEP_S
-from gridfleet.scenario import load_scenario, with_units
+from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
 from robots.fleet import Fleet
 
@@ -44,8 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build(args: argparse.Namespace) -> Fleet:
     """The fleet the arguments describe; bad input raises a GridfleetError with one clear line."""
-    parse_broker_url(args.broker)
-    scenario = with_units(load_scenario(args.scenario))
+    scenario = load_scenario(args.scenario)  # Fleet checks the URL and that it has units
     units = None
     if args.units is not None:
         units = [u.strip() for u in args.units.split(",") if u.strip()]

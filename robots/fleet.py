@@ -11,7 +11,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
-from gridfleet.scenario import Scenario
+from gridfleet.scenario import Scenario, with_units
 from robots.runner import UnitRunner
 from robots.unit import Mode, UnitLogic
 from robots.world import WorldSim
@@ -34,7 +34,7 @@ class Fleet:
         sensors_see_units: bool = True,
     ) -> None:
         parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
-        known = [u.id for u in scenario.units]
+        known = [u.id for u in with_units(scenario).units]
         local = list(known if units is None else units)
         for uid in local:
             if uid not in known:
@@ -42,7 +42,7 @@ class Fleet:
                     f"unknown unit {uid!r}: scenario {scenario.name!r} has {', '.join(known) or 'none'}"
                 )
         if not local:
-            raise ConfigError(f"no units to run: scenario {scenario.name!r} has none")
+            raise ConfigError("units: give at least one unit id")
         check_step(step)
         self.scenario = scenario
         self.topics = Topics(root)

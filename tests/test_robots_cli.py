@@ -92,3 +92,13 @@ def test_sigterm_stops_every_unit_with_offline(
                 proc.kill()
             _, err = proc.communicate()
         assert "Traceback" not in err
+
+
+def test_a_scenario_without_units_is_a_one_line_error_naming_it(tmp_path: Path) -> None:
+    (tmp_path / "m.map").write_text("type octile\nheight 1\nwidth 3\nmap\n...\n")
+    (tmp_path / "empty.toml").write_text('map = "m.map"\n')
+    out = cli("--scenario", str(tmp_path / "empty.toml"))
+    assert out.returncode == 2
+    assert out.stderr.strip() == (
+        f"gridfleet robots: error: {tmp_path / 'empty.toml'}: no units to run (add [[units]] tables)"
+    )

@@ -9,7 +9,7 @@ import pytest
 from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import format_map, load_map, parse_map
-from gridfleet.scenario import load_scenario
+from gridfleet.scenario import load_scenario, with_units
 
 ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "maps"
 MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@..\n....\n"
@@ -133,3 +133,14 @@ def test_missing_scenario_file_is_named(tmp_path: Path) -> None:
 def test_gridmap_refuses_a_bad_array() -> None:
     with pytest.raises(ValueError, match="non-empty 2-D"):
         GridMap([])
+
+
+def test_with_units_passes_a_fleet_and_refuses_a_map_only_scenario(tmp_path: Path) -> None:
+    (tmp_path / "m.map").write_text(MAP)
+    (tmp_path / "fleet.toml").write_text('map = "m.map"\n' + UNIT)
+    (tmp_path / "empty.toml").write_text('map = "m.map"\n')
+    fleet = load_scenario(tmp_path / "fleet.toml")
+    assert with_units(fleet) is fleet
+    with pytest.raises(ScenarioError, match="no units to run") as info:
+        with_units(load_scenario(tmp_path / "empty.toml"))
+    assert str(tmp_path / "empty.toml") in str(info.value)

@@ -111,3 +111,13 @@ def test_a_job_refused_at_submission_is_listed_once_with_its_reason(tmp_path: Pa
         ("piano", "rejected", [3, 1]),
     ]
     assert "5" in jobs[1]["reason"] and "9" in jobs[1]["reason"]  # mass against capacity
+
+
+def test_a_scenario_without_units_is_refused_before_anything_starts(tmp_path: Path) -> None:
+    (tmp_path / "m.map").write_text("type octile\nheight 1\nwidth 3\nmap\n...\n")
+    (tmp_path / "empty.toml").write_text('map = "m.map"\n')
+    out = simulate(str(tmp_path / "empty.toml"))
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.strip() == (
+        f"gridfleet simulate: error: {tmp_path / 'empty.toml'}: no units to run (add [[units]] tables)"
+    )
