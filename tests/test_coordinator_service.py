@@ -342,19 +342,29 @@ async def test_malformed_requests_are_refused_and_change_nothing(
         assert r.coordinator.core.goals == {}
 
 
+@contextlib.asynccontextmanager
+async def slow_stepping(broker: BrokerThread, root: str, tmp_path: Path) -> AsyncIterator[None]:
+    """A coordinator with a 60 s step: every view after its first comes from requests."""
+    coordinator = Coordinator(
+        broker.url, playfield_grid(), root=root, step_s=60.0, db_path=tmp_path / "jobs.db"
+    )
+    stop = asyncio.Event()
+    task = asyncio.create_task(coordinator.run(stop))
+    try:
+        await asyncio.wait_for(coordinator.ready.wait(), 10)
+        yield
+    finally:
+        stop.set()
+        await task
+
+
 async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
     # Found on the live dashboard: a job the operator queued, deleted or got refused showed in
     # the queue only a step later (or, while stopped, not until something else changed).
     topics = Topics(root)
-    coordinator = Coordinator(
-        broker.url, playfield_grid(), root=root, step_s=30.0, db_path=tmp_path / "jobs.db"
-    )
-    stop = asyncio.Event()
-    task = asyncio.create_task(coordinator.run(stop))
-    try:
-        await asyncio.wait_for(coordinator.ready.wait(), 10)
+    async with slow_stepping(broker, root, tmp_path):
         with MqttProbe(broker.url, "tester") as probe:
             probe.subscribe(topics.fleet("jobs"), qos=1)
             stamp = HeaderStamper("tester")
@@ -379,54 +389,40 @@ async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
             cancel = CancelJob(header=stamp("cancel_job"), request_id="r2", job_id="j1")
             probe.publish(topics.request("cancel_job"), encode(cancel))
             await async_wait_for(lambda: listed("j1", "cancelled"), timeout=5, what="j1 cancelled")
-    finally:
-        stop.set()
-        await task
 
 
 async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_last_at_once(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
-    # A step of 60 s: every view after the first comes from the requests, none from a step.
     topics = Topics(root)
-    probe = MqttProbe(broker.url, "burst").connect()
-    probe.subscribe(topics.fleet("jobs"), qos=1)
-    probe.subscribe(topics.reply("burst"), qos=1)
-    coordinator = Coordinator(
-        broker.url, playfield_grid(), root=root, step_s=60, db_path=tmp_path / "jobs.db"
-    )
-    stop = asyncio.Event()
-    task = asyncio.create_task(coordinator.run(stop))
-    try:
-        await asyncio.wait_for(coordinator.ready.wait(), 10)
-        await async_wait_for(lambda: probe.received(topics.fleet("jobs")), what="first view")
-        views_before = len(probe.received(topics.fleet("jobs")))
-        stamp = HeaderStamper("burst")
-        for i in range(40):
-            req = SubmitJob(
-                header=stamp("submit_job"), request_id=f"r{i}", reply_to="burst",
-                pickup=(1, 1), dropoff=(8, 8), mass_kg=1.0, job_id=f"b{i}",
-            )  # fmt: skip
-            probe.publish(topics.request("submit_job"), encode(req))
-        replies = await async_wait_for(
-            lambda: (r := probe.received(topics.reply("burst"))) and len(r) == 40 and r,
-            what="40 replies",
-        )
-        views = await async_wait_for(
-            lambda: (
-                [
-                    v
-                    for v in probe.received(topics.fleet("jobs"))[views_before:]
-                    if len(decode(JobsView, v.payload, MAX_VIEW_BYTES).jobs) == 40
-                ]
-                and probe.received(topics.fleet("jobs"))[views_before:]
-            ),
-            timeout=5,  # the trailing view, long before the next step
-            what="a view listing all 40 jobs",
-        )
-        burst_s = replies[-1].at - replies[0].at
-        assert len(views) <= 2 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
-    finally:
-        stop.set()
-        await task
-        probe.close()
+    async with slow_stepping(broker, root, tmp_path):
+        with MqttProbe(broker.url, "burst") as probe:
+            probe.subscribe(topics.fleet("jobs"), qos=1)
+            probe.subscribe(topics.reply("burst"), qos=1)
+            await async_wait_for(lambda: probe.received(topics.fleet("jobs")), what="first view")
+            views_before = len(probe.received(topics.fleet("jobs")))
+            stamp = HeaderStamper("burst")
+            for i in range(40):
+                req = SubmitJob(
+                        header=stamp("submit_job"), request_id=f"r{i}", reply_to="burst",
+                        pickup=(1, 1), dropoff=(8, 8), mass_kg=1.0, job_id=f"b{i}",
+                    )  # fmt: skip
+                probe.publish(topics.request("submit_job"), encode(req))
+            replies = await async_wait_for(
+                lambda: (r := probe.received(topics.reply("burst"))) and len(r) == 40 and r,
+                what="40 replies",
+            )
+            views = await async_wait_for(
+                lambda: (
+                    [
+                        v
+                        for v in probe.received(topics.fleet("jobs"))[views_before:]
+                        if len(decode(JobsView, v.payload, MAX_VIEW_BYTES).jobs) == 40
+                    ]
+                    and probe.received(topics.fleet("jobs"))[views_before:]
+                ),
+                timeout=5,  # the trailing view, long before the next step
+                what="a view listing all 40 jobs",
+            )
+            burst_s = replies[-1].at - replies[0].at
+            assert len(views) <= 2 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
