@@ -27,7 +27,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.feeder import Operator, operator_session, random_job
 from gridfleet.grid import Cell
 from gridfleet.paths import DistanceFieldCache
-from gridfleet.protocol import TOPICS, EstopSignal, Reply, Topics, encode_estop
+from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import Scenario
 from gridfleet.tasks import cancel_and_wait
 from gridfleet.testing.services import ServiceThread, coordinator_thread, fleet_thread, world_of
@@ -76,13 +76,6 @@ async def _keep_jobs(
         await operator.jobs_changed.wait()
 
 
-async def _estop(operator: Operator, engaged: bool) -> None:
-    spec = TOPICS["estop"]
-    signal = EstopSignal(engaged, operator.client_id, "system bench")
-    topic = operator.topics.fleet("estop")
-    await operator.client.publish(topic, encode_estop(signal), qos=spec.qos, retain=spec.retained)
-
-
 async def _stop_trials(
     operator: Operator, monitor: BenchMonitor, fleet: ServiceThread, trials: int, step_s: float
 ) -> tuple[list[float | None], list[float | None], int]:
@@ -94,14 +87,14 @@ async def _stop_trials(
     for _ in range(trials):
         monitor.expect(True)
         wall, t0 = datetime.now(UTC), time.monotonic()
-        await _estop(operator, True)
+        await operator.set_estop(True, "system bench")
         try:
             await asyncio.wait_for(monitor.all_shown.wait(), STOP_WAIT_S)
         except TimeoutError:
             # An overloaded broker: further trials would only take as long; none of them count.
             seen_ms += [None] * (trials - len(seen_ms))
             applied_ms += [None] * (trials - len(applied_ms))
-            await _estop(operator, False)
+            await operator.set_estop(False, "system bench")
             break
         shown = list(monitor.shown.values())
         seen_ms.append(round((max(s.seen for s in shown) - t0) * 1000, 2))
@@ -111,7 +104,7 @@ async def _stop_trials(
         await asyncio.sleep(3 * step_s)  # pacing: give a stopped unit three steps to misbehave
         moved += fleet.call(lambda: sum(world.moves.values())) - before
         monitor.expect(False)
-        await _estop(operator, False)
+        await operator.set_estop(False, "system bench")
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(monitor.all_shown.wait(), STOP_WAIT_S)
         await asyncio.sleep(max(0.3, 5 * step_s))  # pacing: let the fleet get moving again

@@ -23,6 +23,7 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     CoordinatorStatus,
+    EstopSignal,
     HeaderStamper,
     JobsView,
     Reply,
@@ -32,6 +33,7 @@ from gridfleet.protocol import (
     Topics,
     decode,
     encode,
+    encode_estop,
 )
 from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
@@ -152,6 +154,15 @@ class Operator:
     async def cancel_job(self, job_id: str, timeout: float = 10.0) -> Reply:
         """Delete a queued job or abort an active one."""
         return await self._request("cancel_job", CancelJob, timeout, job_id=job_id)
+
+    async def set_estop(self, engaged: bool, reason: str) -> EstopSignal:
+        """Engage or release the fleet-wide emergency stop (retained: it latches); returns it."""
+        signal = EstopSignal(engaged, self.client_id, reason)
+        spec = TOPICS["estop"]
+        await self.client.publish(
+            self.topics.fleet("estop"), encode_estop(signal), qos=spec.qos, retain=spec.retained
+        )
+        return signal
 
     async def wait_for_units(self, units: Sequence[str], timeout: float = 30.0) -> None:
         """Wait until the coordinator plans for every unit in `units` (it knows their state)."""

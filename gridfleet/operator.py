@@ -12,7 +12,7 @@ from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.feeder import operator_session
 from gridfleet.grid import Cell
-from gridfleet.protocol import TOPICS, EstopSignal, JobsView, Reply, encode_estop
+from gridfleet.protocol import JobsView, Reply
 from gridfleet.protocol.topics import Topics
 
 WAIT_S = 10.0
@@ -87,12 +87,7 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
     client_id = f"cli-{uuid.uuid4().hex[:6]}"
     async with operator_session(args.broker, Topics(args.root), client_id) as operator:
         if args.action in ("stop", "release"):
-            signal = EstopSignal(args.action == "stop", client_id, args.reason)
-            spec = TOPICS["estop"]
-            topic = operator.topics.fleet("estop")
-            await operator.client.publish(
-                topic, encode_estop(signal), qos=spec.qos, retain=spec.retained
-            )
+            signal = await operator.set_estop(args.action == "stop", args.reason)
             print(f"emergency stop {'ENGAGED' if signal.engaged else 'released'}", file=out)
             return 0
         if args.action == "list":
