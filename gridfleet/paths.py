@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -49,7 +48,9 @@ def distance_field(grid: GridMap, target: Cell, graph: csr_matrix | None = None)
     return field.reshape(grid.height, grid.width)
 
 
-def _depths(order: npt.NDArray[np.int32], parent: npt.NDArray[np.int32], n: int) -> Any:
+def _depths(
+    order: npt.NDArray[np.int32], parent: npt.NDArray[np.int32], n: int
+) -> npt.NDArray[np.int32]:
     """Depth of each node of a BFS `order`: in BFS order the parents' positions never decrease."""
     position = np.empty(n, dtype=np.int64)
     position[order] = np.arange(len(order))
