@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import re
 import sys
 import uuid
@@ -12,7 +13,8 @@ from collections.abc import AsyncIterator
 import aiomqtt
 
 from gridfleet.bus import make_client
-from gridfleet.errors import ConfigError, GridfleetError
+from gridfleet.errors import ConfigError
+from gridfleet.supervisor import ChildSpec, Supervisor
 
 
 async def check_broker(url: str, timeout: float = 5.0) -> None:
@@ -25,40 +27,29 @@ async def check_broker(url: str, timeout: float = 5.0) -> None:
         raise ConfigError(f"cannot reach the broker at {url}: {exc or 'timed out'}") from None
 
 
+_READY = re.compile(r"listening on (mqtt://\S+)")
+_EMBEDDED = ["-m", "gridfleet", "broker", "--host", "127.0.0.1", "--port", "0", "--no-ws"]
+
+
 @contextlib.asynccontextmanager
 async def broker_for(url: str | None) -> AsyncIterator[str]:
     """The URL given (checked), or an embedded amqtt on a free loopback port for the block.
 
-    The embedded broker runs in a process of its own (`gridfleet broker`, as `gridfleet up` runs
-    it): in this process it would share one interpreter lock with the coordinator and every unit.
+    The embedded broker runs in a process of its own (`gridfleet broker`, supervised as `gridfleet
+    up` runs it): in this process it would share one interpreter lock with the coordinator and
+    every unit.
     """
     if url is not None:
         await check_broker(url)
         yield url
         return
-    args = ["-m", "gridfleet", "broker", "--host", "127.0.0.1", "--port", "0", "--no-ws"]
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        *args,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.DEVNULL,
-        start_new_session=True,  # Ctrl-C reaches the bench, which stops the broker last
-    )
-    try:
-        assert proc.stdout is not None
+    # An overloaded amqtt can take long to drain when stopped: it has no queue limit.
+    with open(os.devnull, "w") as quiet:
+        supervisor = Supervisor(out=quiet, stop_timeout=20.0)
         try:
-            line = await asyncio.wait_for(proc.stdout.readline(), 60)
-        except TimeoutError:
-            line = b""
-        match = re.search(rb"listening on (mqtt://\S+)", line)
-        if match is None:
-            raise GridfleetError(f"the embedded broker did not start (it said {line!r})")
-        yield match.group(1).decode()
-    finally:
-        with contextlib.suppress(ProcessLookupError):
-            proc.terminate()
-        try:
-            await asyncio.wait_for(proc.wait(), 20)
-        except TimeoutError:  # an overloaded amqtt can take long to drain: it has no queue limit
-            proc.kill()
-            await proc.wait()
+            spec = ChildSpec("broker", [sys.executable, *_EMBEDDED], ready=_READY, restart=False)
+            broker = await supervisor.start(spec)
+            assert broker.ready_match is not None
+            yield broker.ready_match.group(1)
+        finally:
+            await supervisor.stop()  # last: Ctrl-C reaches the bench, which stops it after the rest
