@@ -1,8 +1,4 @@
-"""The system bench's listener: messages by topic kind, state latency, and who shows the stop.
-
-`gridfleet.monitor.FleetMonitor` keeps the latest view of the fleet but neither the arrival time
-of a state nor counts by kind, which are what the bench measures; hence this small listener.
-"""
+"""The system bench's listener: messages by topic kind, state latency, and who shows the stop."""
 
 from __future__ import annotations
 
@@ -15,7 +11,8 @@ from datetime import UTC, datetime
 import aiomqtt
 
 from gridfleet.errors import ProtocolError
-from gridfleet.protocol import TOPICS, Routes, Topics, UnitState, decode
+from gridfleet.monitor import FleetMonitor
+from gridfleet.protocol import TOPICS, Topics, UnitState
 
 
 @dataclass(frozen=True)
@@ -26,15 +23,17 @@ class Shown:
     stamped: datetime  # the unit's header timestamp (when it made the state)
 
 
-class BenchMonitor:
-    """Subscribes to `<root>/v1/#` at QoS 0; counts, times states, and watches stop engagements."""
+class BenchMonitor(FleetMonitor):
+    """A FleetMonitor that also counts by kind, times states, and watches stop engagements.
+
+    It decodes only states and routes: the jobs and map views are not measured, and decoding
+    them would load the process being measured.
+    """
 
     def __init__(self, client: aiomqtt.Client, topics: Topics, units: int) -> None:
-        self.client = client
-        self.topics = topics
+        super().__init__(client, topics)
         self.units = units
         self.by_kind: Counter[str] = Counter()
-        self.step = 0
         self.retained_topics: set[str] = set()  # cleared at the end on an external broker
         self.measuring = False
         self.latencies: list[float] = []  # seconds from a state's header timestamp to arrival
@@ -43,15 +42,6 @@ class BenchMonitor:
         self.shown: dict[str, Shown] = {}
         self.all_shown = asyncio.Event()
 
-    @property
-    def messages(self) -> int:
-        """Every message seen so far."""
-        return sum(self.by_kind.values())
-
-    async def start(self) -> None:
-        """Subscribe to everything under the root."""
-        await self.client.subscribe(f"{self.topics.prefix}/#", qos=0)
-
     def expect(self, estop: bool) -> None:
         """Start watching for every unit's state to show `estop` (engaged and stopped, or not)."""
         self._want = estop
@@ -59,32 +49,20 @@ class BenchMonitor:
         self.shown = {}
         self.all_shown.clear()
 
-    async def listen(self) -> None:
-        """Consume messages until the client disconnects."""
-        async for message in self.client.messages:
-            topic = str(message.topic)
-            try:
-                kind, unit = self.topics.parse(topic)
-            except ProtocolError:
-                self.by_kind["other"] += 1
-                continue
-            self.by_kind[kind] += 1
-            spec = TOPICS.get(kind)
-            if spec is not None and spec.retained:
-                self.retained_topics.add(topic)
-            payload = (
-                bytes(message.payload) if isinstance(message.payload, bytes | bytearray) else b""
-            )
-            try:
-                if kind == "state" and unit is not None:
-                    self._on_state(unit, decode(UnitState, payload))
-                elif kind == "routes":
-                    routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
-                    self.step = max(self.step, routes.step)
-            except ProtocolError:
-                self.by_kind["bad"] += 1
+    def seen(self, kind: str, unit: str | None, topic: str, payload: bytes) -> bool:
+        """Count the message by kind; decode it only when it is a state or the routes."""
+        self.by_kind[kind] += 1
+        spec = TOPICS.get(kind)
+        if spec is not None and spec.retained:
+            self.retained_topics.add(topic)
+        return kind in ("state", "routes") and super().seen(kind, unit, topic, payload)
 
-    def _on_state(self, unit: str, state: UnitState) -> None:
+    def bad(self, topic: str, kind: str | None, exc: ProtocolError) -> None:
+        """Counted, not logged: `other` for a topic outside the protocol, else `bad`."""
+        self.by_kind["other" if kind is None else "bad"] += 1
+
+    def on_state(self, unit: str, state: UnitState) -> None:
+        """Time the state, and note whether it shows the stop condition awaited."""
         now = datetime.now(UTC)
         if self.measuring:
             self.latencies.append((now - state.header.timestamp).total_seconds())

@@ -37,26 +37,39 @@ class FleetMonitor:
         """Consume messages until the client disconnects."""
         async for message in self.client.messages:
             self.messages += 1
+            topic = str(message.topic)
             payload = message.payload if isinstance(message.payload, bytes | bytearray) else b""
+            kind: str | None = None
             try:
-                kind, unit = self.topics.parse(str(message.topic))
-                if kind == "state" and unit is not None:
-                    state = decode(UnitState, bytes(payload))
-                    self.states[unit] = state
-                    if self.record:
-                        self.history.append(state)
-                elif kind == "jobs":
-                    self.jobs = decode(JobsView, bytes(payload), TOPICS["jobs"].max_bytes)
-                elif kind == "map":
-                    self.map = decode(FleetMap, bytes(payload), TOPICS["map"].max_bytes)
-                elif kind == "routes":
-                    routes = decode(Routes, bytes(payload), TOPICS["routes"].max_bytes)
-                    self.step = max(self.step, routes.step)
-                    if self.record:
-                        self.routes.append(routes)
-                else:
-                    continue
+                kind, unit = self.topics.parse(topic)
+                if self.seen(kind, unit, topic, bytes(payload)):
+                    self.changed.set()
             except ProtocolError as exc:
-                log.warning("ignored a bad message on %s: %s", message.topic, exc)
-                continue
-            self.changed.set()
+                self.bad(topic, kind, exc)
+
+    def seen(self, kind: str, unit: str | None, topic: str, payload: bytes) -> bool:
+        """Take in one message (ProtocolError when malformed); True when the view changed."""
+        if kind == "state" and unit is not None:
+            self.on_state(unit, decode(UnitState, payload))
+        elif kind == "jobs":
+            self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+        elif kind == "map":
+            self.map = decode(FleetMap, payload, TOPICS["map"].max_bytes)
+        elif kind == "routes":
+            routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
+            self.step = max(self.step, routes.step)
+            if self.record:
+                self.routes.append(routes)
+        else:
+            return False
+        return True
+
+    def on_state(self, unit: str, state: UnitState) -> None:
+        """A unit's state arrived."""
+        self.states[unit] = state
+        if self.record:
+            self.history.append(state)
+
+    def bad(self, topic: str, kind: str | None, exc: ProtocolError) -> None:
+        """A message that does not parse (`kind` None: not even its topic)."""
+        log.warning("ignored a bad message on %s: %s", topic, exc)
