@@ -178,6 +178,7 @@ class FakeFleet:
         self._clients: dict[str, aiomqtt.Client] = {}
         self._stamps = {u.id: HeaderStamper(u.id) for u in units}
         self._ready: dict[str, asyncio.Event] = {}
+        self._sending: dict[str, asyncio.Task[None]] = {}
 
     def start(self, unit_id: str) -> None:
         """Start (or restart) the MQTT client of one unit."""
@@ -261,15 +262,17 @@ class FakeFleet:
         self.steps += 1
         for uid in alive:
             client = self._clients.get(uid)
-            if client is None:
-                continue
-            with contextlib.suppress(aiomqtt.MqttError):
-                await client.publish(
-                    self.topics.unit("state", uid),
-                    encode(self.units[uid].state(self._stamps[uid])),
-                    qos=0,
-                    retain=True,
-                )
+            sending = self._sending.get(uid)
+            if client is None or (sending is not None and not sending.done()):
+                continue  # its link is stuck (e.g. killed mid-send): it misses this state
+            # Each unit sends on its own, as real units do: a send stuck on a cut connection
+            # (aiomqtt gives up only after 10 s) must not silence the others.
+            payload = encode(self.units[uid].state(self._stamps[uid]))
+            self._sending[uid] = asyncio.create_task(self._send_state(client, uid, payload))
+
+    async def _send_state(self, client: aiomqtt.Client, uid: str, payload: bytes) -> None:
+        with contextlib.suppress(aiomqtt.MqttError):
+            await client.publish(self.topics.unit("state", uid), payload, qos=0, retain=True)
 
     async def run(self, stop: asyncio.Event, step_s: float) -> None:
         """Step until `stop` is set."""
@@ -282,3 +285,6 @@ class FakeFleet:
         """Stop every unit's client."""
         for uid in list(self._tasks):
             await self.kill(uid)
+        for sending in self._sending.values():
+            sending.cancel()
+        await asyncio.gather(*self._sending.values(), return_exceptions=True)

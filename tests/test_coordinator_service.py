@@ -282,12 +282,15 @@ async def test_lost_unit_job_is_requeued_and_finished_by_another(
 ) -> None:
     units = [("unit2", (9, 0), 5.0), ("unit3", (0, 9), 10.0)]
     async with rig(broker, root, tmp_path, units=units) as r:
-        r.submit((8, 1), (8, 6), 4.0, "j")
-        await async_wait_for(lambda: r.job_state("j") == "to_pickup", what="assigned")
-        view = r.jobs()
-        assert view is not None
-        first = next(j.unit for j in view.jobs if j.id == "j")
-        assert first == "unit2"  # nearer
+        # The pickup is 7 squares from unit2 (11 from unit3): the kill, read straight from the
+        # coordinator in this event loop, comes well before unit2 could load the item (an item
+        # on a lost unit cannot be finished by another, protocol §8).
+        r.submit((9, 7), (1, 1), 4.0, "j")
+        job = await async_wait_for(
+            lambda: (j := r.coordinator.core.jobs.get("j")) and j.unit and j, what="assigned"
+        )
+        assert job.unit == "unit2"  # nearer
+        assert r.fleet.units["unit2"].job_id is None, "unit2 loaded before the kill"
         await r.fleet.kill("unit2")
         await async_wait_for(lambda: r.job_state("j") == "done", timeout=30, what="done by another")
         view = r.jobs()

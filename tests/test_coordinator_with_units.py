@@ -35,7 +35,7 @@ from gridfleet.testing.services import ServiceThread, coordinator_thread, world_
 from gridfleet.testing.wait import wait_for
 
 RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
-System = Callable[[], tuple[ServiceThread, ServiceThread]]
+System = Callable[..., tuple[ServiceThread, ServiceThread]]
 STEP = 0.05
 CAPACITY = {"unit1": 2.0, "unit2": 5.0, "unit3": 10.0, "unit4": 20.0}
 
@@ -173,8 +173,8 @@ def estop_cleared(operator: Operator) -> Iterator[None]:
 def system(run_system: RunSystem, playfield: Path) -> System:
     """Start the playfield system; return once the coordinator knows every unit and capacity."""
 
-    def start() -> tuple[ServiceThread, ServiceThread]:
-        coordinator, fleet = run_system(playfield, step_s=STEP)
+    def start(step_s: float = STEP) -> tuple[ServiceThread, ServiceThread]:
+        coordinator, fleet = run_system(playfield, step_s=step_s)
         world = coordinator.service.world  # type: ignore[attr-defined]
 
         def known() -> bool:
@@ -223,7 +223,9 @@ def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collision
 def test_cancel_a_queued_and_an_active_job_releases_the_unit(
     system: System, operator: Operator
 ) -> None:
-    _, fleet = system()
+    # Slow steps: unit4 needs 17 of them to its pickup, which must not come before the cancel
+    # below, five operator round trips later, however busy the machine.
+    _, fleet = system(step_s=0.15)
     units = fleet.service.logic  # type: ignore[attr-defined]
     # Only unit4 can carry 15 kg: the first job makes it busy, so the second stays queued.
     assert operator.submit((1, 0), (9, 1), 15.0, "active").accepted
@@ -235,6 +237,7 @@ def test_cancel_a_queued_and_an_active_job_releases_the_unit(
     assert reply.accepted and reply.job_id == "queued"
     wait_for(lambda: operator.state_of("queued") == "cancelled", timeout=5, what="cancelled")
     assert operator.state_of("active") == "to_pickup"  # untouched by the other cancel
+    assert fleet.call(lambda: units["unit4"].job_id) is None, "unit4 loaded: set-up too slow"
     assert operator.cancel("active").accepted
     wait_for(lambda: operator.state_of("active") == "cancelled", timeout=5, what="aborted")
     assert "unit4 released" in (operator.jobs()["active"].reason or "")
@@ -307,15 +310,29 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
 def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     system: System, operator: Operator
 ) -> None:
-    _, fleet = system()
+    # Slow steps: the victim must be killed before its pickup (5 squares away), or the item
+    # is lost with it and no other unit can finish the job (protocol §8).
+    coordinator, fleet = system(step_s=0.15)
     world = world_of(fleet)
     runners = fleet.service.runners  # type: ignore[attr-defined]
+    units = fleet.service.logic  # type: ignore[attr-defined]
+    core = coordinator.service.core  # type: ignore[attr-defined]
     # 4 kg: unit2, unit3 and unit4 can carry it (unit2, the nearest, if it is free first).
     assert operator.submit((5, 1), (8, 6), 4.0, "k").accepted
-    wait_for(lambda: operator.state_of("k") == "to_pickup", timeout=10, what="under way")
-    victim = operator.jobs()["k"].unit
-    assert victim is not None and victim != "unit1"
-    fleet.call(runners[victim].kill)
+    victim = wait_for(
+        lambda: coordinator.call(lambda: (j := core.jobs.get("k")) and j.unit),
+        timeout=10,
+        what="assigned",
+    )
+    assert victim != "unit1"
+
+    def kill_if_empty_handed() -> bool:
+        if units[victim].job_id is not None:
+            return False
+        runners[victim].kill()
+        return True
+
+    assert fleet.call(kill_if_empty_handed), f"{victim} loaded before the kill: set-up too slow"
     killed_at = world.positions[victim]
     wait_for(lambda: "broken" in operator.connections(victim), timeout=5, what="last will")
     assert "offline" not in operator.connections(victim)
