@@ -55,9 +55,17 @@ def scenario(
 
 @asynccontextmanager
 async def running(
-    sc: Scenario, url: str, root: str, mode: Mode = "coordinated", **kw: object
+    sc: Scenario,
+    url: str,
+    root: str,
+    mode: Mode = "coordinated",
+    coordinator: Coordinator | None = None,
+    **kw: object,
 ) -> AsyncIterator[Fleet]:
-    """A fleet running in this event loop until the block ends; then it stops cleanly."""
+    """A fleet running in this event loop until the block ends; then it stops cleanly.
+
+    With `coordinator`, it also waits until every unit has read that stand-in's status.
+    """
     fleet = Fleet(sc, url, root=root, step=kw.pop("step", STEP), mode=mode, **kw)  # type: ignore[arg-type]
     stop = asyncio.Event()
     task = asyncio.create_task(fleet.run(stop))
@@ -67,6 +75,12 @@ async def running(
         await async_wait_for(
             lambda: all(lg.estop_known for lg in fleet.logic.values()), what="units ready"
         )
+        if coordinator is not None and coordinator.step_period_s is not None:
+            period = coordinator.step_period_s
+            await async_wait_for(
+                lambda: all(lg.coordinator_step_s == period for lg in fleet.logic.values()),
+                what="the coordinator's status read",
+            )
         yield fleet
     finally:
         stop.set()
@@ -74,15 +88,26 @@ async def running(
 
 
 class Coordinator:
-    """The test's stand-in for the coordinator: sends orders and reads states from a probe."""
+    """The test's stand-in for the coordinator: sends orders and reads states from a probe.
 
-    def __init__(self, probe: MqttProbe, topics: Topics) -> None:
+    It announces a slow step (`step_period_s`, retained) because it sends each order once: a
+    unit holds after 3 such periods without an order (protocol §8), and on a busy machine that
+    must not come before the unit has driven what it was released. None announces nothing.
+    """
+
+    def __init__(self, probe: MqttProbe, topics: Topics, step_period_s: float | None = 5.0) -> None:
         self.probe = probe
         self.topics = topics
         self.stamp = HeaderStamper("coordinator")
+        self.step_period_s = step_period_s
         for kind in ("state", "direction", "connection"):
             probe.subscribe(topics.all_units(kind), qos=0 if kind != "connection" else 1)
         probe.subscribe(topics.fleet("errors"))
+        if step_period_s is not None:
+            status = CoordinatorStatus(
+                header=self.stamp("coordinator"), state="online", step_period_s=step_period_s
+            )
+            probe.publish(topics.fleet("coordinator"), encode(status), retain=True)
 
     def order(
         self,
@@ -152,7 +177,7 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root) as fleet:
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (2, 2), (3, 2)], planned=[(4, 2)])
         await c.until_state("u1", lambda s: s.position == Cell(3, 2) and s.direction == "-")
         await steps(fleet, "u1", 3)
@@ -184,7 +209,7 @@ async def test_sensors_see_every_kind_in_all_four_directions(
 ) -> None:
     sc = scenario(tmp_path, ["@..", "..."], {"u1": (1, 0), "u2": (1, 1)}, hidden=[(2, 0)])
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root):
+    async with running(sc, broker.url, root, coordinator=c):
         s = await c.until_state("u1", lambda s: s.step > 0)
         assert s.sensors.model_dump() == {
             "N": "wall",
@@ -204,7 +229,7 @@ async def test_hidden_obstacle_in_the_way_is_reported_once_and_never_a_unit(
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (1, 0)}, hidden=[(3, 1)])
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root) as fleet:
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (3, 1), (4, 1)])
         s = await c.until_state("u1", lambda s: s.status == "waiting" and s.position == Cell(2, 1))
         assert s.wait_reason is not None and "obstacle" in s.wait_reason
@@ -221,7 +246,7 @@ async def test_unit_refuses_unreleased_and_occupied_squares(
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (2, 1)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root) as fleet:
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         # u2's square released to u1 by mistake: u1's own sensor sees a unit and it waits.
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (3, 1)])
         s = await c.until_state("u1", lambda s: s.position == Cell(1, 1) and s.status == "waiting")
@@ -242,7 +267,7 @@ async def test_emergency_stop_halts_all_units_within_one_step_until_released(
     rows = ["." * 30, "." * 30, "." * 30]
     sc = scenario(tmp_path, rows, {"u1": (0, 0), "u2": (0, 2)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root) as fleet:
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         for uid, y in (("u1", 0), ("u2", 2)):
             c.order(uid, "o1", 1, [(x, y) for x in range(1, 30)])
         await async_wait_for(lambda: all(fleet.world.moves[u] >= 2 for u in ("u1", "u2")))
@@ -274,7 +299,7 @@ async def test_bad_orders_are_refused_with_an_error_and_change_nothing(
 ) -> None:
     sc = scenario(tmp_path, [".....", ".@...", "....."], {"u1": (0, 1)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root) as fleet:
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "good", 1, [(0, 0)])
         await c.until_state("u1", lambda s: s.position == Cell(0, 0))
         c.order("u1", "good", 2, [])
@@ -319,7 +344,7 @@ async def test_connection_online_then_offline_on_a_clean_stop(
     c = Coordinator(probe_factory(), topics)
     factsheets = topics.unit("factsheet", "u1")
     c.probe.subscribe(factsheets)
-    async with running(sc, broker.url, root):
+    async with running(sc, broker.url, root, coordinator=c):
         await async_wait_for(
             lambda: c.connection("u1") == ["online"] and c.connection("u2") == ["online"]
         )
@@ -334,7 +359,8 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
-    c = Coordinator(probe_factory(), topics)
+    # No announced step: the unit's own hold timeout (0.5 s) has passed when it reconnects.
+    c = Coordinator(probe_factory(), topics, step_period_s=None)
     async with running(sc, broker.url, root, step=0.05, reconnect_s=1.0) as fleet:
         runner = fleet.runners["u1"]
         c.order("u1", "o1", 1, [(x, 0) for x in range(1, 20)])
@@ -361,7 +387,7 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
     # be after the unit has reconnected; that failure must not take the new connection down.
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
     c = Coordinator(probe_factory(), topics)
-    async with running(sc, broker.url, root, step=0.05, reconnect_s=0.2) as fleet:
+    async with running(sc, broker.url, root, coordinator=c, step=0.05, reconnect_s=0.2) as fleet:
         runner = fleet.runners["u1"]
         old = runner._client
         assert old is not None
@@ -427,8 +453,8 @@ async def test_units_in_another_process_are_seen_through_their_state(
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (2, 1)})
     c = Coordinator(probe_factory(), topics)
     async with (
-        running(sc, broker.url, root, units=["u1"]) as here,
-        running(sc, broker.url, root, units=["u2"]) as there,
+        running(sc, broker.url, root, coordinator=c, units=["u1"]) as here,
+        running(sc, broker.url, root, coordinator=c, units=["u2"]) as there,
     ):
         assert set(here.runners) == {"u1"} and set(there.runners) == {"u2"}
         c.order("u2", "o1", 1, [(2, 2), (3, 2)])
@@ -471,12 +497,9 @@ async def test_unit_holds_without_orders_and_resumes_when_they_come_back(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
-    c = Coordinator(probe_factory(), topics)
-    status = CoordinatorStatus(header=c.stamp("coordinator"), state="online", step_period_s=0.3)
-    c.probe.publish(topics.fleet("coordinator"), encode(status), retain=True)
-    async with running(sc, broker.url, root) as fleet:
+    c = Coordinator(probe_factory(), topics, step_period_s=0.3)
+    async with running(sc, broker.url, root, coordinator=c) as fleet:
         lg = fleet.logic["u1"]
-        await async_wait_for(lambda: lg.coordinator_step_s == 0.3, what="coordinator status read")
         assert lg.hold_timeout_s == 3 * 0.3
         c.order("u1", "o1", 1, [(1, 1)])
         await c.until_state("u1", lambda s: s.position == Cell(1, 1))
