@@ -197,6 +197,9 @@ def test_03_obstacle_sensed_by_a_unit_shows_on_the_dashboard(live: Callable[...,
     # unit2 goes to (7, 1), next to the hidden obstacle: its south sensor sees it.
     system.goal("unit2", (7, 1))
     wait_for(lambda: system.world.positions["unit2"] == (7, 1), timeout=15, what="unit2 at (7, 1)")
+    # On the page's map, highlighted as just discovered ("*") for a few seconds: checked first,
+    # before the mark fades on a slow machine.
+    expect(system.page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
     # unit2 reports what its sensor saw (the state published after that step's move).
     system.probe.wait(
         system.topics.unit("state", "unit2"),
@@ -209,8 +212,7 @@ def test_03_obstacle_sensed_by_a_unit_shows_on_the_dashboard(live: Callable[...,
             in [list(o) for o in decode(FleetMap, m.payload, TOPICS["map"].max_bytes).obstacles]
         ),
     )
-    # On the page's map, highlighted as just discovered ("*"), and nothing that was not sensed.
-    expect(system.page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
+    # Nothing that was not sensed is on the page.
     assert (4, 5) not in obstacles_drawn(system)  # the other hidden obstacle: nobody saw it yet
     # The coordinator plans around it: straight down would be shortest, the route goes round.
     system.goal("unit2", (7, 4))
@@ -321,12 +323,11 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
     under_way = [u for u in goals if system.positions()[u] != goals[u]]
     assert len(under_way) >= 3, f"too late to test the stop: only {under_way} under way"
 
-    # One click on STOP: every unit stops within one step of the stop reaching the broker.
+    # One click on STOP: every unit stops within one of its steps of hearing it.
     estop_topic = system.topics.fleet("estop")
-    system.probe.subscribe(estop_topic)  # hears the stop when the units do
+    system.probe.subscribe(estop_topic)
     system.dash.press_stop()
     system.probe.wait(estop_topic, lambda m: m.payload.startswith(b"engaged|dashboard"))
-    moves_at_stop = dict(world.moves)
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
     expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
     expect(page.locator("#stop")).to_have_text("STOPPED")
@@ -336,10 +337,12 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
     )
     stopped_at = system.positions()
     stopped_moves = dict(world.moves)
-    assert all(stopped_moves[u] - moves_at_stop[u] <= 1 for u in goals), (
-        moves_at_stop,
-        stopped_moves,
-    )
+    for unit in goals:
+        # Each unit's first state with the stop says stopped where it still stands: it drove no
+        # square after it heard the stop (the units hear it at their own pace, not the probe's).
+        first = next(s for s in system.states(unit) if s.estop)
+        assert first.status == "stopped" and first.released == [], (unit, first)
+        assert tuple(first.position) == tuple(stopped_at[unit]), (unit, first, stopped_at)
     # Several steps later (counted by the units' own state reports) nobody has moved.
     since = {u: system.states(u)[-1].step for u in goals}
     wait_for(
@@ -348,8 +351,13 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
     )
     assert system.positions() == stopped_at and dict(world.moves) == stopped_moves
     expect(page.locator("#map")).to_have_attribute("data-units", drawn(stopped_at))
-    statuses = {u: row["status"] for u, row in unit_rows(system).items()}
-    assert statuses == dict.fromkeys(goals, "stopped: emergency stop engaged")
+    wait_for(
+        lambda: (
+            {u: row["status"] for u, row in unit_rows(system).items()}
+            == dict.fromkeys(goals, "stopped: emergency stop engaged")
+        ),
+        what="every unit listed as stopped on the page",
+    )
     system.dash.screenshot("acceptance-dashboard-stopped")
 
     # The deliberate release (press and hold) resumes motion; every unit reaches its goal.
@@ -368,7 +376,7 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
 # ---- item 9 ------------------------------------------------------------------------------------
 
 
-@pytest.mark.timeout(120)  # its waits add up to 90 s: a slow run fails on the one that is late
+@pytest.mark.timeout(150)  # its waits add up to 110 s: a slow run fails on the one that is late
 def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[..., Live]) -> None:
     system = live(step_s=0.1)
     # The playfield's jobs, and one more 15 kg job that must wait for unit4 (the only one able).
@@ -389,7 +397,7 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
             matched.add(drawn(truth))
         return len(matched) >= 5
 
-    wait_for(tracks_the_world, timeout=20, interval=0.02, what="five moving snapshots matched")
+    wait_for(tracks_the_world, timeout=40, interval=0.02, what="five moving snapshots matched")
 
     # Mid-run: pending and done jobs listed, with counts, as the coordinator has them.
     def lists_match_the_coordinator() -> bool:

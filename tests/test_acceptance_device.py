@@ -14,6 +14,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
+import pytest
+
 from gridfleet.device import VirtualDevice
 from gridfleet.device_logic import DeviceLogic
 from gridfleet.grid import Cell, Direction
@@ -193,6 +195,7 @@ def check_intentions(unit: str, states: list[UnitState]) -> int:
 # -- test_05: the unit's own LEDs --------------------------------------------------------------
 
 
+@pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_05_the_unit_shows_its_intended_direction_every_step(
     run_system: RunSystem, probe_factory: Callable[..., MqttProbe], topics: Topics
 ) -> None:
@@ -243,6 +246,7 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
 # -- test_06: the (virtual) device -------------------------------------------------------------
 
 
+@pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 async def test_06_direction_on_the_device_and_its_emergency_stop_works(
     run_system: RunSystem,
     probe_factory: Callable[..., MqttProbe],
@@ -326,7 +330,9 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
             last = op.last(unit)
             assert last is not None and last.status == "stopped" and lit(last.leds) == set("NESW")
         # Visible where the dashboard looks: the retained estop topic and the coordinator status.
-        engaged = op.estop_signals()[-1]
+        # The probe hears the device on its own connection: the signal may come after the states.
+        signals = await async_wait_for(op.estop_signals, 5, what="the stop on the estop topic")
+        engaged = signals[-1]
         assert (engaged.engaged, engaged.by, engaged.reason) == (True, "dev-accept", "button")
         await async_wait_for(lambda: op.coordinator_estop() is True, 5, what="coordinator stop")
         late = await asyncio.to_thread(probe_factory)  # a dashboard opened now
@@ -347,7 +353,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         )
         await async_wait_for(lambda: device.leds == Leds(), 5, what="device at rest")
         assert world.collisions == 0
-        assert op.coordinator_estop() is False
+        await async_wait_for(lambda: op.coordinator_estop() is False, 5, what="coordinator release")
     finally:
         stop.set()
         await asyncio.wait_for(task, 10)
@@ -377,6 +383,7 @@ class DeviceService:
         self._loop.call_soon_threadsafe(self.device.press)
 
 
+@pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_fleet(
     run_system: RunSystem,
     probe_factory: Callable[..., MqttProbe],

@@ -195,6 +195,7 @@ def carried_jobs(op: Operator, unit: str) -> set[str]:
     return {s.job_id for s in op.states(unit) if s.job_id is not None}
 
 
+@pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collisions(
     system: System, operator: Operator
 ) -> None:
@@ -348,6 +349,7 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     assert world.collisions == 0, world.log
 
 
+@pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_coordinator_restart_mid_run_loses_no_job(
     system: System,
     operator: Operator,

@@ -91,8 +91,10 @@ async def test_stop_key_engages_a_retained_valid_estop_everyone_sees(
         # Released by the operator: the LEDs show the direction again.
         unit.publish(topics.fleet("estop"), "released|dashboard|checked", qos=1, retain=True)
         await async_wait_for(lambda: device.leds == Leds(N=True), what="released")
-    # Exactly one stop was sent; the clean exit said offline.
-    assert len(watcher.received(topics.fleet("estop"))) == 2
+    # Exactly one stop was sent (then the release); the clean exit said offline.
+    estops = topics.fleet("estop")
+    await async_wait_for(lambda: len(watcher.received(estops)) >= 2, what="the watcher sees both")
+    assert len(watcher.received(estops)) == 2
     conn = topics.device("device_connection", "dev-a")
     await async_wait_for(lambda: [m.payload for m in watcher.received(conn)][-1:] == [b"offline"])
     assert [m.payload for m in watcher.received(conn)] == [b"online", b"offline"]
