@@ -26,11 +26,22 @@ def simulate(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[st
     )
 
 
+def failure_report(out: subprocess.CompletedProcess[str]) -> str:
+    """What a failed run left: where every unit stood and the jobs not done, else the raw tail."""
+    try:
+        result = json.loads(out.stdout)
+        kept = {k: result[k] for k in ("finished", "steps", "collisions", "units")}
+        kept["jobs_not_done"] = [j for j in result["jobs"] if j["state"] != "done"]
+    except (ValueError, KeyError, TypeError):
+        return out.stdout[-2000:] + out.stderr[-2000:]
+    return json.dumps(kept) + out.stderr[-2000:]
+
+
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
 def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
     out = simulate(str(path), "--step", "0.05", "--max-steps", "3000", "--json")
-    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    assert out.returncode == 0, failure_report(out)
     result: dict[str, Any] = json.loads(out.stdout)
     assert result["finished"] is True
     assert result["collisions"] == 0
