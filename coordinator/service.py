@@ -17,7 +17,7 @@ from coordinator.jobs import JobBook
 from coordinator.store import JobStore, default_db_path
 from coordinator.world import World
 from gridfleet import __version__
-from gridfleet.bus import make_client, stop_deliveries
+from gridfleet.bus import make_client
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
@@ -126,15 +126,11 @@ class Coordinator:
         async with make_client(self.broker, self.client_id, will=will) as client:
             self._client = client
             t = self.topics
-            subs = [
-                (t.all_units("connection"), 1),
-                (t.all_units("factsheet"), 1),
-                (t.all_units("state"), 0),  # high rate: QoS 0
-                (t.fleet("estop"), 1),
-                (t.all_requests, 1),
-            ]
-            for topic, qos in subs:
-                await client.subscribe(topic, qos=qos)
+            for kind in ("connection", "factsheet"):
+                await client.subscribe(t.all_units(kind), qos=1)
+            await client.subscribe(t.all_units("state"), qos=0)
+            await client.subscribe(t.fleet("estop"), qos=1)
+            await client.subscribe(t.all_requests, qos=1)
             self._map_dirty = self._jobs_dirty = True
             await self._publish_status("online")
             await self._publish_views()
@@ -149,7 +145,6 @@ class Coordinator:
                     await cancel_and_wait(self._views_later)
             if stop.is_set():
                 with contextlib.suppress(aiomqtt.MqttError):
-                    await stop_deliveries(client, [topic for topic, _ in subs])
                     await self._publish_status("offline")
                     await self._send_holds()
             self._client = None

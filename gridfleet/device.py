@@ -20,7 +20,7 @@ from typing import TextIO
 
 import aiomqtt
 
-from gridfleet.bus import make_client, stop_deliveries
+from gridfleet.bus import make_client
 from gridfleet.cli import add_common
 from gridfleet.device_logic import DeviceLogic, Refusal, render_plain, render_tty
 from gridfleet.errors import ConfigError, ProtocolError
@@ -132,7 +132,6 @@ class VirtualDevice:
             if reader.done() and not reader.cancelled() and reader.exception() is not None:
                 raise reader.exception()  # type: ignore[misc]
             if stop.is_set():
-                await stop_deliveries(client, [logic.direction_topic, logic.estop_topic])
                 await client.publish(
                     logic.connection_topic,
                     encode_device_connection("offline"),

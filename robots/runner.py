@@ -10,7 +10,7 @@ import uuid
 
 import aiomqtt
 
-from gridfleet.bus import make_client, stop_deliveries
+from gridfleet.bus import make_client
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -165,7 +165,6 @@ class UnitRunner:
             await until_stopped(self._receive(client), stop)
             if not stop.is_set():
                 return
-            await stop_deliveries(client, subs)
             await self._publish(
                 "connection", Connection(header=self._stamp("connection"), state="offline")
             )
