@@ -47,6 +47,28 @@ def playfield_grid() -> GridMap:
     return load_map(MAPS / "playfield.map")
 
 
+def send_submit(
+    probe: MqttProbe,
+    topics: Topics,
+    stamp: HeaderStamper,
+    job_id: str,
+    pickup: tuple[int, int] = (1, 1),
+    dropoff: tuple[int, int] = (8, 8),
+    mass: float = 1.0,
+) -> None:
+    """Submit a job as `stamp`'s sender, with request id `r-<job_id>`; replies go to it."""
+    req = SubmitJob(
+        header=stamp("submit_job"),
+        request_id=f"r-{job_id}",
+        reply_to=stamp.sender,
+        pickup=pickup,  # type: ignore[arg-type]
+        dropoff=dropoff,  # type: ignore[arg-type]
+        mass_kg=mass,
+        job_id=job_id,
+    )
+    probe.publish(topics.request("submit_job"), encode(req))
+
+
 @dataclass
 class Rig:
     """A running coordinator, a fleet of fake units and an operator probe."""
@@ -72,16 +94,7 @@ class Rig:
     def submit(
         self, pickup: tuple[int, int], dropoff: tuple[int, int], mass: float, job_id: str
     ) -> None:
-        req = SubmitJob(
-            header=self.stamp("submit_job"),
-            request_id=f"r-{job_id}",
-            reply_to="tester",
-            pickup=pickup,  # type: ignore[arg-type]
-            dropoff=dropoff,  # type: ignore[arg-type]
-            mass_kg=mass,
-            job_id=job_id,
-        )
-        self.probe.publish(self.topics.request("submit_job"), encode(req))
+        send_submit(self.probe, self.topics, self.stamp, job_id, pickup, dropoff, mass)
 
     def reply(self, request_id: str) -> Reply | None:
         for m in self.probe.received(self.topics.reply("tester")):
@@ -386,15 +399,7 @@ async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
                         return True
                 return False
 
-            submit = SubmitJob(
-                header=stamp("submit_job"),
-                request_id="r1",
-                pickup=(1, 1),  # type: ignore[arg-type]
-                dropoff=(8, 8),  # type: ignore[arg-type]
-                mass_kg=1.0,
-                job_id="j1",
-            )
-            probe.publish(topics.request("submit_job"), encode(submit))
+            send_submit(probe, topics, stamp, "j1")
             await async_wait_for(lambda: listed("j1", "queued"), timeout=5, what="j1 queued")
             cancel = CancelJob(header=stamp("cancel_job"), request_id="r2", job_id="j1")
             probe.publish(topics.request("cancel_job"), encode(cancel))
@@ -413,11 +418,7 @@ async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_
             views_before = len(probe.received(topics.fleet("jobs")))
             stamp = HeaderStamper("burst")
             for i in range(40):
-                req = SubmitJob(
-                        header=stamp("submit_job"), request_id=f"r{i}", reply_to="burst",
-                        pickup=(1, 1), dropoff=(8, 8), mass_kg=1.0, job_id=f"b{i}",
-                    )  # fmt: skip
-                probe.publish(topics.request("submit_job"), encode(req))
+                send_submit(probe, topics, stamp, f"b{i}")
             replies = await async_wait_for(
                 lambda: (r := probe.received(topics.reply("burst"))) and len(r) == 40 and r,
                 what="40 replies",
