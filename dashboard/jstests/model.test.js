@@ -97,3 +97,16 @@ test("a heading from routes sent before the unit's last move starts after its sq
   v.apply("state", "u1", state([1, 0]), 2); // moved into its released square; no new order yet
   assert.equal(v.heading("u1"), "S");
 });
+
+test("the unit on a square is found by its last state", () => {
+  const v = new FleetView();
+  v.apply("connection", "u0", JSON.stringify({ state: "online" }), 0); // no state yet: on no square
+  v.apply("state", "u1", state([1, 0]), 0);
+  v.apply("state", "u2", state([2, 1]), 0);
+  assert.equal(v.unitAt(1, 0).id, "u1");
+  assert.equal(v.unitAt(2, 1).id, "u2");
+  assert.equal(v.unitAt(0, 0), null);
+  v.apply("state", "u1", state([0, 0]), 1);
+  assert.equal(v.unitAt(1, 0), null);
+  assert.equal(v.unitAt(0, 0).id, "u1");
+});

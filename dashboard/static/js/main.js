@@ -1,5 +1,6 @@
 // The page: connects to the broker, keeps a FleetView, renders it, and sends operator requests.
 
+import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { drawFleet, squareAt } from "./draw.js";
 import { FleetView } from "./model.js";
 import { syncRows } from "./rows.js";
@@ -55,7 +56,7 @@ class Dashboard {
     this.stamper = new Stamper(clientId);
     this.pending = new Map(); // request_id -> {form, what}
     this.nextRequest = 1;
-    this.ui = { mode: "none", selectedUnit: null, pending: null, jobClicks: [] };
+    this.ui = initialClicks(); // the map's click mode and what it has picked so far
     this.layout = null;
     this.dirty = true;
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
@@ -173,9 +174,7 @@ class Dashboard {
     this.bindRelease($("#release"));
     for (const r of document.querySelectorAll("input[name=clickmode]")) {
       r.addEventListener("change", () => {
-        this.ui.mode = r.value;
-        this.ui.jobClicks = [];
-        this.ui.pending = null;
+        this.ui = setMode(this.ui, r.value);
         this.dirty = true;
       });
     }
@@ -185,7 +184,7 @@ class Dashboard {
       const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
       $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
     });
-    $("#goal-unit").addEventListener("change", (ev) => { this.ui.selectedUnit = ev.target.value || null; this.dirty = true; });
+    $("#goal-unit").addEventListener("change", (ev) => { this.ui = selectUnit(this.ui, ev.target.value || null); this.dirty = true; });
     $("#goal-form").addEventListener("submit", (ev) => {
       ev.preventDefault();
       const f = ev.target;
@@ -238,7 +237,7 @@ class Dashboard {
   }
 
   selectUnit(id) {
-    this.ui.selectedUnit = id;
+    this.ui = selectUnit(this.ui, id);
     $("#goal-unit").value = id;
     this.dirty = true;
   }
@@ -247,31 +246,27 @@ class Dashboard {
     if (!this.layout) return;
     const sq = squareAt(this.layout, ev.offsetX, ev.offsetY);
     if (!sq) return;
+    const { state, effect } = mapClick(this.ui, sq, this.view.unitAt(sq[0], sq[1])?.id ?? null);
+    this.ui = state;
+    if (!effect) return;
     const [x, y] = sq;
-    const here = [...this.view.units.values()].find((u) => u.state && u.state.position[0] === x && u.state.position[1] === y);
-    if (this.ui.mode === "goal") {
-      if (here && here.id !== this.ui.selectedUnit) { this.selectUnit(here.id); return; }
+    if (effect.type === "select") {
+      $("#goal-unit").value = effect.unit;
+    } else if (effect.type === "goal") {
       const f = $("#goal-form");
       f.x.value = x; f.y.value = y;
       this.sendGoal(f.unit.value, sq);
-    } else if (this.ui.mode === "job") {
+    } else if (effect.type === "pickup") {
       const f = $("#job-form");
-      if (this.ui.jobClicks.length !== 1) {
-        this.ui.jobClicks = [sq];
-        f.px.value = x; f.py.value = y; f.dx.value = ""; f.dy.value = "";
-        this.ui.pending = sq;
-        this.feedback("job", "info", `pickup [${x}, ${y}]: now click the dropoff square`);
-      } else {
-        this.ui.jobClicks = [];
-        this.ui.pending = null;
-        f.dx.value = x; f.dy.value = y;
-        this.feedback("job", "info", `dropoff [${x}, ${y}]: set the mass and press “queue job”`);
-        f.mass.focus();
-      }
-      this.dirty = true;
-    } else if (here) {
-      this.selectUnit(here.id);
+      f.px.value = x; f.py.value = y; f.dx.value = ""; f.dy.value = "";
+      this.feedback("job", "info", `pickup [${x}, ${y}]: now click the dropoff square`);
+    } else if (effect.type === "dropoff") {
+      const f = $("#job-form");
+      f.dx.value = x; f.dy.value = y;
+      this.feedback("job", "info", `dropoff [${x}, ${y}]: set the mass and press “queue job”`);
+      f.mass.focus();
     }
+    this.dirty = true;
   }
 
   sendGoal(unit, target) {

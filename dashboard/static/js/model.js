@@ -129,6 +129,14 @@ export class FleetView {
     return { "0,-1": "N", "1,0": "E", "0,1": "S", "-1,0": "W" }[`${dx},${dy}`] ?? "-";
   }
 
+  /** The unit standing on (x, y) by its last state, or null. */
+  unitAt(x, y) {
+    for (const u of this.units.values()) {
+      if (u.state && u.state.position[0] === x && u.state.position[1] === y) return u;
+    }
+    return null;
+  }
+
   activeJobs() { return this.jobs.filter((j) => !FINAL_JOB_STATES.has(j.state)); }
   finishedJobs() { return this.jobs.filter((j) => FINAL_JOB_STATES.has(j.state)); }
 
