@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+import re
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, get_args
 
 import pytest
 
@@ -20,6 +21,7 @@ from gridfleet.protocol import (
     Factsheet,
     FleetMap,
     Goal,
+    Header,
     HeaderStamper,
     JobsView,
     JobView,
@@ -34,13 +36,25 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
     decode,
+    decode_device_connection,
     decode_direction,
     decode_estop,
     encode,
+    encode_device_connection,
     encode_direction,
     encode_estop,
 )
-from gridfleet.protocol.messages import Message
+from gridfleet.protocol.constants import (
+    DIRECTION_NONE,
+    ESTOP_ENGAGED,
+    ESTOP_RELEASED,
+    ESTOP_SEPARATOR,
+    ID_PATTERN,
+    MAX_ESTOP_REASON,
+    PROTOCOL_VERSION,
+)
+from gridfleet.protocol.device import DEVICE_STATES, DEVICE_WILL
+from gridfleet.protocol.messages import DirectionLetter, Message
 
 FIXED = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
 stamp = HeaderStamper("unit1", clock=lambda: FIXED)
@@ -281,3 +295,32 @@ def test_bad_topics_and_ids_are_refused(call: Any) -> None:
 def test_bad_roots_are_refused(root: str) -> None:
     with pytest.raises(ProtocolError, match="topic root"):
         Topics(root)
+
+
+def test_one_protocol_version_which_headers_carry_and_check() -> None:
+    import gridfleet
+
+    assert getattr(gridfleet, "PROTOCOL_VERSION", PROTOCOL_VERSION) is PROTOCOL_VERSION
+    assert stamp("state").version == PROTOCOL_VERSION
+    schema = Header.model_json_schema()["properties"]["version"]
+    assert schema["const"] == schema["default"] == PROTOCOL_VERSION
+    data = json.loads(encode(samples()[3]))
+    data["header"]["version"] = PROTOCOL_VERSION + ".1"
+    with pytest.raises(ProtocolError, match=r"header\.version.*" + re.escape(PROTOCOL_VERSION)):
+        decode(Order, json.dumps(data))
+
+
+def test_device_payload_words_are_the_constants() -> None:
+    assert ID_PATTERN == r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # as protocol.md §1 writes it
+    assert encode_direction(None).decode() == DIRECTION_NONE
+    assert [d.value for d in Direction] + [DIRECTION_NONE] == list(get_args(DirectionLetter))
+    engaged = encode_estop(EstopSignal(True, "op", "why")).decode()
+    assert engaged.split(ESTOP_SEPARATOR) == [ESTOP_ENGAGED, "op", "why"]
+    assert encode_estop(EstopSignal(False, "op")).decode().startswith(ESTOP_RELEASED)
+    assert decode_estop(ESTOP_RELEASED + ESTOP_SEPARATOR + "op").engaged is False
+    with pytest.raises(ProtocolError, match="200"):
+        EstopSignal(True, "op", "r" * (MAX_ESTOP_REASON + 1))
+    assert DEVICE_WILL in DEVICE_STATES
+    assert {decode_device_connection(encode_device_connection(s)) for s in DEVICE_STATES} == set(
+        DEVICE_STATES
+    )

@@ -5,6 +5,7 @@ protocol/schemas/ the same again as JSON Schema. A test keeps the three in step.
 """
 
 from gridfleet.protocol.codec import HeaderStamper, decode, encode
+from gridfleet.protocol.constants import PROTOCOL_VERSION
 from gridfleet.protocol.device import (
     DeviceConnection,
     EstopSignal,
@@ -40,6 +41,7 @@ from gridfleet.protocol.messages import (
 from gridfleet.protocol.topics import TOPICS, Topics, TopicSpec, validate_id
 
 __all__ = [
+    "PROTOCOL_VERSION",
     "TOPICS",
     "Action",
     "CancelJob",

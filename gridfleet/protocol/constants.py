@@ -1,10 +1,18 @@
-"""Numbers of the protocol that every component must agree on (see protocol.md, "Timing")."""
+"""Numbers and words of the protocol that every component must agree on (see protocol.md).
 
-PROTOCOL_VERSION = "1.0"
-TOPIC_VERSION = "v1"
+This module is the one place they are written down: the message models and topic table use
+them, and `make schemas` copies them into protocol/protocol.json, the dashboard's
+protocol_table.js and the firmware's protocol_table.h.
+"""
+
+PROTOCOL_VERSION = "1.0"  # header.version of every JSON message (protocol.md §3, §9)
+TOPIC_VERSION = "v1"  # the topic level after the root; changes only with a new major version
 DEFAULT_ROOT = "gridfleet"
 
-ID_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+MAX_ID_CHARS = 64
+ID_PUNCTUATION = "_.-"  # allowed in ids besides ASCII letters and digits, never first
+ID_PATTERN = rf"^[A-Za-z0-9][A-Za-z0-9{ID_PUNCTUATION}]{{0,{MAX_ID_CHARS - 1}}}$"
+ROOT_SEGMENT_PATTERN = rf"^[A-Za-z0-9{ID_PUNCTUATION}]{{1,{MAX_ID_CHARS}}}$"
 MAX_COORD = 4095  # largest x or y a message may carry; the map bounds are checked at the edge
 
 MAX_REQUEST_BYTES = 16 * 1024  # requests, orders, goals, unit messages
@@ -12,6 +20,16 @@ MAX_VIEW_BYTES = 8 * 1024 * 1024  # retained fleet views: map, jobs, routes
 MAX_RELEASED = 64  # squares one order may release
 MAX_PLANNED = 8192  # squares of the planned rest shown for display
 MAX_TEXT = 500  # characters of a reason or error message
+
+# The plain-text device payloads (protocol.md §4.6, §5.1, §5.6).
+DIRECTION_NONE = "-"  # the direction payload when no move is intended; else N, E, S or W
+MAX_DIRECTION_BYTES = 8
+ESTOP_ENGAGED = "engaged"
+ESTOP_RELEASED = "released"
+ESTOP_SEPARATOR = "|"  # <engaged|released>|<by>|<reason>
+MAX_ESTOP_BYTES = 512
+MAX_ESTOP_REASON = 200  # characters of the one-line reason
+MAX_DEVICE_CONNECTION_BYTES = 16  # online, offline or broken (gridfleet.protocol.device)
 
 DEFAULT_STEP_S = 1.0  # the course's step period
 HOLD_AFTER_STEPS = 3  # a unit holds still after this many step periods without an order

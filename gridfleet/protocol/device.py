@@ -4,26 +4,32 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from typing import Literal, cast
+from typing import Literal, get_args
 
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Direction
-from gridfleet.protocol.constants import ID_PATTERN
+from gridfleet.protocol.constants import (
+    DIRECTION_NONE,
+    ESTOP_ENGAGED,
+    ESTOP_RELEASED,
+    ESTOP_SEPARATOR,
+    ID_PATTERN,
+    MAX_ESTOP_BYTES,
+    MAX_ESTOP_REASON,
+)
 
 _BY_RE = re.compile(ID_PATTERN)
-MAX_ESTOP_BYTES = 512
-MAX_REASON = 200
 
 
 def encode_direction(direction: Direction | None) -> bytes:
     """`N`, `E`, `S`, `W`, or `-` for no intended move."""
-    return b"-" if direction is None else direction.value.encode()
+    return DIRECTION_NONE.encode() if direction is None else direction.value.encode()
 
 
 def decode_direction(payload: bytes | str) -> Direction | None:
     """Inverse of encode_direction; anything else raises ProtocolError."""
     text = payload.decode("ascii", "replace") if isinstance(payload, bytes | bytearray) else payload
-    if text == "-":
+    if text == DIRECTION_NONE:
         return None
     try:
         return Direction(text)
@@ -42,16 +48,16 @@ class EstopSignal:
     def __post_init__(self) -> None:
         if not _BY_RE.match(self.by):
             raise ProtocolError(f"estop: 'by' {self.by!r} is not a valid id")
-        if len(self.reason) > MAX_REASON or any(c in self.reason for c in "\r\n\x00"):
+        if len(self.reason) > MAX_ESTOP_REASON or any(c in self.reason for c in "\r\n\x00"):
             raise ProtocolError(
-                f"estop: reason must be one line of at most {MAX_REASON} characters"
+                f"estop: reason must be one line of at most {MAX_ESTOP_REASON} characters"
             )
 
 
 def encode_estop(signal: EstopSignal) -> bytes:
     """`engaged|<by>|<reason>` or `released|<by>|<reason>` in UTF-8."""
-    state = "engaged" if signal.engaged else "released"
-    return f"{state}|{signal.by}|{signal.reason}".encode()
+    state = ESTOP_ENGAGED if signal.engaged else ESTOP_RELEASED
+    return ESTOP_SEPARATOR.join((state, signal.by, signal.reason)).encode()
 
 
 def decode_estop(payload: bytes | str) -> EstopSignal:
@@ -65,21 +71,22 @@ def decode_estop(payload: bytes | str) -> EstopSignal:
             raise ProtocolError("estop: payload is not UTF-8") from None
     else:
         text = payload
-    parts = text.split("|", 2)
-    if len(parts) < 2 or parts[0] not in ("engaged", "released"):
+    parts = text.split(ESTOP_SEPARATOR, 2)
+    if len(parts) < 2 or parts[0] not in (ESTOP_ENGAGED, ESTOP_RELEASED):
         raise ProtocolError(
             f"estop: {text[:40]!r} is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'"
         )
-    return EstopSignal(parts[0] == "engaged", parts[1], parts[2] if len(parts) == 3 else "")
+    return EstopSignal(parts[0] == ESTOP_ENGAGED, parts[1], parts[2] if len(parts) == 3 else "")
 
 
 DeviceConnection = Literal["online", "offline", "broken"]
-_DEVICE_STATES = ("online", "offline", "broken")
+DEVICE_STATES: tuple[DeviceConnection, ...] = get_args(DeviceConnection)
+DEVICE_WILL: DeviceConnection = "broken"  # what a device's last will says
 
 
 def encode_device_connection(state: DeviceConnection) -> bytes:
     """`online`, `offline` or `broken` (the last will), plain ASCII."""
-    if state not in _DEVICE_STATES:
+    if state not in DEVICE_STATES:
         raise ProtocolError(f"device connection: {state!r} is not one of online offline broken")
     return state.encode()
 
@@ -87,6 +94,6 @@ def encode_device_connection(state: DeviceConnection) -> bytes:
 def decode_device_connection(payload: bytes | str) -> DeviceConnection:
     """Inverse of encode_device_connection; anything else raises ProtocolError."""
     text = payload.decode("ascii", "replace") if isinstance(payload, bytes | bytearray) else payload
-    if text not in _DEVICE_STATES:
+    if text not in DEVICE_STATES:
         raise ProtocolError(f"device connection: {text[:20]!r} is not one of online offline broken")
-    return cast(DeviceConnection, text)
+    return text

@@ -14,6 +14,7 @@ from gridfleet.protocol.constants import (
     MAX_PLANNED,
     MAX_RELEASED,
     MAX_TEXT,
+    PROTOCOL_VERSION,
 )
 
 Id = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
@@ -27,6 +28,18 @@ def _as_cell(value: tuple[int, int]) -> Cell:
 
 Square = Annotated[tuple[Coord, Coord], AfterValidator(_as_cell)]
 """A square as a JSON array [x, y]; decoded into a Cell."""
+
+
+def _spoken_version(value: str) -> str:
+    if value != PROTOCOL_VERSION:
+        raise ValueError(f"protocol version {value[:32]!r} is not {PROTOCOL_VERSION!r}")
+    return value
+
+
+Version = Annotated[
+    str, AfterValidator(_spoken_version), Field(json_schema_extra={"const": PROTOCOL_VERSION})
+]
+"""The one protocol version this code speaks (constants.PROTOCOL_VERSION); others are refused."""
 
 Kg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 PositiveKg = Annotated[float, Field(gt=0, allow_inf_nan=False)]
@@ -63,7 +76,7 @@ class Model(BaseModel):
 class Header(Model):
     """Carried by every JSON message: who sent it, when, and its place in the topic's sequence."""
 
-    version: Literal["1.0"] = "1.0"
+    version: Version = PROTOCOL_VERSION
     seq: Annotated[int, Field(ge=0, strict=True)]
     timestamp: datetime
     sender: Id

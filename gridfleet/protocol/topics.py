@@ -10,13 +10,17 @@ from gridfleet.errors import ProtocolError
 from gridfleet.protocol.constants import (
     DEFAULT_ROOT,
     ID_PATTERN,
+    MAX_DEVICE_CONNECTION_BYTES,
+    MAX_DIRECTION_BYTES,
+    MAX_ESTOP_BYTES,
     MAX_REQUEST_BYTES,
     MAX_VIEW_BYTES,
+    ROOT_SEGMENT_PATTERN,
     TOPIC_VERSION,
 )
 
 _ID_RE = re.compile(ID_PATTERN)
-_ROOT_SEGMENT_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_ROOT_SEGMENT_RE = re.compile(ROOT_SEGMENT_PATTERN)
 
 Payload = Literal["json", "direction", "estop", "device_connection"]
 
@@ -62,8 +66,10 @@ TOPICS: dict[str, TopicSpec] = {
         TopicSpec("state", "units/{unit}/state", 0, True, "json", "UnitState", MAX_REQUEST_BYTES),
         TopicSpec("order", "units/{unit}/order", 1, False, "json", "Order", MAX_REQUEST_BYTES),
         TopicSpec("goal", "units/{unit}/goal", 1, False, "json", "Goal", MAX_REQUEST_BYTES),
-        TopicSpec("direction", "units/{unit}/direction", 0, True, "direction", None, 8),
-        TopicSpec("estop", "fleet/estop", 1, True, "estop", None, 512),
+        TopicSpec(
+            "direction", "units/{unit}/direction", 0, True, "direction", None, MAX_DIRECTION_BYTES
+        ),
+        TopicSpec("estop", "fleet/estop", 1, True, "estop", None, MAX_ESTOP_BYTES),
         TopicSpec("map", "fleet/map", 1, True, "json", "FleetMap", MAX_VIEW_BYTES),
         TopicSpec("jobs", "fleet/jobs", 1, True, "json", "JobsView", MAX_VIEW_BYTES),
         TopicSpec("routes", "fleet/routes", 0, True, "json", "Routes", MAX_VIEW_BYTES),
@@ -92,7 +98,7 @@ TOPICS: dict[str, TopicSpec] = {
             True,
             "device_connection",
             None,
-            16,
+            MAX_DEVICE_CONNECTION_BYTES,
         ),
     )
 }
