@@ -3,6 +3,7 @@
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { drawFleet, squareAt } from "./draw.js";
 import { FleetView } from "./model.js";
+import { Requests, sentFeedback } from "./requests.js";
 import { syncRows } from "./rows.js";
 import {
   encodeEstop, ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor,
@@ -54,8 +55,7 @@ class Dashboard {
     this.topics = topicsFor(settings.root);
     this.view = new FleetView(settings.map, settings.colors ?? {});
     this.stamper = new Stamper(clientId);
-    this.pending = new Map(); // request_id -> {form, what}
-    this.nextRequest = 1;
+    this.requests = new Requests(clientId, this.stamper);
     this.ui = initialClicks(); // the map's click mode and what it has picked so far
     this.layout = null;
     this.dirty = true;
@@ -112,49 +112,26 @@ class Dashboard {
     if (!parsed) return;
     const text = new TextDecoder().decode(payload);
     if (parsed.kind === "reply") {
-      if (parsed.id === this.clientId) this.onReply(text);
+      if (parsed.id === this.clientId) this.show(this.requests.reply(text));
       return;
     }
     const problem = this.view.apply(parsed.kind, parsed.id, text, Date.now());
     if (problem) this.log(problem);
-    if (parsed.kind === "errors" && !problem) this.onError(this.view.lastError);
+    if (parsed.kind === "errors" && !problem) this.show(this.requests.error(this.view.lastError));
     if (parsed.kind === "estop") this.localStop = false;
     this.dirty = true;
   }
 
-  onReply(text) {
-    let reply;
-    try { reply = JSON.parse(text); } catch { this.log("ignored a malformed reply"); return; }
-    const req = this.pending.get(reply.request_id);
-    if (!req) return;
-    this.pending.delete(reply.request_id);
-    if (reply.accepted) {
-      // "(job id)" tells which id a new job got; a delete already names its job.
-      const extra = reply.job_id && req.form !== "cancel" ? ` (job ${reply.job_id})` : "";
-      this.feedback(req.form, "ok", `${req.what}: accepted${extra}`);
-    } else {
-      this.feedback(req.form, "refused", `${req.what}: refused — ${reply.reason ?? "no reason given"}`);
-    }
-  }
-
-  onError(err) {
-    if (!err) return;
-    const req = err.request_id ? this.pending.get(err.request_id) : null;
-    if (req) {
-      // Kept pending: the coordinator's reply follows with the reason alone (the error report
-      // names the message type too); whichever comes, the operator sees why.
-      this.feedback(req.form, "refused", `${req.what}: refused — ${err.reason}`);
-    }
-    this.log(`${err.header?.sender ?? "?"} refused a message on ${err.topic}: ${err.reason}`);
+  /** Feedback and a log line from the request bookkeeping, either may be null. */
+  show({ feedback, log }) {
+    if (feedback) this.feedback(feedback.form, feedback.kind, feedback.text);
+    if (log) this.log(log);
   }
 
   request(kind, form, what, body) {
-    const request_id = `${this.clientId}-${this.nextRequest++}`.slice(-64);
-    const msg = { header: this.stamper.header(kind), request_id, reply_to: this.clientId, ...body };
-    this.pending.set(request_id, { form, what });
-    this.client.publish(this.topics.request(kind), JSON.stringify(msg), { qos: 1, retain: false });
-    const note = this.client.connected ? "sent, waiting for the coordinator…" : "queued: not connected to the broker";
-    this.feedback(form, "pending", `${what}: ${note}`);
+    const { request_id, message } = this.requests.create(kind, form, what, body);
+    this.client.publish(this.topics.request(kind), JSON.stringify(message), { qos: 1, retain: false });
+    this.show({ feedback: sentFeedback(form, what, this.client.connected), log: null });
     return request_id;
   }
 
