@@ -12,6 +12,7 @@ import pytest
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
+    TOPICS,
     Action,
     CancelJob,
     Connection,
@@ -52,9 +53,14 @@ from gridfleet.protocol.constants import (
     ID_PATTERN,
     MAX_ESTOP_REASON,
     PROTOCOL_VERSION,
+    TOPIC_VERSION,
 )
 from gridfleet.protocol.device import DEVICE_STATES, DEVICE_WILL
-from gridfleet.protocol.messages import DirectionLetter, Message
+from gridfleet.protocol.messages import FINAL_JOB_STATES, DirectionLetter, Message
+from gridfleet.protocol.schemas import REPO
+from gridfleet.protocol.table import TABLE_PATH, protocol_table
+
+TABLE_FILE = REPO / TABLE_PATH
 
 FIXED = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
 stamp = HeaderStamper("unit1", clock=lambda: FIXED)
@@ -324,3 +330,26 @@ def test_device_payload_words_are_the_constants() -> None:
     assert {decode_device_connection(encode_device_connection(s)) for s in DEVICE_STATES} == set(
         DEVICE_STATES
     )
+
+
+def test_the_generated_table_is_read_from_the_code() -> None:
+    t = protocol_table()
+    assert json.loads(TABLE_FILE.read_text())["protocol_version"] == PROTOCOL_VERSION
+    assert (t["protocol_version"], t["topic_version"]) == (PROTOCOL_VERSION, TOPIC_VERSION)
+    assert t["ids"]["pattern"] == ID_PATTERN
+    assert set(t["topics"]) == set(TOPICS)
+    topics = Topics("r")
+    for kind, row in t["topics"].items():
+        spec = TOPICS[kind]
+        assert (row["qos"], row["retained"], row["max_bytes"]) == (
+            spec.qos,
+            spec.retained,
+            spec.max_bytes,
+        )
+        path = row["pattern"].replace("{" + str(row["placeholder"]) + "}", "x1")
+        assert topics.parse(f"r/{TOPIC_VERSION}/{path}")[0] == kind
+    assert [*t["direction"]["letters"], t["direction"]["none"]] == list(get_args(DirectionLetter))
+    assert set(t["final_job_states"]) == FINAL_JOB_STATES
+    assert t["device_connection"]["states"] == list(DEVICE_STATES)
+    text = ESTOP_SEPARATOR.join([t["estop"]["engaged"], "op", "r" * t["estop"]["max_reason_chars"]])
+    assert decode_estop(text.encode()).engaged

@@ -18,7 +18,7 @@ from gridfleet.protocol import (
     decode_estop,
     messages,
 )
-from gridfleet.protocol.schemas import SCHEMA_DIR, render, schemas
+from gridfleet.protocol.schemas import REPO, SCHEMA_DIR, generated, render, schemas
 
 DOC = Path(__file__).resolve().parent.parent / "protocol.md"
 BLOCK_RE = re.compile(r"^```(json|text) (\w+)\n(.*?)^```", re.S | re.M)
@@ -61,10 +61,24 @@ def test_example_parses_with_the_code_and_validates_against_the_schema(
 def test_committed_schemas_match_the_code() -> None:
     for name, schema in schemas().items():
         path = SCHEMA_DIR / f"{name}.json"
-        assert path.exists(), f"{path} missing: run python -m gridfleet.protocol.schemas"
-        assert path.read_text() == render(schema), (
-            f"{path} is out of date: run python -m gridfleet.protocol.schemas"
-        )
+        assert path.exists(), f"{path} missing: run make schemas"
+        assert path.read_text() == render(schema), f"{path} is out of date: run make schemas"
+
+
+def test_every_generated_file_matches_a_fresh_generation() -> None:
+    """Schemas, protocol/protocol.json, the dashboard's and the firmware's protocol tables."""
+    fresh = generated()
+    problems = []
+    for relative, text in fresh.items():
+        path = REPO / relative
+        if not path.exists():
+            problems.append(f"{relative} is missing")
+        elif path.read_text(encoding="utf-8") != text:
+            problems.append(f"{relative} differs from a fresh generation")
+    for path in sorted(SCHEMA_DIR.glob("*.json")):
+        if path.relative_to(REPO).as_posix() not in fresh:
+            problems.append(f"{path.relative_to(REPO)} is no longer generated (delete it)")
+    assert not problems, "; ".join(problems) + ": run make schemas"
 
 
 def test_topic_table_matches_the_code() -> None:

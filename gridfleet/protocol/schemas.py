@@ -1,4 +1,14 @@
-"""JSON Schemas of every JSON message, generated from the models (`python -m gridfleet.protocol.schemas`)."""
+"""Generated protocol files: the JSON Schema of every JSON message, and the protocol table.
+
+`make schemas` (`python -m gridfleet.protocol.schemas [ROOT]`) writes, under the repository (or
+ROOT):
+
+- `protocol/schemas/<Model>.json`: one JSON Schema per message model used on a topic;
+- `protocol/protocol.json`, `dashboard/static/js/protocol_table.js` and
+  `firmware/esp32_unit/src/protocol_table.h`: the topic table and constants (see table.py).
+
+A test fails when a committed file differs from a fresh generation.
+"""
 
 from __future__ import annotations
 
@@ -7,10 +17,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gridfleet.protocol import messages
+from gridfleet.protocol import messages, table
 from gridfleet.protocol.topics import TOPICS
 
-SCHEMA_DIR = Path(__file__).resolve().parents[2] / "protocol" / "schemas"
+REPO = Path(__file__).resolve().parents[2]
+SCHEMA_DIR = REPO / "protocol" / "schemas"
 
 
 def schemas() -> dict[str, dict[str, Any]]:
@@ -32,17 +43,25 @@ def render(schema: dict[str, Any]) -> str:
     return json.dumps(schema, indent=2, sort_keys=True) + "\n"
 
 
-def write(directory: Path = SCHEMA_DIR) -> list[Path]:
-    """Write every schema file; returns the paths written."""
-    directory.mkdir(parents=True, exist_ok=True)
+def generated() -> dict[str, str]:
+    """Text of every generated file, keyed by its path relative to the repository."""
+    schema_dir = SCHEMA_DIR.relative_to(REPO).as_posix()
+    out = {f"{schema_dir}/{name}.json": render(schema) for name, schema in schemas().items()}
+    out.update(table.generated())
+    return out
+
+
+def write(root: Path = REPO) -> list[Path]:
+    """Write every generated file under `root`; returns the paths written."""
     written = []
-    for name, schema in schemas().items():
-        path = directory / f"{name}.json"
-        path.write_text(render(schema), encoding="utf-8")
+    for relative, text in generated().items():
+        path = root / relative
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
         written.append(path)
     return written
 
 
 if __name__ == "__main__":
-    for p in write(Path(sys.argv[1]) if len(sys.argv) > 1 else SCHEMA_DIR):
+    for p in write(Path(sys.argv[1]) if len(sys.argv) > 1 else REPO):
         print(p)
