@@ -2,6 +2,7 @@
 
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { drawFleet, squareAt } from "./draw.js";
+import { Forms } from "./forms.js";
 import { FleetView } from "./model.js";
 import { Requests, sentFeedback } from "./requests.js";
 import { syncRows } from "./rows.js";
@@ -60,6 +61,10 @@ class Dashboard {
     this.layout = null;
     this.dirty = true;
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
+    this.forms = new Forms(this.view, {
+      send: (kind, form, what, body) => this.request(kind, form, what, body),
+      onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.dirty = true; },
+    });
     document.body.dataset.clientId = clientId;
   }
 
@@ -124,7 +129,7 @@ class Dashboard {
 
   /** Feedback and a log line from the request bookkeeping, either may be null. */
   show({ feedback, log }) {
-    if (feedback) this.feedback(feedback.form, feedback.kind, feedback.text);
+    if (feedback) this.forms.feedback(feedback.form, feedback.kind, feedback.text);
     if (log) this.log(log);
   }
 
@@ -161,19 +166,10 @@ class Dashboard {
       const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
       $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
     });
-    $("#goal-unit").addEventListener("change", (ev) => { this.ui = selectUnit(this.ui, ev.target.value || null); this.dirty = true; });
-    $("#goal-form").addEventListener("submit", (ev) => {
-      ev.preventDefault();
-      const f = ev.target;
-      this.sendGoal(f.unit.value, [Number(f.x.value), Number(f.y.value)]);
-    });
-    $("#goal-clear").addEventListener("click", () => this.sendGoal($("#goal-unit").value, null));
-    $("#job-form").addEventListener("submit", (ev) => { ev.preventDefault(); this.submitJob(ev.target); });
+    this.forms.bind();
     $("#jobs tbody").addEventListener("click", (ev) => {
       const btn = ev.target.closest("button[data-cancel]");
-      if (!btn) return;
-      const id = btn.dataset.cancel;
-      this.request("cancel_job", "cancel", `delete job ${id}`, { job_id: id });
+      if (btn) this.forms.cancelJob(btn.dataset.cancel);
     });
     $("#units tbody").addEventListener("click", (ev) => {
       const row = ev.target.closest("tr[data-unit]");
@@ -215,7 +211,7 @@ class Dashboard {
 
   selectUnit(id) {
     this.ui = selectUnit(this.ui, id);
-    $("#goal-unit").value = id;
+    this.forms.showUnit(id);
     this.dirty = true;
   }
 
@@ -226,57 +222,11 @@ class Dashboard {
     const { state, effect } = mapClick(this.ui, sq, this.view.unitAt(sq[0], sq[1])?.id ?? null);
     this.ui = state;
     if (!effect) return;
-    const [x, y] = sq;
-    if (effect.type === "select") {
-      $("#goal-unit").value = effect.unit;
-    } else if (effect.type === "goal") {
-      const f = $("#goal-form");
-      f.x.value = x; f.y.value = y;
-      this.sendGoal(f.unit.value, sq);
-    } else if (effect.type === "pickup") {
-      const f = $("#job-form");
-      f.px.value = x; f.py.value = y; f.dx.value = ""; f.dy.value = "";
-      this.feedback("job", "info", `pickup [${x}, ${y}]: now click the dropoff square`);
-    } else if (effect.type === "dropoff") {
-      const f = $("#job-form");
-      f.dx.value = x; f.dy.value = y;
-      this.feedback("job", "info", `dropoff [${x}, ${y}]: set the mass and press “queue job”`);
-      f.mass.focus();
-    }
+    if (effect.type === "select") this.forms.showUnit(effect.unit);
+    else if (effect.type === "goal") this.forms.goalAt(effect.square);
+    else if (effect.type === "pickup") this.forms.pickupAt(effect.square);
+    else if (effect.type === "dropoff") this.forms.dropoffAt(effect.square);
     this.dirty = true;
-  }
-
-  sendGoal(unit, target) {
-    if (!unit) { this.feedback("goal", "refused", "choose a unit first (list or map)"); return; }
-    if (target && !this.view.map) { this.feedback("goal", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
-    if (target && !this.view.onMap(target[0], target[1])) {
-      this.feedback("goal", "refused", `[${target}] is not a square of the map`); return;
-    }
-    const what = target ? `goal [${target[0]}, ${target[1]}] for ${unit}` : `clear the goal of ${unit}`;
-    this.request("set_goal", "goal", what, { unit, target });
-  }
-
-  submitJob(f) {
-    const sq = (a, b) => [Number(f[a].value), Number(f[b].value)];
-    const pickup = sq("px", "py"), dropoff = sq("dx", "dy");
-    const mass = Number(f.mass.value), priority = Number(f.priority.value || 0);
-    const jobId = f.job_id.value.trim() || null;
-    if (!this.view.map) { this.feedback("job", "refused", "no map yet: waiting for the coordinator's fleet/map"); return; }
-    for (const [name, s] of [["pickup", pickup], ["dropoff", dropoff]]) {
-      if (!this.view.onMap(s[0], s[1])) { this.feedback("job", "refused", `${name} [${s}] is not a square of the map`); return; }
-    }
-    if (!(mass > 0) || !Number.isFinite(mass)) { this.feedback("job", "refused", "mass must be more than 0 kg"); return; }
-    if (!Number.isInteger(priority) || priority < 0 || priority > 100) { this.feedback("job", "refused", "priority must be a whole number 0–100"); return; }
-    if (jobId && !ID_RE.test(jobId)) { this.feedback("job", "refused", "job id: letters, digits, _ . - only (max 64)"); return; }
-    this.request("submit_job", "job", `job [${pickup}] → [${dropoff}], ${mass} kg`, {
-      pickup, dropoff, mass_kg: mass, priority, job_id: jobId,
-    });
-  }
-
-  feedback(form, kind, text) {
-    const el = $(`#${form}-feedback`);
-    el.dataset.kind = kind;
-    el.textContent = text;
   }
 
   log(text) {
@@ -329,12 +279,7 @@ class Dashboard {
       },
     });
     this.renderSeen(now);
-    const sel = $("#goal-unit");
-    const current = sel.value;
-    if ([...sel.options].map((o) => o.value).join() !== ids.join()) {
-      sel.replaceChildren(...ids.map((id) => new Option(id, id)));
-      sel.value = ids.includes(current) ? current : (this.ui.selectedUnit ?? ids[0] ?? "");
-    }
+    this.forms.syncUnits(ids, this.ui.selectedUnit);
   }
 
   renderSeen(now) {

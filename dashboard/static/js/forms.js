@@ -1,0 +1,142 @@
+// The goal and job forms (and the queue's delete buttons): what they check before sending, the
+// requests they make, and what they tell the operator. The checks and the words are pure functions
+// (testable under node); `Forms` reads and fills the page's forms.
+
+import { ID_RE } from "./protocol.js";
+
+const NO_MAP = "no map yet: waiting for the coordinator's fleet/map";
+
+/**
+ * A set_goal request for `unit` to `target` ([x, y], or null to clear its goal), checked against
+ * the FleetView `view`: {what, body}, or {error} in words.
+ */
+export function goalRequest(view, unit, target) {
+  if (!unit) return { error: "choose a unit first (list or map)" };
+  if (target && !view.map) return { error: NO_MAP };
+  if (target && !view.onMap(target[0], target[1])) return { error: `[${target}] is not a square of the map` };
+  const what = target ? `goal [${target[0]}, ${target[1]}] for ${unit}` : `clear the goal of ${unit}`;
+  return { what, body: { unit, target } };
+}
+
+/** The job form's fields ({px, py, dx, dy, mass, priority, job_id}, each with a `.value`). */
+export function readJobForm(f) {
+  const sq = (a, b) => [Number(f[a].value), Number(f[b].value)];
+  return {
+    pickup: sq("px", "py"),
+    dropoff: sq("dx", "dy"),
+    mass: Number(f.mass.value),
+    priority: Number(f.priority.value || 0),
+    jobId: f.job_id.value.trim() || null,
+  };
+}
+
+/** A submit_job request from the job form's values (`readJobForm`): {what, body}, or {error}. */
+export function jobRequest(view, { pickup, dropoff, mass, priority, jobId }) {
+  if (!view.map) return { error: NO_MAP };
+  for (const [name, s] of [["pickup", pickup], ["dropoff", dropoff]]) {
+    if (!view.onMap(s[0], s[1])) return { error: `${name} [${s}] is not a square of the map` };
+  }
+  if (!(mass > 0) || !Number.isFinite(mass)) return { error: "mass must be more than 0 kg" };
+  if (!Number.isInteger(priority) || priority < 0 || priority > 100) return { error: "priority must be a whole number 0–100" };
+  if (jobId && !ID_RE.test(jobId)) return { error: "job id: letters, digits, _ . - only (max 64)" };
+  return {
+    what: `job [${pickup}] → [${dropoff}], ${mass} kg`,
+    body: { pickup, dropoff, mass_kg: mass, priority, job_id: jobId },
+  };
+}
+
+/** A cancel_job request for the queue's "delete" button. */
+export function cancelRequest(jobId) {
+  return { what: `delete job ${jobId}`, body: { job_id: jobId } };
+}
+
+/** What the job form says once a square has been clicked for its pickup or its dropoff. */
+export function pickedPickup([x, y]) { return `pickup [${x}, ${y}]: now click the dropoff square`; }
+export function pickedDropoff([x, y]) { return `dropoff [${x}, ${y}]: set the mass and press “queue job”`; }
+
+/**
+ * The forms on the page. `send(kind, form, what, body)` publishes a request; `onUnitChosen(id)`
+ * hears the goal form's unit choice (null: none).
+ */
+export class Forms {
+  constructor(view, { send, onUnitChosen }) {
+    this.view = view;
+    this.send = send;
+    this.onUnitChosen = onUnitChosen;
+    this.goal = document.querySelector("#goal-form");
+    this.job = document.querySelector("#job-form");
+  }
+
+  bind() {
+    this.goal.unit.addEventListener("change", (ev) => this.onUnitChosen(ev.target.value || null));
+    this.goal.addEventListener("submit", (ev) => {
+      ev.preventDefault();
+      this.sendGoal(this.goal.unit.value, [Number(this.goal.x.value), Number(this.goal.y.value)]);
+    });
+    document.querySelector("#goal-clear").addEventListener("click", () => this.sendGoal(this.goal.unit.value, null));
+    this.job.addEventListener("submit", (ev) => { ev.preventDefault(); this.submitJob(); });
+  }
+
+  /** Show `text` under a form ("goal", "job" or "cancel"); `kind` colours it. */
+  feedback(form, kind, text) {
+    const el = document.querySelector(`#${form}-feedback`);
+    el.dataset.kind = kind;
+    el.textContent = text;
+  }
+
+  sendGoal(unit, target) {
+    const req = goalRequest(this.view, unit, target);
+    if (req.error) { this.feedback("goal", "refused", req.error); return; }
+    this.send("set_goal", "goal", req.what, req.body);
+  }
+
+  submitJob() {
+    const req = jobRequest(this.view, readJobForm(this.job));
+    if (req.error) { this.feedback("job", "refused", req.error); return; }
+    this.send("submit_job", "job", req.what, req.body);
+  }
+
+  cancelJob(jobId) {
+    const req = cancelRequest(jobId);
+    this.send("cancel_job", "cancel", req.what, req.body);
+  }
+
+  // ---- squares clicked on the map ----
+
+  /** A goal square clicked for the unit the goal form names: filled in and sent. */
+  goalAt(sq) {
+    const f = this.goal;
+    f.x.value = sq[0]; f.y.value = sq[1];
+    this.sendGoal(f.unit.value, sq);
+  }
+
+  pickupAt(sq) {
+    const f = this.job;
+    f.px.value = sq[0]; f.py.value = sq[1]; f.dx.value = ""; f.dy.value = "";
+    this.feedback("job", "info", pickedPickup(sq));
+  }
+
+  dropoffAt(sq) {
+    const f = this.job;
+    f.dx.value = sq[0]; f.dy.value = sq[1];
+    this.feedback("job", "info", pickedDropoff(sq));
+    f.mass.focus();
+  }
+
+  // ---- the goal form's unit choice ----
+
+  /** The goal form names unit `id` (chosen in the list or on the map). */
+  showUnit(id) {
+    this.goal.unit.value = id;
+  }
+
+  /** One choice per unit, in order; the choice stays, else `selected`, else the first unit. */
+  syncUnits(ids, selected) {
+    const sel = this.goal.unit;
+    const current = sel.value;
+    if ([...sel.options].map((o) => o.value).join() !== ids.join()) {
+      sel.replaceChildren(...ids.map((id) => new Option(id, id)));
+      sel.value = ids.includes(current) ? current : (selected ?? ids[0] ?? "");
+    }
+  }
+}
