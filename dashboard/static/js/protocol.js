@@ -1,47 +1,64 @@
 // The parts of protocol.md the page needs: topic names, headers, estop text. No DOM, no network.
+// The facts themselves (version, topics, QoS, payload words, limits) come from protocol_table.js,
+// which `make schemas` generates from the Python protocol package.
 
-export const PROTOCOL_VERSION = "1.0";
-export const ID_RE = /^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$/;
-export const FINAL_JOB_STATES = new Set(["done", "cancelled", "rejected", "failed"]);
+import {
+  ESTOP, FINAL_JOB_STATES as FINAL_STATES, IDS, PROTOCOL_VERSION, TOPIC_VERSION, TOPICS,
+} from "./protocol_table.js";
+
+export { PROTOCOL_VERSION };
+export const ID_RE = new RegExp(IDS.pattern);
+export const FINAL_JOB_STATES = new Set(FINAL_STATES);
+
+const kindsWhere = (test) => Object.keys(TOPICS).filter((kind) => test(TOPICS[kind], kind));
+const UNIT_KINDS = new Set(kindsWhere((t) => t.placeholder === "unit"));
+const REQUEST_KINDS = new Set(kindsWhere((t) => t.pattern.startsWith("requests/")));
+// Fleet-wide topics by path (fleet/..., errors, coordinator/status); the page reads no requests.
+const FLEET_KINDS = new Map(
+  kindsWhere((t, kind) => !t.placeholder && !REQUEST_KINDS.has(kind)).map((k) => [TOPICS[k].pattern, k]),
+);
+
+/** `kind`'s topic under `prefix`, its placeholder (unit, client, device) filled with `value`. */
+function topicOf(prefix, kind, value) {
+  const spec = TOPICS[kind];
+  const path = spec.placeholder ? spec.pattern.replace(`{${spec.placeholder}}`, value) : spec.pattern;
+  return `${prefix}/${path}`;
+}
+
+function check(kinds, kind, what) {
+  if (!kinds.has(kind)) throw new Error(`${kind} is not ${what}`);
+  return kind;
+}
 
 /** Topic names under `<root>/v1`. */
 export function topicsFor(root) {
-  const p = `${root}/v1`;
+  const p = `${root}/${TOPIC_VERSION}`;
   return {
     prefix: p,
-    estop: `${p}/fleet/estop`,
-    map: `${p}/fleet/map`,
-    jobs: `${p}/fleet/jobs`,
-    routes: `${p}/fleet/routes`,
-    errors: `${p}/errors`,
-    coordinator: `${p}/coordinator/status`,
-    allUnits: (kind) => `${p}/units/+/${kind}`,
-    request: (kind) => `${p}/requests/${kind}`,
-    reply: (client) => `${p}/replies/${client}`,
+    estop: topicOf(p, "estop"),
+    map: topicOf(p, "map"),
+    jobs: topicOf(p, "jobs"),
+    routes: topicOf(p, "routes"),
+    errors: topicOf(p, "errors"),
+    coordinator: topicOf(p, "coordinator"),
+    allUnits: (kind) => topicOf(p, check(UNIT_KINDS, kind, "a per-unit topic kind"), "+"),
+    request: (kind) => topicOf(p, check(REQUEST_KINDS, kind, "a request kind")),
+    reply: (client) => topicOf(p, "reply", client),
   };
 }
 
-/** What the page subscribes to, with the QoS protocol.md asks for (high-rate topics at 0). */
+// What the page reads: every unit's connection, factsheet and state, the fleet views, its replies.
+const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state"];
+const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors"];
+
+/** What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0). */
 export function subscriptions(topics, clientId) {
-  return {
-    [topics.allUnits("connection")]: { qos: 1 },
-    [topics.allUnits("factsheet")]: { qos: 1 },
-    [topics.allUnits("state")]: { qos: 0 },
-    [topics.estop]: { qos: 1 },
-    [topics.map]: { qos: 1 },
-    [topics.jobs]: { qos: 1 },
-    [topics.routes]: { qos: 0 },
-    [topics.coordinator]: { qos: 1 },
-    [topics.errors]: { qos: 1 },
-    [topics.reply(clientId)]: { qos: 1 },
-  };
+  const subs = {};
+  for (const kind of SUBSCRIBED_UNIT_KINDS) subs[topics.allUnits(kind)] = { qos: TOPICS[kind].qos };
+  for (const kind of SUBSCRIBED_FLEET_KINDS) subs[topics[kind]] = { qos: TOPICS[kind].qos };
+  subs[topics.reply(clientId)] = { qos: TOPICS.reply.qos };
+  return subs;
 }
-
-const FLEET_KINDS = {
-  "fleet/estop": "estop", "fleet/map": "map", "fleet/jobs": "jobs", "fleet/routes": "routes",
-  "errors": "errors", "coordinator/status": "coordinator",
-};
-const UNIT_KINDS = new Set(["connection", "factsheet", "state", "order", "goal", "direction"]);
 
 /** Split a topic into {kind, id}; null for anything that is not ours. */
 export function parseTopic(prefix, topic) {
@@ -50,10 +67,10 @@ export function parseTopic(prefix, topic) {
   if (rest.length === 3 && rest[0] === "units" && UNIT_KINDS.has(rest[2]) && ID_RE.test(rest[1])) {
     return { kind: rest[2], id: rest[1] };
   }
-  if (rest.length === 2 && rest[0] === "replies" && ID_RE.test(rest[1])) {
+  if (rest.length === 2 && topicOf(prefix, "reply", rest[1]) === topic && ID_RE.test(rest[1])) {
     return { kind: "reply", id: rest[1] };
   }
-  const kind = FLEET_KINDS[rest.join("/")];
+  const kind = FLEET_KINDS.get(rest.join("/"));
   return kind ? { kind, id: null } : null;
 }
 
@@ -72,16 +89,16 @@ export class Stamper {
 
 /** `engaged|<by>|<reason>` or `released|<by>|<reason>`; the reason is one line, ≤ 200 chars. */
 export function encodeEstop(engaged, by, reason) {
-  const line = String(reason).replace(/[\r\n\0]/g, " ").slice(0, 200);
-  return `${engaged ? "engaged" : "released"}|${by}|${line}`;
+  const line = String(reason).replace(/[\r\n\0]/g, " ").slice(0, ESTOP.max_reason_chars);
+  return [engaged ? ESTOP.engaged : ESTOP.released, by, line].join(ESTOP.separator);
 }
 
 /** Parse an estop payload; null when it is not valid (never treated as a release). */
 export function decodeEstop(text) {
-  const parts = text.split("|");
-  if (parts.length < 2 || (parts[0] !== "engaged" && parts[0] !== "released")) return null;
+  const parts = text.split(ESTOP.separator);
+  if (parts.length < 2 || (parts[0] !== ESTOP.engaged && parts[0] !== ESTOP.released)) return null;
   if (!ID_RE.test(parts[1])) return null;
-  return { engaged: parts[0] === "engaged", by: parts[1], reason: parts.slice(2).join("|") };
+  return { engaged: parts[0] === ESTOP.engaged, by: parts[1], reason: parts.slice(2).join(ESTOP.separator) };
 }
 
 /** A client id for this page: prefix plus random hex, always a valid protocol id. */
