@@ -24,13 +24,14 @@ from bench.system_scenario import make_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
-from gridfleet.feeder import Operator, operator_session, random_job
 from gridfleet.grid import Cell
 from gridfleet.paths import DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import Scenario
 from gridfleet.tasks import cancel_and_wait
-from gridfleet.testing.services import ServiceThread, coordinator_thread, fleet_thread, world_of
+from system.feed import random_job
+from system.operator import Operator, operator_session
+from system.threads import ServiceThread, coordinator_thread, fleet_thread, world_of
 
 STOP_WAIT_S = 20.0  # an engagement not shown by every unit within this is reported as None
 

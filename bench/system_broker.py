@@ -14,7 +14,7 @@ import aiomqtt
 
 from gridfleet.bus import make_client
 from gridfleet.errors import ConfigError
-from gridfleet.supervisor import ChildSpec, Supervisor
+from system.supervisor import ChildSpec, Supervisor
 
 
 async def check_broker(url: str, timeout: float = 5.0) -> None:
@@ -28,7 +28,7 @@ async def check_broker(url: str, timeout: float = 5.0) -> None:
 
 
 _READY = re.compile(r"listening on (mqtt://\S+)")
-_EMBEDDED = ["-m", "gridfleet", "broker", "--host", "127.0.0.1", "--port", "0", "--no-ws"]
+_EMBEDDED = ["-m", "system", "broker", "--host", "127.0.0.1", "--port", "0", "--no-ws"]
 
 
 @contextlib.asynccontextmanager

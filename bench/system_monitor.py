@@ -11,8 +11,8 @@ from datetime import UTC, datetime
 import aiomqtt
 
 from gridfleet.errors import ProtocolError
-from gridfleet.monitor import FleetMonitor
 from gridfleet.protocol import TOPICS, Topics, UnitState
+from system.monitor import FleetMonitor
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,9 @@ import asyncio
 
 from coordinator.service import Coordinator
 from coordinator.store import default_db_path
-from gridfleet.cli import add_common
 from gridfleet.config import check_step
 from gridfleet.maps import load_map
+from gridfleet.options import add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.tasks import stop_on_signals
 

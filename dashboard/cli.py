@@ -9,10 +9,10 @@ import signal
 from dashboard.app import create_app
 from dashboard.server import DashboardServer
 from dashboard.settings import INSTALL_HINT, DashboardSettings
-from gridfleet.cli import add_common
 from gridfleet.config import DEFAULT_WS_URL
 from gridfleet.grid import GridMap
 from gridfleet.maps import load_map
+from gridfleet.options import add_common
 from gridfleet.scenario import load_scenario
 
 log = logging.getLogger("gridfleet.dashboard")

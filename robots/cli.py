@@ -6,8 +6,8 @@ import argparse
 import asyncio
 import logging
 
-from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError
+from gridfleet.options import add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals

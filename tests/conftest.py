@@ -10,9 +10,10 @@ import pytest
 
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, coordinator_thread, fleet_thread
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, coordinator_thread, fleet_thread
+
+from support.probe import MqttProbe
 
 REPO = Path(__file__).resolve().parent.parent
 MAPS = REPO / "maps"
@@ -67,7 +68,7 @@ def playfield() -> Path:
 
 
 # Browser fixtures of the dashboard (`chromium`, `open_dashboard`), usable by any test.
-pytest_plugins = ["dashboard.testing"]
+pytest_plugins = ["support.browser"]
 
 
 @pytest.fixture

@@ -15,14 +15,15 @@ from pathlib import Path
 import pytest
 
 from gridfleet.grid import Cell, GridMap
-from gridfleet.monitor import FleetMonitor
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
-from gridfleet.simulate import Outcome, simulate
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+from system.monitor import FleetMonitor
+from system.simulate import Outcome, simulate
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05

@@ -21,15 +21,16 @@ from typing import Any, TypeVar
 import pytest
 from playwright.sync_api import expect
 
-from dashboard.testing import OpenDashboard
 from gridfleet.grid import Cell
 from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
 from gridfleet.scenario import load_scenario
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, world_of
-from gridfleet.testing.wait import wait_for
 from robots.world import WorldSim
+from system.threads import ServiceThread, world_of
+
+from support.browser import OpenDashboard
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 pytestmark = pytest.mark.browser
 

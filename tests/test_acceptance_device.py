@@ -1,7 +1,7 @@
 """Acceptance: a unit shows its intended direction, the device follows it, its stop halts the fleet.
 
 Everything runs for real over the session broker: the coordinator and the simulated units of a
-shipped scenario (the `run_system` fixture), the virtual device (`gridfleet.device`) and an
+shipped scenario (the `run_system` fixture), the virtual device (`device.shell`) and an
 operator probe that sends goals, reads every unit's state and watches the topics the dashboard
 reads.
 """
@@ -16,8 +16,8 @@ from typing import Any, TypeVar
 
 import pytest
 
-from gridfleet.device import VirtualDevice
-from gridfleet.device_logic import DeviceLogic
+from device.logic import DeviceLogic
+from device.shell import VirtualDevice
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
     CoordinatorStatus,
@@ -33,10 +33,11 @@ from gridfleet.protocol import (
     encode,
     encode_estop,
 )
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, world_of
-from gridfleet.testing.wait import async_wait_for, wait_for
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, world_of
+
+from support.probe import MqttProbe
+from support.wait import async_wait_for, wait_for
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05

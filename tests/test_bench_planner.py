@@ -202,7 +202,7 @@ def test_random_instances_stay_in_the_largest_region() -> None:
 
 
 def bench(*args: str) -> subprocess.CompletedProcess[str]:
-    cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", *args]
+    cmd = [sys.executable, "-m", "system", "bench", "planner", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
 
 
@@ -260,7 +260,7 @@ def test_a_reader_that_went_away_ends_the_command_quietly(tmp_path: Path) -> Non
     read_end, write_end = os.pipe()
     os.close(read_end)
     try:
-        cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", "--suite", "lifelong"]
+        cmd = [sys.executable, "-m", "system", "bench", "planner", "--suite", "lifelong"]
         out = subprocess.run(
             [*cmd, "--anchors", str(write_anchors(tmp_path))],
             stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120, check=False,

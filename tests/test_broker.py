@@ -13,9 +13,10 @@ import pytest
 
 from broker.embedded import BrokerSettings, load_settings
 from gridfleet.errors import ConfigError
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 needs_mosquitto = pytest.mark.skipif(
     not shutil.which("mosquitto_pub"),
@@ -120,7 +121,7 @@ def test_broker_restarts_on_the_same_ports(fresh_broker: BrokerThread) -> None:
 
 def test_cli_broker_starts_prints_its_urls_and_stops_cleanly(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gridfleet.cli", "broker", "--port", "0", "--ws-port", "0"],
+        [sys.executable, "-m", "system.cli", "broker", "--port", "0", "--ws-port", "0"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -189,7 +190,7 @@ def test_a_new_client_gets_only_the_retained_messages_it_subscribed_to(
 def test_a_busy_port_is_one_line_and_exit_2(broker: BrokerThread) -> None:
     # The session broker holds its port: a second broker on it must say so, not dump a traceback.
     out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "broker", "--port", str(broker.port), "--no-ws"],
+        [sys.executable, "-m", "system", "broker", "--port", str(broker.port), "--no-ws"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -8,14 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.cli import COMMANDS, main
 from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
+from system.cli import COMMANDS, main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gridfleet.cli", *args], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "system.cli", *args], capture_output=True, text=True, timeout=60
     )
 
 

@@ -23,10 +23,11 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from gridfleet.scenario import load_scenario
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import coordinator_thread
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+from system.threads import coordinator_thread
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 STEP = 0.02
 

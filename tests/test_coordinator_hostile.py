@@ -15,8 +15,9 @@ from hypothesis import strategies as st
 from coordinator.service import Coordinator
 from gridfleet.grid import GridMap
 from gridfleet.protocol import ErrorReport, Reply, Topics, decode
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.wait import async_wait_for
+from system.broker_thread import BrokerThread
+
+from support.wait import async_wait_for
 
 GRID = GridMap.from_rows(["....", ".@..", "...."])
 TOPICS = Topics("fuzz")
@@ -203,7 +204,7 @@ def test_fuzz_every_topic_changes_nothing_and_never_raises(topic: str, payload: 
 async def test_service_keeps_running_and_answers_after_garbage(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
-    from gridfleet.testing.probe import MqttProbe
+    from support.probe import MqttProbe
 
     topics = Topics(root)
     c = Coordinator(broker.url, GRID, root=root, step_s=0.02, db_path=tmp_path / "db")

@@ -29,9 +29,10 @@ from gridfleet.protocol import (
     encode_estop,
 )
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import async_wait_for
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import async_wait_for
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP = 0.03

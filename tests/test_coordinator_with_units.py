@@ -29,10 +29,11 @@ from gridfleet.protocol import (
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
 from gridfleet.scenario import load_scenario
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, coordinator_thread, world_of
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, coordinator_thread, world_of
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
 System = Callable[..., tuple[ServiceThread, ServiceThread]]

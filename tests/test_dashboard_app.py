@@ -16,10 +16,11 @@ from dashboard.app import create_app
 from dashboard.cli import settings_from
 from dashboard.server import DashboardServer
 from dashboard.settings import DashboardSettings
-from gridfleet.cli import build_parser
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.scenario import load_scenario
-from gridfleet.testing.wait import wait_for
+from system.cli import build_parser
+
+from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -135,7 +136,7 @@ def free_port() -> int:
 
 def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:
     port = free_port()
-    cmd = [sys.executable, "-m", "gridfleet.cli", "dashboard", "--port", str(port)]
+    cmd = [sys.executable, "-m", "system.cli", "dashboard", "--port", str(port)]
     proc = subprocess.Popen([*cmd, "--scenario", str(playfield)], cwd=REPO, stderr=subprocess.PIPE)
     try:
 

@@ -9,7 +9,6 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
-from dashboard.testing import OpenDashboard
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
     TOPICS,
@@ -35,8 +34,10 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import ErrorReport, Message
 from gridfleet.scenario import load_scenario
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
+from system.broker_thread import BrokerThread
+
+from support.browser import OpenDashboard
+from support.probe import MqttProbe
 
 pytestmark = pytest.mark.browser
 

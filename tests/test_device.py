@@ -13,11 +13,12 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from gridfleet.device import VirtualDevice
+from device.shell import VirtualDevice
 from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import async_wait_for, wait_for
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import async_wait_for, wait_for
 
 ALL = Leds(N=True, E=True, S=True, W=True)
 
@@ -158,7 +159,7 @@ class Proc:
     def __init__(self, *args: str, stdin: int = subprocess.PIPE) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.p = subprocess.Popen(
-            [sys.executable, "-m", "gridfleet.cli", "device", *args],
+            [sys.executable, "-m", "system.cli", "device", *args],
             stdin=stdin,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -265,7 +266,7 @@ def test_device_command_killed_leaves_its_last_will(
 
 def test_device_command_refuses_bad_ids() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "gridfleet.cli", "device", "--unit", "bad/id"],
+        [sys.executable, "-m", "system.cli", "device", "--unit", "bad/id"],
         capture_output=True,
         text=True,
         timeout=30,
@@ -285,7 +286,7 @@ def test_device_command_on_a_terminal_highlights_the_lit_arrow_and_quits_on_q(
         [
             sys.executable,
             "-m",
-            "gridfleet.cli",
+            "system.cli",
             "device",
             "--broker",
             broker.url,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.device_logic import DeviceLogic, render_plain
+from device.logic import DeviceLogic, render_plain
 from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
 
 T = Topics("t/logic")

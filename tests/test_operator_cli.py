@@ -11,10 +11,11 @@ import pytest
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, decode_estop
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, world_of
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, world_of
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 
 @pytest.fixture
@@ -26,7 +27,7 @@ def job(broker: BrokerThread, root: str) -> Callable[..., subprocess.CompletedPr
             [
                 sys.executable,
                 "-m",
-                "gridfleet",
+                "system",
                 "job",
                 "--broker",
                 broker.url,
@@ -109,7 +110,7 @@ def test_mistakes_are_one_line(
 
 def test_unreachable_broker_is_one_line() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "job", "--broker", "mqtt://127.0.0.1:1", "list"],
+        [sys.executable, "-m", "system", "job", "--broker", "mqtt://127.0.0.1:1", "list"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -10,14 +10,15 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import Connection, Topics, decode
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gridfleet.cli", "robots", *args],
+        [sys.executable, "-m", "system.cli", "robots", *args],
         capture_output=True,
         text=True,
         timeout=60,
@@ -60,7 +61,7 @@ def test_sigterm_stops_every_unit_with_offline(
             [
                 sys.executable,
                 "-m",
-                "gridfleet.cli",
+                "system.cli",
                 "robots",
                 "--broker",
                 broker.url,

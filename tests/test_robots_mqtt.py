@@ -26,11 +26,12 @@ from gridfleet.protocol import (
     encode_estop,
 )
 from gridfleet.scenario import Scenario, load_scenario
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import async_wait_for
 from robots.fleet import Fleet
 from robots.unit import Mode
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import async_wait_for
 
 STEP = 0.02
 Probe = Callable[..., MqttProbe]

@@ -9,9 +9,10 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import HeaderStamper, SetGoal, Topics, encode
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.services import ServiceThread, world_of
-from gridfleet.testing.wait import wait_for
+from system.threads import ServiceThread, world_of
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 
 def test_system_runs_a_goal_and_stops_cleanly(

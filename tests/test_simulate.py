@@ -18,7 +18,7 @@ SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 def simulate(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "simulate", *args],
+        [sys.executable, "-m", "system", "simulate", *args],
         capture_output=True,
         text=True,
         timeout=timeout,

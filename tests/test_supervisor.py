@@ -10,8 +10,9 @@ import sys
 import pytest
 
 from gridfleet.errors import ComponentError
-from gridfleet.supervisor import ChildSpec, Supervisor
-from gridfleet.testing.wait import async_wait_for
+from system.supervisor import ChildSpec, Supervisor
+
+from support.wait import async_wait_for
 
 SLEEPER = [sys.executable, "-c", "import time\nprint('ready', flush=True)\ntime.sleep(600)"]
 

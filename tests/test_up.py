@@ -14,9 +14,10 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import Connection, Topics, decode
-from gridfleet.testing.broker_thread import BrokerThread
-from gridfleet.testing.probe import MqttProbe
-from gridfleet.testing.wait import wait_for
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -67,7 +68,7 @@ def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
         [
             sys.executable,
             "-m",
-            "gridfleet.cli",
+            "system.cli",
             "up",
             "--broker",
             broker.url,
@@ -127,7 +128,7 @@ def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
 ) -> None:
     out = subprocess.run(
         [
-            sys.executable, "-m", "gridfleet", "up", "--mqtt-port", str(broker.port),
+            sys.executable, "-m", "system", "up", "--mqtt-port", str(broker.port),
             "--ws-port", "0", "--port", "0",
         ],
         capture_output=True, text=True, timeout=60, check=False,
@@ -141,7 +142,7 @@ def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
 
 def test_up_refuses_a_bad_step_before_starting_anything() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "up", "--step", "-1", "--mqtt-port", "0"],
+        [sys.executable, "-m", "system", "up", "--step", "-1", "--mqtt-port", "0"],
         capture_output=True, text=True, timeout=60, check=False,
     )  # fmt: skip
     assert out.returncode == 2 and "started" not in out.stdout

@@ -8,12 +8,12 @@ import sys
 import uuid
 from typing import TextIO
 
-from gridfleet.cli import add_common
 from gridfleet.errors import ConfigError, GridfleetError
-from gridfleet.feeder import operator_session
 from gridfleet.grid import Cell
+from gridfleet.options import add_common
 from gridfleet.protocol import JobsView, Reply
 from gridfleet.protocol.topics import Topics
+from system.operator import operator_session
 
 WAIT_S = 10.0
 

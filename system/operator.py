@@ -1,16 +1,11 @@
-"""An operator client that submits a scenario's jobs and goals, and (demo) keeps jobs coming."""
+"""The operator client: sends requests to the coordinator, awaits replies, follows the queue view."""
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import logging
-import random
-import time
-import uuid
 from collections.abc import AsyncIterator, Sequence
-from pathlib import Path
 
 import aiomqtt
 from pydantic import ValidationError
@@ -18,7 +13,6 @@ from pydantic import ValidationError
 from gridfleet.bus import make_client
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.grid import Cell
-from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import (
     TOPICS,
     CancelJob,
@@ -37,10 +31,9 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
-from gridfleet.scenario import JobSpec, Scenario, load_scenario
-from gridfleet.tasks import cancel_and_wait, stop_on_signals, until_stopped
+from gridfleet.tasks import cancel_and_wait
 
-log = logging.getLogger("gridfleet.feeder")
+log = logging.getLogger("gridfleet.operator")
 
 
 class Operator:
@@ -195,105 +188,3 @@ async def operator_session(url: str, topics: Topics, client_id: str) -> AsyncIte
             yield operator
         finally:
             await cancel_and_wait(listener)
-
-
-def scenario_job_id(scenario: Scenario, n: int, job: JobSpec, run_tag: str | None = None) -> str:
-    """The id the scenario's `n`-th job (from 1) is submitted under."""
-    return job.id or f"{scenario.name}{f'-{run_tag}' if run_tag else ''}-job-{n}"
-
-
-async def submit_scenario(
-    operator: Operator, scenario: Scenario, run_tag: str | None = None
-) -> list[Reply]:
-    """Submit every job and goal of `scenario`; job ids default to `<scenario>[-<tag>]-job-<n>`."""
-    # A goal for a unit the coordinator has not heard from yet would be refused as unknown.
-    await operator.wait_for_units([u.id for u in scenario.units])
-    replies = []
-    for n, job in enumerate(scenario.jobs, start=1):
-        job_id = scenario_job_id(scenario, n, job, run_tag)
-        reply = await operator.submit_job(job.pickup, job.dropoff, job.mass, job_id, job.priority)
-        log.info("job %s: %s", job_id, "queued" if reply.accepted else f"refused: {reply.reason}")
-        replies.append(reply)
-    for goal in scenario.goals:
-        reply = await operator.set_goal(goal.unit, goal.target)
-        log.info(
-            "goal %s -> %s: %s",
-            goal.unit,
-            list(goal.target),
-            "set" if reply.accepted else f"refused: {reply.reason}",
-        )
-        replies.append(reply)
-    return replies
-
-
-def random_job(
-    scenario: Scenario, rng: random.Random, fields: DistanceFieldCache
-) -> tuple[Cell, Cell, float]:
-    """A job some unit can carry between two distinct squares reachable from the units."""
-    free = scenario.grid.free_cells()
-    heaviest = max(u.capacity for u in scenario.units)
-    home = scenario.units[0].start
-    while True:
-        pickup, dropoff = rng.sample(free, 2)
-        if UNREACHABLE not in (fields.distance(home, pickup), fields.distance(home, dropoff)):
-            return pickup, dropoff, round(rng.uniform(0.5, heaviest), 1)
-
-
-async def feed(
-    url: str,
-    root: str,
-    scenario: Scenario,
-    demo: bool,
-    step: float,
-    keep_active: int,
-    seed: int | None = None,
-) -> None:
-    """Submit the scenario's work; in demo mode keep `keep_active` jobs in the queue forever."""
-    client_id = f"feeder-{uuid.uuid4().hex[:6]}"
-    topics = Topics(root)
-    async with operator_session(url, topics, client_id) as operator:
-        await operator.coordinator_online.wait()
-        # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's
-        # jobs from clashing with the ids of the last one.
-        await submit_scenario(operator, scenario, run_tag=time.strftime("%H%M%S"))
-        if not demo:
-            return
-        rng = random.Random(seed)
-        fields = DistanceFieldCache(scenario.grid)
-        while True:
-            await operator.jobs_changed.wait()
-            operator.jobs_changed.clear()
-            while operator.active_jobs() < keep_active:
-                pickup, dropoff, mass = random_job(scenario, rng, fields)
-                await operator.submit_job(pickup, dropoff, mass)
-                await asyncio.sleep(step)  # pacing for the demo, not synchronisation
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """`python -m gridfleet.feeder`: run by `gridfleet up` as its operator component."""
-    parser = argparse.ArgumentParser(prog="gridfleet-feeder")
-    parser.add_argument("--broker", required=True)
-    parser.add_argument("--root", default="gridfleet")
-    parser.add_argument("--scenario", required=True, type=Path)
-    parser.add_argument("--demo", action="store_true")
-    parser.add_argument("--step", type=float, default=0.5)
-    parser.add_argument("--keep-active", type=int, default=6)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(message)s")
-    try:
-        scenario = load_scenario(args.scenario)
-        asyncio.run(_main(args, scenario))
-    except GridfleetError as exc:
-        print(f"feeder: error: {exc}")
-        return 2
-    return 0
-
-
-async def _main(args: argparse.Namespace, scenario: Scenario) -> None:
-    # Stopped by `gridfleet up` with SIGTERM, perhaps mid-submission: that is a clean exit.
-    work = feed(args.broker, args.root, scenario, args.demo, args.step, args.keep_active)
-    await until_stopped(work, stop_on_signals())
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

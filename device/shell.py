@@ -1,29 +1,17 @@
-"""`gridfleet device`: a virtual ESP32 in the terminal (four direction LEDs, an emergency-stop key).
-
-The behaviour is gridfleet.device_logic.DeviceLogic (the same rules as the firmware); this module
-is its MQTT shell (last will, reconnect with back-off) and the terminal front end.
-"""
+"""The virtual device's MQTT shell: it feeds DeviceLogic (the firmware's rules) and sends the stop."""
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import logging
-import os
-import sys
-import termios
 import time
-import tty
 from collections.abc import Callable
-from typing import TextIO
 
 import aiomqtt
 
+from device.logic import DeviceLogic, Refusal
 from gridfleet.bus import make_client
-from gridfleet.cli import add_common
-from gridfleet.device_logic import DeviceLogic, Refusal, render_plain, render_tty
-from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.protocol import (
     TOPICS,
     ErrorReport,
@@ -34,13 +22,12 @@ from gridfleet.protocol import (
     encode_device_connection,
 )
 from gridfleet.protocol.constants import DEFAULT_ROOT
-from gridfleet.tasks import cancel_and_wait, stop_on_signals
+from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.device")
 
 BACKOFF_INITIAL_S = 0.5
 BACKOFF_MAX_S = 10.0
-STOP_WORDS = {"s", "stop", " "}
 
 
 class VirtualDevice:
@@ -193,136 +180,3 @@ class VirtualDevice:
         await client.publish(
             self.logic.topics.fleet("errors"), encode(report), qos=spec.qos, retain=spec.retained
         )
-
-
-class Terminal:
-    """Draws the LEDs (live line on a tty, one plain line per change otherwise) and reads keys."""
-
-    def __init__(self, out: TextIO, inp: TextIO) -> None:
-        self.out = out
-        self.inp = inp
-        self.tty_out = out.isatty()
-        self.tty_in = inp.isatty()
-        self._last = ""
-        self._saved: list[object] | None = None
-        self._buffer = b""
-
-    def draw(self, logic: DeviceLogic) -> None:
-        """Show the current state (plain mode prints only changes)."""
-        if self.tty_out:
-            blink_on = int(time.monotonic() * 4) % 2 == 0
-            self.out.write("\r\x1b[2K" + render_tty(logic, blink_on))
-            self.out.flush()
-            return
-        line = render_plain(logic)
-        if line != self._last:
-            self._last = line
-            self.out.write(line + "\n")
-            self.out.flush()
-
-    def start_keys(
-        self,
-        loop: asyncio.AbstractEventLoop,
-        on_stop: Callable[[], None],
-        on_quit: Callable[[], None],
-    ) -> None:
-        """Call `on_stop` on space/`s` (tty) or a line `s`/`stop` (pipe); `on_quit` on `q`."""
-        fd = self.inp.fileno()
-        if self.tty_in:
-            self._saved = termios.tcgetattr(fd)
-            tty.setcbreak(fd)
-
-        def readable() -> None:
-            try:
-                chunk = os.read(fd, 1024)
-            except OSError:
-                chunk = b""
-            if not chunk:
-                loop.remove_reader(fd)  # end of input: keep running until a signal
-                return
-            if self.tty_in:
-                for ch in chunk.decode(errors="replace").lower():
-                    if ch in (" ", "s"):
-                        on_stop()
-                    elif ch == "q":
-                        on_quit()
-                return
-            self._buffer += chunk
-            *lines, self._buffer = self._buffer.split(b"\n")
-            for raw in lines:
-                word = raw.decode(errors="replace").strip().lower()
-                if word in STOP_WORDS or raw == b" ":
-                    on_stop()
-                elif word in ("q", "quit"):
-                    on_quit()
-
-        try:
-            loop.add_reader(fd, readable)
-        except OSError:
-            # A regular file or /dev/null cannot be watched: it has no key presses to give.
-            log.debug("stdin cannot be watched; the stop key is off (signals still stop)")
-
-    def close(self, loop: asyncio.AbstractEventLoop) -> None:
-        """Restore the terminal."""
-        with contextlib.suppress(ValueError, OSError):
-            loop.remove_reader(self.inp.fileno())
-        if self._saved is not None:
-            termios.tcsetattr(self.inp.fileno(), termios.TCSADRAIN, self._saved)  # type: ignore[arg-type]
-        if self.tty_out:
-            self.out.write("\n")
-            self.out.flush()
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Flags of `gridfleet device`."""
-    add_common(parser)
-    parser.add_argument("--unit", required=True, help="the unit whose direction the LEDs show")
-    parser.add_argument(
-        "--device-id",
-        default=None,
-        help="this device's id (MQTT client id and <by> of its stop; default device-<unit>)",
-    )
-    parser.add_argument(
-        "--retry",
-        type=float,
-        default=1.0,
-        metavar="SECONDS",
-        help="re-send an unconfirmed stop after this long (default 1.0)",
-    )
-
-
-async def _main(args: argparse.Namespace) -> int:
-    loop = asyncio.get_running_loop()
-    stop = stop_on_signals()
-    term = Terminal(sys.stdout, sys.stdin)
-    try:
-        device = VirtualDevice(
-            args.broker, args.unit, args.root, args.device_id, args.retry, on_change=term.draw
-        )
-    except ProtocolError as exc:
-        raise ConfigError(str(exc)) from None
-    term.start_keys(loop, device.press, stop.set)
-    term.draw(device.logic)
-    blinker: asyncio.Task[None] | None = None
-    if term.tty_out:
-
-        async def blink() -> None:
-            while True:
-                await asyncio.sleep(0.125)
-                term.draw(device.logic)
-
-        blinker = asyncio.create_task(blink())
-    try:
-        await device.run(stop)
-    finally:
-        if blinker is not None:
-            blinker.cancel()
-        term.close(loop)
-    return 0
-
-
-def run(args: argparse.Namespace) -> int:
-    """Entry point of `gridfleet device`."""
-    if args.retry <= 0:
-        raise ConfigError("--retry must be greater than 0")
-    return asyncio.run(_main(args))

@@ -17,19 +17,18 @@ from types import ModuleType
 import aiomqtt
 
 from gridfleet import __version__
-from gridfleet.config import DEFAULT_MQTT_URL
 from gridfleet.errors import GridfleetError
-from gridfleet.protocol.constants import DEFAULT_ROOT
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "up": ("gridfleet.up", "start everything: broker, coordinator, units and dashboard"),
+    "up": ("system.up", "start everything: broker, coordinator, units and dashboard"),
     "broker": ("broker.cli", "run the embedded MQTT broker (amqtt)"),
     "coordinator": ("coordinator.cli", "run the coordinator: world model, jobs, planning"),
     "robots": ("robots.cli", "run the simulated units of a scenario"),
     "dashboard": ("dashboard.cli", "serve the browser dashboard"),
-    "device": ("gridfleet.device", "a virtual ESP32: direction LEDs and an emergency-stop key"),
-    "job": ("gridfleet.operator", "submit, cancel and list jobs; set goals; emergency stop"),
-    "simulate": ("gridfleet.simulate", "run a scenario to the end in accelerated time"),
+    "device": ("device.cli", "a virtual ESP32: direction LEDs and an emergency-stop key"),
+    "job": ("system.job", "submit, cancel and list jobs; set goals; emergency stop"),
+    "feed": ("system.feed", "submit a scenario's jobs and goals; --demo keeps jobs coming"),
+    "simulate": ("system.simulate", "run a scenario to the end in accelerated time"),
     "bench": ("bench.cli", "benchmark the planner and the whole system"),
 }
 
@@ -42,28 +41,6 @@ def _load(command: str) -> ModuleType | None:
         if exc.name and module_name.startswith(exc.name):
             return None
         raise
-
-
-def add_common(
-    parser: argparse.ArgumentParser, *, broker: bool = True, own_broker: str | None = None
-) -> None:
-    """Flags that most components share: --broker and --root.
-
-    `own_broker` says what a command that starts its own broker does without --broker (the
-    default is then None).
-    """
-    if broker:
-        parser.add_argument(
-            "--broker",
-            default=None if own_broker else DEFAULT_MQTT_URL,
-            metavar="URL",
-            help=f"MQTT broker URL, mqtt://host:port (default {own_broker or DEFAULT_MQTT_URL})",
-        )
-    parser.add_argument(
-        "--root",
-        default=DEFAULT_ROOT,
-        help=f"topic root, so fleets can share a broker (default {DEFAULT_ROOT!r})",
-    )
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:

@@ -1,6 +1,6 @@
 """Pytest fixtures and helpers for driving the dashboard in real Chromium (a pytest plugin).
 
-Load it with `pytest_plugins = ["dashboard.testing"]` (tests/conftest.py does). Fixtures:
+Load it with `pytest_plugins = ["support.browser"]` (tests/conftest.py does). Fixtures:
 `chromium` (one headless browser per session) and `open_dashboard` (serve the app on a free port
 and open it in a fresh page, connected to a broker).
 """
@@ -19,7 +19,7 @@ from dashboard.app import create_app
 from dashboard.server import DashboardServer
 from dashboard.settings import DashboardSettings
 from gridfleet.grid import GridMap
-from gridfleet.testing.broker_thread import BrokerThread
+from system.broker_thread import BrokerThread
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [

@@ -8,11 +8,11 @@ import re
 import sys
 from pathlib import Path
 
-from gridfleet.cli import add_common
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
+from gridfleet.options import add_common
 from gridfleet.scenario import load_scenario, with_units
-from gridfleet.supervisor import ChildSpec, Supervisor, run_until_signal
+from system.supervisor import ChildSpec, Supervisor, run_until_signal
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
 BROKER_READY = re.compile(r"listening on (mqtt://\S+) and (ws://\S+)")
@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "gridfleet.cli", *args]
+    return [sys.executable, "-m", "system.cli", *args]
 
 
 async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
@@ -105,15 +105,7 @@ async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
             ready=DASHBOARD_READY,
         )
     )
-    feeder = [
-        sys.executable,
-        "-m",
-        "gridfleet.feeder",
-        *common,
-        "--scenario",
-        str(args.scenario),
-        *step,
-    ]
+    feeder = _cli("feed", *common, "--scenario", str(args.scenario), *step)
     if args.demo:
         feeder.append("--demo")
     await supervisor.start(ChildSpec("operator", feeder, restart=args.demo))

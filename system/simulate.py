@@ -17,15 +17,16 @@ from typing import Any
 
 from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
-from gridfleet.cli import add_common
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError, GridfleetError
-from gridfleet.feeder import Operator, scenario_job_id, submit_scenario
 from gridfleet.grid import Cell
-from gridfleet.monitor import FleetMonitor
+from gridfleet.options import add_common
 from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from system.feed import scenario_job_id, submit_scenario
+from system.monitor import FleetMonitor
+from system.operator import Operator
 
 log = logging.getLogger("gridfleet.simulate")
 STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends

@@ -14,7 +14,8 @@ import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from gridfleet.config import parse_broker_url
-from gridfleet.testing.wait import wait_for
+
+from support.wait import wait_for
 
 
 @dataclass(frozen=True)

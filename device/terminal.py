@@ -1,0 +1,97 @@
+"""The virtual device's terminal front end: draws the four LEDs and reads the stop key."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import termios
+import time
+import tty
+from collections.abc import Callable
+from typing import TextIO
+
+from device.logic import DeviceLogic, render_plain, render_tty
+
+log = logging.getLogger("gridfleet.device")
+
+STOP_WORDS = {"s", "stop", " "}
+
+
+class Terminal:
+    """Draws the LEDs (live line on a tty, one plain line per change otherwise) and reads keys."""
+
+    def __init__(self, out: TextIO, inp: TextIO) -> None:
+        self.out = out
+        self.inp = inp
+        self.tty_out = out.isatty()
+        self.tty_in = inp.isatty()
+        self._last = ""
+        self._saved: list[object] | None = None
+        self._buffer = b""
+
+    def draw(self, logic: DeviceLogic) -> None:
+        """Show the current state (plain mode prints only changes)."""
+        if self.tty_out:
+            blink_on = int(time.monotonic() * 4) % 2 == 0
+            self.out.write("\r\x1b[2K" + render_tty(logic, blink_on))
+            self.out.flush()
+            return
+        line = render_plain(logic)
+        if line != self._last:
+            self._last = line
+            self.out.write(line + "\n")
+            self.out.flush()
+
+    def start_keys(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        on_stop: Callable[[], None],
+        on_quit: Callable[[], None],
+    ) -> None:
+        """Call `on_stop` on space/`s` (tty) or a line `s`/`stop` (pipe); `on_quit` on `q`."""
+        fd = self.inp.fileno()
+        if self.tty_in:
+            self._saved = termios.tcgetattr(fd)
+            tty.setcbreak(fd)
+
+        def readable() -> None:
+            try:
+                chunk = os.read(fd, 1024)
+            except OSError:
+                chunk = b""
+            if not chunk:
+                loop.remove_reader(fd)  # end of input: keep running until a signal
+                return
+            if self.tty_in:
+                for ch in chunk.decode(errors="replace").lower():
+                    if ch in (" ", "s"):
+                        on_stop()
+                    elif ch == "q":
+                        on_quit()
+                return
+            self._buffer += chunk
+            *lines, self._buffer = self._buffer.split(b"\n")
+            for raw in lines:
+                word = raw.decode(errors="replace").strip().lower()
+                if word in STOP_WORDS or raw == b" ":
+                    on_stop()
+                elif word in ("q", "quit"):
+                    on_quit()
+
+        try:
+            loop.add_reader(fd, readable)
+        except OSError:
+            # A regular file or /dev/null cannot be watched: it has no key presses to give.
+            log.debug("stdin cannot be watched; the stop key is off (signals still stop)")
+
+    def close(self, loop: asyncio.AbstractEventLoop) -> None:
+        """Restore the terminal."""
+        with contextlib.suppress(ValueError, OSError):
+            loop.remove_reader(self.inp.fileno())
+        if self._saved is not None:
+            termios.tcsetattr(self.inp.fileno(), termios.TCSADRAIN, self._saved)  # type: ignore[arg-type]
+        if self.tty_out:
+            self.out.write("\n")
+            self.out.flush()

@@ -1,7 +1,0 @@
-"""`python -m gridfleet`: the same as the `gridfleet` command."""
-
-import sys
-
-from gridfleet.cli import main
-
-sys.exit(main())

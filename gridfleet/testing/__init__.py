@@ -1,1 +1,0 @@
-"""Helpers for tests of gridfleet and of software that talks to it (brokers, waiting)."""
