@@ -1,5 +1,6 @@
 // The page: connects to the broker, keeps a FleetView, renders it, and sends operator requests.
 
+import { BrokerConnection } from "./connection.js";
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { drawFleet, squareAt } from "./draw.js";
 import { Forms } from "./forms.js";
@@ -89,27 +90,12 @@ class Dashboard {
   // ---- MQTT ----
   connect() {
     const subs = subscriptions(this.topics, this.clientId);
-    this.client = this.mqttLib.connect(this.settings.broker_ws, {
-      clientId: this.clientId,
-      clean: true,
-      reconnectPeriod: 1000,
-      connectTimeout: 5000,
-      keepalive: 30,
-      resubscribe: false, // we subscribe on every connect ourselves, so a restarted broker gets them
-    });
     const conn = $("#conn");
-    const setConn = (state, text) => { conn.dataset.state = state; conn.textContent = text; this.renderEstop(); };
-    this.client.on("connect", () => {
-      this.client.subscribe(subs, (err) => {
-        if (err) { setConn("failed", `subscribe failed: ${err.message}`); return; }
-        setConn("connected", "broker: connected");
-      });
-    });
-    this.client.on("reconnect", () => setConn("reconnecting", "broker: reconnecting…"));
-    this.client.on("close", () => { if (conn.dataset.state === "connected") setConn("reconnecting", "broker: connection lost, reconnecting…"); });
-    this.client.on("offline", () => setConn("reconnecting", "broker: offline, reconnecting…"));
-    this.client.on("error", (err) => this.log(`broker error: ${err.message}`));
-    this.client.on("message", (topic, payload) => this.onMessage(topic, payload));
+    this.client = new BrokerConnection(this.mqttLib, this.settings.broker_ws, this.clientId, subs, {
+      onStatus: (state, text) => { conn.dataset.state = state; conn.textContent = text; this.renderEstop(); },
+      onMessage: (topic, payload) => this.onMessage(topic, payload),
+      onLog: (text) => this.log(text),
+    }).start();
   }
 
   onMessage(topic, payload) {

@@ -1,0 +1,60 @@
+// The page's broker connection: an MQTT.js client over websockets, its state in words, and the
+// page's subscriptions, made again on every connect (a restarted broker has forgotten them). No DOM:
+// the page hears the state through `onStatus`.
+
+/** MQTT.js options besides the client id. */
+export const CLIENT_OPTIONS = {
+  clean: true,
+  reconnectPeriod: 1000,
+  connectTimeout: 5000,
+  keepalive: 30,
+  resubscribe: false, // we subscribe on every connect ourselves, so a restarted broker gets them
+};
+
+export class BrokerConnection {
+  /**
+   * `mqtt` is the MQTT.js module (its `connect`), `subs` the subscriptions ({topic: {qos}}).
+   * Callbacks: `onStatus(state, text)` with state "connected", "reconnecting" or "failed";
+   * `onMessage(topic, payload)`; `onLog(text)` for broker errors.
+   */
+  constructor(mqtt, url, clientId, subs, { onStatus, onMessage, onLog }) {
+    this.mqtt = mqtt;
+    this.url = url;
+    this.clientId = clientId;
+    this.subs = subs;
+    this.onStatus = onStatus;
+    this.onMessage = onMessage;
+    this.onLog = onLog;
+    this.state = "connecting"; // as the page says before the first status
+    this.client = null;
+  }
+
+  start() {
+    const client = this.mqtt.connect(this.url, { clientId: this.clientId, ...CLIENT_OPTIONS });
+    this.client = client;
+    client.on("connect", () => {
+      client.subscribe(this.subs, (err) => {
+        if (err) { this.status("failed", `subscribe failed: ${err.message}`); return; }
+        this.status("connected", "broker: connected");
+      });
+    });
+    client.on("reconnect", () => this.status("reconnecting", "broker: reconnecting…"));
+    client.on("close", () => { if (this.state === "connected") this.status("reconnecting", "broker: connection lost, reconnecting…"); });
+    client.on("offline", () => this.status("reconnecting", "broker: offline, reconnecting…"));
+    client.on("error", (err) => this.onLog(`broker error: ${err.message}`));
+    client.on("message", (topic, payload) => this.onMessage(topic, payload));
+    return this;
+  }
+
+  status(state, text) {
+    this.state = state;
+    this.onStatus(state, text);
+  }
+
+  /** True while the client has a live connection (else MQTT.js queues what is published). */
+  get connected() { return !!this.client?.connected; }
+
+  publish(topic, payload, options) {
+    this.client.publish(topic, payload, options);
+  }
+}
