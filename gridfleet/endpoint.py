@@ -1,0 +1,234 @@
+"""One MQTT endpoint for every long-running component: the session kept up, publishes by topic kind.
+
+A component hands its endpoint what to say when it connects and leaves (last will, `online`,
+`offline`), what to follow, and a handler for what arrives; the endpoint does the rest: connect,
+subscribe, greet, receive, reconnect with back-off, and say goodbye on a clean stop. Decisions stay
+in the component's core; this module only moves bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import aiomqtt
+
+from gridfleet.bus import make_client
+from gridfleet.protocol import TOPICS, ErrorReport, Header, encode
+from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.protocol.messages import Message
+from gridfleet.tasks import cancel_and_wait
+
+log = logging.getLogger("gridfleet.endpoint")
+
+Handler = Callable[[str, bytes], Awaitable[None]]
+Hook = Callable[[], Awaitable[None]]
+
+
+@dataclass(frozen=True)
+class Outbound:
+    """One message to publish: topic, payload bytes, QoS and retain flag."""
+
+    topic: str
+    payload: bytes
+    qos: int
+    retain: bool
+
+    @classmethod
+    def of(cls, kind: str, topic: str, message: Message | bytes) -> Outbound:
+        """A message on a topic of `kind`, with the QoS and retain flag protocol.md gives it."""
+        spec = TOPICS[kind]
+        payload = message if isinstance(message, bytes) else encode(message)
+        return cls(topic, payload, spec.qos, spec.retained)
+
+    def will(self) -> aiomqtt.Will:
+        """This message as an MQTT last will."""
+        return aiomqtt.Will(self.topic, self.payload, qos=self.qos, retain=self.retain)
+
+
+def error_report(header: Header, topic: str, reason: str, request_id: str | None = None) -> bytes:
+    """The payload of an `errors` report about a message refused on `topic`, cut to the limits."""
+    return encode(
+        ErrorReport(
+            header=header, topic=topic[:256], reason=reason[:MAX_TEXT], request_id=request_id
+        )
+    )
+
+
+async def _finish(work: Awaitable[Any]) -> Any:
+    return await work
+
+
+@dataclass(frozen=True)
+class Backoff:
+    """Seconds between connection attempts: doubling from `first` up to `most`."""
+
+    first: float = 0.1
+    most: float = 5.0
+
+
+class Endpoint:
+    """A component's MQTT session, kept up until stopped: `await endpoint.run(stop, handler)`."""
+
+    def __init__(
+        self,
+        url: str,
+        client_id: str,
+        *,
+        name: str | None = None,
+        subscriptions: Callable[[], Sequence[tuple[str, int]]] = tuple,
+        will: Callable[[], Outbound] | None = None,
+        online: Callable[[], Outbound] | None = None,
+        offline: Callable[[], Outbound] | None = None,
+        backoff: Backoff = Backoff(),
+    ) -> None:
+        self.url = url
+        self.client_id = client_id
+        self.name = name or client_id
+        self._subscriptions = subscriptions
+        self._will = will
+        self._online = online
+        self._offline = offline
+        self.backoff = backoff
+        self.online = asyncio.Event()  # set while connected, subscribed and announced
+        self.connects = 0  # sessions begun (tests watch reconnects)
+        self.killed = False
+        self._client: aiomqtt.Client | None = None
+        self._broken: asyncio.Event | None = None  # set when a send finds the session dead
+
+    async def run(
+        self,
+        stop: asyncio.Event,
+        handle: Handler,
+        *,
+        on_connect: Hook | None = None,
+        on_disconnect: Callable[[str], None] | None = None,
+        during: Callable[[asyncio.Event], Awaitable[None]] | None = None,
+        on_stop: Hook | None = None,
+    ) -> None:
+        """Stay connected until `stop` is set (then say `offline`) or `kill()`.
+
+        `on_connect` runs once subscribed and announced, `during` for as long as each session
+        lasts, `on_disconnect` with the reason whenever a session is lost, `on_stop` on a clean
+        stop just before `offline`.
+        """
+        delay = self.backoff.first
+        while not stop.is_set() and not self.killed:
+            try:
+                await self._session(stop, handle, on_connect, during, on_stop)
+                delay = self.backoff.first
+            except aiomqtt.MqttError as exc:
+                if self.killed:
+                    return
+                if self._client is not None or delay == self.backoff.first:
+                    log.warning("%s: broker %s: %s; retrying", self.name, self.url, exc)
+                self._lose()
+                if on_disconnect is not None:
+                    on_disconnect(str(exc))
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(stop.wait(), delay)
+                delay = min(delay * 2, self.backoff.most)
+
+    async def _session(
+        self,
+        stop: asyncio.Event,
+        handle: Handler,
+        on_connect: Hook | None,
+        during: Callable[[asyncio.Event], Awaitable[None]] | None,
+        on_stop: Hook | None,
+    ) -> None:
+        will = self._will().will() if self._will is not None else None
+        async with make_client(self.url, self.client_id, will=will) as client:
+            for topic, qos in self._subscriptions():
+                await client.subscribe(topic, qos=qos)
+            self._client = client
+            self._broken = asyncio.Event()
+            self.connects += 1
+            if self._online is not None:
+                await self.publish(self._online())
+            if on_connect is not None:
+                await on_connect()
+            self.online.set()
+            work = during(stop) if during is not None else stop.wait()
+            waits: set[asyncio.Task[Any]] = {
+                asyncio.create_task(self._receive(client, handle)),
+                asyncio.create_task(self._broken.wait()),
+                asyncio.create_task(_finish(work)),
+            }
+            stopper = asyncio.create_task(stop.wait())
+            try:
+                done, _ = await asyncio.wait({*waits, stopper}, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for task in (*waits, stopper):
+                    await cancel_and_wait(task)
+            for task in done:
+                error = None if task.cancelled() else task.exception()
+                if error is not None:
+                    raise error
+            if self._broken.is_set() or not stop.is_set():
+                raise aiomqtt.MqttError("the session ended")
+            with contextlib.suppress(aiomqtt.MqttError):
+                if on_stop is not None:
+                    await on_stop()
+                if self._offline is not None:
+                    bye = self._offline()
+                    await client.publish(bye.topic, bye.payload, qos=bye.qos, retain=bye.retain)
+            self._lose()
+
+    async def _receive(self, client: aiomqtt.Client, handle: Handler) -> None:
+        async for message in client.messages:
+            payload = message.payload
+            data = (
+                payload if isinstance(payload, bytes | bytearray) else str(payload or "").encode()
+            )
+            try:
+                await handle(message.topic.value, bytes(data))
+            except aiomqtt.MqttError:
+                raise
+            except Exception:  # a bug must not take the component off the broker: log, carry on
+                log.exception("%s: failed to handle a message on %s", self.name, message.topic)
+        raise aiomqtt.MqttError("message stream ended")
+
+    def _lose(self) -> None:
+        self._client = None
+        self.online.clear()
+
+    @property
+    def connected(self) -> bool:
+        """Whether a session is up (messages can be sent)."""
+        return self._client is not None
+
+    async def publish(self, out: Outbound) -> bool:
+        """Send `out` on the live session; False when there is none or the send failed."""
+        client = self._client
+        if client is None:
+            return False
+        try:
+            await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
+        except aiomqtt.MqttError as exc:
+            # A send still pending on a connection already replaced (its acknowledgement timed
+            # out long after a reconnect) says nothing about the live one: leave that alone.
+            if client is self._client and self._broken is not None:
+                log.debug("%s: send failed (%s); the session is over", self.name, exc)
+                self._broken.set()
+            return False
+        return True
+
+    def drop(self) -> None:
+        """Cut the TCP connection without a DISCONNECT, as a pulled cable would (for tests)."""
+        client = self._client
+        if client is None:
+            return
+        sock = client._client.socket()
+        if isinstance(sock, socket.socket):
+            sock.shutdown(socket.SHUT_RDWR)
+
+    def kill(self) -> None:
+        """Die abruptly, as a device losing power: no `offline`, no reconnect; the will goes out."""
+        self.killed = True
+        self.drop()
