@@ -1,0 +1,35 @@
+// The emergency stop as the page sends and shows it.
+import assert from "node:assert/strict";
+import { test } from "node:test";
+import { decodeEstop } from "../static/js/protocol.js";
+import { ESTOP_BY, estopLook, estopPayload, HOLD_MS } from "../static/js/stop.js";
+
+test("STOP and the release are sent by 'dashboard', naming the page", () => {
+  assert.equal(estopPayload(true, "dash-1"), "engaged|dashboard|operator pressed STOP on dash-1");
+  assert.equal(estopPayload(false, "dash-1"), "released|dashboard|released by operator on dash-1");
+  assert.deepEqual(decodeEstop(estopPayload(true, "dash-1")), { engaged: true, by: ESTOP_BY, reason: "operator pressed STOP on dash-1" });
+  assert.equal(HOLD_MS, 1500);
+});
+
+test("nobody has said: unknown, STOP ready, nothing to release", () => {
+  assert.deepEqual(estopLook(null, false), { state: "unknown", banner: null, stopLabel: "STOP", canRelease: false });
+});
+
+test("pressed here: shown at once, before the broker has it, and not yet releasable", () => {
+  assert.deepEqual(estopLook(null, true), { state: "engaged", banner: "EMERGENCY STOP — sending…", stopLabel: "STOPPED", canRelease: false });
+  const released = { engaged: false, by: "operator", reason: "checked" };
+  assert.equal(estopLook(released, true).banner, "EMERGENCY STOP — sending…");
+});
+
+test("engaged on the broker: who stopped and why, and the release", () => {
+  const byDevice = { engaged: true, by: "device1", reason: "button pressed" };
+  assert.deepEqual(estopLook(byDevice, false), {
+    state: "engaged", banner: "EMERGENCY STOP — engaged by device1: button pressed", stopLabel: "STOPPED", canRelease: true,
+  });
+  assert.equal(estopLook({ engaged: true, by: "device1", reason: "" }, false).banner, "EMERGENCY STOP — engaged by device1");
+});
+
+test("released on the broker", () => {
+  assert.deepEqual(estopLook({ engaged: false, by: "operator", reason: "checked" }, false),
+    { state: "released", banner: null, stopLabel: "STOP", canRelease: false });
+});

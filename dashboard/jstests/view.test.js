@@ -1,0 +1,58 @@
+// What the page's tables and badges say, from the fleet model.
+import assert from "node:assert/strict";
+import { test } from "node:test";
+import { FleetView } from "../static/js/model.js";
+import {
+  coordinatorBadge, finishedCells, finishedCounts, jobCells, mapTitle, seenText, unitCells,
+} from "../static/js/view.js";
+
+const text = (cells) => cells.map(([t]) => t);
+
+test("the map's title", () => {
+  assert.equal(mapTitle(null), "no map yet");
+  assert.equal(mapTitle({ name: "playfield", width: 10, height: 10 }), "playfield 10 x 10");
+});
+
+test("a unit's row: link, square, status with its reason, job and load of capacity", () => {
+  const v = new FleetView();
+  v.apply("connection", "unit1", JSON.stringify({ state: "online" }), 0);
+  assert.deepEqual(unitCells(v.units.get("unit1")), [
+    ["unit1", "id"], ["online", "link"], ["—", "pos"], ["—", "status"], ["—", "job"], ["—", "load"],
+  ]);
+  v.apply("factsheet", "unit1", JSON.stringify({ capacity_kg: 2, step_period_s: 0.1 }), 0);
+  assert.equal(unitCells(v.units.get("unit1"))[5][0], "0/2 kg", "an empty load before its first state");
+  v.apply("state", "unit1", JSON.stringify({ position: [1, 0], status: "moving", job_id: "job-1", load_kg: 1.5 }), 0);
+  assert.deepEqual(text(unitCells(v.units.get("unit1"))), ["unit1", "online", "[1, 0]", "moving", "job-1", "1.5/2 kg"]);
+  v.apply("state", "unit2", JSON.stringify({ position: [4, 4], status: "waiting", wait_reason: "released square [4, 5] is blocked", load_kg: 0 }), 0);
+  assert.deepEqual(text(unitCells(v.units.get("unit2"))),
+    ["unit2", "?", "[4, 4]", "waiting: released square [4, 5] is blocked", "—", "0 kg"]);
+});
+
+test("when a unit was last heard of", () => {
+  assert.equal(seenText({ lastSeen: null }, 5000), "never");
+  assert.equal(seenText({ lastSeen: 1000 }, 3400), "2 s ago");
+  assert.equal(seenText({ lastSeen: 1000 }, 900), "0 s ago", "never in the future");
+});
+
+test("job rows", () => {
+  const j = { id: "job-2", state: "to_pickup", unit: "unit2", pickup: [8, 8], dropoff: [1, 8], mass_kg: 4 };
+  assert.deepEqual(text(jobCells(j)), ["job-2", "to_pickup", "unit2", "[8,8] → [1,8]", "4"]);
+  assert.deepEqual(jobCells({ ...j, unit: null })[2], ["—", "unit"]);
+  assert.deepEqual(text(finishedCells({ id: "job-9", state: "rejected", unit: null, reason: "too heavy" })),
+    ["job-9", "rejected", "—", "too heavy"]);
+  assert.equal(finishedCells({ id: "job-0", state: "done", unit: "unit4" })[3][0], "");
+});
+
+test("finished counts: the coordinator's counts for every final state, ours for the rest", () => {
+  const done = (id) => ({ id, state: "done" });
+  assert.equal(finishedCounts([], {}), "");
+  assert.equal(finishedCounts([done("a"), { id: "b", state: "rejected" }], { done: 1, rejected: 1 }), "done 1 · rejected 1");
+  assert.equal(finishedCounts([done("a")], { done: 12, failed: 2, queued: 3 }), "done 12 · failed 2",
+    "the view keeps only the latest finished jobs; states still in play are not counted here");
+  assert.equal(finishedCounts([done("a"), done("b")], {}), "done 2");
+});
+
+test("the coordinator's badge", () => {
+  assert.deepEqual(coordinatorBadge(null, null), { state: "unknown", text: "coordinator: not seen" });
+  assert.deepEqual(coordinatorBadge({ state: "online" }, 42), { state: "online", text: "coordinator: online, step 42" });
+});

@@ -1,0 +1,170 @@
+// Showing the fleet: the map, the units and jobs tables, the coordinator's and the broker's state,
+// the message log. What each cell says comes from pure functions (testable under node); `PageView`
+// puts it on the page.
+
+import { drawFleet } from "./draw.js";
+import { syncRows } from "./rows.js";
+
+const $ = (sel) => document.querySelector(sel);
+const FINAL_COUNTED = ["done", "cancelled", "rejected", "failed"];
+
+// ---- what the page says (pure) ----
+
+export function mapTitle(map) {
+  return map ? `${map.name} ${map.width} x ${map.height}` : "no map yet";
+}
+
+/** The units table's cells for unit `u` (a FleetView unit): [text, className] each. */
+export function unitCells(u) {
+  const s = u.state;
+  const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
+  const status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+  return [
+    [u.id, "id"], [u.connection ?? "?", "link"],
+    [s ? `[${s.position[0]}, ${s.position[1]}]` : "—", "pos"], [status, "status"],
+    [s?.job_id ?? "—", "job"], [s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "load"],
+  ];
+}
+
+/** When unit `u` was last heard of, at `now` (ms). */
+export function seenText(u, now) {
+  return u.lastSeen == null ? "never" : `${Math.max(0, Math.round((now - u.lastSeen) / 1000))} s ago`;
+}
+
+export function jobCells(j) {
+  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
+    [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]];
+}
+
+export function finishedCells(j) {
+  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [j.reason ?? "", "reason"]];
+}
+
+/**
+ * "done 3 · failed 1": the finished jobs by state. The coordinator's own counts win (it keeps
+ * only the latest finished jobs in the view) for the states shown and for every final state.
+ */
+export function finishedCounts(finished, counts) {
+  const shown = {};
+  for (const j of finished) shown[j.state] = (shown[j.state] ?? 0) + 1;
+  for (const [k, v] of Object.entries(counts)) if (k in shown || FINAL_COUNTED.includes(k)) shown[k] = v;
+  return Object.entries(shown).map(([k, v]) => `${k} ${v}`).join(" · ");
+}
+
+/** The coordinator's badge: {state, text}, from its status and its latest step. */
+export function coordinatorBadge(c, step) {
+  return { state: c?.state ?? "unknown", text: c ? `coordinator: ${c.state}, step ${step}` : "coordinator: not seen" };
+}
+
+// ---- on the page ----
+
+export class PageView {
+  /** Shows FleetView `view`. */
+  constructor(view) {
+    this.view = view;
+  }
+
+  /** Draw and fill in everything; `ui` is the map's click state. Returns the map's layout. */
+  render(now, ui) {
+    const layout = drawFleet($("#map"), this.view, now, ui);
+    $("#map-name").textContent = mapTitle(this.view.map);
+    this.units(now, ui);
+    this.jobs();
+    this.coordinator();
+    return layout;
+  }
+
+  units(now, ui) {
+    const ids = [...this.view.units.keys()].sort();
+    syncRows($("#units tbody"), ids, {
+      keyName: "unit",
+      key: (id) => id,
+      cells: (id) => unitCells(this.view.units.get(id)),
+      extra: (tr, id, fresh) => {
+        const u = this.view.units.get(id);
+        if (fresh) {
+          const seen = document.createElement("td");
+          seen.className = "seen";
+          tr.append(seen);
+        }
+        tr.dataset.link = u.connection ?? "unknown";
+        tr.classList.toggle("selected", id === ui.selectedUnit);
+        tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
+        tr.children[3].title = u.state?.wait_reason ?? "";
+      },
+    });
+    this.seen(now);
+  }
+
+  /** The "seen" column and the silent mark: they change with the clock alone. */
+  seen(now) {
+    for (const tr of document.querySelectorAll("#units tbody tr")) {
+      const u = this.view.units.get(tr.dataset.unit);
+      const td = tr.querySelector(".seen");
+      if (!u || !td) continue;
+      td.textContent = seenText(u, now);
+      tr.classList.toggle("silent", this.view.isSilent(u, now));
+    }
+  }
+
+  jobs() {
+    const active = this.view.activeJobs();
+    syncRows($("#jobs tbody"), active, {
+      keyName: "job",
+      key: (j) => j.id,
+      cells: jobCells,
+      extra: (tr, j, fresh) => {
+        tr.className = `job-${j.state}`;
+        if (!fresh) return;
+        const td = document.createElement("td");
+        const b = document.createElement("button");
+        b.type = "button";
+        b.dataset.cancel = j.id;
+        b.textContent = "delete";
+        b.title = `delete job ${j.id}`;
+        td.append(b);
+        tr.append(td);
+      },
+    });
+    $("#queue-count").textContent = `(${active.length})`;
+    const finished = this.view.finishedJobs();
+    syncRows($("#finished tbody"), finished, {
+      keyName: "job",
+      key: (j) => j.id,
+      cells: finishedCells,
+      extra: (tr, j) => { tr.className = `job-${j.state}`; },
+    });
+    $("#finished-counts").textContent = finishedCounts(finished, this.view.counts);
+  }
+
+  coordinator() {
+    const badge = coordinatorBadge(this.view.coordinator, this.view.coordinatorStep());
+    const el = $("#coord");
+    el.dataset.state = badge.state;
+    el.textContent = badge.text;
+  }
+}
+
+/** The broker connection's badge. */
+export function showConnection(state, text) {
+  const conn = $("#conn");
+  conn.dataset.state = state;
+  conn.textContent = text;
+}
+
+/** The page cannot work (no settings, no MQTT.js): say why, in place of the broker's badge. */
+export function showFatal(text) {
+  const el = $("#fatal");
+  el.textContent = text;
+  el.hidden = false;
+  showConnection("failed", "no MQTT client");
+}
+
+/** A line at the top of the message log (the latest 50 are kept). */
+export function log(text) {
+  const li = document.createElement("li");
+  li.textContent = `${new Date().toLocaleTimeString()} ${text}`;
+  const ul = $("#log");
+  ul.prepend(li);
+  while (ul.children.length > 50) ul.lastChild.remove();
+}
