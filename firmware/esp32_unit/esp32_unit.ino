@@ -67,7 +67,7 @@ void setup() {
   mqttClient.setServer(GF_MQTT_HOST, GF_MQTT_PORT);
   mqttClient.setCallback(onMqttMessage);
   // Room for the longest estop payload (512 bytes) plus topic and header; longer ones are dropped.
-  mqttClient.setBufferSize(768);
+  mqttClient.setBufferSize(static_cast<uint16_t>(gf::proto::kTopicEstopMaxBytes + 256));
   mqttClient.setKeepAlive(10);
   // connect() blocks until the broker answers or this many seconds pass: keep the loop lively.
   mqttClient.setSocketTimeout(2);

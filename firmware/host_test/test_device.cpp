@@ -1,6 +1,8 @@
 #include <doctest/doctest.h>
 
+#include <map>
 #include <string>
+#include <utility>
 
 #include "fakes.h"
 
@@ -260,4 +262,50 @@ TEST_CASE("invalid configuration is reported") {
   c = Rig::defaultConfig();
   c.device = "";
   CHECK(c.problem().find("device id") != std::string::npos);
+}
+
+TEST_CASE("what the device subscribes to and publishes is what protocol_table.h says") {
+  namespace p = gf::proto;
+  Rig r;  // root t/fw, unit unit1, device dev1
+  r.tick();
+  REQUIRE(r.device.online());
+  const std::string prefix = std::string("t/fw/") + p::kTopicVersion + "/";
+  const std::string dir = prefix + p::kTopicDirectionBefore + "unit1" + p::kTopicDirectionAfter;
+  const std::string estop = prefix + p::kTopicEstop;
+  const std::string conn =
+      prefix + p::kTopicDeviceConnectionBefore + "dev1" + p::kTopicDeviceConnectionAfter;
+  // Exactly its unit's direction and the fleet's stop, each at the topic's QoS.
+  CHECK(r.mqtt.subscriptions ==
+        std::map<std::string, uint8_t>{{dir, p::kTopicDirectionQos}, {estop, p::kTopicEstopQos}});
+  CHECK(r.mqtt.will.topic == conn);
+  CHECK(r.mqtt.will.payload == p::kDeviceWill);
+  REQUIRE(r.mqtt.published.size() == 1);
+  CHECK(r.mqtt.published[0].topic == conn);
+  CHECK(r.mqtt.published[0].payload == p::kDeviceOnline);
+  CHECK(r.mqtt.published[0].retained == p::kTopicDeviceConnectionRetained);
+
+  const std::pair<char, gf::Leds> letters[] = {{p::kDirectionN, gf::Leds{true, false, false, false}},
+                                               {p::kDirectionE, gf::Leds{false, true, false, false}},
+                                               {p::kDirectionS, gf::Leds{false, false, true, false}},
+                                               {p::kDirectionW, gf::Leds{false, false, false, true}},
+                                               {p::kDirectionNone, gf::Leds{}}};
+  for (const auto& letter : letters) {
+    r.mqtt.route(dir, std::string(1, letter.first), p::kTopicDirectionRetained);
+    r.tick();
+    CHECK(r.device.leds() == letter.second);
+  }
+
+  const std::string sep(1, p::kEstopSeparator);
+  r.mqtt.route(estop, p::kEstopEngaged + sep + "dashboard" + sep + "x", p::kTopicEstopRetained);
+  r.tick();
+  CHECK(r.device.estopEngaged());
+  r.mqtt.route(estop, p::kEstopReleased + sep + "dashboard", p::kTopicEstopRetained);
+  r.tick();
+  CHECK_FALSE(r.device.estopEngaged());
+
+  bouncyPress(r);
+  REQUIRE(r.mqtt.published.size() == 2);
+  CHECK(r.mqtt.published[1].topic == estop);
+  CHECK(r.mqtt.published[1].payload == p::kEstopEngaged + sep + "dev1" + sep + gf::kButtonReason);
+  CHECK(r.mqtt.published[1].retained == p::kTopicEstopRetained);
 }

@@ -1,6 +1,8 @@
 #include <doctest/doctest.h>
 
+#include <cctype>
 #include <string>
+#include <utility>
 
 #include "../esp32_unit/src/protocol.h"
 
@@ -82,4 +84,81 @@ TEST_CASE("estop payloads") {
   CHECK(big.size() > gf::kMaxEstopBytes);
   CHECK(estop(big) == EstopKind::Invalid);
   CHECK(gf::parseEstop(nullptr, 0) == EstopKind::Invalid);
+}
+
+// The generated protocol_table.h (make schemas) is the reference from here on: the firmware must
+// say what it says, whatever the code above spells out by hand.
+namespace {
+std::string fill(const std::string& pattern, const std::string& placeholder, const std::string& value) {
+  std::string out = pattern;
+  const size_t at = out.find(placeholder);
+  REQUIRE(at != std::string::npos);
+  return out.replace(at, placeholder.size(), value);
+}
+}  // namespace
+
+TEST_CASE("topic names are built as protocol_table.h's patterns say") {
+  namespace p = gf::proto;
+  const std::string prefix = std::string("lab/a/") + p::kTopicVersion + "/";
+  CHECK(gf::directionTopic("lab/a", "u-1") == prefix + fill(p::kTopicDirectionPattern, "{unit}", "u-1"));
+  CHECK(gf::estopTopic("lab/a") == prefix + p::kTopicEstop);
+  CHECK(gf::deviceConnectionTopic("lab/a", "esp.2") ==
+        prefix + fill(p::kTopicDeviceConnectionPattern, "{device}", "esp.2"));
+}
+
+TEST_CASE("ids follow protocol_table.h: length and punctuation") {
+  namespace p = gf::proto;
+  CHECK(gf::isValidId(std::string(p::kMaxIdChars, 'a')));
+  CHECK_FALSE(gf::isValidId(std::string(p::kMaxIdChars + 1, 'a')));
+  CHECK(gf::isValidRoot(std::string(p::kMaxIdChars, 'a') + "/b"));
+  CHECK_FALSE(gf::isValidRoot(std::string(p::kMaxIdChars + 1, 'a')));
+  const std::string punctuation = p::kIdPunctuation;
+  for (int c = 1; c < 128; ++c) {
+    const char ch = static_cast<char>(c);
+    const bool alnum = std::isalnum(c) != 0;
+    const bool allowed = alnum || punctuation.find(ch) != std::string::npos;
+    CHECK_MESSAGE(gf::isValidId(std::string("a") + ch) == allowed, c);
+    CHECK_MESSAGE(gf::isValidId(std::string(1, ch) + "a") == alnum, c);
+  }
+}
+
+TEST_CASE("direction payloads: exactly protocol_table.h's letters") {
+  namespace p = gf::proto;
+  const std::pair<char, Direction> letters[] = {{p::kDirectionN, Direction::N},
+                                                {p::kDirectionE, Direction::E},
+                                                {p::kDirectionS, Direction::S},
+                                                {p::kDirectionW, Direction::W},
+                                                {p::kDirectionNone, Direction::None}};
+  int accepted = 0;
+  for (int b = 0; b < 256; ++b) {
+    const uint8_t byte = static_cast<uint8_t>(b);
+    Direction d = Direction::E;
+    const bool ok = gf::parseDirection(&byte, 1, d);
+    accepted += ok;
+    for (const auto& letter : letters) {
+      if (static_cast<uint8_t>(letter.first) == byte) CHECK((ok && d == letter.second));
+    }
+  }
+  CHECK(accepted == 5);
+  CHECK(p::kTopicDirectionMaxBytes >= 1);
+}
+
+TEST_CASE("estop payloads: protocol_table.h's words, separator and limits") {
+  namespace p = gf::proto;
+  const std::string sep(1, p::kEstopSeparator);
+  CHECK(estop(std::string(p::kEstopEngaged) + sep + "dev1" + sep + "x") == EstopKind::Engaged);
+  CHECK(estop(std::string(p::kEstopReleased) + sep + "dev1") == EstopKind::Released);
+  CHECK(gf::buttonEstopPayload("dev1") ==
+        std::string(p::kEstopEngaged) + sep + "dev1" + sep + gf::kButtonReason);
+  const std::string head = std::string(p::kEstopEngaged) + sep + "a" + sep;
+  CHECK(estop(head + std::string(p::kMaxEstopReasonChars, 'r')) == EstopKind::Engaged);
+  CHECK(estop(head + std::string(p::kMaxEstopReasonChars + 1, 'r')) == EstopKind::Invalid);
+  // Exactly kMaxEstopBytes bytes in few enough characters is fine; one byte more is not.
+  std::string big = head;
+  while (big.size() + 4 <= p::kMaxEstopBytes) big += "\xf0\x9f\x9b\x91";  // 4-byte characters
+  while (big.size() < p::kMaxEstopBytes) big += "r";
+  REQUIRE(big.size() == p::kMaxEstopBytes);
+  CHECK(estop(big) == EstopKind::Engaged);
+  CHECK(estop(big + "r") == EstopKind::Invalid);
+  CHECK(p::kTopicEstopMaxBytes == p::kMaxEstopBytes);
 }

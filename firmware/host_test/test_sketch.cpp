@@ -8,6 +8,10 @@
 #include <config.h>
 
 #include <string>
+#include <utility>
+#include <vector>
+
+#include "../esp32_unit/src/protocol_table.h"
 
 void setup();
 void loop();
@@ -71,4 +75,25 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
     }
   }
   CHECK(stops == 1);
+
+  // All of it through the real PubSubClient adapter, as the generated protocol_table.h says.
+  namespace p = gf::proto;
+  const std::string prefix = kRoot + "/" + p::kTopicVersion + "/";
+  const std::string sep(1, p::kEstopSeparator);
+  CHECK(mqttClient.subscriptions ==
+        std::vector<std::pair<std::string, uint8_t>>{
+            {prefix + p::kTopicDirectionBefore + GF_UNIT_ID + p::kTopicDirectionAfter,
+             p::kTopicDirectionQos},
+            {prefix + p::kTopicEstop, p::kTopicEstopQos}});
+  CHECK(mqttClient.will ==
+        prefix + p::kTopicDeviceConnectionBefore + GF_DEVICE_ID + p::kTopicDeviceConnectionAfter);
+  CHECK(mqttClient.willPayload == p::kDeviceWill);
+  CHECK(mqttClient.willQos == p::kTopicDeviceConnectionQos);
+  CHECK(mqttClient.willRetain == p::kTopicDeviceConnectionRetained);
+  REQUIRE(mqttClient.published.size() >= 2);
+  CHECK(mqttClient.published.front().topic == mqttClient.will);
+  CHECK(mqttClient.published.front().payload == p::kDeviceOnline);
+  CHECK(mqttClient.published.back().payload ==
+        p::kEstopEngaged + sep + GF_DEVICE_ID + sep + p::kEstopButtonReason);
+  CHECK(mqttClient.bufferSize >= p::kMaxEstopBytes + 100);
 }

@@ -29,6 +29,7 @@ ESTOP_RELEASED = "released"
 ESTOP_SEPARATOR = "|"  # <engaged|released>|<by>|<reason>
 MAX_ESTOP_BYTES = 512
 MAX_ESTOP_REASON = 200  # characters of the one-line reason
+BUTTON_ESTOP_REASON = "button"  # the <reason> of a device's button: engaged|<device>|button
 MAX_DEVICE_CONNECTION_BYTES = 16  # online, offline or broken (gridfleet.protocol.device)
 
 DEFAULT_STEP_S = 1.0  # the course's step period

@@ -90,6 +90,7 @@ def protocol_table() -> dict[str, Any]:
             "separator": c.ESTOP_SEPARATOR,
             "max_bytes": c.MAX_ESTOP_BYTES,
             "max_reason_chars": c.MAX_ESTOP_REASON,
+            "button_reason": c.BUTTON_ESTOP_REASON,
         },
         "device_connection": {
             "states": list(DEVICE_STATES),
@@ -202,6 +203,8 @@ def render_c(table: dict[str, Any]) -> str:
         f"constexpr char kEstopSeparator = {_c_char(estop['separator'])};",
         f"constexpr size_t kMaxEstopBytes = {estop['max_bytes']};",
         f"constexpr size_t kMaxEstopReasonChars = {estop['max_reason_chars']};",
+        "// The <reason> of the stop a device's button sends.",
+        f"constexpr char kEstopButtonReason[] = {_c_str(estop['button_reason'])};",
         "",
         "// device_connection payload; the last will says kDeviceWill.",
         *(f"constexpr char kDevice{_camel(s)}[] = {_c_str(s)};" for s in device["states"]),

@@ -221,7 +221,8 @@ export const ESTOP = freeze({
   "released": "released",
   "separator": "|",
   "max_bytes": 512,
-  "max_reason_chars": 200
+  "max_reason_chars": 200,
+  "button_reason": "button"
 });
 export const DEVICE_CONNECTION = freeze({
   "states": [

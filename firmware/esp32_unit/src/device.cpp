@@ -51,7 +51,9 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
     lost();
     return;
   }
-  if (stop_.due(now) && mqtt_.publish(estopTopic_, stopPayload_, true)) stop_.sent(now);
+  if (stop_.due(now) && mqtt_.publish(estopTopic_, stopPayload_, proto::kTopicEstopRetained)) {
+    stop_.sent(now);
+  }
 }
 
 void Device::connectIfDue(uint32_t now) {
@@ -59,14 +61,16 @@ void Device::connectIfDue(uint32_t now) {
   attempted_ = true;
   lastAttemptMs_ = now;
   ++connectAttempts_;
-  if (!mqtt_.connect(config_.device, connectionTopic_, "broken")) {
+  if (!mqtt_.connect(config_.device, connectionTopic_, proto::kDeviceWill)) {
     waitMs_ = mqttBackoff_.next();
     return;
   }
-  bool ok = mqtt_.publish(connectionTopic_, "online", true);
-  // Direction is high-rate: QoS 0 (amqtt upgrades delivery to the subscription's QoS).
-  ok = ok && mqtt_.subscribe(directionTopic_, 0);
-  ok = ok && mqtt_.subscribe(estopTopic_, 1);
+  bool ok = mqtt_.publish(connectionTopic_, proto::kDeviceOnline,
+                          proto::kTopicDeviceConnectionRetained);
+  // Each at its topic's QoS: direction is high-rate, 0 (amqtt upgrades delivery to the
+  // subscription's QoS); the stop 1.
+  ok = ok && mqtt_.subscribe(directionTopic_, proto::kTopicDirectionQos);
+  ok = ok && mqtt_.subscribe(estopTopic_, proto::kTopicEstopQos);
   if (!ok) {
     // A half-set-up session would miss the stop: drop it and try again later.
     mqtt_.disconnect();

@@ -1,15 +1,30 @@
 #include "protocol.h"
 
+#include <cstring>
+
 namespace gf {
 namespace {
 
-bool idChar(char c) {
-  return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
-         c == '.' || c == '-';
-}
-
 bool alnum(char c) {
   return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9');
+}
+
+bool idChar(char c) {
+  return alnum(c) || (c != '\0' && std::strchr(proto::kIdPunctuation, c) != nullptr);
+}
+
+std::string topicPrefix(const std::string& root) {
+  return root + "/" + proto::kTopicVersion + "/";
+}
+
+// True when `text` starts with `<word>|`; `pos` is then just past the separator.
+bool startsWithWord(const std::string& text, const char* word, size_t& pos) {
+  const size_t n = std::strlen(word);
+  if (text.size() <= n || text.compare(0, n, word) != 0 || text[n] != proto::kEstopSeparator) {
+    return false;
+  }
+  pos = n + 1;
+  return true;
 }
 
 // Counts characters of valid UTF-8; returns false on any malformed sequence.
@@ -52,7 +67,7 @@ bool utf8Chars(const uint8_t* p, size_t len, size_t& chars) {
 }  // namespace
 
 bool isValidId(const std::string& id) {
-  if (id.empty() || id.size() > 64 || !alnum(id[0])) return false;
+  if (id.empty() || id.size() > proto::kMaxIdChars || !alnum(id[0])) return false;
   for (char c : id) {
     if (!idChar(c)) return false;
   }
@@ -65,7 +80,7 @@ bool isValidRoot(const std::string& root) {
     size_t slash = root.find('/', start);
     size_t end = slash == std::string::npos ? root.size() : slash;
     size_t n = end - start;
-    if (n == 0 || n > 64) return false;
+    if (n == 0 || n > proto::kMaxIdChars) return false;
     for (size_t i = start; i < end; ++i) {
       if (!idChar(root[i])) return false;
     }
@@ -75,23 +90,24 @@ bool isValidRoot(const std::string& root) {
 }
 
 std::string directionTopic(const std::string& root, const std::string& unit) {
-  return root + "/v1/units/" + unit + "/direction";
+  return topicPrefix(root) + proto::kTopicDirectionBefore + unit + proto::kTopicDirectionAfter;
 }
 
-std::string estopTopic(const std::string& root) { return root + "/v1/fleet/estop"; }
+std::string estopTopic(const std::string& root) { return topicPrefix(root) + proto::kTopicEstop; }
 
 std::string deviceConnectionTopic(const std::string& root, const std::string& device) {
-  return root + "/v1/devices/" + device + "/connection";
+  return topicPrefix(root) + proto::kTopicDeviceConnectionBefore + device +
+         proto::kTopicDeviceConnectionAfter;
 }
 
 bool parseDirection(const uint8_t* payload, size_t len, Direction& out) {
   if (payload == nullptr || len != 1) return false;
   switch (payload[0]) {
-    case 'N': out = Direction::N; return true;
-    case 'E': out = Direction::E; return true;
-    case 'S': out = Direction::S; return true;
-    case 'W': out = Direction::W; return true;
-    case '-': out = Direction::None; return true;
+    case proto::kDirectionN: out = Direction::N; return true;
+    case proto::kDirectionE: out = Direction::E; return true;
+    case proto::kDirectionS: out = Direction::S; return true;
+    case proto::kDirectionW: out = Direction::W; return true;
+    case proto::kDirectionNone: out = Direction::None; return true;
     default: return false;
   }
 }
@@ -100,17 +116,15 @@ EstopKind parseEstop(const uint8_t* payload, size_t len) {
   if (payload == nullptr || len > kMaxEstopBytes) return EstopKind::Invalid;
   const std::string text(reinterpret_cast<const char*>(payload), len);
   EstopKind kind;
-  size_t pos;
-  if (text.rfind("engaged|", 0) == 0) {
+  size_t pos = 0;
+  if (startsWithWord(text, proto::kEstopEngaged, pos)) {
     kind = EstopKind::Engaged;
-    pos = 8;
-  } else if (text.rfind("released|", 0) == 0) {
+  } else if (startsWithWord(text, proto::kEstopReleased, pos)) {
     kind = EstopKind::Released;
-    pos = 9;
   } else {
     return EstopKind::Invalid;
   }
-  size_t bar = text.find('|', pos);
+  size_t bar = text.find(proto::kEstopSeparator, pos);
   std::string by = text.substr(pos, bar == std::string::npos ? std::string::npos : bar - pos);
   if (!isValidId(by)) return EstopKind::Invalid;
   if (bar == std::string::npos) return kind;
@@ -125,7 +139,8 @@ EstopKind parseEstop(const uint8_t* payload, size_t len) {
 }
 
 std::string buttonEstopPayload(const std::string& device) {
-  return "engaged|" + device + "|button";
+  return std::string(proto::kEstopEngaged) + proto::kEstopSeparator + device +
+         proto::kEstopSeparator + kButtonReason;
 }
 
 }  // namespace gf

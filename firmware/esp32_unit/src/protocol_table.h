@@ -56,6 +56,8 @@ constexpr char kEstopReleased[] = "released";
 constexpr char kEstopSeparator = '|';
 constexpr size_t kMaxEstopBytes = 512;
 constexpr size_t kMaxEstopReasonChars = 200;
+// The <reason> of the stop a device's button sends.
+constexpr char kEstopButtonReason[] = "button";
 
 // device_connection payload; the last will says kDeviceWill.
 constexpr char kDeviceOnline[] = "online";

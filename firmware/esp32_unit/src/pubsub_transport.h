@@ -16,8 +16,10 @@ class PubSubTransport : public MqttTransport {
 
   bool connect(const std::string& clientId, const std::string& willTopic,
                const std::string& willPayload) override {
-    // PubSubClient always asks for a clean session; the will is QoS 1 and retained.
-    return client_.connect(clientId.c_str(), willTopic.c_str(), 1, true, willPayload.c_str());
+    // PubSubClient always asks for a clean session; the will goes to the device connection
+    // topic, with its QoS (1) and retained.
+    return client_.connect(clientId.c_str(), willTopic.c_str(), proto::kTopicDeviceConnectionQos,
+                           proto::kTopicDeviceConnectionRetained, willPayload.c_str());
   }
   bool connected() override { return client_.connected(); }
   void disconnect() override { client_.disconnect(); }
