@@ -12,7 +12,9 @@ import pytest
 
 DASHBOARD = Path(__file__).resolve().parent.parent / "dashboard"
 SCRIPTS = DASHBOARD / "static" / "js"
-RELATIVE_IMPORT = re.compile(r"""^\s*(?:import|export)\b[^;]*?\bfrom\s+["'](\./[^"']+)["']""", re.M | re.S)
+RELATIVE_IMPORT = re.compile(
+    r"""^\s*(?:import|export)\b[^;]*?\bfrom\s+["'](\./[^"']+)["']""", re.M | re.S
+)
 
 
 @pytest.mark.skipif(shutil.which("node") is None, reason="Node.js is not installed")
