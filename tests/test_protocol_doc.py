@@ -11,6 +11,7 @@ import jsonschema
 import pytest
 
 from gridfleet.protocol import (
+    PROTOCOL_VERSION,
     TOPICS,
     decode,
     decode_device_connection,
@@ -91,3 +92,13 @@ def test_topic_table_matches_the_code() -> None:
         cells = [c.strip() for c in row.group(1).split("|")]
         assert cells[1] == str(spec.qos), f"{kind}: QoS in doc {cells[1]} != code {spec.qos}"
         assert cells[2] == ("yes" if spec.retained else "no"), f"{kind}: retained flag differs"
+
+
+def test_the_doc_names_the_version_and_the_generated_table() -> None:
+    text = DOC.read_text()
+    assert text.startswith(f"# gridfleet protocol, version {PROTOCOL_VERSION}\n")
+    assert f'protocol version, `"{PROTOCOL_VERSION}"`' in text
+    assert f"this document is `{PROTOCOL_VERSION}`" in text
+    for relative in generated():
+        if not relative.startswith("protocol/schemas/"):
+            assert f"`{relative}`" in text, f"protocol.md does not say where {relative} lives"
