@@ -8,14 +8,12 @@ import contextlib
 import json
 import logging
 import sys
-import tempfile
 import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from broker.embedded import BrokerSettings, EmbeddedBroker
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError, GridfleetError
@@ -24,9 +22,11 @@ from gridfleet.options import add_common
 from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from system.assembly import Assembly, SystemSpec
 from system.feed import scenario_job_id, submit_scenario
 from system.monitor import FleetMonitor
 from system.operator import Operator
+from system.threads import world_of
 
 log = logging.getLogger("gridfleet.simulate")
 STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
@@ -116,29 +116,24 @@ async def simulate(
     sensors_see_units: bool = True,
 ) -> Outcome:
     """Run broker, coordinator and units in this process until the scenario is done."""
-    from coordinator.service import Coordinator
-    from robots.fleet import Fleet
-
     started = time.monotonic()
     outcome = Outcome()
     goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
     refused_jobs: list[JobView] = []
     topics = Topics(root)
+    spec = SystemSpec(
+        scenario,
+        broker=broker_url,
+        root=root,
+        step_s=step,
+        ws_port=None,
+        sensors_see_units=sensors_see_units,
+    )
     async with contextlib.AsyncExitStack() as stack:
-        if broker_url is None:
-            broker = await stack.enter_async_context(
-                EmbeddedBroker(BrokerSettings(port=0, ws_port=None))
-            )
-            broker_url = broker.url
-        db_dir = stack.enter_context(tempfile.TemporaryDirectory(prefix="gridfleet-sim-"))
-        stop = asyncio.Event()
-        coordinator = Coordinator(
-            broker_url, scenario.grid, root=root, step_s=step, db_path=Path(db_dir) / "jobs.db"
-        )
-        fleet = Fleet(
-            scenario, broker_url, root=root, step=step, sensors_see_units=sensors_see_units
-        )
-        tasks = [asyncio.create_task(coordinator.run(stop)), asyncio.create_task(fleet.run(stop))]
+        system = await stack.enter_async_context(Assembly(spec, "threads"))
+        services = list(system.threads.values())
+        world = world_of(system.fleet)
+        broker_url = system.url
         client_id = f"simulate-{uuid.uuid4().hex[:6]}"
         client = await stack.enter_async_context(make_client(broker_url, client_id))
         monitor_client = await stack.enter_async_context(make_client(broker_url, client_id + "-m"))
@@ -149,7 +144,6 @@ async def simulate(
         await monitor.start()
         listeners = [asyncio.create_task(operator.listen()), asyncio.create_task(monitor.listen())]
         try:
-            await asyncio.wait_for(fleet.ready.wait(), 30)
             await asyncio.wait_for(operator.coordinator_online.wait(), 30)
             replies = await submit_scenario(operator, scenario)
             # A refused job or goal can never finish: don't wait for it (it shows in the result).
@@ -170,9 +164,11 @@ async def simulate(
                 goal.refused = None if reply.accepted else (reply.reason or "refused")
             last_step, last_progress = monitor.step, time.monotonic()
             while monitor.step < max_steps and not _all_done(monitor, accepted_jobs, goals):
-                for t in tasks + listeners:
+                for service in services:
+                    service.check()  # a component that died ends the run with its error
+                for t in listeners:
                     if t.done():
-                        t.result()  # a component that died ends the run with its error
+                        t.result()
                 if monitor.step != last_step:
                     last_step, last_progress = monitor.step, time.monotonic()
                 elif time.monotonic() - last_progress > STALL_S + 50 * step:
@@ -187,51 +183,49 @@ async def simulate(
             # Taken now: the coordinator may step once more while the run shuts down.
             outcome.steps = monitor.step
         finally:
-            stop.set()
-            await asyncio.gather(*tasks, return_exceptions=True)
             for listener in listeners:
                 listener.cancel()
-        world = fleet.world
-        outcome.collisions = world.collisions
-        outcome.prevented = world.prevented
-        outcome.messages = monitor.messages
-        outcome.units = [
-            {
-                "id": u.id,
-                "capacity": u.capacity,
-                "position": list(world.position(u.id)),
-                "moves": world.moves[u.id],
-            }
-            for u in scenario.units
-        ]
-        # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
-        # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
-        jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
-        in_view = {j.id for j in jobs if j.state == "rejected"}
-        jobs += [j for j in refused_jobs if j.id not in in_view]
-        outcome.jobs = [
-            {
-                "id": j.id,
-                "pickup": list(j.pickup),
-                "dropoff": list(j.dropoff),
-                "mass": j.mass_kg,
-                "state": j.state,
-                "unit": j.unit,
-                "done_step": j.done_step,
-                "reason": j.reason,
-            }
-            for j in jobs
-        ]
-        outcome.goals = [
-            {
-                "unit": g.unit,
-                "target": list(g.target),
-                "reached": g.step is not None,
-                "step": g.step,
-                **({"reason": g.refused} if g.refused else {}),
-            }
-            for g in goals
-        ]
+    # Read once every service has stopped: the world no longer changes.
+    outcome.collisions = world.collisions
+    outcome.prevented = world.prevented
+    outcome.messages = monitor.messages
+    outcome.units = [
+        {
+            "id": u.id,
+            "capacity": u.capacity,
+            "position": list(world.position(u.id)),
+            "moves": world.moves[u.id],
+        }
+        for u in scenario.units
+    ]
+    # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
+    # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
+    jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
+    in_view = {j.id for j in jobs if j.state == "rejected"}
+    jobs += [j for j in refused_jobs if j.id not in in_view]
+    outcome.jobs = [
+        {
+            "id": j.id,
+            "pickup": list(j.pickup),
+            "dropoff": list(j.dropoff),
+            "mass": j.mass_kg,
+            "state": j.state,
+            "unit": j.unit,
+            "done_step": j.done_step,
+            "reason": j.reason,
+        }
+        for j in jobs
+    ]
+    outcome.goals = [
+        {
+            "unit": g.unit,
+            "target": list(g.target),
+            "reached": g.step is not None,
+            "step": g.step,
+            **({"reason": g.refused} if g.refused else {}),
+        }
+        for g in goals
+    ]
     outcome.wall_time_s = round(time.monotonic() - started, 3)
     return outcome
 

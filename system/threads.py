@@ -1,4 +1,4 @@
-"""Run the coordinator and simulated units in background threads, for sync and async tests alike."""
+"""Services in threads of their own, each with its own event loop: how the system runs in-process."""
 
 from __future__ import annotations
 
@@ -92,6 +92,13 @@ class ServiceThread:
         if self._thread.is_alive():
             raise TimeoutError(f"{self.name} did not stop within {timeout} s")
         self._done.result(0)
+
+    def check(self) -> None:
+        """Raise the error the service died of, if it has ended while it should be running."""
+        if self._done.done():
+            self._done.result()
+            if self._stop is None or not self._stop.is_set():
+                raise RuntimeError(f"{self.name} ended on its own")
 
     def call(self, fn: Callable[[], T], timeout: float = 10.0) -> T:
         """Run `fn` in the service's own thread and event loop (no races with it); its result."""

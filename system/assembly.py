@@ -1,0 +1,261 @@
+"""How the system is put together: broker, coordinator and units (and, as processes, the dashboard
+and the job feed), in threads of this process or as supervised processes — one switch.
+
+`gridfleet up` runs it as processes, `gridfleet simulate`, `gridfleet bench system` and the tests
+in threads (where the ground-truth world simulation can be read).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import re
+import sys
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal, TextIO
+
+from broker.embedded import BrokerSettings
+from gridfleet.errors import ConfigError
+from gridfleet.protocol.constants import DEFAULT_ROOT
+from gridfleet.scenario import Scenario, with_units
+from system.broker_thread import BrokerThread
+from system.supervisor import Child, ChildSpec, Supervisor
+from system.threads import ServiceThread, coordinator_thread, fleet_thread
+
+Mode = Literal["threads", "processes"]
+
+BROKER_READY = re.compile(r"listening on (mqtt://\S+)(?: and (ws://\S+))?")
+DASHBOARD_READY = re.compile(r"(http://\S+)")
+
+
+@dataclass(frozen=True)
+class SystemSpec:
+    """What to run: a scenario's coordinator and units on one broker, and how."""
+
+    scenario: Scenario
+    broker: str | None = None  # None: an embedded broker of our own
+    broker_ws: str | None = None  # the external broker's websocket URL (for the dashboard)
+    root: str = DEFAULT_ROOT
+    step_s: float = 0.5
+    db_path: Path | None = None  # the coordinator's job store (None: per user, as a service)
+    seed: int = 0
+    coordinator_id: str = "coordinator"
+    sensors_see_units: bool = True  # threads only: sensors blind to units test the orders alone
+    own_broker: Mode = "threads"  # where an embedded broker runs when the services are threads
+    mqtt_port: int = 0  # an embedded broker's ports (0: free ones)
+    ws_port: int | None = 0  # None: no websocket listener
+    dashboard_port: int | None = None  # processes only: serve the dashboard on this port
+    feed: bool = False  # processes only: submit the scenario's jobs and goals
+    demo: bool = False  # with feed: keep random feasible jobs coming
+
+
+def cli(*args: str) -> list[str]:
+    """The command line of a `gridfleet` subcommand run by this interpreter."""
+    return [sys.executable, "-m", "system.cli", *args]
+
+
+@dataclass
+class System:
+    """A running system: where its broker is, and its parts."""
+
+    spec: SystemSpec
+    mode: Mode
+    url: str = ""
+    ws_url: str | None = None
+    dashboard_url: str | None = None
+    threads: dict[str, ServiceThread] = field(default_factory=dict)
+    children: dict[str, Child] = field(default_factory=dict)
+    supervisor: Supervisor | None = None
+    broker_thread: BrokerThread | None = None
+
+    @property
+    def coordinator(self) -> ServiceThread:
+        """The coordinator's thread (threads mode)."""
+        return self.threads["coordinator"]
+
+    @property
+    def fleet(self) -> ServiceThread:
+        """The units' thread (threads mode)."""
+        return self.threads["robots"]
+
+
+class Assembly:
+    """Starts a SystemSpec in threads or processes and stops it in reverse order.
+
+    `async with Assembly(spec, "threads") as system:`; or, for synchronous tests, `start_threads()`
+    and `stop()`.
+    """
+
+    def __init__(
+        self, spec: SystemSpec, mode: Mode = "threads", supervisor: Supervisor | None = None
+    ):
+        if mode == "threads" and (spec.dashboard_port is not None or spec.feed):
+            raise ConfigError("the dashboard and the feed run only as processes")
+        self.spec = spec
+        self.mode = mode
+        self.system = System(spec, mode, supervisor=supervisor)
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._quiet: TextIO | None = None
+
+    # ---- threads ------------------------------------------------------------------------
+
+    def start_threads(self, timeout: float = 60.0) -> System:
+        """Start broker (if ours), coordinator and units in threads; blocks until each is ready."""
+        spec, system = self.spec, self.system
+        try:
+            if system.url:
+                pass  # our broker already runs as a process (see __aenter__)
+            elif spec.broker is None:
+                settings = BrokerSettings(port=spec.mqtt_port, ws_port=spec.ws_port)
+                system.broker_thread = BrokerThread(settings)
+                system.broker_thread.start()
+                system.url = system.broker_thread.url
+                system.ws_url = system.broker_thread.ws_url if spec.ws_port is not None else None
+            else:
+                system.url, system.ws_url = spec.broker, spec.broker_ws
+            db_path = spec.db_path
+            if db_path is None:
+                self._tmp = tempfile.TemporaryDirectory(prefix="gridfleet-")
+                db_path = Path(self._tmp.name) / "jobs.db"
+            scenario = with_units(spec.scenario)
+            coordinator = coordinator_thread(
+                scenario,
+                system.url,
+                root=spec.root,
+                step_s=spec.step_s,
+                db_path=db_path,
+                seed=spec.seed,
+                client_id=spec.coordinator_id,
+            )
+            system.threads["coordinator"] = coordinator.start(timeout)
+            fleet = fleet_thread(
+                scenario,
+                system.url,
+                root=spec.root,
+                step_s=spec.step_s,
+                sensors_see_units=spec.sensors_see_units,
+            )
+            system.threads["robots"] = fleet.start(timeout)
+        except BaseException:
+            self.stop()
+            raise
+        return system
+
+    def stop(self, timeout: float = 60.0) -> None:
+        """Stop every thread in reverse order (units say offline first), then our broker."""
+        errors: list[BaseException] = []
+        for name in reversed(list(self.system.threads)):
+            try:
+                self.system.threads.pop(name).stop(timeout)
+            except BaseException as exc:  # stop the rest, then raise the first
+                errors.append(exc)
+        if self.system.broker_thread is not None:
+            self.system.broker_thread.stop()
+            self.system.broker_thread = None
+        if self._tmp is not None:
+            self._tmp.cleanup()
+            self._tmp = None
+        if errors:
+            raise errors[0]
+
+    # ---- processes ----------------------------------------------------------------------
+
+    async def start_processes(self) -> System:
+        """Start every component as a supervised child process, in order."""
+        spec, system = self.spec, self.system
+        if system.supervisor is None:
+            system.supervisor = Supervisor()
+        sup = system.supervisor
+        if spec.broker is None:
+            system.url, system.ws_url = await start_broker_process(
+                sup, spec.mqtt_port, spec.ws_port
+            )
+        else:
+            if spec.dashboard_port is not None and not spec.broker_ws:
+                raise ConfigError("with --broker, also give --broker-ws for the dashboard")
+            system.url, system.ws_url = spec.broker, spec.broker_ws
+        common = ["--broker", system.url, "--root", spec.root]
+        step = ["--step", str(spec.step_s)]
+        scenario = str(spec.scenario.path)
+        coordinator = ["coordinator", *common, "--map", str(spec.scenario.map_path), *step]
+        if spec.db_path is not None:
+            coordinator += ["--db", str(spec.db_path)]
+        system.children["coordinator"] = await sup.start(
+            ChildSpec("coordinator", cli(*coordinator))
+        )
+        robots = cli("robots", *common, "--scenario", scenario, *step)
+        system.children["robots"] = await sup.start(ChildSpec("robots", robots))
+        if spec.dashboard_port is not None:
+            assert system.ws_url is not None
+            dashboard = cli(
+                "dashboard",
+                "--broker-ws",
+                system.ws_url,
+                "--root",
+                spec.root,
+                "--port",
+                str(spec.dashboard_port),
+                "--scenario",
+                scenario,
+            )
+            child = await sup.start(ChildSpec("dashboard", dashboard, ready=DASHBOARD_READY))
+            system.children["dashboard"] = child
+            assert child.ready_match is not None
+            system.dashboard_url = child.ready_match.group(1)
+        if spec.feed:
+            feed = cli("feed", *common, "--scenario", scenario, *step, *(["--demo"] * spec.demo))
+            system.children["operator"] = await sup.start(
+                ChildSpec("operator", feed, restart=spec.demo)
+            )
+        return system
+
+    # ---- either -------------------------------------------------------------------------
+
+    async def __aenter__(self) -> System:
+        if self.mode == "threads":
+            if self.spec.broker is None and self.spec.own_broker == "processes":
+                # Out of this interpreter, so it shares no lock with the services' threads. An
+                # overloaded amqtt can take long to drain when stopped: it has no queue limit.
+                self._quiet = open(os.devnull, "w")  # noqa: SIM115 - closed in _stop_processes
+                self.system.supervisor = Supervisor(out=self._quiet, stop_timeout=20.0)
+                try:
+                    self.system.url, self.system.ws_url = await start_broker_process(
+                        self.system.supervisor, self.spec.mqtt_port, self.spec.ws_port
+                    )
+                    return await asyncio.to_thread(self.start_threads)
+                except BaseException:
+                    await self._stop_processes()
+                    raise
+            return await asyncio.to_thread(self.start_threads)
+        try:
+            return await self.start_processes()
+        except BaseException:
+            await self._stop_processes()
+            raise
+
+    async def __aexit__(self, *exc: Any) -> None:
+        try:
+            if self.mode == "threads":
+                await asyncio.to_thread(self.stop)
+        finally:
+            await self._stop_processes()  # last: the broker, after the services
+
+    async def _stop_processes(self) -> None:
+        if self.system.supervisor is not None:
+            await self.system.supervisor.stop()
+        if self._quiet is not None:
+            self._quiet.close()
+            self._quiet = None
+
+
+async def start_broker_process(
+    supervisor: Supervisor, mqtt_port: int = 0, ws_port: int | None = 0, host: str = "127.0.0.1"
+) -> tuple[str, str | None]:
+    """An embedded broker as a supervised child process; its MQTT and websocket URLs."""
+    argv = ["broker", "--host", host, "--port", str(mqtt_port)]
+    argv += ["--no-ws"] if ws_port is None else ["--ws-port", str(ws_port)]
+    child = await supervisor.start(ChildSpec("broker", cli(*argv), ready=BROKER_READY))
+    assert child.ready_match is not None
+    return child.ready_match.group(1), child.ready_match.group(2)
