@@ -13,11 +13,10 @@ import statistics
 import tempfile
 import time
 import uuid
-from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from pathlib import Path
 
-from bench.system_broker import broker_for
+from bench.system_broker import check_broker
 from bench.system_monitor import BenchMonitor
 from bench.system_result import SystemResult
 from bench.system_scenario import make_scenario
@@ -29,21 +28,12 @@ from gridfleet.paths import DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import Scenario
 from gridfleet.tasks import cancel_and_wait
+from system.assembly import Assembly, SystemSpec
 from system.feed import random_job
 from system.operator import Operator, operator_session
-from system.threads import ServiceThread, coordinator_thread, fleet_thread, world_of
+from system.threads import ServiceThread, world_of
 
 STOP_WAIT_S = 20.0  # an engagement not shown by every unit within this is reported as None
-
-
-@contextlib.asynccontextmanager
-async def running(service: ServiceThread) -> AsyncIterator[ServiceThread]:
-    """Start a service thread (off this loop: start blocks) and stop it when the block ends."""
-    await asyncio.to_thread(service.start, 60.0)
-    try:
-        yield service
-    finally:
-        await asyncio.to_thread(service.stop, 60.0)
 
 
 def _percentile(values: list[float], q: float) -> float | None:
@@ -134,17 +124,21 @@ async def run_system(
     topics = Topics(root)
     with tempfile.TemporaryDirectory(prefix="gridfleet-bench-") as tmp:
         scenario = make_scenario(units, seed, Path(tmp))
-        async with broker_for(broker_url) as url:
-            coordinator = coordinator_thread(
-                scenario,
-                url,
-                root=root,
-                step_s=step_s,
-                db_path=Path(tmp) / "jobs.db",
-                seed=seed,
-                client_id=f"{root}-coordinator",
-            )
-            fleet = fleet_thread(scenario, url, root=root, step_s=step_s)
+        if broker_url is not None:
+            await check_broker(broker_url)
+        spec = SystemSpec(
+            scenario,
+            broker=broker_url,
+            root=root,
+            step_s=step_s,
+            db_path=Path(tmp) / "jobs.db",
+            seed=seed,
+            coordinator_id=f"{root}-coordinator",
+            own_broker="processes",
+            ws_port=None,
+        )
+        async with Assembly(spec, "threads") as system:
+            url = system.url
             async with contextlib.AsyncExitStack() as stack:
                 monitor_client = await stack.enter_async_context(
                     make_client(url, f"{root}-monitor")
@@ -156,8 +150,7 @@ async def run_system(
                 operator = await stack.enter_async_context(
                     operator_session(url, topics, f"{root}-operator")
                 )
-                await stack.enter_async_context(running(coordinator))
-                await stack.enter_async_context(running(fleet))
+                fleet = system.fleet
                 await operator.wait_for_units([u.id for u in scenario.units], timeout=60)
                 submitted = [0]
                 feeder = asyncio.create_task(_keep_jobs(operator, scenario, seed, submitted))
@@ -180,8 +173,8 @@ async def run_system(
                 await cancel_and_wait(feeder)
                 seen, applied, moved = await _stop_trials(operator, monitor, fleet, estops, step_s)
                 collisions, prevented = fleet.call(lambda: (world.collisions, world.prevented))
-            if broker_url is not None:
-                await _clear_retained(url, monitor.retained_topics)
+        if broker_url is not None:  # once every service has stopped and said goodbye
+            await _clear_retained(broker_url, monitor.retained_topics)
     total = sum(kinds.values())
     latencies = [v * 1000 for v in monitor.latencies]
     return SystemResult(

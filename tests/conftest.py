@@ -10,8 +10,9 @@ import pytest
 
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
+from system.assembly import Assembly, SystemSpec
 from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, coordinator_thread, fleet_thread
+from system.threads import ServiceThread
 
 from support.probe import MqttProbe
 
@@ -76,20 +77,20 @@ def run_system(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> Iterator[Callable[..., tuple[ServiceThread, ServiceThread]]]:
     """Factory: the real coordinator and units of a scenario on the session broker, in threads."""
-    running: list[ServiceThread] = []
+    running: list[Assembly] = []
 
     def start(
         scenario: Path | Scenario, step_s: float = 0.05
     ) -> tuple[ServiceThread, ServiceThread]:
         loaded = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-        coordinator = coordinator_thread(
-            loaded, broker.url, root=root, step_s=step_s, db_path=tmp_path / "jobs.db"
-        ).start()
-        running.append(coordinator)
-        fleet = fleet_thread(loaded, broker.url, root=root, step_s=step_s).start()
-        running.append(fleet)
-        return coordinator, fleet
+        spec = SystemSpec(
+            loaded, broker=broker.url, root=root, step_s=step_s, db_path=tmp_path / "jobs.db"
+        )
+        assembly = Assembly(spec, "threads")
+        running.append(assembly)
+        system = assembly.start_threads()
+        return system.coordinator, system.fleet
 
     yield start
-    for service in reversed(running):
-        service.stop()
+    for assembly in reversed(running):
+        assembly.stop()
