@@ -12,21 +12,24 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from gridfleet.endpoint import Outbound, error_report
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Direction
 from gridfleet.protocol import (
     TOPICS,
+    DeviceConnection,
     EstopSignal,
+    HeaderStamper,
     Leds,
     Topics,
     decode_direction,
     decode_estop,
+    encode_device_connection,
     encode_estop,
     validate_id,
 )
 
 Pattern = Literal["direction", "stop", "offline"]
-ARROWS = {"N": "↑", "E": "→", "S": "↓", "W": "←"}
 
 
 @dataclass(frozen=True)
@@ -40,7 +43,14 @@ class Refusal:
 class DeviceLogic:
     """What the device shows and sends, driven by MQTT messages, key presses and time."""
 
-    def __init__(self, topics: Topics, unit: str, device: str, retry_s: float = 1.0) -> None:
+    def __init__(
+        self,
+        topics: Topics,
+        unit: str,
+        device: str,
+        retry_s: float = 1.0,
+        stamp: HeaderStamper | None = None,
+    ) -> None:
         self.topics = topics
         self.unit = validate_id(unit, "unit id")
         self.device = validate_id(device, "device id")
@@ -55,6 +65,35 @@ class DeviceLogic:
         self.pending_stop = False
         self._sent_this_session = False
         self._last_sent = 0.0
+        self.refused: list[Refusal] = []
+        self._stamp = stamp or HeaderStamper(self.device)
+
+    # -- the session -----------------------------------------------------------------------------
+
+    def subscriptions(self) -> list[tuple[str, int]]:
+        """What the device follows: its unit's direction (high rate: QoS 0) and the stop."""
+        return [(self.direction_topic, 0), (self.estop_topic, TOPICS["estop"].qos)]
+
+    def connection(self, state: DeviceConnection) -> Outbound:
+        """The device's retained connection message (`broken` is its last will)."""
+        payload = encode_device_connection(state)
+        return Outbound.of("device_connection", self.connection_topic, payload)
+
+    def receive(self, topic: str, payload: bytes) -> list[Outbound]:
+        """Apply one received message; a refused one is kept and reported on `errors`."""
+        refusal = self.on_message(topic, payload)
+        if refusal is None:
+            return []
+        self.refused.append(refusal)
+        report = error_report(self._stamp("errors"), refusal.topic, refusal.reason)
+        return [Outbound.of("errors", self.topics.fleet("errors"), report)]
+
+    def due(self, now: float) -> list[Outbound]:
+        """What to publish at `now`: the pending stop, at once on a new session, then every retry."""
+        if not self.stop_due(now):
+            return []
+        self.stop_sent(now)
+        return [Outbound.of("estop", self.estop_topic, self.stop_payload)]
 
     # -- what comes in ---------------------------------------------------------------------------
 
@@ -138,34 +177,3 @@ class DeviceLogic:
         if pattern == "offline" or self.direction is None:
             return Leds()
         return Leds(**{self.direction.value: True})
-
-
-def render_plain(logic: DeviceLogic) -> str:
-    """One line for logs and pipes: `leds=.#.. direction=E estop=released link=online`."""
-    leds = logic.leds
-    lit = "".join("#" if getattr(leds, side) else "." for side in "NESW")
-    direction = "-" if logic.direction is None else logic.direction.value
-    estop = "engaged" if logic.estop_engaged else "released" if logic.estop else "unknown"
-    pending = " stop=pending" if logic.pending_stop else ""
-    link = "online" if logic.online else "offline"
-    return f"leds={lit} direction={direction} estop={estop} link={link}{pending}"
-
-
-def render_tty(logic: DeviceLogic, blink_on: bool) -> str:
-    """The live terminal line: the four arrows, the lit one highlighted; stop blinks all in red."""
-    leds = logic.leds
-    cells = []
-    for side in "NESW":
-        arrow = ARROWS[side]
-        if logic.pattern == "stop":
-            cells.append(f"\x1b[1;41;97m {arrow} \x1b[0m" if blink_on else f" {arrow} ")
-        elif getattr(leds, side):
-            cells.append(f"\x1b[1;42;30m {arrow} \x1b[0m")
-        else:
-            cells.append(f"\x1b[2m {arrow} \x1b[0m")
-    status = {
-        "stop": "EMERGENCY STOP" + (" (sending)" if logic.pending_stop else ""),
-        "offline": "offline: connecting",
-        "direction": f"unit {logic.unit}",
-    }[logic.pattern]
-    return "".join(cells) + f"  {status}  [space/s: stop, q: quit]"

@@ -12,11 +12,12 @@ import tty
 from collections.abc import Callable
 from typing import TextIO
 
-from device.logic import DeviceLogic, render_plain, render_tty
+from device.logic import DeviceLogic
 
 log = logging.getLogger("gridfleet.device")
 
 STOP_WORDS = {"s", "stop", " "}
+ARROWS = {"N": "↑", "E": "→", "S": "↓", "W": "←"}
 
 
 class Terminal:
@@ -95,3 +96,34 @@ class Terminal:
         if self.tty_out:
             self.out.write("\n")
             self.out.flush()
+
+
+def render_plain(logic: DeviceLogic) -> str:
+    """One line for logs and pipes: `leds=.#.. direction=E estop=released link=online`."""
+    leds = logic.leds
+    lit = "".join("#" if getattr(leds, side) else "." for side in "NESW")
+    direction = "-" if logic.direction is None else logic.direction.value
+    estop = "engaged" if logic.estop_engaged else "released" if logic.estop else "unknown"
+    pending = " stop=pending" if logic.pending_stop else ""
+    link = "online" if logic.online else "offline"
+    return f"leds={lit} direction={direction} estop={estop} link={link}{pending}"
+
+
+def render_tty(logic: DeviceLogic, blink_on: bool) -> str:
+    """The live terminal line: the four arrows, the lit one highlighted; stop blinks all in red."""
+    leds = logic.leds
+    cells = []
+    for side in "NESW":
+        arrow = ARROWS[side]
+        if logic.pattern == "stop":
+            cells.append(f"\x1b[1;41;97m {arrow} \x1b[0m" if blink_on else f" {arrow} ")
+        elif getattr(leds, side):
+            cells.append(f"\x1b[1;42;30m {arrow} \x1b[0m")
+        else:
+            cells.append(f"\x1b[2m {arrow} \x1b[0m")
+    status = {
+        "stop": "EMERGENCY STOP" + (" (sending)" if logic.pending_stop else ""),
+        "offline": "offline: connecting",
+        "direction": f"unit {logic.unit}",
+    }[logic.pattern]
+    return "".join(cells) + f"  {status}  [space/s: stop, q: quit]"

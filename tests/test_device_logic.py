@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import json
+from datetime import UTC, datetime
+
 import pytest
 
-from device.logic import DeviceLogic, render_plain
-from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
+from device.logic import DeviceLogic
+from device.terminal import render_plain
+from gridfleet.endpoint import Outbound
+from gridfleet.protocol import EstopSignal, HeaderStamper, Leds, Topics, encode_estop
 
 T = Topics("t/logic")
 DIR = T.unit("direction", "unit1")
@@ -126,3 +131,96 @@ def test_bad_ids_are_refused() -> None:
         DeviceLogic(T, "unit/1", "dev1")
     with pytest.raises(Exception, match="device id"):
         DeviceLogic(T, "unit1", "")
+
+
+# ---- exactly what the core publishes for each input (no broker) ------------------------------
+
+FIXED = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
+
+
+def stamped_logic() -> DeviceLogic:
+    """An online device whose headers carry a fixed time, so payloads can be compared whole."""
+    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0, stamp=HeaderStamper("dev1", lambda: FIXED))
+    logic.connected()
+    return logic
+
+
+def published(out: list[Outbound]) -> list[tuple[str, object, int, bool]]:
+    """(topic, payload — parsed when JSON, else text —, qos, retain) of each message."""
+    rows: list[tuple[str, object, int, bool]] = []
+    for o in out:
+        text = o.payload.decode()
+        rows.append((o.topic, json.loads(text) if text.startswith("{") else text, o.qos, o.retain))
+    return rows
+
+
+def report(seq: int, topic: str, reason: str) -> dict[str, object]:
+    return {
+        "header": {
+            "version": "1.0",
+            "seq": seq,
+            "timestamp": "2026-11-21T10:00:00Z",
+            "sender": "dev1",
+        },
+        "topic": topic,
+        "reason": reason,
+        "request_id": None,
+    }
+
+
+def test_session_messages_are_exact() -> None:
+    logic = stamped_logic()
+    conn = T.device("device_connection", "dev1")
+    assert logic.subscriptions() == [(DIR, 0), (ESTOP, 1)]
+    assert published([logic.connection(s) for s in ("online", "offline", "broken")]) == [
+        (conn, "online", 1, True),
+        (conn, "offline", 1, True),
+        (conn, "broken", 1, True),
+    ]
+
+
+def test_good_direction_and_stop_publish_nothing() -> None:
+    logic = stamped_logic()
+    assert logic.receive(DIR, b"E") == []
+    assert logic.receive(ESTOP, b"engaged|dashboard|x") == []
+    assert logic.refused == []
+
+
+@pytest.mark.parametrize(
+    ("topic", "payload", "reason"),
+    [
+        (ESTOP, b"released", "estop"),
+        (DIR, b"Q", "direction"),
+        (DIR, b"N" * 100, "too long"),
+        (T.unit("state", "unit1"), b"{}", "does not expect messages on state"),
+        ("elsewhere/x", b"", "elsewhere/x"),
+    ],
+)
+def test_each_refused_message_is_reported_once_on_errors(
+    topic: str, payload: bytes, reason: str
+) -> None:
+    logic = stamped_logic()
+    before = logic.leds
+    out = published(logic.receive(topic, payload))
+    assert len(out) == 1
+    where, body, qos, retain = out[0]
+    assert (where, qos, retain) == (T.fleet("errors"), 1, False)
+    assert isinstance(body, dict) and reason in str(body["reason"])
+    assert body == report(0, topic, str(body["reason"]))
+    assert logic.leds == before and len(logic.refused) == 1
+
+
+def test_a_press_is_sent_at_once_then_every_retry_until_it_comes_back() -> None:
+    logic = stamped_logic()
+    stop = (ESTOP, "engaged|dev1|button", 1, True)
+    assert logic.due(0.0) == []  # nothing pending
+    logic.press()
+    assert published(logic.due(10.0)) == [stop]
+    assert logic.due(10.5) == []
+    assert published(logic.due(11.0)) == [stop]
+    logic.disconnected()
+    assert logic.due(11.5) == []  # nothing can be sent while offline
+    logic.connected()
+    assert published(logic.due(11.6)) == [stop]  # a new session sends it at once
+    assert logic.receive(ESTOP, b"engaged|dev1|button") == []
+    assert logic.due(20.0) == []  # confirmed: no more sends
