@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import pytest
 
+from coordinator.pibt import PIBT, neighbour_table
+from coordinator.pibt_swap import swap_partner
 from coordinator.planner import AgentSpec, Planner, plan_step
 from coordinator.validate import validate_plan, validate_step
 from gridfleet.grid import Cell, GridMap
+from gridfleet.paths import DistanceFieldCache
 
 
 def parse(text: str) -> tuple[GridMap, dict[str, Cell], dict[str, Cell]]:
@@ -242,3 +245,64 @@ def test_an_idle_unit_pushed_aside_settles_again() -> None:
     for _ in range(20):
         here = planner.step({a: AgentSpec(here[a]) for a in here})
         assert here == settled
+
+
+def test_the_same_seed_gives_the_same_moves() -> None:
+    # The benchmark's task counts and the coordinator's replays rely on it.
+    grid = GridMap.from_rows(["......"] * 6)
+    cells = [Cell(x, y) for y in range(6) for x in range(6)]
+    starts = {f"u{i}": cells[i] for i in range(0, 36, 2)}
+    goals = {f"u{i}": cells[35 - i] for i in range(0, 36, 2)}
+    first, _ = run(grid, starts, goals, bound=400, seed=5)
+    again, _ = run(grid, starts, goals, bound=400, seed=5)
+    assert first == again
+
+
+def search_on(rows: list[str], agents: dict[Cell, Cell]) -> PIBT:
+    """A one-step search on `rows` ('@' blocked) with agents given as {start: target}."""
+    grid = GridMap.from_rows(rows)
+    cache = DistanceFieldCache(grid)
+    w = grid.width
+    return PIBT(
+        neighbour_table(grid),
+        [s.y * w + s.x for s in agents],
+        [t.y * w + t.x for t in agents.values()],
+        [cache.get(t).reshape(-1) for t in agents.values()],
+        [s == t for s, t in agents.items()],
+        lambda: 0.5,
+    )
+
+
+def test_neighbour_table_lists_free_neighbours_north_east_south_west() -> None:
+    # 0 1
+    # 2 @
+    assert neighbour_table(GridMap.from_rows(["..", ".@"])) == [(1, 2), (0,), (0,), ()]
+
+
+def test_a_move_that_closes_a_cycle_is_recognised() -> None:
+    # Squares 0 1 / 2 3; agent 0 on 0, 1 on 1, 2 on 3, 3 on 2; all want the next square clockwise.
+    s = search_on(
+        ["..", ".."],
+        {
+            Cell(0, 0): Cell(1, 0),
+            Cell(1, 0): Cell(1, 1),
+            Cell(1, 1): Cell(0, 1),
+            Cell(0, 1): Cell(0, 0),
+        },
+    )
+    s.nxt[1], s.nxt[2] = 3, 2  # 1 -> square 3, 2 -> square 2
+    s.nxt[3] = 2  # 3 stays: agent 0 may follow 1 around
+    assert not s.closes_cycle(0, 1)
+    s.nxt[3] = 0  # 3 enters agent 0's square: 0 following 1 would close the ring
+    assert s.closes_cycle(0, 1)
+
+
+def test_a_unit_facing_a_dead_end_backs_off_to_let_the_other_pass() -> None:
+    # ......   A on (2,0) wants the dead end (5,0); B on (3,0) wants (0,0). Pushing B ahead
+    # #.####   would only drive it into the dead end; behind A, (1,0) has a side square.
+    s = search_on(["......", "#.####"], {Cell(2, 0): Cell(5, 0), Cell(3, 0): Cell(0, 0)})
+    assert swap_partner(s, 0, 3) == 1
+    assert s.run([0, 1]) == [1, 2]  # A backs off towards the side square, B follows
+    # Without a side square behind, backing off does not help: no swap.
+    s = search_on(["......", "######"], {Cell(2, 0): Cell(5, 0), Cell(3, 0): Cell(0, 0)})
+    assert swap_partner(s, 0, 3) is None
