@@ -257,6 +257,7 @@ def test_estop_payload_round_trips() -> None:
         b"engaged|bad/id|x",
         b"engaged|x|" + b"r" * 300,
         b"engaged|x|two\nlines",
+        b"engaged|x\n|trailing newline in the id",
         b"\xff\xfe",
         b"engaged|x|" + b"y" * 600,
     ],
@@ -284,6 +285,7 @@ def test_topics_are_built_and_parsed() -> None:
         lambda t: t.unit("state", "a/b"),
         lambda t: t.unit("state", "+"),
         lambda t: t.unit("state", ""),
+        lambda t: t.unit("state", "unit1\n"),  # `$` alone would let a trailing newline through
         lambda t: t.unit("estop", "u1"),
         lambda t: t.fleet("state"),
         lambda t: t.request("jobs"),
@@ -297,7 +299,7 @@ def test_bad_topics_and_ids_are_refused(call: Any) -> None:
         call(Topics())
 
 
-@pytest.mark.parametrize("root", ["", "a//b", "a/+", "#", "$SYS", "a b"])
+@pytest.mark.parametrize("root", ["", "a//b", "a/+", "#", "$SYS", "a b", "lab\n"])
 def test_bad_roots_are_refused(root: str) -> None:
     with pytest.raises(ProtocolError, match="topic root"):
         Topics(root)

@@ -46,7 +46,7 @@ class EstopSignal:
     reason: str = ""
 
     def __post_init__(self) -> None:
-        if not _BY_RE.match(self.by):
+        if not _BY_RE.fullmatch(self.by):
             raise ProtocolError(f"estop: 'by' {self.by!r} is not a valid id")
         if len(self.reason) > MAX_ESTOP_REASON or any(c in self.reason for c in "\r\n\x00"):
             raise ProtocolError(

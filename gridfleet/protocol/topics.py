@@ -27,7 +27,7 @@ Payload = Literal["json", "direction", "estop", "device_connection"]
 
 def validate_id(value: str, what: str = "id") -> str:
     """Return `value` when it is a valid unit/job/client id, else raise ProtocolError naming it."""
-    if not isinstance(value, str) or not _ID_RE.match(value):
+    if not isinstance(value, str) or not _ID_RE.fullmatch(value):
         raise ProtocolError(
             f"{what} {value!r} is not a valid id: 1-64 characters of letters, digits, '_', '.', '-',"
             " starting with a letter or digit"
@@ -111,7 +111,7 @@ class Topics:
 
     def __init__(self, root: str = DEFAULT_ROOT) -> None:
         segments = root.split("/")
-        if not all(_ROOT_SEGMENT_RE.match(s) for s in segments):
+        if not all(_ROOT_SEGMENT_RE.fullmatch(s) for s in segments):
             raise ProtocolError(
                 f"topic root {root!r} is not valid: '/'-separated segments of letters, digits,"
                 " '_', '.', '-' (no wildcards, no '$', no empty segment)"
