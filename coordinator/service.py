@@ -12,8 +12,10 @@ from pathlib import Path
 
 import aiomqtt
 
-from coordinator.core import CoordinatorCore, OrderPlan, Outcome
+from coordinator.core import CoordinatorCore
 from coordinator.jobs import JobBook
+from coordinator.orders import OrderPlan
+from coordinator.requests import Outcome
 from coordinator.store import JobStore, default_db_path
 from coordinator.world import World
 from gridfleet import __version__
@@ -316,17 +318,8 @@ class Coordinator:
         # The emergency stop wins at once: every unit gets a hold now, not at the next step.
         self._awaiting.clear()
         self._acked.set()
-        for u in list(self.world.units.values()):
-            if u.state is None or u.connection in ("offline", "broken"):
-                continue
-            track = self.core.tracks.get(u.id)
-            if track is None or track.order_id is None:
-                continue
-            track.update_id += 1
-            track.content_update = track.update_id
-            track.sent = []
-            plan = OrderPlan(track.order_id, track.update_id, self.core.step_no, [], [], None, None)
-            await self._send_order(u.id, plan)
+        for unit_id, plan in self.core.holds().items():
+            await self._send_order(unit_id, plan)
 
     # ---- outbound ----------------------------------------------------------------------
 

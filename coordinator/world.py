@@ -34,6 +34,7 @@ class UnitRecord:
     factsheet: Factsheet | None = None
     state: UnitState | None = None
     state_at: float | None = None  # when the latest state arrived (monotonic seconds)
+    lost_since: float | None = None  # when it stopped counting as active (None: active)
 
     @property
     def position(self) -> Cell | None:
@@ -126,6 +127,19 @@ class World:
         if rec.connection in ("offline", "broken") or rec.state is None or rec.state_at is None:
             return False
         return now - rec.state_at <= self.stale_after_s(rec)
+
+    def roll_call(self, now: float) -> set[str]:
+        """Ids of the units heard from that are active now; notes since when each other one is lost."""
+        active = set()
+        for rec in self.units.values():
+            if rec.state is None:
+                continue
+            if self.is_active(rec, now):
+                active.add(rec.id)
+                rec.lost_since = None
+            elif rec.lost_since is None:
+                rec.lost_since = now
+        return active
 
     def capacities(self) -> list[float]:
         """Capacities of every unit with a factsheet that has not said it is offline."""

@@ -1,0 +1,169 @@
+"""Order tracking (protocol.md §4.4): each unit's order ids and updates, what we released to it,
+and what it has acknowledged.
+
+Pure. A square stays reserved for a unit until its state shows it left: its reported square, the
+squares it still may drive (`state.released`) and, until it has acknowledged our latest change,
+every square we sent it since its last acknowledgement. Only *settled* units (acknowledged,
+nothing left to drive) get new moves; a unit in motion gets its remaining squares again
+(heartbeat), or a hold when it has waited too long or its way is blocked by a newly known obstacle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from coordinator.world import UnitRecord, World, cell, cells
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import Action, UnitState
+from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
+
+WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
+
+
+@dataclass(frozen=True)
+class OrderPlan:
+    """One order to send (the header is added when it becomes a message)."""
+
+    order_id: str
+    update_id: int
+    step: int
+    released: list[Cell]
+    planned: list[Cell]
+    target: Cell | None
+    action: Action | None
+
+
+@dataclass
+class Track:
+    """Our side of one unit's orders."""
+
+    order_id: str | None = None
+    route_no: int = 0
+    update_id: int = 0
+    content_update: int = 0  # update id at which the current released squares were first sent
+    sent: list[Cell] = field(default_factory=list)  # released squares of the latest order
+    unacked: set[Cell] = field(default_factory=set)  # every square sent since the last ack
+    target: Cell | None = None
+    waiting: int = 0
+
+
+def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool:
+    """Whether a unit's state shows it has accepted update `update_id` of order `order_id`."""
+    return state.order_id == order_id and state.order_update_id >= update_id
+
+
+class Orders:
+    """Every unit's Track, and the order each unit gets next."""
+
+    def __init__(self, nonce: str) -> None:
+        self.nonce = nonce  # per run, so a restarted coordinator's orders are new orders
+        self.tracks: dict[str, Track] = {}
+
+    def track(self, unit_id: str) -> Track:
+        """The Track of `unit_id`, created on first use."""
+        return self.tracks.setdefault(unit_id, Track())
+
+    def acked(self, u: UnitRecord) -> bool:
+        """Whether the unit has accepted the squares we last released to it."""
+        assert u.state is not None
+        t = self.tracks.get(u.id)
+        if t is None or t.order_id is None:
+            return True
+        return acknowledges(u.state, t.order_id, t.content_update)
+
+    def settled(self, u: UnitRecord) -> bool:
+        """Acknowledged, with nothing left to drive: it may get a new move."""
+        assert u.state is not None
+        return self.acked(u) and not u.state.released
+
+    def reserved(self, u: UnitRecord, now: float, world: World) -> set[Cell]:
+        """Squares besides its own that nobody else may enter: what the unit may still drive."""
+        assert u.state is not None
+        t = self.tracks.get(u.id)
+        if u.lost_since is not None:
+            period = max(world.step_period_s, world.stale_after_s(u) / STALE_AFTER_STEPS)
+            hold_after = max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * period) + period
+            if now - u.lost_since > hold_after:
+                return set()  # it holds still by now: only its last square stays reserved
+        out = set(cells(u.state.released))
+        if t is not None and not self.acked(u):
+            out |= t.unacked
+        return out
+
+    def order(
+        self,
+        u: UnitRecord,
+        *,
+        settled: bool,
+        move: Cell | None,
+        target: Cell | None,
+        action: Action | None,
+        estop: bool,
+        grid: GridMap,
+        route: Callable[[Cell, Cell], list[Cell]],
+        step_no: int,
+    ) -> OrderPlan:
+        """This step's order for an active unit: a new move, its remaining squares, or a hold."""
+        assert u.state is not None
+        st = u.state
+        t = self.track(u.id)
+        pos = cell(st.position)
+        if self.acked(u):
+            t.unacked = set()  # what it may still drive is exactly its reported `released`
+        if settled or estop or st.estop:
+            t.waiting = 0
+        elif st.status == "waiting":
+            t.waiting += 1
+        if estop:
+            released: list[Cell] = []
+        elif settled:
+            released = [move] if move is not None and move != pos else []
+        else:
+            remaining = self._remaining(u, t)
+            blocked = any(not grid.is_free(c) for c in remaining)
+            released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
+        if target != t.target or t.order_id is None:
+            t.route_no += 1
+            t.order_id = f"{self.nonce}-{u.id}-{t.route_no}"
+            t.update_id = 0
+            t.target = target
+            t.content_update = 0
+        t.update_id += 1
+        if released != t.sent or t.content_update == 0:
+            t.content_update = t.update_id
+            t.unacked |= set(released)
+            t.sent = released
+            t.waiting = 0
+        planned: list[Cell] = []
+        if target is not None and not estop:
+            planned = route(released[-1] if released else pos, target)
+        return OrderPlan(
+            order_id=t.order_id,
+            update_id=t.update_id,
+            step=step_no,
+            released=released,
+            planned=planned,
+            target=target,
+            action=None if estop else action,
+        )
+
+    def _remaining(self, u: UnitRecord, t: Track) -> list[Cell]:
+        assert u.state is not None
+        st = u.state
+        if self.acked(u) or not t.sent:
+            return cells(st.released)
+        pos = cell(st.position)
+        if pos in t.sent:
+            return t.sent[t.sent.index(pos) + 1 :]
+        return list(t.sent) if t.sent[0].manhattan(pos) == 1 else []
+
+    def hold(self, unit_id: str, step_no: int) -> OrderPlan | None:
+        """An update of the unit's order that releases nothing; None before its first order."""
+        t = self.tracks.get(unit_id)
+        if t is None or t.order_id is None:
+            return None
+        t.update_id += 1
+        t.content_update = t.update_id
+        t.sent = []
+        return OrderPlan(t.order_id, t.update_id, step_no, [], [], None, None)

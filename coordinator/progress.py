@@ -1,0 +1,183 @@
+"""Job progress (protocol.md §5.3, §8): what units' states say about their jobs, and allocation.
+
+Pure: unit records, the job book and a caller-supplied time in; job state changes out (the book's
+`changed` set says which). Lost units: a job not yet picked up goes back to the queue; a job whose
+item the unit had already picked up becomes `failed` once the unit has said goodbye or stayed
+away too long (the item is on a unit nobody can reach), with a reason naming the unit and the
+square where it was last seen.
+"""
+
+from __future__ import annotations
+
+from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason
+from coordinator.jobs import CARRYING_STATES, JobBook
+from coordinator.world import UnitRecord, World, cell
+from gridfleet.grid import Cell
+from gridfleet.paths import DistanceFieldCache
+from gridfleet.protocol import Action
+
+LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
+LOST_CARRYING_MIN_S = 10.0
+
+
+class JobProgress:
+    """Moves jobs along their life cycle from what units report; gives queued jobs to units."""
+
+    def __init__(self, world: World, jobs: JobBook, goals: dict[str, Cell]) -> None:
+        self.world = world
+        self.jobs = jobs
+        self.goals = goals
+
+    def requeue_on_restart(self) -> None:
+        """Jobs not picked up yet go back to the queue; carried ones wait for their unit's state."""
+        for job in self.jobs.active():
+            if job.state not in CARRYING_STATES:
+                self.jobs.set(job, "queued", unit=None, reason="coordinator restarted; re-queued")
+
+    def advance(self, units: list[UnitRecord], active: set[str], now: float, step_no: int) -> None:
+        """Pick-ups, drop-offs, refusals, lost units and goals reached, from the latest states."""
+        self._adopt_carried(units, active)
+        self._progress_jobs(units, active, now, step_no)
+        for unit_id, goal in list(self.goals.items()):
+            rec = self.world.units.get(unit_id)
+            if rec is not None and rec.position == goal:
+                del self.goals[unit_id]
+
+    def _adopt_carried(self, units: list[UnitRecord], active: set[str]) -> None:
+        # A unit that reports carrying a job we think is not picked up yet (it picked the item up
+        # just before a coordinator restart, whose store still had the job waiting) has it.
+        for u in units:
+            st = u.state
+            if st is None or st.job_id is None or u.id not in active:
+                continue
+            job = self.jobs.get(st.job_id)
+            if job is not None and not job.final and job.state not in CARRYING_STATES:
+                self.jobs.set(job, "loaded", unit=u.id, reason=None)
+
+    def _progress_jobs(
+        self, units: list[UnitRecord], active: set[str], now: float, step_no: int
+    ) -> None:
+        by_id = {u.id: u for u in units}
+        for job in self.jobs.active():
+            rec = by_id.get(job.unit or "")
+            if rec is None or rec.state is None:
+                continue  # not heard yet (e.g. after a restart): wait
+            st = rec.state
+            if rec.id not in active:
+                if job.state in CARRYING_STATES:
+                    # The item is on that unit: nobody else can finish the job. A unit that is
+                    # only late (a busy machine, a network hiccup) carries on when it is heard
+                    # again, so wait for it; give up once it has said goodbye or stayed away.
+                    away = 0.0 if rec.lost_since is None else now - rec.lost_since
+                    if rec.connection == "offline" or away > self._give_up_after_s(rec):
+                        self.jobs.set(
+                            job,
+                            "failed",
+                            reason=f"unit {rec.id} was lost carrying the item, last seen at "
+                            f"{list(st.position)}",
+                            done_step=step_no,
+                        )
+                else:
+                    self.jobs.set(
+                        job, "queued", unit=None, reason=f"unit {rec.id} was lost; re-queued"
+                    )
+                continue
+            if job.state in ("assigned", "to_pickup"):
+                if st.job_id == job.id:
+                    self.jobs.set(job, "loaded", reason=None)
+                elif (
+                    any(e.code == "over_capacity" for e in st.errors) and st.position == job.pickup
+                ):
+                    self.jobs.set(
+                        job, "queued", unit=None, reason=f"unit {rec.id} refused: over capacity"
+                    )
+            elif job.state == "loaded" and st.job_id == job.id and st.position != job.pickup:
+                self.jobs.set(job, "to_dropoff")
+            elif job.state in CARRYING_STATES and st.job_id != job.id:
+                if st.position == job.dropoff:
+                    self.jobs.set(job, "done", done_step=step_no, reason=None)
+                else:
+                    self.jobs.set(
+                        job,
+                        "failed",
+                        reason=f"unit {rec.id} no longer carries the item (at {list(st.position)})",
+                        done_step=step_no,
+                    )
+
+    def _give_up_after_s(self, rec: UnitRecord) -> float:
+        """How long a unit carrying an item may stay silent before its job fails."""
+        return max(LOST_CARRYING_MIN_S, LOST_CARRYING_STEPS * self.world.stale_after_s(rec))
+
+    def allocate(
+        self,
+        units: list[UnitRecord],
+        active: set[str],
+        settled: set[str],
+        cache: DistanceFieldCache,
+        step_no: int,
+    ) -> None:
+        """Reject what no unit can carry any more; assign queued jobs to idle, settled units."""
+        capacities = self.world.capacities()
+        for job in self.jobs.queued():
+            reason = capacity_reason(job.mass_kg, capacities)
+            if reason is not None:
+                self.jobs.set(job, "rejected", reason=reason, done_step=step_no)
+        busy = {j.unit for j in self.jobs.active()}
+        slots = []
+        for u in units:
+            if (
+                u.id in active
+                and u.id in settled
+                and u.id not in busy
+                and u.id not in self.goals
+                and u.factsheet is not None
+                and u.state is not None
+                and u.state.job_id is None
+                and u.state.mode == "coordinated"
+                and not u.state.estop
+            ):
+                free = u.factsheet.capacity_kg - u.state.load_kg
+                slots.append(UnitSlot(u.id, cell(u.state.position), free))
+        queued = self.jobs.queued()
+        if not slots or not queued:
+            return
+        requests = [JobRequest(j.id, j.pickup, j.dropoff, j.mass_kg, j.priority) for j in queued]
+        for job_id, unit_id in allocate(cache, slots, requests).items():
+            job = self.jobs.jobs[job_id]
+            self.jobs.set(job, "assigned", unit=unit_id, reason=None)
+
+    def dispatch(self, units: list[UnitRecord], active: set[str]) -> None:
+        """An assigned job whose unit hears from us this step is under way (`to_pickup`)."""
+        for u in units:
+            job = self.jobs.of_unit(u.id)
+            goal = u.id in self.goals
+            if u.id in active and not goal and job is not None and job.state == "assigned":
+                self.jobs.set(job, "to_pickup")
+
+    def target(self, unit_id: str) -> Cell | None:
+        """Where a unit is headed: its goal, else its job's pickup or (carrying) dropoff."""
+        goal = self.goals.get(unit_id)
+        if goal is not None:
+            return goal
+        job = self.jobs.of_unit(unit_id)
+        if job is not None:
+            return job.dropoff if job.state in CARRYING_STATES else job.pickup
+        return None
+
+    def action(self, unit_id: str) -> Action | None:
+        """What a unit does at the end of its route: pick its job's item up, or drop it."""
+        job = self.jobs.of_unit(unit_id)
+        if job is None or unit_id in self.goals:
+            return None
+        if job.state in CARRYING_STATES:
+            return Action(kind="drop", job_id=job.id, square=job.dropoff, mass_kg=job.mass_kg)
+        return Action(kind="pick", job_id=job.id, square=job.pickup, mass_kg=job.mass_kg)
+
+    def urgency(self, units: list[UnitRecord]) -> dict[str, float]:
+        """Each busy unit's job priority, added to its planning priority."""
+        out = {}
+        for u in units:
+            job = self.jobs.of_unit(u.id)
+            if job is not None:
+                out[u.id] = float(job.priority)
+        return out

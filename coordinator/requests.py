@@ -1,0 +1,104 @@
+"""Operator requests (protocol.md §6): queue a job, cancel one, send a unit to a goal.
+
+Pure: each request is checked against the world and the job book and answered with an Outcome;
+a refused request changes nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from coordinator.allocation import capacity_reason
+from coordinator.jobs import CARRYING_STATES, Job, JobBook
+from coordinator.world import World, cell
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Cell
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+from gridfleet.protocol import CancelJob, SetGoal, SubmitJob
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """The answer to a request: accepted or not, why, and the job it concerns."""
+
+    accepted: bool
+    reason: str | None = None
+    job_id: str | None = None
+
+
+def submit(
+    req: SubmitJob, sender: str | None, world: World, jobs: JobBook, step_no: int
+) -> Outcome:
+    """Queue a job, or refuse it (nothing changes) with the reason."""
+    try:
+        world.check_square(req.pickup, "pickup")
+        world.check_square(req.dropoff, "dropoff")
+    except ProtocolError as exc:
+        return Outcome(False, str(exc))
+    if req.job_id is not None and req.job_id in jobs.jobs:
+        return Outcome(False, f"job id {req.job_id!r} is taken", req.job_id)
+    job_id = req.job_id or jobs.new_id()
+    job = Job(
+        id=job_id,
+        pickup=cell(req.pickup),
+        dropoff=cell(req.dropoff),
+        mass_kg=req.mass_kg,
+        priority=req.priority,
+        submitted_by=sender,
+        created_step=step_no,
+    )
+    reason = capacity_reason(req.mass_kg, world.capacities())
+    if reason is not None:
+        # Listed as rejected (not merely refused) so the queue view shows why.
+        job.state = "rejected"
+        job.reason = reason
+        jobs.add(job)
+        return Outcome(False, reason, job_id)
+    jobs.add(job)
+    return Outcome(True, None, job_id)
+
+
+def cancel(
+    req: CancelJob, sender: str | None, world: World, jobs: JobBook, step_no: int
+) -> Outcome:
+    """Cancel a queued job or abort an active one; refuse unknown and final jobs."""
+    job = jobs.get(req.job_id)
+    if job is None:
+        return Outcome(False, f"unknown job {req.job_id!r}", req.job_id)
+    if job.final:
+        return Outcome(False, f"job {job.id} is already {job.state}", job.id)
+    who = sender or "an operator"
+    if job.state in CARRYING_STATES and job.unit is not None:
+        rec = world.units.get(job.unit)
+        where = list(rec.position) if rec and rec.position else "unknown"
+        reason = f"cancelled by {who}; the item stays on unit {job.unit} at {where}"
+    elif job.unit is not None:
+        reason = f"cancelled by {who}; unit {job.unit} released"
+    else:
+        reason = f"cancelled by {who}"
+    jobs.set(job, "cancelled", reason=reason, done_step=step_no)
+    return Outcome(True, None, job.id)
+
+
+def set_goal(
+    req: SetGoal, world: World, jobs: JobBook, goals: dict[str, Cell], cache: DistanceFieldCache
+) -> Outcome:
+    """Pin a unit to a square (or clear its goal); refuse unknown units and bad squares."""
+    rec = world.units.get(req.unit)
+    if rec is None or rec.state is None:
+        return Outcome(False, f"unknown unit {req.unit!r}")
+    if req.target is None:
+        goals.pop(req.unit, None)
+        return Outcome(True)
+    try:
+        world.check_square(req.target, "target")
+    except ProtocolError as exc:
+        return Outcome(False, str(exc))
+    if rec.position is not None and cache.distance(rec.position, cell(req.target)) == UNREACHABLE:
+        return Outcome(False, f"unit {req.unit} cannot reach {list(req.target)}")
+    goals[req.unit] = cell(req.target)
+    job = jobs.of_unit(req.unit)
+    if job is not None and job.state not in CARRYING_STATES:
+        # The goal pins the unit: its job goes back to the queue for another unit.
+        jobs.set(job, "queued", unit=None, reason=f"unit {req.unit} sent to a goal")
+    return Outcome(True)
