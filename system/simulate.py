@@ -62,7 +62,7 @@ class GoalProgress:
 
 
 @dataclass
-class Outcome:
+class SimulationResult:
     """The result of one simulation run."""
 
     steps: int = 0
@@ -114,10 +114,10 @@ async def simulate(
     broker_url: str | None = None,
     record: bool = False,
     sensors_see_units: bool = True,
-) -> Outcome:
+) -> SimulationResult:
     """Run broker, coordinator and units in this process until the scenario is done."""
     started = time.monotonic()
-    outcome = Outcome()
+    outcome = SimulationResult()
     goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
     refused_jobs: list[JobView] = []
     topics = Topics(root)
@@ -230,7 +230,7 @@ async def simulate(
     return outcome
 
 
-def summary(outcome: Outcome, scenario: Scenario) -> str:
+def summary(outcome: SimulationResult, scenario: Scenario) -> str:
     """A few human lines about the run."""
     done = sum(1 for j in outcome.jobs if j["state"] == "done")
     lines = [

@@ -20,7 +20,7 @@ from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
 from system.broker_thread import BrokerThread
 from system.monitor import FleetMonitor
-from system.simulate import Outcome, simulate
+from system.simulate import SimulationResult, simulate
 
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -29,14 +29,16 @@ MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05
 MAX_STEPS = 600  # a few times what any of these scenarios needs; ends well inside the timeout
 
-Run = Callable[..., "tuple[Scenario, Outcome]"]
+Run = Callable[..., "tuple[Scenario, SimulationResult]"]
 
 
 @pytest.fixture
 def run_scenario(broker: BrokerThread, root: str) -> Run:
     """Run a shipped scenario to the end on the session broker; fail unless it finished."""
 
-    async def run(name: str, *, sensors_see_units: bool = True) -> tuple[Scenario, Outcome]:
+    async def run(
+        name: str, *, sensors_see_units: bool = True
+    ) -> tuple[Scenario, SimulationResult]:
         scenario = load_scenario(MAPS / f"{name}.toml")
         outcome = await simulate(
             scenario,
@@ -59,12 +61,12 @@ def run_scenario(broker: BrokerThread, root: str) -> Run:
     return run  # type: ignore[return-value]
 
 
-def monitor_of(outcome: Outcome) -> FleetMonitor:
+def monitor_of(outcome: SimulationResult) -> FleetMonitor:
     assert outcome.monitor is not None
     return outcome.monitor
 
 
-def published_track(outcome: Outcome, unit: str) -> list[Cell]:
+def published_track(outcome: SimulationResult, unit: str) -> list[Cell]:
     """The unit's positions as it published them, without repeats."""
     track: list[Cell] = []
     for state in monitor_of(outcome).history:
@@ -73,7 +75,7 @@ def published_track(outcome: Outcome, unit: str) -> list[Cell]:
     return track
 
 
-def final_position(outcome: Outcome, unit: str) -> Cell:
+def final_position(outcome: SimulationResult, unit: str) -> Cell:
     return Cell(*next(u["position"] for u in outcome.units if u["id"] == unit))
 
 
