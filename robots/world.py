@@ -8,9 +8,8 @@ from types import MappingProxyType
 from typing import Literal
 
 from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.protocol.messages import SensorReading
 from gridfleet.scenario import Scenario
-
-Reading = Literal["free", "wall", "obstacle", "unit"]
 
 
 @dataclass(frozen=True)
@@ -80,12 +79,12 @@ class WorldSim:
         """Where `unit_id` is (KeyError for an unknown unit)."""
         return self._positions[unit_id]
 
-    def square(self, cell: Cell, exclude: str | None = None) -> Reading:
+    def square(self, cell: Cell, exclude: str | None = None) -> SensorReading:
         """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
         reading = self._truth(cell, exclude)
         return "free" if reading == "unit" and not self.sensors_see_units else reading
 
-    def _truth(self, cell: Cell, exclude: str | None) -> Reading:
+    def _truth(self, cell: Cell, exclude: str | None) -> SensorReading:
         if not self.grid.in_bounds(cell):
             return "wall"
         if not self.grid.is_free(cell) or cell in self.hidden:
@@ -95,7 +94,7 @@ class WorldSim:
             return "unit"
         return "free"
 
-    def sense(self, unit_id: str) -> dict[Direction, Reading]:
+    def sense(self, unit_id: str) -> dict[Direction, SensorReading]:
         """The four distance sensors of `unit_id`: what is in each neighbouring square."""
         here = self._positions[unit_id]
         return {d: self.square(here.step(d), exclude=unit_id) for d in Direction}
@@ -120,6 +119,12 @@ class WorldSim:
         self._relocate(unit_id, cell)
         self.remote.add(unit_id)
         self.moves.setdefault(unit_id, 0)
+
+    def observe(self, unit_id: str, cell: Cell) -> None:
+        """A unit seen on `cell` in its published state; units simulated here are the truth."""
+        if unit_id in self._positions and unit_id not in self.remote:
+            return
+        self.place(unit_id, cell)
 
     def remove(self, unit_id: str) -> None:
         """Forget a unit simulated elsewhere."""

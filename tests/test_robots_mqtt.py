@@ -10,6 +10,7 @@ from pathlib import Path
 
 import aiomqtt
 
+from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
@@ -392,7 +393,7 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
     c = Coordinator(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c, step=0.05, reconnect_s=0.2) as fleet:
         runner = fleet.runners["u1"]
-        old = runner._client
+        old = runner.endpoint._client  # the live connection, to make one send on it hang
         assert old is not None
         timed_out = asyncio.Event()
 
@@ -401,12 +402,13 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
             raise aiomqtt.MqttError("Operation timed out")
 
         old.publish = publish_never_acknowledged  # type: ignore[method-assign]
-        pending = asyncio.ensure_future(runner._send(topics.unit("state", "u1"), "state", b"{}"))
+        late = Outbound(topics.unit("state", "u1"), b"{}", 0, True)
+        pending = asyncio.ensure_future(runner.endpoint.publish(late))
         runner.drop_connection()
         await async_wait_for(lambda: runner.connects == 2 and runner.online.is_set())
         timed_out.set()
         await pending
-        assert runner._client is not None and fleet.logic["u1"].connected
+        assert runner.endpoint.connected and fleet.logic["u1"].connected
         c.order("u1", "o1", 1, [(1, 0)])
         await c.until_state("u1", lambda s: s.position == Cell(1, 0))
 

@@ -7,7 +7,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gridfleet.grid import Cell, Direction, GridMap
-from robots.world import Reading, WorldSim
+from gridfleet.protocol.messages import SensorReading
+from robots.world import WorldSim
 
 N, E, S, W = Direction.N, Direction.E, Direction.S, Direction.W
 
@@ -22,7 +23,7 @@ def world_of(*rows: str) -> WorldSim:
     return WorldSim(GridMap.from_rows(static), hidden, units)
 
 
-SENSOR_CASES: list[tuple[tuple[str, ...], dict[Direction, Reading]]] = [
+SENSOR_CASES: list[tuple[tuple[str, ...], dict[Direction, SensorReading]]] = [
     (("a",), {N: "wall", E: "wall", S: "wall", W: "wall"}),  # off the map on every side
     ((".@.", "HaH", ".b."), {N: "obstacle", E: "obstacle", S: "unit", W: "obstacle"}),
     ((".b.", "@a.", ".H."), {N: "unit", E: "free", S: "obstacle", W: "obstacle"}),
@@ -38,7 +39,7 @@ SENSOR_CASES: list[tuple[tuple[str, ...], dict[Direction, Reading]]] = [
     ("rows", "expected"), SENSOR_CASES, ids=lambda v: "|".join(v) if isinstance(v, tuple) else ""
 )
 def test_sensors_see_walls_obstacles_and_units(
-    rows: tuple[str, ...], expected: dict[Direction, Reading]
+    rows: tuple[str, ...], expected: dict[Direction, SensorReading]
 ) -> None:
     assert world_of(*rows).sense("a") == expected
 

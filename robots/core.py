@@ -1,0 +1,206 @@
+"""One unit's side of the protocol, pure: what arrives in, exactly what to publish out.
+
+`UnitCore` wraps a `UnitLogic` with the wire: it reads every inbound topic a unit follows (the stop,
+orders, goals, the coordinator's status), connects, disconnects and steps, and returns the
+messages to publish as `Outbound`s, in the order they must leave: the state after every step and
+change, the direction only when it changed, an error report (with the reason) for every refused
+message, `online` and the factsheet on connect. Time comes in as `now`; headers come from the
+stamper it is given, so tests can pin every payload.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from gridfleet.endpoint import Outbound, error_report
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Cell
+from gridfleet.protocol import (
+    TOPICS,
+    Connection,
+    CoordinatorStatus,
+    Factsheet,
+    Goal,
+    HeaderStamper,
+    Order,
+    Topics,
+    UnitState,
+    decode,
+    decode_direction,
+    decode_estop,
+    encode_direction,
+)
+from robots.unit import Move, Sense, UnitLogic
+
+
+class UnitCore:
+    """A unit's decisions on the wire: inbound topics, connects and steps in; `Outbound`s out."""
+
+    def __init__(
+        self,
+        logic: UnitLogic,
+        topics: Topics,
+        *,
+        color: str = "#607d8b",
+        stamp: HeaderStamper | None = None,
+    ) -> None:
+        self.logic = logic
+        self.topics = topics
+        self.color = color
+        self.id = logic.unit_id
+        self.stamp = stamp or HeaderStamper(self.id)
+        self._sent_direction: bytes | None = None  # what `direction` says on this connection
+
+    def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
+        """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
+        t = self.topics
+        topics = [t.fleet("estop")]
+        if self.logic.mode == "coordinated":
+            topics += [t.unit("order", self.id), t.fleet("coordinator")]
+        else:
+            topics.append(t.unit("goal", self.id))
+        if watch_peers:
+            topics.append(t.all_units("state"))
+        subs = []
+        for topic in topics:
+            kind, _ = t.parse(topic.replace("+", self.id))
+            # High-rate topics at QoS 0: amqtt upgrades delivery to the subscription's QoS.
+            subs.append((topic, TOPICS[kind].qos if kind != "state" else 0))
+        return subs
+
+    # ---- the session --------------------------------------------------------------------------
+
+    def start(self, now: float) -> None:
+        """The unit starts at `now`, not connected yet: it holds still until it is."""
+        self.logic.start(now)
+        self.logic.on_disconnect(now)
+
+    def will(self) -> Outbound:
+        """The last will of the coming connection: `broken` (stamped before its `online`)."""
+        return self._connection("broken")
+
+    def on_connect(self, now: float) -> list[Outbound]:
+        """Connected and subscribed: `online`, the factsheet, then the state and direction."""
+        self.logic.on_connect(now)
+        self._sent_direction = None  # a new connection: say the direction again
+        factsheet = Factsheet(
+            header=self.stamp("factsheet"),
+            capacity_kg=self.logic.capacity_kg,
+            step_period_s=self.logic.step_s,
+            color=self.color,
+        )
+        return [
+            self._connection("online"),
+            Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet),
+            *self.state(),
+        ]
+
+    def on_disconnect(self, now: float) -> None:
+        """Lost the broker: hold still (nothing can be sent until the next connect)."""
+        self.logic.on_disconnect(now)
+
+    def offline(self) -> Outbound:
+        """The goodbye of a clean stop."""
+        return self._connection("offline")
+
+    def _connection(self, state: Literal["online", "offline", "broken"]) -> Outbound:
+        message = Connection(header=self.stamp("connection"), state=state)
+        return Outbound.of("connection", self.topics.unit("connection", self.id), message)
+
+    # ---- what arrives -------------------------------------------------------------------------
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        """React to one inbound message; what to publish because of it."""
+        try:
+            kind, who = self.topics.parse(topic)
+        except ProtocolError:
+            return []
+        if kind == "estop":
+            return self._on_estop(topic, payload, now)
+        if kind == "order" and who == self.id:
+            return self._on_order(topic, payload, now)
+        if kind == "goal" and who == self.id:
+            return self._on_goal(topic, payload, now)
+        if kind == "coordinator":
+            try:
+                status = decode(CoordinatorStatus, payload)
+            except ProtocolError:
+                return []  # the coordinator's own problem; nothing for a unit to change
+            self.logic.on_coordinator(status.step_period_s)
+        return []
+
+    def _on_estop(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        try:
+            signal = decode_estop(payload)
+        except ProtocolError as exc:
+            # Never a release: a bad payload changes nothing.
+            return self._refused(topic, "bad_estop", str(exc))
+        self.logic.on_estop(signal.engaged, now)
+        return self.state()
+
+    def _on_order(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        try:
+            order = decode(Order, payload, TOPICS["order"].max_bytes)
+        except ProtocolError as exc:
+            return self._refused(topic, "bad_order", str(exc))
+        verdict = self.logic.on_order(order, now)
+        if verdict.result == "refused":
+            return [self._report(topic, verdict.reason or ""), *self.state()]
+        return self.state() if verdict.result == "accepted" else []
+
+    def _on_goal(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        try:
+            goal = decode(Goal, payload, TOPICS["goal"].max_bytes)
+        except ProtocolError as exc:
+            return self._refused(topic, "bad_goal", str(exc))
+        target = None if goal.target is None else Cell(*goal.target)
+        verdict = self.logic.on_goal(target, now)
+        if verdict.result == "refused":
+            return [self._report(topic, verdict.reason or ""), *self.state()]
+        return self.state() if verdict.result == "accepted" else []
+
+    def _refused(self, topic: str, code: str, reason: str) -> list[Outbound]:
+        """A payload that could not be read: an error in the state and a report on `errors`."""
+        self.logic.error(code, reason)
+        return [self._report(topic, reason), *self.state()]
+
+    def _report(self, topic: str, reason: str) -> Outbound:
+        payload = error_report(self.stamp("errors"), topic, reason)
+        return Outbound.of("errors", self.topics.fleet("errors"), payload)
+
+    def peer_position(self, topic: str, payload: bytes) -> tuple[str, Cell] | None:
+        """Where another unit says it stands, when this is its state; else None."""
+        try:
+            kind, who = self.topics.parse(topic)
+        except ProtocolError:
+            return None
+        if kind != "state" or who is None or who == self.id:
+            return None
+        try:
+            state = decode(UnitState, payload)
+        except ProtocolError:
+            return None
+        return who, Cell(*state.position)
+
+    # ---- the step -----------------------------------------------------------------------------
+
+    def tick(self, sense: Sense, move: Move, now: float) -> list[Outbound]:
+        """One step in the world `sense` reads and `move` changes; the state (and direction)."""
+        self.logic.tick(sense, move, now)
+        return self.state()
+
+    def state(self) -> list[Outbound]:
+        """The state now, and the direction when it changed; nothing while disconnected.
+
+        Built at once, so a step can never overtake the state that showed its move. Disconnected,
+        nothing is built: the obstacles and errors a state reports once wait for the next one.
+        """
+        if not self.logic.connected:
+            return []
+        state = self.logic.report(self.stamp("state"))
+        outs = [Outbound.of("state", self.topics.unit("state", self.id), state)]
+        direction = encode_direction(decode_direction(state.direction))
+        if direction != self._sent_direction:
+            self._sent_direction = direction
+            outs.append(Outbound.of("direction", self.topics.unit("direction", self.id), direction))
+        return outs
