@@ -1,0 +1,424 @@
+"""Exactly what a unit publishes for each input: its core fed with a fixed clock, no broker.
+
+Every test feeds `UnitCore` one input (a connect, a tick, a message on a topic the unit follows)
+and asserts the whole list it returns: topic, parsed payload, QoS and retain flag, in order.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+import pytest
+
+from gridfleet.endpoint import Outbound
+from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.protocol import (
+    CoordinatorStatus,
+    Goal,
+    HeaderStamper,
+    Order,
+    Topics,
+    encode,
+)
+from gridfleet.protocol.messages import SensorReading
+from robots.core import UnitCore
+from robots.unit import Mode, UnitLogic
+
+ROOT = "gf/v1/"
+T0 = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
+WHEN = "2026-11-21T10:00:00Z"
+OPEN = (".....", ".....", ".....")
+FREE: dict[Direction, SensorReading] = dict.fromkeys(Direction, "free")
+AT_WEST_EDGE: dict[Direction, SensorReading] = {**FREE, Direction.W: "wall"}
+LEDS_OFF = dict.fromkeys("NESW", False)
+LEDS_ALL = dict.fromkeys("NESW", True)
+LED_E = {**LEDS_OFF, "E": True}
+COORDINATOR = HeaderStamper("coordinator", clock=lambda: T0)
+
+Sent = tuple[str, Any, int, bool]
+
+
+def make(mode: Mode = "coordinated", rows: tuple[str, ...] = OPEN) -> UnitCore:
+    """Unit u1 on (0, 1) of `rows`, its headers stamped at T0; started at time 0."""
+    logic = UnitLogic("u1", GridMap.from_rows(rows), Cell(0, 1), 5.0, 0.1, mode=mode)
+    core = UnitCore(
+        logic, Topics("gf"), color="#d32f2f", stamp=HeaderStamper("u1", clock=lambda: T0)
+    )
+    core.start(0.0)
+    return core
+
+
+def ready(mode: Mode = "coordinated", rows: tuple[str, ...] = OPEN) -> UnitCore:
+    """Connected at 0 and one step made at 0.2, once the retained stop can have arrived.
+
+    It has then sent state seq 0 and 1 and direction `-`; its step counter is 1.
+    """
+    core = make(mode, rows)
+    core.will()
+    core.on_connect(0.0)
+    core.tick(lambda: FREE, refuse, 0.2)
+    assert core.logic.estop_known and core.logic.status == "idle"
+    return core
+
+
+def refuse(direction: Direction) -> bool:
+    """The world's answer to a move a test does not expect."""
+    raise AssertionError(f"unexpected move {direction.value}")
+
+
+def allow(direction: Direction) -> bool:
+    """The world lets every move happen."""
+    return True
+
+
+def published(outs: Sequence[Outbound]) -> list[Sent]:
+    """(topic after the root, payload as JSON or text, QoS, retain) of each message, in order."""
+    sent = []
+    for out in outs:
+        assert out.topic.startswith(ROOT)
+        text = out.payload.decode()
+        payload = json.loads(text) if text.startswith("{") else text
+        sent.append((out.topic.removeprefix(ROOT), payload, out.qos, out.retain))
+    return sent
+
+
+def header(seq: int) -> dict[str, Any]:
+    return {"version": "1.0", "seq": seq, "timestamp": WHEN, "sender": "u1"}
+
+
+def state(seq: int, **fields: Any) -> Sent:
+    """u1's state message: the idle unit on (0, 1) with `fields` changed."""
+    payload = {
+        "header": header(seq),
+        "step": 1,
+        "position": [0, 1],
+        "direction": "-",
+        "status": "idle",
+        "wait_reason": None,
+        "mode": "coordinated",
+        "job_id": None,
+        "load_kg": 0.0,
+        "leds": LEDS_OFF,
+        "sensors": {"N": "free", "E": "free", "S": "free", "W": "free"},
+        "obstacles": [],
+        "order_id": None,
+        "order_update_id": 0,
+        "released": [],
+        "goal": None,
+        "estop": False,
+        "errors": [],
+    }
+    assert set(fields) <= set(payload), set(fields) - set(payload)
+    return ("units/u1/state", payload | fields, 0, True)
+
+
+def direction(letter: str) -> Sent:
+    return ("units/u1/direction", letter, 0, True)
+
+
+def error(seq: int, topic: str, reason: str) -> Sent:
+    payload = {"header": header(seq), "topic": ROOT + topic, "reason": reason, "request_id": None}
+    return ("errors", payload, 1, False)
+
+
+def order_bytes(oid: str, update: int, released: list[tuple[int, int]]) -> bytes:
+    return encode(
+        Order(header=COORDINATOR("order"), order_id=oid, update_id=update, released=released)
+    )
+
+
+# ---- connect, ticks, disconnect, goodbye ------------------------------------------------------
+
+
+def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_stop() -> None:
+    core = make()
+    assert published([core.will()]) == [
+        ("units/u1/connection", {"header": header(0), "state": "broken"}, 1, True)
+    ]
+    factsheet = {
+        "header": header(0),
+        "capacity_kg": 5.0,
+        "step_period_s": 0.1,
+        "sensors": ["N", "E", "S", "W"],
+        "color": "#d32f2f",
+        "model": "gridfleet-sim",
+    }
+    assert published(core.on_connect(0.0)) == [
+        ("units/u1/connection", {"header": header(1), "state": "online"}, 1, True),
+        ("units/u1/factsheet", factsheet, 1, True),
+        state(0, step=0, status="holding", wait_reason="waiting to read the emergency stop"),
+        direction("-"),
+    ]
+
+
+def test_subscriptions_follow_the_mode() -> None:
+    assert make().subscriptions() == [
+        ("gf/v1/fleet/estop", 1),
+        ("gf/v1/units/u1/order", 1),
+        ("gf/v1/coordinator/status", 1),
+    ]
+    assert make("standalone").subscriptions(watch_peers=True) == [
+        ("gf/v1/fleet/estop", 1),
+        ("gf/v1/units/u1/goal", 1),
+        ("gf/v1/units/+/state", 0),
+    ]
+
+
+def test_a_tick_holds_until_the_retained_stop_can_have_arrived_then_the_unit_is_idle() -> None:
+    core = make()
+    core.on_connect(0.0)
+    holding = {"status": "holding", "wait_reason": "waiting to read the emergency stop"}
+    sensors = {"N": "free", "E": "free", "S": "free", "W": "wall"}
+    # The stop can have arrived 0.2 s after connecting (min(1, max(0.2, step 0.1)), §5.1).
+    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.19)) == [
+        state(1, step=1, sensors=sensors, **holding)
+    ]
+    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.2)) == [
+        state(2, step=2, sensors=sensors)
+    ]
+
+
+def test_a_tick_moves_into_the_released_square_shown_before() -> None:
+    core = ready()
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.25)
+    order = {"order_id": "o1", "order_update_id": 1}
+    assert published(core.tick(lambda: FREE, allow, 0.3)) == [
+        state(
+            3,
+            step=2,
+            position=[1, 1],
+            direction="E",
+            status="moving",
+            leds=LED_E,
+            released=[[2, 1]],
+            **order,
+        )
+    ]
+    assert published(core.tick(lambda: FREE, allow, 0.4)) == [
+        state(4, step=3, position=[2, 1], status="moving", **order),
+        direction("-"),
+    ]
+
+
+def test_a_lost_broker_sends_nothing_and_the_next_connection_reports_what_waited() -> None:
+    core = ready()
+    core.on_disconnect(0.3)
+    east_obstacle = {**FREE, Direction.E: "obstacle"}
+    assert core.tick(lambda: east_obstacle, refuse, 0.4) == []
+    assert (core.logic.status, core.logic.wait_reason) == (
+        "holding",
+        "lost the broker; reconnecting",
+    )
+    sensors = {"N": "free", "E": "obstacle", "S": "free", "W": "free"}
+    assert published(core.on_connect(0.5))[2:] == [
+        state(
+            2,
+            step=2,
+            status="holding",
+            wait_reason="waiting to read the emergency stop",
+            sensors=sensors,
+            obstacles=[[1, 1]],
+        ),
+        direction("-"),  # said again on every new connection
+    ]
+
+
+def test_a_unit_not_yet_connected_never_moves() -> None:
+    core = make("standalone")
+    core.on_message(
+        ROOT + "units/u1/goal", encode(Goal(header=COORDINATOR("goal"), target=(4, 1))), 0
+    )
+    assert core.tick(lambda: FREE, refuse, 0.1) == [] and core.tick(lambda: FREE, refuse, 5) == []
+    assert core.logic.position == Cell(0, 1) and core.logic.status == "holding"
+
+
+def test_a_clean_stop_says_offline() -> None:
+    core = ready()
+    assert published([core.offline()]) == [
+        ("units/u1/connection", {"header": header(2), "state": "offline"}, 1, True)
+    ]
+
+
+# ---- orders -----------------------------------------------------------------------------------
+
+
+def test_an_accepted_order_shows_its_first_move_at_once() -> None:
+    core = ready()
+    outs = core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.3)
+    assert published(outs) == [
+        state(
+            2,
+            direction="E",
+            status="waiting",
+            wait_reason="moves at the next step",
+            leds=LED_E,
+            order_id="o1",
+            order_update_id=1,
+            released=[[1, 1], [2, 1]],
+        ),
+        direction("E"),
+    ]
+
+
+def test_a_stale_order_publishes_nothing_and_changes_nothing() -> None:
+    core = ready()
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 2, [(1, 1)]), 0.3)
+    for update in (2, 1):
+        stale = order_bytes("o1", update, [(0, 0)])
+        assert core.on_message(ROOT + "units/u1/order", stale, 0.3) == []
+    assert core.logic.released == [Cell(1, 1)]
+
+
+def test_a_refused_order_is_reported_with_its_reason_and_in_the_state() -> None:
+    core = ready()
+    outs = core.on_message(ROOT + "units/u1/order", order_bytes("o2", 1, [(3, 1)]), 0.3)
+    reason = (
+        "order 'o2' update 1: released square [3, 1] is not adjacent to the unit's square [0, 1]"
+    )
+    assert published(outs) == [
+        error(0, "units/u1/order", reason),
+        state(2, errors=[{"code": "bad_order", "message": reason}]),
+    ]
+    assert core.logic.order_id is None
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
+            b"{not json",
+            "Order: malformed JSON (Invalid JSON: key must be a string at line 1 column 2)",
+        ),
+        (b'{"order_id": "x"}', "Order: field 'header': Field required (and 2 more problems)"),
+        (
+            b'{"header": ' + b" " * 20000 + b"}",
+            "Order: payload of 20012 bytes exceeds the limit of 16384",
+        ),
+    ],
+    ids=["malformed", "incomplete", "oversized"],
+)
+def test_an_unreadable_order_is_reported_and_changes_nothing(payload: bytes, reason: str) -> None:
+    core = ready()
+    assert published(core.on_message(ROOT + "units/u1/order", payload, 0.3)) == [
+        error(0, "units/u1/order", reason),
+        state(2, errors=[{"code": "bad_order", "message": reason}]),
+    ]
+
+
+def test_orders_for_another_unit_and_unknown_topics_publish_nothing() -> None:
+    core = ready()
+    assert core.on_message(ROOT + "units/u2/order", order_bytes("o1", 1, [(1, 1)]), 0.3) == []
+    assert core.on_message("elsewhere/v1/units/u1/order", b"{}", 0.3) == []
+    assert core.logic.order_id is None
+
+
+# ---- the emergency stop -----------------------------------------------------------------------
+
+
+def test_the_stop_engaged_halts_drops_the_release_and_lights_every_led() -> None:
+    core = ready()
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1)]), 0.3)
+    outs = core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|operator pressed STOP", 0.3)
+    assert published(outs) == [
+        state(
+            3,
+            status="stopped",
+            wait_reason="emergency stop engaged",
+            leds=LEDS_ALL,
+            order_id="o1",
+            order_update_id=1,
+            estop=True,
+        ),
+        direction("-"),
+    ]
+
+
+def test_the_stop_released_lets_the_unit_wait_for_its_next_order() -> None:
+    core = ready()
+    core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|", 0.3)
+    outs = core.on_message(ROOT + "fleet/estop", b"released|dashboard|area checked", 0.4)
+    assert published(outs) == [state(3)]
+
+
+@pytest.mark.parametrize("payload", [b"releasd|tester|typo", b""], ids=["typo", "cleared"])
+def test_an_unreadable_stop_is_reported_and_never_releases(payload: bytes) -> None:
+    core = ready()
+    core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|", 0.3)
+    reason = (
+        f"estop: {payload.decode()!r} is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'"
+    )
+    stopped = {"status": "stopped", "wait_reason": "emergency stop engaged", "leds": LEDS_ALL}
+    assert published(core.on_message(ROOT + "fleet/estop", payload, 0.4)) == [
+        error(0, "fleet/estop", reason),
+        state(3, estop=True, errors=[{"code": "bad_estop", "message": reason}], **stopped),
+    ]
+    assert core.logic.estop
+
+
+# ---- the coordinator's status, goals, other units ---------------------------------------------
+
+
+def test_the_coordinators_status_sizes_the_hold_timeout_and_publishes_nothing() -> None:
+    core = ready()
+    status = CoordinatorStatus(header=COORDINATOR("coordinator"), state="online", step_period_s=1.0)
+    assert core.on_message(ROOT + "coordinator/status", encode(status), 0.3) == []
+    assert core.logic.hold_timeout_s == 3.0
+    assert core.on_message(ROOT + "coordinator/status", b"{broken", 0.3) == []
+    assert core.logic.hold_timeout_s == 3.0
+
+
+def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:
+    core = ready("standalone")
+    goal = encode(Goal(header=COORDINATOR("goal"), target=(4, 1)))
+    assert published(core.on_message(ROOT + "units/u1/goal", goal, 0.3)) == [
+        state(
+            2,
+            mode="standalone",
+            goal=[4, 1],
+            direction="E",
+            status="waiting",
+            wait_reason="moves at the next step",
+            leds=LED_E,
+        ),
+        direction("E"),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
+            encode(Goal(header=COORDINATOR("goal"), target=(1, 1))),
+            "goal [1, 1] is off the map, on a wall or an obstacle",
+        ),
+        (b'{"target": [1, 1]}', "Goal: field 'header': Field required"),
+    ],
+    ids=["on-a-wall", "no-header"],
+)
+def test_a_refused_goal_is_reported_and_changes_nothing(payload: bytes, reason: str) -> None:
+    core = ready("standalone", rows=(".....", ".@...", "....."))
+    code = "bad_goal"
+    assert published(core.on_message(ROOT + "units/u1/goal", payload, 0.3)) == [
+        error(0, "units/u1/goal", reason),
+        state(2, mode="standalone", errors=[{"code": code, "message": reason}]),
+    ]
+    assert core.logic.goal is None
+
+
+def test_a_goal_for_a_coordinated_unit_is_ignored() -> None:
+    core = ready()
+    goal = encode(Goal(header=COORDINATOR("goal"), target=(4, 1)))
+    assert core.on_message(ROOT + "units/u1/goal", goal, 0.3) == []
+    assert core.logic.goal is None
+
+
+def test_another_units_state_tells_where_it_stands_and_publishes_nothing() -> None:
+    core = ready()
+    theirs = encode(ready().logic.report(COORDINATOR("state")))
+    assert core.peer_position(ROOT + "units/u2/state", theirs) == ("u2", Cell(0, 1))
+    assert core.peer_position(ROOT + "units/u1/state", theirs) is None
+    assert core.peer_position(ROOT + "units/u2/state", b"{") is None
+    assert core.on_message(ROOT + "units/u2/state", theirs, 0.3) == []
