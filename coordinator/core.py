@@ -1,7 +1,8 @@
-"""The coordinator's decisions, without I/O: requests, job progress, allocation, planning, orders.
+"""The coordinator's decisions, without I/O: what arrived and the time in, everything to do out.
 
-The service feeds it decoded messages and a monotonic time; each `step` returns the orders to send
-and the routes to show. Safety rules (protocol.md §4.4, §8), each in the module named:
+`on_message(topic, payload, now)` and `step(now)` return Effects: the exact messages to publish,
+the jobs to persist, the acknowledgements the next step waits for, and when to come back for
+batched views. Safety rules (protocol.md §4.4, §8), each in the module named:
 
 - A square stays reserved for a unit until its state shows it left: its reported square, the
   squares it still may drive (`state.released`) and, until it has acknowledged our latest change,
@@ -12,7 +13,9 @@ and the routes to show. Safety rules (protocol.md §4.4, §8), each in the modul
   square is released only once the leader's state shows it gone (moves.py).
 - A unit in motion gets its remaining squares again (heartbeat), or a hold when it has waited too
   long or its way is blocked by a newly known obstacle (orders.py).
-- With the emergency stop engaged every unit gets holds and nothing is planned or allocated.
+- With the emergency stop engaged every unit gets holds at once and nothing is planned or
+  allocated; orders of a step that release squares and have not gone out when the stop arrives
+  are withdrawn (`withdrawn`).
 
 Lost units (connection offline/broken or state silent for 5 step periods): their squares stay
 reserved; a job not yet picked up goes back to the queue; a job whose item the unit had already
@@ -21,21 +24,41 @@ picked up becomes `failed` (progress.py).
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-from coordinator import requests
-from coordinator.jobs import JobBook
+from coordinator import inbound, requests
+from coordinator.effects import Effects, Messages, Status
+from coordinator.inbound import Arrival, Request
+from coordinator.jobs import Job, JobBook
 from coordinator.moves import Moves
 from coordinator.orders import OrderPlan, Orders
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
-from coordinator.requests import Outcome
+from coordinator.views import Views
 from coordinator.world import World
+from gridfleet.endpoint import Outbound
+from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
-from gridfleet.protocol import CancelJob, RouteView, SetGoal, SubmitJob
-from gridfleet.protocol.constants import MAX_PLANNED
+from gridfleet.protocol import (
+    CancelJob,
+    Connection,
+    EstopSignal,
+    Factsheet,
+    HeaderStamper,
+    RouteView,
+    SetGoal,
+    SubmitJob,
+    Topics,
+    UnitState,
+)
+from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
 
 PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
+# Longest a step waits past its period for units to acknowledge the orders of the previous step:
+# half the shortest hold timeout, so units never hold for want of orders while we wait.
+ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
 
 @dataclass(frozen=True)
@@ -48,11 +71,22 @@ class StepResult:
 
 
 class CoordinatorCore:
-    """World, jobs, allocation and planning; pure (time comes in as an argument)."""
+    """World, jobs, allocation, planning and what to say; pure (time comes in as an argument)."""
 
-    def __init__(self, world: World, jobs: JobBook, nonce: str, seed: int = 0) -> None:
+    def __init__(
+        self,
+        world: World,
+        jobs: JobBook,
+        nonce: str,
+        seed: int = 0,
+        *,
+        topics: Topics | None = None,
+        stamp: HeaderStamper | None = None,
+    ) -> None:
         self.world = world
         self.jobs = jobs
+        self.topics = topics or Topics()
+        self.say = Messages(self.topics, stamp or HeaderStamper("coordinator"))
         self.planner = Planner(world.grid, seed=seed)
         self.step_no = 0
         self.estop = False
@@ -60,35 +94,141 @@ class CoordinatorCore:
         self.orders = Orders(nonce)
         self.moves = Moves(self.planner)
         self.progress = JobProgress(world, jobs, self.goals)
+        self.views = Views()
+        self.errors_reported = 0
+        self._releasing: set[Outbound] = set()  # the last step's orders that release squares
+        self._log: list[tuple[int, str]] = []  # lines for the next Effects
         self.progress.requeue_on_restart()
 
-    # ---- requests -------------------------------------------------------------------------
+    # ---- the session ----------------------------------------------------------------------
 
-    def submit(self, req: SubmitJob, sender: str | None) -> Outcome:
-        """Queue a job, or refuse it (nothing changes) with the reason."""
-        return requests.submit(req, sender, self.world, self.jobs, self.step_no)
+    def restored(self) -> Effects:
+        """What loading the job store changed (jobs re-queued on restart), to persist."""
+        return self._effects([], self._persist())
 
-    def cancel(self, req: CancelJob, sender: str | None) -> Outcome:
-        """Cancel a queued job or abort an active one; refuse unknown and final jobs."""
-        return requests.cancel(req, sender, self.world, self.jobs, self.step_no)
+    def subscriptions(self) -> list[tuple[str, int]]:
+        """Every topic filter to follow, with its QoS."""
+        return inbound.subscriptions(self.topics)
 
-    def set_goal(self, req: SetGoal) -> Outcome:
-        """Pin a unit to a square (or clear its goal); refuse unknown units and bad squares."""
-        return requests.set_goal(req, self.world, self.jobs, self.goals, self.planner.cache)
+    def status(self, state: Status) -> Outbound:
+        """The retained coordinator status: `online`, `offline`, or `broken` (the last will)."""
+        return self.say.status(state, self.step_no, self.world.step_period_s, self.estop)
 
-    def set_estop(self, engaged: bool) -> bool:
-        """Engage or release the stop; True when it changed."""
-        changed = engaged != self.estop
-        self.estop = engaged
-        return changed
+    def on_connect(self) -> Effects:
+        """Connected (and `online` said): every view goes out again."""
+        self.views.reconnected()
+        persist = self._persist()
+        return self._effects(self._views(), persist)
 
-    def on_new_obstacles(self) -> None:
-        """Re-plan on the grid with the newly reported obstacles."""
-        self.planner.set_grid(self.world.grid)
+    def holds(self) -> Effects:
+        """A hold for every unit now (a clean stop; the emergency stop does the same)."""
+        return self._effects(self._holds())
+
+    def views_due(self, now: float) -> Effects:
+        """The batch period `views_at` named is over: the views changed since go out."""
+        self.views.batch_over(now)
+        return self._effects(self._views())
+
+    def withdrawn(self, out: Outbound) -> bool:
+        """Whether a message returned by the last step must not go out after all.
+
+        True for its orders that release squares once the stop has been engaged while the step's
+        messages were going out: the holds already went, and the stop wins at once.
+        """
+        return self.estop and out in self._releasing
+
+    # ---- inbound --------------------------------------------------------------------------
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        """React to one message; a bad one is reported on `errors` and changes nothing."""
+        try:
+            arrival = inbound.read(self.topics, topic, payload)
+            if arrival is None:
+                return self._effects([])
+            return self._on(arrival, topic, now)
+        except ProtocolError as exc:
+            return self._effects([self._refuse(topic, str(exc), None)])
+
+    def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
+        msg = arrival.message
+        unit = arrival.unit
+        if isinstance(msg, Connection) and unit is not None:
+            self.world.on_connection(unit, msg)
+        elif isinstance(msg, Factsheet) and unit is not None:
+            self.world.on_factsheet(unit, msg)
+        elif isinstance(msg, UnitState) and unit is not None:
+            if self.world.on_state(unit, msg, now):
+                self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
+                self.views.map_dirty = True
+            self.orders.heard(unit, msg)
+        elif isinstance(msg, EstopSignal):
+            return self._on_estop(msg)
+        elif isinstance(msg, SubmitJob | CancelJob | SetGoal):
+            return self._on_request(topic, msg, now)
+        return self._effects([])
+
+    def _on_estop(self, signal: EstopSignal) -> Effects:
+        if signal.engaged == self.estop:
+            return self._effects([])  # engaging (or releasing) is idempotent
+        self.estop = signal.engaged
+        word = "ENGAGED" if signal.engaged else "released"
+        line = (logging.WARNING, f"emergency stop {word} by {signal.by}: {signal.reason}")
+        # The stop wins at once: every unit gets a hold now, not at the next step.
+        publish = self._holds() if signal.engaged else []
+        publish.append(self.status("online"))
+        return self._effects(publish, log=(line,))
+
+    def _on_request(self, topic: str, req: Request, now: float) -> Effects:
+        sender = req.header.sender
+        if isinstance(req, SubmitJob):
+            outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no)
+        elif isinstance(req, CancelJob):
+            outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
+        else:
+            cache = self.planner.cache
+            outcome = requests.set_goal(req, self.world, self.jobs, self.goals, cache)
+        publish = []
+        if not outcome.accepted:
+            reason = f"{type(req).__name__}: {outcome.reason}"
+            publish.append(self._refuse(topic, reason, req.request_id))
+        if req.reply_to is not None:
+            publish.append(self.say.reply(req.reply_to, req.request_id, outcome))
+        persist = self._persist()
+        views_at = None
+        if self.views.jobs_dirty:
+            # The queue view follows a request at once, or at the end of the batch period.
+            now_due, views_at = self.views.after_request(now)
+            if now_due:
+                publish += self._views()
+        return self._effects(publish, persist, views_at=views_at)
+
+    def _refuse(self, topic: str, reason: str, request_id: str | None) -> Outbound:
+        self.errors_reported += 1
+        self._log.append((logging.INFO, f"refused a message on {topic}: {reason}"))
+        return self.say.error(topic, reason, request_id)
 
     # ---- the step ------------------------------------------------------------------------
 
-    def step(self, now: float) -> StepResult:
+    def step(self, now: float) -> Effects:
+        """One coordinator step: every order (or hold), the routes and the changed views."""
+        result = self._decide(now)
+        persist = self._persist()
+        self.orders.expect(result.orders)
+        self._releasing = set()
+        publish = []
+        for unit_id, plan in result.orders.items():
+            order = self.say.order(unit_id, plan)
+            publish.append(order)
+            if plan.released:
+                self._releasing.add(order)
+        publish.append(self.say.routes(result.step, result.routes))
+        publish += self._views()
+        # Back-pressure: when states come back late (an overloaded broker), a step before the
+        # units acknowledged these orders would only add load; they could not move on it.
+        until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None
+        return self._effects(publish, persist, acks_until=until)
+
+    def _decide(self, now: float) -> StepResult:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""
         self.step_no += 1
         units = [u for u in self.world.units.values() if u.state is not None]
@@ -143,13 +283,49 @@ class CoordinatorCore:
             )
         return StepResult(self.step_no, orders, routes)
 
-    def holds(self) -> dict[str, OrderPlan]:
-        """A hold for every unit that has had an order and has not said it is gone."""
-        out = {}
-        for u in list(self.world.units.values()):
-            if u.state is None or u.connection in ("offline", "broken"):
-                continue
-            plan = self.orders.hold(u.id, self.step_no)
-            if plan is not None:
-                out[u.id] = plan
+    # ---- what every Effects carries ---------------------------------------------------------
+
+    def _holds(self) -> list[Outbound]:
+        heard = [
+            u.id
+            for u in self.world.units.values()
+            if u.state is not None and u.connection not in ("offline", "broken")
+        ]
+        plans = self.orders.holds(heard, self.step_no)
+        return [self.say.order(unit_id, plan) for unit_id, plan in plans.items()]
+
+    def _views(self) -> list[Outbound]:
+        send_map, send_jobs = self.views.take()
+        out = []
+        if send_map:
+            out.append(self.say.fleet_map(self.world))
+        if send_jobs:
+            out.append(self.say.jobs(self.jobs))
         return out
+
+    def _persist(self) -> tuple[Job, ...]:
+        """Jobs changed since the last Effects (the queue view is out of date with them)."""
+        changed = tuple(self.jobs.jobs[j] for j in sorted(self.jobs.changed))
+        self.jobs.changed.clear()
+        if changed:
+            self.views.jobs_dirty = True
+        return changed
+
+    def _effects(
+        self,
+        publish: Sequence[Outbound],
+        persist: tuple[Job, ...] = (),
+        *,
+        acks_until: float | None = None,
+        views_at: float | None = None,
+        log: tuple[tuple[int, str], ...] = (),
+    ) -> Effects:
+        notes, self._log = (*self._log, *log), []
+        return Effects(
+            publish=tuple(publish),
+            persist=persist,
+            awaiting=frozenset(self.orders.awaiting),
+            acks_until=acks_until,
+            views_at=views_at,
+            log=notes,
+        )

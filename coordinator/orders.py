@@ -54,11 +54,14 @@ def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool
 
 
 class Orders:
-    """Every unit's Track, and the order each unit gets next."""
+    """Every unit's Track, the order each unit gets next, and the acknowledgements still due."""
 
     def __init__(self, nonce: str) -> None:
         self.nonce = nonce  # per run, so a restarted coordinator's orders are new orders
         self.tracks: dict[str, Track] = {}
+        # Orders of the last step not yet acknowledged: unit -> (order id, update id). The next
+        # step waits for them (a while): units could not move on orders they have not seen.
+        self.awaiting: dict[str, tuple[str, int]] = {}
 
     def track(self, unit_id: str) -> Track:
         """The Track of `unit_id`, created on first use."""
@@ -158,12 +161,26 @@ class Orders:
             return t.sent[t.sent.index(pos) + 1 :]
         return list(t.sent) if t.sent[0].manhattan(pos) == 1 else []
 
-    def hold(self, unit_id: str, step_no: int) -> OrderPlan | None:
-        """An update of the unit's order that releases nothing; None before its first order."""
-        t = self.tracks.get(unit_id)
-        if t is None or t.order_id is None:
-            return None
-        t.update_id += 1
-        t.content_update = t.update_id
-        t.sent = []
-        return OrderPlan(t.order_id, t.update_id, step_no, [], [], None, None)
+    def expect(self, plans: dict[str, OrderPlan]) -> None:
+        """Await an acknowledgement of each of this step's orders: the unit's next state."""
+        self.awaiting = {u: (p.order_id, p.update_id) for u, p in plans.items()}
+
+    def heard(self, unit_id: str, state: UnitState) -> None:
+        """A unit's state arrived: it may acknowledge the order awaited from it."""
+        awaited = self.awaiting.get(unit_id)
+        if awaited is not None and acknowledges(state, *awaited):
+            del self.awaiting[unit_id]
+
+    def holds(self, unit_ids: list[str], step_no: int) -> dict[str, OrderPlan]:
+        """An update releasing nothing for each unit that has had an order; nothing is awaited."""
+        self.awaiting.clear()  # holds need no acknowledgement before the next step
+        out = {}
+        for unit_id in unit_ids:
+            t = self.tracks.get(unit_id)
+            if t is None or t.order_id is None:
+                continue
+            t.update_id += 1
+            t.content_update = t.update_id
+            t.sent = []
+            out[unit_id] = OrderPlan(t.order_id, t.update_id, step_no, [], [], None, None)
+        return out

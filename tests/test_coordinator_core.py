@@ -3,43 +3,17 @@
 from __future__ import annotations
 
 import random
-from datetime import UTC, datetime
 
 import pytest
+from coordinator_drive import from_unit, header, make_core, meet, orders_in, reply_in, request
 from coordinator_fakes import ROOM_ROWS, FakeUnit
 
 from coordinator.core import CoordinatorCore
-from coordinator.jobs import JobBook
 from coordinator.world import World
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import (
-    Connection,
-    Factsheet,
-    Header,
-    HeaderStamper,
-    Order,
-    SetGoal,
-    SubmitJob,
-)
+from gridfleet.protocol import Connection, HeaderStamper, Order, Reply, SetGoal, SubmitJob
 
 ROWS = ROOM_ROWS
-
-
-def header(sender: str = "t") -> Header:
-    return Header(seq=0, timestamp=datetime.now(UTC), sender=sender)
-
-
-def make_order(plan: object) -> Order:
-    return Order(
-        header=header("coordinator"),
-        order_id=plan.order_id,  # type: ignore[attr-defined]
-        update_id=plan.update_id,  # type: ignore[attr-defined]
-        step=plan.step,  # type: ignore[attr-defined]
-        released=plan.released,  # type: ignore[attr-defined]
-        planned=plan.planned,  # type: ignore[attr-defined]
-        target=plan.target,  # type: ignore[attr-defined]
-        action=plan.action,  # type: ignore[attr-defined]
-    )
 
 
 def check_released_disjoint(units: list[FakeUnit]) -> None:
@@ -74,8 +48,8 @@ def simulate(
     rng = random.Random(seed)
     grid = GridMap.from_rows(ROWS)
     free = [c for c in grid.free_cells() if c not in (hidden or set())]
-    world = World(grid, step_period_s=1.0)
-    core = CoordinatorCore(world, JobBook(), nonce="n", seed=seed)
+    core = make_core(grid, seed=seed)
+    world = core.world
     spots = rng.sample(free, n_units)
     units = [
         FakeUnit(f"u{i}", spots[i], rng.choice([2.0, 5.0, 10.0, 20.0])) for i in range(n_units)
@@ -84,33 +58,29 @@ def simulate(
     stamps = {u.id: HeaderStamper(u.id) for u in units}
     now = 0.0
     for u in units:
-        world.on_connection(u.id, Connection(header=header(u.id), state="online"))
-        world.on_factsheet(
-            u.id, Factsheet(header=header(u.id), capacity_kg=u.capacity_kg, step_period_s=1.0)
-        )
-        world.on_state(u.id, u.state(stamps[u.id]), now)
+        meet(core, u.state(stamps[u.id]), u.capacity_kg)
     for j in range(n_jobs):
         p, d = rng.sample(free, 2)
         req = SubmitJob(
-            header=header(),
+            header=header("t"),
             request_id=f"r{j}",
+            reply_to="t",
             pickup=p,  # type: ignore[arg-type]
             dropoff=d,  # type: ignore[arg-type]
             mass_kg=rng.choice([0.5, 1.5, 4.0, 8.0, 15.0]),
         )
-        assert core.submit(req, "t").accepted
-    pending: list[tuple[int, str, object]] = []  # (deliver at step, unit, message)
+        assert reply_in(request(core, "submit_job", req, now)).accepted
+    pending: list[tuple[int, str, Order]] = []  # (deliver at step, unit, message)
     for t in range(steps):
         now += 1.0
-        result = core.step(now)
-        for uid, plan in result.orders.items():
+        for uid, order in orders_in(core.step(now)).items():
             if rng.random() < p_order:
-                pending.append((t + rng.choice([0, 0, 1]), uid, make_order(plan)))
+                pending.append((t + rng.choice([0, 0, 1]), uid, order))
         due = [m for m in pending if m[0] <= t]
         pending = [m for m in pending if m[0] > t]
         by_id = {u.id: u for u in units}
         for _, uid, order in due:
-            by_id[uid].on_order(order, grid)  # type: ignore[arg-type]
+            by_id[uid].on_order(order, grid)
         check_released_disjoint(units)
         for u in rng.sample(units, len(units)):
             u.tick({o.position for o in units if o is not u}, hidden or set())
@@ -118,8 +88,8 @@ def simulate(
         assert len(set(positions)) == len(positions), f"collision at step {t}"
         for u in units:
             heard = rng.random() < p_state or now - (world.units[u.id].state_at or 0) >= 3
-            if heard and world.on_state(u.id, u.state(stamps[u.id]), now):
-                core.on_new_obstacles()
+            if heard:
+                from_unit(core, "state", u.id, u.state(stamps[u.id]), now)
         if all(j.final for j in core.jobs.jobs.values()):
             return core, units, t
     raise AssertionError(
@@ -147,36 +117,37 @@ def test_hidden_obstacles_are_reported_and_planned_around() -> None:
 
 def one_unit(capacity_kg: float) -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper]:
     """A core on ROWS with one fake unit `u` at (0, 0), online and heard from."""
-    world = World(GridMap.from_rows(ROWS), step_period_s=1.0)
-    core = CoordinatorCore(world, JobBook(), nonce="n")
+    core = make_core(GridMap.from_rows(ROWS))
     unit = FakeUnit("u", Cell(0, 0), capacity_kg)
     stamp = HeaderStamper("u")
-    world.on_connection("u", Connection(header=header("u"), state="online"))
-    world.on_factsheet("u", Factsheet(header=header("u"), capacity_kg=capacity_kg, step_period_s=1))
-    world.on_state("u", unit.state(stamp), 0.0)
-    return core, world, unit, stamp
+    meet(core, unit.state(stamp), capacity_kg)
+    return core, core.world, unit, stamp
 
 
 def step_one(
     core: CoordinatorCore, world: World, unit: FakeUnit, stamp: HeaderStamper, now: float
 ) -> bool:
     """One coordinator step; the unit follows its order (if it got one) and reports back."""
-    result = core.step(now)
-    if "u" in result.orders:
-        unit.on_order(make_order(result.orders["u"]), world.grid)
+    orders = orders_in(core.step(now))
+    if "u" in orders:
+        unit.on_order(orders["u"], world.grid)
     unit.tick(set(), set())
-    world.on_state("u", unit.state(stamp), now)
-    return "u" in result.orders
+    from_unit(core, "state", "u", unit.state(stamp), now)
+    return "u" in orders
 
 
 def test_goal_pins_a_unit_until_reached() -> None:
     core, world, unit, stamp = one_unit(5.0)
-    bad = core.set_goal(SetGoal(header=header(), request_id="g", unit="nobody", target=(1, 1)))  # type: ignore[arg-type]
+
+    def set_goal(unit: str, target: tuple[int, int]) -> Reply:
+        goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit=unit, target=target)  # type: ignore[arg-type]
+        return reply_in(request(core, "set_goal", goal, 0.0))
+
+    bad = set_goal("nobody", (1, 1))
     assert not bad.accepted and "unknown unit" in (bad.reason or "")
-    wall = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(2, 2)))  # type: ignore[arg-type]
+    wall = set_goal("u", (2, 2))
     assert not wall.accepted and "wall" in (wall.reason or "")
-    ok = core.set_goal(SetGoal(header=header(), request_id="g", unit="u", target=(9, 3)))  # type: ignore[arg-type]
-    assert ok.accepted
+    assert set_goal("u", (9, 3)).accepted
     for t in range(1, 60):
         assert step_one(core, world, unit, stamp, float(t))
         if unit.position == Cell(9, 3):
@@ -189,8 +160,15 @@ def test_goal_pins_a_unit_until_reached() -> None:
 def _carrying_unit() -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper, float]:
     """One unit under way to the dropoff with a job's item on board."""
     core, world, unit, stamp = one_unit(10.0)
-    req = SubmitJob(header=header(), request_id="r", pickup=(0, 1), dropoff=(9, 9), mass_kg=1.0)  # type: ignore[arg-type]
-    assert core.submit(req, "t").accepted
+    req = SubmitJob(
+        header=header("t"),
+        request_id="r",
+        reply_to="t",
+        pickup=(0, 1),
+        dropoff=(9, 9),
+        mass_kg=1.0,  # type: ignore[arg-type]
+    )
+    assert reply_in(request(core, "submit_job", req, 0.0)).accepted
     now = 0.0
     while core.jobs.jobs[next(iter(core.jobs.jobs))].state != "to_dropoff":
         now += 1.0
@@ -231,7 +209,7 @@ def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
 
 
 def test_a_carrying_unit_that_goes_offline_fails_its_job_at_once() -> None:
-    core, world, _, _, now = _carrying_unit()
-    world.on_connection("u", Connection(header=header("u"), state="offline"))
+    core, _, _, _, now = _carrying_unit()
+    from_unit(core, "connection", "u", Connection(header=header("u"), state="offline"), now)
     core.step(now + 1.0)
     assert next(iter(core.jobs.jobs.values())).state == "failed"

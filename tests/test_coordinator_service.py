@@ -13,7 +13,8 @@ from typing import Any
 import pytest
 from coordinator_fakes import FakeFleet, FakeUnit
 
-from coordinator.service import VIEWS_BATCH_S, Coordinator
+from coordinator.service import Coordinator
+from coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol import (

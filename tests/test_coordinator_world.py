@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from coordinator_drive import make_core, meet, orders_in
+
+from coordinator.jobs import Job
 from coordinator.world import World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
@@ -43,20 +46,13 @@ def test_walls_units_and_off_map_readings_are_not_obstacles() -> None:
 
 
 def test_a_restarted_coordinator_adopts_a_job_a_unit_reports_carrying() -> None:
-    from coordinator.core import CoordinatorCore
-    from coordinator.jobs import Job, JobBook
-    from gridfleet.protocol import Connection, Factsheet
-
     # The store still had the job waiting (the unit picked it up just before the restart).
     job = Job(id="j", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=4.0, state="to_pickup")
-    core = CoordinatorCore(World(GridMap.from_rows(ROWS)), JobBook([job]), nonce="n")
-    world = core.world
+    core = make_core(GridMap.from_rows(ROWS), jobs=[job])
     assert job.state == "queued"  # re-queued on restart
-    stamp = HeaderStamper("u")
-    world.on_connection("u", Connection(header=stamp("connection"), state="online"))
-    world.on_factsheet("u", Factsheet(header=stamp("factsheet"), capacity_kg=5, step_period_s=1))
+    assert [j.id for j in core.restored().persist] == ["j"]
     carrying = state((0, 0), {}, []).model_copy(update={"job_id": "j", "load_kg": 4.0})
-    world.on_state("u", carrying, 0.0)
+    meet(core, carrying, capacity_kg=5)
     core.step(1.0)
     assert (job.state, job.unit) == ("loaded", "u")
-    assert core.step(2.0).orders["u"].target == Cell(3, 2)  # on to the dropoff
+    assert orders_in(core.step(2.0))["u"].target == Cell(3, 2)  # on to the dropoff

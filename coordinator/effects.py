@@ -1,0 +1,100 @@
+"""The coordinator's outbound side: Effects, everything one input asks of the shell, and the
+messages they carry, stamped and addressed, with the QoS and retain flag protocol.md gives them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from coordinator.jobs import Job, JobBook
+from coordinator.orders import OrderPlan
+from coordinator.requests import Outcome
+from coordinator.world import World
+from gridfleet import __version__
+from gridfleet.endpoint import Outbound, error_report
+from gridfleet.protocol import (
+    CoordinatorStatus,
+    HeaderStamper,
+    Order,
+    Reply,
+    Routes,
+    RouteView,
+    Topics,
+)
+
+Status = str  # online, offline or broken
+
+
+@dataclass(frozen=True)
+class Effects:
+    """What the shell does for one input: publish, persist, and when to come back."""
+
+    publish: tuple[Outbound, ...] = ()  # in this order
+    persist: tuple[Job, ...] = ()  # jobs changed: store them before publishing
+    awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
+    acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then
+    views_at: float | None = None  # call `views_due` at this time (end of a batch period)
+    log: tuple[tuple[int, str], ...] = ()  # (logging level, line) for the operator's log
+
+
+class Messages:
+    """Builds each outbound message of the coordinator as an Outbound."""
+
+    def __init__(self, topics: Topics, stamp: HeaderStamper) -> None:
+        self.topics = topics
+        self.stamp = stamp
+
+    def order(self, unit_id: str, plan: OrderPlan) -> Outbound:
+        """An order (or hold) for one unit."""
+        order = Order(
+            header=self.stamp("order"),
+            order_id=plan.order_id,
+            update_id=plan.update_id,
+            step=plan.step,
+            released=plan.released,  # type: ignore[arg-type]
+            planned=plan.planned,  # type: ignore[arg-type]
+            target=plan.target,
+            action=plan.action,
+        )
+        return Outbound.of("order", self.topics.unit("order", unit_id), order)
+
+    def routes(self, step: int, routes: dict[str, RouteView]) -> Outbound:
+        """The routes view of one step."""
+        view = Routes(header=self.stamp("routes"), step=step, routes=routes)
+        return Outbound.of("routes", self.topics.fleet("routes"), view)
+
+    def reply(self, reply_to: str, request_id: str, outcome: Outcome) -> Outbound:
+        """The answer to a request, to its sender."""
+        reply = Reply(
+            header=self.stamp("reply"),
+            request_id=request_id,
+            accepted=outcome.accepted,
+            reason=outcome.reason,
+            job_id=outcome.job_id,
+        )
+        return Outbound.of("reply", self.topics.reply(reply_to), reply)
+
+    def error(self, topic: str, reason: str, request_id: str | None) -> Outbound:
+        """A report on `errors` about a message refused on `topic`."""
+        payload = error_report(self.stamp("errors"), topic, reason, request_id)
+        return Outbound.of("errors", self.topics.fleet("errors"), payload)
+
+    def status(self, state: Status, step: int, step_period_s: float, estop: bool) -> Outbound:
+        """The coordinator's retained status."""
+        status = CoordinatorStatus(
+            header=self.stamp("coordinator"),
+            state=state,  # type: ignore[arg-type]
+            step=step,
+            step_period_s=step_period_s,
+            estop=estop,
+            version=__version__,
+        )
+        return Outbound.of("coordinator", self.topics.fleet("coordinator"), status)
+
+    def fleet_map(self, world: World) -> Outbound:
+        """The retained map with every discovered obstacle."""
+        return Outbound.of("map", self.topics.fleet("map"), world.fleet_map(self.stamp("map")))
+
+    def jobs(self, book: JobBook) -> Outbound:
+        """The retained queue view."""
+        return Outbound.of("jobs", self.topics.fleet("jobs"), book.view(self.stamp("jobs")))

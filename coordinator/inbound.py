@@ -1,0 +1,71 @@
+"""What the coordinator reads: the topics it follows, and each payload decoded and validated.
+
+Pure. A payload that is not valid raises ProtocolError naming the problem (the caller reports it
+on `errors`); a topic the coordinator does not read is nobody's error here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol import (
+    TOPICS,
+    CancelJob,
+    Connection,
+    EstopSignal,
+    Factsheet,
+    SetGoal,
+    SubmitJob,
+    Topics,
+    UnitState,
+    decode,
+    decode_estop,
+)
+from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+
+Request = SubmitJob | CancelJob | SetGoal
+Message = Connection | Factsheet | UnitState | EstopSignal | Request
+
+_FROM_UNITS: dict[str, type[Connection] | type[Factsheet] | type[UnitState]] = {
+    "connection": Connection,
+    "factsheet": Factsheet,
+    "state": UnitState,
+}
+_REQUESTS: dict[str, type[SubmitJob] | type[CancelJob] | type[SetGoal]] = {
+    "submit_job": SubmitJob,
+    "cancel_job": CancelJob,
+    "set_goal": SetGoal,
+}
+
+
+@dataclass(frozen=True)
+class Arrival:
+    """One decoded message: its kind, the unit it came from (unit topics) and the message."""
+
+    kind: str
+    unit: str | None
+    message: Message
+
+
+def subscriptions(topics: Topics) -> list[tuple[str, int]]:
+    """Every filter the coordinator follows, with the QoS it subscribes at (states at 0)."""
+    out = [(topics.all_units(kind), TOPICS[kind].qos) for kind in _FROM_UNITS]
+    out.append((topics.fleet("estop"), TOPICS["estop"].qos))
+    out.append((topics.all_requests, 1))
+    return out
+
+
+def read(topics: Topics, topic: str, payload: bytes) -> Arrival | None:
+    """The message on `topic`; None for a topic the coordinator does not read."""
+    try:
+        kind, ident = topics.parse(topic)
+    except ProtocolError:
+        return None  # not ours to judge
+    if kind in _FROM_UNITS and ident is not None:
+        return Arrival(kind, ident, decode(_FROM_UNITS[kind], payload))
+    if kind == "estop":
+        return Arrival(kind, None, decode_estop(payload))
+    if kind in _REQUESTS:
+        return Arrival(kind, None, decode(_REQUESTS[kind], payload, MAX_REQUEST_BYTES))
+    return None
