@@ -1,4 +1,4 @@
-"""Simulated units on a real broker: the tests play the coordinator with an MqttProbe."""
+"""Simulated units on a real broker: the tests play the coordinator with a DispatchPeer."""
 
 from __future__ import annotations
 
@@ -14,23 +14,17 @@ from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
-    CoordinatorStatus,
-    ErrorReport,
-    EstopSignal,
-    Goal,
-    HeaderStamper,
     Order,
     Topics,
-    UnitState,
     decode,
     encode,
-    encode_estop,
 )
 from gridfleet.scenario import Scenario, load_scenario
 from robots.fleet import Fleet
 from robots.unit import Mode
 from system.broker_thread import BrokerThread
 
+from support.peers import DispatchPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
@@ -61,12 +55,12 @@ async def running(
     url: str,
     root: str,
     mode: Mode = "coordinated",
-    coordinator: Coordinator | None = None,
+    coordinator: DispatchPeer | None = None,
     **kw: object,
 ) -> AsyncIterator[Fleet]:
     """A fleet running in this event loop until the block ends; then it stops cleanly.
 
-    With `coordinator`, it also waits until every unit has read that stand-in's status.
+    With `coordinator`, it also waits until every unit has read that peer's status.
     """
     fleet = Fleet(sc, url, root=root, step=kw.pop("step", STEP), mode=mode, **kw)  # type: ignore[arg-type]
     stop = asyncio.Event()
@@ -89,82 +83,6 @@ async def running(
         await asyncio.wait_for(task, 10)
 
 
-class Coordinator:
-    """The test's stand-in for the coordinator: sends orders and reads states from a probe.
-
-    It announces a slow step (`step_period_s`, retained) because it sends each order once: a
-    unit holds after 3 such periods without an order (protocol §8), and on a busy machine that
-    must not come before the unit has driven what it was released. None announces nothing.
-    """
-
-    def __init__(self, probe: MqttProbe, topics: Topics, step_period_s: float | None = 5.0) -> None:
-        self.probe = probe
-        self.topics = topics
-        self.stamp = HeaderStamper("coordinator")
-        self.step_period_s = step_period_s
-        for kind in ("state", "direction", "connection"):
-            probe.subscribe(topics.all_units(kind), qos=0 if kind != "connection" else 1)
-        probe.subscribe(topics.fleet("errors"))
-        if step_period_s is not None:
-            status = CoordinatorStatus(
-                header=self.stamp("coordinator"), state="online", step_period_s=step_period_s
-            )
-            probe.publish(topics.fleet("coordinator"), encode(status), retain=True)
-
-    def order(
-        self,
-        unit: str,
-        oid: str,
-        update: int,
-        released: list[tuple[int, int]],
-        planned: list[tuple[int, int]] | None = None,
-    ) -> None:
-        msg = Order(
-            header=self.stamp("order"),
-            order_id=oid,
-            update_id=update,
-            released=released,
-            planned=planned or [],
-        )
-        self.probe.publish(self.topics.unit("order", unit), encode(msg))
-
-    def raw_order(self, unit: str, payload: bytes) -> None:
-        self.probe.publish(self.topics.unit("order", unit), payload)
-
-    def estop(self, engaged: bool, payload: bytes | None = None) -> None:
-        data = payload or encode_estop(EstopSignal(engaged, "tester", "test"))
-        self.probe.publish(self.topics.fleet("estop"), data, retain=True)
-
-    def states(self, unit: str) -> list[UnitState]:
-        return [
-            decode(UnitState, m.payload)
-            for m in self.probe.received(self.topics.unit("state", unit))
-        ]
-
-    def errors(self) -> list[ErrorReport]:
-        return [
-            decode(ErrorReport, m.payload) for m in self.probe.received(self.topics.fleet("errors"))
-        ]
-
-    def connection(self, unit: str) -> list[str]:
-        seen = self.probe.received(self.topics.unit("connection", unit))
-        return [decode(Connection, m.payload).state for m in seen]
-
-    async def until_state(
-        self,
-        unit: str,
-        match: Callable[[UnitState], bool],
-        what: str = "state",
-        timeout: float = 10,
-    ) -> UnitState:
-        def find() -> UnitState | None:
-            return next((s for s in reversed(self.states(unit)) if match(s)), None)
-
-        found = await async_wait_for(find, timeout, what=f"{unit} {what}")
-        assert found is not None
-        return found
-
-
 async def steps(fleet: Fleet, unit: str, n: int) -> None:
     """Wait until `unit` has made `n` more steps (the way to watch something not happen)."""
     target = fleet.logic[unit].step + n
@@ -178,7 +96,7 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (2, 2), (3, 2)], planned=[(4, 2)])
         await c.until_state("u1", lambda s: s.position == Cell(3, 2) and s.direction == "-")
@@ -202,7 +120,7 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
             assert lit == [made.value], f"LEDs {lit} before a move {made.value}"
         if before.direction == "-" and not before.estop:
             assert not any(before.leds.model_dump().values())
-    directions = [m.payload for m in c.probe.received(topics.unit("direction", "u1"))]
+    directions = c.directions("u1")
     assert b"E" in directions and b"S" in directions and directions[-1] == b"-"
 
 
@@ -210,7 +128,7 @@ async def test_sensors_see_every_kind_in_all_four_directions(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, ["@..", "..."], {"u1": (1, 0), "u2": (1, 1)}, hidden=[(2, 0)])
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c):
         s = await c.until_state("u1", lambda s: s.step > 0)
         assert s.sensors.model_dump() == {
@@ -230,7 +148,7 @@ async def test_hidden_obstacle_in_the_way_is_reported_once_and_never_a_unit(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (1, 0)}, hidden=[(3, 1)])
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (3, 1), (4, 1)])
         s = await c.until_state("u1", lambda s: s.status == "waiting" and s.position == Cell(2, 1))
@@ -247,7 +165,7 @@ async def test_unit_refuses_unreleased_and_occupied_squares(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (2, 1)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         # u2's square released to u1 by mistake: u1's own sensor sees a unit and it waits.
         c.order("u1", "o1", 1, [(1, 1), (2, 1), (3, 1)])
@@ -268,7 +186,7 @@ async def test_emergency_stop_halts_all_units_within_one_step_until_released(
 ) -> None:
     rows = ["." * 30, "." * 30, "." * 30]
     sc = scenario(tmp_path, rows, {"u1": (0, 0), "u2": (0, 2)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         for uid, y in (("u1", 0), ("u2", 2)):
             c.order(uid, "o1", 1, [(x, y) for x in range(1, 30)])
@@ -300,7 +218,7 @@ async def test_bad_orders_are_refused_with_an_error_and_change_nothing(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, [".....", ".@...", "....."], {"u1": (0, 1)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         c.order("u1", "good", 1, [(0, 0)])
         await c.until_state("u1", lambda s: s.position == Cell(0, 0))
@@ -343,7 +261,7 @@ async def test_connection_online_then_offline_on_a_clean_stop(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (4, 1)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     factsheets = topics.unit("factsheet", "u1")
     c.probe.subscribe(factsheets)
     async with running(sc, broker.url, root, coordinator=c):
@@ -362,7 +280,7 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
 ) -> None:
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
     # No announced step: the unit's own hold timeout (0.5 s) has passed when it reconnects.
-    c = Coordinator(probe_factory(), topics, step_period_s=None)
+    c = DispatchPeer(probe_factory(), topics, step_period_s=None)
     async with running(sc, broker.url, root, step=0.05, reconnect_s=1.0) as fleet:
         runner = fleet.runners["u1"]
         c.order("u1", "o1", 1, [(x, 0) for x in range(1, 20)])
@@ -390,7 +308,7 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
     # A QoS 1 send on a cut connection fails only when its acknowledgement times out, which can
     # be after the unit has reconnected; that failure must not take the new connection down.
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c, step=0.05, reconnect_s=0.2) as fleet:
         runner = fleet.runners["u1"]
         old = runner.endpoint._client  # the live connection, to make one send on it hang
@@ -435,13 +353,11 @@ async def test_standalone_units_cross_the_playfield_without_collisions(
     broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe, playfield: Path
 ) -> None:
     sc = load_scenario(playfield)
-    probe = probe_factory()
-    stamp = HeaderStamper("operator")
+    operator = DispatchPeer(probe_factory(), topics, step_period_s=None, sender="operator")
     goals = {"unit1": Cell(9, 9), "unit2": Cell(0, 9), "unit3": Cell(9, 0), "unit4": Cell(0, 0)}
     async with running(sc, broker.url, root, mode="standalone") as fleet:
         for uid, target in goals.items():
-            goal = Goal(header=stamp("goal"), target=(target.x, target.y))
-            probe.publish(topics.unit("goal", uid), encode(goal))
+            operator.goal(uid, target)
         await async_wait_for(
             lambda: all(fleet.world.positions[u] == g for u, g in goals.items()),
             timeout=30,
@@ -456,7 +372,7 @@ async def test_units_in_another_process_are_seen_through_their_state(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1), "u2": (2, 1)})
-    c = Coordinator(probe_factory(), topics)
+    c = DispatchPeer(probe_factory(), topics)
     async with (
         running(sc, broker.url, root, coordinator=c, units=["u1"]) as here,
         running(sc, broker.url, root, coordinator=c, units=["u2"]) as there,
@@ -480,20 +396,19 @@ async def test_malformed_goal_and_estop_payloads_are_refused_and_reported(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, [".....", ".@..."], {"u1": (0, 0)})
-    c = Coordinator(probe_factory(), topics)
-    stamp = HeaderStamper("operator")
+    c = DispatchPeer(probe_factory(), topics, sender="operator")
     async with running(sc, broker.url, root, mode="standalone") as fleet:
         goal_topic = topics.unit("goal", "u1")
-        c.probe.publish(goal_topic, b'{"target": [1, 1]}')  # no header
-        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(1, 1))))  # a wall
-        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(7, 0))))  # off map
+        c.raw_goal("u1", b'{"target": [1, 1]}')  # no header
+        c.goal("u1", Cell(1, 1))  # a wall
+        c.goal("u1", Cell(7, 0))  # off the map
         c.estop(True, payload=b"maybe|operator|")
         await async_wait_for(lambda: len(c.errors()) >= 4, what="four error reports")
         assert [e.topic for e in c.errors()].count(goal_topic) == 3
         await steps(fleet, "u1", 3)
         lg = fleet.logic["u1"]
         assert lg.goal is None and not lg.estop and fleet.world.moves["u1"] == 0
-        c.probe.publish(goal_topic, encode(Goal(header=stamp("goal"), target=(4, 1))))
+        c.goal("u1", Cell(4, 1))
         s = await c.until_state("u1", lambda s: s.position == Cell(4, 1) and s.status == "idle")
         assert s.goal == Cell(4, 1) and s.mode == "standalone"
 
@@ -502,7 +417,7 @@ async def test_unit_holds_without_orders_and_resumes_when_they_come_back(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
-    c = Coordinator(probe_factory(), topics, step_period_s=0.3)
+    c = DispatchPeer(probe_factory(), topics, step_period_s=0.3)
     async with running(sc, broker.url, root, coordinator=c) as fleet:
         lg = fleet.logic["u1"]
         assert lg.hold_timeout_s == 3 * 0.3
