@@ -1,0 +1,221 @@
+"""Typed stand-ins for what the units and the coordinator publish, for tests that play them.
+
+A `UnitPeer` publishes what one unit does (connection, factsheet, state, direction), a
+`CoordinatorPeer` what the coordinator does (map, jobs view, routes, status, replies, error
+reports). Each message is built from the protocol's own models (`gridfleet.protocol`), stamped
+with a header of its sender and published through an `MqttProbe` with the QoS and retain flag
+protocol.md gives its topic (`gridfleet.endpoint.Outbound.of`). Every method returns the message
+it published, so a test can compare what arrives with what was sent.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from typing import Literal
+
+from gridfleet.endpoint import Outbound
+from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.protocol import (
+    Connection,
+    CoordinatorStatus,
+    ErrorReport,
+    Factsheet,
+    FleetMap,
+    HeaderStamper,
+    JobsView,
+    JobView,
+    Leds,
+    Reply,
+    Routes,
+    RouteView,
+    Sensors,
+    Topics,
+    UnitState,
+    encode_direction,
+)
+from gridfleet.protocol.messages import JobState, Message, UnitStatus
+
+from support.probe import MqttProbe
+
+Liveness = Literal["online", "offline", "broken"]  # `connection` and `coordinator/status` state
+Mode = Literal["coordinated", "standalone"]
+ALL_FREE = Sensors(N="free", E="free", S="free", W="free")
+
+
+def publish(probe: MqttProbe, kind: str, topic: str, message: Message | bytes) -> None:
+    """Publish `message` on `topic` of `kind` with the QoS and retain flag protocol.md gives it."""
+    out = Outbound.of(kind, topic, message)
+    probe.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
+
+
+def leds_for(direction: Direction | None, stopped: bool = False) -> Leds:
+    """The LEDs a unit shows: the one of its direction, none without one, all four when stopped."""
+    if stopped:
+        return Leds(N=True, E=True, S=True, W=True)
+    return Leds(
+        N=direction is Direction.N,
+        E=direction is Direction.E,
+        S=direction is Direction.S,
+        W=direction is Direction.W,
+    )
+
+
+class UnitPeer:
+    """Publishes what one unit publishes, as that unit (its id is the headers' sender)."""
+
+    def __init__(self, probe: MqttProbe, topics: Topics, unit: str) -> None:
+        self.probe = probe
+        self.topics = topics
+        self.unit = unit
+        self.stamp = HeaderStamper(unit)
+
+    def connection(self, state: Liveness) -> Connection:
+        """`units/<id>/connection`: online, offline, or broken (what its last will says)."""
+        message = Connection(header=self.stamp("connection"), state=state)
+        publish(self.probe, "connection", self.topics.unit("connection", self.unit), message)
+        return message
+
+    def factsheet(
+        self, capacity_kg: float, color: str = "#607d8b", step_period_s: float = 0.05
+    ) -> Factsheet:
+        """`units/<id>/factsheet`: what the unit can carry, its step period and colour."""
+        message = Factsheet(
+            header=self.stamp("factsheet"),
+            capacity_kg=capacity_kg,
+            step_period_s=step_period_s,
+            color=color,
+        )
+        publish(self.probe, "factsheet", self.topics.unit("factsheet", self.unit), message)
+        return message
+
+    def state(
+        self,
+        position: Cell,
+        direction: Direction | None = None,
+        status: UnitStatus = "idle",
+        *,
+        step: int | None = None,
+        wait_reason: str | None = None,
+        mode: Mode = "coordinated",
+        job_id: str | None = None,
+        load_kg: float = 0.0,
+        sensors: Sensors = ALL_FREE,
+        obstacles: Sequence[Cell] = (),
+        released: Sequence[Cell] = (),
+        goal: Cell | None = None,
+        estop: bool = False,
+    ) -> UnitState:
+        """`units/<id>/state`; the LEDs follow `direction` (all four when stopped).
+
+        `step` defaults to the state's sequence number, so every state is one step later.
+        """
+        header = self.stamp("state")
+        message = UnitState(
+            header=header,
+            step=header.seq if step is None else step,
+            position=position,
+            direction="-" if direction is None else direction.value,
+            status=status,
+            wait_reason=wait_reason,
+            mode=mode,
+            job_id=job_id,
+            load_kg=load_kg,
+            leds=leds_for(direction, stopped=estop or status == "stopped"),
+            sensors=sensors,
+            obstacles=list(obstacles),
+            released=list(released),
+            goal=goal,
+            estop=estop,
+        )
+        publish(self.probe, "state", self.topics.unit("state", self.unit), message)
+        return message
+
+    def direction(self, direction: Direction | None) -> bytes:
+        """`units/<id>/direction`: the plain-text letter for the device (`-`: no move)."""
+        payload = encode_direction(direction)
+        publish(self.probe, "direction", self.topics.unit("direction", self.unit), payload)
+        return payload
+
+
+class CoordinatorPeer:
+    """Publishes what the coordinator publishes (its headers' sender is `sender`)."""
+
+    def __init__(self, probe: MqttProbe, topics: Topics, sender: str = "coordinator") -> None:
+        self.probe = probe
+        self.topics = topics
+        self.stamp = HeaderStamper(sender)
+
+    def map(self, grid: GridMap, obstacles: Sequence[Cell] = ()) -> FleetMap:
+        """`fleet/map`: the static map and the obstacles units have discovered."""
+        message = FleetMap(
+            header=self.stamp("map"),
+            name=grid.name,
+            width=grid.width,
+            height=grid.height,
+            rows=grid.rows(),
+            obstacles=list(obstacles),
+        )
+        publish(self.probe, "map", self.topics.fleet("map"), message)
+        return message
+
+    def jobs(self, jobs: Sequence[JobView]) -> JobsView:
+        """`fleet/jobs`: the queue view, with the count of jobs in each state."""
+        counts: dict[JobState, int] = dict(Counter(job.state for job in jobs))
+        message = JobsView(header=self.stamp("jobs"), jobs=list(jobs), counts=counts)
+        publish(self.probe, "jobs", self.topics.fleet("jobs"), message)
+        return message
+
+    def routes(self, routes: Mapping[str, RouteView], step: int = 1) -> Routes:
+        """`fleet/routes`: every unit's route for display."""
+        message = Routes(header=self.stamp("routes"), step=step, routes=dict(routes))
+        publish(self.probe, "routes", self.topics.fleet("routes"), message)
+        return message
+
+    def status(
+        self,
+        state: Liveness = "online",
+        *,
+        step: int = 0,
+        step_period_s: float = 1.0,
+        estop: bool = False,
+        version: str = "0.1.0",
+    ) -> CoordinatorStatus:
+        """`coordinator/status`: whether the coordinator runs, its step and the stop it sees."""
+        message = CoordinatorStatus(
+            header=self.stamp("coordinator"),
+            state=state,
+            step=step,
+            step_period_s=step_period_s,
+            estop=estop,
+            version=version,
+        )
+        publish(self.probe, "coordinator", self.topics.fleet("coordinator"), message)
+        return message
+
+    def reply(
+        self,
+        client: str,
+        request_id: str,
+        accepted: bool,
+        reason: str | None = None,
+        job_id: str | None = None,
+    ) -> Reply:
+        """`replies/<client>`: the answer to the request `request_id` of `client`."""
+        message = Reply(
+            header=self.stamp("reply"),
+            request_id=request_id,
+            accepted=accepted,
+            reason=reason,
+            job_id=job_id,
+        )
+        publish(self.probe, "reply", self.topics.reply(client), message)
+        return message
+
+    def error(self, topic: str, reason: str, request_id: str | None = None) -> ErrorReport:
+        """`errors`: a message on `topic` refused, and why (with its request id when known)."""
+        message = ErrorReport(
+            header=self.stamp("errors"), topic=topic, reason=reason, request_id=request_id
+        )
+        publish(self.probe, "errors", self.topics.fleet("errors"), message)
+        return message
