@@ -1,0 +1,520 @@
+"""Exactly what the coordinator core publishes for each message it reads and for a step.
+
+No broker: each test injects a message into the pure core (every header stamped at one fixed
+time) and compares the whole list of (topic, payload as parsed JSON, QoS, retain) it returns.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import pytest
+from coordinator_drive import (
+    STAMP,
+    TOPICS,
+    from_unit,
+    header,
+    make_core,
+    meet,
+    orders_in,
+    published,
+    request,
+)
+
+from coordinator.core import CoordinatorCore
+from coordinator.effects import Effects
+from coordinator.views import VIEWS_BATCH_S
+from gridfleet.endpoint import Outbound
+from gridfleet.grid import GridMap
+from gridfleet.protocol import (
+    CancelJob,
+    Connection,
+    Factsheet,
+    Leds,
+    Sensors,
+    SetGoal,
+    SubmitJob,
+    UnitState,
+    encode,
+)
+
+# Four by three squares, a wall at [1, 1].
+GRID = GridMap.from_rows(["....", ".@..", "...."])
+JOB = {"pickup": [3, 0], "dropoff": [3, 2], "mass_kg": 1.0, "priority": 0}
+STATUS = "gridfleet/v1/coordinator/status"
+ERRORS = "gridfleet/v1/errors"
+JOBS = "gridfleet/v1/fleet/jobs"
+MAP = "gridfleet/v1/fleet/map"
+ROUTES = "gridfleet/v1/fleet/routes"
+ORDER = "gridfleet/v1/units/unit1/order"
+REPLY = "gridfleet/v1/replies/op"
+
+
+def hdr(seq: int) -> dict[str, Any]:
+    """The coordinator's header with `seq` (counted per topic kind)."""
+    return {"version": "1.0", "seq": seq, "timestamp": STAMP, "sender": "coordinator"}
+
+
+def status(seq: int, state: str, *, step: int = 0, estop: bool = False) -> dict[str, Any]:
+    return {
+        "header": hdr(seq),
+        "state": state,
+        "step": step,
+        "step_period_s": 1.0,
+        "estop": estop,
+        "version": "0.1.0",
+    }
+
+
+def error(seq: int, topic: str, reason: str, request_id: str | None = None) -> Any:
+    payload = {"header": hdr(seq), "topic": topic, "reason": reason, "request_id": request_id}
+    return (ERRORS, payload, 1, False)
+
+
+def reply(seq: int, request_id: str, accepted: bool, reason: str | None, job_id: str | None) -> Any:
+    payload = {
+        "header": hdr(seq),
+        "request_id": request_id,
+        "accepted": accepted,
+        "reason": reason,
+        "job_id": job_id,
+    }
+    return (REPLY, payload, 1, False)
+
+
+def job(state: str, *, unit: str | None = None, **over: Any) -> dict[str, Any]:
+    """job-1 (JOB, submitted by op at step 0) as the queue view lists it."""
+    out = {"id": "job-1", **JOB, "state": state, "unit": unit, "reason": None}
+    out.update(submitted_by="op", created_step=0, done_step=None)
+    out.update(over)
+    return out
+
+
+def jobs_view(seq: int, *jobs: dict[str, Any]) -> Any:
+    counts: dict[str, int] = {}
+    for j in jobs:
+        counts[j["state"]] = counts.get(j["state"], 0) + 1
+    return (JOBS, {"header": hdr(seq), "jobs": list(jobs), "counts": counts}, 1, True)
+
+
+def hold(seq: int, update_id: int, step: int = 1) -> dict[str, Any]:
+    """An order to unit1 (its first route) that releases nothing."""
+    return {
+        "header": hdr(seq),
+        "order_id": "n-unit1-1",
+        "update_id": update_id,
+        "step": step,
+        "released": [],
+        "planned": [],
+        "target": None,
+        "action": None,
+    }
+
+
+def routes(seq: int, step: int, released: Any = (), planned: Any = (), target: Any = None) -> Any:
+    """The routes view with unit1's route."""
+    route = {"released": list(released), "planned": list(planned), "target": target}
+    return {"header": hdr(seq), "step": step, "routes": {"unit1": route}}
+
+
+def published_one(out: Outbound) -> Any:
+    """One message as `published` shows it."""
+    (only,) = published(Effects(publish=(out,)))
+    return only
+
+
+def state(position: tuple[int, int] = (0, 0), seq: int = 0, **over: Any) -> UnitState:
+    """unit1's state: idle on `position`, sensors all free but the map's edges."""
+    msg = UnitState(
+        header=header("unit1", seq),
+        step=seq,
+        position=position,  # type: ignore[arg-type]
+        direction="-",
+        status="idle",
+        leds=Leds(),
+        sensors=Sensors(N="wall", E="free", S="free", W="wall"),
+    )
+    return msg.model_copy(update=over)
+
+
+def submit(request_id: str = "r1", **over: Any) -> SubmitJob:
+    fields: dict[str, Any] = {**JOB, "request_id": request_id, "reply_to": "op", **over}
+    return SubmitJob(header=header("op"), **fields)
+
+
+@pytest.fixture
+def core() -> CoordinatorCore:
+    """Connected (its views out), with unit1 online at [0, 0], 5 kg, a step of 1 s."""
+    c = make_core(GRID)
+    c.on_connect()
+    meet(c, state(), capacity_kg=5.0)
+    return c
+
+
+def under_way(core: CoordinatorCore) -> None:
+    """job-1 queued and one step made: unit1 has its first move, to [1, 0]."""
+    request(core, "submit_job", submit(), 0.0)
+    core.step(1.0)
+
+
+# ---- the session ------------------------------------------------------------------------------
+
+
+def test_status_online_offline_and_the_last_will() -> None:
+    c = make_core(GRID)
+    got = [published_one(c.status(s)) for s in ("broken", "online", "offline")]
+    assert got == [
+        (STATUS, status(0, "broken"), 1, True),
+        (STATUS, status(1, "online"), 1, True),
+        (STATUS, status(2, "offline"), 1, True),
+    ]
+
+
+def test_connecting_publishes_the_map_and_the_queue_view() -> None:
+    c = make_core(GRID)
+    assert published(c.on_connect()) == [
+        (
+            MAP,
+            {
+                "header": hdr(0),
+                "name": "map",
+                "width": 4,
+                "height": 3,
+                "rows": ["....", ".@..", "...."],
+                "obstacles": [],
+            },
+            1,
+            True,
+        ),
+        jobs_view(0),
+    ]
+    assert published(c.on_connect())[1] == jobs_view(1)  # every session gets them again
+
+
+def test_a_clean_stop_holds_every_unit_that_had_an_order(core: CoordinatorCore) -> None:
+    assert published(core.holds()) == []  # no order yet: nothing to hold
+    under_way(core)
+    effects = core.holds()
+    assert published(effects) == [(ORDER, hold(1, update_id=2), 1, False)]
+    assert effects.awaiting == frozenset()
+
+
+# ---- unit topics -------------------------------------------------------------------------------
+
+
+def test_a_unit_saying_it_is_online_publishes_nothing() -> None:
+    c = make_core(GRID)
+    c.on_connect()
+    msg = Connection(header=header("unit2"), state="online")
+    effects = from_unit(c, "connection", "unit2", msg, 0.0)
+    assert published(effects) == [] and effects.persist == ()
+    assert c.world.units["unit2"].connection == "online"
+
+
+def test_a_factsheet_publishes_nothing() -> None:
+    c = make_core(GRID)
+    c.on_connect()
+    msg = Factsheet(header=header("unit2"), capacity_kg=3.0, step_period_s=0.5)
+    assert published(from_unit(c, "factsheet", "unit2", msg, 0.0)) == []
+    assert c.world.capacities() == [3.0]
+
+
+def test_a_state_publishes_nothing(core: CoordinatorCore) -> None:
+    assert published(from_unit(core, "state", "unit1", state((2, 0), seq=1), 0.5)) == []
+    assert core.world.units["unit1"].position == (2, 0)
+
+
+def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore) -> None:
+    news = state(
+        (0, 0),
+        seq=1,
+        obstacles=[(0, 1)],
+        sensors=Sensors(N="wall", E="free", S="obstacle", W="wall"),
+    )
+    assert published(from_unit(core, "state", "unit1", news, 0.5)) == []
+    assert published(core.step(1.0)) == [
+        (ORDER, hold(0, update_id=1), 1, False),
+        (ROUTES, routes(0, step=1), 0, True),
+        (
+            MAP,
+            {
+                "header": hdr(1),
+                "name": "map",
+                "width": 4,
+                "height": 3,
+                "rows": ["....", ".@..", "...."],
+                "obstacles": [[0, 1]],
+            },
+            1,
+            True,
+        ),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
+            b"{",
+            "UnitState: malformed JSON (Invalid JSON: EOF while parsing an object at line 1 column 1)",
+        ),
+        (
+            encode(state()).replace(b'"1.0"', b'"9.9"'),
+            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.0'",
+        ),
+        (encode(state((1, 1))), "position [1, 1] is on a wall"),
+        (
+            b"x" * 20000,
+            "UnitState: payload of 20000 bytes exceeds the limit of 16384",
+        ),
+    ],
+    ids=["malformed JSON", "wrong version", "on a wall", "oversized"],
+)
+def test_a_bad_state_is_reported_and_changes_nothing(
+    core: CoordinatorCore, payload: bytes, reason: str
+) -> None:
+    effects = from_unit(core, "state", "unit1", payload, 0.5)
+    assert published(effects) == [error(0, "gridfleet/v1/units/unit1/state", reason)]
+    assert effects.log == (
+        (logging.INFO, f"refused a message on {TOPICS.unit('state', 'unit1')}: {reason}"),
+    )
+    assert core.world.units["unit1"].position == (0, 0)
+    assert core.errors_reported == 1
+
+
+# ---- the step ----------------------------------------------------------------------------------
+
+
+def test_a_step_orders_the_move_shows_the_route_and_the_changed_queue(
+    core: CoordinatorCore,
+) -> None:
+    request(core, "submit_job", submit(), 0.0)
+    effects = core.step(1.0)
+    assert published(effects) == [
+        (
+            ORDER,
+            {
+                "header": hdr(0),
+                "order_id": "n-unit1-1",
+                "update_id": 1,
+                "step": 1,
+                "released": [[1, 0]],
+                "planned": [[2, 0], [3, 0]],
+                "target": [3, 0],
+                "action": {"kind": "pick", "job_id": "job-1", "square": [3, 0], "mass_kg": 1.0},
+            },
+            1,
+            False,
+        ),
+        (ROUTES, routes(0, 1, [[1, 0]], [[2, 0], [3, 0]], [3, 0]), 0, True),
+        jobs_view(2, job("to_pickup", unit="unit1")),
+    ]
+    assert [j.id for j in effects.persist] == ["job-1"]
+    # The next step waits (at most a step period) for unit1 to acknowledge its order.
+    assert (effects.awaiting, effects.acks_until) == (frozenset({"unit1"}), 2.0)
+
+
+def test_a_state_acknowledging_the_order_ends_the_wait(core: CoordinatorCore) -> None:
+    under_way(core)
+    assert from_unit(core, "state", "unit1", state(seq=1), 1.2).awaiting == {"unit1"}
+    ack = state(seq=2, order_id="n-unit1-1", order_update_id=1, released=[(1, 0)])
+    effects = from_unit(core, "state", "unit1", ack, 1.3)
+    assert published(effects) == [] and effects.awaiting == frozenset()
+
+
+def test_a_step_with_nothing_to_do_holds_and_waits_for_no_unit() -> None:
+    c = make_core(GRID)
+    c.on_connect()
+    effects = c.step(1.0)
+    assert published(effects) == [(ROUTES, {"header": hdr(0), "step": 1, "routes": {}}, 0, True)]
+    assert (effects.awaiting, effects.acks_until) == (frozenset(), None)
+
+
+def test_a_lost_unit_gets_no_order_and_an_empty_route(core: CoordinatorCore) -> None:
+    assert published(core.step(10.0)) == [(ROUTES, routes(0, step=1), 0, True)]
+
+
+# ---- the emergency stop ------------------------------------------------------------------------
+
+
+def estop(core: CoordinatorCore, payload: bytes, now: float = 1.5) -> Any:
+    return core.on_message(TOPICS.fleet("estop"), payload, now)
+
+
+def test_engaging_the_stop_holds_every_unit_at_once_and_says_so(core: CoordinatorCore) -> None:
+    under_way(core)
+    effects = estop(core, b"engaged|dashboard|operator pressed STOP")
+    assert published(effects) == [
+        (ORDER, hold(1, update_id=2), 1, False),
+        (STATUS, status(0, "online", step=1, estop=True), 1, True),
+    ]
+    assert effects.log == (
+        (logging.WARNING, "emergency stop ENGAGED by dashboard: operator pressed STOP"),
+    )
+    assert effects.awaiting == frozenset()  # holds need no acknowledgement
+    assert published(estop(core, b"engaged|device1|button")) == []  # idempotent
+
+
+def test_a_step_under_the_stop_releases_nothing(core: CoordinatorCore) -> None:
+    under_way(core)
+    estop(core, b"engaged|dashboard|x")
+    orders = orders_in(core.step(2.0))
+    assert orders["unit1"].released == [] and orders["unit1"].action is None
+
+
+def test_the_stop_withdraws_a_step_s_moves_not_yet_sent(core: CoordinatorCore) -> None:
+    request(core, "submit_job", submit(), 0.0)
+    step = core.step(1.0)
+    order, route = step.publish[0], step.publish[1]
+    assert not core.withdrawn(order)
+    estop(core, b"engaged|dashboard|x")  # arrives while the step's messages are going out
+    assert core.withdrawn(order) and not core.withdrawn(route)
+    estop(core, b"released|dashboard|ok")
+    assert not core.withdrawn(order)
+
+
+def test_releasing_the_stop_says_so_and_sends_no_order(core: CoordinatorCore) -> None:
+    under_way(core)
+    estop(core, b"engaged|dashboard|x")
+    effects = estop(core, b"released|dashboard|area checked")
+    assert published(effects) == [(STATUS, status(1, "online", step=1, estop=False), 1, True)]
+    assert effects.log == ((logging.WARNING, "emergency stop released by dashboard: area checked"),)
+
+
+def test_a_malformed_stop_is_reported_and_never_releases(core: CoordinatorCore) -> None:
+    estop(core, b"engaged|dashboard|x")
+    assert published(estop(core, b"released")) == [
+        error(
+            0,
+            "gridfleet/v1/fleet/estop",
+            "estop: 'released' is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'",
+        )
+    ]
+    assert core.estop
+
+
+# ---- requests ----------------------------------------------------------------------------------
+
+
+def test_an_accepted_job_gets_a_reply_and_the_queue_view_at_once(core: CoordinatorCore) -> None:
+    effects = request(core, "submit_job", submit(), 0.0)
+    assert published(effects) == [
+        reply(0, "r1", True, None, "job-1"),
+        jobs_view(1, job("queued")),
+    ]
+    assert [j.id for j in effects.persist] == ["job-1"]
+
+
+def test_a_job_off_the_map_is_refused_and_not_listed(core: CoordinatorCore) -> None:
+    effects = request(core, "submit_job", submit(pickup=(12, 3)), 0.0)
+    reason = "pickup [12, 3] is off the 4x3 map"
+    assert published(effects) == [
+        error(0, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
+        reply(0, "r1", False, reason, None),
+    ]
+    assert effects.persist == ()
+
+
+def test_a_job_too_heavy_for_every_unit_is_refused_and_listed_as_rejected(
+    core: CoordinatorCore,
+) -> None:
+    effects = request(core, "submit_job", submit(mass_kg=50.0), 0.0)
+    reason = "mass 50.0 kg exceeds every unit's capacity (largest 5.0 kg)"
+    assert published(effects) == [
+        error(0, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
+        reply(0, "r1", False, reason, "job-1"),
+        jobs_view(1, job("rejected", mass_kg=50.0, reason=reason)),
+    ]
+
+
+def test_a_refusal_without_reply_to_goes_to_errors_only(core: CoordinatorCore) -> None:
+    effects = request(core, "submit_job", submit(pickup=(1, 1), reply_to=None), 0.0)
+    reason = "SubmitJob: pickup [1, 1] is on a wall"
+    assert published(effects) == [error(0, "gridfleet/v1/requests/submit_job", reason, "r1")]
+
+
+def test_cancelling_a_queued_job_and_an_unknown_one(core: CoordinatorCore) -> None:
+    request(core, "submit_job", submit(), 0.0)
+    cancel = CancelJob(header=header("op"), request_id="c1", reply_to="op", job_id="job-1")
+    effects = request(core, "cancel_job", cancel, 1.0)
+    assert published(effects) == [
+        reply(1, "c1", True, None, "job-1"),
+        jobs_view(2, job("cancelled", reason="cancelled by op", done_step=0)),
+    ]
+    again = cancel.model_copy(update={"request_id": "c2", "job_id": "nope"})
+    assert published(request(core, "cancel_job", again, 2.0)) == [
+        error(0, "gridfleet/v1/requests/cancel_job", "CancelJob: unknown job 'nope'", "c2"),
+        reply(2, "c2", False, "unknown job 'nope'", "nope"),
+    ]
+
+
+def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
+    goal = SetGoal(header=header("op"), request_id="g1", reply_to="op", unit="unit1", target=(3, 2))  # type: ignore[arg-type]
+    assert published(request(core, "set_goal", goal, 0.0)) == [reply(0, "g1", True, None, None)]
+    assert core.goals == {"unit1": (3, 2)}
+    wall = goal.model_copy(update={"request_id": "g2", "target": (1, 1)})
+    reason = "target [1, 1] is on a wall"
+    assert published(request(core, "set_goal", wall, 0.0)) == [
+        error(0, "gridfleet/v1/requests/set_goal", f"SetGoal: {reason}", "g2"),
+        reply(1, "g2", False, reason, None),
+    ]
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
+            b'{"header": ',
+            "SubmitJob: malformed JSON (Invalid JSON: EOF while parsing a value at line 1 column 11)",
+        ),
+        (b"{" * 20000, "SubmitJob: payload of 20000 bytes exceeds the limit of 16384"),
+        (
+            encode(submit()).replace(b'"1.0"', b'"2.0"'),
+            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.0'",
+        ),
+        (
+            encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":0'),
+            "SubmitJob: field 'mass_kg': Input should be greater than 0",
+        ),
+    ],
+    ids=["malformed JSON", "oversized", "wrong version", "bad field"],
+)
+def test_a_bad_request_is_reported_without_a_reply(
+    core: CoordinatorCore, payload: bytes, reason: str
+) -> None:
+    effects = request(core, "submit_job", payload, 0.0)
+    assert published(effects) == [error(0, "gridfleet/v1/requests/submit_job", reason)]
+    assert core.jobs.jobs == {}
+
+
+@pytest.mark.parametrize(
+    "topic",
+    [
+        "gridfleet/v1/units/unit1/order",  # ours, not one the coordinator reads
+        "gridfleet/v1/fleet/nothing",
+        "elsewhere/v1/requests/submit_job",
+    ],
+)
+def test_a_topic_the_coordinator_does_not_read_is_ignored(
+    core: CoordinatorCore, topic: str
+) -> None:
+    effects = core.on_message(topic, b"{", 0.0)
+    assert published(effects) == [] and effects.log == () and core.errors_reported == 0
+
+
+def test_a_burst_of_requests_gets_one_queue_view_per_batch_period(core: CoordinatorCore) -> None:
+    first = request(core, "submit_job", submit("r1"), 0.0)
+    assert published(first)[-1] == jobs_view(1, job("queued"))
+    second = request(core, "submit_job", submit("r2", job_id="j2"), 0.01)
+    assert published(second) == [reply(1, "r2", True, None, "j2")]
+    assert second.views_at == VIEWS_BATCH_S  # come back at the end of the batch period
+    third = request(core, "submit_job", submit("r3", job_id="j3"), 0.02)
+    assert published(third) == [reply(2, "r3", True, None, "j3")]
+    assert third.views_at is None  # already arranged
+    later = core.views_due(VIEWS_BATCH_S)
+    listed = [j["id"] for j in published(later)[0][1]["jobs"]]
+    assert (published(later)[0][0], listed) == (JOBS, ["job-1", "j2", "j3"])
+    # A full batch period after that, a request's view goes out at once again.
+    fourth = request(core, "submit_job", submit("r4", job_id="j4"), 2 * VIEWS_BATCH_S)
+    assert [p[0] for p in published(fourth)] == [REPLY, JOBS]
