@@ -1,4 +1,5 @@
-"""The dashboard in real Chromium against the real broker; the test plays coordinator and units."""
+"""The dashboard in real Chromium against the real broker; the test plays coordinator and units
+(the typed peers of tests/support/fleet_peer.py)."""
 
 from __future__ import annotations
 
@@ -9,150 +10,51 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
-from gridfleet.grid import GridMap
+from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
-    TOPICS,
     CancelJob,
-    Connection,
-    CoordinatorStatus,
-    Factsheet,
-    FleetMap,
-    HeaderStamper,
-    JobsView,
     JobView,
-    Leds,
-    Reply,
-    Routes,
     RouteView,
-    Sensors,
     SetGoal,
     SubmitJob,
     Topics,
-    UnitState,
     decode,
     decode_estop,
 )
-from gridfleet.protocol.messages import ErrorReport, Message
+from gridfleet.protocol.messages import JobState
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 
 from support.browser import OpenDashboard
+from support.fleet_peer import CoordinatorPeer, UnitPeer, publish
 from support.probe import MqttProbe
 
 pytestmark = pytest.mark.browser
 
 PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
-FREE = {"N": "free", "E": "free", "S": "free", "W": "free"}
+PICKUP, DROPOFF = Cell(1, 1), Cell(8, 8)  # free squares of the playfield
 
 
-class FakeFleet:
-    """Publishes real protocol messages as the coordinator and the units would."""
-
-    def __init__(self, probe: MqttProbe, topics: Topics) -> None:
-        self.probe = probe
-        self.topics = topics
-        self.stampers: dict[str, HeaderStamper] = {}
-
-    def _send(self, kind: str, topic: str, build: Callable[[Any], Message], sender: str) -> None:
-        stamper = self.stampers.setdefault(sender, HeaderStamper(sender))
-        spec = TOPICS[kind]
-        payload = build(stamper(kind)).model_dump_json().encode()
-        self.probe.publish(topic, payload, qos=spec.qos, retain=spec.retained)
-
-    def map(self, grid: GridMap, obstacles: list[tuple[int, int]] | None = None) -> None:
-        self._send(
-            "map",
-            self.topics.fleet("map"),
-            lambda h: FleetMap(
-                header=h,
-                name=grid.name,
-                width=grid.width,
-                height=grid.height,
-                rows=grid.rows(),
-                obstacles=obstacles or [],
-            ),
-            "coordinator",
-        )
-
-    def unit_online(self, unit: str, capacity: float, color: str) -> None:
-        self._send(
-            "connection",
-            self.topics.unit("connection", unit),
-            lambda h: Connection(header=h, state="online"),
-            unit,
-        )
-        self._send(
-            "factsheet",
-            self.topics.unit("factsheet", unit),
-            lambda h: Factsheet(header=h, capacity_kg=capacity, step_period_s=0.05, color=color),
-            unit,
-        )
-
-    def connection(self, unit: str, state: str) -> None:
-        self._send(
-            "connection",
-            self.topics.unit("connection", unit),
-            lambda h: Connection(header=h, state=state),  # type: ignore[arg-type]
-            unit,
-        )
-
-    def state(
-        self,
-        unit: str,
-        position: tuple[int, int],
-        direction: str = "-",
-        status: str = "idle",
-        **extra: Any,
-    ) -> None:
-        self._send(
-            "state",
-            self.topics.unit("state", unit),
-            lambda h: UnitState(
-                header=h,
-                step=h.seq,
-                position=position,
-                direction=direction,  # type: ignore[arg-type]
-                status=status,  # type: ignore[arg-type]
-                leds=Leds(**({direction: True} if direction != "-" else {})),
-                sensors=Sensors(**FREE),  # type: ignore[arg-type]
-                **extra,
-            ),
-            unit,
-        )
-
-    def jobs(self, jobs: list[JobView]) -> None:
-        counts: dict[str, int] = {}
-        for j in jobs:
-            counts[j.state] = counts.get(j.state, 0) + 1
-        self._send(
-            "jobs",
-            self.topics.fleet("jobs"),
-            lambda h: JobsView(header=h, jobs=jobs, counts=counts),  # type: ignore[arg-type]
-            "coordinator",
-        )
-
-    def routes(self, routes: dict[str, RouteView]) -> None:
-        self._send(
-            "routes",
-            self.topics.fleet("routes"),
-            lambda h: Routes(header=h, step=1, routes=routes),
-            "coordinator",
-        )
-
-    def reply(self, client: str, request_id: str, accepted: bool, reason: str | None) -> None:
-        self._send(
-            "reply",
-            self.topics.reply(client),
-            lambda h: Reply(header=h, request_id=request_id, accepted=accepted, reason=reason),
-            "coordinator",
-        )
-
-
-def job(job_id: str, state: str, unit: str | None = None, **kw: Any) -> JobView:
+def job(
+    job_id: str,
+    state: JobState,
+    unit: str | None = None,
+    *,
+    pickup: Cell = PICKUP,
+    dropoff: Cell = DROPOFF,
+    mass_kg: float = 1.5,
+    reason: str | None = None,
+) -> JobView:
     """A JobView with playfield squares."""
-    fields: dict[str, Any] = {"pickup": (1, 1), "dropoff": (8, 8), "mass_kg": 1.5}
-    fields.update(kw)
-    return JobView(id=job_id, state=state, unit=unit, **fields)  # type: ignore[arg-type]
+    return JobView(
+        id=job_id,
+        state=state,
+        unit=unit,
+        pickup=pickup,
+        dropoff=dropoff,
+        mass_kg=mass_kg,
+        reason=reason,
+    )
 
 
 @pytest.fixture
@@ -161,20 +63,36 @@ def grid() -> GridMap:
 
 
 @pytest.fixture
-def fleet(probe_factory: Callable[..., MqttProbe], topics: Topics) -> FakeFleet:
+def probe(probe_factory: Callable[..., MqttProbe], topics: Topics) -> MqttProbe:
+    """The fleet's connection: the peers publish on it, and it hears what the page sends."""
     probe = probe_factory()
     for kind in ("submit_job", "cancel_job", "set_goal"):
         probe.subscribe(topics.request(kind))
     probe.subscribe(topics.fleet("estop"))
-    return FakeFleet(probe, topics)
+    return probe
 
 
-def playfield_fleet(fleet: FakeFleet, grid: GridMap) -> None:
+@pytest.fixture
+def coordinator(probe: MqttProbe, topics: Topics) -> CoordinatorPeer:
+    """What the coordinator publishes, played by the test."""
+    return CoordinatorPeer(probe, topics)
+
+
+@pytest.fixture
+def units(probe: MqttProbe, topics: Topics) -> dict[str, UnitPeer]:
+    """What the playfield's units publish, played by the test."""
+    return {u.id: UnitPeer(probe, topics, u.id) for u in load_scenario(PLAYFIELD).units}
+
+
+def playfield_fleet(
+    coordinator: CoordinatorPeer, units: dict[str, UnitPeer], grid: GridMap
+) -> None:
     """The map and four units at the playfield's starting squares."""
-    fleet.map(grid)
+    coordinator.map(grid)
     for unit in load_scenario(PLAYFIELD).units:
-        fleet.unit_online(unit.id, unit.capacity, unit.color)
-        fleet.state(unit.id, (unit.start.x, unit.start.y))
+        units[unit.id].connection("online")
+        units[unit.id].factsheet(unit.capacity, unit.color)
+        units[unit.id].state(unit.start)
 
 
 def row(dash: OpenDashboard, unit: str) -> Any:
@@ -182,9 +100,15 @@ def row(dash: OpenDashboard, unit: str) -> Any:
 
 
 def test_units_appear_at_their_positions_and_move(
-    open_dashboard: Callable[..., OpenDashboard], fleet: FakeFleet, grid: GridMap, root: str
+    open_dashboard: Callable[..., OpenDashboard],
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
+    grid: GridMap,
+    root: str,
+    topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     page = dash.page
     expect(page.locator("#map-name")).to_have_text("playfield 10 x 10")
@@ -196,7 +120,7 @@ def test_units_appear_at_their_positions_and_move(
     expect(row(dash, "unit1").locator(".link")).to_have_text("online")
     expect(row(dash, "unit2").locator(".load")).to_have_text("0/5 kg")
 
-    fleet.state("unit1", (1, 0), "E", "moving", job_id="job-1", load_kg=1.5)
+    units["unit1"].state(Cell(1, 0), Direction.E, "moving", job_id="job-1", load_kg=1.5)
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[1, 0]")
     expect(row(dash, "unit1").locator(".status")).to_have_text("moving")
     expect(row(dash, "unit1").locator(".job")).to_have_text("job-1")
@@ -205,16 +129,16 @@ def test_units_appear_at_their_positions_and_move(
         "data-units", "unit1@1,0 unit2@9,0 unit3@0,9 unit4@9,9"
     )
     assert dash.drawn_units()["unit1"] == (1, 0)
-    fleet.state("unit2", (9, 1), "S", "waiting", obstacles=[(7, 2)])
+    units["unit2"].state(Cell(9, 1), Direction.S, "waiting", obstacles=[Cell(7, 2)])
     expect(page.locator("#map")).to_have_attribute("data-obstacles", "7,2*")
-    fleet.connection("unit3", "broken")
+    units["unit3"].connection("broken")
     expect(row(dash, "unit3").locator(".link")).to_have_text("broken")
 
     # Garbage on the topics it reads is ignored; the page keeps working.
-    fleet.probe.publish(fleet.topics.unit("state", "unit2"), b"{not json", qos=0)
-    fleet.probe.publish(fleet.topics.fleet("estop"), b"maybe|x|y", qos=1)
-    fleet.state("unit2", (8, 0), "W", "moving")
-    fleet.state("unit1", (1, 0), "E", "moving", job_id="job-1", load_kg=1.5)
+    probe.publish(topics.unit("state", "unit2"), b"{not json", qos=0)
+    probe.publish(topics.fleet("estop"), b"maybe|x|y", qos=1)
+    units["unit2"].state(Cell(8, 0), Direction.W, "moving")
+    units["unit1"].state(Cell(1, 0), Direction.E, "moving", job_id="job-1", load_kg=1.5)
     expect(row(dash, "unit2").locator(".pos")).to_have_text("[8, 0]")
     expect(page.locator("body")).not_to_have_attribute("data-estop", "engaged")
     expect(page.locator("#log")).to_contain_text("malformed JSON")
@@ -234,16 +158,23 @@ def test_units_appear_at_their_positions_and_move(
 
 
 def test_live_playfield_screenshot(
-    open_dashboard: Callable[..., OpenDashboard], fleet: FakeFleet, grid: GridMap, root: str
+    open_dashboard: Callable[..., OpenDashboard],
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
+    grid: GridMap,
+    root: str,
 ) -> None:
-    fleet.map(grid, obstacles=[(4, 5)])
+    coordinator.map(grid, obstacles=[Cell(4, 5)])
     for unit in load_scenario(PLAYFIELD).units:
-        fleet.unit_online(unit.id, unit.capacity, unit.color)
-    fleet.state("unit1", (3, 1), "E", "moving", job_id="job-1", load_kg=1.5)
-    fleet.state("unit2", (8, 2), "S", "moving")
-    fleet.state("unit3", (1, 8), "N", "moving")
-    fleet.state("unit4", (4, 4), "-", "waiting", wait_reason="released square [4, 5] is blocked")
-    fleet.routes(
+        units[unit.id].connection("online")
+        units[unit.id].factsheet(unit.capacity, unit.color)
+    units["unit1"].state(Cell(3, 1), Direction.E, "moving", job_id="job-1", load_kg=1.5)
+    units["unit2"].state(Cell(8, 2), Direction.S, "moving")
+    units["unit3"].state(Cell(1, 8), Direction.N, "moving")
+    units["unit4"].state(
+        Cell(4, 4), None, "waiting", wait_reason="released square [4, 5] is blocked"
+    )
+    coordinator.routes(
         {
             "unit1": RouteView(
                 released=[(4, 1)], planned=[(5, 1), (6, 1), (7, 1), (8, 1)], target=(8, 1)
@@ -255,13 +186,13 @@ def test_live_playfield_screenshot(
             "unit4": RouteView(),
         }
     )
-    fleet.jobs(
+    coordinator.jobs(
         [
-            job("job-1", "to_dropoff", "unit1", pickup=(1, 1), dropoff=(8, 1)),
-            job("job-2", "to_pickup", "unit2", pickup=(8, 8), dropoff=(1, 8), mass_kg=4.0),
-            job("job-3", "to_pickup", "unit3", pickup=(0, 5), dropoff=(5, 9), mass_kg=8.0),
-            job("job-4", "queued", None, pickup=(5, 0), dropoff=(9, 5), mass_kg=15.0),
-            job("job-0", "done", "unit4", pickup=(2, 0), dropoff=(9, 2)),
+            job("job-1", "to_dropoff", "unit1", pickup=Cell(1, 1), dropoff=Cell(8, 1)),
+            job("job-2", "to_pickup", "unit2", pickup=Cell(8, 8), dropoff=Cell(1, 8), mass_kg=4.0),
+            job("job-3", "to_pickup", "unit3", pickup=Cell(0, 5), dropoff=Cell(5, 9), mass_kg=8.0),
+            job("job-4", "queued", None, pickup=Cell(5, 0), dropoff=Cell(9, 5), mass_kg=15.0),
+            job("job-0", "done", "unit4", pickup=Cell(2, 0), dropoff=Cell(9, 2)),
             job(
                 "job-9",
                 "rejected",
@@ -271,12 +202,7 @@ def test_live_playfield_screenshot(
             ),
         ]
     )
-    fleet._send(
-        "coordinator",
-        fleet.topics.fleet("coordinator"),
-        lambda h: CoordinatorStatus(header=h, state="online", step=42, step_period_s=1.0),
-        "coordinator",
-    )
+    coordinator.status("online", step=42, step_period_s=1.0)
     dash = open_dashboard(root)
     expect(dash.page.locator("#map")).to_have_attribute(
         "data-units", "unit1@3,1 unit2@8,2 unit3@1,8 unit4@4,4"
@@ -291,29 +217,31 @@ def test_live_playfield_screenshot(
 
 def test_submit_job_through_the_form(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     dash.submit_job((1, 1), (8, 8), 1.5)
 
-    seen = fleet.probe.wait(topics.request("submit_job"))
+    seen = probe.wait(topics.request("submit_job"))
     request = decode(SubmitJob, seen.payload)
     assert (request.pickup, request.dropoff, request.mass_kg) == ((1, 1), (8, 8), 1.5)
     assert request.reply_to == dash.client_id and request.header.sender == dash.client_id
     assert request.priority == 0 and request.job_id is None
 
-    fleet.reply(dash.client_id, request.request_id, True, None)
+    coordinator.reply(dash.client_id, request.request_id, True)
     expect(dash.page.locator("#job-feedback")).to_contain_text("accepted")
-    fleet.jobs([job("job-1", "queued")])
+    coordinator.jobs([job("job-1", "queued")])
     queued = dash.page.locator("#jobs tr[data-job='job-1']")
     expect(queued.locator(".state")).to_have_text("queued")
-    fleet.jobs([job("job-1", "to_pickup", "unit1")])
+    coordinator.jobs([job("job-1", "to_pickup", "unit1")])
     expect(queued.locator(".unit")).to_have_text("unit1")
-    fleet.jobs([job("job-1", "done", "unit1")])
+    coordinator.jobs([job("job-1", "done", "unit1")])
     expect(dash.page.locator("#finished tr[data-job='job-1'] .state")).to_have_text("done")
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(0)
     expect(dash.page.locator("#finished-counts")).to_have_text("done 1")
@@ -321,30 +249,34 @@ def test_submit_job_through_the_form(
 
 def test_queue_job_by_clicking_two_squares(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     dash.page.locator("input[name=clickmode][value=job]").check()
     dash.click_square(5, 0)
     dash.click_square(5, 9)
     dash.page.locator("#job-form input[name=mass]").fill("8")
     dash.page.locator("#job-form button[type=submit]").click()
-    request = decode(SubmitJob, fleet.probe.wait(topics.request("submit_job")).payload)
+    request = decode(SubmitJob, probe.wait(topics.request("submit_job")).payload)
     assert (request.pickup, request.dropoff, request.mass_kg) == ((5, 0), (5, 9), 8.0)
 
 
 def test_form_refuses_a_square_off_the_map_without_sending(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     form = dash.page.locator("#job-form")
     for name, value in (("px", "12"), ("py", "1"), ("dx", "8"), ("dy", "8")):
@@ -356,66 +288,59 @@ def test_form_refuses_a_square_off_the_map_without_sending(
     # A valid one afterwards is the first and only request on the topic.
     form.locator("input[name=px]").fill("2")
     form.locator("button[type=submit]").click()
-    fleet.probe.wait(topics.request("submit_job"))
+    probe.wait(topics.request("submit_job"))
     assert [
-        decode(SubmitJob, m.payload).pickup
-        for m in fleet.probe.received(topics.request("submit_job"))
+        decode(SubmitJob, m.payload).pickup for m in probe.received(topics.request("submit_job"))
     ] == [(2, 1)]
 
 
 def test_rejection_is_shown_in_words(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     form = dash.page.locator("#job-form")
     for name, value in (("px", "0"), ("py", "5"), ("dx", "9"), ("dy", "5"), ("mass", "50")):
         form.locator(f"input[name={name}]").fill(value)
     form.locator("button[type=submit]").click()
-    request = decode(SubmitJob, fleet.probe.wait(topics.request("submit_job")).payload)
+    request = decode(SubmitJob, probe.wait(topics.request("submit_job")).payload)
     reason = "mass 50.0 kg exceeds every unit's capacity (largest 20.0 kg)"
-    fleet.reply(dash.client_id, request.request_id, False, reason)
+    coordinator.reply(dash.client_id, request.request_id, False, reason)
     feedback = dash.page.locator("#job-feedback")
     expect(feedback).to_contain_text(f"refused — {reason}")
     expect(feedback).to_have_attribute("data-kind", "refused")
 
     # A refusal that comes only on `errors` (with our request id) is shown the same way.
     dash.set_goal("unit2", (2, 2))
-    goal = decode(SetGoal, fleet.probe.wait(topics.request("set_goal")).payload)
-    fleet._send(
-        "errors",
-        topics.fleet("errors"),
-        lambda h: ErrorReport(
-            header=h,
-            topic=topics.request("set_goal"),
-            reason="target [2, 2] is a wall",
-            request_id=goal.request_id,
-        ),
-        "coordinator",
-    )
+    goal = decode(SetGoal, probe.wait(topics.request("set_goal")).payload)
+    coordinator.error(topics.request("set_goal"), "target [2, 2] is a wall", goal.request_id)
     expect(dash.page.locator("#goal-feedback")).to_contain_text("refused — target [2, 2] is a wall")
 
 
 def test_delete_publishes_cancel_job(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
-    fleet.jobs([job("job-3", "queued"), job("job-4", "to_pickup", "unit2")])
+    playfield_fleet(coordinator, units, grid)
+    coordinator.jobs([job("job-3", "queued"), job("job-4", "to_pickup", "unit2")])
     dash = open_dashboard(root)
     dash.cancel_job("job-4")
-    request = decode(CancelJob, fleet.probe.wait(topics.request("cancel_job")).payload)
+    request = decode(CancelJob, probe.wait(topics.request("cancel_job")).payload)
     assert request.job_id == "job-4" and request.reply_to == dash.client_id
-    fleet.reply(dash.client_id, request.request_id, True, None)
+    coordinator.reply(dash.client_id, request.request_id, True)
     expect(dash.page.locator("#cancel-feedback")).to_contain_text("delete job job-4: accepted")
-    fleet.jobs(
+    coordinator.jobs(
         [job("job-3", "queued"), job("job-4", "cancelled", "unit2", reason="cancelled by operator")]
     )
     expect(dash.page.locator("#finished tr[data-job='job-4'] .state")).to_have_text("cancelled")
@@ -424,21 +349,23 @@ def test_delete_publishes_cancel_job(
 
 def test_set_goal_by_clicking_the_map(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     dash.page.locator("input[name=clickmode][value=goal]").check()
     dash.click_square(9, 0)  # clicking a unit chooses it
     expect(dash.page.locator("#units tr.selected")).to_have_attribute("data-unit", "unit2")
     dash.click_square(9, 3)
-    request = decode(SetGoal, fleet.probe.wait(topics.request("set_goal")).payload)
+    request = decode(SetGoal, probe.wait(topics.request("set_goal")).payload)
     assert (request.unit, request.target, request.reply_to) == ("unit2", (9, 3), dash.client_id)
     dash.page.locator("#goal-clear").click()
-    cleared = fleet.probe.wait(
+    cleared = probe.wait(
         topics.request("set_goal"), lambda m: decode(SetGoal, m.payload).target is None
     )
     assert decode(SetGoal, cleared.payload).unit == "unit2"
@@ -447,18 +374,20 @@ def test_set_goal_by_clicking_the_map(
 def test_stop_button_engages_and_hold_releases(
     open_dashboard: Callable[..., OpenDashboard],
     broker: BrokerThread,
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
     page = dash.page
     estop_topic = topics.fleet("estop")
     expect(page.locator("#release")).to_be_hidden()
     page.locator("#stop").click()
-    seen = fleet.probe.wait(estop_topic, lambda m: decode_estop(m.payload).engaged)
+    seen = probe.wait(estop_topic, lambda m: decode_estop(m.payload).engaged)
     signal = decode_estop(seen.payload)
     assert signal.by == "dashboard" and seen.qos == 1
     # Retained: a newcomer learns the stop from the broker.
@@ -485,8 +414,8 @@ def test_stop_button_engages_and_hold_releases(
     page.mouse.down()
     page.mouse.up()
     dash.hold_release()
-    fleet.probe.wait(estop_topic, lambda m: not decode_estop(m.payload).engaged, timeout=5)
-    releases = [m for m in fleet.probe.received(estop_topic) if not decode_estop(m.payload).engaged]
+    probe.wait(estop_topic, lambda m: not decode_estop(m.payload).engaged, timeout=5)
+    releases = [m for m in probe.received(estop_topic) if not decode_estop(m.payload).engaged]
     assert len(releases) == 1 and decode_estop(releases[0].payload).by == "dashboard"
     expect(page.locator("body")).to_have_attribute("data-estop", "released")
     expect(page.locator("#estop-banner")).to_be_hidden()
@@ -494,16 +423,16 @@ def test_stop_button_engages_and_hold_releases(
 
 def test_estop_engaged_elsewhere_is_shown(
     open_dashboard: Callable[..., OpenDashboard],
-    fleet: FakeFleet,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
     grid: GridMap,
     root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(fleet, grid)
+    playfield_fleet(coordinator, units, grid)
     dash = open_dashboard(root)
-    fleet.probe.publish(
-        topics.fleet("estop"), b"engaged|device1|button pressed", qos=1, retain=True
-    )
+    publish(probe, "estop", topics.fleet("estop"), b"engaged|device1|button pressed")
     expect(dash.page.locator("body")).to_have_attribute("data-estop", "engaged")
     expect(dash.page.locator("#estop-banner")).to_have_text(
         "EMERGENCY STOP — engaged by device1: button pressed"
@@ -511,7 +440,7 @@ def test_estop_engaged_elsewhere_is_shown(
     dash.page.reload()
     dash.wait_connected()
     expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by device1")
-    fleet.probe.publish(topics.fleet("estop"), b"released|operator|checked", qos=1, retain=True)
+    publish(probe, "estop", topics.fleet("estop"), b"released|operator|checked")
     expect(dash.page.locator("body")).to_have_attribute("data-estop", "released")
 
 
@@ -523,16 +452,15 @@ def test_reconnects_after_broker_restart(
     topics: Topics,
 ) -> None:
     with MqttProbe(fresh_broker.url) as probe:
-        FakeFleet(probe, topics).map(grid)
-        FakeFleet(probe, topics).state("unit1", (0, 0))
+        CoordinatorPeer(probe, topics).map(grid)
+        UnitPeer(probe, topics, "unit1").state(Cell(0, 0))
     dash = open_dashboard(root, broker_ws=fresh_broker.ws_url)
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[0, 0]")
     fresh_broker.restart()
     with MqttProbe(fresh_broker.url) as probe:
         probe.subscribe(topics.fleet("estop"))
         dash.wait_connected()  # same page, no reload: reconnected and subscribed again
-        fleet = FakeFleet(probe, topics)
-        fleet.state("unit1", (1, 0), "E", "moving")
+        UnitPeer(probe, topics, "unit1").state(Cell(1, 0), Direction.E, "moving")
         expect(row(dash, "unit1").locator(".pos")).to_have_text("[1, 0]")
         dash.page.locator("#stop").click()
         assert decode_estop(probe.wait(topics.fleet("estop")).payload).engaged
@@ -570,26 +498,30 @@ def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
 
 
 def test_rows_survive_renders_so_clicks_are_not_lost(
-    open_dashboard: Callable[..., OpenDashboard], fleet: FakeFleet, grid: GridMap, root: str
+    open_dashboard: Callable[..., OpenDashboard],
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
+    grid: GridMap,
+    root: str,
 ) -> None:
     # Found against the real fleet: rows were rebuilt on every message (units report every
     # step), so the "delete" button under the pointer was replaced and the click was lost.
-    playfield_fleet(fleet, grid)
-    fleet.jobs([job("job-3", "queued")])
+    playfield_fleet(coordinator, units, grid)
+    coordinator.jobs([job("job-3", "queued")])
     dash = open_dashboard(root)
     button = dash.page.locator("#jobs button[data-cancel='job-3']")
     expect(button).to_be_visible()
     kept_button = button.element_handle()
     kept_row = row(dash, "unit1").element_handle()
-    fleet.state("unit1", (1, 0), "E", "moving")
+    units["unit1"].state(Cell(1, 0), Direction.E, "moving")
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[1, 0]")
-    fleet.jobs([job("job-3", "to_pickup", "unit2"), job("job-4", "queued")])
+    coordinator.jobs([job("job-3", "to_pickup", "unit2"), job("job-4", "queued")])
     expect(dash.page.locator("#jobs tr[data-job='job-3'] .unit")).to_have_text("unit2")
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(2)
     assert kept_button.evaluate("b => b.isConnected")
     assert kept_row.evaluate("tr => tr.isConnected")
     # Finished jobs leave the queue; the rest keep their rows.
-    fleet.jobs([job("job-3", "done", "unit2"), job("job-4", "queued")])
+    coordinator.jobs([job("job-3", "done", "unit2"), job("job-4", "queued")])
     expect(dash.page.locator("#finished tr[data-job='job-3'] .state")).to_have_text("done")
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(1)
     assert not kept_button.evaluate("b => b.isConnected")
