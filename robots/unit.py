@@ -5,6 +5,9 @@ connects), the sensor readings and the time `now` (seconds on any monotonic cloc
 the move the unit wants and, from `report`, the state to publish. Coordinated driving lives in
 `coordinated.py`, standalone routing in `navigation.py`; the wire (topics, bytes) in `core.py`.
 
+A new `UnitLogic` counts as connected, with the stop known to be released, so a pure simulation
+needs no connect; a shell calls `on_disconnect`/`on_connect` as its session comes and goes.
+
 Public surface, for shells and simulations:
 - inputs: `start`, `on_order`, `on_goal`, `on_estop`, `on_coordinator`, `on_connect`,
   `on_disconnect`, `error`; a step is `tick` (or `begin_step`, move, `end_step`);
@@ -149,7 +152,7 @@ class UnitLogic:
         if verdict.result == "refused":
             self.error("bad_order", verdict.reason or "")
         if verdict.result != "stale":
-            self.refresh(now)
+            self._refresh(now)
         return verdict
 
     def on_goal(self, target: Cell | None, now: float) -> Verdict:
@@ -159,7 +162,7 @@ class UnitLogic:
         problem = self.navigator.set_goal(target)
         if problem is not None:
             self.error("bad_goal", problem)
-        self.refresh(now)
+        self._refresh(now)
         return Verdict("accepted") if problem is None else Verdict("refused", problem)
 
     def on_estop(self, engaged: bool, now: float) -> None:
@@ -168,7 +171,7 @@ class UnitLogic:
         if engaged and not self.estop:
             self.orders.drop()
         self.estop = engaged
-        self.refresh(now)
+        self._refresh(now)
 
     def on_coordinator(self, step_period_s: float) -> None:
         """The coordinator's announced step period, which sizes the hold timeout."""
@@ -180,12 +183,12 @@ class UnitLogic:
         self.estop_known = False
         wait = min(ESTOP_WAIT_MAX_S, max(ESTOP_WAIT_MIN_S, self.step_s))
         self._estop_wait_until = now + wait
-        self.refresh(now)
+        self._refresh(now)
 
     def on_disconnect(self, now: float) -> None:
         """Lost the broker (or not connected yet): hold still until connected again."""
         self.connected = False
-        self.refresh(now)
+        self._refresh(now)
 
     def _sense(self, readings: Readings) -> None:
         """Take fresh sensor readings; an obstacle seen for the first time is reported once."""
@@ -243,9 +246,9 @@ class UnitLogic:
             )
         self._sense(readings)
         self._act()
-        self.refresh(now)
+        self._refresh(now)
 
-    def refresh(self, now: float) -> None:
+    def _refresh(self, now: float) -> None:
         """Recompute the intended move (the LEDs) after anything changed between steps."""
         intent = self._intent(now, waiting_counts=False)
         self.direction = intent.move

@@ -151,3 +151,14 @@ def test_sensors_always_agree_with_where_the_units_are(actions: list[Action]) ->
                 assert (world.square(cell, exclude=asking) == "unit") == (
                     scan and world.grid.is_free(cell) and cell not in world.hidden
                 )
+
+
+def test_units_seen_through_their_state_are_placed_but_units_simulated_here_stay_the_truth() -> (
+    None
+):
+    world = world_of("a...", "....")
+    world.observe("r", Cell(2, 0))
+    world.observe("a", Cell(3, 1))  # a stale or foreign report about a unit simulated here
+    assert world.positions == {"a": Cell(0, 0), "r": Cell(2, 0)} and world.remote == {"r"}
+    world.observe("r", Cell(2, 1))
+    assert world.position("r") == Cell(2, 1) and world.sense("a")[E] == "free"
