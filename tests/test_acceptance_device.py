@@ -2,8 +2,8 @@
 
 Everything runs for real over the session broker: the coordinator and the simulated units of a
 shipped scenario (the `run_system` fixture), the virtual device (`device.shell`) and an
-operator probe that sends goals, reads every unit's state and watches the topics the dashboard
-reads.
+operator (`OperatorPeer`, tests/support/operator_peer.py) that sends goals, reads every unit's
+state and watches the topics the dashboard reads.
 """
 
 from __future__ import annotations
@@ -19,23 +19,11 @@ import pytest
 from device.logic import DeviceLogic
 from device.shell import VirtualDevice
 from gridfleet.grid import Cell, Direction
-from gridfleet.protocol import (
-    CoordinatorStatus,
-    EstopSignal,
-    HeaderStamper,
-    Leds,
-    Reply,
-    SetGoal,
-    Topics,
-    UnitState,
-    decode,
-    decode_estop,
-    encode,
-    encode_estop,
-)
+from gridfleet.protocol import Leds, Topics, UnitState, decode_direction, decode_estop
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, world_of
 
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
 
@@ -44,6 +32,8 @@ STEP_S = 0.05
 ALL = Leds(N=True, E=True, S=True, W=True)
 T = TypeVar("T")
 RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
+OPERATOR = "acceptance-op"
+RELEASE_REASON = "area checked"  # the operator's deliberate release
 
 
 def lit(leds: Leds) -> set[str]:
@@ -51,83 +41,37 @@ def lit(leds: Leds) -> set[str]:
     return {side for side, on in leds.model_dump().items() if on}
 
 
-class Operator:
-    """A probe that sends goals and the release, and reads states and the dashboard's topics."""
+def send_goal(op: OperatorPeer, unit: str, target: Cell) -> None:
+    """Send `unit` to `target`; retried while the coordinator does not know the unit yet."""
 
-    def __init__(self, probe: MqttProbe, topics: Topics, units: list[str]) -> None:
-        self.probe = probe
-        self.topics = topics
-        self.units = units
-        self.name = "acceptance-op"
-        self.stamp = HeaderStamper(self.name)
-        self._requests = itertools.count()
-        probe.subscribe(topics.all_units("state"), qos=0)  # high rate: QoS 0 (protocol §2)
-        probe.subscribe(topics.fleet("estop"), qos=1)
-        probe.subscribe(topics.fleet("coordinator"), qos=1)
-        probe.subscribe(topics.reply(self.name), qos=1)
-        probe.subscribe(topics.all_units("direction"), qos=0)
+    def accepted() -> bool:
+        reply = op.set_goal(unit, target)
+        assert reply.accepted or "unknown unit" in (reply.reason or ""), reply.reason
+        return reply.accepted
 
-    def states(self, unit: str) -> list[UnitState]:
-        """Every state of `unit` seen so far, in the order it was published."""
-        return [
-            decode(UnitState, m.payload)
-            for m in self.probe.received(self.topics.unit("state", unit))
-        ]
+    wait_for(accepted, 10, interval=STEP_S, what=f"goal {target} for {unit} accepted")
 
-    def directions(self, unit: str) -> list[bytes]:
-        """Every payload seen on `unit`'s device topic `direction`."""
-        return [m.payload for m in self.probe.received(self.topics.unit("direction", unit))]
 
-    def last(self, unit: str) -> UnitState | None:
-        """The newest state of `unit`, if any."""
-        seen = self.probe.received(self.topics.unit("state", unit))
-        return decode(UnitState, seen[-1].payload) if seen else None
+def step_of(op: OperatorPeer, unit: str) -> int:
+    """The step of `unit`'s newest state (it must have published one)."""
+    state = op.last_state(unit)
+    assert state is not None, f"no state of {unit} yet"
+    return state.step
 
-    def replies(self) -> dict[str, Reply]:
-        """Replies to this operator by request id."""
-        seen = self.probe.received(self.topics.reply(self.name))
-        return {r.request_id: r for r in (decode(Reply, m.payload) for m in seen)}
 
-    def set_goal(self, unit: str, target: Cell) -> None:
-        """Send `unit` to `target` through the coordinator; retried until the coordinator knows it."""
+def stepped_past(op: OperatorPeer, marks: dict[str, int], n: int) -> bool:
+    """Whether every unit has published a state at least `n` steps after its mark."""
+    for unit, mark in marks.items():
+        state = op.last_state(unit)
+        if state is None or state.step < mark + n:
+            return False
+    return True
 
-        def accepted() -> bool:
-            rid = f"goal-{unit}-{next(self._requests)}"
-            msg = SetGoal(
-                header=self.stamp("set_goal"),
-                request_id=rid,
-                reply_to=self.name,
-                unit=unit,
-                target=(target.x, target.y),
-            )
-            self.probe.publish(self.topics.request("set_goal"), encode(msg))
-            reply = wait_for(lambda: self.replies().get(rid), 10, what=f"reply to {rid}")
-            assert reply.accepted or "unknown unit" in (reply.reason or ""), reply.reason
-            return reply.accepted
 
-        wait_for(accepted, 10, interval=STEP_S, what=f"goal {target} for {unit} accepted")
-
-    def release(self) -> None:
-        """The operator's deliberate release, as the dashboard's release control sends it."""
-        payload = encode_estop(EstopSignal(False, self.name, "area checked"))
-        self.probe.publish(self.topics.fleet("estop"), payload, qos=1, retain=True)
-
-    def estop_signals(self) -> list[EstopSignal]:
-        """Every estop value seen on the topic the dashboard reads."""
-        return [decode_estop(m.payload) for m in self.probe.received(self.topics.fleet("estop"))]
-
-    def coordinator_estop(self) -> bool | None:
-        """The `estop` flag of the coordinator's newest status (shown by the dashboard too)."""
-        seen = self.probe.received(self.topics.fleet("coordinator"))
-        return decode(CoordinatorStatus, seen[-1].payload).estop if seen else None
-
-    def stepped_past(self, marks: dict[str, int], n: int) -> bool:
-        """Whether every unit has published a state at least `n` steps after its mark."""
-        for unit, mark in marks.items():
-            state = self.last(unit)
-            if state is None or state.step < mark + n:
-                return False
-        return True
+def coordinator_estop(op: OperatorPeer) -> bool | None:
+    """The `estop` flag of the coordinator's newest status (shown by the dashboard too)."""
+    status = op.coordinator_status()
+    return None if status is None else status.estop
 
 
 def dedup(seq: list[T]) -> list[T]:
@@ -206,21 +150,19 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
     units = [u.id for u in scenario.units]
     goals = {g.unit: Cell(*g.target) for g in scenario.goals}
     assert sorted(goals) == sorted(units)  # every unit crosses to the opposite arm: they meet
-    op = Operator(probe_factory(), topics, units)
+    op = OperatorPeer(probe_factory(), topics, OPERATOR)
     _, fleet = run_system(scenario, step_s=STEP_S)
     world = world_of(fleet)
     for unit, target in goals.items():
-        op.set_goal(unit, target)
+        send_goal(op, unit, target)
     wait_for(lambda: all(world.moves[u] >= 2 for u in units), 15, what="every unit under way")
 
     # An emergency stop in the middle of the crossing, so stopped states are checked too.
-    op.probe.publish(
-        topics.fleet("estop"), encode_estop(EstopSignal(True, "tester", "test")), retain=True
-    )
-    wait_for(lambda: all((s := op.last(u)) and s.estop for u in units), 5, what="all stopped")
-    marks = {u: op.last(u).step for u in units}  # type: ignore[union-attr]
-    wait_for(lambda: op.stepped_past(marks, 3), 5, what="three steps while stopped")
-    op.release()
+    op.engage("test", by="tester")
+    wait_for(lambda: all((s := op.last_state(u)) and s.estop for u in units), 5, what="all stopped")
+    marks = {u: step_of(op, u) for u in units}
+    wait_for(lambda: stepped_past(op, marks, 3), 5, what="three steps while stopped")
+    op.release(RELEASE_REASON)
 
     wait_for(
         lambda: all(world.positions[u] == g for u, g in goals.items()),
@@ -228,7 +170,9 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
         what="every unit at its goal",
     )
     wait_for(
-        lambda: all((s := op.last(u)) and s.status == "idle" and s.direction == "-" for u in units),
+        lambda: all(
+            (s := op.last_state(u)) and s.status == "idle" and s.direction == "-" for u in units
+        ),
         5,
         what="every unit idle",
     )
@@ -236,7 +180,9 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
     checked = {u: check_intentions(u, op.states(u)) for u in units}
     for unit in units:
         # The device topic carries every change of the state's direction, in order.
-        assert_follows(op.directions(unit), dedup([s.direction.encode() for s in op.states(unit)]))
+        assert_follows(
+            op.directions(unit), dedup([decode_direction(s.direction) for s in op.states(unit)])
+        )
     stopped = {u: sum(s.status == "stopped" for s in op.states(u)) for u in units}
     # Nothing vacuous: (nearly) every move was compared, and every unit was seen stopped.
     assert sum(checked.values()) >= 0.9 * sum(world.moves.values()), (checked, world.moves)
@@ -260,7 +206,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
     scenario = load_scenario(MAPS / "playfield.toml")
     units = [u.id for u in scenario.units]
     starts = {u.id: u.start for u in scenario.units}
-    op = await asyncio.to_thread(lambda: Operator(probe_factory(), topics, units))
+    op = await asyncio.to_thread(lambda: OperatorPeer(probe_factory(), topics, OPERATOR))
     _, fleet = await asyncio.to_thread(run_system, scenario, STEP_S)
     world = world_of(fleet)
 
@@ -277,7 +223,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         await async_wait_for(lambda: device.online or task.done(), what="device online")
         assert not task.done(), task.exception()
         await async_wait_for(
-            lambda: all((s := op.last(u)) and s.status == "idle" for u in units), what="idle"
+            lambda: all((s := op.last_state(u)) and s.status == "idle" for u in units), what="idle"
         )
         assert device.leds == Leds()  # unit1 stands still: nothing lit
 
@@ -287,14 +233,14 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         first = len(before)
         assert before and before[-1].leds == Leds()
         for unit, target in goals.items():
-            await asyncio.to_thread(op.set_goal, unit, target)
+            await asyncio.to_thread(send_goal, op, unit, target)
         await async_wait_for(
             lambda: all(world.positions[u] == g for u, g in goals.items()),
             30,
             what="every unit at its goal",
         )
         await async_wait_for(
-            lambda: (s := op.last("unit1")) and s.direction == "-" and device.leds == Leds(),
+            lambda: (s := op.last_state("unit1")) and s.direction == "-" and device.leds == Leds(),
             5,
             what="unit1 and the device at rest",
         )
@@ -309,7 +255,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
 
         # 2. Its stop key halts every unit while they drive back to where they started.
         for unit in units:
-            await asyncio.to_thread(op.set_goal, unit, starts[unit])
+            await asyncio.to_thread(send_goal, op, unit, starts[unit])
         moved = dict(world.moves)
         await async_wait_for(
             lambda: all(world.moves[u] >= moved[u] + 2 for u in units), 15, what="under way"
@@ -317,25 +263,27 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         device.press()
         assert device.leds == ALL  # the press shows at once, before the broker confirms it
         await async_wait_for(
-            lambda: all((s := op.last(u)) and s.estop for u in units), 5, what="all units stopped"
+            lambda: all((s := op.last_state(u)) and s.estop for u in units),
+            5,
+            what="all units stopped",
         )
         first_stopped = {u: next(s for s in op.states(u) if s.estop) for u in units}
         held = dict(world.positions)
         moves = dict(world.moves)
-        marks = {u: op.last(u).step for u in units}  # type: ignore[union-attr]
-        await async_wait_for(lambda: op.stepped_past(marks, 5), 5, what="five steps stopped")
+        marks = {u: step_of(op, u) for u in units}
+        await async_wait_for(lambda: stepped_past(op, marks, 5), 5, what="five steps stopped")
         assert world.positions == held and world.moves == moves
         for unit in units:
             # Halted within one step: where it stood when it said stopped, it still stands.
             assert Cell(*first_stopped[unit].position) == held[unit]
-            last = op.last(unit)
+            last = op.last_state(unit)
             assert last is not None and last.status == "stopped" and lit(last.leds) == set("NESW")
         # Visible where the dashboard looks: the retained estop topic and the coordinator status.
         # The probe hears the device on its own connection: the signal may come after the states.
         signals = await async_wait_for(op.estop_signals, 5, what="the stop on the estop topic")
         engaged = signals[-1]
         assert (engaged.engaged, engaged.by, engaged.reason) == (True, "dev-accept", "button")
-        await async_wait_for(lambda: op.coordinator_estop() is True, 5, what="coordinator stop")
+        await async_wait_for(lambda: coordinator_estop(op) is True, 5, what="coordinator stop")
         late = await asyncio.to_thread(probe_factory)  # a dashboard opened now
         await asyncio.to_thread(late.subscribe, topics.fleet("estop"), 1)
         seen = await async_wait_for(lambda: late.received(topics.fleet("estop")), what="retained")
@@ -345,7 +293,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         assert sum(s.engaged for s in op.estop_signals()) == 1  # one press, one stop
 
         # 3. Only a deliberate release lets them go on; they all get home, nobody collided.
-        await asyncio.to_thread(op.release)
+        await asyncio.to_thread(op.release, RELEASE_REASON)
         await async_wait_for(lambda: device.leds != ALL, 5, what="device shows direction again")
         await async_wait_for(
             lambda: all(world.positions[u] == starts[u] for u in units),
@@ -354,7 +302,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         )
         await async_wait_for(lambda: device.leds == Leds(), 5, what="device at rest")
         assert world.collisions == 0
-        await async_wait_for(lambda: op.coordinator_estop() is False, 5, what="coordinator release")
+        await async_wait_for(lambda: coordinator_estop(op) is False, 5, what="coordinator release")
     finally:
         stop.set()
         await asyncio.wait_for(task, 10)
@@ -398,23 +346,22 @@ def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_f
     from gridfleet.scenario import load_scenario
 
     scenario = load_scenario(MAPS / "playfield.toml")
-    units = [u.id for u in scenario.units]
-    op = Operator(probe_factory(), topics, units)
+    op = OperatorPeer(probe_factory(), topics, OPERATOR)
     _, fleet = run_system(scenario, step_s=STEP_S)
     world = world_of(fleet)
     virtual = VirtualDevice(broker.url, "unit2", root, device_id="dev-dash")
     service = DeviceService(virtual)
     with ServiceThread(lambda: service, "virtual-device"):
         dash = open_dashboard(root, grid=scenario.grid)
-        op.set_goal("unit2", Cell(0, 9))
+        send_goal(op, "unit2", Cell(0, 9))
         wait_for(lambda: world.moves["unit2"] >= 2, 15, what="unit2 under way")
         service.press()
         expect(dash.page.locator("body")).to_have_attribute("data-estop", "engaged")
         expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by dev-dash")
-        wait_for(lambda: (s := op.last("unit2")) and s.estop, 5, what="unit2 stopped")
+        wait_for(lambda: (s := op.last_state("unit2")) and s.estop, 5, what="unit2 stopped")
         held = world.positions["unit2"]
-        mark = {"unit2": op.last("unit2").step}  # type: ignore[union-attr]
-        wait_for(lambda: op.stepped_past(mark, 5), 5, what="five steps stopped")
+        mark = {"unit2": step_of(op, "unit2")}
+        wait_for(lambda: stepped_past(op, mark, 5), 5, what="five steps stopped")
         assert world.positions["unit2"] == held
         # The operator's deliberate release, with the dashboard's own control.
         dash.hold_release()
