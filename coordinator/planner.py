@@ -24,7 +24,7 @@ import numpy as np
 
 from coordinator.pibt import NONE, PIBT, neighbour_table
 from gridfleet.grid import Cell, GridMap
-from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance
 
 
 @dataclass(frozen=True)
@@ -127,19 +127,14 @@ class Planner:
     def route(self, start: Cell, target: Cell, limit: int = 256) -> list[Cell]:
         """The shortest path after `start` to `target` (empty when unreachable), for display."""
         field = self.cache.get(target)
-        d = int(field[start.y, start.x]) if self._grid.in_bounds(start) else UNREACHABLE
+        d = distance(field, start)
         out: list[Cell] = []
         here = start
         while 0 < d < UNREACHABLE and len(out) < limit:
-            here = next(c for c in here.neighbours() if _at(field, c) == d - 1)
+            here = next(c for c in here.neighbours() if distance(field, c) == d - 1)
             out.append(here)
             d -= 1
         return out
-
-
-def _at(field: np.ndarray, cell: Cell) -> int:
-    h, w = field.shape
-    return int(field[cell.y, cell.x]) if 0 <= cell.x < w and 0 <= cell.y < h else UNREACHABLE
 
 
 def plan_step(
