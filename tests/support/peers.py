@@ -1,40 +1,37 @@
 """The coordinator as units see it, for tests that drive real units over a real broker.
 
-`DispatchPeer` plays the coordinator's side of protocol.md §4.4 and §5.5 towards units: it sends
-orders, announces its status (the step period units size their hold timeout by) and engages or
-releases the emergency stop, and it reads what the units publish (states, directions,
-connections, error reports) with the protocol's own decoders. Every message is built from the
-protocol's models, stamped by its sender, and published through an `MqttProbe` with the QoS and
-retain flag protocol.md gives its topic (`gridfleet.endpoint.Outbound.of`).
+`DispatchPeer` is a `CoordinatorPeer` (what the coordinator publishes, `support.fleet_peer`) that
+also plays its side of protocol.md §4.4 towards units: it sends orders (and, as an operator
+would, goals), engages or releases the emergency stop, announces the step period units size their
+hold timeout by, and reads what the units publish (states, directions, connections, error
+reports) with the protocol's own decoders. Every message is built from the protocol's models,
+stamped by its sender, and published with the QoS and retain flag protocol.md gives its topic.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Action,
     Connection,
-    CoordinatorStatus,
     ErrorReport,
     EstopSignal,
     Goal,
-    HeaderStamper,
     Order,
     Topics,
     UnitState,
     decode,
     encode_estop,
 )
-from gridfleet.protocol.messages import Message
 
+from support.fleet_peer import CoordinatorPeer, publish
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
 
-class DispatchPeer:
+class DispatchPeer(CoordinatorPeer):
     """Sends units orders, its status and the stop; reads their states, connections and errors.
 
     It subscribes on creation, so whatever units publish afterwards is kept by its probe. With a
@@ -48,31 +45,16 @@ class DispatchPeer:
         step_period_s: float | None = 5.0,
         sender: str = "coordinator",
     ) -> None:
-        self.probe = probe
-        self.topics = topics
-        self.stamp = HeaderStamper(sender)
+        super().__init__(probe, topics, sender)
         self.step_period_s = step_period_s
         for kind in ("state", "direction"):
             probe.subscribe(topics.all_units(kind), qos=0)  # high rate: QoS 0 (protocol §2)
         probe.subscribe(topics.all_units("connection"), qos=1)
         probe.subscribe(topics.fleet("errors"), qos=1)
         if step_period_s is not None:
-            self.status(step_period_s)
+            self.status(step_period_s=step_period_s)
 
     # ---- what it sends ----------------------------------------------------------------------
-
-    def send(self, kind: str, topic: str, message: Message | bytes) -> None:
-        """Publish `message` (or raw bytes) on `topic` with the QoS and retain flag of `kind`."""
-        out = Outbound.of(kind, topic, message)
-        self.probe.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
-
-    def status(self, step_period_s: float) -> CoordinatorStatus:
-        """Announce the coordinator online with its step period (retained)."""
-        status = CoordinatorStatus(
-            header=self.stamp("coordinator"), state="online", step_period_s=step_period_s
-        )
-        self.send("coordinator", self.topics.fleet("coordinator"), status)
-        return status
 
     def order(
         self,
@@ -92,27 +74,27 @@ class DispatchPeer:
             planned=planned or [],
             action=action,
         )
-        self.send("order", self.topics.unit("order", unit), order)
+        publish(self.probe, "order", self.topics.unit("order", unit), order)
         return order
 
     def raw_order(self, unit: str, payload: bytes) -> None:
         """Send `unit` any bytes as an order (to see it refuse them)."""
-        self.send("order", self.topics.unit("order", unit), payload)
+        publish(self.probe, "order", self.topics.unit("order", unit), payload)
 
     def goal(self, unit: str, target: Cell | None) -> Goal:
         """Give a standalone `unit` a goal, as an operator would (None clears it)."""
         goal = Goal(header=self.stamp("goal"), target=target)
-        self.send("goal", self.topics.unit("goal", unit), goal)
+        publish(self.probe, "goal", self.topics.unit("goal", unit), goal)
         return goal
 
     def raw_goal(self, unit: str, payload: bytes) -> None:
         """Send `unit` any bytes as a goal."""
-        self.send("goal", self.topics.unit("goal", unit), payload)
+        publish(self.probe, "goal", self.topics.unit("goal", unit), payload)
 
     def estop(self, engaged: bool, payload: bytes | None = None) -> None:
         """Engage or release the retained stop; `payload` sends those bytes instead."""
         data = payload or encode_estop(EstopSignal(engaged, "tester", "test"))
-        self.send("estop", self.topics.fleet("estop"), data)
+        publish(self.probe, "estop", self.topics.fleet("estop"), data)
 
     # ---- what it reads ----------------------------------------------------------------------
 
