@@ -1,4 +1,9 @@
-"""The pure coordinator core with fake units, late and lost messages: safe, and every job done."""
+"""The pure coordinator core with the real unit core (robots' UnitLogic) on a simulated world,
+late and lost messages: safe, and every job done.
+
+Units' sensors do not see each other here: the coordinator's orders alone must keep them apart,
+so a move the world refuses (`prevented`) is a failure of the coordinator.
+"""
 
 from __future__ import annotations
 
@@ -6,34 +11,35 @@ import random
 
 import pytest
 from coordinator_drive import from_unit, header, make_core, meet, orders_in, reply_in, request
-from coordinator_fakes import ROOM_ROWS, FakeUnit
+from coordinator_fakes import ROOM_ROWS, Yard
 
 from coordinator.core import CoordinatorCore
-from coordinator.world import World
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import Connection, HeaderStamper, Order, Reply, SetGoal, SubmitJob
+from gridfleet.protocol import Connection, Order, Reply, SetGoal, SubmitJob
+from robots.unit import UnitLogic
 
 ROWS = ROOM_ROWS
 
 
-def check_released_disjoint(units: list[FakeUnit]) -> None:
+def check_released_disjoint(units: list[UnitLogic]) -> None:
     """No square is released to two units, and no two units are released into each other."""
     claimed: dict[Cell, str] = {}
     for u in units:
         for c in u.released:
-            assert c not in claimed, f"{c} released to {claimed[c]} and {u.id}"
-            claimed[c] = u.id
+            assert c not in claimed, f"{c} released to {claimed[c]} and {u.unit_id}"
+            claimed[c] = u.unit_id
     # Layer one of the safety model on its own: a released square never holds another unit,
     # not even one about to leave it (units run on their own clocks).
-    standing = {u.position: u.id for u in units}
+    standing = {u.position: u.unit_id for u in units}
     for u in units:
         for c in u.released:
-            assert standing.get(c, u.id) == u.id, f"{c} released to {u.id} holds {standing[c]}"
+            who = standing.get(c, u.unit_id)
+            assert who == u.unit_id, f"{c} released to {u.unit_id} holds {who}"
     for u in units:
         for other in units:
             if u is not other and u.released and other.released:
                 swap = u.released[0] == other.position and other.released[0] == u.position
-                assert not swap, f"{u.id} and {other.id} released into each other"
+                assert not swap, f"{u.unit_id} and {other.unit_id} released into each other"
 
 
 def simulate(
@@ -44,21 +50,21 @@ def simulate(
     p_order: float,
     steps: int = 1500,
     hidden: set[Cell] | None = None,
-) -> tuple[CoordinatorCore, list[FakeUnit], int]:
+) -> tuple[CoordinatorCore, Yard, int]:
     rng = random.Random(seed)
     grid = GridMap.from_rows(ROWS)
     free = [c for c in grid.free_cells() if c not in (hidden or set())]
     core = make_core(grid, seed=seed)
     world = core.world
     spots = rng.sample(free, n_units)
-    units = [
-        FakeUnit(f"u{i}", spots[i], rng.choice([2.0, 5.0, 10.0, 20.0])) for i in range(n_units)
-    ]
-    units[0].capacity_kg = 20.0
-    stamps = {u.id: HeaderStamper(u.id) for u in units}
+    capacities = [rng.choice([2.0, 5.0, 10.0, 20.0]) for _ in range(n_units)]
+    capacities[0] = 20.0
+    units = [UnitLogic(f"u{i}", grid, spots[i], capacities[i], 1.0) for i in range(n_units)]
+    yard = Yard(grid, units, hidden or (), sensors_see_units=False)
     now = 0.0
     for u in units:
-        meet(core, u.state(stamps[u.id]), u.capacity_kg)
+        u.start(now)
+        meet(core, yard.state(u.unit_id), u.capacity_kg)
     for j in range(n_jobs):
         p, d = rng.sample(free, 2)
         req = SubmitJob(
@@ -78,20 +84,19 @@ def simulate(
                 pending.append((t + rng.choice([0, 0, 1]), uid, order))
         due = [m for m in pending if m[0] <= t]
         pending = [m for m in pending if m[0] > t]
-        by_id = {u.id: u for u in units}
         for _, uid, order in due:
-            by_id[uid].on_order(order, grid)
+            yard.units[uid].on_order(order, now)
         check_released_disjoint(units)
         for u in rng.sample(units, len(units)):
-            u.tick({o.position for o in units if o is not u}, hidden or set())
-        positions = [u.position for u in units]
-        assert len(set(positions)) == len(positions), f"collision at step {t}"
+            yard.tick(u.unit_id, now)
+        assert (yard.world.prevented, yard.world.collisions) == (0, 0), f"at step {t}"
         for u in units:
-            heard = rng.random() < p_state or now - (world.units[u.id].state_at or 0) >= 3
+            uid = u.unit_id
+            heard = rng.random() < p_state or now - (world.units[uid].state_at or 0) >= 3
             if heard:
-                from_unit(core, "state", u.id, u.state(stamps[u.id]), now)
+                from_unit(core, "state", uid, yard.state(uid), now)
         if all(j.final for j in core.jobs.jobs.values()):
-            return core, units, t
+            return core, yard, t
     raise AssertionError(
         f"jobs not finished after {steps} steps: "
         f"{[(j.id, j.state, j.unit) for j in core.jobs.jobs.values() if not j.final]}"
@@ -115,29 +120,27 @@ def test_hidden_obstacles_are_reported_and_planned_around() -> None:
     assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
 
 
-def one_unit(capacity_kg: float) -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper]:
-    """A core on ROWS with one fake unit `u` at (0, 0), online and heard from."""
-    core = make_core(GridMap.from_rows(ROWS))
-    unit = FakeUnit("u", Cell(0, 0), capacity_kg)
-    stamp = HeaderStamper("u")
-    meet(core, unit.state(stamp), capacity_kg)
-    return core, core.world, unit, stamp
+def one_unit(capacity_kg: float) -> tuple[CoordinatorCore, Yard]:
+    """A core on ROWS with one unit `u` at (0, 0), online and heard from."""
+    grid = GridMap.from_rows(ROWS)
+    core = make_core(grid)
+    yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), capacity_kg, 1.0)])
+    meet(core, yard.state("u"), capacity_kg)
+    return core, yard
 
 
-def step_one(
-    core: CoordinatorCore, world: World, unit: FakeUnit, stamp: HeaderStamper, now: float
-) -> bool:
+def step_one(core: CoordinatorCore, yard: Yard, now: float) -> bool:
     """One coordinator step; the unit follows its order (if it got one) and reports back."""
     orders = orders_in(core.step(now))
     if "u" in orders:
-        unit.on_order(orders["u"], world.grid)
-    unit.tick(set(), set())
-    from_unit(core, "state", "u", unit.state(stamp), now)
+        yard.units["u"].on_order(orders["u"], now)
+    yard.tick("u", now)
+    from_unit(core, "state", "u", yard.state("u"), now)
     return "u" in orders
 
 
 def test_goal_pins_a_unit_until_reached() -> None:
-    core, world, unit, stamp = one_unit(5.0)
+    core, yard = one_unit(5.0)
 
     def set_goal(unit: str, target: tuple[int, int]) -> Reply:
         goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit=unit, target=target)  # type: ignore[arg-type]
@@ -149,58 +152,56 @@ def test_goal_pins_a_unit_until_reached() -> None:
     assert not wall.accepted and "wall" in (wall.reason or "")
     assert set_goal("u", (9, 3)).accepted
     for t in range(1, 60):
-        assert step_one(core, world, unit, stamp, float(t))
-        if unit.position == Cell(9, 3):
+        assert step_one(core, yard, float(t))
+        if yard.units["u"].position == Cell(9, 3):
             break
-    assert unit.position == Cell(9, 3)
+    assert yard.units["u"].position == Cell(9, 3)
     core.step(100.0)
     assert core.goals == {}
 
 
-def _carrying_unit() -> tuple[CoordinatorCore, World, FakeUnit, HeaderStamper, float]:
+def _carrying_unit() -> tuple[CoordinatorCore, Yard, float]:
     """One unit under way to the dropoff with a job's item on board."""
-    core, world, unit, stamp = one_unit(10.0)
+    core, yard = one_unit(10.0)
     req = SubmitJob(
         header=header("t"),
         request_id="r",
         reply_to="t",
-        pickup=(0, 1),
-        dropoff=(9, 9),
-        mass_kg=1.0,  # type: ignore[arg-type]
+        pickup=(0, 1),  # type: ignore[arg-type]
+        dropoff=(9, 9),  # type: ignore[arg-type]
+        mass_kg=1.0,
     )
     assert reply_in(request(core, "submit_job", req, 0.0)).accepted
     now = 0.0
     while core.jobs.jobs[next(iter(core.jobs.jobs))].state != "to_dropoff":
         now += 1.0
         assert now < 30, "never loaded"
-        assert step_one(core, world, unit, stamp, now)
-    return core, world, unit, stamp, now
+        assert step_one(core, yard, now)
+    return core, yard, now
 
 
-def _run_to_end(
-    core: CoordinatorCore, world: World, unit: FakeUnit, stamp: HeaderStamper, now: float
-) -> str:
+def _run_to_end(core: CoordinatorCore, yard: Yard, now: float) -> str:
     job = next(iter(core.jobs.jobs.values()))
     for _ in range(60):
         now += 1.0
-        step_one(core, world, unit, stamp, now)
+        step_one(core, yard, now)
         if job.final:
             break
     return job.state
 
 
 def test_a_carrying_unit_that_is_only_late_finishes_its_job() -> None:
-    core, world, unit, stamp, now = _carrying_unit()
+    core, yard, now = _carrying_unit()
     for _ in range(30):  # 30 s of silence: lost for a while, but the item is on board
         now += 1.0
         core.step(now)
     job = next(iter(core.jobs.jobs.values()))
     assert job.state == "to_dropoff" and job.unit == "u"
-    assert _run_to_end(core, world, unit, stamp, now) == "done"
+    assert _run_to_end(core, yard, now) == "done"
 
 
 def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
-    core, _, _, _, now = _carrying_unit()
+    core, _, now = _carrying_unit()
     for _ in range(200):
         now += 1.0
         core.step(now)
@@ -209,7 +210,7 @@ def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
 
 
 def test_a_carrying_unit_that_goes_offline_fails_its_job_at_once() -> None:
-    core, _, _, _, now = _carrying_unit()
+    core, _, now = _carrying_unit()
     from_unit(core, "connection", "u", Connection(header=header("u"), state="offline"), now)
     core.step(now + 1.0)
     assert next(iter(core.jobs.jobs.values())).state == "failed"

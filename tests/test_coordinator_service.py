@@ -1,4 +1,4 @@
-"""The coordinator service over a real broker, with test-only fake units that follow the protocol."""
+"""The coordinator service over a real broker, with real unit cores stepped by the test (FakeFleet)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from coordinator_fakes import FakeFleet, FakeUnit
+from coordinator_fakes import FakeFleet
 
 from coordinator.service import Coordinator
 from coordinator.views import VIEWS_BATCH_S
@@ -30,6 +30,7 @@ from gridfleet.protocol import (
     encode_estop,
 )
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
+from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
@@ -135,7 +136,7 @@ async def rig(
         broker.url,
         root,
         grid,
-        [FakeUnit(uid, Cell(*pos), cap, step_s=STEP) for uid, pos, cap in units],
+        [UnitLogic(uid, grid, Cell(*pos), cap, STEP) for uid, pos, cap in units],
         hidden=hidden,
     )
     await fleet.start_all()
