@@ -277,8 +277,8 @@ class CoordinatorCore:
             )
             orders[u.id] = order
             routes[u.id] = RouteView(
-                released=order.released,  # type: ignore[arg-type]
-                planned=order.planned,  # type: ignore[arg-type]
+                released=order.released,
+                planned=order.planned,
                 target=order.target,
             )
         return StepResult(self.step_no, orders, routes)

@@ -51,8 +51,8 @@ class Messages:
             order_id=plan.order_id,
             update_id=plan.update_id,
             step=plan.step,
-            released=plan.released,  # type: ignore[arg-type]
-            planned=plan.planned,  # type: ignore[arg-type]
+            released=plan.released,
+            planned=plan.planned,
             target=plan.target,
             action=plan.action,
         )

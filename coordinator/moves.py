@@ -13,7 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from coordinator.planner import AgentSpec, Planner
-from coordinator.world import UnitRecord, cell
+from coordinator.world import UnitRecord
 from gridfleet.grid import Cell
 
 FOLLOW_PATIENCE = 3  # coordinator steps a follower waits for its leader to leave before re-planning
@@ -50,7 +50,7 @@ class Moves:
         released_to_others: set[Cell] = set()  # squares units may still drive into
         for u in units:
             assert u.state is not None
-            pos = cell(u.state.position)
+            pos = u.state.position
             if pos in seen or not self.planner.grid.is_free(pos):
                 return {}  # inconsistent snapshot (states in flight): hold everyone this step
             seen.add(pos)

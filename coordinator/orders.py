@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from coordinator.world import UnitRecord, World, cell, cells
+from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Action, UnitState
 from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
@@ -89,7 +89,7 @@ class Orders:
             hold_after = max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * period) + period
             if now - u.lost_since > hold_after:
                 return set()  # it holds still by now: only its last square stays reserved
-        out = set(cells(u.state.released))
+        out = set(u.state.released)
         if t is not None and not self.acked(u):
             out |= t.unacked
         return out
@@ -111,7 +111,7 @@ class Orders:
         assert u.state is not None
         st = u.state
         t = self.track(u.id)
-        pos = cell(st.position)
+        pos = st.position
         if self.acked(u):
             t.unacked = set()  # what it may still drive is exactly its reported `released`
         if settled or estop or st.estop:
@@ -155,8 +155,8 @@ class Orders:
         assert u.state is not None
         st = u.state
         if self.acked(u) or not t.sent:
-            return cells(st.released)
-        pos = cell(st.position)
+            return list(st.released)
+        pos = st.position
         if pos in t.sent:
             return t.sent[t.sent.index(pos) + 1 :]
         return list(t.sent) if t.sent[0].manhattan(pos) == 1 else []

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason
 from coordinator.jobs import CARRYING_STATES, JobBook
-from coordinator.world import UnitRecord, World, cell
+from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
 from gridfleet.paths import DistanceFieldCache
 from gridfleet.protocol import Action
@@ -137,7 +137,7 @@ class JobProgress:
                 and not u.state.estop
             ):
                 free = u.factsheet.capacity_kg - u.state.load_kg
-                slots.append(UnitSlot(u.id, cell(u.state.position), free))
+                slots.append(UnitSlot(u.id, u.state.position, free))
         queued = self.jobs.queued()
         if not slots or not queued:
             return

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from coordinator.allocation import capacity_reason
 from coordinator.jobs import CARRYING_STATES, Job, JobBook
-from coordinator.world import World, cell
+from coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
@@ -40,8 +40,8 @@ def submit(
     job_id = req.job_id or jobs.new_id()
     job = Job(
         id=job_id,
-        pickup=cell(req.pickup),
-        dropoff=cell(req.dropoff),
+        pickup=req.pickup,
+        dropoff=req.dropoff,
         mass_kg=req.mass_kg,
         priority=req.priority,
         submitted_by=sender,
@@ -94,9 +94,9 @@ def set_goal(
         world.check_square(req.target, "target")
     except ProtocolError as exc:
         return Outcome(False, str(exc))
-    if rec.position is not None and cache.distance(rec.position, cell(req.target)) == UNREACHABLE:
+    if rec.position is not None and cache.distance(rec.position, req.target) == UNREACHABLE:
         return Outcome(False, f"unit {req.unit} cannot reach {list(req.target)}")
-    goals[req.unit] = cell(req.target)
+    goals[req.unit] = req.target
     job = jobs.of_unit(req.unit)
     if job is not None and job.state not in CARRYING_STATES:
         # The goal pins the unit: its job goes back to the queue for another unit.

@@ -12,18 +12,6 @@ from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitState
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
-Square = tuple[int, int]
-
-
-def cell(square: Square) -> Cell:
-    """A decoded message square as a Cell (they already are at run time; this tells mypy)."""
-    return square if isinstance(square, Cell) else Cell(square[0], square[1])
-
-
-def cells(squares: list[Square]) -> list[Cell]:
-    """Every square of a message list as a Cell."""
-    return [cell(s) for s in squares]
-
 
 @dataclass
 class UnitRecord:
@@ -39,7 +27,7 @@ class UnitRecord:
     @property
     def position(self) -> Cell | None:
         """Where its latest state says it is."""
-        return None if self.state is None else cell(self.state.position)
+        return None if self.state is None else self.state.position
 
     @property
     def capacity_kg(self) -> float | None:
@@ -71,9 +59,8 @@ class World:
             rec = self.units[unit_id] = UnitRecord(unit_id)
         return rec
 
-    def check_square(self, square: Square, what: str) -> None:
+    def check_square(self, c: Cell, what: str) -> None:
         """Raise ProtocolError when a square is off the map or blocked (wall or known obstacle)."""
-        c = cell(square)
         if not self.base.in_bounds(c):
             raise ProtocolError(
                 f"{what} {list(c)} is off the {self.base.width}x{self.base.height} map"
@@ -97,9 +84,9 @@ class World:
         new = []
         # Besides the obstacles it reports once, every state's sensors show what is next to the
         # unit: a restarted coordinator (or one that missed the report) learns them again there.
-        here = cell(msg.position)
+        here = msg.position
         seen = [here.step(d) for d in Direction if getattr(msg.sensors, d.value) == "obstacle"]
-        for c in [*cells(msg.obstacles), *seen]:
+        for c in [*msg.obstacles, *seen]:
             if (
                 self.base.in_bounds(c)
                 and not self.base.blocked[c.y, c.x]
@@ -149,9 +136,8 @@ class World:
             if u.factsheet is not None and u.connection != "offline"
         ]
 
-    def _sorted_obstacles(self) -> list[Square]:
-        ordered = sorted(self.obstacles, key=lambda c: (c.y, c.x))
-        return list(ordered)
+    def _sorted_obstacles(self) -> list[Cell]:
+        return sorted(self.obstacles, key=lambda c: (c.y, c.x))
 
     def fleet_map(self, header: Header) -> FleetMap:
         """The retained map view: static rows plus discovered obstacles."""

@@ -36,14 +36,14 @@ class Orders:
         """Accept `order` from `position`, or say it is stale or refused (and then change nothing)."""
         if order.order_id == self.order_id and order.update_id <= self.update_id:
             return Verdict("stale")
-        released = [Cell(*c) for c in order.released]
+        released = list(order.released)
         if position in released:
             # The unit already drove the leading squares (the order was planned from an older
             # state): it follows on from where it stands.
             released = released[released.index(position) + 1 :]
         problem = check_route(self.grid, position, released)
         if problem is None and order.action is not None:
-            square = Cell(*order.action.square)
+            square = order.action.square
             if not self.grid.is_free(square):
                 problem = f"action square {sq(square)} is off the map or on a wall"
         if problem is not None:

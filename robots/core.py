@@ -153,7 +153,7 @@ class UnitCore:
             goal = decode(Goal, payload, TOPICS["goal"].max_bytes)
         except ProtocolError as exc:
             return self._refused(topic, "bad_goal", str(exc))
-        target = None if goal.target is None else Cell(*goal.target)
+        target = goal.target
         verdict = self.logic.on_goal(target, now)
         if verdict.result == "refused":
             return [self._report(topic, verdict.reason or ""), *self.state()]
@@ -180,7 +180,7 @@ class UnitCore:
             state = decode(UnitState, payload)
         except ProtocolError:
             return None
-        return who, Cell(*state.position)
+        return who, state.position
 
     # ---- the step -----------------------------------------------------------------------------
 
