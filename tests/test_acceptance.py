@@ -189,7 +189,7 @@ async def test_server_keeps_the_latest_messages_for_a_late_client(
 ) -> None:
     scenario, outcome = await run_scenario("playfield")
     # Everybody has gone. A client that connects now still gets the whole state at once.
-    with MqttProbe(broker.url).connect() as late:
+    with MqttProbe(broker.url) as late:
         late.subscribe(f"{topics.prefix}/#")
         expected = [topics.fleet(kind) for kind in ("map", "jobs", "coordinator")]
         for spec in scenario.units:

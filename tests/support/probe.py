@@ -57,7 +57,12 @@ class MqttProbe:
             )
 
     def connect(self, timeout: float = 10.0) -> MqttProbe:
-        """Connect and start paho's network thread."""
+        """Connect and start paho's network thread (once: see below)."""
+        # A second connect() makes paho drop the live socket and open another: a SUBSCRIBE sent
+        # meanwhile is lost without a SUBACK (2 in 30 tries here; amqtt logs "No data to decode
+        # MQTT packet fixed header"). That was the late-client test's rare timeout.
+        if self._connected.is_set():
+            raise AssertionError("MqttProbe.connect() called twice (`with` connects by itself)")
         self.client.connect(self._broker.host, self._broker.port)
         self.client.loop_start()
         if not self._connected.wait(timeout):
