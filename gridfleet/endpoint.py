@@ -64,6 +64,14 @@ async def _finish(work: Awaitable[Any]) -> Any:
     return await work
 
 
+def payload_of(message: aiomqtt.Message) -> bytes:
+    """A received message's payload as bytes (aiomqtt may hand over str, numbers or None)."""
+    payload = message.payload
+    if isinstance(payload, bytes | bytearray):
+        return bytes(payload)
+    return b"" if payload is None else str(payload).encode()
+
+
 @dataclass(frozen=True)
 class Backoff:
     """Seconds between connection attempts: doubling from `first` up to `most`."""
@@ -182,12 +190,8 @@ class Endpoint:
 
     async def _receive(self, client: aiomqtt.Client, handle: Handler) -> None:
         async for message in client.messages:
-            payload = message.payload
-            data = (
-                payload if isinstance(payload, bytes | bytearray) else str(payload or "").encode()
-            )
             try:
-                await handle(message.topic.value, bytes(data))
+                await handle(message.topic.value, payload_of(message))
             except aiomqtt.MqttError:
                 raise
             except Exception:  # a bug must not take the component off the broker: log, carry on

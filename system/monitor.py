@@ -7,6 +7,7 @@ import logging
 
 import aiomqtt
 
+from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
 
@@ -38,11 +39,11 @@ class FleetMonitor:
         async for message in self.client.messages:
             self.messages += 1
             topic = str(message.topic)
-            payload = message.payload if isinstance(message.payload, bytes | bytearray) else b""
+            payload = payload_of(message)
             kind: str | None = None
             try:
                 kind, unit = self.topics.parse(topic)
-                if self.seen(kind, unit, topic, bytes(payload)):
+                if self.seen(kind, unit, topic, payload):
                     self.changed.set()
             except ProtocolError as exc:
                 self.bad(topic, kind, exc)

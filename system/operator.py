@@ -11,6 +11,7 @@ import aiomqtt
 from pydantic import ValidationError
 
 from gridfleet.bus import make_client
+from gridfleet.endpoint import payload_of
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -62,9 +63,7 @@ class Operator:
     async def listen(self) -> None:
         """Route inbound messages until the client disconnects."""
         async for message in self.client.messages:
-            payload = (
-                bytes(message.payload) if isinstance(message.payload, bytes | bytearray) else b""
-            )
+            payload = payload_of(message)
             try:
                 kind, _ = self.topics.parse(str(message.topic))
                 if kind == "reply":
