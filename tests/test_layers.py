@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ast
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -13,7 +14,10 @@ BASE = "gridfleet"
 COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device")
 COMPOSITION = ("system", "bench")
 PRODUCT = (BASE, *COMPONENTS, *COMPOSITION)
-TEST_ONLY = ("pytest", "support", "tests", "playwright", "hypothesis")
+TESTS = Path(__file__).resolve().parent
+# Test tools, and every module of tests/ (support, conftest, the fakes beside the tests).
+TEST_ONLY = ("pytest", "tests", "playwright", "hypothesis", *(p.stem for p in TESTS.glob("*.py")))
+TEST_ONLY += tuple(p.name for p in TESTS.iterdir() if (p / "__init__.py").exists())
 
 
 def allowed(importer: str) -> set[str]:
@@ -34,7 +38,18 @@ def imports_of(path: Path) -> list[tuple[int, str]]:
             found += [(node.lineno, alias.name.split(".")[0]) for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
             found.append((node.lineno, node.module.split(".")[0]))
+        elif isinstance(node, ast.Call) and _dynamic_import(node.func) and node.args:
+            # importlib.import_module("x.y") / __import__("x"): an import all the same.
+            name = node.args[0]
+            if isinstance(name, ast.Constant) and isinstance(name.value, str):
+                found.append((node.lineno, name.value.split(".")[0]))
     return found
+
+
+def _dynamic_import(func: ast.expr) -> bool:
+    """Whether a call is to `importlib.import_module`, `import_module` or `__import__`."""
+    name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+    return name in ("import_module", "__import__")
 
 
 def crossings(root: Path = REPO) -> list[str]:
@@ -55,6 +70,13 @@ def test_no_import_crosses_the_layers() -> None:
     assert crossings() == []
 
 
+def test_every_shipped_package_has_a_layer() -> None:
+    # A package the layers do not name would never be checked.
+    config = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
+    shipped = config["tool"]["setuptools"]["packages"]["find"]["include"]
+    assert sorted(p.rstrip("*") for p in shipped) == sorted(PRODUCT)
+
+
 @pytest.mark.parametrize(
     ("package", "source", "expected"),
     [
@@ -63,6 +85,17 @@ def test_no_import_crosses_the_layers() -> None:
         ("coordinator", "from system.cli import main\n", "coordinator -> system"),
         ("dashboard", "import pytest\n", "dashboard -> pytest"),
         ("bench", "from support.probe import MqttProbe\n", "bench -> support"),
+        (
+            "robots",
+            "import importlib\nimportlib.import_module('coordinator.core')\n",
+            "robots -> coordinator",
+        ),
+        ("device", "__import__('dashboard')\n", "device -> dashboard"),
+        (
+            "coordinator",
+            "from coordinator_fakes import FakeFleet\n",
+            "coordinator -> coordinator_fakes",
+        ),
     ],
 )
 def test_the_check_catches_each_kind_of_crossing(
