@@ -26,6 +26,7 @@ from coordinator.core import CoordinatorCore
 from coordinator.effects import Effects
 from coordinator.views import VIEWS_BATCH_S
 from gridfleet.endpoint import Outbound
+from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
     CancelJob,
@@ -36,8 +37,11 @@ from gridfleet.protocol import (
     SetGoal,
     SubmitJob,
     UnitState,
+    decode,
+    decode_estop,
     encode,
 )
+from gridfleet.protocol.messages import Message
 
 # Four by three squares, a wall at [1, 1].
 GRID = GridMap.from_rows(["....", ".@..", "...."])
@@ -210,6 +214,37 @@ def test_a_unit_saying_it_is_online_publishes_nothing() -> None:
     effects = from_unit(c, "connection", "unit2", msg, 0.0)
     assert published(effects) == [] and effects.persist == ()
     assert c.world.units["unit2"].connection == "online"
+
+
+@pytest.mark.parametrize("state_now", ["offline", "broken"])
+def test_a_unit_saying_it_left_publishes_nothing_and_gets_no_more_orders(
+    core: CoordinatorCore, state_now: str
+) -> None:
+    msg = Connection(header=header("unit1", seq=1), state=state_now)  # type: ignore[arg-type]
+    effects = from_unit(core, "connection", "unit1", msg, 0.5)
+    assert published(effects) == [] and effects.persist == ()
+    assert core.world.units["unit1"].connection == state_now
+    assert published(core.step(1.0)) == [(ROUTES, routes(0, step=1), 0, True)]
+
+
+@pytest.mark.parametrize(
+    ("kind", "model", "payload"),
+    [
+        ("connection", Connection, b"{"),
+        ("connection", Connection, b'{"header": {}, "state": "asleep"}'),
+        ("factsheet", Factsheet, b"{"),
+        ("factsheet", Factsheet, b"x" * 20000),
+    ],
+    ids=["connection JSON", "connection fields", "factsheet JSON", "factsheet oversized"],
+)
+def test_a_bad_connection_or_factsheet_is_reported_and_changes_nothing(
+    core: CoordinatorCore, kind: str, model: type[Message], payload: bytes
+) -> None:
+    before = (core.world.units["unit1"].connection, core.world.capacities())
+    effects = from_unit(core, kind, "unit1", payload, 0.5)
+    topic = TOPICS.unit(kind, "unit1")
+    assert published(effects) == [error(0, topic, codec_reason(model, payload))]
+    assert (core.world.units["unit1"].connection, core.world.capacities()) == before
 
 
 def test_a_factsheet_publishes_nothing() -> None:
@@ -394,6 +429,15 @@ def test_a_malformed_stop_is_reported_and_never_releases(core: CoordinatorCore) 
     assert core.estop
 
 
+def test_a_cleared_retained_stop_is_reported_and_never_releases(core: CoordinatorCore) -> None:
+    # Anyone can delete a retained message with an empty payload: that is no release.
+    estop(core, b"engaged|dashboard|x")
+    effects = estop(core, b"")
+    assert published(effects) == [error(0, "gridfleet/v1/fleet/estop", codec_estop_reason(b""))]
+    assert core.estop
+    assert [o.released for o in orders_in(core.step(2.0)).values()] == [[]]
+
+
 # ---- requests ----------------------------------------------------------------------------------
 
 
@@ -486,6 +530,40 @@ def test_a_bad_request_is_reported_without_a_reply(
     effects = request(core, "submit_job", payload, 0.0)
     assert published(effects) == [error(0, "gridfleet/v1/requests/submit_job", reason)]
     assert core.jobs.jobs == {}
+
+
+@pytest.mark.parametrize(
+    ("kind", "model", "payload"),
+    [
+        ("cancel_job", CancelJob, b"{"),
+        ("cancel_job", CancelJob, b'{"header": {}, "request_id": "c1", "job_id": "a/b"}'),
+        ("set_goal", SetGoal, b"{"),
+        ("set_goal", SetGoal, b"x" * 20000),
+    ],
+    ids=["cancel JSON", "cancel fields", "goal JSON", "goal oversized"],
+)
+def test_a_bad_cancel_or_goal_is_reported_without_a_reply(
+    core: CoordinatorCore, kind: str, model: type[Message], payload: bytes
+) -> None:
+    request(core, "submit_job", submit(), 0.0)
+    effects = request(core, kind, payload, 0.5)
+    topic = TOPICS.request(kind)
+    assert published(effects) == [error(0, topic, codec_reason(model, payload))]
+    assert core.jobs.jobs["job-1"].state == "queued" and core.goals == {}
+
+
+def codec_reason(model: type[Message], payload: bytes) -> str:
+    """The reason the protocol's codec gives for refusing `payload` as `model`."""
+    with pytest.raises(ProtocolError) as refused:
+        decode(model, payload)
+    return str(refused.value)
+
+
+def codec_estop_reason(payload: bytes) -> str:
+    """The reason the protocol's codec gives for refusing `payload` as an estop signal."""
+    with pytest.raises(ProtocolError) as refused:
+        decode_estop(payload)
+    return str(refused.value)
 
 
 @pytest.mark.parametrize(
