@@ -64,6 +64,11 @@ async def _finish(work: Awaitable[Any]) -> Any:
     return await work
 
 
+async def send(client: aiomqtt.Client, out: Outbound) -> None:
+    """Publish `out` on `client` with its QoS and retain flag."""
+    await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
+
+
 def payload_of(message: aiomqtt.Message) -> bytes:
     """A received message's payload as bytes (aiomqtt may hand over str, numbers or None)."""
     payload = message.payload
@@ -184,8 +189,7 @@ class Endpoint:
                 if on_stop is not None:
                     await on_stop()
                 if self._offline is not None:
-                    bye = self._offline()
-                    await client.publish(bye.topic, bye.payload, qos=bye.qos, retain=bye.retain)
+                    await send(client, self._offline())
             self._lose()
 
     async def _receive(self, client: aiomqtt.Client, handle: Handler) -> None:
@@ -213,7 +217,7 @@ class Endpoint:
         if client is None:
             return False
         try:
-            await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
+            await send(client, out)
         except aiomqtt.MqttError as exc:
             # A send still pending on a connection already replaced (its acknowledgement timed
             # out long after a reconnect) says nothing about the live one: leave that alone.

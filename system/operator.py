@@ -11,7 +11,7 @@ import aiomqtt
 from pydantic import ValidationError
 
 from gridfleet.bus import make_client
-from gridfleet.endpoint import payload_of
+from gridfleet.endpoint import Outbound, payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -27,7 +27,6 @@ from gridfleet.protocol import (
     SubmitJob,
     Topics,
     decode,
-    encode,
     encode_estop,
 )
 from gridfleet.protocol.codec import describe
@@ -55,10 +54,14 @@ class Operator:
 
     async def start(self) -> None:
         """Subscribe to replies and the queue view."""
-        await self.client.subscribe(self.topics.reply(self.client_id), qos=1)
-        await self.client.subscribe(self.topics.fleet("jobs"), qos=1)
-        await self.client.subscribe(self.topics.fleet("coordinator"), qos=1)
-        await self.client.subscribe(self.topics.fleet("routes"), qos=0)
+        t = self.topics
+        for kind, topic in (
+            ("reply", t.reply(self.client_id)),
+            ("jobs", t.fleet("jobs")),
+            ("coordinator", t.fleet("coordinator")),
+            ("routes", t.fleet("routes")),
+        ):
+            await self.client.subscribe(topic, qos=TOPICS[kind].qos)
 
     async def listen(self) -> None:
         """Route inbound messages until the client disconnects."""
@@ -109,7 +112,7 @@ class Operator:
     async def _send(self, kind: str, request: Request, timeout: float) -> Reply:
         future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
         self._pending[request.request_id] = future
-        await self.client.publish(self.topics.request(kind), encode(request), qos=1)
+        await send(self.client, Outbound.of(kind, self.topics.request(kind), request))
         try:
             return await asyncio.wait_for(future, timeout)
         except TimeoutError:
@@ -150,9 +153,8 @@ class Operator:
     async def set_estop(self, engaged: bool, reason: str) -> EstopSignal:
         """Engage or release the fleet-wide emergency stop (retained: it latches); returns it."""
         signal = EstopSignal(engaged, self.client_id, reason)
-        spec = TOPICS["estop"]
-        await self.client.publish(
-            self.topics.fleet("estop"), encode_estop(signal), qos=spec.qos, retain=spec.retained
+        await send(
+            self.client, Outbound.of("estop", self.topics.fleet("estop"), encode_estop(signal))
         )
         return signal
 
