@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from coordinator_fakes import ROOM_ROWS
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason, feasible
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
+
+from support.coordinator_fakes import ROOM_ROWS
 
 ROOM = GridMap.from_rows(ROOM_ROWS)
 CACHE = DistanceFieldCache(ROOM)

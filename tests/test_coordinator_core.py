@@ -10,13 +10,22 @@ from __future__ import annotations
 import random
 
 import pytest
-from coordinator_drive import from_unit, header, make_core, meet, orders_in, reply_in, request
-from coordinator_fakes import ROOM_ROWS, Yard
 
 from coordinator.core import CoordinatorCore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Connection, Order, Reply, SetGoal, SubmitJob
 from robots.unit import UnitLogic
+
+from support.coordinator_drive import (
+    from_unit,
+    header,
+    make_core,
+    meet,
+    orders_in,
+    reply_in,
+    request,
+)
+from support.coordinator_fakes import ROOM_ROWS, Yard
 
 ROWS = ROOM_ROWS
 

@@ -10,17 +10,6 @@ import logging
 from typing import Any
 
 import pytest
-from coordinator_drive import (
-    STAMP,
-    TOPICS,
-    from_unit,
-    header,
-    make_core,
-    meet,
-    orders_in,
-    published,
-    request,
-)
 
 from coordinator.core import CoordinatorCore
 from coordinator.effects import Effects
@@ -42,6 +31,18 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import Message
+
+from support.coordinator_drive import (
+    STAMP,
+    TOPICS,
+    from_unit,
+    header,
+    make_core,
+    meet,
+    orders_in,
+    published,
+    request,
+)
 
 # Four by three squares, a wall at [1, 1].
 GRID = GridMap.from_rows(["....", ".@..", "...."])

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from coordinator_fakes import FakeFleet
 
 from coordinator.service import Coordinator
 from coordinator.views import VIEWS_BATCH_S
@@ -33,6 +32,7 @@ from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
+from support.coordinator_fakes import FakeFleet
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 

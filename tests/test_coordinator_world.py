@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from coordinator_drive import make_core, meet, orders_in
-
 from coordinator.jobs import Job
 from coordinator.world import World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
+
+from support.coordinator_drive import make_core, meet, orders_in
 
 ROWS = ["....", ".@..", "...."]
 

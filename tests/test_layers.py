@@ -15,7 +15,7 @@ COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device")
 COMPOSITION = ("system", "bench")
 PRODUCT = (BASE, *COMPONENTS, *COMPOSITION)
 TESTS = Path(__file__).resolve().parent
-# Test tools, and every module of tests/ (support, conftest, the fakes beside the tests).
+# Test tools, and every module of tests/ (support and its helpers, conftest, the test modules).
 TEST_ONLY = ("pytest", "tests", "playwright", "hypothesis", *(p.stem for p in TESTS.glob("*.py")))
 TEST_ONLY += tuple(p.name for p in TESTS.iterdir() if (p / "__init__.py").exists())
 
@@ -93,8 +93,8 @@ def test_every_shipped_package_has_a_layer() -> None:
         ("device", "__import__('dashboard')\n", "device -> dashboard"),
         (
             "coordinator",
-            "from coordinator_fakes import FakeFleet\n",
-            "coordinator -> coordinator_fakes",
+            "from test_peers import Wire\n",
+            "coordinator -> test_peers",
         ),
     ],
 )
