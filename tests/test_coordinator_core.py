@@ -16,16 +16,9 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Connection, Order, Reply, SetGoal, SubmitJob
 from robots.unit import UnitLogic
 
-from support.coordinator_drive import (
-    from_unit,
-    header,
-    make_core,
-    meet,
-    orders_in,
-    reply_in,
-    request,
-)
+from support.coordinator_drive import from_unit, make_core, meet, orders_in, reply_in, request
 from support.coordinator_fakes import ROOM_ROWS, Yard
+from support.effects import header
 
 ROWS = ROOM_ROWS
 

@@ -32,17 +32,8 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import Message
 
-from support.coordinator_drive import (
-    STAMP,
-    TOPICS,
-    from_unit,
-    header,
-    make_core,
-    meet,
-    orders_in,
-    published,
-    request,
-)
+from support.coordinator_drive import TOPICS, from_unit, make_core, meet, orders_in, request
+from support.effects import header, header_json, published
 
 # Four by three squares, a wall at [1, 1].
 GRID = GridMap.from_rows(["....", ".@..", "...."])
@@ -58,7 +49,7 @@ REPLY = "gridfleet/v1/replies/op"
 
 def hdr(seq: int) -> dict[str, Any]:
     """The coordinator's header with `seq` (counted per topic kind)."""
-    return {"version": "1.0", "seq": seq, "timestamp": STAMP, "sender": "coordinator"}
+    return header_json("coordinator", seq)
 
 
 def status(seq: int, state: str, *, step: int = 0, estop: bool = False) -> dict[str, Any]:

@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import json
-from datetime import UTC, datetime
-
 import pytest
 
 from device.logic import DeviceLogic
 from device.terminal import render_plain
-from gridfleet.endpoint import Outbound
-from gridfleet.protocol import EstopSignal, HeaderStamper, Leds, Topics, encode_estop
+from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
+
+from support.effects import header_json, published, stamper
 
 T = Topics("t/logic")
 DIR = T.unit("direction", "unit1")
@@ -135,33 +133,17 @@ def test_bad_ids_are_refused() -> None:
 
 # ---- exactly what the core publishes for each input (no broker) ------------------------------
 
-FIXED = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
-
 
 def stamped_logic() -> DeviceLogic:
     """An online device whose headers carry a fixed time, so payloads can be compared whole."""
-    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0, stamp=HeaderStamper("dev1", lambda: FIXED))
+    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0, stamp=stamper("dev1"))
     logic.connected()
     return logic
 
 
-def published(out: list[Outbound]) -> list[tuple[str, object, int, bool]]:
-    """(topic, payload — parsed when JSON, else text —, qos, retain) of each message."""
-    rows: list[tuple[str, object, int, bool]] = []
-    for o in out:
-        text = o.payload.decode()
-        rows.append((o.topic, json.loads(text) if text.startswith("{") else text, o.qos, o.retain))
-    return rows
-
-
 def report(seq: int, topic: str, reason: str) -> dict[str, object]:
     return {
-        "header": {
-            "version": "1.0",
-            "seq": seq,
-            "timestamp": "2026-11-21T10:00:00Z",
-            "sender": "dev1",
-        },
+        "header": header_json("dev1", seq),
         "topic": topic,
         "reason": reason,
         "request_id": None,

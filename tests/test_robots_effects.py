@@ -6,19 +6,14 @@ and asserts the whole list it returns: topic, parsed payload, QoS and retain fla
 
 from __future__ import annotations
 
-import json
-from collections.abc import Sequence
-from datetime import UTC, datetime
 from typing import Any
 
 import pytest
 
-from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CoordinatorStatus,
     Goal,
-    HeaderStamper,
     Order,
     Topics,
     encode,
@@ -27,26 +22,22 @@ from gridfleet.protocol.messages import SensorReading
 from robots.core import UnitCore
 from robots.unit import Mode, UnitLogic
 
+from support.effects import Published, header_json, published, stamper
+
 ROOT = "gf/v1/"
-T0 = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
-WHEN = "2026-11-21T10:00:00Z"
 OPEN = (".....", ".....", ".....")
 FREE: dict[Direction, SensorReading] = dict.fromkeys(Direction, "free")
 AT_WEST_EDGE: dict[Direction, SensorReading] = {**FREE, Direction.W: "wall"}
 LEDS_OFF = dict.fromkeys("NESW", False)
 LEDS_ALL = dict.fromkeys("NESW", True)
 LED_E = {**LEDS_OFF, "E": True}
-COORDINATOR = HeaderStamper("coordinator", clock=lambda: T0)
-
-Sent = tuple[str, Any, int, bool]
+COORDINATOR = stamper("coordinator")
 
 
 def make(mode: Mode = "coordinated", rows: tuple[str, ...] = OPEN) -> UnitCore:
-    """Unit u1 on (0, 1) of `rows`, its headers stamped at T0; started at time 0."""
+    """Unit u1 on (0, 1) of `rows`, its headers stamped at FIXED; started at time 0."""
     logic = UnitLogic("u1", GridMap.from_rows(rows), Cell(0, 1), 5.0, 0.1, mode=mode)
-    core = UnitCore(
-        logic, Topics("gf"), color="#d32f2f", stamp=HeaderStamper("u1", clock=lambda: T0)
-    )
+    core = UnitCore(logic, Topics("gf"), color="#d32f2f", stamp=stamper("u1"))
     core.start(0.0)
     return core
 
@@ -74,25 +65,10 @@ def allow(direction: Direction) -> bool:
     return True
 
 
-def published(outs: Sequence[Outbound]) -> list[Sent]:
-    """(topic after the root, payload as JSON or text, QoS, retain) of each message, in order."""
-    sent = []
-    for out in outs:
-        assert out.topic.startswith(ROOT)
-        text = out.payload.decode()
-        payload = json.loads(text) if text.startswith("{") else text
-        sent.append((out.topic.removeprefix(ROOT), payload, out.qos, out.retain))
-    return sent
-
-
-def header(seq: int) -> dict[str, Any]:
-    return {"version": "1.0", "seq": seq, "timestamp": WHEN, "sender": "u1"}
-
-
-def state(seq: int, **fields: Any) -> Sent:
+def state(seq: int, **fields: Any) -> Published:
     """u1's state message: the idle unit on (0, 1) with `fields` changed."""
     payload = {
-        "header": header(seq),
+        "header": header_json("u1", seq),
         "step": 1,
         "position": [0, 1],
         "direction": "-",
@@ -115,12 +91,17 @@ def state(seq: int, **fields: Any) -> Sent:
     return ("units/u1/state", payload | fields, 0, True)
 
 
-def direction(letter: str) -> Sent:
+def direction(letter: str) -> Published:
     return ("units/u1/direction", letter, 0, True)
 
 
-def error(seq: int, topic: str, reason: str) -> Sent:
-    payload = {"header": header(seq), "topic": ROOT + topic, "reason": reason, "request_id": None}
+def error(seq: int, topic: str, reason: str) -> Published:
+    payload = {
+        "header": header_json("u1", seq),
+        "topic": ROOT + topic,
+        "reason": reason,
+        "request_id": None,
+    }
     return ("errors", payload, 1, False)
 
 
@@ -135,19 +116,19 @@ def order_bytes(oid: str, update: int, released: list[tuple[int, int]]) -> bytes
 
 def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_stop() -> None:
     core = make()
-    assert published([core.will()]) == [
-        ("units/u1/connection", {"header": header(0), "state": "broken"}, 1, True)
+    assert published([core.will()], ROOT) == [
+        ("units/u1/connection", {"header": header_json("u1", 0), "state": "broken"}, 1, True)
     ]
     factsheet = {
-        "header": header(0),
+        "header": header_json("u1", 0),
         "capacity_kg": 5.0,
         "step_period_s": 0.1,
         "sensors": ["N", "E", "S", "W"],
         "color": "#d32f2f",
         "model": "gridfleet-sim",
     }
-    assert published(core.on_connect(0.0)) == [
-        ("units/u1/connection", {"header": header(1), "state": "online"}, 1, True),
+    assert published(core.on_connect(0.0), ROOT) == [
+        ("units/u1/connection", {"header": header_json("u1", 1), "state": "online"}, 1, True),
         ("units/u1/factsheet", factsheet, 1, True),
         state(0, step=0, status="holding", wait_reason="waiting to read the emergency stop"),
         direction("-"),
@@ -173,10 +154,10 @@ def test_a_tick_holds_until_the_retained_stop_can_have_arrived_then_the_unit_is_
     holding = {"status": "holding", "wait_reason": "waiting to read the emergency stop"}
     sensors = {"N": "free", "E": "free", "S": "free", "W": "wall"}
     # The stop can have arrived 0.2 s after connecting (min(1, max(0.2, step 0.1)), §5.1).
-    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.19)) == [
+    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.19), ROOT) == [
         state(1, step=1, sensors=sensors, **holding)
     ]
-    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.2)) == [
+    assert published(core.tick(lambda: AT_WEST_EDGE, refuse, 0.2), ROOT) == [
         state(2, step=2, sensors=sensors)
     ]
 
@@ -185,7 +166,7 @@ def test_a_tick_moves_into_the_released_square_shown_before() -> None:
     core = ready()
     core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.25)
     order = {"order_id": "o1", "order_update_id": 1}
-    assert published(core.tick(lambda: FREE, allow, 0.3)) == [
+    assert published(core.tick(lambda: FREE, allow, 0.3), ROOT) == [
         state(
             3,
             step=2,
@@ -197,7 +178,7 @@ def test_a_tick_moves_into_the_released_square_shown_before() -> None:
             **order,
         )
     ]
-    assert published(core.tick(lambda: FREE, allow, 0.4)) == [
+    assert published(core.tick(lambda: FREE, allow, 0.4), ROOT) == [
         state(4, step=3, position=[2, 1], status="moving", **order),
         direction("-"),
     ]
@@ -213,7 +194,7 @@ def test_a_lost_broker_sends_nothing_and_the_next_connection_reports_what_waited
         "lost the broker; reconnecting",
     )
     sensors = {"N": "free", "E": "obstacle", "S": "free", "W": "free"}
-    assert published(core.on_connect(0.5))[2:] == [
+    assert published(core.on_connect(0.5), ROOT)[2:] == [
         state(
             2,
             step=2,
@@ -237,8 +218,8 @@ def test_a_unit_not_yet_connected_never_moves() -> None:
 
 def test_a_clean_stop_says_offline() -> None:
     core = ready()
-    assert published([core.offline()]) == [
-        ("units/u1/connection", {"header": header(2), "state": "offline"}, 1, True)
+    assert published([core.offline()], ROOT) == [
+        ("units/u1/connection", {"header": header_json("u1", 2), "state": "offline"}, 1, True)
     ]
 
 
@@ -248,7 +229,7 @@ def test_a_clean_stop_says_offline() -> None:
 def test_an_accepted_order_shows_its_first_move_at_once() -> None:
     core = ready()
     outs = core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.3)
-    assert published(outs) == [
+    assert published(outs, ROOT) == [
         state(
             2,
             direction="E",
@@ -278,7 +259,7 @@ def test_a_refused_order_is_reported_with_its_reason_and_in_the_state() -> None:
     reason = (
         "order 'o2' update 1: released square [3, 1] is not adjacent to the unit's square [0, 1]"
     )
-    assert published(outs) == [
+    assert published(outs, ROOT) == [
         error(0, "units/u1/order", reason),
         state(2, errors=[{"code": "bad_order", "message": reason}]),
     ]
@@ -302,7 +283,7 @@ def test_a_refused_order_is_reported_with_its_reason_and_in_the_state() -> None:
 )
 def test_an_unreadable_order_is_reported_and_changes_nothing(payload: bytes, reason: str) -> None:
     core = ready()
-    assert published(core.on_message(ROOT + "units/u1/order", payload, 0.3)) == [
+    assert published(core.on_message(ROOT + "units/u1/order", payload, 0.3), ROOT) == [
         error(0, "units/u1/order", reason),
         state(2, errors=[{"code": "bad_order", "message": reason}]),
     ]
@@ -322,7 +303,7 @@ def test_the_stop_engaged_halts_drops_the_release_and_lights_every_led() -> None
     core = ready()
     core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1)]), 0.3)
     outs = core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|operator pressed STOP", 0.3)
-    assert published(outs) == [
+    assert published(outs, ROOT) == [
         state(
             3,
             status="stopped",
@@ -340,7 +321,7 @@ def test_the_stop_released_lets_the_unit_wait_for_its_next_order() -> None:
     core = ready()
     core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|", 0.3)
     outs = core.on_message(ROOT + "fleet/estop", b"released|dashboard|area checked", 0.4)
-    assert published(outs) == [state(3)]
+    assert published(outs, ROOT) == [state(3)]
 
 
 @pytest.mark.parametrize("payload", [b"releasd|tester|typo", b""], ids=["typo", "cleared"])
@@ -351,7 +332,7 @@ def test_an_unreadable_stop_is_reported_and_never_releases(payload: bytes) -> No
         f"estop: {payload.decode()!r} is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'"
     )
     stopped = {"status": "stopped", "wait_reason": "emergency stop engaged", "leds": LEDS_ALL}
-    assert published(core.on_message(ROOT + "fleet/estop", payload, 0.4)) == [
+    assert published(core.on_message(ROOT + "fleet/estop", payload, 0.4), ROOT) == [
         error(0, "fleet/estop", reason),
         state(3, estop=True, errors=[{"code": "bad_estop", "message": reason}], **stopped),
     ]
@@ -373,7 +354,7 @@ def test_the_coordinators_status_sizes_the_hold_timeout_and_publishes_nothing() 
 def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:
     core = ready("standalone")
     goal = encode(Goal(header=COORDINATOR("goal"), target=(4, 1)))
-    assert published(core.on_message(ROOT + "units/u1/goal", goal, 0.3)) == [
+    assert published(core.on_message(ROOT + "units/u1/goal", goal, 0.3), ROOT) == [
         state(
             2,
             mode="standalone",
@@ -401,7 +382,7 @@ def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:
 def test_a_refused_goal_is_reported_and_changes_nothing(payload: bytes, reason: str) -> None:
     core = ready("standalone", rows=(".....", ".@...", "....."))
     code = "bad_goal"
-    assert published(core.on_message(ROOT + "units/u1/goal", payload, 0.3)) == [
+    assert published(core.on_message(ROOT + "units/u1/goal", payload, 0.3), ROOT) == [
         error(0, "units/u1/goal", reason),
         state(2, mode="standalone", errors=[{"code": code, "message": reason}]),
     ]

@@ -1,14 +1,10 @@
 """Drive the pure coordinator core with protocol messages as bytes, and read what it publishes.
 
-A core made by `make_core` stamps every header with the same fixed time, so a test can pin exact
-payloads; `published` turns Effects into (topic, payload as parsed JSON, QoS, retain) tuples.
+A core made by `make_core` stamps every header with the same fixed time (`support.effects.FIXED`),
+so a test can pin exact payloads with `support.effects.published`.
 """
 
 from __future__ import annotations
-
-import json
-from datetime import UTC, datetime
-from typing import Any
 
 from coordinator.core import CoordinatorCore
 from coordinator.effects import Effects
@@ -18,8 +14,6 @@ from gridfleet.grid import GridMap
 from gridfleet.protocol import (
     Connection,
     Factsheet,
-    Header,
-    HeaderStamper,
     Order,
     Reply,
     Topics,
@@ -29,11 +23,9 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import Message, Request
 
-FIXED = datetime(2026, 11, 21, 10, 0, 0, tzinfo=UTC)
-STAMP = "2026-11-21T10:00:00Z"  # FIXED as it appears in a payload
-TOPICS = Topics("gridfleet")
+from support.effects import header, stamper
 
-Published = tuple[str, Any, int, bool]
+TOPICS = Topics("gridfleet")
 
 
 def make_core(
@@ -46,13 +38,8 @@ def make_core(
         nonce="n",
         seed=seed,
         topics=TOPICS,
-        stamp=HeaderStamper("coordinator", clock=lambda: FIXED),
+        stamp=stamper("coordinator"),
     )
-
-
-def header(sender: str, seq: int = 0) -> Header:
-    """A header from `sender` at FIXED."""
-    return Header(seq=seq, timestamp=FIXED, sender=sender)
 
 
 def from_unit(
@@ -76,18 +63,6 @@ def meet(core: CoordinatorCore, state: UnitState, capacity_kg: float, step_s: fl
     fs = Factsheet(header=header(unit_id), capacity_kg=capacity_kg, step_period_s=step_s)
     from_unit(core, "factsheet", unit_id, fs, 0.0)
     from_unit(core, "state", unit_id, state, 0.0)
-
-
-def published(effects: Effects) -> list[Published]:
-    """Every message to publish, as (topic, payload parsed as JSON, QoS, retain)."""
-    out = []
-    for m in effects.publish:
-        try:
-            payload: Any = json.loads(m.payload)
-        except ValueError:
-            payload = m.payload  # plain text (none today, but the device topics are)
-        out.append((m.topic, payload, m.qos, m.retain))
-    return out
 
 
 def orders_in(effects: Effects) -> dict[str, Order]:
