@@ -14,7 +14,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Literal
 
-from gridfleet.endpoint import Outbound
+from gridfleet.endpoint import Outbound, error_report
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     Connection,
@@ -32,6 +32,7 @@ from gridfleet.protocol import (
     Sensors,
     Topics,
     UnitState,
+    decode,
     encode_direction,
 )
 from gridfleet.protocol.messages import JobState, Message, UnitStatus
@@ -213,9 +214,11 @@ class CoordinatorPeer:
         return message
 
     def error(self, topic: str, reason: str, request_id: str | None = None) -> ErrorReport:
-        """`errors`: a message on `topic` refused, and why (with its request id when known)."""
-        message = ErrorReport(
-            header=self.stamp("errors"), topic=topic, reason=reason, request_id=request_id
-        )
-        publish(self.probe, "errors", self.topics.fleet("errors"), message)
-        return message
+        """`errors`: a message on `topic` refused, and why (with its request id when known).
+
+        Built as every component builds it (`gridfleet.endpoint.error_report`, cut to its limits);
+        returns the report as it went out.
+        """
+        payload = error_report(self.stamp("errors"), topic, reason, request_id)
+        publish(self.probe, "errors", self.topics.fleet("errors"), payload)
+        return decode(ErrorReport, payload)
