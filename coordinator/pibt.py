@@ -20,17 +20,17 @@ import numpy as np
 from coordinator.pibt_swap import swap_partner
 from gridfleet.grid import GridMap
 
-Square = int
+Index = int  # a square as a flat index: y * width + x
 NONE = -1  # no square: an agent not planned yet, an agent without a target
 RESERVED = NONE - 1  # the holder of a reserved square: nobody may enter it
 _KEY = itemgetter(0)  # sort (key, square) pairs by key alone: equal keys keep their order
 
 
-def neighbour_table(grid: GridMap) -> list[tuple[Square, ...]]:
+def neighbour_table(grid: GridMap) -> list[tuple[Index, ...]]:
     """The free neighbours of every square (N, E, S, W; none for a blocked square)."""
     w, h = grid.width, grid.height
     free = ~grid.blocked.reshape(-1)
-    table: list[tuple[Square, ...]] = []
+    table: list[tuple[Index, ...]] = []
     for idx in range(w * h):
         if not free[idx]:
             table.append(())
@@ -49,9 +49,9 @@ class PIBT:
 
     def __init__(
         self,
-        nbrs: Sequence[tuple[Square, ...]],
-        pos: list[Square],
-        goal: list[Square],
+        nbrs: Sequence[tuple[Index, ...]],
+        pos: list[Index],
+        goal: list[Index],
         fields: list[np.ndarray | None],
         settled: list[bool],
         rand: Callable[[], float],
@@ -62,13 +62,13 @@ class PIBT:
         self.fields = fields  # flat distance field towards the target, or None
         self.settled = settled  # no target, or already on it
         self.rand = rand  # the last tie-breaker: the planner's seeded stream
-        self.occupant: dict[Square, int] = {p: i for i, p in enumerate(pos)}
+        self.occupant: dict[Index, int] = {p: i for i, p in enumerate(pos)}
         if len(self.occupant) != len(pos):
             raise ValueError("two agents stand on one square")
         self.nxt = [NONE] * len(pos)
-        self.taken: dict[Square, int] = {}  # square -> the agent entering it (or RESERVED)
+        self.taken: dict[Index, int] = {}  # square -> the agent entering it (or RESERVED)
 
-    def reserve(self, square: Square) -> None:
+    def reserve(self, square: Index) -> None:
         """Nobody enters `square` this step."""
         self.taken[square] = RESERVED
 
@@ -77,7 +77,7 @@ class PIBT:
         self.nxt[i] = self.pos[i]
         self.taken[self.pos[i]] = i
 
-    def run(self, order: Sequence[int]) -> list[Square]:
+    def run(self, order: Sequence[int]) -> list[Index]:
         """Next square of every agent, planning them in `order` (most urgent first)."""
         nxt = self.nxt
         for i in order:
@@ -89,7 +89,7 @@ class PIBT:
         """Has agent `i` got its square for this step?"""
         return self.nxt[i] != NONE
 
-    def dist(self, i: int, square: Square) -> int:
+    def dist(self, i: int, square: Index) -> int:
         """Steps from `square` to agent `i`'s target (0 for an agent without one)."""
         f = self.fields[i]
         return 0 if f is None else int(f[square])
@@ -126,7 +126,7 @@ class PIBT:
         taken[here] = i
         return False
 
-    def _choices(self, i: int, pusher: int | None) -> tuple[list[Square], int | None]:
+    def _choices(self, i: int, pusher: int | None) -> tuple[list[Index], int | None]:
         """`i`'s squares, best first, and the agent it swaps places with (if any)."""
         here = self.pos[i]
         dist, crowding, rand = self.dist, self.crowding, self.rand  # bound once: a hot loop
@@ -150,14 +150,14 @@ class PIBT:
             ranked = [c for _, c in sorted(zip(back, cands, strict=True), key=_KEY)]
         return ranked, partner
 
-    def crowding(self, i: int, square: Square) -> int:
+    def crowding(self, i: int, square: Index) -> int:
         """0: free (or `i`'s own), 1: a unit on its way stands there, 2: a unit on its target."""
         k = self.occupant.get(square)
         if k is None or k == i:
             return 0  # its own square is not crowded: an idle unit stays unless pushed
         return 2 if self.settled[k] else 1
 
-    def closes_cycle(self, i: int, square: Square) -> bool:
+    def closes_cycle(self, i: int, square: Index) -> bool:
         """Would `i` entering `square` close a chain of units entering each other's squares?"""
         nxt, pos, occupant = self.nxt, self.pos, self.occupant
         k = occupant.get(square)

@@ -11,10 +11,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from coordinator.pibt import PIBT, Square
+    from coordinator.pibt import PIBT, Index
 
 
-def swap_partner(s: PIBT, i: int, best: Square) -> int | None:
+def swap_partner(s: PIBT, i: int, best: Index) -> int | None:
     """The unplanned agent `i` must swap places with to get to `best`, if any."""
     here = s.pos[i]
     if best == here:
@@ -37,7 +37,7 @@ def swap_partner(s: PIBT, i: int, best: Square) -> int | None:
     return None
 
 
-def _swap_required(s: PIBT, pusher: int, puller: int, v_pusher: Square, v_puller: Square) -> bool:
+def _swap_required(s: PIBT, pusher: int, puller: int, v_pusher: Index, v_puller: Index) -> bool:
     """Would pushing `puller` only drive it down a corridor with no room to step aside?"""
     # Then the two can pass only if the pusher backs off instead.
     dist = s.dist
@@ -55,7 +55,7 @@ def _swap_required(s: PIBT, pusher: int, puller: int, v_pusher: Square, v_puller
     )
 
 
-def _swap_possible(s: PIBT, v_pusher: Square, v_puller: Square) -> bool:
+def _swap_possible(s: PIBT, v_pusher: Index, v_puller: Index) -> bool:
     """Is there a side square somewhere behind, so that backing off lets the two pass?"""
     start = v_pusher
     guard = 0
@@ -70,12 +70,12 @@ def _swap_possible(s: PIBT, v_pusher: Square, v_puller: Square) -> bool:
     return False
 
 
-def _ways_on(s: PIBT, v_back: Square, v_front: Square) -> list[Square]:
+def _ways_on(s: PIBT, v_back: Index, v_front: Index) -> list[Index]:
     """The squares one can go on to from `v_front`, coming from `v_back`."""
     return [u for u in s.nbrs[v_front] if u != v_back and not _held_dead_end(s, u)]
 
 
-def _held_dead_end(s: PIBT, square: Square) -> bool:
+def _held_dead_end(s: PIBT, square: Index) -> bool:
     """A dead end held by a unit on its own target: closed, that unit need not move."""
     k = s.occupant.get(square)
     return len(s.nbrs[square]) == 1 and k is not None and s.goal[k] == square

@@ -67,7 +67,6 @@ class Coordinator:
             backoff=Backoff(0.1, 2.0),
         )
         self.ready = asyncio.Event()
-        self._awaiting: frozenset[str] = frozenset()  # as the latest Effects said
         self._acked = asyncio.Event()  # set whenever nothing is awaited any more
         self._views_later: asyncio.Task[None] | None = None
         self._save(self.core.restored())
@@ -113,7 +112,7 @@ class Coordinator:
                     next_at = self.clock()  # late: no burst of steps to catch up
                 await _wait(delay, stop)
                 until = effects.acks_until
-                if until is not None and self._awaiting and self.clock() < until:
+                if until is not None and self.core.orders.awaiting and self.clock() < until:
                     self._acked.clear()
                     await _wait(until - self.clock(), stop, self._acked)
                     next_at = max(next_at, self.clock())
@@ -122,7 +121,6 @@ class Coordinator:
                 await cancel_and_wait(self._views_later)
 
     async def _apply(self, effects: Effects) -> None:
-        self._awaiting = effects.awaiting
         if not effects.awaiting:
             self._acked.set()
         for level, line in effects.log:

@@ -36,7 +36,6 @@ class UnitRunner:
     ) -> None:
         self.core = UnitCore(logic, topics, color=color)
         self.world = world
-        self.url = broker_url
         self.id = logic.unit_id
         # One client id per runner: two processes started with the same unit never kick each other.
         self.endpoint = Endpoint(

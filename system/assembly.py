@@ -60,8 +60,6 @@ def cli(*args: str) -> list[str]:
 class System:
     """A running system: where its broker is, and its parts."""
 
-    spec: SystemSpec
-    mode: Mode
     url: str = ""
     ws_url: str | None = None
     dashboard_url: str | None = None
@@ -93,9 +91,12 @@ class Assembly:
     ):
         if mode == "threads" and (spec.dashboard_port is not None or spec.feed):
             raise ConfigError("the dashboard and the feed run only as processes")
+        in_threads_only = (spec.seed, spec.coordinator_id, spec.sensors_see_units)
+        if mode == "processes" and in_threads_only != (0, "coordinator", True):
+            raise ConfigError("seed, coordinator id and blind sensors are set only in threads")
         self.spec = spec
         self.mode = mode
-        self.system = System(spec, mode, supervisor=supervisor)
+        self.system = System(supervisor=supervisor)
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self._quiet: TextIO | None = None
 

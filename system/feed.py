@@ -23,7 +23,7 @@ from gridfleet.scenario import JobSpec, Scenario, load_scenario
 from gridfleet.tasks import stop_on_signals, until_stopped
 from system.operator import Operator, operator_session
 
-log = logging.getLogger("gridfleet.feeder")
+log = logging.getLogger("gridfleet.feed")
 
 
 def scenario_job_id(scenario: Scenario, n: int, job: JobSpec, run_tag: str | None = None) -> str:

@@ -1,4 +1,4 @@
-"""The course's acceptance list (DESIGN.md §6), one test per item, against the running system.
+"""The course's acceptance list (the course manual's Appendix A), one test per item, against the running system.
 
 Each run is `gridfleet simulate`'s own code: the real coordinator and simulated units over the
 real broker, with the scenario's jobs and goals submitted over the protocol. Items 5 and 6 (the

@@ -1,4 +1,4 @@
-"""Acceptance items 3, 8 and 9 (DESIGN.md §6): the dashboard in Chromium on the REAL system.
+"""Acceptance items 3, 8 and 9 (the course manual's Appendix A): the dashboard in Chromium on the REAL system.
 
 Real broker, real coordinator, real simulated units (threads, `run_system`) and the page in headless
 Chromium: nothing between them is faked. The world simulation (`world_of`) is the ground truth the

@@ -137,3 +137,42 @@ async def test_during_runs_per_session_and_its_error_ends_the_run(
         assert "a bug" in str(exc)
     else:
         raise AssertionError("the error of `during` was swallowed")
+
+
+async def test_on_stop_runs_before_offline_and_only_on_a_clean_stop(
+    broker: BrokerThread, topics: Topics
+) -> None:
+    probe = MqttProbe(broker.url).connect()
+    probe.subscribe(f"{topics.root}/v1/#")
+    endpoint = make(broker.url, topics)
+    goodbye = Outbound(topics.fleet("errors"), b"last words", 1, False)
+
+    async def on_stop() -> None:
+        await endpoint.publish(goodbye)
+
+    async def handle(topic: str, payload: bytes) -> None:
+        pass
+
+    stop = asyncio.Event()
+    task = asyncio.create_task(endpoint.run(stop, handle, on_stop=on_stop))
+    await async_wait_for(lambda: endpoint.online.is_set(), what="online")
+    stop.set()
+    await asyncio.wait_for(task, 10)
+    await async_wait_for(lambda: connection_of(probe, topics)[-1:] == [b"offline"], what="bye")
+    words = probe.received(goodbye.topic)
+    offline = probe.received(topics.device("device_connection", "d1"))[-1]
+    assert [m.payload for m in words] == [b"last words"] and words[0].at <= offline.at
+
+    killed = make(broker.url, topics)
+    calls: list[str] = []
+
+    async def record() -> None:
+        calls.append("on_stop")
+
+    task = asyncio.create_task(killed.run(asyncio.Event(), handle, on_stop=record))
+    await async_wait_for(lambda: killed.online.is_set(), what="online again")
+    killed.kill()
+    await asyncio.wait_for(task, 10)
+    await async_wait_for(lambda: connection_of(probe, topics)[-1:] == [b"broken"], what="will")
+    assert calls == []  # no goodbye from a unit that lost power
+    probe.close()

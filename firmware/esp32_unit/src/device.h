@@ -43,7 +43,7 @@ class Clock {
 };
 
 struct DeviceConfig {
-  std::string root = "gridfleet";
+  std::string root = proto::kDefaultRoot;
   std::string unit = "unit1";
   std::string device = "esp32-unit1";
   uint32_t debounceMs = 50;
