@@ -372,3 +372,28 @@ def test_the_operator_reads_units_the_coordinator_and_the_stop(
     late.subscribe(topics.fleet("estop"), qos=1)
     seen = late.wait(topics.fleet("estop"))
     assert (seen.retain, seen.qos, decode_estop(seen.payload)) == (True, 1, released)
+
+
+def test_the_operator_reads_the_queue_view_connections_and_error_reports(
+    probe_factory: Probes, topics: Topics
+) -> None:
+    publisher = probe_factory()
+    op = OperatorPeer(probe_factory(), topics, "op1")
+    assert op.listed_jobs() == {} and op.job_state("job-1") is None
+    unit, coordinator = UnitPeer(publisher, topics, "unit1"), CoordinatorPeer(publisher, topics)
+    queued = JobView(id="job-1", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=1.5, state="queued")
+    done = queued.model_copy(update={"state": "done", "unit": "unit1"})
+    coordinator.jobs([queued])
+    coordinator.jobs([done])
+    unit.connection("online")
+    publisher.publish(topics.unit("connection", "unit1"), b"", retain=True)  # a cleared value
+    unit.connection("broken")
+    report = coordinator.error(topics.request("submit_job"), "malformed JSON", "r-1")
+
+    wait_for(lambda: len(op.job_views()) == 2, what="two queue views")
+    assert [v.jobs for v in op.job_views()] == [[queued], [done]]
+    assert op.listed_jobs() == {"job-1": done} and op.job_state("job-1") == "done"
+    assert op.all_final(["job-1"]) and not op.all_final(["job-1", "job-2"])
+    wait_for(lambda: len(op.probe.received(topics.unit("connection", "unit1"))) == 3, what="all 3")
+    assert op.connections("unit1") == ["online", "broken"]
+    assert wait_for(op.errors, what="the error report") == [report]

@@ -11,7 +11,7 @@ from pathlib import Path
 import aiomqtt
 
 from gridfleet.endpoint import Outbound
-from gridfleet.grid import Cell
+from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
     Connection,
     Order,
@@ -121,7 +121,7 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
         if before.direction == "-" and not before.estop:
             assert not any(before.leds.model_dump().values())
     directions = c.directions("u1")
-    assert b"E" in directions and b"S" in directions and directions[-1] == b"-"
+    assert Direction.E in directions and Direction.S in directions and directions[-1] is None
 
 
 async def test_sensors_see_every_kind_in_all_four_directions(
@@ -266,11 +266,11 @@ async def test_connection_online_then_offline_on_a_clean_stop(
     c.probe.subscribe(factsheets)
     async with running(sc, broker.url, root, coordinator=c):
         await async_wait_for(
-            lambda: c.connection("u1") == ["online"] and c.connection("u2") == ["online"]
+            lambda: c.connections("u1") == ["online"] and c.connections("u2") == ["online"]
         )
         await async_wait_for(lambda: c.probe.received(factsheets))
     await async_wait_for(
-        lambda: c.connection("u1")[-1:] == ["offline"] and c.connection("u2")[-1:] == ["offline"]
+        lambda: c.connections("u1")[-1:] == ["offline"] and c.connections("u2")[-1:] == ["offline"]
     )
     assert [m.retain for m in c.probe.received(factsheets)] == [False]  # live delivery
 
@@ -286,14 +286,14 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
         c.order("u1", "o1", 1, [(x, 0) for x in range(1, 20)])
         await async_wait_for(lambda: fleet.world.moves["u1"] >= 1)
         runner.drop_connection()
-        await async_wait_for(lambda: "broken" in c.connection("u1"), what="the last will")
+        await async_wait_for(lambda: "broken" in c.connections("u1"), what="the last will")
         # The broker may publish the will before the unit notices the cut (at its next tick at
         # the latest); from then on it holds.
         await async_wait_for(lambda: fleet.logic["u1"].status == "holding", what="holding")
         held = fleet.world.positions["u1"]
         await async_wait_for(lambda: runner.connects == 2, what="the reconnect")
         assert fleet.world.positions["u1"] == held
-        await async_wait_for(lambda: c.connection("u1")[-1] == "online")
+        await async_wait_for(lambda: c.connections("u1")[-1] == "online")
         await steps(fleet, "u1", 4)
         assert (
             fleet.world.positions["u1"] == held

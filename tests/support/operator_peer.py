@@ -1,10 +1,11 @@
-"""A typed operator for tests: requests with their replies, the emergency stop, what units publish.
+"""A typed operator for tests: requests with their replies, the emergency stop, what the fleet says.
 
 `OperatorPeer` plays an operator's script (as `gridfleet job` or the dashboard would): each
 request (set_goal, submit_job, cancel_job) gets a request id of its own and waits for the reply
-with that id on `replies/<name>`; it engages and releases the retained `fleet/estop`; and it reads
-every unit's states and directions and the coordinator's status, decoded with the protocol's own
-decoders (`gridfleet.protocol.decode`, `decode_direction`, `decode_estop`). Everything goes
+with that id on `replies/<name>` (its `send_` form only sends, for a test whose coordinator runs in
+its own event loop); it engages and releases the retained `fleet/estop`; and it reads every unit's
+states, directions and connections, the coordinator's status, queue view and error reports
+(`support.readers.FleetReader`), decoded with the protocol's own decoders. Everything goes
 through an `MqttProbe`.
 """
 
@@ -12,33 +13,33 @@ from __future__ import annotations
 
 import itertools
 
-from gridfleet.grid import Cell, Direction
+from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
-    CoordinatorStatus,
     EstopSignal,
     HeaderStamper,
     Reply,
     SetGoal,
     SubmitJob,
     Topics,
-    UnitState,
     decode,
-    decode_direction,
     decode_estop,
     encode_estop,
 )
+from gridfleet.protocol.messages import Request
 
 from support.fleet_peer import publish
 from support.probe import MqttProbe
+from support.readers import FleetReader
 from support.wait import wait_for
 
 
-class OperatorPeer:
+class OperatorPeer(FleetReader):
     """Sends requests and awaits their replies; engages and releases the stop; reads the fleet.
 
-    It subscribes on creation (its replies, the estop, the coordinator's status, every unit's
-    state and direction), so whatever arrives afterwards is kept by its probe.
+    It subscribes on creation (its replies, the estop, the coordinator's status, queue view and
+    error reports, every unit's state, direction and connection), so whatever arrives afterwards
+    is kept by its probe.
     """
 
     def __init__(self, probe: MqttProbe, topics: Topics, name: str = "operator") -> None:
@@ -50,6 +51,9 @@ class OperatorPeer:
         probe.subscribe(topics.reply(name), qos=1)
         probe.subscribe(topics.fleet("estop"), qos=1)
         probe.subscribe(topics.fleet("coordinator"), qos=1)
+        probe.subscribe(topics.fleet("jobs"), qos=1)
+        probe.subscribe(topics.fleet("errors"), qos=1)
+        probe.subscribe(topics.all_units("connection"), qos=1)
         probe.subscribe(topics.all_units("state"), qos=0)  # high rate: QoS 0 (protocol §2)
         probe.subscribe(topics.all_units("direction"), qos=0)
 
@@ -57,6 +61,10 @@ class OperatorPeer:
 
     def set_goal(self, unit: str, target: Cell | None, *, timeout: float = 10.0) -> Reply:
         """Send `unit` to `target` (None clears its goal); the coordinator's reply."""
+        return self.reply_to(self.send_set_goal(unit, target).request_id, timeout)
+
+    def send_set_goal(self, unit: str, target: Cell | None) -> SetGoal:
+        """`set_goal` without waiting: the request sent (its `request_id` finds the reply)."""
         request = SetGoal(
             header=self.stamp("set_goal"),
             request_id=self._request_id(),
@@ -64,8 +72,8 @@ class OperatorPeer:
             unit=unit,
             target=target,
         )
-        publish(self.probe, "set_goal", self.topics.request("set_goal"), request)
-        return self.reply_to(request.request_id, timeout)
+        self._send("set_goal", request)
+        return request
 
     def submit_job(
         self,
@@ -78,6 +86,19 @@ class OperatorPeer:
         timeout: float = 10.0,
     ) -> Reply:
         """Queue a job; the coordinator's reply (its `job_id` names the job when accepted)."""
+        request = self.send_submit_job(pickup, dropoff, mass_kg, priority=priority, job_id=job_id)
+        return self.reply_to(request.request_id, timeout)
+
+    def send_submit_job(
+        self,
+        pickup: Cell,
+        dropoff: Cell,
+        mass_kg: float,
+        *,
+        priority: int = 0,
+        job_id: str | None = None,
+    ) -> SubmitJob:
+        """`submit_job` without waiting: the request sent (its `request_id` finds the reply)."""
         request = SubmitJob(
             header=self.stamp("submit_job"),
             request_id=self._request_id(),
@@ -88,36 +109,49 @@ class OperatorPeer:
             priority=priority,
             job_id=job_id,
         )
-        publish(self.probe, "submit_job", self.topics.request("submit_job"), request)
-        return self.reply_to(request.request_id, timeout)
+        self._send("submit_job", request)
+        return request
 
     def cancel_job(self, job_id: str, *, timeout: float = 10.0) -> Reply:
         """Delete a queued job or abort an active one; the coordinator's reply."""
+        return self.reply_to(self.send_cancel_job(job_id).request_id, timeout)
+
+    def send_cancel_job(self, job_id: str) -> CancelJob:
+        """`cancel_job` without waiting: the request sent (its `request_id` finds the reply)."""
         request = CancelJob(
             header=self.stamp("cancel_job"),
             request_id=self._request_id(),
             reply_to=self.name,
             job_id=job_id,
         )
-        publish(self.probe, "cancel_job", self.topics.request("cancel_job"), request)
-        return self.reply_to(request.request_id, timeout)
+        self._send("cancel_job", request)
+        return request
+
+    def raw_request(self, kind: str, payload: bytes) -> None:
+        """Send any bytes as a request of `kind` (to see the coordinator refuse them)."""
+        publish(self.probe, kind, self.topics.request(kind), payload)
 
     def replies(self) -> list[Reply]:
         """Every reply on this operator's `replies/<name>`, in the order they arrived."""
         return [decode(Reply, m.payload) for m in self.probe.received(self.topics.reply(self.name))]
 
+    def find_reply(self, request_id: str) -> Reply | None:
+        """The reply carrying `request_id`, if it has come (replies to others are passed over)."""
+        return next((r for r in self.replies() if r.request_id == request_id), None)
+
     def reply_to(self, request_id: str, timeout: float = 10.0) -> Reply:
-        """The reply carrying `request_id` (replies to other requests are passed over)."""
-
-        def matching() -> Reply | None:
-            return next((r for r in self.replies() if r.request_id == request_id), None)
-
-        reply = wait_for(matching, timeout, what=f"the reply to request {request_id}")
+        """The reply carrying `request_id` (waits for it to arrive)."""
+        reply = wait_for(
+            lambda: self.find_reply(request_id), timeout, what=f"the reply to request {request_id}"
+        )
         assert reply is not None
         return reply
 
     def _request_id(self) -> str:
         return f"{self.name}-{next(self._ids)}"
+
+    def _send(self, kind: str, request: Request) -> None:
+        publish(self.probe, kind, self.topics.request(kind), request)
 
     # -- the emergency stop ---------------------------------------------------------------------
 
@@ -130,35 +164,13 @@ class OperatorPeer:
         return self._estop(EstopSignal(False, by or self.name, reason))
 
     def _estop(self, signal: EstopSignal) -> EstopSignal:
-        publish(self.probe, "estop", self.topics.fleet("estop"), encode_estop(signal))
+        self.raw_estop(encode_estop(signal))
         return signal
+
+    def raw_estop(self, payload: bytes) -> None:
+        """Send any bytes as the retained stop: a malformed one, or b"" to clear the value."""
+        publish(self.probe, "estop", self.topics.fleet("estop"), payload)
 
     def estop_signals(self) -> list[EstopSignal]:
         """Every value seen on `fleet/estop` (the retained one first, when there was one)."""
         return [decode_estop(m.payload) for m in self.probe.received(self.topics.fleet("estop"))]
-
-    # -- what the units and the coordinator publish ---------------------------------------------
-
-    def states(self, unit: str) -> list[UnitState]:
-        """Every state of `unit` seen so far, in the order it was published."""
-        return [
-            decode(UnitState, m.payload)
-            for m in self.probe.received(self.topics.unit("state", unit))
-        ]
-
-    def last_state(self, unit: str) -> UnitState | None:
-        """The newest state of `unit`, if any."""
-        seen = self.probe.received(self.topics.unit("state", unit))
-        return decode(UnitState, seen[-1].payload) if seen else None
-
-    def directions(self, unit: str) -> list[Direction | None]:
-        """Every direction `unit` published for its device (None: no move), in order."""
-        return [
-            decode_direction(m.payload)
-            for m in self.probe.received(self.topics.unit("direction", unit))
-        ]
-
-    def coordinator_status(self) -> CoordinatorStatus | None:
-        """The coordinator's newest status, if any."""
-        seen = self.probe.received(self.topics.fleet("coordinator"))
-        return decode(CoordinatorStatus, seen[-1].payload) if seen else None

@@ -4,7 +4,7 @@
 also plays its side of protocol.md §4.4 towards units: it sends orders (and, as an operator
 would, goals), engages or releases the emergency stop, announces the step period units size their
 hold timeout by, and reads what the units publish (states, directions, connections, error
-reports) with the protocol's own decoders. Every message is built from the protocol's models,
+reports) with the protocol's own decoders (`support.readers.FleetReader`). Every message is built from the protocol's models,
 stamped by its sender, and published with the QoS and retain flag protocol.md gives its topic.
 """
 
@@ -15,23 +15,21 @@ from collections.abc import Callable
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Action,
-    Connection,
-    ErrorReport,
     EstopSignal,
     Goal,
     Order,
     Topics,
     UnitState,
-    decode,
     encode_estop,
 )
 
 from support.fleet_peer import CoordinatorPeer, publish
 from support.probe import MqttProbe
+from support.readers import FleetReader
 from support.wait import async_wait_for
 
 
-class DispatchPeer(CoordinatorPeer):
+class DispatchPeer(CoordinatorPeer, FleetReader):
     """Sends units orders, its status and the stop; reads their states, connections and errors.
 
     It subscribes on creation, so whatever units publish afterwards is kept by its probe. With a
@@ -96,26 +94,7 @@ class DispatchPeer(CoordinatorPeer):
         data = payload or encode_estop(EstopSignal(engaged, "tester", "test"))
         publish(self.probe, "estop", self.topics.fleet("estop"), data)
 
-    # ---- what it reads ----------------------------------------------------------------------
-
-    def states(self, unit: str) -> list[UnitState]:
-        """Every state `unit` published so far, in order."""
-        seen = self.probe.received(self.topics.unit("state", unit))
-        return [decode(UnitState, m.payload) for m in seen]
-
-    def directions(self, unit: str) -> list[bytes]:
-        """Every direction `unit` published so far, in order."""
-        return [m.payload for m in self.probe.received(self.topics.unit("direction", unit))]
-
-    def errors(self) -> list[ErrorReport]:
-        """Every error report seen on `errors`."""
-        seen = self.probe.received(self.topics.fleet("errors"))
-        return [decode(ErrorReport, m.payload) for m in seen]
-
-    def connection(self, unit: str) -> list[str]:
-        """What `unit`'s connection topic said, in order (`online`, `offline`, `broken`)."""
-        seen = self.probe.received(self.topics.unit("connection", unit))
-        return [decode(Connection, m.payload).state for m in seen]
+    # ---- what it reads (and, from FleetReader, states, directions, connections, errors) -------
 
     async def until_state(
         self,
