@@ -1,7 +1,8 @@
 """The real coordinator with the real simulated units on the playfield, over the in-process broker.
 
 The units' world simulation is the ground truth: it counts collisions and moves. Requests go over
-MQTT exactly as an operator sends them (protocol models + `encode`, replies awaited).
+MQTT exactly as an operator sends them (`support.operator_peer.OperatorPeer`: protocol models,
+replies awaited).
 """
 
 from __future__ import annotations
@@ -11,27 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.protocol import (
-    CancelJob,
-    Connection,
-    EstopSignal,
-    HeaderStamper,
-    JobsView,
-    JobView,
-    Reply,
-    SubmitJob,
-    Topics,
-    UnitState,
-    decode,
-    encode,
-    encode_estop,
-)
-from gridfleet.protocol.constants import MAX_VIEW_BYTES
-from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, coordinator_thread, world_of
 
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -58,116 +45,17 @@ JOBS_12 = [
 ]
 
 
-class Operator:
-    """An operator over MQTT: sends requests, awaits replies, reads the retained views."""
-
-    def __init__(self, probe: MqttProbe, topics: Topics, name: str = "tester") -> None:
-        self.probe = probe
-        self.topics = topics
-        self.name = name
-        self.stamp = HeaderStamper(name)
-        self._count = 0
-        for topic in (
-            topics.fleet("jobs"),
-            topics.reply(name),
-            topics.fleet("coordinator"),
-            topics.all_units("connection"),
-        ):
-            probe.subscribe(topic, qos=1)
-        probe.subscribe(topics.all_units("state"), qos=0)
-
-    def _request(self, kind: str, make: Callable[[str], Request]) -> Reply:
-        self._count += 1
-        request_id = f"{self.name}-{self._count}"
-        self.probe.publish(self.topics.request(kind), encode(make(request_id)))
-        seen = self.probe.wait(
-            self.topics.reply(self.name),
-            lambda m: decode(Reply, m.payload).request_id == request_id,
-        )
-        return decode(Reply, seen.payload)
-
-    def submit(
-        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass: float, job_id: str
-    ) -> Reply:
-        """Submit a job and return the coordinator's reply."""
-        return self._request(
-            "submit_job",
-            lambda rid: SubmitJob(
-                header=self.stamp("submit_job"),
-                request_id=rid,
-                reply_to=self.name,
-                pickup=pickup,  # type: ignore[arg-type]
-                dropoff=dropoff,  # type: ignore[arg-type]
-                mass_kg=mass,
-                job_id=job_id,
-            ),
-        )
-
-    def cancel(self, job_id: str) -> Reply:
-        """Cancel a job and return the coordinator's reply."""
-        return self._request(
-            "cancel_job",
-            lambda rid: CancelJob(
-                header=self.stamp("cancel_job"), request_id=rid, reply_to=self.name, job_id=job_id
-            ),
-        )
-
-    def estop(self, engaged: bool) -> None:
-        """Engage or release the latched emergency stop (retained, as the dashboard does)."""
-        signal = EstopSignal(engaged, self.name, "test")
-        self.probe.publish(self.topics.fleet("estop"), encode_estop(signal), retain=True)
-
-    def views(self) -> list[JobsView]:
-        """Every queue view seen so far, oldest first."""
-        return [
-            decode(JobsView, m.payload, MAX_VIEW_BYTES)
-            for m in self.probe.received(self.topics.fleet("jobs"))
-        ]
-
-    def jobs(self) -> dict[str, JobView]:
-        """The latest queue view by job id."""
-        seen = self.probe.received(self.topics.fleet("jobs"))
-        if not seen:
-            return {}
-        return {j.id: j for j in decode(JobsView, seen[-1].payload, MAX_VIEW_BYTES).jobs}
-
-    def state_of(self, job_id: str) -> str | None:
-        """The job's state in the latest queue view."""
-        job = self.jobs().get(job_id)
-        return None if job is None else job.state
-
-    def states(self, unit: str) -> list[UnitState]:
-        """Every state `unit` published so far, oldest first."""
-        return [
-            decode(UnitState, m.payload)
-            for m in self.probe.received(self.topics.unit("state", unit))
-        ]
-
-    def connections(self, unit: str) -> list[str]:
-        """Every connection state `unit` (or its last will) published so far."""
-        return [
-            decode(Connection, m.payload).state
-            for m in self.probe.received(self.topics.unit("connection", unit))
-            if m.payload
-        ]
-
-    def all_final(self, ids: list[str]) -> bool:
-        """Every job of `ids` is in the view and final."""
-        jobs = self.jobs()
-        return all(i in jobs and jobs[i].state in FINAL_JOB_STATES for i in ids)
+@pytest.fixture
+def operator(probe_factory: Callable[..., MqttProbe], topics: Topics) -> OperatorPeer:
+    """An operator under this test's root."""
+    return OperatorPeer(probe_factory(), topics, "tester")
 
 
 @pytest.fixture
-def operator(probe_factory: Callable[..., MqttProbe], topics: Topics) -> Operator:
-    """An operator probe under this test's root."""
-    return Operator(probe_factory(), topics)
-
-
-@pytest.fixture
-def estop_cleared(operator: Operator) -> Iterator[None]:
+def estop_cleared(operator: OperatorPeer) -> Iterator[None]:
     """Clear the retained emergency stop of this test's root afterwards."""
     yield
-    operator.probe.publish(operator.topics.fleet("estop"), b"", retain=True)
+    operator.raw_estop(b"")
 
 
 @pytest.fixture
@@ -191,23 +79,23 @@ def system(run_system: RunSystem, playfield: Path) -> System:
     return start
 
 
-def carried_jobs(op: Operator, unit: str) -> set[str]:
+def carried_jobs(op: OperatorPeer, unit: str) -> set[str]:
     """Jobs `unit` ever reported carrying."""
     return {s.job_id for s in op.states(unit) if s.job_id is not None}
 
 
 @pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collisions(
-    system: System, operator: Operator
+    system: System, operator: OperatorPeer
 ) -> None:
     _, fleet = system()
     world = world_of(fleet)
     ids = []
     for n, (pickup, dropoff, mass) in enumerate(JOBS_12, start=1):
         ids.append(f"j{n}")
-        assert operator.submit(pickup, dropoff, mass, f"j{n}").accepted
+        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=f"j{n}").accepted
     wait_for(lambda: operator.all_final(ids), timeout=50, what="all 12 jobs final")
-    jobs = operator.jobs()
+    jobs = operator.listed_jobs()
     assert {i: jobs[i].state for i in ids} == dict.fromkeys(ids, "done")
     for job in jobs.values():
         assert job.unit is not None and CAPACITY[job.unit] >= job.mass_kg, job
@@ -223,26 +111,26 @@ def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collision
 
 
 def test_cancel_a_queued_and_an_active_job_releases_the_unit(
-    system: System, operator: Operator
+    system: System, operator: OperatorPeer
 ) -> None:
     # Slow steps: unit4 needs 17 of them to its pickup, which must not come before the cancel
     # below, five operator round trips later, however busy the machine.
     _, fleet = system(step_s=0.15)
     units = fleet.service.logic  # type: ignore[attr-defined]
     # Only unit4 can carry 15 kg: the first job makes it busy, so the second stays queued.
-    assert operator.submit((1, 0), (9, 1), 15.0, "active").accepted
-    wait_for(lambda: operator.state_of("active") == "to_pickup", timeout=10, what="under way")
-    assert operator.jobs()["active"].unit == "unit4"
-    assert operator.submit((0, 3), (5, 3), 15.0, "queued").accepted
-    wait_for(lambda: operator.state_of("queued") == "queued", timeout=5, what="queued")
-    reply = operator.cancel("queued")
+    assert operator.submit_job(Cell(1, 0), Cell(9, 1), 15.0, job_id="active").accepted
+    wait_for(lambda: operator.job_state("active") == "to_pickup", timeout=10, what="under way")
+    assert operator.listed_jobs()["active"].unit == "unit4"
+    assert operator.submit_job(Cell(0, 3), Cell(5, 3), 15.0, job_id="queued").accepted
+    wait_for(lambda: operator.job_state("queued") == "queued", timeout=5, what="queued")
+    reply = operator.cancel_job("queued")
     assert reply.accepted and reply.job_id == "queued"
-    wait_for(lambda: operator.state_of("queued") == "cancelled", timeout=5, what="cancelled")
-    assert operator.state_of("active") == "to_pickup"  # untouched by the other cancel
+    wait_for(lambda: operator.job_state("queued") == "cancelled", timeout=5, what="cancelled")
+    assert operator.job_state("active") == "to_pickup"  # untouched by the other cancel
     assert fleet.call(lambda: units["unit4"].job_id) is None, "unit4 loaded: set-up too slow"
-    assert operator.cancel("active").accepted
-    wait_for(lambda: operator.state_of("active") == "cancelled", timeout=5, what="aborted")
-    assert "unit4 released" in (operator.jobs()["active"].reason or "")
+    assert operator.cancel_job("active").accepted
+    wait_for(lambda: operator.job_state("active") == "cancelled", timeout=5, what="aborted")
+    assert "unit4 released" in (operator.listed_jobs()["active"].reason or "")
     # The unit drops its route and action: idle, empty-handed, nothing released.
     wait_for(
         lambda: fleet.call(
@@ -256,28 +144,28 @@ def test_cancel_a_queued_and_an_active_job_releases_the_unit(
         what="unit4 idle with no route",
     )
     assert units["unit4"].job_id is None and units["unit4"].load_kg == 0.0
-    assert not operator.cancel("active").accepted  # already final
+    assert not operator.cancel_job("active").accepted  # already final
     # Released for real: it takes the next heavy job and finishes it.
-    assert operator.submit((0, 6), (9, 4), 15.0, "next").accepted
-    wait_for(lambda: operator.state_of("next") == "done", timeout=20, what="next job done")
-    assert operator.jobs()["next"].unit == "unit4"
+    assert operator.submit_job(Cell(0, 6), Cell(9, 4), 15.0, job_id="next").accepted
+    wait_for(lambda: operator.job_state("next") == "done", timeout=20, what="next job done")
+    assert operator.listed_jobs()["next"].unit == "unit4"
     for unit in CAPACITY:
         assert not carried_jobs(operator, unit) & {"active", "queued"}
     assert world_of(fleet).collisions == 0
 
 
 def test_emergency_stop_halts_all_motion_and_release_resumes(
-    system: System, operator: Operator, estop_cleared: None
+    system: System, operator: OperatorPeer, estop_cleared: None
 ) -> None:
     coordinator, fleet = system()
     world = world_of(fleet)
     units = fleet.service.logic  # type: ignore[attr-defined]
     ids = [f"e{n}" for n in range(4)]
     for job_id, (pickup, dropoff, mass) in zip(ids, JOBS_12[: len(ids)], strict=True):
-        assert operator.submit(pickup, dropoff, mass, job_id).accepted
+        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=job_id).accepted
     start = dict(world.moves)
     wait_for(lambda: sum(world.moves[u] - start[u] for u in start) >= 4, timeout=10, what="motion")
-    operator.estop(True)
+    operator.engage("test")
     wait_for(
         lambda: fleet.call(lambda: all(u.estop for u in units.values())),
         timeout=5,
@@ -299,9 +187,9 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
         first = next(i for i, s in enumerate(states) if s.estop)
         assert states[first].status == "stopped" and states[first].released == []
         assert {s.position for s in states[first:] if s.estop} == {states[first].position}
-    operator.estop(False)
+    operator.release("test")
     wait_for(lambda: operator.all_final(ids), timeout=30, what="jobs finished after release")
-    jobs = operator.jobs()
+    jobs = operator.listed_jobs()
     assert {jobs[i].state for i in ids} == {"done"}, {
         i: (jobs[i].state, jobs[i].reason) for i in ids
     }
@@ -310,7 +198,7 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
 
 
 def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
-    system: System, operator: Operator
+    system: System, operator: OperatorPeer
 ) -> None:
     # Slow steps: the victim must be killed before its pickup (5 squares away), or the item
     # is lost with it and no other unit can finish the job (protocol §8).
@@ -320,7 +208,7 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     units = fleet.service.logic  # type: ignore[attr-defined]
     core = coordinator.service.core  # type: ignore[attr-defined]
     # 4 kg: unit2, unit3 and unit4 can carry it (unit2, the nearest, if it is free first).
-    assert operator.submit((5, 1), (8, 6), 4.0, "k").accepted
+    assert operator.submit_job(Cell(5, 1), Cell(8, 6), 4.0, job_id="k").accepted
     victim = wait_for(
         lambda: coordinator.call(lambda: (j := core.jobs.get("k")) and j.unit),
         timeout=10,
@@ -338,12 +226,12 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     killed_at = world.positions[victim]
     wait_for(lambda: "broken" in operator.connections(victim), timeout=5, what="last will")
     assert "offline" not in operator.connections(victim)
-    wait_for(lambda: operator.state_of("k") == "done", timeout=30, what="done by another unit")
+    wait_for(lambda: operator.job_state("k") == "done", timeout=30, what="done by another unit")
     # Back in the queue and re-assigned (both may fall in one coordinator step).
-    owners = [j.unit for view in operator.views() for j in view.jobs if j.id == "k" and j.unit]
+    owners = [j.unit for view in operator.job_views() for j in view.jobs if j.id == "k" and j.unit]
     assert owners[0] == victim and owners[-1] != victim
-    assert not any(j.state == "failed" for view in operator.views() for j in view.jobs)
-    finisher = operator.jobs()["k"].unit
+    assert not any(j.state == "failed" for view in operator.job_views() for j in view.jobs)
+    finisher = operator.listed_jobs()["k"].unit
     assert finisher in ("unit2", "unit3", "unit4") and finisher != victim
     assert "k" in carried_jobs(operator, finisher) and "k" not in carried_jobs(operator, victim)
     assert world.positions[victim] == killed_at  # dead units do not move
@@ -353,7 +241,7 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
 @pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
 def test_coordinator_restart_mid_run_loses_no_job(
     system: System,
-    operator: Operator,
+    operator: OperatorPeer,
     playfield: Path,
     broker: BrokerThread,
     root: str,
@@ -363,15 +251,15 @@ def test_coordinator_restart_mid_run_loses_no_job(
     world = world_of(fleet)
     ids = [f"r{n}" for n in range(8)]
     for job_id, (pickup, dropoff, mass) in zip(ids, JOBS_12[: len(ids)], strict=True):
-        assert operator.submit(pickup, dropoff, mass, job_id).accepted
+        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=job_id).accepted
 
     def progress() -> bool:
-        states = [operator.state_of(i) for i in ids]
+        states = [operator.job_state(i) for i in ids]
         return "done" in states and any(s in ("to_pickup", "to_dropoff") for s in states)
 
     wait_for(progress, timeout=20, what="some jobs done, some under way")
     coordinator.stop()
-    before = operator.jobs()
+    before = operator.listed_jobs()
     assert not all(before[i].state == "done" for i in ids)
     scenario = load_scenario(playfield)
     with coordinator_thread(
@@ -380,8 +268,8 @@ def test_coordinator_restart_mid_run_loses_no_job(
         try:
             wait_for(lambda: operator.all_final(ids), timeout=40, what="all jobs after restart")
         except Exception:
-            print({i: (j.state, j.unit, j.reason) for i, j in operator.jobs().items()})
+            print({i: (j.state, j.unit, j.reason) for i, j in operator.listed_jobs().items()})
             print({u: operator.states(u)[-1] for u in CAPACITY})
             raise
-    assert {operator.state_of(i) for i in ids} == {"done"}
+    assert {operator.job_state(i) for i in ids} == {"done"}
     assert world.collisions == 0, world.log
