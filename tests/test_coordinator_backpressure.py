@@ -2,30 +2,20 @@
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-from gridfleet.protocol import (
-    Connection,
-    Factsheet,
-    HeaderStamper,
-    Leds,
-    Routes,
-    Sensors,
-    SubmitJob,
-    Topics,
-    UnitState,
-    decode,
-    encode,
-)
+from gridfleet.grid import Cell
+from gridfleet.protocol import Order, Routes, Sensors, Topics, decode
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 from system.threads import coordinator_thread
 
+from support.fleet_peer import UnitPeer
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -40,22 +30,12 @@ def test_steps_wait_for_acknowledgements_of_moves(
     playfield: Path,
     probe_factory: Callable[..., MqttProbe],
 ) -> None:
-    unit = probe_factory()
-    stamp = HeaderStamper("unit1")
-    order_topic = topics.unit("order", "unit1")
-    unit.subscribe(order_topic)
-    unit.subscribe(topics.fleet("routes"), qos=0)
-    unit.publish(
-        topics.unit("connection", "unit1"),
-        encode(Connection(header=stamp("connection"), state="online")),
-        retain=True,
-    )
-    unit.publish(
-        topics.unit("factsheet", "unit1"),
-        encode(Factsheet(header=stamp("factsheet"), capacity_kg=5, step_period_s=STEP)),
-        retain=True,
-    )
-    acked: dict[str, object] = {"order_id": None, "update_id": 0}
+    unit = UnitPeer(probe_factory(), topics, "unit1")
+    unit.follow_orders()
+    unit.probe.subscribe(topics.fleet("routes"), qos=0)
+    unit.connection("online")
+    unit.factsheet(5, step_period_s=STEP)
+    acked: tuple[str | None, int] = (None, 0)  # the order id and update id the unit acknowledges
     stop = threading.Event()
 
     frozen = threading.Event()
@@ -63,31 +43,27 @@ def test_steps_wait_for_acknowledgements_of_moves(
     def heartbeat() -> None:
         # A unit whose states keep coming; it acknowledges holds at once, but once a move has
         # come it acknowledges only what `acked` says (a unit whose acks are late).
+        nonlocal acked
         while not stop.is_set():
-            orders = [json.loads(m.payload) for m in unit.received(order_topic)]
-            if any(o["released"] for o in orders):
+            orders = unit.orders()
+            if any(o.released for o in orders):
                 frozen.set()
             if orders and not frozen.is_set():
-                acked.update(order_id=orders[-1]["order_id"], update_id=orders[-1]["update_id"])
-            state = UnitState(
-                header=stamp("state"),
+                acked = (orders[-1].order_id, orders[-1].update_id)
+            unit.state(
+                Cell(0, 0),
                 step=0,
-                position=(0, 0),  # type: ignore[arg-type]
-                direction="-",
-                status="idle",
-                leds=Leds(),
                 sensors=Sensors(N="wall", E="free", S="free", W="wall"),
-                order_id=acked["order_id"],  # type: ignore[arg-type]
-                order_update_id=acked["update_id"],  # type: ignore[arg-type]
+                order_id=acked[0],
+                order_update_id=acked[1],
             )
-            unit.client.publish(topics.unit("state", "unit1"), encode(state), qos=0)
             stop.wait(STEP)
 
     beat = threading.Thread(target=heartbeat, daemon=True)
     beat.start()
 
     def steps() -> int:
-        seen = unit.received(topics.fleet("routes"))
+        seen = unit.probe.received(topics.fleet("routes"))
         return decode(Routes, seen[-1].payload, MAX_VIEW_BYTES).step if seen else 0
 
     scenario = load_scenario(playfield)
@@ -96,22 +72,11 @@ def test_steps_wait_for_acknowledgements_of_moves(
             scenario, broker.url, root=root, step_s=STEP, db_path=tmp_path / "jobs.db"
         ):
             wait_for(lambda: steps() > 0, timeout=10, what="coordinator steps")
-            operator = probe_factory()
-            job = SubmitJob(
-                header=HeaderStamper("op")("submit_job"),
-                request_id="r1",
-                pickup=(5, 0),  # type: ignore[arg-type]
-                dropoff=(9, 0),  # type: ignore[arg-type]
-                mass_kg=1.0,
-            )
-            operator.publish(topics.request("submit_job"), encode(job))
+            operator = OperatorPeer(probe_factory(), topics, "op")
+            assert operator.submit_job(Cell(5, 0), Cell(9, 0), 1.0).accepted
 
-            def first_move() -> dict[str, object] | None:
-                for m in unit.received(order_topic):
-                    order = json.loads(m.payload)
-                    if order["released"]:
-                        return order  # type: ignore[no-any-return]
-                return None
+            def first_move() -> Order | None:
+                return next((o for o in unit.orders() if o.released), None)
 
             move = wait_for(first_move, timeout=10, what="a released move")
             assert move is not None
@@ -121,7 +86,7 @@ def test_steps_wait_for_acknowledgements_of_moves(
             slow = steps() - start
             assert slow <= 8, f"{slow} steps in 1 s while the move was not acknowledged"
             # Acknowledged: back to its own period.
-            acked.update(order_id=move["order_id"], update_id=move["update_id"])
+            acked = (move.order_id, move.update_id)
             start, t0 = steps(), time.monotonic()
             wait_for(lambda: steps() - start >= 3 * slow + 10, timeout=10, what="fast steps")
     finally:

@@ -1,4 +1,4 @@
-"""The typed test peers of tests/support (fleet_peer, operator_peer) on the real broker.
+"""The typed test peers of tests/support (fleet_peer, operator_peer, peers) on the real broker.
 
 Each message a peer publishes is the protocol's: its model, on its topic, with its kind's QoS and
 retain flag; and the operator's requests get their own replies and no one else's.
@@ -40,6 +40,7 @@ from system.broker_thread import BrokerThread
 
 from support.fleet_peer import CoordinatorPeer, UnitPeer
 from support.operator_peer import OperatorPeer
+from support.peers import DispatchPeer
 from support.probe import MqttProbe
 from support.wait import WaitTimeout, wait_for
 
@@ -397,3 +398,19 @@ def test_the_operator_reads_the_queue_view_connections_and_error_reports(
     wait_for(lambda: len(op.probe.received(topics.unit("connection", "unit1"))) == 3, what="all 3")
     assert op.connections("unit1") == ["online", "broken"]
     assert wait_for(op.errors, what="the error report") == [report]
+
+
+def test_a_unit_peer_reads_its_own_orders_and_acknowledges_them(
+    probe_factory: Probes, topics: Topics
+) -> None:
+    unit = UnitPeer(probe_factory(), topics, "unit1")
+    unit.follow_orders()
+    coordinator = DispatchPeer(probe_factory(), topics, step_period_s=None)
+    other = coordinator.order("unit2", "o9", 1, [])
+    sent = coordinator.order("unit1", "o1", 2, [Cell(1, 0)], planned=[Cell(2, 0)])
+    wait_for(lambda: unit.orders(), what="unit1's order")
+    assert unit.orders() == [sent] and other not in unit.orders()
+    ack = unit.state(Cell(0, 0), order_id=sent.order_id, order_update_id=sent.update_id)
+    wait_for(lambda: coordinator.states("unit1"), what="the acknowledging state")
+    assert coordinator.states("unit1") == [ack]
+    assert (ack.order_id, ack.order_update_id) == ("o1", 2)

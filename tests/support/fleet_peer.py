@@ -1,11 +1,12 @@
 """Typed stand-ins for what the units and the coordinator publish, for tests that play them.
 
-A `UnitPeer` publishes what one unit does (connection, factsheet, state, direction), a
-`CoordinatorPeer` what the coordinator does (map, jobs view, routes, status, replies, error
-reports). Each message is built from the protocol's own models (`gridfleet.protocol`), stamped
-with a header of its sender and published through an `MqttProbe` with the QoS and retain flag
-protocol.md gives its topic (`gridfleet.endpoint.Outbound.of`). Every method returns the message
-it published, so a test can compare what arrives with what was sent.
+A `UnitPeer` publishes what one unit does (connection, factsheet, state, direction) and reads the
+orders it is sent, a `CoordinatorPeer` publishes what the coordinator does (map, jobs view,
+routes, status, replies, error reports). Each message is built from the protocol's own models
+(`gridfleet.protocol`), stamped with a header of its sender and published through an `MqttProbe`
+with the QoS and retain flag protocol.md gives its topic (`gridfleet.endpoint.Outbound.of`).
+Every method that publishes returns the message it published, so a test can compare what
+arrives with what was sent.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from gridfleet.protocol import (
     JobsView,
     JobView,
     Leds,
+    Order,
     Reply,
     Routes,
     RouteView,
@@ -106,10 +108,13 @@ class UnitPeer:
         released: Sequence[Cell] = (),
         goal: Cell | None = None,
         estop: bool = False,
+        order_id: str | None = None,
+        order_update_id: int = 0,
     ) -> UnitState:
         """`units/<id>/state`; the LEDs follow `direction` (all four when stopped).
 
-        `step` defaults to the state's sequence number, so every state is one step later.
+        `step` defaults to the state's sequence number, so every state is one step later;
+        `order_id` and `order_update_id` acknowledge the newest order the unit has taken.
         """
         header = self.stamp("state")
         message = UnitState(
@@ -128,6 +133,8 @@ class UnitPeer:
             released=list(released),
             goal=goal,
             estop=estop,
+            order_id=order_id,
+            order_update_id=order_update_id,
         )
         publish(self.probe, "state", self.topics.unit("state", self.unit), message)
         return message
@@ -137,6 +144,15 @@ class UnitPeer:
         payload = encode_direction(direction)
         publish(self.probe, "direction", self.topics.unit("direction", self.unit), payload)
         return payload
+
+    def follow_orders(self) -> None:
+        """Subscribe to this unit's `units/<id>/order`, as the unit does (before `orders`)."""
+        self.probe.subscribe(self.topics.unit("order", self.unit), qos=1)
+
+    def orders(self) -> list[Order]:
+        """Every order the coordinator sent this unit since `follow_orders`, in order."""
+        seen = self.probe.received(self.topics.unit("order", self.unit))
+        return [decode(Order, m.payload) for m in seen]
 
 
 class CoordinatorPeer:
