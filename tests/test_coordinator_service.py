@@ -16,23 +16,12 @@ from coordinator.service import Coordinator
 from coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
-from gridfleet.protocol import (
-    CancelJob,
-    EstopSignal,
-    HeaderStamper,
-    JobsView,
-    Reply,
-    SubmitJob,
-    Topics,
-    decode,
-    encode,
-    encode_estop,
-)
-from gridfleet.protocol.constants import MAX_VIEW_BYTES
+from gridfleet.protocol import Topics
 from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
 from support.coordinator_fakes import FakeFleet
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
@@ -50,61 +39,35 @@ def playfield_grid() -> GridMap:
     return load_map(MAPS / "playfield.map")
 
 
-def send_submit(
-    probe: MqttProbe,
-    topics: Topics,
-    stamp: HeaderStamper,
-    job_id: str,
-    pickup: tuple[int, int] = (1, 1),
-    dropoff: tuple[int, int] = (8, 8),
-    mass: float = 1.0,
-) -> None:
-    """Submit a job as `stamp`'s sender, with request id `r-<job_id>`; replies go to it."""
-    req = SubmitJob(
-        header=stamp("submit_job"),
-        request_id=f"r-{job_id}",
-        reply_to=stamp.sender,
-        pickup=pickup,  # type: ignore[arg-type]
-        dropoff=dropoff,  # type: ignore[arg-type]
-        mass_kg=mass,
-        job_id=job_id,
-    )
-    probe.publish(topics.request("submit_job"), encode(req))
-
-
 @dataclass
 class Rig:
-    """A running coordinator, a fleet of fake units and an operator probe."""
+    """A running coordinator, a fleet of fake units and an operator.
+
+    The coordinator runs in this test's event loop: the operator sends its requests without
+    waiting (`send_submit_job`), and the test awaits the replies.
+    """
 
     coordinator: Coordinator
     fleet: FakeFleet
-    probe: MqttProbe
-    topics: Topics
-    stamp: HeaderStamper
+    op: OperatorPeer
     stop_coord: asyncio.Event
     coord_task: asyncio.Task[None]
 
-    def jobs(self) -> JobsView | None:
-        seen = self.probe.received(self.topics.fleet("jobs"))
-        return decode(JobsView, seen[-1].payload, MAX_VIEW_BYTES) if seen else None
+    @property
+    def topics(self) -> Topics:
+        return self.op.topics
 
-    def job_state(self, job_id: str) -> str | None:
-        view = self.jobs()
-        if view is None:
-            return None
-        return next((j.state for j in view.jobs if j.id == job_id), None)
+    @property
+    def probe(self) -> MqttProbe:
+        return self.op.probe
 
-    def submit(
-        self, pickup: tuple[int, int], dropoff: tuple[int, int], mass: float, job_id: str
-    ) -> None:
-        send_submit(self.probe, self.topics, self.stamp, job_id, pickup, dropoff, mass)
+    def submit(self, pickup: Cell, dropoff: Cell, mass: float, job_id: str) -> str:
+        """Submit a job without waiting for its reply; the request id that reply will carry."""
+        return self.op.send_submit_job(pickup, dropoff, mass, job_id=job_id).request_id
 
-    def reply(self, request_id: str) -> Reply | None:
-        for m in self.probe.received(self.topics.reply("tester")):
-            r = decode(Reply, m.payload)
-            if r.request_id == request_id:
-                return r
-        return None
+    def done(self) -> int:
+        """How many jobs the newest queue view lists as done."""
+        return sum(j.state == "done" for j in self.op.listed_jobs().values())
 
     async def restart_coordinator(self, broker: str, db: Path, grid: GridMap) -> None:
         self.stop_coord.set()
@@ -126,10 +89,7 @@ async def rig(
     grid = playfield_grid()
     topics = Topics(root)
     probe = MqttProbe(broker.url, "tester").connect()
-    probe.subscribe(topics.fleet("jobs"), qos=1)
-    probe.subscribe(topics.reply("tester"), qos=1)
-    probe.subscribe(topics.fleet("errors"), qos=1)
-    probe.subscribe(topics.fleet("coordinator"), qos=1)
+    op = OperatorPeer(probe, topics, "tester")
     probe.subscribe(topics.fleet("map"), qos=1)
     probe.subscribe(topics.all_units("order"), qos=1)
     fleet = FakeFleet(
@@ -148,7 +108,7 @@ async def rig(
     await asyncio.wait_for(coordinator.ready.wait(), 10)
     stop_fleet = asyncio.Event()
     fleet_task = asyncio.create_task(fleet.run(stop_fleet, STEP))
-    r = Rig(coordinator, fleet, probe, topics, HeaderStamper("tester"), stop_coord, coord_task)
+    r = Rig(coordinator, fleet, op, stop_coord, coord_task)
     try:
         yield r
     finally:
@@ -181,18 +141,10 @@ async def test_four_units_complete_twelve_jobs_within_capacity(
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
         for i, (p, d, m) in enumerate(JOBS_12):
-            r.submit(p, d, m, f"job-{i}")
-        await async_wait_for(
-            lambda: (
-                (v := r.jobs()) is not None and sum(1 for j in v.jobs if j.state == "done") == 12
-            ),
-            timeout=45,
-            what="12 jobs done",
-        )
-        view = r.jobs()
-        assert view is not None
+            r.submit(Cell(*p), Cell(*d), m, f"job-{i}")
+        await async_wait_for(lambda: r.done() == 12, timeout=45, what="12 jobs done")
         caps = {uid: cap for uid, _, cap in PLAYFIELD_UNITS}
-        for j in view.jobs:
+        for j in r.op.listed_jobs().values():
             assert j.unit is not None and j.mass_kg <= caps[j.unit]
         assert r.fleet.collisions == 0
 
@@ -202,25 +154,20 @@ async def test_impossible_and_invalid_jobs_are_refused(
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
         await async_wait_for(lambda: len(r.coordinator.world.capacities()) == 4, what="factsheets")
-        r.submit((1, 1), (1, 2), 50.0, "heavy")
-        r.submit((2, 2), (1, 1), 1.0, "on-wall")  # (2, 2) is a wall
-        r.submit((12, 3), (1, 1), 1.0, "off-map")
-        got = await async_wait_for(lambda: r.reply("r-heavy"), what="reply")
+        heavy = r.submit(Cell(1, 1), Cell(1, 2), 50.0, "heavy")
+        on_wall = r.submit(Cell(2, 2), Cell(1, 1), 1.0, "on-wall")  # (2, 2) is a wall
+        off_map = r.submit(Cell(12, 3), Cell(1, 1), 1.0, "off-map")
+        got = await async_wait_for(lambda: r.op.find_reply(heavy), what="reply")
         assert not got.accepted and got.reason is not None and "largest 20.0 kg" in got.reason
-        wall = await async_wait_for(lambda: r.reply("r-on-wall"), what="reply")
+        wall = await async_wait_for(lambda: r.op.find_reply(on_wall), what="reply")
         assert not wall.accepted and "wall" in (wall.reason or "")
-        off = await async_wait_for(lambda: r.reply("r-off-map"), what="reply")
+        off = await async_wait_for(lambda: r.op.find_reply(off_map), what="reply")
         assert not off.accepted and "off the 10x10 map" in (off.reason or "")
-        await async_wait_for(lambda: r.job_state("heavy") == "rejected", what="rejected listed")
-        assert r.job_state("on-wall") is None and r.job_state("off-map") is None
-        r.submit((1, 1), (1, 2), 1.0, "heavy")  # duplicate id
-        dup = await async_wait_for(
-            lambda: [
-                m for m in r.probe.received(r.topics.reply("tester")) if b"is taken" in m.payload
-            ],
-            what="duplicate refused",
-        )
-        assert dup
+        await async_wait_for(lambda: r.op.job_state("heavy") == "rejected", what="rejected listed")
+        assert r.op.job_state("on-wall") is None and r.op.job_state("off-map") is None
+        again = r.submit(Cell(1, 1), Cell(1, 2), 1.0, "heavy")  # duplicate id
+        dup = await async_wait_for(lambda: r.op.find_reply(again), what="duplicate refused")
+        assert not dup.accepted and "is taken" in (dup.reason or "")
 
 
 async def test_cancel_a_queued_and_an_active_job(
@@ -228,35 +175,26 @@ async def test_cancel_a_queued_and_an_active_job(
 ) -> None:
     # One unit only, so the second job waits in the queue while the first is under way.
     async with rig(broker, root, tmp_path, units=[("unit4", (9, 9), 20.0)]) as r:
-        r.submit((0, 0), (0, 9), 1.0, "far")
-        await async_wait_for(lambda: r.job_state("far") in ("to_pickup",), what="far under way")
-        r.submit((9, 8), (9, 0), 1.0, "waiting")
-        await async_wait_for(lambda: r.job_state("waiting") == "queued", what="queued")
+        r.submit(Cell(0, 0), Cell(0, 9), 1.0, "far")
+        await async_wait_for(lambda: r.op.job_state("far") in ("to_pickup",), what="far under way")
+        r.submit(Cell(9, 8), Cell(9, 0), 1.0, "waiting")
+        await async_wait_for(lambda: r.op.job_state("waiting") == "queued", what="queued")
         for job_id in ("waiting", "far"):
-            req = CancelJob(
-                header=r.stamp("cancel_job"),
-                request_id=f"c-{job_id}",
-                reply_to="tester",
-                job_id=job_id,
-            )
-            r.probe.publish(r.topics.request("cancel_job"), encode(req))
-            rep = await async_wait_for(lambda j=job_id: r.reply(f"c-{j}"), what="cancel reply")
+            cancel = r.op.send_cancel_job(job_id).request_id
+            rep = await async_wait_for(lambda c=cancel: r.op.find_reply(c), what="cancel reply")
             assert rep.accepted
         await async_wait_for(
-            lambda: r.job_state("far") == "cancelled" and r.job_state("waiting") == "cancelled",
+            lambda: r.op.job_state("far") == r.op.job_state("waiting") == "cancelled",
             what="both cancelled",
         )
         # The unit is free again and takes new work.
-        r.submit((8, 9), (7, 9), 1.0, "after")
+        r.submit(Cell(8, 9), Cell(7, 9), 1.0, "after")
         await async_wait_for(
-            lambda: r.job_state("after") == "done", timeout=20, what="new job done"
+            lambda: r.op.job_state("after") == "done", timeout=20, what="new job done"
         )
         # Cancelling a final job is refused.
-        req = CancelJob(
-            header=r.stamp("cancel_job"), request_id="c-again", reply_to="tester", job_id="far"
-        )
-        r.probe.publish(r.topics.request("cancel_job"), encode(req))
-        again = await async_wait_for(lambda: r.reply("c-again"), what="reply")
+        cancel = r.op.send_cancel_job("far").request_id
+        again = await async_wait_for(lambda: r.op.find_reply(cancel), what="reply")
         assert not again.accepted
 
 
@@ -264,11 +202,9 @@ async def test_estop_halts_releases_and_release_resumes(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
-        r.submit((0, 5), (9, 5), 15.0, "long")
-        await async_wait_for(lambda: r.job_state("long") == "to_pickup", what="under way")
-        r.probe.publish(
-            r.topics.fleet("estop"), encode_estop(EstopSignal(True, "tester", "test")), retain=True
-        )
+        r.submit(Cell(0, 5), Cell(9, 5), 15.0, "long")
+        await async_wait_for(lambda: r.op.job_state("long") == "to_pickup", what="under way")
+        r.op.engage("test")
         await async_wait_for(lambda: r.coordinator.core.estop, what="estop seen")
         # Every order made from now on holds. Judged by the step each order carries, not by when
         # it reached the probe: an order made just before may still be on its way.
@@ -287,16 +223,14 @@ async def test_estop_halts_releases_and_release_resumes(
         await async_wait_for(lambda: r.fleet.steps > steps0 + 5, what="fleet steps")
         assert r.fleet.units["unit4"].position == before
         # Malformed estop payloads are ignored and never release.
-        r.probe.publish(r.topics.fleet("estop"), b"released", retain=True)
+        r.op.raw_estop(b"released")
         await async_wait_for(lambda: r.coordinator.errors_sent > 0, what="error report")
         assert r.coordinator.core.estop
-        r.probe.publish(
-            r.topics.fleet("estop"), encode_estop(EstopSignal(False, "tester", "ok")), retain=True
-        )
+        r.op.release("ok")
         await async_wait_for(
-            lambda: r.job_state("long") == "done", timeout=30, what="resumed and done"
+            lambda: r.op.job_state("long") == "done", timeout=30, what="resumed and done"
         )
-        r.probe.publish(r.topics.fleet("estop"), b"", retain=True)
+        r.op.raw_estop(b"")
 
 
 async def test_lost_unit_job_is_requeued_and_finished_by_another(
@@ -307,17 +241,17 @@ async def test_lost_unit_job_is_requeued_and_finished_by_another(
         # The pickup is 7 squares from unit2 (11 from unit3): the kill, read straight from the
         # coordinator in this event loop, comes well before unit2 could load the item (an item
         # on a lost unit cannot be finished by another, protocol §8).
-        r.submit((9, 7), (1, 1), 4.0, "j")
+        r.submit(Cell(9, 7), Cell(1, 1), 4.0, "j")
         job = await async_wait_for(
             lambda: (j := r.coordinator.core.jobs.get("j")) and j.unit and j, what="assigned"
         )
         assert job.unit == "unit2"  # nearer
         assert r.fleet.units["unit2"].job_id is None, "unit2 loaded before the kill"
         await r.fleet.kill("unit2")
-        await async_wait_for(lambda: r.job_state("j") == "done", timeout=30, what="done by another")
-        view = r.jobs()
-        assert view is not None
-        assert next(j.unit for j in view.jobs if j.id == "j") == "unit3"
+        await async_wait_for(
+            lambda: r.op.job_state("j") == "done", timeout=30, what="done by another"
+        )
+        assert r.op.listed_jobs()["j"].unit == "unit3"
 
 
 @pytest.mark.timeout(150)  # its waits add up to more than 60 s: a slow run fails on the late one
@@ -326,17 +260,11 @@ async def test_restart_mid_run_loses_no_job(
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
         for i, (p, d, m) in enumerate(JOBS_12[:6]):
-            r.submit(p, d, m, f"job-{i}")
-        await async_wait_for(
-            lambda: (v := r.jobs()) is not None and len(v.jobs) == 6, what="6 listed"
-        )
+            r.submit(Cell(*p), Cell(*d), m, f"job-{i}")
+        await async_wait_for(lambda: len(r.op.listed_jobs()) == 6, what="6 listed")
         await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
         assert len(r.coordinator.core.jobs.jobs) == 6
-        await async_wait_for(
-            lambda: (v := r.jobs()) is not None and sum(j.state == "done" for j in v.jobs) == 6,
-            timeout=45,
-            what="all 6 done after the restart",
-        )
+        await async_wait_for(lambda: r.done() == 6, timeout=45, what="all 6 done after the restart")
         assert r.fleet.collisions == 0
 
 
@@ -347,8 +275,8 @@ async def test_hidden_obstacle_is_merged_into_the_map(
     async with rig(
         broker, root, tmp_path, units=[("unit1", (0, 4), 2.0)], hidden={Cell(2, 4)}
     ) as r:
-        r.submit((1, 4), (3, 4), 1.0, "through")
-        await async_wait_for(lambda: r.job_state("through") == "done", timeout=30, what="done")
+        r.submit(Cell(1, 4), Cell(3, 4), 1.0, "through")
+        await async_wait_for(lambda: r.op.job_state("through") == "done", timeout=30, what="done")
         fleet_map = r.probe.received(r.topics.fleet("map"))
         assert any(b"[2,4]" in m.payload for m in fleet_map)
 
@@ -358,11 +286,10 @@ async def test_malformed_requests_are_refused_and_change_nothing(
     broker: BrokerThread, root: str, tmp_path: Path, kind: str
 ) -> None:
     async with rig(broker, root, tmp_path, units=[("unit1", (0, 0), 2.0)]) as r:
-        await async_wait_for(lambda: r.jobs() is not None, what="jobs view")
-        topic = r.topics.request(kind)
+        await async_wait_for(r.op.job_views, what="jobs view")
         bad = [b"{", b"[]", b"null", b'{"header": 1}', b"x" * 20000, "ü".encode() * 3, b"\xff\xfe"]
         for payload in bad:
-            r.probe.publish(topic, payload)
+            r.op.raw_request(kind, payload)
         await async_wait_for(lambda: r.coordinator.errors_sent >= len(bad), what="all refused")
         assert r.coordinator.core.jobs.jobs == {}
         assert r.coordinator.core.goals == {}
@@ -392,20 +319,15 @@ async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
     topics = Topics(root)
     async with slow_stepping(broker, root, tmp_path):
         with MqttProbe(broker.url, "tester") as probe:
-            probe.subscribe(topics.fleet("jobs"), qos=1)
-            stamp = HeaderStamper("tester")
+            op = OperatorPeer(probe, topics, "tester")
 
             def listed(job_id: str, state: str) -> bool:
-                for m in probe.received(topics.fleet("jobs")):
-                    view = decode(JobsView, m.payload, MAX_VIEW_BYTES)
-                    if any(j.id == job_id and j.state == state for j in view.jobs):
-                        return True
-                return False
+                views = op.job_views()
+                return any(j.id == job_id and j.state == state for v in views for j in v.jobs)
 
-            send_submit(probe, topics, stamp, "j1")
+            op.send_submit_job(Cell(1, 1), Cell(8, 8), 1.0, job_id="j1")
             await async_wait_for(lambda: listed("j1", "queued"), timeout=5, what="j1 queued")
-            cancel = CancelJob(header=stamp("cancel_job"), request_id="r2", job_id="j1")
-            probe.publish(topics.request("cancel_job"), encode(cancel))
+            op.send_cancel_job("j1")
             await async_wait_for(lambda: listed("j1", "cancelled"), timeout=5, what="j1 cancelled")
 
 
@@ -415,25 +337,20 @@ async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_
     topics = Topics(root)
     async with slow_stepping(broker, root, tmp_path):
         with MqttProbe(broker.url, "burst") as probe:
-            probe.subscribe(topics.fleet("jobs"), qos=1)
-            probe.subscribe(topics.reply("burst"), qos=1)
-            await async_wait_for(lambda: probe.received(topics.fleet("jobs")), what="first view")
-            views_before = len(probe.received(topics.fleet("jobs")))
-            stamp = HeaderStamper("burst")
+            op = OperatorPeer(probe, topics, "burst")
+            await async_wait_for(op.job_views, what="first view")
+            views_before = len(op.job_views())
             for i in range(40):
-                send_submit(probe, topics, stamp, f"b{i}")
+                op.send_submit_job(Cell(1, 1), Cell(8, 8), 1.0, job_id=f"b{i}")
             replies = await async_wait_for(
                 lambda: (r := probe.received(topics.reply("burst"))) and len(r) == 40 and r,
                 what="40 replies",
             )
             views = await async_wait_for(
                 lambda: (
-                    [
-                        v
-                        for v in probe.received(topics.fleet("jobs"))[views_before:]
-                        if len(decode(JobsView, v.payload, MAX_VIEW_BYTES).jobs) == 40
-                    ]
-                    and probe.received(topics.fleet("jobs"))[views_before:]
+                    (seen := op.job_views()[views_before:])
+                    and any(len(v.jobs) == 40 for v in seen)
+                    and seen
                 ),
                 timeout=20,  # the trailing view, long before the next step (60 s away)
                 what="a view listing all 40 jobs",
