@@ -20,7 +20,7 @@ from gridfleet.protocol import Topics
 from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
-from support.coordinator_fakes import FakeFleet
+from support.coordinator_fakes import PLAYFIELD_JOBS, FakeFleet
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for
@@ -120,28 +120,12 @@ async def rig(
         probe.close()
 
 
-JOBS_12 = [
-    ((1, 1), (8, 8), 1.5),
-    ((8, 1), (1, 8), 4.0),
-    ((5, 0), (5, 9), 8.0),
-    ((0, 5), (9, 5), 15.0),  # only unit4 can carry it
-    ((3, 3), (7, 0), 1.0),
-    ((9, 2), (0, 2), 3.0),
-    ((4, 8), (4, 1), 12.0),  # only unit4
-    ((1, 6), (8, 3), 6.0),
-    ((7, 7), (2, 0), 0.5),
-    ((0, 1), (9, 8), 9.5),
-    ((6, 6), (3, 9), 18.0),  # only unit4
-    ((8, 9), (1, 4), 2.0),
-]
-
-
 async def test_four_units_complete_twelve_jobs_within_capacity(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
-        for i, (p, d, m) in enumerate(JOBS_12):
-            r.submit(Cell(*p), Cell(*d), m, f"job-{i}")
+        for i, (p, d, m) in enumerate(PLAYFIELD_JOBS):
+            r.submit(p, d, m, f"job-{i}")
         await async_wait_for(lambda: r.done() == 12, timeout=45, what="12 jobs done")
         caps = {uid: cap for uid, _, cap in PLAYFIELD_UNITS}
         for j in r.op.listed_jobs().values():
@@ -259,8 +243,8 @@ async def test_restart_mid_run_loses_no_job(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
-        for i, (p, d, m) in enumerate(JOBS_12[:6]):
-            r.submit(Cell(*p), Cell(*d), m, f"job-{i}")
+        for i, (p, d, m) in enumerate(PLAYFIELD_JOBS[:6]):
+            r.submit(p, d, m, f"job-{i}")
         await async_wait_for(lambda: len(r.op.listed_jobs()) == 6, what="6 listed")
         await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
         assert len(r.coordinator.core.jobs.jobs) == 6

@@ -18,6 +18,7 @@ from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, coordinator_thread, world_of
 
+from support.coordinator_fakes import PLAYFIELD_JOBS
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -26,23 +27,6 @@ RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
 System = Callable[..., tuple[ServiceThread, ServiceThread]]
 STEP = 0.05
 CAPACITY = {"unit1": 2.0, "unit2": 5.0, "unit3": 10.0, "unit4": 20.0}
-
-# (pickup, dropoff, mass): every square is free on the playfield (walls and hidden obstacles
-# avoided); three jobs only unit4 (20 kg) can carry, two only unit3 or unit4.
-JOBS_12 = [
-    ((1, 1), (8, 8), 1.5),
-    ((8, 1), (1, 8), 4.0),
-    ((5, 0), (5, 9), 8.0),
-    ((0, 5), (9, 5), 15.0),
-    ((3, 3), (7, 0), 1.0),
-    ((9, 2), (0, 2), 3.0),
-    ((4, 8), (4, 1), 12.0),
-    ((1, 6), (8, 3), 6.0),
-    ((7, 7), (2, 0), 0.5),
-    ((0, 1), (9, 8), 9.5),
-    ((6, 6), (3, 9), 18.0),
-    ((8, 9), (1, 4), 2.0),
-]
 
 
 @pytest.fixture
@@ -91,9 +75,9 @@ def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collision
     _, fleet = system()
     world = world_of(fleet)
     ids = []
-    for n, (pickup, dropoff, mass) in enumerate(JOBS_12, start=1):
+    for n, (pickup, dropoff, mass) in enumerate(PLAYFIELD_JOBS, start=1):
         ids.append(f"j{n}")
-        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=f"j{n}").accepted
+        assert operator.submit_job(pickup, dropoff, mass, job_id=f"j{n}").accepted
     wait_for(lambda: operator.all_final(ids), timeout=50, what="all 12 jobs final")
     jobs = operator.listed_jobs()
     assert {i: jobs[i].state for i in ids} == dict.fromkeys(ids, "done")
@@ -104,7 +88,9 @@ def test_four_units_complete_twelve_mixed_jobs_within_capacity_without_collision
     for unit in CAPACITY:
         assert all(s.load_kg <= CAPACITY[unit] for s in operator.states(unit))
         assert not any(e.code == "over_capacity" for s in operator.states(unit) for e in s.errors)
-    heavy = {i for i, (_, _, mass) in zip(ids, JOBS_12[: len(ids)], strict=True) if mass > 10}
+    heavy = {
+        i for i, (_, _, mass) in zip(ids, PLAYFIELD_JOBS[: len(ids)], strict=True) if mass > 10
+    }
     assert {jobs[i].unit for i in heavy} == {"unit4"}
     assert len({j.unit for j in jobs.values()}) >= 3  # the work was shared, not serialised
     assert world.collisions == 0, world.log
@@ -161,8 +147,8 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
     world = world_of(fleet)
     units = fleet.service.logic  # type: ignore[attr-defined]
     ids = [f"e{n}" for n in range(4)]
-    for job_id, (pickup, dropoff, mass) in zip(ids, JOBS_12[: len(ids)], strict=True):
-        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=job_id).accepted
+    for job_id, (pickup, dropoff, mass) in zip(ids, PLAYFIELD_JOBS[: len(ids)], strict=True):
+        assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
     start = dict(world.moves)
     wait_for(lambda: sum(world.moves[u] - start[u] for u in start) >= 4, timeout=10, what="motion")
     operator.engage("test")
@@ -250,8 +236,8 @@ def test_coordinator_restart_mid_run_loses_no_job(
     coordinator, fleet = system()
     world = world_of(fleet)
     ids = [f"r{n}" for n in range(8)]
-    for job_id, (pickup, dropoff, mass) in zip(ids, JOBS_12[: len(ids)], strict=True):
-        assert operator.submit_job(Cell(*pickup), Cell(*dropoff), mass, job_id=job_id).accepted
+    for job_id, (pickup, dropoff, mass) in zip(ids, PLAYFIELD_JOBS[: len(ids)], strict=True):
+        assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
 
     def progress() -> bool:
         states = [operator.job_state(i) for i in ids]

@@ -36,6 +36,24 @@ ROOM_ROWS = [
     "..........",
 ]
 
+# (pickup, dropoff, mass) on maps/playfield.map (units of 2, 5, 10 and 20 kg): every square is
+# free (walls and hidden obstacles avoided); three jobs only unit4 (20 kg) can carry, two only
+# unit3 or unit4.
+PLAYFIELD_JOBS = [
+    (Cell(1, 1), Cell(8, 8), 1.5),
+    (Cell(8, 1), Cell(1, 8), 4.0),
+    (Cell(5, 0), Cell(5, 9), 8.0),
+    (Cell(0, 5), Cell(9, 5), 15.0),
+    (Cell(3, 3), Cell(7, 0), 1.0),
+    (Cell(9, 2), Cell(0, 2), 3.0),
+    (Cell(4, 8), Cell(4, 1), 12.0),
+    (Cell(1, 6), Cell(8, 3), 6.0),
+    (Cell(7, 7), Cell(2, 0), 0.5),
+    (Cell(0, 1), Cell(9, 8), 9.5),
+    (Cell(6, 6), Cell(3, 9), 18.0),
+    (Cell(8, 9), Cell(1, 4), 2.0),
+]
+
 
 class Yard:
     """Units on a ground-truth world, without a broker: the test delivers orders and states."""
