@@ -1,7 +1,7 @@
 """Real units for coordinator tests, stepped by the test: `Yard` without a broker, `FakeFleet` over MQTT.
 
-Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT wrapped in `robots.core.UnitCore`
-with a `gridfleet.endpoint.Endpoint` each, last will included) on a ground-truth world
+Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT a `robots.runner.UnitRunner`
+each, with its `UnitCore` and `Endpoint`, last will included) on a ground-truth world
 (`robots.world.WorldSim`: walls, hidden obstacles, refused and counted bad moves). Only the stepping
 is the test's own: every unit steps once per fleet step, in a random order, so units act
 asynchronously, and a test can count, pause or kill them.
@@ -14,11 +14,11 @@ import contextlib
 import random
 from collections.abc import Iterable
 
-from gridfleet.endpoint import Backoff, Endpoint, Outbound
+from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Topics, UnitState
 from gridfleet.tasks import cancel_and_wait
-from robots.core import UnitCore
+from robots.runner import UnitRunner
 from robots.unit import UnitLogic
 from robots.world import WorldSim
 
@@ -86,7 +86,13 @@ class Yard:
 
 
 class FakeFleet:
-    """Units over MQTT, one client each, stepped by `step_once`/`run` in a random order."""
+    """Units over MQTT, stepped by `step_once`/`run` in a random order instead of by their clocks.
+
+    Each unit is a `robots.runner.UnitRunner`: its core, its endpoint (client id, last will,
+    offline, back-off) and its `tick` are the product's. Only `UnitRunner.run` is not used, since
+    it also starts the unit's own step loop; the session it runs is wired here the same way, with
+    sends that are never awaited (see `_send`).
+    """
 
     def __init__(
         self,
@@ -102,10 +108,9 @@ class FakeFleet:
         self.yard = Yard(grid, units, hidden or ())
         self.units = self.yard.units
         self.world = self.yard.world
-        self.cores = {uid: UnitCore(u, self.topics) for uid, u in self.units.items()}
         self.rng = random.Random(seed)
         self.steps = 0
-        self._endpoints: dict[str, Endpoint] = {}
+        self.runners: dict[str, UnitRunner] = {}  # the running units
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._sending: list[asyncio.Future[bool]] = []
 
@@ -118,19 +123,18 @@ class FakeFleet:
         return asyncio.get_running_loop().time()
 
     def start(self, unit_id: str) -> None:
-        """Start (or restart) the MQTT session of one unit."""
-        core = self.cores[unit_id]
-        core.start(self._now())
-        endpoint = Endpoint(
+        """Start the MQTT session of one unit (a new runner: a restart after `kill`)."""
+        runner = UnitRunner(
+            self.units[unit_id],
+            self.world,
             self.broker,
-            f"fake-{unit_id}",
-            name=unit_id,
-            subscriptions=core.subscriptions,
-            will=core.will,
-            offline=core.offline,
-            backoff=Backoff(0.05, 0.5),
+            self.topics,
+            reconnect_s=0.05,
+            max_reconnect_s=0.5,
         )
-        self._endpoints[unit_id] = endpoint
+        self.runners[unit_id] = runner
+        core = runner.core
+        core.start(self._now())
 
         async def handle(topic: str, payload: bytes) -> None:
             self._send(unit_id, core.on_message(topic, payload, self._now()))
@@ -139,7 +143,7 @@ class FakeFleet:
             self._send(unit_id, core.on_connect(self._now()))
 
         self._tasks[unit_id] = asyncio.create_task(
-            endpoint.run(
+            runner.endpoint.run(
                 asyncio.Event(),
                 handle,
                 on_connect=connected,
@@ -151,33 +155,29 @@ class FakeFleet:
         """Start every unit and wait until all are connected."""
         for uid in self.units:
             self.start(uid)
-        await asyncio.gather(*(e.online.wait() for e in self._endpoints.values()))
+        await asyncio.gather(*(r.online.wait() for r in self.runners.values()))
 
     async def kill(self, unit_id: str) -> None:
         """The unit dies where it stands: no `offline`, no more steps; the broker has its will."""
-        self._endpoints.pop(unit_id).kill()
+        self.runners.pop(unit_id).kill()
         await cancel_and_wait(self._tasks.pop(unit_id))
 
     async def step_once(self) -> None:
-        """Every running unit takes one step, in random order, and publishes what it says."""
-        alive = [uid for uid in self.units if uid in self._endpoints]
+        """Every running unit takes one step, in random order, then publishes what it says."""
+        alive = list(self.runners)
         self.rng.shuffle(alive)
-        now = self._now()
-        said = []
-        for uid in alive:
-            self.yard.tick(uid, now)
-            said.append((uid, self.cores[uid].state()))
+        said = [(uid, self.runners[uid].tick()) for uid in alive]
         self.steps += 1
         for uid, outs in said:
             self._send(uid, outs)
 
     def _send(self, unit_id: str, outs: list[Outbound]) -> None:
-        # Each send is a task of its own, started in order (paho queues it in that first part),
-        # so one stuck on a cut connection never silences the other units.
-        endpoint = self._endpoints.get(unit_id)
-        if endpoint is not None:
+        # In order, one task a message, as UnitRunner._send; but not awaited, so a send stuck on
+        # a cut connection never holds back the step of the other units.
+        runner = self.runners.get(unit_id)
+        if runner is not None:
             self._sending = [s for s in self._sending if not s.done()]
-            self._sending += [asyncio.ensure_future(endpoint.publish(out)) for out in outs]
+            self._sending += [asyncio.ensure_future(runner.endpoint.publish(out)) for out in outs]
 
     async def run(self, stop: asyncio.Event, step_s: float) -> None:
         """Step until `stop` is set."""
