@@ -73,8 +73,8 @@ def simulate(
             header=header("t"),
             request_id=f"r{j}",
             reply_to="t",
-            pickup=p,  # type: ignore[arg-type]
-            dropoff=d,  # type: ignore[arg-type]
+            pickup=p,
+            dropoff=d,
             mass_kg=rng.choice([0.5, 1.5, 4.0, 8.0, 15.0]),
         )
         assert reply_in(request(core, "submit_job", req, now)).accepted
@@ -144,15 +144,15 @@ def step_one(core: CoordinatorCore, yard: Yard, now: float) -> bool:
 def test_goal_pins_a_unit_until_reached() -> None:
     core, yard = one_unit(5.0)
 
-    def set_goal(unit: str, target: tuple[int, int]) -> Reply:
-        goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit=unit, target=target)  # type: ignore[arg-type]
+    def set_goal(unit: str, target: Cell) -> Reply:
+        goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit=unit, target=target)
         return reply_in(request(core, "set_goal", goal, 0.0))
 
-    bad = set_goal("nobody", (1, 1))
+    bad = set_goal("nobody", Cell(1, 1))
     assert not bad.accepted and "unknown unit" in (bad.reason or "")
-    wall = set_goal("u", (2, 2))
+    wall = set_goal("u", Cell(2, 2))
     assert not wall.accepted and "wall" in (wall.reason or "")
-    assert set_goal("u", (9, 3)).accepted
+    assert set_goal("u", Cell(9, 3)).accepted
     for t in range(1, 60):
         assert step_one(core, yard, float(t))
         if yard.units["u"].position == Cell(9, 3):
@@ -169,8 +169,8 @@ def _carrying_unit() -> tuple[CoordinatorCore, Yard, float]:
         header=header("t"),
         request_id="r",
         reply_to="t",
-        pickup=(0, 1),  # type: ignore[arg-type]
-        dropoff=(9, 9),  # type: ignore[arg-type]
+        pickup=Cell(0, 1),
+        dropoff=Cell(9, 9),
         mass_kg=1.0,
     )
     assert reply_in(request(core, "submit_job", req, 0.0)).accepted

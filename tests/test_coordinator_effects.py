@@ -16,7 +16,7 @@ from coordinator.effects import Effects
 from coordinator.views import VIEWS_BATCH_S
 from gridfleet.endpoint import Outbound
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import GridMap
+from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
     CancelJob,
     Connection,
@@ -45,6 +45,7 @@ MAP = "gridfleet/v1/fleet/map"
 ROUTES = "gridfleet/v1/fleet/routes"
 ORDER = "gridfleet/v1/units/unit1/order"
 REPLY = "gridfleet/v1/replies/op"
+HOME = Cell(0, 0)  # where unit1 stands
 
 
 def hdr(seq: int) -> dict[str, Any]:
@@ -120,12 +121,12 @@ def published_one(out: Outbound) -> Any:
     return only
 
 
-def state(position: tuple[int, int] = (0, 0), seq: int = 0, **over: Any) -> UnitState:
+def state(position: Cell = HOME, seq: int = 0, **over: Any) -> UnitState:
     """unit1's state: idle on `position`, sensors all free but the map's edges."""
     msg = UnitState(
         header=header("unit1", seq),
         step=seq,
-        position=position,  # type: ignore[arg-type]
+        position=position,
         direction="-",
         status="idle",
         leds=Leds(),
@@ -248,13 +249,13 @@ def test_a_factsheet_publishes_nothing() -> None:
 
 
 def test_a_state_publishes_nothing(core: CoordinatorCore) -> None:
-    assert published(from_unit(core, "state", "unit1", state((2, 0), seq=1), 0.5)) == []
+    assert published(from_unit(core, "state", "unit1", state(Cell(2, 0), seq=1), 0.5)) == []
     assert core.world.units["unit1"].position == (2, 0)
 
 
 def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore) -> None:
     news = state(
-        (0, 0),
+        Cell(0, 0),
         seq=1,
         obstacles=[(0, 1)],
         sensors=Sensors(N="wall", E="free", S="obstacle", W="wall"),
@@ -290,7 +291,7 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
             encode(state()).replace(b'"1.0"', b'"9.9"'),
             "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.0'",
         ),
-        (encode(state((1, 1))), "position [1, 1] is on a wall"),
+        (encode(state(Cell(1, 1))), "position [1, 1] is on a wall"),
         (
             b"x" * 20000,
             "UnitState: payload of 20000 bytes exceeds the limit of 16384",
@@ -486,7 +487,9 @@ def test_cancelling_a_queued_job_and_an_unknown_one(core: CoordinatorCore) -> No
 
 
 def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
-    goal = SetGoal(header=header("op"), request_id="g1", reply_to="op", unit="unit1", target=(3, 2))  # type: ignore[arg-type]
+    goal = SetGoal(
+        header=header("op"), request_id="g1", reply_to="op", unit="unit1", target=Cell(3, 2)
+    )
     assert published(request(core, "set_goal", goal, 0.0)) == [reply(0, "g1", True, None, None)]
     assert core.goals == {"unit1": (3, 2)}
     wall = goal.model_copy(update={"request_id": "g2", "target": (1, 1)})

@@ -12,35 +12,35 @@ from support.coordinator_drive import make_core, meet, orders_in
 ROWS = ["....", ".@..", "...."]
 
 
-def state(position: tuple[int, int], sensors: dict[str, str], reported: list[Cell]) -> UnitState:
+def state(position: Cell, sensors: dict[str, str], reported: list[Cell]) -> UnitState:
     return UnitState(
         header=HeaderStamper("u")("state"),
         step=1,
-        position=position,  # type: ignore[arg-type]
+        position=position,
         direction="-",
         status="idle",
         leds=Leds(),
         sensors=Sensors(**{"N": "free", "E": "free", "S": "free", "W": "free", **sensors}),  # type: ignore[arg-type]
-        obstacles=reported,  # type: ignore[arg-type]
+        obstacles=reported,
     )
 
 
 def test_an_obstacle_seen_by_a_sensor_is_learnt_without_a_report() -> None:
     world = World(GridMap.from_rows(ROWS))
     # A restarted coordinator never saw the one-time report: the sensors still show it.
-    new = world.on_state("u", state((2, 0), {"S": "obstacle"}, []), 0.0)
+    new = world.on_state("u", state(Cell(2, 0), {"S": "obstacle"}, []), 0.0)
     assert new == [Cell(2, 1)]
     assert not world.grid.is_free(Cell(2, 1))
-    assert world.on_state("u", state((2, 0), {"S": "obstacle"}, [Cell(2, 1)]), 1.0) == []
+    assert world.on_state("u", state(Cell(2, 0), {"S": "obstacle"}, [Cell(2, 1)]), 1.0) == []
 
 
 def test_walls_units_and_off_map_readings_are_not_obstacles() -> None:
     world = World(GridMap.from_rows(ROWS))
-    world.on_state("v", state((0, 0), {}, []), 0.0)
+    world.on_state("v", state(Cell(0, 0), {}, []), 0.0)
     # From [1, 0]: N is off the map, W is where unit v stands.
-    new = world.on_state("u", state((1, 0), {"N": "obstacle", "W": "obstacle"}, []), 0.0)
+    new = world.on_state("u", state(Cell(1, 0), {"N": "obstacle", "W": "obstacle"}, []), 0.0)
     assert new == []
-    new = world.on_state("u", state((0, 1), {"E": "obstacle", "N": "obstacle"}, []), 1.0)
+    new = world.on_state("u", state(Cell(0, 1), {"E": "obstacle", "N": "obstacle"}, []), 1.0)
     assert new == []  # from [0, 1]: E [1, 1] is a wall on the map, N [0, 0] holds unit v
     assert world.obstacles == set()
 
@@ -51,7 +51,7 @@ def test_a_restarted_coordinator_adopts_a_job_a_unit_reports_carrying() -> None:
     core = make_core(GridMap.from_rows(ROWS), jobs=[job])
     assert job.state == "queued"  # re-queued on restart
     assert [j.id for j in core.restored().persist] == ["j"]
-    carrying = state((0, 0), {}, []).model_copy(update={"job_id": "j", "load_kg": 4.0})
+    carrying = state(Cell(0, 0), {}, []).model_copy(update={"job_id": "j", "load_kg": 4.0})
     meet(core, carrying, capacity_kg=5)
     core.step(1.0)
     assert (job.state, job.unit) == ("loaded", "u")

@@ -105,7 +105,7 @@ def error(seq: int, topic: str, reason: str) -> Published:
     return ("errors", payload, 1, False)
 
 
-def order_bytes(oid: str, update: int, released: list[tuple[int, int]]) -> bytes:
+def order_bytes(oid: str, update: int, released: list[Cell]) -> bytes:
     return encode(
         Order(header=COORDINATOR("order"), order_id=oid, update_id=update, released=released)
     )
@@ -164,7 +164,7 @@ def test_a_tick_holds_until_the_retained_stop_can_have_arrived_then_the_unit_is_
 
 def test_a_tick_moves_into_the_released_square_shown_before() -> None:
     core = ready()
-    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.25)
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1), Cell(2, 1)]), 0.25)
     order = {"order_id": "o1", "order_update_id": 1}
     assert published(core.tick(lambda: FREE, allow, 0.3), ROOT) == [
         state(
@@ -210,7 +210,7 @@ def test_a_lost_broker_sends_nothing_and_the_next_connection_reports_what_waited
 def test_a_unit_not_yet_connected_never_moves() -> None:
     core = make("standalone")
     core.on_message(
-        ROOT + "units/u1/goal", encode(Goal(header=COORDINATOR("goal"), target=(4, 1))), 0
+        ROOT + "units/u1/goal", encode(Goal(header=COORDINATOR("goal"), target=Cell(4, 1))), 0
     )
     assert core.tick(lambda: FREE, refuse, 0.1) == [] and core.tick(lambda: FREE, refuse, 5) == []
     assert core.logic.position == Cell(0, 1) and core.logic.status == "holding"
@@ -228,7 +228,9 @@ def test_a_clean_stop_says_offline() -> None:
 
 def test_an_accepted_order_shows_its_first_move_at_once() -> None:
     core = ready()
-    outs = core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1), (2, 1)]), 0.3)
+    outs = core.on_message(
+        ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1), Cell(2, 1)]), 0.3
+    )
     assert published(outs, ROOT) == [
         state(
             2,
@@ -246,16 +248,16 @@ def test_an_accepted_order_shows_its_first_move_at_once() -> None:
 
 def test_a_stale_order_publishes_nothing_and_changes_nothing() -> None:
     core = ready()
-    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 2, [(1, 1)]), 0.3)
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 2, [Cell(1, 1)]), 0.3)
     for update in (2, 1):
-        stale = order_bytes("o1", update, [(0, 0)])
+        stale = order_bytes("o1", update, [Cell(0, 0)])
         assert core.on_message(ROOT + "units/u1/order", stale, 0.3) == []
     assert core.logic.released == [Cell(1, 1)]
 
 
 def test_a_refused_order_is_reported_with_its_reason_and_in_the_state() -> None:
     core = ready()
-    outs = core.on_message(ROOT + "units/u1/order", order_bytes("o2", 1, [(3, 1)]), 0.3)
+    outs = core.on_message(ROOT + "units/u1/order", order_bytes("o2", 1, [Cell(3, 1)]), 0.3)
     reason = (
         "order 'o2' update 1: released square [3, 1] is not adjacent to the unit's square [0, 1]"
     )
@@ -291,7 +293,7 @@ def test_an_unreadable_order_is_reported_and_changes_nothing(payload: bytes, rea
 
 def test_orders_for_another_unit_and_unknown_topics_publish_nothing() -> None:
     core = ready()
-    assert core.on_message(ROOT + "units/u2/order", order_bytes("o1", 1, [(1, 1)]), 0.3) == []
+    assert core.on_message(ROOT + "units/u2/order", order_bytes("o1", 1, [Cell(1, 1)]), 0.3) == []
     assert core.on_message("elsewhere/v1/units/u1/order", b"{}", 0.3) == []
     assert core.logic.order_id is None
 
@@ -301,7 +303,7 @@ def test_orders_for_another_unit_and_unknown_topics_publish_nothing() -> None:
 
 def test_the_stop_engaged_halts_drops_the_release_and_lights_every_led() -> None:
     core = ready()
-    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [(1, 1)]), 0.3)
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1)]), 0.3)
     outs = core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|operator pressed STOP", 0.3)
     assert published(outs, ROOT) == [
         state(
@@ -353,7 +355,7 @@ def test_the_coordinators_status_sizes_the_hold_timeout_and_publishes_nothing() 
 
 def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:
     core = ready("standalone")
-    goal = encode(Goal(header=COORDINATOR("goal"), target=(4, 1)))
+    goal = encode(Goal(header=COORDINATOR("goal"), target=Cell(4, 1)))
     assert published(core.on_message(ROOT + "units/u1/goal", goal, 0.3), ROOT) == [
         state(
             2,
@@ -372,7 +374,7 @@ def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:
     ("payload", "reason"),
     [
         (
-            encode(Goal(header=COORDINATOR("goal"), target=(1, 1))),
+            encode(Goal(header=COORDINATOR("goal"), target=Cell(1, 1))),
             "goal [1, 1] is off the map, on a wall or an obstacle",
         ),
         (b'{"target": [1, 1]}', "Goal: field 'header': Field required"),
@@ -391,7 +393,7 @@ def test_a_refused_goal_is_reported_and_changes_nothing(payload: bytes, reason: 
 
 def test_a_goal_for_a_coordinated_unit_is_ignored() -> None:
     core = ready()
-    goal = encode(Goal(header=COORDINATOR("goal"), target=(4, 1)))
+    goal = encode(Goal(header=COORDINATOR("goal"), target=Cell(4, 1)))
     assert core.on_message(ROOT + "units/u1/goal", goal, 0.3) == []
     assert core.logic.goal is None
 
