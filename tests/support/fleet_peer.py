@@ -53,7 +53,11 @@ def publish(probe: MqttProbe, kind: str, topic: str, message: Message | bytes) -
 
 
 def leds_for(direction: Direction | None, stopped: bool = False) -> Leds:
-    """The LEDs a unit shows: the one of its direction, none without one, all four when stopped."""
+    """The LEDs a unit shows: the one of its direction, none without one, all four when stopped.
+
+    The product's rule is `robots.unit.UnitLogic.leds`, a method that reads a running unit's own
+    stop and direction; neither it nor `gridfleet.protocol` offers it as a function of the two.
+    """
     if stopped:
         return Leds(N=True, E=True, S=True, W=True)
     return Leds(
