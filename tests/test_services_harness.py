@@ -8,9 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.protocol import HeaderStamper, SetGoal, Topics, encode
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics
 from system.threads import ServiceThread, world_of
 
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -23,11 +25,8 @@ def test_system_runs_a_goal_and_stops_cleanly(
 ) -> None:
     _, fleet = run_system(playfield)
     world = world_of(fleet)
-    probe = probe_factory()
-    goal = SetGoal(
-        header=HeaderStamper("tester")("set_goal"), request_id="g1", unit="unit2", target=(8, 8)
-    )
-    probe.publish(topics.request("set_goal"), encode(goal))
+    operator = OperatorPeer(probe_factory(), topics, "tester")
+    assert operator.set_goal("unit2", Cell(8, 8)).accepted
     wait_for(lambda: world.positions["unit2"] == (8, 8), timeout=30, what="unit2 at its goal")
     assert world.collisions == 0
 
