@@ -4,7 +4,11 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test check lint typecheck pytest firmware-test install schemas clean
+.PHONY: run test check lint typecheck pytest firmware-test install schemas clean system-deps
+
+# What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
+# dashboard, doctest and g++ for the firmware's host tests.
+DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium doctest-dev g++ make
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,7 +22,20 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/gridfleet up
 
-test: check firmware-test pytest
+test: system-deps check firmware-test pytest
+
+# Installs the missing Debian packages as root (or with password-less sudo); otherwise says the
+# one command to run, and stops: no test is skipped for want of a tool.
+system-deps:
+	@missing=""; for p in $(DEBIAN_PACKAGES); do \
+		dpkg -s $$p >/dev/null 2>&1 || missing="$$missing $$p"; done; \
+	if [ -z "$$missing" ]; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then sudo=""; \
+	elif sudo -n true 2>/dev/null; then sudo="sudo"; \
+	else echo "make test needs:$$missing; install them with: sudo apt-get install$$missing" >&2; exit 2; fi; \
+	echo "installing:$$missing"; \
+	$$sudo env DEBIAN_FRONTEND=noninteractive apt-get update -q && \
+	$$sudo env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends$$missing
 
 check: lint typecheck
 
