@@ -12,6 +12,7 @@ through an `MqttProbe`.
 from __future__ import annotations
 
 import itertools
+from typing import TypedDict, Unpack
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -32,6 +33,13 @@ from support.fleet_peer import publish
 from support.probe import MqttProbe
 from support.readers import FleetReader
 from support.wait import wait_for
+
+
+class JobOptions(TypedDict, total=False):
+    """A job's optional fields: its priority (default 0) and its id (default: the coordinator's)."""
+
+    priority: int
+    job_id: str | None
 
 
 class OperatorPeer(FleetReader):
@@ -81,22 +89,15 @@ class OperatorPeer(FleetReader):
         dropoff: Cell,
         mass_kg: float,
         *,
-        priority: int = 0,
-        job_id: str | None = None,
         timeout: float = 10.0,
+        **options: Unpack[JobOptions],
     ) -> Reply:
         """Queue a job; the coordinator's reply (its `job_id` names the job when accepted)."""
-        request = self.send_submit_job(pickup, dropoff, mass_kg, priority=priority, job_id=job_id)
+        request = self.send_submit_job(pickup, dropoff, mass_kg, **options)
         return self.reply_to(request.request_id, timeout)
 
     def send_submit_job(
-        self,
-        pickup: Cell,
-        dropoff: Cell,
-        mass_kg: float,
-        *,
-        priority: int = 0,
-        job_id: str | None = None,
+        self, pickup: Cell, dropoff: Cell, mass_kg: float, **options: Unpack[JobOptions]
     ) -> SubmitJob:
         """`submit_job` without waiting: the request sent (its `request_id` finds the reply)."""
         request = SubmitJob(
@@ -106,8 +107,7 @@ class OperatorPeer(FleetReader):
             pickup=pickup,
             dropoff=dropoff,
             mass_kg=mass_kg,
-            priority=priority,
-            job_id=job_id,
+            **options,
         )
         self._send("submit_job", request)
         return request
