@@ -10,7 +10,7 @@ stamped by its sender, and published with the QoS and retain flag protocol.md gi
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
@@ -59,17 +59,17 @@ class DispatchPeer(CoordinatorPeer, FleetReader):
         unit: str,
         oid: str,
         update: int,
-        released: list[tuple[int, int]],
-        planned: list[tuple[int, int]] | None = None,
+        released: Sequence[tuple[int, int]],
+        planned: Sequence[tuple[int, int]] = (),
         action: Action | None = None,
     ) -> Order:
-        """Release `released` to `unit` under order `oid`, update `update`."""
+        """Release `released` to `unit` under order `oid`, update `update` (squares as (x, y))."""
         order = Order(
             header=self.stamp("order"),
             order_id=oid,
             update_id=update,
-            released=released,
-            planned=planned or [],
+            released=[Cell(*square) for square in released],
+            planned=[Cell(*square) for square in planned],
             action=action,
         )
         publish(self.probe, "order", self.topics.unit("order", unit), order)
