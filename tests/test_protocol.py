@@ -200,7 +200,12 @@ def test_bad_orders_are_refused_naming_the_field(payload: bytes, named: str) -> 
         ("mass_kg", 0),
         ("mass_kg", -1),
         ("mass_kg", "heavy"),
+        ("mass_kg", "1.5"),  # a number in a string is no number on the wire
         ("mass_kg", float("nan")),
+        ("priority", "1"),
+        ("priority", 1.5),
+        ("priority", True),
+        ("pickup", ["1", 2]),
         ("pickup", None),
         ("priority", 101),
         ("job_id", "a/b"),

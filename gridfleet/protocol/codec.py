@@ -31,7 +31,7 @@ def decode(
     if size > max_bytes:
         raise ProtocolError(f"{name}: payload of {size} bytes exceeds the limit of {max_bytes}")
     try:
-        return model.model_validate_json(payload)
+        return model.model_validate_json(payload, strict=True)  # "1.5" is no number on the wire
     except ValidationError as exc:
         raise ProtocolError(f"{name}: {describe(exc)}") from None
 
