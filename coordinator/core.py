@@ -147,7 +147,18 @@ class CoordinatorCore:
                 return self._effects([])
             return self._on(arrival, topic, now)
         except ProtocolError as exc:
-            return self._effects([self._refuse(topic, str(exc), None)])
+            return self._effects(self._refuse_unreadable(topic, payload, str(exc)))
+        except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
+            self._log.append((logging.ERROR, f"failed on a message on {topic}: {exc!r}"))
+            return self._effects([self._refuse(topic, f"internal error: {exc!r}", None)])
+
+    def _refuse_unreadable(self, topic: str, payload: bytes, reason: str) -> list[Outbound]:
+        """A refused message; a request whose reply address can still be read gets its reply."""
+        request_id, reply_to = inbound.reply_address(self.topics, topic, payload)
+        refused = [self._refuse(topic, reason, request_id)]
+        if request_id is not None and reply_to is not None:
+            refused.append(self.say.reply(reply_to, request_id, requests.Outcome(False, reason)))
+        return refused
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
@@ -211,7 +222,13 @@ class CoordinatorCore:
 
     def step(self, now: float) -> Effects:
         """One coordinator step: every order (or hold), the routes and the changed views."""
-        result = self._decide(now)
+        try:
+            result = self._decide(now)
+        except Exception as exc:  # a bug must not take the coordinator down: hold everyone
+            self._log.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
+            status = self.topics.fleet("coordinator")
+            report = self._refuse(status, f"internal error in step {self.step_no}: {exc!r}", None)
+            return self._effects([*self._holds(), report])
         persist = self._persist()
         self.orders.expect(result.orders)
         self._releasing = set()

@@ -6,6 +6,7 @@ on `errors`); a topic the coordinator does not read is nobody's error here.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 from gridfleet.errors import ProtocolError
@@ -21,6 +22,7 @@ from gridfleet.protocol import (
     UnitState,
     decode,
     decode_estop,
+    validate_id,
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 
@@ -54,6 +56,24 @@ def subscriptions(topics: Topics) -> list[tuple[str, int]]:
     out.append((topics.fleet("estop"), TOPICS["estop"].qos))
     out.append((topics.all_requests, 1))
     return out
+
+
+def reply_address(topics: Topics, topic: str, payload: bytes) -> tuple[str | None, str | None]:
+    """(request id, reply_to) of a refused request, each None where it cannot be read."""
+    try:
+        kind, _ = topics.parse(topic)
+        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
+    except (ProtocolError, ValueError):
+        return None, None
+    if kind not in _REQUESTS or not isinstance(data, dict):
+        return None, None
+    request_id, reply_to = data.get("request_id"), data.get("reply_to")
+    if not (isinstance(request_id, str) and 0 < len(request_id) <= 64):  # as in Request
+        return None, None
+    try:
+        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
+    except ProtocolError:
+        return request_id, None
 
 
 def read(topics: Topics, topic: str, payload: bytes) -> Arrival | None:

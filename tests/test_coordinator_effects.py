@@ -509,6 +509,29 @@ def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
         ),
         (b"{" * 20000, "SubmitJob: payload of 20000 bytes exceeds the limit of 16384"),
         (
+            encode(submit(reply_to=None)).replace(b'"mass_kg":1.0', b'"mass_kg":0'),
+            "SubmitJob: field 'mass_kg': Input should be greater than 0",
+        ),
+        (
+            encode(submit()).replace(b'"reply_to":"op"', b'"reply_to":"a/b"'),
+            "SubmitJob: field 'reply_to': String should match pattern '^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$'",
+        ),
+    ],
+    ids=["malformed JSON", "oversized", "no reply_to", "bad reply_to"],
+)
+def test_a_bad_request_without_a_readable_reply_address_is_reported_only(
+    core: CoordinatorCore, payload: bytes, reason: str
+) -> None:
+    effects = request(core, "submit_job", payload, 0.0)
+    request_id = "r1" if b'"request_id":"r1"' in payload else None
+    assert published(effects) == [error(0, "gridfleet/v1/requests/submit_job", reason, request_id)]
+    assert core.jobs.jobs == {}
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (
             encode(submit()).replace(b'"1.0"', b'"2.0"'),
             "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.0'",
         ),
@@ -516,14 +539,22 @@ def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
             encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":0'),
             "SubmitJob: field 'mass_kg': Input should be greater than 0",
         ),
+        (
+            encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":"1.5"'),
+            "SubmitJob: field 'mass_kg': Input should be a valid number",
+        ),
     ],
-    ids=["malformed JSON", "oversized", "wrong version", "bad field"],
+    ids=["wrong version", "bad field", "number in a string"],
 )
-def test_a_bad_request_is_reported_without_a_reply(
+def test_a_bad_request_with_a_readable_reply_address_gets_its_refusal_as_a_reply(
     core: CoordinatorCore, payload: bytes, reason: str
 ) -> None:
+    # The requester would otherwise wait for a reply that never comes.
     effects = request(core, "submit_job", payload, 0.0)
-    assert published(effects) == [error(0, "gridfleet/v1/requests/submit_job", reason)]
+    assert published(effects) == [
+        error(0, "gridfleet/v1/requests/submit_job", reason, "r1"),
+        reply(0, "r1", False, reason, None),
+    ]
     assert core.jobs.jobs == {}
 
 
@@ -543,7 +574,8 @@ def test_a_bad_cancel_or_goal_is_reported_without_a_reply(
     request(core, "submit_job", submit(), 0.0)
     effects = request(core, kind, payload, 0.5)
     topic = TOPICS.request(kind)
-    assert published(effects) == [error(0, topic, codec_reason(model, payload))]
+    request_id = "c1" if b'"request_id": "c1"' in payload else None  # named where readable
+    assert published(effects) == [error(0, topic, codec_reason(model, payload), request_id)]
     assert core.jobs.jobs["job-1"].state == "queued" and core.goals == {}
 
 
@@ -591,3 +623,40 @@ def test_a_burst_of_requests_gets_one_queue_view_per_batch_period(core: Coordina
     # A full batch period after that, a request's view goes out at once again.
     fourth = request(core, "submit_job", submit("r4", job_id="j4"), 2 * VIEWS_BATCH_S)
     assert [p[0] for p in published(fourth)] == [REPLY, JOBS]
+
+
+# ---- a bug in the coordinator is reported, never fatal ---------------------------------------
+
+
+def test_a_failure_on_one_message_is_reported_and_the_next_is_handled(
+    core: CoordinatorCore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def broken(*_: object) -> None:
+        raise KeyError("a bug")
+
+    monkeypatch.setattr(core.world, "on_factsheet", broken)
+    msg = Factsheet(header=header("unit1", seq=1), capacity_kg=3.0, step_period_s=0.5)
+    effects = from_unit(core, "factsheet", "unit1", msg, 0.5)
+    topic = TOPICS.unit("factsheet", "unit1")
+    assert published(effects) == [error(0, topic, "internal error: KeyError('a bug')")]
+    assert effects.log[0][0] == logging.ERROR
+    monkeypatch.undo()
+    assert published(from_unit(core, "factsheet", "unit1", msg, 0.6)) == []
+
+
+def test_a_failing_step_holds_every_unit_reports_it_and_the_next_step_runs(
+    core: CoordinatorCore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    under_way(core)
+
+    def broken(*_: object) -> None:
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(core.progress, "advance", broken)
+    effects = core.step(2.0)
+    assert published(effects) == [
+        (ORDER, hold(1, update_id=2, step=2), 1, False),
+        error(0, STATUS, "internal error in step 2: RuntimeError('a bug')"),
+    ]
+    monkeypatch.undo()
+    assert any(o.topic == ROUTES for o in core.step(3.0).publish)
