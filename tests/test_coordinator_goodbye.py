@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell
-from gridfleet.protocol import CoordinatorStatus, HeaderStamper, Order, SetGoal, Topics, decode
+from gridfleet.protocol import CoordinatorStatus, Order, Topics, decode
 from system.threads import ServiceThread
 
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -25,14 +25,12 @@ def test_a_clean_stop_holds_every_unit_before_saying_offline(
     probe.subscribe(topics.fleet("coordinator"))
     # A slow step, so the unit is still on its way (squares released) when the stop comes.
     coordinator, _ = run_system(playfield, step_s=0.3)
-    goal = SetGoal(
-        header=HeaderStamper("test")("set_goal"), request_id="g1", unit="unit1", target=Cell(9, 9)
-    )
-    out = Outbound.of("set_goal", topics.request("set_goal"), goal)
-    probe.publish(out.topic, out.payload, qos=out.qos)
 
     def orders(unit: str) -> list[Order]:
         return [decode(Order, m.payload) for m in probe.received(topics.unit("order", unit))]
+
+    wait_for(lambda: all(orders(u) for u in UNITS), what="the coordinator ordering every unit")
+    assert OperatorPeer(probe, topics).set_goal("unit1", Cell(9, 9)).accepted
 
     wait_for(lambda: any(o.released for o in orders("unit1")), what="unit1 on its way")
     coordinator.stop()
