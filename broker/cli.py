@@ -6,6 +6,8 @@ import argparse
 import asyncio
 
 from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
+from gridfleet.accounts import load_accounts
+from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.tasks import stop_on_signals
 
 
@@ -20,6 +22,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="MQTT-over-websocket port for the dashboard (default 9001; 0 free)",
     )
     parser.add_argument("--no-ws", action="store_true", help="do not open the websocket listener")
+    parser.add_argument(
+        "--accounts",
+        metavar="FILE",
+        help="accounts file ('gridfleet accounts init'): only they may connect, each in its role; "
+        "required to listen beyond loopback",
+    )
+    parser.add_argument(
+        "--root",
+        default=DEFAULT_ROOT,
+        help=f"topic root the accounts' rules use ({DEFAULT_ROOT!r})",
+    )
 
 
 def settings_from(args: argparse.Namespace) -> BrokerSettings:
@@ -30,6 +43,9 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
         for k, v in (("host", args.host), ("port", args.port), ("ws_port", args.ws_port))
         if v is not None
     }
+    if args.accounts is not None:
+        changes["accounts"] = load_accounts(args.accounts)
+        changes["root"] = args.root
     settings = BrokerSettings(**{**settings.__dict__, **changes})
     if args.no_ws:
         settings = BrokerSettings(**{**settings.__dict__, "ws_port": None})

@@ -2,14 +2,20 @@
 
 from __future__ import annotations
 
+import ipaddress
 import logging
+import os
+import tempfile
 import tomllib
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from gridfleet.accounts import Accounts, rules
 from gridfleet.errors import ConfigError
+from gridfleet.protocol import Topics
+from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.textfile import read_text
 
 log = logging.getLogger("gridfleet.broker")
@@ -25,15 +31,23 @@ class BrokerSettings:
     port: int = 1883
     ws_port: int | None = 9001
     max_connections: int = -1
+    accounts: Accounts | None = field(default=None, repr=False)  # None: anonymous, loopback only
+    root: str = DEFAULT_ROOT  # the topic root the accounts' rules are made for
 
     def __post_init__(self) -> None:
         for name in ("port", "ws_port"):
             value = getattr(self, name)
             if value is not None and not 0 <= value <= 65535:
                 raise ConfigError(f"broker {name} {value} is outside 0..65535")
+        if self.accounts is None and not is_loopback(self.host):
+            raise ConfigError(
+                f"listening on {self.host} lets anyone on that network drive the fleet: give "
+                "--accounts FILE (make one with 'gridfleet accounts init --scenario FILE --out "
+                "FILE'), or listen on 127.0.0.1"
+            )
 
-    def amqtt_config(self) -> dict[str, Any]:
-        """The amqtt configuration dictionary for these settings."""
+    def amqtt_config(self, password_file: Path | None = None) -> dict[str, Any]:
+        """The amqtt configuration dictionary (with accounts: their hashed `password_file`)."""
         listeners: dict[str, Any] = {
             "default": {
                 "type": "tcp",
@@ -48,12 +62,46 @@ class BrokerSettings:
                 "max_connections": self.max_connections,
             }
         # Plugins must be explicit: amqtt's defaults (packet loggers, $SYS) halve throughput.
-        return {
-            "listeners": listeners,
-            "plugins": {
+        if self.accounts is None:
+            plugins: dict[str, Any] = {
                 "amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}
-            },
-        }
+            }
+        else:
+            # Never beside the anonymous plugin: with both, anonymous clients get in.
+            assert password_file is not None, "accounts need their password file"
+            topics = Topics(self.root)
+            allowed = {a.name: rules(a, topics) for a in self.accounts.accounts.values()}
+            plugins = {
+                "amqtt.plugins.authentication.FileAuthPlugin": {
+                    "password_file": str(password_file)
+                },
+                "amqtt.plugins.topic_checking.TopicAccessControlListPlugin": {
+                    "acl": {name: list(r.subscribe) for name, r in allowed.items()},
+                    "publish_acl": {name: list(r.publish) for name, r in allowed.items()},
+                },
+            }
+        return {"listeners": listeners, "plugins": plugins}
+
+
+def is_loopback(host: str) -> bool:
+    """Whether `host` is a loopback address (or `localhost`)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def password_lines(accounts: Accounts) -> str:
+    """amqtt's password file: `name:<argon2 hash>` per account."""
+    from pwdlib import PasswordHash  # installed with amqtt
+    from pwdlib.hashers.argon2 import Argon2Hasher
+
+    # amqtt checks passwords on its event loop: pwdlib's default cost (~190 ms a check here)
+    # would stall the broker for seconds when a fleet reconnects; this one takes ~30 ms.
+    hasher = PasswordHash((Argon2Hasher(time_cost=2, memory_cost=19456, parallelism=1),))
+    return "".join(f"{a.name}:{hasher.hash(a.password)}\n" for a in accounts.accounts.values())
 
 
 def load_settings(path: str | Path, base: BrokerSettings | None = None) -> BrokerSettings:
@@ -104,6 +152,7 @@ class EmbeddedBroker:
     def __init__(self, settings: BrokerSettings | None = None) -> None:
         self.settings = settings or BrokerSettings()
         self._broker: Any = None
+        self._secrets: tempfile.TemporaryDirectory[str] | None = None
         self.port: int | None = None
         self.ws_port: int | None = None
 
@@ -119,7 +168,14 @@ class EmbeddedBroker:
 
     async def start(self) -> None:
         """Bind the listeners; raises ConfigError when a port cannot be bound."""
-        self._broker = _make_broker(self.settings.amqtt_config())
+        password_file = None
+        if self.settings.accounts is not None:
+            self._secrets = tempfile.TemporaryDirectory(prefix="gridfleet-broker-")
+            password_file = Path(self._secrets.name) / "passwords"
+            fd = os.open(password_file, os.O_WRONLY | os.O_CREAT, 0o600)
+            with os.fdopen(fd, "w", encoding="utf-8") as out:
+                out.write(password_lines(self.settings.accounts))
+        self._broker = _make_broker(self.settings.amqtt_config(password_file))
         amqtt_log = logging.getLogger("amqtt.broker")
         level = amqtt_log.level
         # amqtt logs a bind failure with a traceback; ours below is the one line a user needs.
@@ -153,6 +209,9 @@ class EmbeddedBroker:
             await self._broker.shutdown()
             self._broker = None
             log.info("broker stopped")
+        if self._secrets is not None:
+            self._secrets.cleanup()
+            self._secrets = None
 
     async def __aenter__(self) -> EmbeddedBroker:
         await self.start()

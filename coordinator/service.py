@@ -93,7 +93,7 @@ class Coordinator:
     async def _on_connect(self) -> None:
         await self._apply(self.core.on_connect())
         self.ready.set()
-        log.info("coordinator online at %s (root %s)", self.broker, self.topics.root)
+        log.info("coordinator online at %s (root %s)", self.endpoint.where, self.topics.root)
 
     async def handle(self, topic: str, payload: bytes) -> None:
         """One inbound message, to the core; then whatever it says to do."""

@@ -28,6 +28,8 @@ def make_client(
         identifier=client_id,
         transport=broker.transport,  # type: ignore[arg-type]
         websocket_path=broker.path if broker.scheme == "ws" else None,
+        username=broker.username,
+        password=broker.password,
         will=will,
         keepalive=keepalive,
         clean_session=True,

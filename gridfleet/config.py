@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from urllib.parse import urlsplit
+from dataclasses import dataclass, field
+from urllib.parse import unquote, urlsplit
 
 from gridfleet.errors import ConfigError
 
@@ -20,6 +20,8 @@ class BrokerURL:
     host: str
     port: int
     path: str = "/"
+    username: str | None = None
+    password: str | None = field(default=None, repr=False)
 
     @property
     def transport(self) -> str:
@@ -27,8 +29,10 @@ class BrokerURL:
         return "websockets" if self.scheme == "ws" else "tcp"
 
     def __str__(self) -> str:
+        # Never the password: this is what logs and messages show.
         tail = self.path if self.scheme == "ws" and self.path != "/" else ""
-        return f"{self.scheme}://{self.host}:{self.port}{tail}"
+        user = f"{self.username}@" if self.username else ""
+        return f"{self.scheme}://{user}{self.host}:{self.port}{tail}"
 
 
 def parse_broker_url(url: str) -> BrokerURL:
@@ -37,15 +41,30 @@ def parse_broker_url(url: str) -> BrokerURL:
         parts = urlsplit(url)
         port = parts.port
     except ValueError as exc:
-        raise ConfigError(f"broker URL {url!r}: {exc}") from None
+        raise ConfigError(f"broker URL {redacted(url)!r}: {exc}") from None
     scheme = parts.scheme.lower()
     if scheme not in _DEFAULT_PORTS:
-        raise ConfigError(f"broker URL {url!r}: scheme must be mqtt:// or ws://")
+        raise ConfigError(f"broker URL {redacted(url)!r}: scheme must be mqtt:// or ws://")
     if not parts.hostname:
-        raise ConfigError(f"broker URL {url!r}: no host (expected e.g. {DEFAULT_MQTT_URL})")
+        raise ConfigError(
+            f"broker URL {redacted(url)!r}: no host (expected e.g. {DEFAULT_MQTT_URL})"
+        )
     if scheme == "tcp":
         scheme = "mqtt"
-    return BrokerURL(scheme, parts.hostname, port or _DEFAULT_PORTS[scheme], parts.path or "/")
+    if parts.password is not None and not parts.username:
+        raise ConfigError(f"broker URL {redacted(url)}: a password needs a user (user:pass@host)")
+    username = unquote(parts.username) if parts.username else None
+    password = unquote(parts.password) if parts.password is not None else None
+    port = port or _DEFAULT_PORTS[scheme]
+    return BrokerURL(scheme, parts.hostname, port, parts.path or "/", username, password)
+
+
+def redacted(url: str) -> str:
+    """`url` with any password replaced by `***`, for messages."""
+    parts = urlsplit(url)
+    if parts.password is None:
+        return url
+    return url.replace(f":{parts.password}@", ":***@", 1)
 
 
 MAX_STEP_S = 60.0

@@ -19,6 +19,7 @@ from typing import Any
 import aiomqtt
 
 from gridfleet.bus import make_client
+from gridfleet.config import parse_broker_url
 from gridfleet.protocol import TOPICS, ErrorReport, Header, encode
 from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import Message
@@ -101,6 +102,7 @@ class Endpoint:
         backoff: Backoff = Backoff(),
     ) -> None:
         self.url = url
+        self.where = str(parse_broker_url(url))  # for messages: never the password
         self.client_id = client_id
         self.name = name or client_id
         self._subscriptions = subscriptions
@@ -139,7 +141,7 @@ class Endpoint:
                 if self.killed:
                     return
                 if self._client is not None or delay == self.backoff.first:
-                    log.warning("%s: broker %s: %s; retrying", self.name, self.url, exc)
+                    log.warning("%s: broker %s: %s; retrying", self.name, self.where, exc)
                 self._lose()
                 if on_disconnect is not None:
                     on_disconnect(str(exc))

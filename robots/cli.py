@@ -64,7 +64,7 @@ async def _main(fleet: Fleet) -> None:
     log.info(
         "running %s on %s (%s)",
         ", ".join(fleet.runners),
-        fleet.runners[next(iter(fleet.runners))].endpoint.url,
+        fleet.runners[next(iter(fleet.runners))].endpoint.where,
         fleet.logic[next(iter(fleet.runners))].mode,
     )
     await fleet.run(stop)

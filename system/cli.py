@@ -17,6 +17,7 @@ from types import ModuleType
 import aiomqtt
 
 from gridfleet import __version__
+from gridfleet.config import redacted
 from gridfleet.errors import GridfleetError
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -29,6 +30,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "job": ("system.job", "submit, cancel and list jobs; set goals; emergency stop"),
     "feed": ("system.feed", "submit a scenario's jobs and goals; --demo keeps jobs coming"),
     "simulate": ("system.simulate", "run a scenario to the end in accelerated time"),
+    "accounts": ("system.accounts_cli", "make the broker accounts file; add accounts to it"),
     "bench": ("bench.cli", "benchmark the planner and the whole system"),
 }
 
@@ -94,7 +96,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except aiomqtt.MqttError as exc:
         # One-shot commands (job, simulate with --broker) fail fast; services retry on their own.
-        where = getattr(args, "broker", None) or "the broker"
+        where = redacted(getattr(args, "broker", None) or "the broker")
         print(f"gridfleet {args.command}: error: MQTT with {where}: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

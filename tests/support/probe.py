@@ -9,6 +9,7 @@ from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
 from types import TracebackType
+from typing import Any
 
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
@@ -41,14 +42,27 @@ class MqttProbe:
         )
         if broker.scheme == "ws":
             self.client.ws_set_options(path=broker.path)
+        if broker.username is not None:
+            self.client.username_pw_set(broker.username, broker.password)
+        self.refused: object | None = None  # the CONNACK's reason when the broker said no
         self._broker = broker
         self._lock = threading.Lock()
         self.messages: defaultdict[str, list[Seen]] = defaultdict(list)
         self._connected = threading.Event()
+        self._answered = threading.Event()  # a CONNACK came, yes or no
         self._subacks: set[int] = set()
         self.client.on_message = self._on_message
-        self.client.on_connect = lambda c, u, f, rc, p: self._connected.set()
+        self.client.on_connect = self._on_connect
         self.client.on_subscribe = lambda c, u, mid, rcs, p: self._subacks.add(mid)
+
+    def _on_connect(
+        self, client: object, userdata: object, flags: object, rc: Any, p: object
+    ) -> None:
+        if rc.is_failure:
+            self.refused = rc
+        else:
+            self._connected.set()
+        self._answered.set()
 
     def _on_message(self, client: mqtt.Client, userdata: object, msg: mqtt.MQTTMessage) -> None:
         with self._lock:
@@ -65,8 +79,10 @@ class MqttProbe:
             raise AssertionError("MqttProbe.connect() called twice (`with` connects by itself)")
         self.client.connect(self._broker.host, self._broker.port)
         self.client.loop_start()
-        if not self._connected.wait(timeout):
-            raise AssertionError(f"probe could not connect to {self._broker}")
+        if not (self._answered.wait(timeout) and self._connected.is_set()):
+            self.client.loop_stop()
+            why = f": refused ({self.refused})" if self.refused is not None else ""
+            raise AssertionError(f"probe could not connect to {self._broker}{why}")
         return self
 
     def subscribe(self, topic: str, qos: int = 1, timeout: float = 10.0) -> None:

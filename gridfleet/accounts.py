@@ -1,0 +1,211 @@
+"""Broker accounts: who may connect, in which role, and what each role may publish and read.
+
+An accounts file is TOML, readable by its owner only, one table per account:
+
+    [accounts.unit1]
+    password = "…"
+    role = "unit"
+    unit = "unit1"
+
+The broker hashes the passwords it checks; clients read theirs from this file (`--accounts FILE
+--account NAME`). `rules()` derives each account's topic rules from the protocol's topic table, so
+an ACL never drifts from protocol.md.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import stat
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal, get_args
+
+from gridfleet.errors import ConfigError, ProtocolError
+from gridfleet.protocol import Topics, validate_id
+from gridfleet.textfile import read_text
+
+Role = Literal["coordinator", "unit", "device", "dashboard", "operator"]
+ROLES: tuple[Role, ...] = get_args(Role)
+_KEYS = {"password", "role", "unit"}
+MIN_PASSWORD = 12
+
+
+@dataclass(frozen=True)
+class Account:
+    """One broker account: its name (the MQTT username), password, role and, for units and
+    devices, the unit it belongs to."""
+
+    name: str
+    password: str
+    role: Role
+    unit: str | None = None
+
+    def __post_init__(self) -> None:
+        validate_id(self.name, "account name")
+        if self.role not in ROLES:
+            raise ConfigError(f"account {self.name}: role {self.role!r} is not one of {ROLES}")
+        if len(self.password) < MIN_PASSWORD:
+            raise ConfigError(
+                f"account {self.name}: the password must have at least {MIN_PASSWORD} characters"
+            )
+        needs_unit = self.role in ("unit", "device")
+        if needs_unit and self.unit is None:
+            raise ConfigError(f"account {self.name}: a {self.role} account names its unit")
+        if not needs_unit and self.unit is not None:
+            raise ConfigError(f"account {self.name}: a {self.role} account has no unit")
+        if self.unit is not None:
+            validate_id(self.unit, f"account {self.name}: unit")
+
+
+@dataclass(frozen=True)
+class Accounts:
+    """Every account, by name."""
+
+    accounts: dict[str, Account] = field(default_factory=dict)
+
+    def get(self, name: str) -> Account:
+        """The account called `name`; ConfigError naming the known ones when there is none."""
+        try:
+            return self.accounts[name]
+        except KeyError:
+            known = ", ".join(sorted(self.accounts)) or "none"
+            raise ConfigError(f"no account {name!r} (known: {known})") from None
+
+    def with_account(self, account: Account) -> Accounts:
+        """These accounts and `account`; ConfigError when its name is taken."""
+        if account.name in self.accounts:
+            raise ConfigError(f"account {account.name!r} exists already")
+        return Accounts({**self.accounts, account.name: account})
+
+    def units(self) -> set[str]:
+        """The units that have a unit account."""
+        return {a.unit for a in self.accounts.values() if a.role == "unit" and a.unit}
+
+
+def new_password() -> str:
+    """A random password (24 URL-safe characters, 144 bits)."""
+    return secrets.token_urlsafe(18)
+
+
+def default_accounts(units: list[str]) -> Accounts:
+    """The accounts a fleet of `units` needs: coordinator, dashboard, operator, and a unit and a
+    device account per unit (`<unit>` and `device-<unit>`), each with a random password."""
+    made = [
+        Account("coordinator", new_password(), "coordinator"),
+        Account("dashboard", new_password(), "dashboard"),
+        Account("operator", new_password(), "operator"),
+    ]
+    for unit in units:
+        made.append(Account(unit, new_password(), "unit", unit))
+        made.append(Account(f"device-{unit}", new_password(), "device", unit))
+    return Accounts({a.name: a for a in made})
+
+
+def load_accounts(path: str | Path) -> Accounts:
+    """Read an accounts file; ConfigError naming the file and the problem."""
+    p = Path(path)
+    text = read_text(p, "accounts file", ConfigError)
+    if os.name == "posix" and p.stat().st_mode & (stat.S_IRWXG | stat.S_IRWXO):
+        raise ConfigError(f"{p}: others can read it; make it private (chmod 600 {p})")
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: cannot read the accounts file: {exc}") from None
+    unknown = set(data) - {"accounts"}
+    if unknown:
+        raise ConfigError(f"{p}: unknown table {sorted(unknown)[0]!r} (only [accounts.NAME])")
+    table = data.get("accounts", {})
+    if not isinstance(table, dict) or not table:
+        raise ConfigError(f"{p}: no [accounts.NAME] tables")
+    accounts: dict[str, Account] = {}
+    for name, entry in table.items():
+        if not isinstance(entry, dict):
+            raise ConfigError(f"{p}: accounts.{name} must be a table")
+        extra = set(entry) - _KEYS
+        if extra:
+            raise ConfigError(f"{p}: accounts.{name}: unknown key {sorted(extra)[0]!r}")
+        values = {k: entry.get(k) for k in _KEYS}
+        if not all(isinstance(v, str) for v in values.values() if v is not None):
+            raise ConfigError(f"{p}: accounts.{name}: password, role and unit are strings")
+        if values["password"] is None or values["role"] is None:
+            raise ConfigError(f"{p}: accounts.{name}: needs a password and a role")
+        try:
+            accounts[name] = Account(name, values["password"], values["role"], values["unit"])
+        except (ConfigError, ProtocolError) as exc:
+            raise ConfigError(f"{p}: {exc}") from None
+    return Accounts(accounts)
+
+
+def dump_accounts(accounts: Accounts) -> str:
+    """The TOML text of an accounts file."""
+    lines = ["# gridfleet broker accounts: keep this file private (mode 600).", ""]
+    for a in sorted(accounts.accounts.values(), key=lambda a: (ROLES.index(a.role), a.name)):
+        lines.append(f"[accounts.{a.name}]")
+        lines.append(f'password = "{a.password}"')
+        lines.append(f'role = "{a.role}"')
+        if a.unit is not None:
+            lines.append(f'unit = "{a.unit}"')
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_accounts(accounts: Accounts, path: str | Path) -> None:
+    """Write an accounts file readable by its owner only (created 0600, never world-readable)."""
+    p = Path(path)
+    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as out:
+        out.write(dump_accounts(accounts))
+    p.chmod(0o600)
+
+
+@dataclass(frozen=True)
+class Rules:
+    """The topic filters one account may publish to and subscribe to."""
+
+    publish: tuple[str, ...]
+    subscribe: tuple[str, ...]
+
+
+def rules(account: Account, topics: Topics) -> Rules:
+    """What `account` may publish and read, from protocol.md's topic table."""
+    t = topics
+    if account.role == "coordinator":
+        publish = [
+            t.all_units("order"),
+            *(t.fleet(k) for k in ("map", "jobs", "routes", "errors", "coordinator", "estop")),
+            f"{t.prefix}/replies/+",
+        ]
+        subscribe = [
+            *(t.all_units(k) for k in ("connection", "factsheet", "state")),
+            t.fleet("estop"),
+            t.all_requests,
+        ]
+    elif account.role == "unit":
+        assert account.unit is not None
+        own = [t.unit(k, account.unit) for k in ("connection", "factsheet", "state", "direction")]
+        publish = [*own, t.fleet("errors"), t.fleet("estop")]
+        subscribe = [
+            t.unit("order", account.unit),
+            t.unit("goal", account.unit),
+            t.fleet("estop"),
+            t.fleet("coordinator"),
+            t.all_units("state"),  # units elsewhere, seen by their state
+        ]
+    elif account.role == "device":
+        assert account.unit is not None
+        publish = [
+            t.device("device_connection", account.name),
+            t.fleet("estop"),
+            t.fleet("errors"),
+        ]
+        subscribe = [t.unit("direction", account.unit), t.fleet("estop")]
+    else:  # dashboard, operator: the people's side
+        publish = [
+            *(t.request(k) for k in ("submit_job", "cancel_job", "set_goal")),
+            t.all_units("goal"),
+            t.fleet("estop"),
+        ]
+        subscribe = [f"{t.prefix}/#"]
+    return Rules(tuple(publish), tuple(subscribe))

@@ -1,0 +1,50 @@
+"""`gridfleet accounts`: make the broker accounts file for a fleet, and add accounts to it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import get_args
+
+from gridfleet.accounts import (
+    Account,
+    Role,
+    default_accounts,
+    load_accounts,
+    new_password,
+    write_accounts,
+)
+from gridfleet.errors import ConfigError
+from gridfleet.scenario import load_scenario, with_units
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Subcommands of `gridfleet accounts`."""
+    sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+    init = sub.add_parser("init", help="write the accounts a scenario's fleet needs")
+    init.add_argument("--scenario", type=Path, required=True, help="scenario file (TOML)")
+    init.add_argument("--out", type=Path, required=True, help="accounts file to write (mode 600)")
+    init.add_argument("--force", action="store_true", help="replace an existing file")
+    add = sub.add_parser("add", help="add one account (a new unit, its device, a person)")
+    add.add_argument("name", help="account name: the MQTT username (and, for a unit, its id)")
+    add.add_argument("--role", required=True, choices=get_args(Role))
+    add.add_argument("--unit", help="the unit a unit or device account belongs to")
+    add.add_argument("--file", type=Path, required=True, help="accounts file to add to")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of `gridfleet accounts`."""
+    if args.action == "init":
+        if args.out.exists() and not args.force:
+            raise ConfigError(f"{args.out} exists; --force replaces it (and every password)")
+        scenario = with_units(load_scenario(args.scenario))
+        accounts = default_accounts([u.id for u in scenario.units])
+        write_accounts(accounts, args.out)
+        print(f"wrote {len(accounts.accounts)} accounts to {args.out} (keep it private)")
+        return 0
+    unit = args.unit if args.unit is not None or args.role not in ("unit",) else args.name
+    accounts = load_accounts(args.file)
+    accounts = accounts.with_account(Account(args.name, new_password(), args.role, unit))
+    write_accounts(accounts, args.file)
+    print(f"added {args.role} account {args.name} to {args.file}")
+    return 0

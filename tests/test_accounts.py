@@ -1,0 +1,209 @@
+"""Broker accounts: the file, each role's topic rules, and the embedded broker enforcing them."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import stat
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from broker.embedded import BrokerSettings
+from gridfleet.accounts import (
+    Account,
+    Accounts,
+    default_accounts,
+    load_accounts,
+    rules,
+    write_accounts,
+)
+from gridfleet.endpoint import Endpoint
+from gridfleet.errors import ConfigError
+from gridfleet.protocol import Topics
+from system.broker_thread import BrokerThread
+
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+REPO = Path(__file__).resolve().parent.parent
+PLAYFIELD = REPO / "maps" / "playfield.toml"
+ROOT = "acct"
+T = Topics(ROOT)
+
+
+def cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "system", *args], capture_output=True, text=True, timeout=60
+    )
+
+
+# ---- the file -----------------------------------------------------------------------------------
+
+
+def test_init_writes_a_private_file_with_every_role_the_fleet_needs(tmp_path: Path) -> None:
+    out = tmp_path / "accounts.toml"
+    done = cli("accounts", "init", "--scenario", str(PLAYFIELD), "--out", str(out))
+    assert done.returncode == 0, done.stderr
+    assert stat.S_IMODE(out.stat().st_mode) == 0o600
+    accounts = load_accounts(out)
+    roles = {name: (a.role, a.unit) for name, a in accounts.accounts.items()}
+    assert roles["coordinator"] == ("coordinator", None)
+    assert roles["dashboard"] == ("dashboard", None) and roles["operator"] == ("operator", None)
+    for unit in ("unit1", "unit2", "unit3", "unit4"):
+        assert roles[unit] == ("unit", unit) and roles[f"device-{unit}"] == ("device", unit)
+    assert len({a.password for a in accounts.accounts.values()}) == len(roles)  # all different
+    again = cli("accounts", "init", "--scenario", str(PLAYFIELD), "--out", str(out))
+    assert again.returncode == 2 and "exists" in again.stderr  # never overwritten by accident
+
+
+def test_add_puts_one_more_unit_in_the_file(tmp_path: Path) -> None:
+    out = tmp_path / "accounts.toml"
+    write_accounts(default_accounts(["unit1"]), out)
+    assert cli("accounts", "add", "unit9", "--role", "unit", "--file", str(out)).returncode == 0
+    device = cli("accounts", "add", "device-unit9", "--role", "device", "--file", str(out))
+    assert device.returncode == 2 and "names its unit" in device.stderr
+    assert load_accounts(out).get("unit9") == Account(
+        "unit9", load_accounts(out).get("unit9").password, "unit", "unit9"
+    )
+    taken = cli("accounts", "add", "unit9", "--role", "unit", "--file", str(out))
+    assert taken.returncode == 2 and "exists already" in taken.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        ("[accounts.a]\npassword = 'x'\nrole = 'operator'\n", "at least 12 characters"),
+        ("[accounts.a]\npassword = 'long enough pw'\nrole = 'boss'\n", "role 'boss'"),
+        ("[accounts.a]\npassword = 'long enough pw'\nrole = 'unit'\n", "names its unit"),
+        ("[accounts.a]\nrole = 'operator'\n", "needs a password and a role"),
+        ("[accounts.a]\npassword = 'long enough pw'\nrole = 'operator'\nx = 1\n", "'x'"),
+        ("[accounts.a]\npassword = 1234567890123\nrole = 'operator'\n", "are strings"),
+        ("[accounts.'a/b']\npassword = 'long enough pw'\nrole = 'operator'\n", "a/b"),
+        ("[people.a]\n", "unknown table 'people'"),
+        ("", "no [accounts.NAME]"),
+        ("[accounts.a\n", "cannot read"),
+    ],
+)
+def test_a_bad_accounts_file_is_refused_naming_the_problem(
+    tmp_path: Path, text: str, problem: str
+) -> None:
+    path = tmp_path / "accounts.toml"
+    path.write_text(text)
+    path.chmod(0o600)
+    with pytest.raises(ConfigError, match=re.escape(problem)):
+        load_accounts(path)
+
+
+def test_an_accounts_file_others_can_read_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "accounts.toml"
+    write_accounts(default_accounts(["unit1"]), path)
+    path.chmod(0o644)
+    with pytest.raises(ConfigError, match="chmod 600"):
+        load_accounts(path)
+
+
+# ---- rules from the protocol --------------------------------------------------------------------
+
+
+def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
+    accounts = default_accounts(["unit1", "unit2"])
+    unit1 = rules(accounts.get("unit1"), T)
+    assert T.unit("state", "unit1") in unit1.publish
+    assert T.unit("state", "unit2") not in unit1.publish
+    assert not any("order" in topic or "requests" in topic for topic in unit1.publish)
+    assert T.unit("order", "unit1") in unit1.subscribe
+    device = rules(accounts.get("device-unit1"), T)
+    assert device.subscribe == (T.unit("direction", "unit1"), T.fleet("estop"))
+    coordinator = rules(accounts.get("coordinator"), T)
+    assert T.all_units("order") in coordinator.publish
+    operator = rules(accounts.get("operator"), T)
+    assert T.request("submit_job") in operator.publish
+    assert T.all_units("order") not in operator.publish and T.fleet("map") not in operator.publish
+
+
+# ---- the broker enforces them --------------------------------------------------------------------
+
+
+def test_listening_beyond_loopback_needs_accounts() -> None:
+    with pytest.raises(ConfigError, match="--accounts FILE"):
+        BrokerSettings(host="0.0.0.0")
+    done = cli("broker", "--host", "0.0.0.0", "--port", "0", "--no-ws")
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "gridfleet accounts init" in done.stderr
+
+
+@pytest.fixture(scope="module")
+def accounts() -> Accounts:
+    return default_accounts(["unit1", "unit2"])
+
+
+@pytest.fixture(scope="module")
+def secured(accounts: Accounts) -> Iterator[BrokerThread]:
+    settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=ROOT)
+    with BrokerThread(settings) as running:
+        yield running
+
+
+def url_of(broker: BrokerThread, account: Account | None, password: str | None = None) -> str:
+    if account is None:
+        return broker.url
+    return broker.url.replace("mqtt://", f"mqtt://{account.name}:{password or account.password}@")
+
+
+def test_anonymous_and_wrong_passwords_are_refused(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    for url in (
+        url_of(secured, None),
+        url_of(secured, accounts.get("coordinator"), "not the password"),
+    ):
+        probe = MqttProbe(url)
+        with pytest.raises(AssertionError, match="Not authorized"):
+            probe.connect(timeout=5)
+    with MqttProbe(url_of(secured, accounts.get("coordinator"))):
+        pass
+
+
+def test_a_unit_cannot_forge_another_unit_or_the_coordinator(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    with (
+        MqttProbe(url_of(secured, accounts.get("coordinator"))) as coordinator,
+        MqttProbe(url_of(secured, accounts.get("unit2"))) as unit2,
+        MqttProbe(url_of(secured, accounts.get("unit1"))) as unit1,
+    ):
+        coordinator.subscribe(T.all_units("state"))
+        unit2.subscribe(T.unit("order", "unit2"))
+        unit1.publish(T.unit("state", "unit2"), b'{"forged": true}', retain=True)
+        unit1.publish(T.unit("order", "unit2"), b'{"forged": true}')
+        unit1.publish(T.unit("state", "unit1"), b'{"own": true}', retain=True)
+        # Its own state arrives; published after the forgeries, so they had their chance.
+        wait_for(lambda: coordinator.received(T.unit("state", "unit1")), what="unit1's own state")
+        assert coordinator.received(T.unit("state", "unit2")) == []
+        assert unit2.received(T.unit("order", "unit2")) == []
+    with MqttProbe(url_of(secured, accounts.get("coordinator"))) as late:
+        late.subscribe(T.all_units("state"))
+        wait_for(lambda: late.received(T.unit("state", "unit1")), what="the retained own state")
+        assert late.received(T.unit("state", "unit2")) == []  # no forged retained state either
+
+
+async def test_a_component_connects_with_the_credentials_in_its_url(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    endpoint = Endpoint(url_of(secured, accounts.get("unit1")), "unit1-test")
+    assert "unit1@" in endpoint.where and accounts.get("unit1").password not in endpoint.where
+
+    async def handle(topic: str, payload: bytes) -> None:
+        pass
+
+    stop = asyncio.Event()
+    task = asyncio.create_task(endpoint.run(stop, handle))
+    try:
+        await asyncio.wait_for(endpoint.online.wait(), 10)
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 10)
