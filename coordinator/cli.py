@@ -9,7 +9,7 @@ from coordinator.service import Coordinator
 from coordinator.store import default_db_path
 from gridfleet.config import check_step
 from gridfleet.maps import load_map
-from gridfleet.options import add_common
+from gridfleet.options import add_common, broker_url
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.tasks import stop_on_signals
 
@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     check_step(args.step)
     grid = load_map(args.map)
     coordinator = Coordinator(
-        args.broker,
+        broker_url(args, "coordinator"),
         grid,
         root=args.root,
         step_s=args.step,

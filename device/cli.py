@@ -9,7 +9,7 @@ import sys
 from device.shell import VirtualDevice
 from device.terminal import Terminal
 from gridfleet.errors import ConfigError, ProtocolError
-from gridfleet.options import add_common
+from gridfleet.options import add_common, broker_url
 from gridfleet.tasks import stop_on_signals
 
 
@@ -37,7 +37,12 @@ async def _main(args: argparse.Namespace) -> int:
     term = Terminal(sys.stdout, sys.stdin)
     try:
         device = VirtualDevice(
-            args.broker, args.unit, args.root, args.device_id, args.retry, on_change=term.draw
+            broker_url(args, args.device_id or f"device-{args.unit}"),
+            args.unit,
+            args.root,
+            args.device_id,
+            args.retry,
+            on_change=term.draw,
         )
     except ProtocolError as exc:
         raise ConfigError(str(exc)) from None

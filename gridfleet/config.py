@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from urllib.parse import unquote, urlsplit
+from urllib.parse import quote, unquote, urlsplit
 
 from gridfleet.errors import ConfigError
 
@@ -57,6 +57,14 @@ def parse_broker_url(url: str) -> BrokerURL:
     password = unquote(parts.password) if parts.password is not None else None
     port = port or _DEFAULT_PORTS[scheme]
     return BrokerURL(scheme, parts.hostname, port, parts.path or "/", username, password)
+
+
+def with_credentials(url: str, username: str, password: str) -> str:
+    """`url` logging in as `username` (any credentials it had are replaced)."""
+    parts = urlsplit(url)
+    host = parts.netloc.rsplit("@", 1)[-1]
+    login = f"{quote(username, safe='')}:{quote(password, safe='')}@"
+    return parts._replace(netloc=login + host).geturl()
 
 
 def redacted(url: str) -> str:

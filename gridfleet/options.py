@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import argparse
 
-from gridfleet.config import DEFAULT_MQTT_URL
+from gridfleet.accounts import Accounts, load_accounts
+from gridfleet.config import DEFAULT_MQTT_URL, with_credentials
 from gridfleet.protocol.constants import DEFAULT_ROOT
 
 
@@ -21,10 +22,33 @@ def add_common(
             "--broker",
             default=None if own_broker else DEFAULT_MQTT_URL,
             metavar="URL",
-            help=f"MQTT broker URL, mqtt://host:port (default {own_broker or DEFAULT_MQTT_URL})",
+            help=f"MQTT broker URL, mqtt://[user:pass@]host:port (default "
+            f"{own_broker or DEFAULT_MQTT_URL})",
         )
+        if own_broker is None:
+            parser.add_argument(
+                "--accounts", metavar="FILE", help="accounts file ('gridfleet accounts init')"
+            )
+            parser.add_argument(
+                "--account", metavar="NAME", help="the account to log in as (default: per command)"
+            )
     parser.add_argument(
         "--root",
         default=DEFAULT_ROOT,
         help=f"topic root, so fleets can share a broker (default {DEFAULT_ROOT!r})",
     )
+
+
+def accounts_of(args: argparse.Namespace) -> Accounts | None:
+    """The accounts file named by --accounts, or None."""
+    path = getattr(args, "accounts", None)
+    return None if path is None else load_accounts(path)
+
+
+def broker_url(args: argparse.Namespace, account: str) -> str:
+    """--broker, logging in as --account (default `account`) when --accounts names a file."""
+    accounts = accounts_of(args)
+    if accounts is None:
+        return str(args.broker)
+    chosen = accounts.get(getattr(args, "account", None) or account)
+    return with_credentials(args.broker, chosen.name, chosen.password)

@@ -7,7 +7,7 @@ import asyncio
 import logging
 
 from gridfleet.errors import ConfigError
-from gridfleet.options import add_common
+from gridfleet.options import accounts_of, add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
@@ -49,7 +49,15 @@ def build(args: argparse.Namespace) -> Fleet:
         units = [u.strip() for u in args.units.split(",") if u.strip()]
         if not units:
             raise ConfigError("--units: give at least one unit id")
-    return Fleet(scenario, args.broker, root=args.root, units=units, step=args.step, mode=args.mode)
+    return Fleet(
+        scenario,
+        args.broker,
+        root=args.root,
+        units=units,
+        step=args.step,
+        mode=args.mode,
+        accounts=accounts_of(args),
+    )
 
 
 def run(args: argparse.Namespace) -> int:

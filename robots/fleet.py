@@ -6,7 +6,8 @@ import asyncio
 import contextlib
 from collections.abc import Mapping, Sequence
 
-from gridfleet.config import check_step, parse_broker_url
+from gridfleet.accounts import Accounts
+from gridfleet.config import check_step, parse_broker_url, with_credentials
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -32,6 +33,7 @@ class Fleet:
         goals: Mapping[str, Cell] | None = None,
         reconnect_s: float = 0.1,
         sensors_see_units: bool = True,
+        accounts: Accounts | None = None,
     ) -> None:
         parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
         known = [u.id for u in with_units(scenario).units]
@@ -65,10 +67,14 @@ class Fleet:
                 mode=mode,
                 goal=wanted.get(spec.id),
             )
+            url = broker_url
+            if accounts is not None:  # each unit logs in as itself
+                account = accounts.get(spec.id)
+                url = with_credentials(broker_url, account.name, account.password)
             self.runners[spec.id] = UnitRunner(
                 logic,
                 self.world,
-                broker_url,
+                url,
                 self.topics,
                 color=spec.color,
                 watch_remote=not self.runners and len(local) < len(known),

@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Any, Literal, TextIO
 
 from broker.embedded import BrokerSettings
+from gridfleet.accounts import Accounts
+from gridfleet.config import with_credentials
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import Scenario, with_units
@@ -47,6 +49,7 @@ class SystemSpec:
     mqtt_port: int = 0  # an embedded broker's ports (0: free ones)
     ws_port: int | None = 0  # None: no websocket listener
     dashboard_port: int | None = None  # processes only: serve the dashboard on this port
+    accounts: Accounts | None = field(default=None, repr=False)  # threads: each part its own
     feed: bool = False  # processes only: submit the scenario's jobs and goals
     demo: bool = False  # with feed: keep random feasible jobs coming
 
@@ -91,9 +94,11 @@ class Assembly:
     ):
         if mode == "threads" and (spec.dashboard_port is not None or spec.feed):
             raise ConfigError("the dashboard and the feed run only as processes")
-        in_threads_only = (spec.seed, spec.coordinator_id, spec.sensors_see_units)
-        if mode == "processes" and in_threads_only != (0, "coordinator", True):
-            raise ConfigError("seed, coordinator id and blind sensors are set only in threads")
+        in_threads_only = (spec.seed, spec.coordinator_id, spec.sensors_see_units, spec.accounts)
+        if mode == "processes" and in_threads_only != (0, "coordinator", True, None):
+            raise ConfigError(
+                "seed, coordinator id, blind sensors and accounts are set only in threads"
+            )
         self.spec = spec
         self.mode = mode
         self.system = System(supervisor=supervisor)
@@ -109,7 +114,12 @@ class Assembly:
             if system.url:
                 pass  # our broker already runs as a process (see __aenter__)
             elif spec.broker is None:
-                settings = BrokerSettings(port=spec.mqtt_port, ws_port=spec.ws_port)
+                settings = BrokerSettings(
+                    port=spec.mqtt_port,
+                    ws_port=spec.ws_port,
+                    accounts=spec.accounts,
+                    root=spec.root,
+                )
                 system.broker_thread = BrokerThread(settings)
                 system.broker_thread.start()
                 system.url = system.broker_thread.url
@@ -121,9 +131,13 @@ class Assembly:
                 self._tmp = tempfile.TemporaryDirectory(prefix="gridfleet-")
                 db_path = Path(self._tmp.name) / "jobs.db"
             scenario = with_units(spec.scenario)
+            coordinator_url = system.url
+            if spec.accounts is not None:
+                login = spec.accounts.get("coordinator")
+                coordinator_url = with_credentials(system.url, login.name, login.password)
             coordinator = coordinator_thread(
                 scenario,
-                system.url,
+                coordinator_url,
                 root=spec.root,
                 step_s=spec.step_s,
                 db_path=db_path,
@@ -137,6 +151,7 @@ class Assembly:
                 root=spec.root,
                 step_s=spec.step_s,
                 sensors_see_units=spec.sensors_see_units,
+                accounts=spec.accounts,
             )
             system.threads["robots"] = fleet.start(timeout)
         except BaseException:

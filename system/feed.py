@@ -16,7 +16,7 @@ from pathlib import Path
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
-from gridfleet.options import add_common
+from gridfleet.options import add_common, broker_url
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import JobSpec, Scenario, load_scenario
@@ -117,7 +117,8 @@ def run(args: argparse.Namespace) -> int:
     if args.keep_active < 1:
         raise ConfigError(f"--keep-active {args.keep_active}: give at least 1")
     scenario = load_scenario(args.scenario)
-    work = feed(args.broker, args.root, scenario, args.demo, args.step, args.keep_active)
+    url = broker_url(args, "operator")
+    work = feed(url, args.root, scenario, args.demo, args.step, args.keep_active)
 
     async def main() -> None:
         await until_stopped(work, stop_on_signals())

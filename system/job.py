@@ -8,9 +8,10 @@ import sys
 import uuid
 from typing import TextIO
 
+from gridfleet.config import redacted
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
-from gridfleet.options import add_common
+from gridfleet.options import add_common, broker_url
 from gridfleet.protocol import JobsView, Reply
 from gridfleet.protocol.topics import Topics
 from system.operator import operator_session
@@ -85,7 +86,8 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
 async def act(args: argparse.Namespace, out: TextIO) -> int:
     """Do what the action says and print the outcome; 1 when the coordinator refused it."""
     client_id = f"cli-{uuid.uuid4().hex[:6]}"
-    async with operator_session(args.broker, Topics(args.root), client_id) as operator:
+    url = broker_url(args, "operator")
+    async with operator_session(url, Topics(args.root), client_id) as operator:
         if args.action in ("stop", "release"):
             signal = await operator.set_estop(args.action == "stop", args.reason)
             print(f"emergency stop {'ENGAGED' if signal.engaged else 'released'}", file=out)
@@ -95,7 +97,7 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
                 await asyncio.wait_for(operator.jobs_changed.wait(), args.timeout)
             except TimeoutError:
                 raise GridfleetError(
-                    f"no job queue on {args.broker} under root {args.root!r} within "
+                    f"no job queue on {redacted(args.broker)} under root {args.root!r} within "
                     f"{args.timeout:.0f} s: is the coordinator running?"
                 ) from None
             assert operator.jobs is not None
@@ -105,7 +107,7 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             await asyncio.wait_for(operator.coordinator_online.wait(), args.timeout)
         except TimeoutError:
             raise GridfleetError(
-                f"the coordinator is not online on {args.broker} under root {args.root!r}"
+                f"the coordinator is not online on {redacted(args.broker)} under root {args.root!r}"
             ) from None
         reply: Reply
         if args.action == "submit":

@@ -21,11 +21,17 @@ from gridfleet.accounts import (
     rules,
     write_accounts,
 )
+from gridfleet.config import with_credentials
 from gridfleet.endpoint import Endpoint
 from gridfleet.errors import ConfigError
+from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
+from gridfleet.scenario import load_scenario
+from system.assembly import Assembly, SystemSpec
 from system.broker_thread import BrokerThread
+from system.threads import world_of
 
+from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -207,3 +213,21 @@ async def test_a_component_connects_with_the_credentials_in_its_url(
     finally:
         stop.set()
         await asyncio.wait_for(task, 10)
+
+
+def test_the_fleet_runs_with_every_part_on_its_own_account(tmp_path: Path) -> None:
+    scenario = load_scenario(PLAYFIELD)
+    accounts = default_accounts([u.id for u in scenario.units])
+    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
+    assembly = Assembly(spec, "threads")
+    system = assembly.start_threads()
+    try:
+        operator = accounts.get("operator")
+        with MqttProbe(with_credentials(system.url, operator.name, operator.password)) as probe:
+            reply = OperatorPeer(probe, T).set_goal("unit1", Cell(9, 3))
+            assert reply.accepted, reply.reason
+            world = world_of(system.fleet)
+            wait_for(lambda: world.positions["unit1"] == Cell(9, 3), 30, what="unit1 at its goal")
+            assert world.collisions == 0
+    finally:
+        assembly.stop()
