@@ -52,6 +52,7 @@ from gridfleet.protocol import (
     SubmitJob,
     Topics,
     UnitState,
+    encode_estop,
 )
 from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
 
@@ -90,6 +91,7 @@ class CoordinatorCore:
         self.planner = Planner(world.grid, seed=seed)
         self.step_no = 0
         self.estop = False
+        self._engaged: EstopSignal | None = None  # the last valid engaged signal read
         self.goals: dict[str, Cell] = {}
         self.orders = Orders(nonce)
         self.moves = Moves(self.planner)
@@ -147,7 +149,8 @@ class CoordinatorCore:
                 return self._effects([])
             return self._on(arrival, topic, now)
         except ProtocolError as exc:
-            return self._effects(self._refuse_unreadable(topic, payload, str(exc)))
+            refused = self._refuse_unreadable(topic, payload, str(exc))
+            return self._effects([*refused, *self._heal_stop(topic)])
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
             self._log.append((logging.ERROR, f"failed on a message on {topic}: {exc!r}"))
             return self._effects([self._refuse(topic, f"internal error: {exc!r}", None)])
@@ -159,6 +162,17 @@ class CoordinatorCore:
         if request_id is not None and reply_to is not None:
             refused.append(self.say.reply(reply_to, request_id, requests.Outcome(False, reason)))
         return refused
+
+    def _heal_stop(self, topic: str) -> list[Outbound]:
+        """The retained engaged stop again, when a payload that is no signal replaced it.
+
+        A malformed or empty payload on `estop` is ignored by every receiver, but on the broker
+        it replaces (an empty one deletes) the retained `engaged`: after a restart the stop would
+        be gone. The last valid engaged signal goes out again, unchanged (protocol.md §5.1).
+        """
+        if topic != self.topics.fleet("estop") or not self.estop or self._engaged is None:
+            return []
+        return [Outbound.of("estop", topic, encode_estop(self._engaged))]
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
@@ -179,6 +193,8 @@ class CoordinatorCore:
         return self._effects([])
 
     def _on_estop(self, signal: EstopSignal) -> Effects:
+        if signal.engaged:
+            self._engaged = signal  # what the broker retains now, restored if replaced
         if signal.engaged == self.estop:
             return self._effects([])  # engaging (or releasing) is idempotent
         self.estop = signal.engaged

@@ -410,14 +410,19 @@ def test_releasing_the_stop_says_so_and_sends_no_order(core: CoordinatorCore) ->
     assert effects.log == ((logging.WARNING, "emergency stop released by dashboard: area checked"),)
 
 
+ESTOP = "gridfleet/v1/fleet/estop"
+
+
 def test_a_malformed_stop_is_reported_and_never_releases(core: CoordinatorCore) -> None:
+    # It replaced the retained `engaged` on the broker: the last engaged signal goes out again.
     estop(core, b"engaged|dashboard|x")
     assert published(estop(core, b"released")) == [
         error(
             0,
             "gridfleet/v1/fleet/estop",
             "estop: 'released' is not 'engaged|<by>|<reason>' or 'released|<by>|<reason>'",
-        )
+        ),
+        (ESTOP, "engaged|dashboard|x", 1, True),
     ]
     assert core.estop
 
@@ -426,9 +431,33 @@ def test_a_cleared_retained_stop_is_reported_and_never_releases(core: Coordinato
     # Anyone can delete a retained message with an empty payload: that is no release.
     estop(core, b"engaged|dashboard|x")
     effects = estop(core, b"")
-    assert published(effects) == [error(0, "gridfleet/v1/fleet/estop", codec_estop_reason(b""))]
+    assert published(effects) == [
+        error(0, "gridfleet/v1/fleet/estop", codec_estop_reason(b"")),
+        (ESTOP, "engaged|dashboard|x", 1, True),  # the latch restored on the broker
+    ]
     assert core.estop
     assert [o.released for o in orders_in(core.step(2.0)).values()] == [[]]
+
+
+@pytest.mark.parametrize("payload", [b"", b"released", b"\xff\xfe", b"engaged|bad/id|x"])
+def test_the_restored_stop_is_the_last_engaged_signal_read(
+    core: CoordinatorCore, payload: bytes
+) -> None:
+    estop(core, b"engaged|dashboard|operator pressed STOP")
+    estop(core, b"engaged|device1|button")  # idempotent, but now the broker's retained value
+    effects = estop(core, payload)
+    assert published(effects)[1:] == [(ESTOP, "engaged|device1|button", 1, True)]
+    # Our own restored signal comes back to us: idempotent, nothing more goes out.
+    assert published(estop(core, effects.publish[1].payload)) == []
+
+
+def test_a_cleared_stop_that_is_not_engaged_is_only_reported(core: CoordinatorCore) -> None:
+    assert published(estop(core, b"")) == [error(0, ESTOP, codec_estop_reason(b""))]
+    estop(core, b"engaged|dashboard|x")
+    estop(core, b"released|dashboard|ok")
+    assert published(estop(core, b"")) == [error(1, ESTOP, codec_estop_reason(b""))]
+    assert published(estop(core, b"released")) == [error(2, ESTOP, codec_estop_reason(b"released"))]
+    assert not core.estop
 
 
 # ---- requests ----------------------------------------------------------------------------------

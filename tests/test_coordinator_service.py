@@ -206,9 +206,17 @@ async def test_estop_halts_releases_and_release_resumes(
         steps0 = r.fleet.steps
         await async_wait_for(lambda: r.fleet.steps > steps0 + 5, what="fleet steps")
         assert r.fleet.units["unit4"].position == before
-        # Malformed estop payloads are ignored and never release.
+        # Malformed estop payloads are ignored and never release; the coordinator restores the
+        # retained `engaged` they replaced (waited for, so it cannot overwrite the release).
+        estop_topic = r.topics.fleet("estop")
+
+        def restored() -> bool:
+            payloads = [m.payload for m in r.op.probe.received(estop_topic)]
+            return b"released" in payloads and payloads[-1].startswith(b"engaged|")
+
         r.op.raw_estop(b"released")
         await async_wait_for(lambda: r.coordinator.errors_sent > 0, what="error report")
+        await async_wait_for(restored, what="the retained stop restored")
         assert r.coordinator.core.estop
         r.op.release("ok")
         await async_wait_for(
