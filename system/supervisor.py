@@ -1,4 +1,8 @@
-"""Runs components as child processes: prefixed logs, restart on death, ordered clean shutdown."""
+"""Runs components as child processes: prefixed logs, restart on death, ordered clean shutdown.
+
+A component that keeps dying is restarted for ever, with a growing (capped) delay, and reported
+each time; it never takes the healthy ones down with it.
+"""
 
 from __future__ import annotations
 
@@ -39,30 +43,37 @@ class Child:
     process: asyncio.subprocess.Process | None = None
     ready_match: re.Match[str] | None = None
     ready_event: asyncio.Event = field(default_factory=asyncio.Event)
-    restarts: int = 0
+    restarts: int = 0  # deaths so far, over the whole run
+    streak: int = 0  # deaths in a row, each after a short run: the restart delay grows with it
     started_at: float = 0.0
     last_line: str = ""
     gone: asyncio.Event = field(default_factory=asyncio.Event)  # exited and not restarted
 
 
 class Supervisor:
-    """Starts children in order, prefixes their output, restarts the dead, stops all in reverse."""
+    """Starts children in order, prefixes their output, restarts the dead, stops all in reverse.
+
+    A dead child is restarted after `restart_delay`, doubled at each death in a row up to
+    `max_restart_delay`; a child that ran `stable_after` seconds before dying starts over at
+    `restart_delay`. Giving up is never an option: the others keep running meanwhile.
+    """
 
     def __init__(
         self,
         out: TextIO | None = None,
         restart_delay: float = 1.0,
-        max_restarts: int = 5,
+        max_restart_delay: float = 30.0,
+        stable_after: float = 60.0,
         stop_timeout: float = 10.0,
     ) -> None:
         self.out = out or sys.stdout
         self.restart_delay = restart_delay
-        self.max_restarts = max_restarts
+        self.max_restart_delay = max_restart_delay
+        self.stable_after = stable_after
         self.stop_timeout = stop_timeout
         self.children: list[Child] = []
         self._stopping = False
         self._watchers: list[asyncio.Task[None]] = []
-        self.failed = asyncio.Event()  # a child died too often: the whole system stops
 
     def say(self, name: str, line: str) -> None:
         """Print one line with the component's name in front."""
@@ -103,6 +114,7 @@ class Supervisor:
             start_new_session=True,
         )
         child.started_at = time.monotonic()
+        child.last_line = ""  # last words are this run's
         self.say(child.spec.name, f"started (pid {child.process.pid})")
 
     async def _pump(self, child: Child) -> None:
@@ -129,24 +141,23 @@ class Supervisor:
             code = await child.process.wait()
             if self._stopping:
                 return
-            self.say(child.spec.name, f"exited with code {code}")
             # ready_match outlives restarts: it says whether the child was ever ready.
             never_ready = child.spec.ready is not None and child.ready_match is None
             if not child.spec.restart or never_ready:
+                self.say(child.spec.name, f"exited with code {code}")
                 child.gone.set()
-                return
-            if child.restarts >= self.max_restarts:
-                self.say(child.spec.name, f"died {child.restarts + 1} times; giving up")
-                child.gone.set()
-                self.failed.set()
                 return
             child.restarts += 1
+            ran = time.monotonic() - child.started_at
+            child.streak = 1 if ran >= self.stable_after else child.streak + 1
+            delay = min(self.restart_delay * 2 ** (child.streak - 1), self.max_restart_delay)
+            times = "once" if child.restarts == 1 else f"{child.restarts} times"
             self.say(
                 child.spec.name,
-                f"restarting in {self.restart_delay:.0f} s "
-                f"(restart {child.restarts} of {self.max_restarts})",
+                f"DIED: exited with code {code} after {ran:.1f} s, {times} so far; "
+                f"last words: {child.last_line or '(no output)'}; restarting in {delay:g} s",
             )
-            await asyncio.sleep(self.restart_delay)
+            await asyncio.sleep(delay)
             if self._stopping:
                 return
             child.ready_event.clear()
@@ -170,6 +181,12 @@ class Supervisor:
         for task in self._watchers:
             task.cancel()
         await asyncio.gather(*self._watchers, return_exceptions=True)
+        for child in self.children:  # restarted while the others were being stopped
+            proc = child.process
+            if proc is not None and proc.returncode is None:
+                proc.kill()
+                await proc.wait()
+                self.say(child.spec.name, "killed (it was restarting)")
 
     def pids(self) -> list[int]:
         """Process ids of the children now running."""
@@ -181,11 +198,7 @@ class Supervisor:
 
 
 async def run_until_signal(supervisor: Supervisor, body: Callable[[], object] | None = None) -> int:
-    """Wait for SIGINT/SIGTERM (or a child that keeps dying), then stop everything."""
-    stop = stop_on_signals()
-    waiters = [asyncio.create_task(stop.wait()), asyncio.create_task(supervisor.failed.wait())]
-    await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
-    for w in waiters:
-        w.cancel()
+    """Wait for SIGINT/SIGTERM, then stop everything (a child that keeps dying is no reason)."""
+    await stop_on_signals().wait()
     await supervisor.stop()
-    return 1 if supervisor.failed.is_set() else 0
+    return 0

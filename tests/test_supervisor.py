@@ -6,6 +6,7 @@ import io
 import os
 import re
 import sys
+import time
 
 import pytest
 
@@ -40,15 +41,82 @@ async def test_children_are_prefixed_ready_and_all_stopped() -> None:
     assert text.index("[second     ] stopped") < text.index("[first      ] stopped")
 
 
-async def test_a_dead_child_is_reported_and_restarted() -> None:
+class TimedOut(io.StringIO):
+    """Output that also notes when each line came, to check the delays between restarts."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: list[tuple[float, str]] = []
+
+    def write(self, text: str) -> int:
+        self.lines.extend((time.monotonic(), line) for line in text.splitlines())
+        return super().write(text)
+
+    def times(self, fragment: str) -> list[float]:
+        return [t for t, line in self.lines if fragment in line]
+
+
+CRASHER = [sys.executable, "-c", "print('boom: bad state', flush=True)\nraise SystemExit(3)"]
+
+
+async def test_a_child_that_keeps_dying_is_restarted_with_growing_delays_and_reported() -> None:
+    out = TimedOut()
+    sup = Supervisor(out=out, restart_delay=0.02, max_restart_delay=0.08, stop_timeout=5)
+    healthy = await sup.start(ChildSpec("healthy", SLEEPER, ready=re.compile("ready")))
+    assert healthy.process is not None
+    pid = healthy.process.pid
+    crashy = await sup.start(ChildSpec("crashy", CRASHER))
+    try:
+        await async_wait_for(
+            lambda: crashy.restarts >= 6, timeout=30, what="the crashing child to die 6 times"
+        )
+        assert healthy.process.pid == pid and healthy.process.returncode is None and alive(pid)
+        assert sup.pids()[0] == pid and not healthy.gone.is_set() and not crashy.gone.is_set()
+    finally:
+        await sup.stop()
+    text = out.getvalue()
+    assert "giving up" not in text and "[healthy    ] started" in text
+    assert text.count("[healthy    ] started") == 1  # never restarted, never stopped meanwhile
+    deaths = re.findall(
+        r"^\[crashy     \] DIED: exited with code 3 after [\d.]+ s, (.+?) so far; "
+        r"last words: boom: bad state; restarting in ([\d.]+) s$",
+        text,
+        re.M,
+    )
+    assert len(deaths) >= 6, text
+    assert [n for n, _ in deaths[:4]] == ["once", "2 times", "3 times", "4 times"]
+    # Doubled at each death in a row, up to the cap.
+    assert [float(d) for _, d in deaths[:6]] == [0.02, 0.04, 0.08, 0.08, 0.08, 0.08]
+    # And really waited: each start comes at least the announced delay after the death before.
+    died, started = out.times("[crashy     ] DIED"), out.times("[crashy     ] started")
+    for i, (_, delay) in enumerate(deaths[:5]):
+        assert started[i + 1] - died[i] >= float(delay) * 0.9
+    assert "[healthy    ] stopped" in text
+
+
+async def test_a_child_that_ran_long_enough_starts_over_at_the_shortest_delay() -> None:
     out = io.StringIO()
-    sup = Supervisor(out=out, restart_delay=0.01, max_restarts=2)
-    await sup.start(ChildSpec("crashy", [sys.executable, "-c", "raise SystemExit(3)"]))
-    await async_wait_for(sup.failed.is_set, timeout=20, what="the supervisor to give up")
+    sup = Supervisor(out=out, restart_delay=0.02, max_restart_delay=1, stable_after=0)
+    crashy = await sup.start(ChildSpec("crashy", CRASHER))
+    try:
+        await async_wait_for(lambda: crashy.restarts >= 3, timeout=20, what="3 deaths")
+    finally:
+        await sup.stop()
+    delays = re.findall(r"restarting in ([\d.]+) s", out.getvalue())
+    assert len(delays) >= 3 and set(delays) == {"0.02"}
+
+
+async def test_a_one_shot_child_is_not_restarted() -> None:
+    out = io.StringIO()
+    sup = Supervisor(out=out, restart_delay=0.01)
+    once = await sup.start(
+        ChildSpec("once", [sys.executable, "-c", "print('done')"], restart=False)
+    )
+    await async_wait_for(once.gone.is_set, timeout=20, what="the one-shot child to exit")
     await sup.stop()
     text = out.getvalue()
-    assert text.count("exited with code 3") == 3
-    assert "restart 2 of 2" in text and "giving up" in text
+    assert "[once       ] exited with code 0" in text and text.count("started") == 1
+    assert "restarting" not in text and "DIED" not in text
 
 
 async def test_a_child_that_ignores_sigterm_is_killed() -> None:
