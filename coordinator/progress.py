@@ -51,7 +51,9 @@ class JobProgress:
             if st is None or st.job_id is None or u.id not in active:
                 continue
             job = self.jobs.get(st.job_id)
-            if job is not None and not job.final and job.state not in CARRYING_STATES:
+            # Only a queued one (a restart re-queues them): a job given to a unit is loaded when
+            # its state says so at the pickup (_progress_jobs), never by a claim made elsewhere.
+            if job is not None and job.state == "queued":
                 self.jobs.set(job, "loaded", unit=u.id, reason=None)
 
     def _progress_jobs(
@@ -83,7 +85,11 @@ class JobProgress:
                     )
                 continue
             if job.state in ("assigned", "to_pickup"):
-                if st.job_id == job.id:
+                # Loaded only where the item is: the unit waits there for its next order, so
+                # its states say so until we see one (a claim elsewhere is no pick-up). Only a
+                # job seen loaded can be done: at its dropoff, without the item (moves between
+                # accepted states are at most one square a step, world.py).
+                if st.job_id == job.id and st.position == job.pickup:
                     self.jobs.set(job, "loaded", reason=None)
                 elif (
                     any(e.code == "over_capacity" for e in st.errors) and st.position == job.pickup

@@ -23,6 +23,7 @@ class UnitRecord:
     state: UnitState | None = None
     state_at: float | None = None  # when the latest state arrived (monotonic seconds)
     lost_since: float | None = None  # when it stopped counting as active (None: active)
+    rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
 
     @property
     def position(self) -> Cell | None:
@@ -72,15 +73,23 @@ class World:
 
     def on_connection(self, unit_id: str, msg: Connection) -> None:
         """A unit said it is online, offline or broken."""
-        self.unit(unit_id).connection = msg.state
+        rec = self.unit(unit_id)
+        rec.connection = msg.state
+        rec.rejoined = True  # (re)started: it may have been moved by hand meanwhile
 
     def on_factsheet(self, unit_id: str, msg: Factsheet) -> None:
         """A unit described itself."""
         self.unit(unit_id).factsheet = msg
 
     def on_state(self, unit_id: str, msg: UnitState, now: float) -> list[Cell]:
-        """A unit's state; returns obstacles new to the fleet. Bad squares raise, change nothing."""
+        """A unit's state; returns obstacles new to the fleet. Bad squares raise, change nothing.
+
+        So does a jump: a unit drives at most one square a step, so a state more squares from the
+        last one it accepted than steps between them (at least one) is refused, unless the unit
+        said it (re)connected since or had been lost (protocol.md §8).
+        """
         self.check_square(msg.position, "position")
+        self._check_move(self.units.get(unit_id), msg, now)
         new = []
         # Besides the obstacles it reports once, every state's sensors show what is next to the
         # unit: a restarted coordinator (or one that missed the report) learns them again there.
@@ -99,10 +108,22 @@ class World:
         rec = self.unit(unit_id)
         rec.state = msg
         rec.state_at = now
+        rec.rejoined = False
         if new:
             self.obstacles.update(new)
             self._grid = self.base.with_blocked(self.obstacles)
         return new
+
+    def _check_move(self, rec: UnitRecord | None, msg: UnitState, now: float) -> None:
+        if rec is None or rec.state is None or rec.rejoined or not self.is_active(rec, now):
+            return
+        last = rec.state
+        away = last.position.manhattan(msg.position)
+        if away > max(1, msg.step - last.step):
+            raise ProtocolError(
+                f"position {list(msg.position)} at step {msg.step} is {away} squares from "
+                f"{list(last.position)} at step {last.step}, the last state accepted"
+            )
 
     def stale_after_s(self, rec: UnitRecord) -> float:
         """How long a unit's state may be silent before it counts as lost."""

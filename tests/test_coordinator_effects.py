@@ -249,8 +249,64 @@ def test_a_factsheet_publishes_nothing() -> None:
 
 
 def test_a_state_publishes_nothing(core: CoordinatorCore) -> None:
-    assert published(from_unit(core, "state", "unit1", state(Cell(2, 0), seq=1), 0.5)) == []
+    assert published(from_unit(core, "state", "unit1", state(Cell(2, 0), seq=2), 0.5)) == []
     assert core.world.units["unit1"].position == (2, 0)
+
+
+def drive(core: CoordinatorCore, *states: UnitState, now: float = 1.5) -> list[Any]:
+    """unit1's states arrive one after the other; what each publishes."""
+    return [published(from_unit(core, "state", "unit1", st, now)) for st in states]
+
+
+def test_a_state_at_the_dropoff_never_finishes_a_job_not_seen_loaded(
+    core: CoordinatorCore,
+) -> None:
+    under_way(core)  # job-1 to_pickup: unit1 on [0, 0], the item on [3, 0]
+    # Five squares in nine steps is a possible drive; the job was never reported loaded.
+    assert drive(core, state(Cell(3, 2), seq=9)) == [[]]
+    core.step(2.0)
+    job = core.jobs.jobs["job-1"]
+    assert (job.state, job.unit) == ("to_pickup", "unit1")
+    # Nor does a claim to carry it made away from the pickup.
+    assert drive(core, state(Cell(3, 1), seq=10, job_id="job-1", load_kg=1.0)) == [[]]
+    core.step(3.0)
+    assert job.state == "to_pickup"
+
+
+def test_a_state_jumping_to_the_dropoff_is_refused_and_finishes_nothing(
+    core: CoordinatorCore,
+) -> None:
+    under_way(core)
+    loaded = state(Cell(3, 0), seq=3, job_id="job-1", load_kg=1.0)
+    assert drive(core, state(Cell(1, 0), seq=1), state(Cell(2, 0), seq=2), loaded) == [[], [], []]
+    core.step(2.0)
+    assert core.jobs.jobs["job-1"].state == "loaded"
+    jump = state(Cell(3, 2), seq=4)  # two squares in one step, the item gone
+    assert drive(core, jump) == [
+        [
+            error(
+                0,
+                "gridfleet/v1/units/unit1/state",
+                "position [3, 2] at step 4 is 2 squares from [3, 0] at step 3, "
+                "the last state accepted",
+            )
+        ]
+    ]
+    assert core.world.units["unit1"].position == Cell(3, 0)  # changed nothing
+    core.step(3.0)
+    assert core.jobs.jobs["job-1"].state == "loaded"
+    # Driven there square by square, the drop finishes it.
+    assert drive(core, state(Cell(3, 1), seq=4, job_id="job-1", load_kg=1.0)) == [[]]
+    assert drive(core, state(Cell(3, 2), seq=5)) == [[]]
+    core.step(4.0)
+    assert core.jobs.jobs["job-1"].state == "done"
+
+
+def test_a_unit_that_reconnects_may_report_any_square(core: CoordinatorCore) -> None:
+    # A restarted unit (it may have been carried elsewhere) says it is online first.
+    from_unit(core, "connection", "unit1", Connection(header=header("unit1"), state="online"), 1)
+    assert drive(core, state(Cell(3, 2), seq=0)) == [[]]
+    assert core.world.units["unit1"].position == Cell(3, 2)
 
 
 def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore) -> None:

@@ -40,7 +40,8 @@ def test_walls_units_and_off_map_readings_are_not_obstacles() -> None:
     # From [1, 0]: N is off the map, W is where unit v stands.
     new = world.on_state("u", state(Cell(1, 0), {"N": "obstacle", "W": "obstacle"}, []), 0.0)
     assert new == []
-    new = world.on_state("u", state(Cell(0, 1), {"E": "obstacle", "N": "obstacle"}, []), 1.0)
+    later = state(Cell(0, 1), {"E": "obstacle", "N": "obstacle"}, []).model_copy(update={"step": 3})
+    new = world.on_state("u", later, 1.0)  # two squares on, two steps later
     assert new == []  # from [0, 1]: E [1, 1] is a wall on the map, N [0, 0] holds unit v
     assert world.obstacles == set()
 
