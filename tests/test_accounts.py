@@ -21,7 +21,7 @@ from gridfleet.accounts import (
     rules,
     write_accounts,
 )
-from gridfleet.config import with_credentials
+from gridfleet.config import parse_broker_url, redacted, with_credentials
 from gridfleet.endpoint import Endpoint
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
@@ -231,3 +231,15 @@ def test_the_fleet_runs_with_every_part_on_its_own_account(tmp_path: Path) -> No
             assert world.collisions == 0
     finally:
         assembly.stop()
+
+
+def test_credentials_in_a_broker_url_are_read_and_never_shown() -> None:
+    url = parse_broker_url("mqtt://unit1:s%40cret%3Apw@10.0.0.5:1883")
+    assert (url.username, url.password) == ("unit1", "s@cret:pw")
+    assert str(url) == "mqtt://unit1@10.0.0.5:1883" and "cret" not in repr(url)
+    assert redacted("mqtt://unit1:topsecret@h:1883") == "mqtt://unit1:***@h:1883"
+    with pytest.raises(ConfigError, match="needs a user") as refused:
+        parse_broker_url("mqtt://:topsecret@h:1883")
+    assert "topsecret" not in str(refused.value)
+    again = parse_broker_url(with_credentials("mqtt://old:pw@h:1883", "op", "p@ss word"))
+    assert (again.username, again.password, again.host) == ("op", "p@ss word", "h")
