@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import get_args
 
+from broker.mosquitto import write_files
 from gridfleet.accounts import (
     Account,
     Role,
@@ -15,6 +16,8 @@ from gridfleet.accounts import (
     write_accounts,
 )
 from gridfleet.errors import ConfigError
+from gridfleet.protocol import Topics
+from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import load_scenario, with_units
 
 
@@ -30,6 +33,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add.add_argument("--role", required=True, choices=get_args(Role))
     add.add_argument("--unit", help="the unit a unit or device account belongs to")
     add.add_argument("--file", type=Path, required=True, help="accounts file to add to")
+    mosq = sub.add_parser("mosquitto", help="write Mosquitto's password and ACL files from them")
+    mosq.add_argument("--file", type=Path, required=True, help="accounts file")
+    mosq.add_argument("--out", type=Path, required=True, help="directory for passwd and acl")
+    mosq.add_argument("--root", default=DEFAULT_ROOT, help=f"topic root (default {DEFAULT_ROOT!r})")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,6 +48,13 @@ def run(args: argparse.Namespace) -> int:
         accounts = default_accounts([u.id for u in scenario.units])
         write_accounts(accounts, args.out)
         print(f"wrote {len(accounts.accounts)} accounts to {args.out} (keep it private)")
+        return 0
+    if args.action == "mosquitto":
+        passwd, acl = write_files(load_accounts(args.file), Topics(args.root), args.out)
+        print(
+            f"wrote {passwd} and {acl}: in mosquitto.conf, 'password_file {passwd}', "
+            f"'acl_file {acl}' and 'allow_anonymous false'"
+        )
         return 0
     unit = args.unit if args.unit is not None or args.role not in ("unit",) else args.name
     accounts = load_accounts(args.file)

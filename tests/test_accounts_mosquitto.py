@@ -1,0 +1,125 @@
+"""The same accounts on Mosquitto: its password and ACL files refuse strangers and forgeries."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import stat
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from broker.mosquitto import password_hash, write_files
+from gridfleet.accounts import Account, Accounts, default_accounts, write_accounts
+from gridfleet.protocol import Topics
+
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+T = Topics("mosq")
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+
+
+def test_password_hashes_are_mosquittos_own_format() -> None:
+    made = password_hash("correct horse", salt=b"\x00" * 12)
+    assert made.startswith("$7$101$AAAAAAAAAAAAAAAA$") and len(made.split("$")) == 5
+    assert password_hash("correct horse") != password_hash("correct horse")  # salted
+
+
+@pytest.fixture(scope="module")
+def accounts() -> Accounts:
+    return default_accounts(["unit1", "unit2"])
+
+
+@pytest.fixture(scope="module")
+def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Mosquitto on a free loopback port with the accounts' files; its URL without credentials."""
+    if not Path(MOSQUITTO).exists():
+        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
+    here = tmp_path_factory.mktemp("mosquitto")
+    passwd, acl = write_files(accounts, T, here)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    conf = here / "mosquitto.conf"
+    conf.write_text(
+        "per_listener_settings false\nallow_anonymous false\npersistence false\n"
+        f"password_file {passwd}\nacl_file {acl}\nuser root\nlistener {port} 127.0.0.1\n"
+    )
+    proc = subprocess.Popen(
+        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+
+    def listening() -> bool:
+        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
+        with socket.socket() as probe:
+            return probe.connect_ex(("127.0.0.1", port)) == 0
+
+    try:
+        wait_for(listening, 10, what="mosquitto listening")
+        yield f"mqtt://127.0.0.1:{port}"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def login(url: str, account: Account, password: str | None = None) -> str:
+    return url.replace("mqtt://", f"mqtt://{account.name}:{password or account.password}@")
+
+
+def test_strangers_and_wrong_passwords_are_refused(mosquitto: str, accounts: Accounts) -> None:
+    for url in (mosquitto, login(mosquitto, accounts.get("operator"), "not the password")):
+        with pytest.raises(AssertionError, match="Not authorized"):
+            MqttProbe(url).connect(timeout=5)
+    with MqttProbe(login(mosquitto, accounts.get("operator"))):
+        pass
+
+
+def test_a_unit_cannot_forge_another_unit_or_an_order(mosquitto: str, accounts: Accounts) -> None:
+    with (
+        MqttProbe(login(mosquitto, accounts.get("coordinator"))) as coordinator,
+        MqttProbe(login(mosquitto, accounts.get("unit2"))) as unit2,
+        MqttProbe(login(mosquitto, accounts.get("unit1"))) as unit1,
+    ):
+        coordinator.subscribe(T.all_units("state"))
+        unit2.subscribe(T.unit("order", "unit2"))
+        unit1.publish(T.unit("state", "unit2"), b'{"forged": true}', retain=True)
+        unit1.publish(T.unit("order", "unit2"), b'{"forged": true}')
+        unit1.publish(T.unit("state", "unit1"), b'{"own": true}', retain=True)
+        wait_for(lambda: coordinator.received(T.unit("state", "unit1")), what="unit1's own state")
+        assert coordinator.received(T.unit("state", "unit2")) == []
+        assert unit2.received(T.unit("order", "unit2")) == []
+
+
+def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
+    accounts_file = tmp_path / "accounts.toml"
+    write_accounts(default_accounts(["unit1"]), accounts_file)
+    out = tmp_path / "mosq"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "system",
+            "accounts",
+            "mosquitto",
+            "--file",
+            str(accounts_file),
+            "--out",
+            str(out),
+            "--root",
+            "lab",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "allow_anonymous false" in done.stdout
+    for name in ("passwd", "acl"):
+        assert stat.S_IMODE((out / name).stat().st_mode) == 0o600
+    acl = (out / "acl").read_text()
+    assert "user unit1\ntopic write lab/v1/units/unit1/connection" in acl
+    assert (out / "passwd").read_text().startswith("coordinator:$7$101$")
