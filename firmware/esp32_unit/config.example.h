@@ -10,11 +10,16 @@
 #define GF_MQTT_HOST "192.168.1.10"
 #define GF_MQTT_PORT 1883
 
+// This device's broker account, from the fleet's accounts file (`gridfleet accounts init`
+// makes `device-<unit>` for each unit; its password is in that file). Empty user: none.
+#define GF_MQTT_USER "device-unit1"
+#define GF_MQTT_PASSWORD "password-from-the-accounts-file"
+
 // Which unit's direction to show, this device's own id (its MQTT client id and the `<by>` of
 // its stop), and the topic root (`--root` of the other components; default "gridfleet").
 // Ids: 1-64 letters, digits, '_', '.', '-', starting with a letter or digit.
 #define GF_UNIT_ID "unit1"
-#define GF_DEVICE_ID "esp32-unit1"
+#define GF_DEVICE_ID "device-unit1"
 #define GF_TOPIC_ROOT "gridfleet"
 
 // GPIO pins (ESP32 DevKit numbering). LEDs are active high through a series resistor; the

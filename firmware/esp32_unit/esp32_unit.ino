@@ -13,7 +13,7 @@
 
 WiFiClient wifiClient;
 PubSubClient mqttClient(wifiClient);
-gf::PubSubTransport transport(mqttClient);
+gf::PubSubTransport transport(mqttClient, GF_MQTT_USER, GF_MQTT_PASSWORD);
 gf::WiFiLink wifiLink(GF_WIFI_SSID, GF_WIFI_PASSWORD);
 gf::ArduinoClock arduinoClock;
 gf::Device* device = nullptr;

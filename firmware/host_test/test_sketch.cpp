@@ -47,6 +47,10 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
   CHECK(mqttClient.clientId == GF_DEVICE_ID);
   CHECK(mqttClient.will == kRoot + "/v1/devices/" GF_DEVICE_ID "/connection");
   CHECK(mqttClient.willPayload == "broken");
+  // It logs in with its account from config.h: the broker's ACL knows it by that name.
+  CHECK(mqttClient.username == GF_MQTT_USER);
+  CHECK(mqttClient.password == GF_MQTT_PASSWORD);
+  CHECK(mqttClient.clientId == GF_DEVICE_ID);
   CHECK(mqttClient.willQos == 1);
   CHECK(mqttClient.willRetain);
 

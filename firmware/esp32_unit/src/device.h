@@ -45,7 +45,7 @@ class Clock {
 struct DeviceConfig {
   std::string root = proto::kDefaultRoot;
   std::string unit = "unit1";
-  std::string device = "esp32-unit1";
+  std::string device = "device-unit1";
   uint32_t debounceMs = 50;
   uint32_t stopRetryMs = 2000;
   uint32_t mqttBackoffInitialMs = 500;

@@ -12,13 +12,17 @@ namespace gf {
 
 class PubSubTransport : public MqttTransport {
  public:
-  explicit PubSubTransport(PubSubClient& client) : client_(client) {}
+  // `user` empty: connect without credentials (a broker on a trusted network only).
+  PubSubTransport(PubSubClient& client, const char* user, const char* password)
+      : client_(client), user_(user), password_(password) {}
 
   bool connect(const std::string& clientId, const std::string& willTopic,
                const std::string& willPayload) override {
     // PubSubClient always asks for a clean session; the will goes to the device connection
     // topic, with its QoS (1) and retained.
-    return client_.connect(clientId.c_str(), willTopic.c_str(), proto::kTopicDeviceConnectionQos,
+    const bool login = user_ != nullptr && user_[0] != '\0';
+    return client_.connect(clientId.c_str(), login ? user_ : nullptr, login ? password_ : nullptr,
+                           willTopic.c_str(), proto::kTopicDeviceConnectionQos,
                            proto::kTopicDeviceConnectionRetained, willPayload.c_str());
   }
   bool connected() override { return client_.connected(); }
@@ -34,6 +38,8 @@ class PubSubTransport : public MqttTransport {
 
  private:
   PubSubClient& client_;
+  const char* user_;
+  const char* password_;
 };
 
 class WiFiLink : public NetLink {

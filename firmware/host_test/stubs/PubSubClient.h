@@ -41,8 +41,11 @@ class PubSubClient {
     socketTimeout = s;
     return *this;
   }
-  bool connect(const char* id, const char* willTopic, uint8_t willQos, bool willRetain,
-               const char* willMessage) {
+  // PubSubClient's overload with credentials (null user: none).
+  bool connect(const char* id, const char* user, const char* pass, const char* willTopic,
+               uint8_t willQos, bool willRetain, const char* willMessage) {
+    username = user ? user : "";
+    password = pass ? pass : "";
     clientId = id;
     will = willTopic;
     willPayload = willMessage;
@@ -78,7 +81,7 @@ class PubSubClient {
   uint16_t bufferSize = 256;
   uint16_t keepAlive = 15;
   uint16_t socketTimeout = 15;
-  std::string clientId, will, willPayload;
+  std::string clientId, username, password, will, willPayload;
   uint8_t willQos = 0;
   bool willRetain = false;
   bool isConnected = false;
