@@ -33,6 +33,7 @@ from system.threads import world_of
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
+from support.security import check_a_unit_cannot_forge, check_strangers_are_refused, login
 from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
@@ -154,53 +155,22 @@ def secured(accounts: Accounts) -> Iterator[BrokerThread]:
         yield running
 
 
-def url_of(broker: BrokerThread, account: Account | None, password: str | None = None) -> str:
-    if account is None:
-        return broker.url
-    return broker.url.replace("mqtt://", f"mqtt://{account.name}:{password or account.password}@")
-
-
 def test_anonymous_and_wrong_passwords_are_refused(
     secured: BrokerThread, accounts: Accounts
 ) -> None:
-    for url in (
-        url_of(secured, None),
-        url_of(secured, accounts.get("coordinator"), "not the password"),
-    ):
-        probe = MqttProbe(url)
-        with pytest.raises(AssertionError, match="Not authorized"):
-            probe.connect(timeout=5)
-    with MqttProbe(url_of(secured, accounts.get("coordinator"))):
-        pass
+    check_strangers_are_refused(secured.url, accounts, "coordinator")
 
 
 def test_a_unit_cannot_forge_another_unit_or_the_coordinator(
     secured: BrokerThread, accounts: Accounts
 ) -> None:
-    with (
-        MqttProbe(url_of(secured, accounts.get("coordinator"))) as coordinator,
-        MqttProbe(url_of(secured, accounts.get("unit2"))) as unit2,
-        MqttProbe(url_of(secured, accounts.get("unit1"))) as unit1,
-    ):
-        coordinator.subscribe(T.all_units("state"))
-        unit2.subscribe(T.unit("order", "unit2"))
-        unit1.publish(T.unit("state", "unit2"), b'{"forged": true}', retain=True)
-        unit1.publish(T.unit("order", "unit2"), b'{"forged": true}')
-        unit1.publish(T.unit("state", "unit1"), b'{"own": true}', retain=True)
-        # Its own state arrives; published after the forgeries, so they had their chance.
-        wait_for(lambda: coordinator.received(T.unit("state", "unit1")), what="unit1's own state")
-        assert coordinator.received(T.unit("state", "unit2")) == []
-        assert unit2.received(T.unit("order", "unit2")) == []
-    with MqttProbe(url_of(secured, accounts.get("coordinator"))) as late:
-        late.subscribe(T.all_units("state"))
-        wait_for(lambda: late.received(T.unit("state", "unit1")), what="the retained own state")
-        assert late.received(T.unit("state", "unit2")) == []  # no forged retained state either
+    check_a_unit_cannot_forge(secured.url, accounts, T)
 
 
 async def test_a_component_connects_with_the_credentials_in_its_url(
     secured: BrokerThread, accounts: Accounts
 ) -> None:
-    endpoint = Endpoint(url_of(secured, accounts.get("unit1")), "unit1-test")
+    endpoint = Endpoint(login(secured.url, accounts, "unit1"), "unit1-test")
     assert "unit1@" in endpoint.where and accounts.get("unit1").password not in endpoint.where
 
     async def handle(topic: str, payload: bytes) -> None:
@@ -222,8 +192,7 @@ def test_the_fleet_runs_with_every_part_on_its_own_account(tmp_path: Path) -> No
     assembly = Assembly(spec, "threads")
     system = assembly.start_threads()
     try:
-        operator = accounts.get("operator")
-        with MqttProbe(with_credentials(system.url, operator.name, operator.password)) as probe:
+        with MqttProbe(login(system.url, accounts, "operator")) as probe:
             reply = OperatorPeer(probe, T).set_goal("unit1", Cell(9, 3))
             assert reply.accepted, reply.reason
             world = world_of(system.fleet)

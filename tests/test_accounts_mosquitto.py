@@ -13,10 +13,10 @@ from pathlib import Path
 import pytest
 
 from broker.mosquitto import password_hash, write_files
-from gridfleet.accounts import Account, Accounts, default_accounts, write_accounts
+from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.protocol import Topics
 
-from support.probe import MqttProbe
+from support.security import check_a_unit_cannot_forge, check_strangers_are_refused
 from support.wait import wait_for
 
 T = Topics("mosq")
@@ -66,32 +66,12 @@ def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> I
         proc.wait(10)
 
 
-def login(url: str, account: Account, password: str | None = None) -> str:
-    return url.replace("mqtt://", f"mqtt://{account.name}:{password or account.password}@")
-
-
 def test_strangers_and_wrong_passwords_are_refused(mosquitto: str, accounts: Accounts) -> None:
-    for url in (mosquitto, login(mosquitto, accounts.get("operator"), "not the password")):
-        with pytest.raises(AssertionError, match="Not authorized"):
-            MqttProbe(url).connect(timeout=5)
-    with MqttProbe(login(mosquitto, accounts.get("operator"))):
-        pass
+    check_strangers_are_refused(mosquitto, accounts, "operator")
 
 
 def test_a_unit_cannot_forge_another_unit_or_an_order(mosquitto: str, accounts: Accounts) -> None:
-    with (
-        MqttProbe(login(mosquitto, accounts.get("coordinator"))) as coordinator,
-        MqttProbe(login(mosquitto, accounts.get("unit2"))) as unit2,
-        MqttProbe(login(mosquitto, accounts.get("unit1"))) as unit1,
-    ):
-        coordinator.subscribe(T.all_units("state"))
-        unit2.subscribe(T.unit("order", "unit2"))
-        unit1.publish(T.unit("state", "unit2"), b'{"forged": true}', retain=True)
-        unit1.publish(T.unit("order", "unit2"), b'{"forged": true}')
-        unit1.publish(T.unit("state", "unit1"), b'{"own": true}', retain=True)
-        wait_for(lambda: coordinator.received(T.unit("state", "unit1")), what="unit1's own state")
-        assert coordinator.received(T.unit("state", "unit2")) == []
-        assert unit2.received(T.unit("order", "unit2")) == []
+    check_a_unit_cannot_forge(mosquitto, accounts, T)
 
 
 def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
