@@ -56,7 +56,8 @@ def run(args: argparse.Namespace) -> int:
             f"'acl_file {acl}' and 'allow_anonymous false'"
         )
         return 0
-    unit = args.unit if args.unit is not None or args.role not in ("unit",) else args.name
+    # A unit account is named after its unit unless --unit says otherwise.
+    unit = args.unit if args.unit is not None else (args.name if args.role == "unit" else None)
     accounts = load_accounts(args.file)
     accounts = accounts.with_account(Account(args.name, new_password(), args.role, unit))
     write_accounts(accounts, args.file)
