@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+from pathlib import Path
 
 from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.accounts import load_accounts
@@ -33,6 +34,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_ROOT,
         help=f"topic root the accounts' rules use ({DEFAULT_ROOT!r})",
     )
+    parser.add_argument(
+        "--tls-cert",
+        type=Path,
+        metavar="FILE",
+        help="server certificate (PEM; 'gridfleet accounts tls' makes it): the listeners are "
+        "then mqtts:// and wss://",
+    )
+    parser.add_argument("--tls-key", type=Path, metavar="FILE", help="its private key (PEM)")
 
 
 def settings_from(args: argparse.Namespace) -> BrokerSettings:
@@ -40,7 +49,13 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
     settings = load_settings(args.config) if args.config else BrokerSettings()
     changes = {
         k: v
-        for k, v in (("host", args.host), ("port", args.port), ("ws_port", args.ws_port))
+        for k, v in (
+            ("host", args.host),
+            ("port", args.port),
+            ("ws_port", args.ws_port),
+            ("tls_cert", args.tls_cert),
+            ("tls_key", args.tls_key),
+        )
         if v is not None
     }
     if args.accounts is not None:

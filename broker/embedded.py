@@ -12,6 +12,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from broker.tls import amqtt_listener_context, server_context
 from gridfleet.accounts import Accounts, rules
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
@@ -20,7 +21,14 @@ from gridfleet.textfile import read_text
 
 log = logging.getLogger("gridfleet.broker")
 
-_SETTING_TYPES = {"host": str, "port": int, "ws_port": int, "max_connections": int}
+_SETTING_TYPES = {
+    "host": str,
+    "port": int,
+    "ws_port": int,
+    "max_connections": int,
+    "tls_cert": str,
+    "tls_key": str,
+}
 
 
 @dataclass(frozen=True)
@@ -33,6 +41,8 @@ class BrokerSettings:
     max_connections: int = -1
     accounts: Accounts | None = field(default=None, repr=False)  # None: anonymous, loopback only
     root: str = DEFAULT_ROOT  # the topic root the accounts' rules are made for
+    tls_cert: Path | None = None  # with tls_key: the listeners are mqtts and wss
+    tls_key: Path | None = None
 
     def __post_init__(self) -> None:
         for name in ("port", "ws_port"):
@@ -45,14 +55,31 @@ class BrokerSettings:
                 "--accounts FILE (make one with 'gridfleet accounts init --scenario FILE --out "
                 "FILE'), or listen on 127.0.0.1"
             )
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ConfigError(
+                "TLS needs both a certificate and its key (--tls-cert FILE --tls-key FILE; "
+                "'gridfleet accounts tls' makes them)"
+            )
+        if self.tls_cert is not None and self.tls_key is not None:
+            server_context(self.tls_cert, self.tls_key)  # a bad file: one clear line, now
+
+    @property
+    def tls(self) -> bool:
+        """Whether the listeners are mqtts and wss."""
+        return self.tls_cert is not None
 
     def amqtt_config(self, password_file: Path | None = None) -> dict[str, Any]:
         """The amqtt configuration dictionary (with accounts: their hashed `password_file`)."""
+        # Each listener says everything: amqtt fills unset keys from the one named `default`.
+        tls: dict[str, Any] = {"ssl": False}
+        if self.tls_cert is not None:
+            tls = {"ssl": True, "certfile": str(self.tls_cert), "keyfile": str(self.tls_key)}
         listeners: dict[str, Any] = {
             "default": {
                 "type": "tcp",
                 "bind": f"{self.host}:{self.port}",
                 "max_connections": self.max_connections,
+                **tls,
             },
         }
         if self.ws_port is not None:
@@ -60,6 +87,7 @@ class BrokerSettings:
                 "type": "ws",
                 "bind": f"{self.host}:{self.ws_port}",
                 "max_connections": self.max_connections,
+                **tls,
             }
         # Plugins must be explicit: amqtt's defaults (packet loggers, $SYS) halve throughput.
         if self.accounts is None:
@@ -105,7 +133,8 @@ def password_lines(accounts: Accounts) -> str:
 
 
 def load_settings(path: str | Path, base: BrokerSettings | None = None) -> BrokerSettings:
-    """Read a TOML file with a [broker] table (host, port, ws_port, max_connections)."""
+    """Read a TOML file with a [broker] table (host, port, ws_port, max_connections, tls_cert,
+    tls_key; relative files are relative to the TOML file)."""
     p = Path(path)
     try:
         data = tomllib.loads(read_text(p, "broker config", ConfigError))
@@ -123,7 +152,8 @@ def load_settings(path: str | Path, base: BrokerSettings | None = None) -> Broke
             )
         if not isinstance(value, expected) or isinstance(value, bool):
             raise ConfigError(f"{p}: broker setting {key!r} must be {expected.__name__}")
-        changes[key] = value
+        # Certificate files are found next to the config file, wherever the broker is started.
+        changes[key] = p.parent / str(value) if key.startswith("tls_") else value
     return replace(base or BrokerSettings(), **changes)
 
 
@@ -159,12 +189,14 @@ class EmbeddedBroker:
     @property
     def url(self) -> str:
         """The TCP URL clients connect to."""
-        return f"mqtt://{self.settings.host}:{self.port}"
+        scheme = "mqtts" if self.settings.tls else "mqtt"
+        return f"{scheme}://{self.settings.host}:{self.port}"
 
     @property
     def ws_url(self) -> str | None:
         """The websocket URL (for the dashboard), None when ws is disabled."""
-        return None if self.ws_port is None else f"ws://{self.settings.host}:{self.ws_port}"
+        scheme = "wss" if self.settings.tls else "ws"
+        return None if self.ws_port is None else f"{scheme}://{self.settings.host}:{self.ws_port}"
 
     async def start(self) -> None:
         """Bind the listeners; raises ConfigError when a port cannot be bound."""
@@ -176,6 +208,8 @@ class EmbeddedBroker:
             with os.fdopen(fd, "w", encoding="utf-8") as out:
                 out.write(password_lines(self.settings.accounts))
         self._broker = _make_broker(self.settings.amqtt_config(password_file))
+        # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).
+        self._broker._create_ssl_context = amqtt_listener_context
         amqtt_log = logging.getLogger("amqtt.broker")
         level = amqtt_log.level
         # amqtt logs a bind failure with a traceback; ours below is the one line a user needs.

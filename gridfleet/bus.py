@@ -3,14 +3,29 @@
 from __future__ import annotations
 
 import socket
+import ssl
 
 import aiomqtt
 
 from gridfleet.config import BrokerURL, parse_broker_url
+from gridfleet.errors import ConfigError
 
 # Without TCP_NODELAY a unit's direction, sent right after its state, waits for the broker's
 # delayed ACK of the state (~40 ms): every step then waits on it (`gridfleet bench system`).
 SOCKET_OPTIONS: tuple[tuple[int, int, int], ...] = ((socket.IPPROTO_TCP, socket.TCP_NODELAY, 1),)
+
+
+def tls_context(ca_file: str | None) -> ssl.SSLContext:
+    """A client TLS context that verifies the broker's certificate and name against `ca_file`
+    (None: the system's trusted CAs); ConfigError when the file is missing or holds no CA."""
+    try:
+        return ssl.create_default_context(cafile=ca_file)
+    except FileNotFoundError:
+        raise ConfigError(
+            f"{ca_file}: no such CA file ('gridfleet accounts tls' makes one)"
+        ) from None
+    except (ssl.SSLError, OSError) as exc:
+        raise ConfigError(f"{ca_file}: cannot read a CA certificate from it ({exc})") from None
 
 
 def make_client(
@@ -27,7 +42,7 @@ def make_client(
         port=broker.port,
         identifier=client_id,
         transport=broker.transport,  # type: ignore[arg-type]
-        websocket_path=broker.path if broker.scheme == "ws" else None,
+        websocket_path=broker.path if broker.websocket else None,
         username=broker.username,
         password=broker.password,
         will=will,
@@ -35,4 +50,5 @@ def make_client(
         clean_session=True,
         max_queued_outgoing_messages=max_queued_outgoing,
         socket_options=SOCKET_OPTIONS,
+        tls_context=tls_context(broker.ca_file) if broker.tls else None,
     )

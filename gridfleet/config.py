@@ -1,20 +1,29 @@
-"""Broker URLs: `mqtt://host:port` for TCP clients, `ws://host:port/path` for websocket clients."""
+"""Broker URLs: `mqtt://host:port` for TCP clients, `ws://host:port/path` for websocket clients.
+
+Over TLS: `mqtts://` (default port 8883) and `wss://`; `?cafile=/path/ca.pem` names the CA that
+signed the broker's certificate (without it the system's trusted CAs count).
+"""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
-from urllib.parse import quote, unquote, urlsplit
+from urllib.parse import parse_qs, quote, unquote, urlsplit
 
 from gridfleet.errors import ConfigError
 
 DEFAULT_MQTT_URL = "mqtt://127.0.0.1:1883"
 DEFAULT_WS_URL = "ws://127.0.0.1:9001"
-_DEFAULT_PORTS = {"mqtt": 1883, "tcp": 1883, "ws": 80}
+_DEFAULT_PORTS = {"mqtt": 1883, "tcp": 1883, "ws": 80, "mqtts": 8883, "wss": 443}
+_TLS = ("mqtts", "wss")
+_WEBSOCKET = ("ws", "wss")
+_OPTIONS = ("cafile",)
 
 
 @dataclass(frozen=True)
 class BrokerURL:
-    """Where a broker listens: scheme (`mqtt` or `ws`), host, port and websocket path."""
+    """Where a broker listens: scheme (`mqtt`, `mqtts`, `ws`, `wss`), host, port, websocket path,
+    login and, over TLS, the CA file to trust."""
 
     scheme: str
     host: str
@@ -22,15 +31,26 @@ class BrokerURL:
     path: str = "/"
     username: str | None = None
     password: str | None = field(default=None, repr=False)
+    ca_file: str | None = None  # TLS only; None: the system's trusted CAs
+
+    @property
+    def tls(self) -> bool:
+        """Whether the connection is encrypted (mqtts, wss)."""
+        return self.scheme in _TLS
+
+    @property
+    def websocket(self) -> bool:
+        """Whether this is MQTT over websockets (ws, wss)."""
+        return self.scheme in _WEBSOCKET
 
     @property
     def transport(self) -> str:
         """paho's transport name for this URL."""
-        return "websockets" if self.scheme == "ws" else "tcp"
+        return "websockets" if self.websocket else "tcp"
 
     def __str__(self) -> str:
         # Never the password: this is what logs and messages show.
-        tail = self.path if self.scheme == "ws" and self.path != "/" else ""
+        tail = self.path if self.websocket and self.path != "/" else ""
         user = f"{self.username}@" if self.username else ""
         return f"{self.scheme}://{user}{self.host}:{self.port}{tail}"
 
@@ -44,7 +64,9 @@ def parse_broker_url(url: str) -> BrokerURL:
         raise ConfigError(f"broker URL {redacted(url)!r}: {exc}") from None
     scheme = parts.scheme.lower()
     if scheme not in _DEFAULT_PORTS:
-        raise ConfigError(f"broker URL {redacted(url)!r}: scheme must be mqtt:// or ws://")
+        raise ConfigError(
+            f"broker URL {redacted(url)!r}: scheme must be mqtt://, mqtts://, ws:// or wss://"
+        )
     if not parts.hostname:
         raise ConfigError(
             f"broker URL {redacted(url)!r}: no host (expected e.g. {DEFAULT_MQTT_URL})"
@@ -56,7 +78,40 @@ def parse_broker_url(url: str) -> BrokerURL:
     username = unquote(parts.username) if parts.username else None
     password = unquote(parts.password) if parts.password is not None else None
     port = port or _DEFAULT_PORTS[scheme]
-    return BrokerURL(scheme, parts.hostname, port, parts.path or "/", username, password)
+    ca_file = _ca_file(url, scheme, parts.query)
+    path = parts.path or "/"
+    return BrokerURL(scheme, parts.hostname, port, path, username, password, ca_file)
+
+
+def _ca_file(url: str, scheme: str, query: str) -> str | None:
+    """The `cafile` option of a URL's query; ConfigError for any other option or a plain scheme."""
+    try:
+        options = parse_qs(query, keep_blank_values=True, strict_parsing=bool(query))
+    except ValueError:
+        raise ConfigError(f"broker URL {redacted(url)!r}: cannot read options {query!r}") from None
+    for name, values in options.items():
+        if name not in _OPTIONS:
+            raise ConfigError(
+                f"broker URL {redacted(url)!r}: unknown option {name!r} (known: cafile)"
+            )
+        if len(values) != 1 or not values[0]:
+            raise ConfigError(f"broker URL {redacted(url)!r}: give one non-empty {name}=FILE")
+    ca_file = options.get("cafile", [None])[0]
+    if ca_file is not None and scheme not in _TLS:
+        raise ConfigError(
+            f"broker URL {redacted(url)!r}: a CA file is for TLS: use mqtts:// or wss://"
+        )
+    # Checked here, where every component reads its URL at start-up, not at the first connect.
+    if ca_file is not None and not os.path.isfile(ca_file):
+        raise ConfigError(f"{ca_file}: no such CA file ('gridfleet accounts tls' makes one)")
+    return ca_file
+
+
+def with_ca_file(url: str, ca_file: str) -> str:
+    """`url` trusting the CA in `ca_file` (an absolute path in `?cafile=`; any earlier one goes)."""
+    parts = urlsplit(url)
+    # Absolute: the URL is handed to child processes that may run elsewhere.
+    return parts._replace(query="cafile=" + quote(os.path.abspath(ca_file), safe="/")).geturl()
 
 
 def with_credentials(url: str, username: str, password: str) -> str:

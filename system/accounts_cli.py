@@ -1,4 +1,5 @@
-"""`gridfleet accounts`: make the broker accounts file for a fleet, and add accounts to it."""
+"""`gridfleet accounts`: make the broker accounts file for a fleet, and add accounts to it; make
+the broker's TLS certificate."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import argparse
 from pathlib import Path
 from typing import get_args
 
+from broker.certs import DEFAULT_HOSTS, make_tls, write_tls
 from broker.mosquitto import write_files
 from gridfleet.accounts import (
     Account,
@@ -37,6 +39,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     mosq.add_argument("--file", type=Path, required=True, help="accounts file")
     mosq.add_argument("--out", type=Path, required=True, help="directory for passwd and acl")
     mosq.add_argument("--root", default=DEFAULT_ROOT, help=f"topic root (default {DEFAULT_ROOT!r})")
+    tls = sub.add_parser("tls", help="make a local CA and the broker's TLS certificate")
+    tls.add_argument("--out", type=Path, required=True, help="directory for the three files")
+    tls.add_argument(
+        "--host",
+        action="append",
+        metavar="NAME_OR_IP",
+        help="an address or name clients connect to; repeat for each (default "
+        f"{' and '.join(DEFAULT_HOSTS)}; on a LAN give its address too)",
+    )
+    tls.add_argument("--force", action="store_true", help="replace existing files (a new CA)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,6 +60,15 @@ def run(args: argparse.Namespace) -> int:
         accounts = default_accounts([u.id for u in scenario.units])
         write_accounts(accounts, args.out)
         print(f"wrote {len(accounts.accounts)} accounts to {args.out} (keep it private)")
+        return 0
+    if args.action == "tls":
+        hosts = args.host or list(DEFAULT_HOSTS)
+        ca, cert, key = write_tls(make_tls(hosts), args.out, force=args.force)
+        print(
+            f"wrote {ca} (give it to clients: --ca-file {ca}), {cert} and {key} (keep it "
+            f"private) for {', '.join(hosts)}; run 'gridfleet broker --tls-cert {cert} "
+            f"--tls-key {key}'"
+        )
         return 0
     if args.action == "mosquitto":
         passwd, acl = write_files(load_accounts(args.file), Topics(args.root), args.out)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import threading
 from concurrent.futures import Future
+from dataclasses import replace
 from types import TracebackType
 
 from broker.embedded import BrokerSettings, EmbeddedBroker
@@ -21,13 +22,13 @@ class BrokerThread:
 
     @property
     def url(self) -> str:
-        """TCP URL, e.g. mqtt://127.0.0.1:41234."""
+        """TCP URL, e.g. mqtt://127.0.0.1:41234 (mqtts:// with TLS)."""
         assert self._broker is not None, "broker not started"
         return self._broker.url
 
     @property
     def ws_url(self) -> str:
-        """Websocket URL, e.g. ws://127.0.0.1:41235."""
+        """Websocket URL, e.g. ws://127.0.0.1:41235 (wss:// with TLS)."""
         assert self._broker is not None and self._broker.ws_url is not None
         return self._broker.ws_url
 
@@ -75,9 +76,9 @@ class BrokerThread:
             self._thread.join(timeout)
         self._loop.close()
         self._loop = None
-        # Keep the same ports for a restart, as a real broker restart would.
-        self.settings = BrokerSettings(
-            host=self.settings.host, port=self._broker.port or 0, ws_port=self._broker.ws_port
+        # Keep the same ports (and accounts, certificate) for a restart, as a real broker would.
+        self.settings = replace(
+            self.settings, port=self._broker.port or 0, ws_port=self._broker.ws_port
         )
         self._broker = None
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ssl
 import threading
 import time
 import uuid
@@ -38,10 +39,12 @@ class MqttProbe:
         self.client = mqtt.Client(
             CallbackAPIVersion.VERSION2,
             client_id=client_id or f"probe-{uuid.uuid4().hex[:8]}",
-            transport="websockets" if broker.scheme == "ws" else "tcp",
+            transport=broker.transport,  # type: ignore[arg-type]
         )
-        if broker.scheme == "ws":
+        if broker.websocket:
             self.client.ws_set_options(path=broker.path)
+        if broker.tls:  # verifies the broker's certificate and name, as the product's clients do
+            self.client.tls_set_context(ssl.create_default_context(cafile=broker.ca_file))
         if broker.username is not None:
             self.client.username_pw_set(broker.username, broker.password)
         self.refused: object | None = None  # the CONNACK's reason when the broker said no

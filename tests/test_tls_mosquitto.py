@@ -1,0 +1,89 @@
+"""A real Mosquitto with a TLS listener and the certificate from `gridfleet accounts tls` accepts
+gridfleet's own client (aiomqtt, through a `gridfleet` command with --ca-file)."""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from broker.certs import make_tls, write_tls
+from gridfleet.config import with_ca_file
+
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+
+
+@pytest.fixture(scope="module")
+def tls(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """ca.pem, server.pem and server.key for 127.0.0.1 and localhost."""
+    out = tmp_path_factory.mktemp("tls")
+    write_tls(make_tls(), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def mosquitto_tls(tls: Path) -> Iterator[str]:
+    """Mosquitto with only a TLS listener on a free loopback port; its mqtts:// URL."""
+    if not Path(MOSQUITTO).exists():
+        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    conf = tls / "mosquitto.conf"
+    # `user root`: run as root, Mosquitto drops to its own user first and cannot read the 0600 key.
+    conf.write_text(
+        "allow_anonymous true\npersistence false\nuser root\n"
+        f"listener {port} 127.0.0.1\ncertfile {tls / 'server.pem'}\nkeyfile {tls / 'server.key'}\n"
+    )
+    proc = subprocess.Popen(
+        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+
+    def listening() -> bool:
+        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
+        with socket.socket() as probe:
+            return probe.connect_ex(("127.0.0.1", port)) == 0
+
+    try:
+        wait_for(listening, 10, what="mosquitto listening")
+        yield f"mqtts://127.0.0.1:{port}"
+    finally:
+        proc.terminate()
+        proc.wait(10)
+
+
+def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
+    mosquitto_tls: str, tls: Path
+) -> None:
+    ca = str(tls / "ca.pem")
+    cmd = [sys.executable, "-m", "system", "job", "--broker", mosquitto_tls, "--ca-file", ca]
+    done = subprocess.run(
+        [*cmd, "--root", "tlsq", "stop", "--reason", "over tls"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    with MqttProbe(with_ca_file(mosquitto_tls, ca)) as probe:
+        probe.subscribe("tlsq/#")  # the stop is retained: it is there for a later reader
+        found = wait_for(lambda: [m for t in list(probe.messages) for m in probe.received(t)])
+        assert b"over tls" in found[0].payload
+
+
+def test_without_the_ca_file_the_command_is_refused(mosquitto_tls: str) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "system", "job", "--broker", mosquitto_tls, "stop"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2
+    assert "certificate verify failed" in done.stderr
