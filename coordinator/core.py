@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 from coordinator import inbound, requests
 from coordinator.effects import Effects, Messages, Status
-from coordinator.inbound import Arrival, Request
+from coordinator.inbound import Arrival, Request, StopPayload
 from coordinator.jobs import Job, JobBook
 from coordinator.moves import Moves
 from coordinator.orders import OrderPlan, Orders
@@ -44,17 +44,18 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
     Connection,
-    EstopSignal,
     Factsheet,
     HeaderStamper,
     RouteView,
     SetGoal,
+    StopView,
     SubmitJob,
     Topics,
     UnitState,
     encode_estop,
 )
 from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
+from gridfleet.protocol.stop import LATCH
 
 PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
 # Longest a step waits past its period for units to acknowledge the orders of the previous step:
@@ -90,8 +91,8 @@ class CoordinatorCore:
         self.say = Messages(self.topics, stamp or HeaderStamper("coordinator"))
         self.planner = Planner(world.grid, seed=seed)
         self.step_no = 0
-        self.estop = False
-        self._engaged: EstopSignal | None = None  # the last valid engaged signal read
+        self.estop = False  # whether the fleet is stopped: the latch, or a held press
+        self.stop = StopView()
         self.goals: dict[str, Cell] = {}
         self.orders = Orders(nonce)
         self.moves = Moves(self.planner)
@@ -170,9 +171,10 @@ class CoordinatorCore:
         it replaces (an empty one deletes) the retained `engaged`: after a restart the stop would
         be gone. The last valid engaged signal goes out again, unchanged (protocol.md §5.1).
         """
-        if topic != self.topics.fleet("estop") or not self.estop or self._engaged is None:
+        latch = self.stop.latch
+        if topic != self.topics.fleet(LATCH) or latch is None or not latch.engaged:
             return []
-        return [Outbound.of("estop", topic, encode_estop(self._engaged))]
+        return [Outbound.of(LATCH, topic, encode_estop(latch))]
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
@@ -186,22 +188,34 @@ class CoordinatorCore:
                 self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
                 self.views.map_dirty = True
             self.orders.heard(unit, msg)
-        elif isinstance(msg, EstopSignal):
-            return self._on_estop(msg)
+        elif isinstance(msg, StopPayload):
+            return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal):
             return self._on_request(topic, msg, now)
         return self._effects([])
 
-    def _on_estop(self, signal: EstopSignal) -> Effects:
-        if signal.engaged:
-            self._engaged = signal  # what the broker retains now, restored if replaced
-        if signal.engaged == self.estop:
-            return self._effects([])  # engaging (or releasing) is idempotent
-        self.estop = signal.engaged
-        word = "ENGAGED" if signal.engaged else "released"
-        line = (logging.WARNING, f"emergency stop {word} by {signal.by}: {signal.reason}")
+    def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
+        """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
+        signal = self.stop.apply(kind, source, topic, payload)
+        publish: list[Outbound] = []
+        if kind == LATCH and signal is not None and not signal.engaged:
+            # An operator's release: the presses are cleared, or a restart would read them again.
+            for held in self.stop.release_presses():
+                publish.append(Outbound.of(self.topics.parse(held)[0], held, b""))
+        elif kind != LATCH and signal is not None and not self.stop.latch_engaged:
+            # Mirrored into the latch, which only operators release: a source that clears or
+            # overwrites its own press cannot release the fleet.
+            publish.append(Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal)))
+        if self.stop.engaged == self.estop:
+            return self._effects(publish)  # engaging (or releasing) is idempotent
+        self.estop = self.stop.engaged
+        cause = self.stop.cause or signal
+        assert cause is not None
+        word = "ENGAGED" if self.estop else "released"
+        line = (logging.WARNING, f"emergency stop {word} by {cause.by}: {cause.reason}")
         # The stop wins at once: every unit gets a hold now, not at the next step.
-        publish = self._holds() if signal.engaged else []
+        if self.estop:
+            publish += self._holds()
         publish.append(self.status("online"))
         return self._effects(publish, log=(line,))
 

@@ -14,20 +14,28 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     Connection,
-    EstopSignal,
     Factsheet,
     SetGoal,
     SubmitJob,
     Topics,
     UnitState,
     decode,
-    decode_estop,
     validate_id,
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
 Request = SubmitJob | CancelJob | SetGoal
-Message = Connection | Factsheet | UnitState | EstopSignal | Request
+
+
+@dataclass(frozen=True)
+class StopPayload:
+    """A payload on a stop topic (the latch or a press), read by the core's StopView."""
+
+    payload: bytes
+
+
+Message = Connection | Factsheet | UnitState | StopPayload | Request
 
 _FROM_UNITS: dict[str, type[Connection] | type[Factsheet] | type[UnitState]] = {
     "connection": Connection,
@@ -53,7 +61,7 @@ class Arrival:
 def subscriptions(topics: Topics) -> list[tuple[str, int]]:
     """Every filter the coordinator follows, with the QoS it subscribes at (states at 0)."""
     out = [(topics.all_units(kind), TOPICS[kind].qos) for kind in _FROM_UNITS]
-    out.append((topics.fleet("estop"), TOPICS["estop"].qos))
+    out += stop_filters(topics)
     out.append((topics.all_requests, 1))
     return out
 
@@ -84,8 +92,8 @@ def read(topics: Topics, topic: str, payload: bytes) -> Arrival | None:
         return None  # not ours to judge
     if kind in _FROM_UNITS and ident is not None:
         return Arrival(kind, ident, decode(_FROM_UNITS[kind], payload))
-    if kind == "estop":
-        return Arrival(kind, None, decode_estop(payload))
+    if kind in STOP_KINDS:
+        return Arrival(kind, ident, StopPayload(payload))
     if kind in _REQUESTS:
         return Arrival(kind, None, decode(_REQUESTS[kind], payload, MAX_REQUEST_BYTES))
     return None

@@ -1,10 +1,12 @@
 """The ESP32 device's behaviour as a pure core: direction and estop in, LEDs out, a key press out.
 
 The same rules as firmware/esp32_unit/src/ (protocol.md 4.6, 5.1, 5.6): the LED of the unit's
-direction is lit, none for `-`; all four when the emergency stop is engaged (or a press is still
-being sent), which wins over everything; none while offline. A press is pending until the device
-sees its own `engaged|<device>|button` come back from the broker, and is re-sent after every
-reconnect and every `retry_s` until then. No sockets, no clock: callers pass `now`.
+direction is lit, none for `-`; all four when the emergency stop is engaged, or this device's press
+is held or still being sent, which wins over everything; none while offline. The button presses
+on the device's own `devices/<device>/stop` (it cannot release: only operators do, on
+`fleet/estop`). A press is pending until the device sees its own `engaged|<device>|button` come
+back on that topic, and is re-sent after every reconnect and every `retry_s` until then. No
+sockets, no clock: callers pass `now`.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from gridfleet.protocol import (
     Topics,
     decode_direction,
     decode_estop,
+    decode_press,
     encode_device_connection,
     encode_estop,
     validate_id,
@@ -56,11 +59,13 @@ class DeviceLogic:
         self.device = validate_id(device, "device id")
         self.retry_s = retry_s
         self.direction_topic = topics.unit("direction", unit)
-        self.estop_topic = topics.fleet("estop")
+        self.estop_topic = topics.fleet("estop")  # the latch: the fleet's stop, shown
+        self.press_topic = topics.device("device_stop", device)  # where the button presses
         self.connection_topic = topics.device("device_connection", device)
         self.stop_payload = encode_estop(EstopSignal(True, device, "button"))
         self.direction: Direction | None = None
         self.estop: EstopSignal | None = None
+        self.pressed = False  # the broker holds this device's press (until an operator releases)
         self.online = False
         self.pending_stop = False
         self._sent_this_session = False
@@ -71,8 +76,12 @@ class DeviceLogic:
     # -- the session -----------------------------------------------------------------------------
 
     def subscriptions(self) -> list[tuple[str, int]]:
-        """What the device follows: its unit's direction (high rate: QoS 0) and the stop."""
-        return [(self.direction_topic, 0), (self.estop_topic, TOPICS["estop"].qos)]
+        """What the device follows: its unit's direction (high rate: QoS 0), the stop, its press."""
+        return [
+            (self.direction_topic, 0),
+            (self.estop_topic, TOPICS["estop"].qos),
+            (self.press_topic, TOPICS["device_stop"].qos),
+        ]
 
     def connection(self, state: DeviceConnection) -> Outbound:
         """The device's retained connection message (`broken` is its last will)."""
@@ -93,7 +102,7 @@ class DeviceLogic:
         if not self.stop_due(now):
             return []
         self.stop_sent(now)
-        return [Outbound.of("estop", self.estop_topic, self.stop_payload)]
+        return [Outbound.of("device_stop", self.press_topic, self.stop_payload)]
 
     # -- what comes in ---------------------------------------------------------------------------
 
@@ -110,9 +119,12 @@ class DeviceLogic:
                 self.direction = decode_direction(payload)
                 return None
             if kind == "estop":
-                signal = decode_estop(payload)
-                self.estop = signal
-                if signal.engaged and payload == self.stop_payload:
+                self.estop = decode_estop(payload)
+                return None
+            if kind == "device_stop" and ident == self.device:
+                # The broker has the press: sent, held until an operator's release clears it.
+                self.pressed = decode_press(payload, self.device) is not None
+                if self.pressed:
                     self.pending_stop = False
                 return None
         except ProtocolError as exc:
@@ -162,7 +174,7 @@ class DeviceLogic:
     @property
     def pattern(self) -> Pattern:
         """Which pattern the LEDs show: the stop wins, then offline, then the direction."""
-        if self.estop_engaged or self.pending_stop:
+        if self.estop_engaged or self.pressed or self.pending_stop:
             return "stop"
         if not self.online:
             return "offline"

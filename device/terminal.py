@@ -103,7 +103,8 @@ def render_plain(logic: DeviceLogic) -> str:
     leds = logic.leds
     lit = "".join("#" if getattr(leds, side) else "." for side in "NESW")
     direction = "-" if logic.direction is None else logic.direction.value
-    estop = "engaged" if logic.estop_engaged else "released" if logic.estop else "unknown"
+    engaged = logic.estop_engaged or logic.pressed  # the fleet is stopped by either
+    estop = "engaged" if engaged else "released" if logic.estop else "unknown"
     pending = " stop=pending" if logic.pending_stop else ""
     link = "online" if logic.online else "offline"
     return f"leds={lit} direction={direction} estop={estop} link={link}{pending}"

@@ -169,38 +169,43 @@ class Rules:
 
 
 def rules(account: Account, topics: Topics) -> Rules:
-    """What `account` may publish and read, from protocol.md's topic table."""
+    """What `account` may publish and read, from protocol.md's topic table.
+
+    Only the coordinator and the people's side write the stop's latch (`fleet/estop`): units and
+    devices press their own `stop` topic, which can only engage (protocol.md §5.1).
+    """
     t = topics
+    presses = [t.all_units("stop"), t.all_devices("device_stop")]
     if account.role == "coordinator":
         publish = [
             t.all_units("order"),
             *(t.fleet(k) for k in ("map", "jobs", "routes", "errors", "coordinator", "estop")),
             f"{t.prefix}/replies/+",
+            *presses,  # cleared after an operator's release
         ]
         subscribe = [
             *(t.all_units(k) for k in ("connection", "factsheet", "state")),
             t.fleet("estop"),
+            *presses,
             t.all_requests,
         ]
     elif account.role == "unit":
         assert account.unit is not None
-        own = [t.unit(k, account.unit) for k in ("connection", "factsheet", "state", "direction")]
-        publish = [*own, t.fleet("errors"), t.fleet("estop")]
+        own_kinds = ("connection", "factsheet", "state", "direction", "stop")
+        publish = [*(t.unit(k, account.unit) for k in own_kinds), t.fleet("errors")]
         subscribe = [
             t.unit("order", account.unit),
             t.unit("goal", account.unit),
             t.fleet("estop"),
+            *presses,
             t.fleet("coordinator"),
             t.all_units("state"),  # units elsewhere, seen by their state
         ]
     elif account.role == "device":
         assert account.unit is not None
-        publish = [
-            t.device("device_connection", account.name),
-            t.fleet("estop"),
-            t.fleet("errors"),
-        ]
-        subscribe = [t.unit("direction", account.unit), t.fleet("estop")]
+        own_press = t.device("device_stop", account.name)
+        publish = [t.device("device_connection", account.name), own_press, t.fleet("errors")]
+        subscribe = [t.unit("direction", account.unit), t.fleet("estop"), own_press]
     else:  # dashboard, operator: the people's side
         publish = [
             *(t.request(k) for k in ("submit_job", "cancel_job", "set_goal")),

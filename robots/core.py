@@ -27,9 +27,9 @@ from gridfleet.protocol import (
     UnitState,
     decode,
     decode_direction,
-    decode_estop,
     encode_direction,
 )
+from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from robots.unit import Move, Sense, UnitLogic
 
 
@@ -50,11 +50,12 @@ class UnitCore:
         self.id = logic.unit_id
         self.stamp = stamp or HeaderStamper(self.id)
         self._sent_direction: bytes | None = None  # what `direction` says on this connection
+        self.stop = StopView()  # the latch and the held presses, as this unit read them
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
         """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
         t = self.topics
-        topics = [t.fleet("estop")]
+        topics: list[str] = []
         if self.logic.mode == "coordinated":
             topics += [t.unit("order", self.id), t.fleet("coordinator")]
         else:
@@ -66,7 +67,7 @@ class UnitCore:
             kind, _ = t.parse(topic.replace("+", self.id))
             # High-rate topics at QoS 0: amqtt upgrades delivery to the subscription's QoS.
             subs.append((topic, TOPICS[kind].qos if kind != "state" else 0))
-        return subs
+        return [*stop_filters(t), *subs]
 
     # ---- the session --------------------------------------------------------------------------
 
@@ -97,6 +98,9 @@ class UnitCore:
 
     def on_disconnect(self, now: float) -> None:
         """Lost the broker: hold still (nothing can be sent until the next connect)."""
+        # The stop is read afresh from the retained messages: a press cleared meanwhile is not
+        # replayed, so one kept from before would hold the unit for good.
+        self.stop = StopView()
         self.logic.on_disconnect(now)
 
     def offline(self) -> Outbound:
@@ -115,8 +119,8 @@ class UnitCore:
             kind, who = self.topics.parse(topic)
         except ProtocolError:
             return []
-        if kind == "estop":
-            return self._on_estop(topic, payload, now)
+        if kind in STOP_KINDS:
+            return self._on_stop(kind, who, topic, payload, now)
         if kind == "order" and who == self.id:
             return self._on_order(topic, payload, now)
         if kind == "goal" and who == self.id:
@@ -129,13 +133,15 @@ class UnitCore:
             self.logic.on_coordinator(status.step_period_s)
         return []
 
-    def _on_estop(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+    def _on_stop(
+        self, kind: str, who: str | None, topic: str, payload: bytes, now: float
+    ) -> list[Outbound]:
         try:
-            signal = decode_estop(payload)
+            self.stop.apply(kind, who, topic, payload)
         except ProtocolError as exc:
             # Never a release: a bad payload changes nothing.
             return self._refused(topic, "bad_estop", str(exc))
-        self.logic.on_estop(signal.engaged, now)
+        self.logic.on_estop(self.stop.engaged, now)
         return self.state()
 
     def _on_order(self, topic: str, payload: bytes, now: float) -> list[Outbound]:

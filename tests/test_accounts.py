@@ -33,7 +33,12 @@ from system.threads import world_of
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
-from support.security import check_a_unit_cannot_forge, check_strangers_are_refused, login
+from support.security import (
+    check_a_unit_cannot_forge,
+    check_only_operators_write_the_latch,
+    check_strangers_are_refused,
+    login,
+)
 from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
@@ -123,8 +128,12 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert T.unit("state", "unit2") not in unit1.publish
     assert not any("order" in topic or "requests" in topic for topic in unit1.publish)
     assert T.unit("order", "unit1") in unit1.subscribe
+    assert T.unit("stop", "unit1") in unit1.publish  # its own press, never the latch
+    assert T.unit("stop", "unit2") not in unit1.publish and T.fleet("estop") not in unit1.publish
     device = rules(accounts.get("device-unit1"), T)
-    assert device.subscribe == (T.unit("direction", "unit1"), T.fleet("estop"))
+    press = T.device("device_stop", "device-unit1")
+    assert device.subscribe == (T.unit("direction", "unit1"), T.fleet("estop"), press)
+    assert press in device.publish and T.fleet("estop") not in device.publish
     coordinator = rules(accounts.get("coordinator"), T)
     assert T.all_units("order") in coordinator.publish
     operator = rules(accounts.get("operator"), T)
@@ -167,6 +176,12 @@ def test_a_unit_cannot_forge_another_unit_or_the_coordinator(
     check_a_unit_cannot_forge(secured.url, accounts, T)
 
 
+def test_a_device_or_unit_cannot_write_the_latch_or_another_press(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    check_only_operators_write_the_latch(secured.url, accounts, T)
+
+
 async def test_a_component_connects_with_the_credentials_in_its_url(
     secured: BrokerThread, accounts: Accounts
 ) -> None:
@@ -198,6 +213,65 @@ def test_the_fleet_runs_with_every_part_on_its_own_account(tmp_path: Path) -> No
             world = world_of(system.fleet)
             wait_for(lambda: world.positions["unit1"] == Cell(9, 3), 30, what="unit1 at its goal")
             assert world.collisions == 0
+    finally:
+        assembly.stop()
+
+
+def test_a_device_or_unit_engages_the_stop_but_only_an_operator_releases_it() -> None:
+    scenario = load_scenario(PLAYFIELD)
+    units = [u.id for u in scenario.units]
+    accounts = default_accounts(units)
+    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
+    assembly = Assembly(spec, "threads")
+    system = assembly.start_threads()
+    press = T.device("device_stop", "device-unit1")
+    try:
+        with (
+            MqttProbe(login(system.url, accounts, "operator")) as probe,
+            MqttProbe(login(system.url, accounts, "device-unit1")) as device,
+            MqttProbe(login(system.url, accounts, "unit2"), "unit2-bumper") as unit2,
+        ):
+            op = OperatorPeer(probe, T)
+            world = world_of(system.fleet)
+            start = world.positions["unit1"]
+
+            def stopped() -> bool:
+                return all((s := op.last_state(u)) is not None and s.estop for u in units)
+
+            device.publish(press, b"engaged|device-unit1|button", qos=1, retain=True)
+            wait_for(stopped, 15, what="every unit stopped by the device's press")
+            # Each way a device or unit could try to release it:
+            device.publish(T.fleet("estop"), b"released|device-unit1|x", qos=1, retain=True)
+            device.publish(press, b"", qos=1, retain=True)  # clears its own press only
+            unit2.publish(T.fleet("estop"), b"released|unit2|x", qos=1, retain=True)
+            unit2.publish(T.unit("stop", "unit2"), b"released|unit2|x", qos=1, retain=True)
+            # A last refused press from each: once the coordinator and every unit have reported
+            # it, they have read everything before it.
+            device.publish(press, b"engaged|sync-marker|x", qos=1)  # names another source
+
+            def refused_by() -> set[str]:
+                return {r.header.sender for r in op.errors() if "sync-marker" in r.reason}
+
+            wait_for(lambda: refused_by() >= {"coordinator", *units}, 15, what="sync reports")
+            assert op.set_goal("unit1", Cell(9, 3)).accepted
+            held_at = op.last_state("unit1")
+            assert held_at is not None
+            wait_for(
+                lambda: (s := op.last_state("unit1")) is not None and s.step >= held_at.step + 10,
+                15,
+                what="ten more steps of unit1",
+            )
+            assert stopped() and world.positions["unit1"] == start
+            # The operator releases: the coordinator clears the presses, the unit drives on.
+            op.release("area checked")
+            wait_for(lambda: world.positions["unit1"] == Cell(9, 3), 30, what="unit1 at its goal")
+            assert world.collisions == 0
+        with MqttProbe(login(system.url, accounts, "operator")) as late:
+            late.subscribe(T.all_devices("device_stop"))
+            late.subscribe(T.fleet("estop"))
+            wait_for(lambda: late.received(T.fleet("estop")), what="the retained latch")
+            assert late.received(T.fleet("estop"))[-1].payload.startswith(b"released|operator|")
+            assert late.received(press) == []  # cleared: a restart reads no stop
     finally:
         assembly.stop()
 

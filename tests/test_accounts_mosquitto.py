@@ -16,7 +16,11 @@ from broker.mosquitto import password_hash, write_files
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.protocol import Topics
 
-from support.security import check_a_unit_cannot_forge, check_strangers_are_refused
+from support.security import (
+    check_a_unit_cannot_forge,
+    check_only_operators_write_the_latch,
+    check_strangers_are_refused,
+)
 from support.wait import wait_for
 
 T = Topics("mosq")
@@ -72,6 +76,12 @@ def test_strangers_and_wrong_passwords_are_refused(mosquitto: str, accounts: Acc
 
 def test_a_unit_cannot_forge_another_unit_or_an_order(mosquitto: str, accounts: Accounts) -> None:
     check_a_unit_cannot_forge(mosquitto, accounts, T)
+
+
+def test_a_device_or_unit_cannot_write_the_latch_or_another_press(
+    mosquitto: str, accounts: Accounts
+) -> None:
+    check_only_operators_write_the_latch(mosquitto, accounts, T)
 
 
 def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:

@@ -516,6 +516,77 @@ def test_a_cleared_stop_that_is_not_engaged_is_only_reported(core: CoordinatorCo
     assert not core.estop
 
 
+PRESS = "gridfleet/v1/devices/dev1/stop"
+UNIT_PRESS = "gridfleet/v1/units/unit2/stop"
+
+
+def press(core: CoordinatorCore, payload: bytes, topic: str = PRESS) -> Any:
+    return core.on_message(topic, payload, 1.5)
+
+
+def test_a_press_stops_the_fleet_and_is_mirrored_into_the_latch(core: CoordinatorCore) -> None:
+    under_way(core)
+    effects = press(core, b"engaged|dev1|button")
+    assert published(effects) == [
+        (ESTOP, "engaged|dev1|button", 1, True),  # only operators can release the latch
+        (ORDER, hold(1, update_id=2), 1, False),
+        (STATUS, status(0, "online", step=1, estop=True), 1, True),
+    ]
+    assert effects.log == ((logging.WARNING, "emergency stop ENGAGED by dev1: button"),)
+    # The mirror comes back, and a second press while the latch is engaged is not mirrored again.
+    assert published(estop(core, b"engaged|dev1|button")) == []
+    assert published(press(core, b"engaged|unit2|bumper", UNIT_PRESS)) == []
+
+
+def test_a_source_clearing_its_own_press_does_not_release_the_fleet(core: CoordinatorCore) -> None:
+    press(core, b"engaged|dev1|button")
+    estop(core, b"engaged|dev1|button")  # the mirror
+    assert published(press(core, b"")) == []
+    assert core.estop
+    assert [o.released for o in orders_in(core.step(2.0)).values()] == [[]]
+
+
+@pytest.mark.parametrize(
+    ("payload", "reason"),
+    [
+        (b"released|dev1|button", "a press can only engage"),
+        (b"engaged|dashboard|x", "names 'dashboard' as its source"),
+        (b"engaged", "is not 'engaged|<by>|<reason>'"),
+    ],
+)
+def test_a_press_that_is_no_press_is_reported_and_changes_nothing(
+    core: CoordinatorCore, payload: bytes, reason: str
+) -> None:
+    press(core, b"engaged|dev1|button")
+    estop(core, b"engaged|dev1|button")
+    effects = published(press(core, payload))
+    assert len(effects) == 1 and effects[0][0] == "gridfleet/v1/errors"
+    assert reason in effects[0][1]["reason"] and core.estop
+
+
+def test_an_operator_release_clears_every_held_press(core: CoordinatorCore) -> None:
+    press(core, b"engaged|dev1|button")
+    press(core, b"engaged|unit2|bumper", UNIT_PRESS)
+    estop(core, b"engaged|dev1|button")
+    effects = estop(core, b"released|dashboard|area checked")
+    assert published(effects) == [
+        (PRESS, "", 1, True),  # cleared, so that no restart reads them again
+        (UNIT_PRESS, "", 1, True),
+        (STATUS, status(1, "online", estop=False), 1, True),
+    ]
+    assert not core.estop
+    assert published(press(core, b"")) == []  # our own clearing comes back: nothing more
+
+
+def test_a_press_read_on_restart_under_a_released_latch_stops_the_fleet_again() -> None:
+    # Pressed while the coordinator was away: the broker's latch still says released.
+    fresh = make_core(GRID)
+    estop(fresh, b"released|dashboard|earlier")
+    effects = press(fresh, b"engaged|dev1|button")
+    assert published(effects)[0] == (ESTOP, "engaged|dev1|button", 1, True)
+    assert fresh.estop
+
+
 # ---- requests ----------------------------------------------------------------------------------
 
 

@@ -14,7 +14,7 @@ from contextlib import asynccontextmanager
 import pytest
 
 from device.shell import VirtualDevice
-from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop
+from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop, decode_press
 from system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
@@ -64,8 +64,9 @@ async def test_retained_direction_is_shown_on_connect(
 async def test_stop_key_engages_a_retained_valid_estop_everyone_sees(
     broker: BrokerThread, topics: Topics, root: str, probe_factory: Callable[..., MqttProbe]
 ) -> None:
+    press = topics.device("device_stop", "dev-a")
     watcher = probe_factory()
-    watcher.subscribe(topics.fleet("estop"), qos=1)
+    watcher.subscribe(press, qos=1)
     watcher.subscribe(topics.device("device_connection", "dev-a"), qos=1)
     async with running(VirtualDevice(broker.url, "unit1", root, device_id="dev-a")) as device:
         await async_wait_for(
@@ -77,25 +78,23 @@ async def test_stop_key_engages_a_retained_valid_estop_everyone_sees(
         await async_wait_for(lambda: device.leds == Leds(N=True), what="LED N")
         device.press()
         assert device.leds == ALL  # the press shows at once
-        seen = await async_wait_for(lambda: watcher.received(topics.fleet("estop")), what="stop")
-        signal_ = decode_estop(seen[0].payload)
-        assert signal_.engaged and signal_.by == "dev-a" and signal_.reason == "button"
+        seen = await async_wait_for(lambda: watcher.received(press), what="the press")
+        signal_ = decode_press(seen[0].payload, "dev-a")
+        assert signal_ is not None and signal_.reason == "button"
         await async_wait_for(lambda: not device.logic.pending_stop, what="stop confirmed")
-        assert device.logic.estop_engaged and device.leds == ALL
+        assert device.logic.pressed and device.leds == ALL
         # A client arriving later gets it as the retained value.
         late = probe_factory()
-        late.subscribe(topics.fleet("estop"), qos=1)
-        retained = await async_wait_for(
-            lambda: late.received(topics.fleet("estop")), what="retained stop"
-        )
-        assert retained[0].retain and decode_estop(retained[0].payload).engaged
-        # Released by the operator: the LEDs show the direction again.
+        late.subscribe(press, qos=1)
+        retained = await async_wait_for(lambda: late.received(press), what="retained press")
+        assert retained[0].retain and decode_press(retained[0].payload, "dev-a") is not None
+        # Released by the operator, then the press cleared (the coordinator's part, played here).
         unit.publish(topics.fleet("estop"), "released|dashboard|checked", qos=1, retain=True)
+        unit.publish(press, "", qos=1, retain=True)
         await async_wait_for(lambda: device.leds == Leds(N=True), what="released")
-    # Exactly one stop was sent (then the release); the clean exit said offline.
-    estops = topics.fleet("estop")
-    await async_wait_for(lambda: len(watcher.received(estops)) >= 2, what="the watcher sees both")
-    assert len(watcher.received(estops)) == 2
+    # Exactly one press was sent (then the clearing); the clean exit said offline.
+    await async_wait_for(lambda: len(watcher.received(press)) >= 2, what="the watcher sees both")
+    assert [m.payload for m in watcher.received(press)] == [b"engaged|dev-a|button", b""]
     conn = topics.device("device_connection", "dev-a")
     await async_wait_for(lambda: [m.payload for m in watcher.received(conn)][-1:] == [b"offline"])
     assert [m.payload for m in watcher.received(conn)] == [b"online", b"offline"]
@@ -116,6 +115,8 @@ async def test_bad_payloads_change_nothing_and_are_reported(
             (topics.fleet("estop"), b"engaged"),
             (topics.fleet("estop"), b"engaged|not an id|x"),
             (topics.fleet("estop"), b"engaged|x|" + b"y" * 1000),
+            (topics.device("device_stop", "dev-b"), b"released|dev-b|button"),
+            (topics.device("device_stop", "dev-b"), b"engaged|someone|x"),
         ]
         for topic, payload in bad:
             probe.publish(topic, payload, qos=1, retain=True)
@@ -142,11 +143,12 @@ async def test_press_while_broker_is_down_is_sent_after_reconnect(
         assert dev.leds == ALL
         await asyncio.to_thread(fresh_broker.start)
         with MqttProbe(fresh_broker.url) as probe:
-            probe.subscribe(topics.fleet("estop"), qos=1)
+            press = topics.device("device_stop", "dev-c")
+            probe.subscribe(press, qos=1)
             seen = await async_wait_for(
-                lambda: probe.received(topics.fleet("estop")), timeout=20, what="stop after restart"
+                lambda: probe.received(press), timeout=20, what="stop after restart"
             )
-            assert decode_estop(seen[0].payload) == decode_estop(b"engaged|dev-c|button")
+            assert decode_press(seen[0].payload, "dev-c") == decode_estop(b"engaged|dev-c|button")
             await async_wait_for(lambda: not dev.logic.pending_stop, what="confirmed")
 
 
@@ -213,8 +215,9 @@ def test_device_command_shows_leds_stops_and_exits_cleanly(
     proc_factory: Callable[..., Proc],
     sig: signal.Signals,
 ) -> None:
+    press = topics.device("device_stop", "device-unit7")
     watcher = probe_factory()
-    watcher.subscribe(topics.fleet("estop"), qos=1)
+    watcher.subscribe(press, qos=1)
     conn = topics.device("device_connection", "device-unit7")
     watcher.subscribe(conn, qos=1)
     proc = proc_factory("--broker", broker.url, "--unit", "unit7", "--root", root)
@@ -222,14 +225,16 @@ def test_device_command_shows_leds_stops_and_exits_cleanly(
     watcher.publish(topics.unit("direction", "unit7"), "S", qos=0, retain=True)
     proc.wait_line("leds=..#. direction=S")
     proc.send("s\n")
-    stop = watcher.wait(topics.fleet("estop"))
-    assert decode_estop(stop.payload) == decode_estop(b"engaged|device-unit7|button")
+    stop = watcher.wait(press)
+    assert decode_press(stop.payload, "device-unit7") == decode_estop(
+        b"engaged|device-unit7|button"
+    )
     proc.wait_line("leds=#### direction=S estop=engaged")
     proc.p.send_signal(sig)
     assert proc.p.wait(15) == 0
     assert proc.p.stderr is not None and "Traceback" not in proc.p.stderr.read().decode()
     watcher.wait(conn, lambda m: m.payload == b"offline")
-    assert len(watcher.received(topics.fleet("estop"))) == 1
+    assert len(watcher.received(press)) == 1
 
 
 def test_device_command_with_stdin_from_dev_null_runs_without_keys(

@@ -13,6 +13,7 @@ from support.effects import header_json, published, stamper
 T = Topics("t/logic")
 DIR = T.unit("direction", "unit1")
 ESTOP = T.fleet("estop")
+PRESS = T.device("device_stop", "dev1")
 
 
 def online_logic() -> DeviceLogic:
@@ -73,6 +74,9 @@ def test_offline_shows_nothing_but_the_stop_still_shows() -> None:
         (T.unit("direction", "unit2"), b"N"),
         (T.unit("state", "unit1"), b"{}"),
         ("other/v1/fleet/estop", b"released|a|b"),
+        (PRESS, b"released|dev1|button"),  # a press cannot release
+        (PRESS, b"engaged|dev2|button"),  # nor name another source
+        (T.device("device_stop", "dev2"), b"engaged|dev2|button"),
     ],
 )
 def test_bad_or_unexpected_messages_change_nothing(topic: str, payload: bytes) -> None:
@@ -97,10 +101,23 @@ def test_press_is_pending_until_its_own_engaged_comes_back() -> None:
     assert logic.next_stop_in(10.5) == pytest.approx(0.5)
     assert logic.stop_due(11.0)  # not seen yet: send again
     logic.on_message(ESTOP, b"engaged|dashboard|someone else")
-    assert logic.pending_stop  # someone else's stop does not confirm ours
-    logic.on_message(ESTOP, logic.stop_payload)
+    logic.on_message(ESTOP, logic.stop_payload)  # the coordinator's copy in the latch
+    assert logic.pending_stop  # only our own press topic confirms the broker has it
+    logic.on_message(PRESS, logic.stop_payload)
     assert not logic.pending_stop and not logic.stop_due(99.0)
     assert logic.next_stop_in(99.0) is None
+
+
+def test_a_held_press_shows_the_stop_until_an_operator_release_clears_it() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"E")
+    logic.press()
+    logic.on_message(PRESS, logic.stop_payload)
+    assert logic.pattern == "stop"  # held, even before (or without) the coordinator's latch
+    logic.on_message(ESTOP, b"released|dashboard|checked")  # released, but not yet cleared
+    assert logic.pattern == "stop"
+    logic.on_message(PRESS, b"")  # the coordinator clears the press after the release
+    assert logic.pattern == "direction" and logic.leds == Leds(E=True)
 
 
 def test_press_while_offline_is_sent_on_the_next_session() -> None:
@@ -153,7 +170,7 @@ def report(seq: int, topic: str, reason: str) -> dict[str, object]:
 def test_session_messages_are_exact() -> None:
     logic = stamped_logic()
     conn = T.device("device_connection", "dev1")
-    assert logic.subscriptions() == [(DIR, 0), (ESTOP, 1)]
+    assert logic.subscriptions() == [(DIR, 0), (ESTOP, 1), (PRESS, 1)]
     assert published([logic.connection(s) for s in ("online", "offline", "broken")]) == [
         (conn, "online", 1, True),
         (conn, "offline", 1, True),
@@ -194,7 +211,7 @@ def test_each_refused_message_is_reported_once_on_errors(
 
 def test_a_press_is_sent_at_once_then_every_retry_until_it_comes_back() -> None:
     logic = stamped_logic()
-    stop = (ESTOP, "engaged|dev1|button", 1, True)
+    stop = (PRESS, "engaged|dev1|button", 1, True)
     assert logic.due(0.0) == []  # nothing pending
     logic.press()
     assert published(logic.due(10.0)) == [stop]
@@ -204,5 +221,5 @@ def test_a_press_is_sent_at_once_then_every_retry_until_it_comes_back() -> None:
     assert logic.due(11.5) == []  # nothing can be sent while offline
     logic.connected()
     assert published(logic.due(11.6)) == [stop]  # a new session sends it at once
-    assert logic.receive(ESTOP, b"engaged|dev1|button") == []
+    assert logic.receive(PRESS, b"engaged|dev1|button") == []
     assert logic.due(20.0) == []  # confirmed: no more sends

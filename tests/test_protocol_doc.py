@@ -17,6 +17,7 @@ from gridfleet.protocol import (
     decode_device_connection,
     decode_direction,
     decode_estop,
+    decode_press,
     messages,
 )
 from gridfleet.protocol.schemas import REPO, SCHEMA_DIR, generated, render, schemas
@@ -43,6 +44,11 @@ def test_example_parses_with_the_code_and_validates_against_the_schema(
     spec = TOPICS[kind]
     if spec.payload == "direction":
         decode_direction(body.strip())
+        return
+    if kind in ("stop", "device_stop"):  # a press: engage only, naming its source
+        text = body.strip()
+        press = decode_press(text, text.split("|")[1])
+        assert press is not None and press.engaged
         return
     if spec.payload == "estop":
         decode_estop(body.strip())

@@ -136,13 +136,14 @@ def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_sto
 
 
 def test_subscriptions_follow_the_mode() -> None:
+    stop = [("gf/v1/fleet/estop", 1), ("gf/v1/units/+/stop", 1), ("gf/v1/devices/+/stop", 1)]
     assert make().subscriptions() == [
-        ("gf/v1/fleet/estop", 1),
+        *stop,
         ("gf/v1/units/u1/order", 1),
         ("gf/v1/coordinator/status", 1),
     ]
     assert make("standalone").subscriptions(watch_peers=True) == [
-        ("gf/v1/fleet/estop", 1),
+        *stop,
         ("gf/v1/units/u1/goal", 1),
         ("gf/v1/units/+/state", 0),
     ]
@@ -339,6 +340,40 @@ def test_an_unreadable_stop_is_reported_and_never_releases(payload: bytes) -> No
         state(3, estop=True, errors=[{"code": "bad_estop", "message": reason}], **stopped),
     ]
     assert core.logic.estop
+
+
+STOPPED = {"status": "stopped", "wait_reason": "emergency stop engaged", "leds": LEDS_ALL}
+
+
+def test_a_device_press_stops_the_unit_until_released_and_cleared() -> None:
+    core = ready()
+    press = ROOT + "devices/dev1/stop"
+    outs = core.on_message(press, b"engaged|dev1|button", 0.3)
+    assert published(outs, ROOT) == [state(2, estop=True, **STOPPED)]
+    # The operator's release alone does not free it: the press is still held on the broker...
+    core.on_message(ROOT + "fleet/estop", b"released|dashboard|checked", 0.4)
+    assert core.logic.estop
+    # ...until the coordinator clears it (after the release).
+    assert published(core.on_message(press, b"", 0.5), ROOT) == [state(4)]
+    assert not core.logic.estop
+
+
+@pytest.mark.parametrize(
+    ("topic", "payload", "reason"),
+    [
+        ("devices/dev1/stop", b"released|dev1|button", "a press can only engage"),
+        ("units/u2/stop", b"engaged|dashboard|x", "names 'dashboard' as its source"),
+        ("devices/dev1/stop", b"engaged|dev1|two\nlines", "one line"),
+    ],
+)
+def test_a_press_that_is_no_press_is_reported_and_changes_nothing(
+    topic: str, payload: bytes, reason: str
+) -> None:
+    core = ready()
+    core.on_message(ROOT + "units/u2/stop", b"engaged|u2|bumper", 0.3)
+    outs = published(core.on_message(ROOT + topic, payload, 0.4), ROOT)
+    assert outs[0][0] == "errors" and reason in str(outs[0][1])
+    assert core.logic.estop  # still held by u2's press
 
 
 # ---- the coordinator's status, goals, other units ---------------------------------------------

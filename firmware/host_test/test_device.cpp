@@ -13,6 +13,7 @@ namespace {
 const std::string kDir = "t/fw/v1/units/unit1/direction";
 const std::string kEstop = "t/fw/v1/fleet/estop";
 const std::string kConn = "t/fw/v1/devices/dev1/connection";
+const std::string kPress = "t/fw/v1/devices/dev1/stop";
 const std::string kStop = "engaged|dev1|button";
 
 // One physical press: the interrupt fires on each bounce, the loop runs every millisecond.
@@ -30,7 +31,7 @@ void bouncyPress(Rig& r) {
 }
 }  // namespace
 
-TEST_CASE("connects with its last will, says online, subscribes to direction and estop") {
+TEST_CASE("connects with its last will, says online, subscribes to direction, estop, its press") {
   Rig r;
   r.tick();
   CHECK(r.device.online());
@@ -40,6 +41,7 @@ TEST_CASE("connects with its last will, says online, subscribes to direction and
   CHECK(r.mqtt.count(kConn, "online") == 1);
   CHECK(r.mqtt.subscriptions.at(kDir) == 0);
   CHECK(r.mqtt.subscriptions.at(kEstop) == 1);
+  CHECK(r.mqtt.subscriptions.at(kPress) == 1);
   CHECK(r.mqtt.retained.at(kConn) == "online");
 }
 
@@ -113,11 +115,27 @@ TEST_CASE("a bouncy button press yields exactly one stop message") {
   r.tick();
   bouncyPress(r);
   r.run(5000);  // far past the retry period: confirmed, so never sent again
-  CHECK(r.mqtt.count(kEstop, kStop) == 1);
+  CHECK(r.mqtt.count(kPress, kStop) == 1);
+  CHECK(r.mqtt.count(kEstop, kStop) == 0);  // a device never writes the fleet's latch
   CHECK(r.mqtt.published.back().retained);
-  CHECK(r.mqtt.retained.at(kEstop) == kStop);
-  CHECK(r.device.estopEngaged());
+  CHECK(r.mqtt.retained.at(kPress) == kStop);
+  CHECK(r.device.pressed());
+  CHECK(r.device.leds().count() % 4 == 0);  // held: the stop pattern, latch or not
   CHECK_FALSE(r.device.stopPending());
+}
+
+TEST_CASE("a held press shows the stop until the release clears it") {
+  Rig r;
+  r.tick();
+  r.mqtt.route(kDir, "E", true);
+  bouncyPress(r);
+  r.mqtt.route(kEstop, "released|dashboard|checked", true);  // released, not yet cleared
+  r.run(10);
+  CHECK(r.device.pressed());
+  r.mqtt.route(kPress, "", true);  // the coordinator clears the press after the release
+  r.run(10);
+  CHECK_FALSE(r.device.pressed());
+  CHECK(r.device.leds() == gf::Leds{false, true, false, false});
 }
 
 TEST_CASE("two separate presses send two stops") {
@@ -125,9 +143,10 @@ TEST_CASE("two separate presses send two stops") {
   r.tick();
   bouncyPress(r);
   r.mqtt.route(kEstop, "released|dashboard|checked", true);
+  r.mqtt.route(kPress, "", true);
   r.run(10);
   bouncyPress(r);
-  CHECK(r.mqtt.count(kEstop, kStop) == 2);
+  CHECK(r.mqtt.count(kPress, kStop) == 2);
 }
 
 TEST_CASE("a press while disconnected is sent after reconnect, once") {
@@ -142,12 +161,12 @@ TEST_CASE("a press while disconnected is sent after reconnect, once") {
   CHECK(r.device.stopPending());
   CHECK(r.device.leds().count() % 4 == 0);  // the stop pattern shows the press at once
   r.run(3000);
-  CHECK(r.mqtt.count(kEstop, kStop) == 0);
+  CHECK(r.mqtt.count(kPress, kStop) == 0);
   r.mqtt.brokerUp = true;
   r.run(40000);  // within the longest back-off
   CHECK(r.device.online());
-  CHECK(r.mqtt.count(kEstop, kStop) == 1);
-  CHECK(r.mqtt.retained.at(kEstop) == kStop);
+  CHECK(r.mqtt.count(kPress, kStop) == 1);
+  CHECK(r.mqtt.retained.at(kPress) == kStop);
   CHECK(r.mqtt.retained.at(kConn) == "online");
   CHECK_FALSE(r.device.stopPending());
 }
@@ -157,14 +176,14 @@ TEST_CASE("a press whose publish is lost is retried until it comes back") {
   r.tick();
   r.mqtt.dropPublishes = true;
   bouncyPress(r);
-  CHECK(r.mqtt.count(kEstop, kStop) == 1);
+  CHECK(r.mqtt.count(kPress, kStop) == 1);
   r.run(r.config.stopRetryMs);
-  CHECK(r.mqtt.count(kEstop, kStop) == 2);
+  CHECK(r.mqtt.count(kPress, kStop) == 2);
   r.mqtt.dropPublishes = false;
   r.run(r.config.stopRetryMs);
-  CHECK(r.mqtt.count(kEstop, kStop) == 3);
+  CHECK(r.mqtt.count(kPress, kStop) == 3);
   r.run(10 * r.config.stopRetryMs);
-  CHECK(r.mqtt.count(kEstop, kStop) == 3);
+  CHECK(r.mqtt.count(kPress, kStop) == 3);
   CHECK_FALSE(r.device.stopPending());
 }
 
@@ -174,6 +193,8 @@ TEST_CASE("a press is not confirmed by someone else's engaged") {
   r.mqtt.dropPublishes = true;
   bouncyPress(r);
   r.mqtt.route(kEstop, "engaged|dashboard|x", true);
+  r.mqtt.route(kEstop, kStop, true);  // the coordinator's copy in the latch is not our press
+  r.mqtt.route(kPress, "released|dev1|button", true);
   r.run(10);
   CHECK(r.device.stopPending());
 }
@@ -272,11 +293,13 @@ TEST_CASE("what the device subscribes to and publishes is what protocol_table.h 
   const std::string prefix = std::string("t/fw/") + p::kTopicVersion + "/";
   const std::string dir = prefix + p::kTopicDirectionBefore + "unit1" + p::kTopicDirectionAfter;
   const std::string estop = prefix + p::kTopicEstop;
+  const std::string press = prefix + p::kTopicDeviceStopBefore + "dev1" + p::kTopicDeviceStopAfter;
   const std::string conn =
       prefix + p::kTopicDeviceConnectionBefore + "dev1" + p::kTopicDeviceConnectionAfter;
-  // Exactly its unit's direction and the fleet's stop, each at the topic's QoS.
-  CHECK(r.mqtt.subscriptions ==
-        std::map<std::string, uint8_t>{{dir, p::kTopicDirectionQos}, {estop, p::kTopicEstopQos}});
+  // Exactly its unit's direction, the fleet's stop and its own press, each at the topic's QoS.
+  CHECK(r.mqtt.subscriptions == std::map<std::string, uint8_t>{{dir, p::kTopicDirectionQos},
+                                                               {estop, p::kTopicEstopQos},
+                                                               {press, p::kTopicDeviceStopQos}});
   CHECK(r.mqtt.will.topic == conn);
   CHECK(r.mqtt.will.payload == p::kDeviceWill);
   REQUIRE(r.mqtt.published.size() == 1);
@@ -305,7 +328,7 @@ TEST_CASE("what the device subscribes to and publishes is what protocol_table.h 
 
   bouncyPress(r);
   REQUIRE(r.mqtt.published.size() == 2);
-  CHECK(r.mqtt.published[1].topic == estop);
+  CHECK(r.mqtt.published[1].topic == press);
   CHECK(r.mqtt.published[1].payload == p::kEstopEngaged + sep + "dev1" + sep + gf::kButtonReason);
-  CHECK(r.mqtt.published[1].retained == p::kTopicEstopRetained);
+  CHECK(r.mqtt.published[1].retained == p::kTopicDeviceStopRetained);
 }

@@ -21,6 +21,7 @@ bool direction(const std::string& s, Direction& out) {
 TEST_CASE("topics are the ones protocol.md names") {
   CHECK(gf::directionTopic("gridfleet", "unit1") == "gridfleet/v1/units/unit1/direction");
   CHECK(gf::estopTopic("lab/a") == "lab/a/v1/fleet/estop");
+  CHECK(gf::deviceStopTopic("lab/a", "dev1") == "lab/a/v1/devices/dev1/stop");
   CHECK(gf::deviceConnectionTopic("gridfleet", "esp-1") == "gridfleet/v1/devices/esp-1/connection");
 }
 

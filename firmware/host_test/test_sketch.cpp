@@ -20,7 +20,7 @@ extern PubSubClient mqttClient;
 namespace {
 const std::string kRoot = GF_TOPIC_ROOT;
 const std::string kDir = kRoot + "/v1/units/" GF_UNIT_ID "/direction";
-const std::string kEstop = kRoot + "/v1/fleet/estop";
+const std::string kPress = kRoot + "/v1/devices/" GF_DEVICE_ID "/stop";
 
 void loops(int n) {
   for (int i = 0; i < n; ++i) {
@@ -72,7 +72,7 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
   loops(100);
   int stops = 0;
   for (const auto& m : mqttClient.published) {
-    if (m.topic == kEstop) {
+    if (m.topic == kPress) {
       ++stops;
       CHECK(m.payload == "engaged|" GF_DEVICE_ID "|button");
       CHECK(m.retained);
@@ -88,7 +88,9 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
         std::vector<std::pair<std::string, uint8_t>>{
             {prefix + p::kTopicDirectionBefore + GF_UNIT_ID + p::kTopicDirectionAfter,
              p::kTopicDirectionQos},
-            {prefix + p::kTopicEstop, p::kTopicEstopQos}});
+            {prefix + p::kTopicEstop, p::kTopicEstopQos},
+            {prefix + p::kTopicDeviceStopBefore + GF_DEVICE_ID + p::kTopicDeviceStopAfter,
+             p::kTopicDeviceStopQos}});
   CHECK(mqttClient.will ==
         prefix + p::kTopicDeviceConnectionBefore + GF_DEVICE_ID + p::kTopicDeviceConnectionAfter);
   CHECK(mqttClient.willPayload == p::kDeviceWill);

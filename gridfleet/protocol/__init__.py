@@ -14,6 +14,7 @@ from gridfleet.protocol.device import (
     decode_device_connection,
     decode_direction,
     decode_estop,
+    decode_press,
     encode_device_connection,
     encode_direction,
     encode_estop,
@@ -40,6 +41,7 @@ from gridfleet.protocol.messages import (
     SubmitJob,
     UnitState,
 )
+from gridfleet.protocol.stop import StopView
 from gridfleet.protocol.topics import TOPICS, Topics, TopicSpec, validate_id
 
 __all__ = [
@@ -66,6 +68,7 @@ __all__ = [
     "Routes",
     "Sensors",
     "SetGoal",
+    "StopView",
     "SubmitJob",
     "TopicSpec",
     "Topics",
@@ -74,6 +77,7 @@ __all__ = [
     "decode_device_connection",
     "decode_direction",
     "decode_estop",
+    "decode_press",
     "encode",
     "encode_device_connection",
     "encode_direction",

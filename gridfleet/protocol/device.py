@@ -79,6 +79,24 @@ def decode_estop(payload: bytes | str) -> EstopSignal:
     return EstopSignal(parts[0] == ESTOP_ENGAGED, parts[1], parts[2] if len(parts) == 3 else "")
 
 
+def decode_press(payload: bytes | str, source: str) -> EstopSignal | None:
+    """A stop press of `source` (its own `stop` topic): engaged, or None when cleared (empty).
+
+    A press can only engage, and names its source: `released|...`, or another `by`, raises
+    ProtocolError like any malformed payload (only an operator releases, on `fleet/estop`).
+    """
+    if len(payload) == 0:
+        return None
+    signal = decode_estop(payload)
+    if not signal.engaged:
+        raise ProtocolError(
+            f"stop press of {source}: a press can only engage; release on fleet/estop"
+        )
+    if signal.by != source:
+        raise ProtocolError(f"stop press of {source}: it names {signal.by!r} as its source")
+    return signal
+
+
 DeviceConnection = Literal["online", "offline", "broken"]
 DEVICE_STATES: tuple[DeviceConnection, ...] = get_args(DeviceConnection)
 DEVICE_WILL: DeviceConnection = "broken"  # what a device's last will says

@@ -69,6 +69,7 @@ TOPICS: dict[str, TopicSpec] = {
         TopicSpec(
             "direction", "units/{unit}/direction", 0, True, "direction", None, MAX_DIRECTION_BYTES
         ),
+        TopicSpec("stop", "units/{unit}/stop", 1, True, "estop", None, MAX_ESTOP_BYTES),
         TopicSpec("estop", "fleet/estop", 1, True, "estop", None, MAX_ESTOP_BYTES),
         TopicSpec("map", "fleet/map", 1, True, "json", "FleetMap", MAX_VIEW_BYTES),
         TopicSpec("jobs", "fleet/jobs", 1, True, "json", "JobsView", MAX_VIEW_BYTES),
@@ -100,10 +101,15 @@ TOPICS: dict[str, TopicSpec] = {
             None,
             MAX_DEVICE_CONNECTION_BYTES,
         ),
+        TopicSpec("device_stop", "devices/{device}/stop", 1, True, "estop", None, MAX_ESTOP_BYTES),
     )
 }
 
 _UNIT_KINDS = {k for k, s in TOPICS.items() if s.pattern.startswith("units/")}
+# A device topic's last level -> its kind (devices/<device>/stop is `device_stop`).
+_DEVICE_KINDS = {
+    s.pattern.rsplit("/", 1)[1]: k for k, s in TOPICS.items() if s.pattern.startswith("devices/")
+}
 
 
 class Topics:
@@ -120,7 +126,7 @@ class Topics:
         self.prefix = f"{root}/{TOPIC_VERSION}"
 
     def unit(self, kind: str, unit: str) -> str:
-        """The per-unit topic of `kind` (connection, factsheet, state, order, goal, direction)."""
+        """The per-unit topic of `kind` (connection, factsheet, state, order, goal, direction, stop)."""
         if kind not in _UNIT_KINDS:
             raise ProtocolError(f"{kind!r} is not a per-unit topic kind")
         return f"{self.prefix}/units/{validate_id(unit, 'unit id')}/{kind}"
@@ -150,11 +156,18 @@ class Topics:
         return f"{self.prefix}/replies/{validate_id(client, 'client id')}"
 
     def device(self, kind: str, device: str) -> str:
-        """A per-device topic (device_connection): plain text, for firmware without JSON."""
+        """A per-device topic (device_connection, device_stop): plain text, for firmware."""
         spec = TOPICS.get(kind)
         if spec is None or not spec.pattern.startswith("devices/"):
             raise ProtocolError(f"{kind!r} is not a per-device topic kind")
         return f"{self.prefix}/{spec.pattern.format(device=validate_id(device, 'device id'))}"
+
+    def all_devices(self, kind: str) -> str:
+        """Wildcard filter for `kind` of every device."""
+        spec = TOPICS.get(kind)
+        if spec is None or not spec.pattern.startswith("devices/"):
+            raise ProtocolError(f"{kind!r} is not a per-device topic kind")
+        return f"{self.prefix}/{spec.pattern.format(device='+')}"
 
     @property
     def all_requests(self) -> str:
@@ -168,8 +181,8 @@ class Topics:
         rest = topic[len(self.prefix) + 1 :].split("/")
         if len(rest) == 3 and rest[0] == "units" and rest[2] in _UNIT_KINDS:
             return rest[2], validate_id(rest[1], "unit id")
-        if len(rest) == 3 and rest[0] == "devices" and rest[2] == "connection":
-            return "device_connection", validate_id(rest[1], "device id")
+        if len(rest) == 3 and rest[0] == "devices" and rest[2] in _DEVICE_KINDS:
+            return _DEVICE_KINDS[rest[2]], validate_id(rest[1], "device id")
         if len(rest) == 2 and rest[0] == "replies":
             return "reply", validate_id(rest[1], "client id")
         joined = "/".join(rest)

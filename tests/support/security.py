@@ -48,3 +48,28 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         late.subscribe(t.all_units("state"))
         wait_for(lambda: late.received(t.unit("state", "unit1")), what="the retained own state")
         assert late.received(t.unit("state", "unit2")) == []  # no forged retained state either
+
+
+def check_only_operators_write_the_latch(url: str, accounts: Accounts, topics: Topics) -> None:
+    """A device or unit can press its own stop but not write the latch or another's press."""
+    t = topics
+    latch, own_press = t.fleet("estop"), t.device("device_stop", "device-unit1")
+    with (
+        MqttProbe(login(url, accounts, "coordinator")) as coordinator,
+        MqttProbe(login(url, accounts, "device-unit1")) as device,
+        MqttProbe(login(url, accounts, "unit1")) as unit1,
+        MqttProbe(login(url, accounts, "operator")) as operator,
+    ):
+        for topic in (latch, t.all_units("stop"), t.all_devices("device_stop")):
+            coordinator.subscribe(topic)
+        device.publish(latch, b"released|device-unit1|x", retain=True)
+        unit1.publish(latch, b"released|unit1|x", retain=True)
+        unit1.publish(t.unit("stop", "unit2"), b"engaged|unit2|forged", retain=True)
+        device.publish(own_press, b"engaged|device-unit1|button", retain=True)
+        operator.publish(latch, b"released|operator|checked", retain=True)
+        # The operator's release arrives; published last, so the forgeries had their chance.
+        wait_for(lambda: coordinator.received(latch), what="the operator's release")
+        assert [m.payload for m in coordinator.received(latch)] == [b"released|operator|checked"]
+        assert coordinator.received(t.unit("stop", "unit2")) == []
+        wait_for(lambda: coordinator.received(own_press), what="the device's own press")
+        device.publish(own_press, b"", retain=True)  # tidy: no press left for the next check

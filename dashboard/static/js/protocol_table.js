@@ -95,6 +95,16 @@ export const TOPICS = freeze({
     "schema": null,
     "max_bytes": 8
   },
+  "stop": {
+    "pattern": "units/{unit}/stop",
+    "placeholder": "unit",
+    "qos": 1,
+    "retained": true,
+    "payload": "estop",
+    "model": null,
+    "schema": null,
+    "max_bytes": 512
+  },
   "estop": {
     "pattern": "fleet/estop",
     "placeholder": null,
@@ -204,6 +214,16 @@ export const TOPICS = freeze({
     "model": null,
     "schema": null,
     "max_bytes": 16
+  },
+  "device_stop": {
+    "pattern": "devices/{device}/stop",
+    "placeholder": "device",
+    "qos": 1,
+    "retained": true,
+    "payload": "estop",
+    "model": null,
+    "schema": null,
+    "max_bytes": 512
   }
 });
 export const DIRECTION = freeze({

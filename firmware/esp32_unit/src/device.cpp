@@ -16,6 +16,7 @@ Device::Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, C
       clock_(clock),
       directionTopic_(gf::directionTopic(config.root, config.unit)),
       estopTopic_(gf::estopTopic(config.root)),
+      pressTopic_(deviceStopTopic(config.root, config.device)),
       connectionTopic_(deviceConnectionTopic(config.root, config.device)),
       stopPayload_(buttonEstopPayload(config.device)),
       debouncer_(config.debounceMs),
@@ -51,7 +52,7 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
     lost();
     return;
   }
-  if (stop_.due(now) && mqtt_.publish(estopTopic_, stopPayload_, proto::kTopicEstopRetained)) {
+  if (stop_.due(now) && mqtt_.publish(pressTopic_, stopPayload_, proto::kTopicDeviceStopRetained)) {
     stop_.sent(now);
   }
 }
@@ -71,6 +72,7 @@ void Device::connectIfDue(uint32_t now) {
   // subscription's QoS); the stop 1.
   ok = ok && mqtt_.subscribe(directionTopic_, proto::kTopicDirectionQos);
   ok = ok && mqtt_.subscribe(estopTopic_, proto::kTopicEstopQos);
+  ok = ok && mqtt_.subscribe(pressTopic_, proto::kTopicDeviceStopQos);
   if (!ok) {
     // A half-set-up session would miss the stop: drop it and try again later.
     mqtt_.disconnect();
@@ -99,15 +101,22 @@ void Device::onMessage(const std::string& topic, const uint8_t* payload, size_t 
     EstopKind kind = parseEstop(payload, len);
     if (kind == EstopKind::Invalid) return;
     estopEngaged_ = kind == EstopKind::Engaged;
-    if (estopEngaged_ && len == stopPayload_.size() &&
-        stopPayload_.compare(0, len, reinterpret_cast<const char*>(payload), len) == 0) {
+    return;
+  }
+  if (topic == pressTopic_) {
+    // Our own press back from the broker: it has it. Empty: an operator's release cleared it.
+    if (len == 0) {
+      pressed_ = false;
+    } else if (payload != nullptr && len == stopPayload_.size() &&
+               stopPayload_.compare(0, len, reinterpret_cast<const char*>(payload), len) == 0) {
+      pressed_ = true;
       stop_.confirmed();
     }
   }
 }
 
 Leds Device::leds() const {
-  return ledsFor(direction_, estopEngaged_ || stop_.pending(), online_, clock_.nowMs());
+  return ledsFor(direction_, estopEngaged_ || pressed_ || stop_.pending(), online_, clock_.nowMs());
 }
 
 }  // namespace gf

@@ -70,11 +70,13 @@ class Device {
   Leds leds() const;  // what the LEDs should show now
   bool online() const { return online_; }
   Direction direction() const { return direction_; }
-  bool estopEngaged() const { return estopEngaged_; }
+  bool estopEngaged() const { return estopEngaged_; }  // the fleet's latch says engaged
+  bool pressed() const { return pressed_; }  // the broker holds this device's press
   bool stopPending() const { return stop_.pending(); }
   uint32_t connectAttempts() const { return connectAttempts_; }
   const std::string& directionTopic() const { return directionTopic_; }
   const std::string& estopTopic() const { return estopTopic_; }
+  const std::string& pressTopic() const { return pressTopic_; }
   const std::string& connectionTopic() const { return connectionTopic_; }
   const std::string& stopPayload() const { return stopPayload_; }
 
@@ -88,6 +90,7 @@ class Device {
   Clock& clock_;
   std::string directionTopic_;
   std::string estopTopic_;
+  std::string pressTopic_;
   std::string connectionTopic_;
   std::string stopPayload_;
   Debouncer debouncer_;
@@ -104,6 +107,7 @@ class Device {
   uint32_t connectAttempts_ = 0;
   Direction direction_ = Direction::None;
   bool estopEngaged_ = false;
+  bool pressed_ = false;
 };
 
 }  // namespace gf

@@ -100,6 +100,10 @@ std::string deviceConnectionTopic(const std::string& root, const std::string& de
          proto::kTopicDeviceConnectionAfter;
 }
 
+std::string deviceStopTopic(const std::string& root, const std::string& device) {
+  return topicPrefix(root) + proto::kTopicDeviceStopBefore + device + proto::kTopicDeviceStopAfter;
+}
+
 bool parseDirection(const uint8_t* payload, size_t len, Direction& out) {
   if (payload == nullptr || len != 1) return false;
   switch (payload[0]) {

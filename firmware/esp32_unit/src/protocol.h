@@ -26,6 +26,8 @@ bool isValidRoot(const std::string& root);
 std::string directionTopic(const std::string& root, const std::string& unit);
 std::string estopTopic(const std::string& root);
 std::string deviceConnectionTopic(const std::string& root, const std::string& device);
+// Where the device's button presses: its own stop topic (only operators release, on the latch).
+std::string deviceStopTopic(const std::string& root, const std::string& device);
 
 // Exactly one of `N E S W -`; anything else returns false and leaves `out` alone.
 bool parseDirection(const uint8_t* payload, size_t len, Direction& out);

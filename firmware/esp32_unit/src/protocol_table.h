@@ -29,6 +29,13 @@ constexpr char kTopicDirectionAfter[] = "/direction";
 constexpr uint8_t kTopicDirectionQos = 0;
 constexpr bool kTopicDirectionRetained = true;
 constexpr size_t kTopicDirectionMaxBytes = 8;
+// stop: units/{unit}/stop
+constexpr char kTopicStopPattern[] = "units/{unit}/stop";
+constexpr char kTopicStopBefore[] = "units/";
+constexpr char kTopicStopAfter[] = "/stop";
+constexpr uint8_t kTopicStopQos = 1;
+constexpr bool kTopicStopRetained = true;
+constexpr size_t kTopicStopMaxBytes = 512;
 // estop: fleet/estop
 constexpr char kTopicEstop[] = "fleet/estop";
 constexpr uint8_t kTopicEstopQos = 1;
@@ -41,6 +48,13 @@ constexpr char kTopicDeviceConnectionAfter[] = "/connection";
 constexpr uint8_t kTopicDeviceConnectionQos = 1;
 constexpr bool kTopicDeviceConnectionRetained = true;
 constexpr size_t kTopicDeviceConnectionMaxBytes = 16;
+// device_stop: devices/{device}/stop
+constexpr char kTopicDeviceStopPattern[] = "devices/{device}/stop";
+constexpr char kTopicDeviceStopBefore[] = "devices/";
+constexpr char kTopicDeviceStopAfter[] = "/stop";
+constexpr uint8_t kTopicDeviceStopQos = 1;
+constexpr bool kTopicDeviceStopRetained = true;
+constexpr size_t kTopicDeviceStopMaxBytes = 512;
 
 // direction payload: exactly one of these characters ('-': no move).
 constexpr char kDirectionN = 'N';
