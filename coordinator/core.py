@@ -187,7 +187,11 @@ class CoordinatorCore:
             if self.world.on_state(unit, msg, now):
                 self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
                 self.views.map_dirty = True
-            self.orders.heard(unit, msg)
+            forged = self.orders.heard(unit, msg)
+            if forged is not None:  # the state is the unit's own; the order it follows is not
+                self.errors_reported += 1
+                self._log.append((logging.WARNING, forged))
+                return self._effects([self.say.error(topic, forged, None)])
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal):

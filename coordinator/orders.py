@@ -46,6 +46,7 @@ class Track:
     unacked: set[Cell] = field(default_factory=set)  # every square sent since the last ack
     target: Cell | None = None
     waiting: int = 0
+    forged: bool = False  # the unit follows an update we never sent: hold it, then a new order
 
 
 def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool:
@@ -118,7 +119,7 @@ class Orders:
             t.waiting = 0
         elif st.status == "waiting":
             t.waiting += 1
-        if estop:
+        if estop or t.forged:
             released: list[Cell] = []
         elif settled:
             released = [move] if move is not None and move != pos else []
@@ -126,6 +127,7 @@ class Orders:
             remaining = self._remaining(u, t)
             blocked = any(not grid.is_free(c) for c in remaining)
             released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
+        t.forged = False
         if target != t.target or t.order_id is None:
             t.route_no += 1
             t.order_id = f"{self.nonce}-{u.id}-{t.route_no}"
@@ -165,11 +167,29 @@ class Orders:
         """Await an acknowledgement of each of this step's orders: the unit's next state."""
         self.awaiting = {u: (p.order_id, p.update_id) for u, p in plans.items()}
 
-    def heard(self, unit_id: str, state: UnitState) -> None:
-        """A unit's state arrived: it may acknowledge the order awaited from it."""
+    def heard(self, unit_id: str, state: UnitState) -> str | None:
+        """A unit's state arrived: it may acknowledge the order awaited from it.
+
+        Returns a problem when the state follows an update of our order that we never sent: a
+        forged order (same order id, a jumped update id), which would make every later real
+        update look stale to the unit. The unit then gets a hold under a new order id, which it
+        takes at once.
+        """
+        t = self.tracks.get(unit_id)
+        if t is not None and t.order_id is not None and state.order_id == t.order_id:
+            if state.order_update_id > t.update_id:
+                problem = (
+                    f"unit {unit_id} follows update {state.order_update_id} of order "
+                    f"{t.order_id}, which was never sent (the latest is {t.update_id}): a forged "
+                    "order; it gets a hold under a new order"
+                )
+                t.order_id, t.forged = None, True
+                self.awaiting.pop(unit_id, None)
+                return problem
         awaited = self.awaiting.get(unit_id)
         if awaited is not None and acknowledges(state, *awaited):
             del self.awaiting[unit_id]
+        return None
 
     def holds(self, unit_ids: list[str], step_no: int) -> dict[str, OrderPlan]:
         """An update releasing nothing for each unit that has had an order; nothing is awaited."""

@@ -407,6 +407,24 @@ def test_a_state_acknowledging_the_order_ends_the_wait(core: CoordinatorCore) ->
     assert published(effects) == [] and effects.awaiting == frozenset()
 
 
+def test_a_jumped_update_id_is_reported_and_replaced_by_a_hold_under_a_new_order(
+    core: CoordinatorCore,
+) -> None:
+    under_way(core)  # n-unit1-1 update 1 went out
+    # unit1 took a forged order: our order id, an update id we never sent.
+    forged = state(seq=1, order_id="n-unit1-1", order_update_id=2_000_000_000, released=[(1, 0)])
+    effects = from_unit(core, "state", "unit1", forged, 1.2)
+    reason = (
+        "unit unit1 follows update 2000000000 of order n-unit1-1, which was never sent (the latest"
+        " is 1): a forged order; it gets a hold under a new order"
+    )
+    assert published(effects) == [error(0, "gridfleet/v1/units/unit1/state", reason)]
+    assert effects.awaiting == frozenset()
+    # The next order is new (the unit takes it at once, whatever update it followed) and holds.
+    order = orders_in(core.step(2.0))["unit1"]
+    assert (order.order_id, order.update_id, order.released) == ("n-unit1-2", 1, [])
+
+
 def test_a_step_with_nothing_to_do_holds_and_waits_for_no_unit() -> None:
     c = make_core(GRID)
     c.on_connect()

@@ -7,6 +7,7 @@ replies awaited).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -180,6 +181,43 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
         i: (jobs[i].state, jobs[i].reason) for i in ids
     }
     assert sum(world.moves.values()) > sum(frozen[0].values())
+    assert world.collisions == 0, world.log
+
+
+def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
+    system: System, operator: OperatorPeer, topics: Topics, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    _, fleet = system()
+    world = world_of(fleet)
+    assert operator.submit_job(*PLAYFIELD_JOBS[0], job_id="f1").accepted
+    first = wait_for(
+        lambda: next((s for u in CAPACITY for s in operator.states(u) if s.order_id), None),
+        timeout=10,
+        what="an order under way",
+    )
+    assert first.order_id is not None
+    unit = first.order_id.split("-")[-2]  # <nonce>-<unit>-<route>
+    # The coordinator's current order id, an update id it will not reach: every later real
+    # update of this order would look stale to the unit, which holds on the forged one.
+    forged = {
+        "header": {
+            "version": "1.0",
+            "seq": 0,
+            "timestamp": "2026-11-23T00:00:00Z",
+            "sender": "coordinator",
+        },
+        "order_id": first.order_id,
+        "update_id": 2_000_000_000,
+        "step": 0,
+        "released": [],
+        "planned": [],
+        "target": None,
+        "action": None,
+    }
+    probe_factory().publish(topics.unit("order", unit), json.dumps(forged), qos=1)
+    wait_for(lambda: operator.all_final(["f1"]), timeout=30, what="the job done all the same")
+    assert operator.listed_jobs()["f1"].state == "done"
+    assert any("never sent" in e.reason for e in operator.errors())  # and it was reported
     assert world.collisions == 0, world.log
 
 
