@@ -54,6 +54,15 @@ def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool
     return state.order_id == order_id and state.order_update_id >= update_id
 
 
+def follows_unsent(state: UnitState, t: Track) -> bool:
+    """Whether a state shows an update of our current order beyond the latest we sent."""
+    return (
+        t.order_id is not None
+        and state.order_id == t.order_id
+        and (state.order_update_id > t.update_id)
+    )
+
+
 class Orders:
     """Every unit's Track, the order each unit gets next, and the acknowledgements still due."""
 
@@ -176,16 +185,15 @@ class Orders:
         takes at once.
         """
         t = self.tracks.get(unit_id)
-        if t is not None and t.order_id is not None and state.order_id == t.order_id:
-            if state.order_update_id > t.update_id:
-                problem = (
-                    f"unit {unit_id} follows update {state.order_update_id} of order "
-                    f"{t.order_id}, which was never sent (the latest is {t.update_id}): a forged "
-                    "order; it gets a hold under a new order"
-                )
-                t.order_id, t.forged = None, True
-                self.awaiting.pop(unit_id, None)
-                return problem
+        if t is not None and follows_unsent(state, t):
+            problem = (
+                f"unit {unit_id} follows update {state.order_update_id} of order {t.order_id}, "
+                f"which was never sent (the latest is {t.update_id}): a forged order; it gets a "
+                "hold under a new order"
+            )
+            t.order_id, t.forged = None, True
+            self.awaiting.pop(unit_id, None)
+            return problem
         awaited = self.awaiting.get(unit_id)
         if awaited is not None and acknowledges(state, *awaited):
             del self.awaiting[unit_id]
