@@ -5,10 +5,21 @@
 #define GF_WIFI_SSID "your-network"
 #define GF_WIFI_PASSWORD "your-password"
 
-// MQTT broker: the machine running `gridfleet broker` / `gridfleet up` (not 127.0.0.1: that
-// would be the ESP32 itself). Plain TCP MQTT, default port 1883.
+// MQTT broker: the LAN address of the machine running `gridfleet broker` (not 127.0.0.1: that
+// would be the ESP32 itself). With TLS (below) port 8883, and the broker's certificate must be
+// made for this address: `gridfleet accounts tls --out DIR --host 127.0.0.1 --host 192.168.1.10`.
 #define GF_MQTT_HOST "192.168.1.10"
-#define GF_MQTT_PORT 1883
+#define GF_MQTT_PORT 8883
+
+// The CA that signed the broker's certificate: the whole of DIR/ca.pem from `gridfleet accounts
+// tls`, BEGIN and END lines included (it is public; the key stays on the broker). The device
+// then connects with TLS and refuses a broker that CA did not vouch for. R"PEM()PEM" (empty)
+// instead: plain TCP MQTT (port 1883), readable by anyone on the network.
+// Paste it between the PEM( and )PEM markers as it is, line breaks and all.
+static const char GF_MQTT_CA_PEM[] = R"PEM(-----BEGIN CERTIFICATE-----
+paste the lines of ca.pem here
+-----END CERTIFICATE-----
+)PEM";
 
 // This device's broker account, from the fleet's accounts file (`gridfleet accounts init`
 // makes `device-<unit>` for each unit; its password is in that file). Empty user: none.

@@ -4,15 +4,21 @@
 #include <Arduino.h>
 #include <PubSubClient.h>
 #include <WiFi.h>
+#include <WiFiClientSecure.h>
 
 #include <atomic>
 
 #include "config.h"
 #include "src/device.h"
 #include "src/pubsub_transport.h"
+#include "src/tls_config.h"
 
 WiFiClient wifiClient;
-PubSubClient mqttClient(wifiClient);
+WiFiClientSecure secureClient;
+// TLS when config.h gives the broker's CA (the broker's certificate must be signed by it and
+// name GF_MQTT_HOST); plain TCP when GF_MQTT_CA_PEM is empty.
+WiFiClient& netClient = gf::chooseClient(wifiClient, secureClient, GF_MQTT_CA_PEM);
+PubSubClient mqttClient(netClient);
 gf::PubSubTransport transport(mqttClient, GF_MQTT_USER, GF_MQTT_PASSWORD);
 gf::WiFiLink wifiLink(GF_WIFI_SSID, GF_WIFI_PASSWORD);
 gf::ArduinoClock arduinoClock;
@@ -58,6 +64,7 @@ void setup() {
 
   static gf::DeviceConfig config = makeConfig();
   std::string problem = config.problem();
+  if (problem.empty()) problem = gf::caProblem(GF_MQTT_CA_PEM);
   if (!problem.empty()) {
     Serial.println(("gridfleet: config.h: " + problem).c_str());
     return;  // loop() then blinks the stop pattern and does nothing else

@@ -19,7 +19,7 @@ class PubSubClient {
     bool retained;
   };
 
-  explicit PubSubClient(WiFiClient&) {}
+  explicit PubSubClient(WiFiClient& net) : network(&net) {}
   PubSubClient& setServer(const char* host, uint16_t port) {
     this->host = host;
     this->port = port;
@@ -76,6 +76,7 @@ class PubSubClient {
   int state() { return isConnected ? 0 : -1; }
 
   // Test side.
+  WiFiClient* network;  // the client it talks through (plain or TLS)
   std::string host;
   uint16_t port = 0;
   uint16_t bufferSize = 256;

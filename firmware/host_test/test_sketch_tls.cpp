@@ -1,0 +1,36 @@
+// The sketch's choice of network client: TLS trusting config.h's CA when one is given, plain TCP
+// when GF_MQTT_CA_PEM is empty, and the example's placeholder refused.
+#include <doctest/doctest.h>
+
+#include <PubSubClient.h>
+#include <WiFiClientSecure.h>
+#include <config.h>
+
+#include "../esp32_unit/src/tls_config.h"
+
+extern PubSubClient mqttClient;
+extern WiFiClient wifiClient;
+extern WiFiClientSecure secureClient;
+
+TEST_CASE("with a CA in config.h the sketch talks MQTT through WiFiClientSecure trusting it") {
+  CHECK(mqttClient.network == &secureClient);
+  CHECK(secureClient.caCert == GF_MQTT_CA_PEM);
+  CHECK(secureClient.caCertCalls == 1);
+  CHECK(GF_MQTT_PORT == 8883);
+}
+
+TEST_CASE("an empty CA means plain TCP and no CA is set") {
+  WiFiClient plain;
+  WiFiClientSecure secure;
+  CHECK(&gf::chooseClient(plain, secure, "") == &plain);
+  CHECK(secure.caCertCalls == 0);
+  CHECK(&gf::chooseClient(plain, secure, "-----BEGIN CERTIFICATE-----") == &secure);
+  CHECK(secure.caCertCalls == 1);
+}
+
+TEST_CASE("the CA must be a PEM certificate, and not the example's placeholder") {
+  CHECK(gf::caProblem("").empty());
+  CHECK(gf::caProblem(GF_MQTT_CA_PEM).empty());
+  CHECK(gf::caProblem(kExampleCaPem).find("placeholder") != std::string::npos);
+  CHECK(gf::caProblem("MIIBdTCCARugAwIBAgIU").find("not a PEM certificate") != std::string::npos);
+}
