@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
-DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium doctest-dev g++ make
+DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -62,6 +62,9 @@ def subject_names(hosts: Sequence[str]) -> list[x509.GeneralName]:
                 "to; give the machine's LAN address (and 127.0.0.1)"
             )
         names.append(x509.IPAddress(address))
+        # mbedTLS 2.x (ESP32 Arduino cores before 3.0) matches an address only against DNS
+        # names; the same text as a DNS name lets the firmware verify an address too.
+        names.append(x509.DNSName(host))
     return names
 
 
