@@ -30,7 +30,7 @@ def cli(*args: str) -> subprocess.CompletedProcess[str]:
     [
         (["--units", "unit1,unit9"], "unknown unit 'unit9'"),
         (["--step", "0"], "--step 0: the step period must be in (0, 60] seconds"),
-        (["--broker", "http://x"], "scheme must be mqtt:// or ws://"),
+        (["--broker", "http://x"], "scheme must be mqtt://, mqtts://, ws:// or wss://"),
     ],
 )
 def test_user_mistakes_are_one_line_errors(
