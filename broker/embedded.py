@@ -157,25 +157,6 @@ def load_settings(path: str | Path, base: BrokerSettings | None = None) -> Broke
     return replace(base or BrokerSettings(), **changes)
 
 
-def _make_broker(config: dict[str, Any]) -> Any:
-    """An amqtt Broker with its retained-message leak on connect mended."""
-    from amqtt.broker import Broker  # imported late: amqtt is slow to import
-
-    class _Broker(Broker):  # type: ignore[misc]
-        # amqtt 0.12.1 replays, to every client that connects, the retained messages matching
-        # *every* filter any client ever subscribed to (it loops over the broker-wide
-        # subscription table instead of the session's own). Only send a session retained
-        # messages for filters that session itself holds.
-        async def _publish_retained_messages_for_subscription(
-            self, subscription: tuple[str, int], session: Any
-        ) -> None:
-            holders = self._subscriptions.get(subscription[0], ())
-            if any(s is session or s.client_id == session.client_id for s, _ in holders):
-                await super()._publish_retained_messages_for_subscription(subscription, session)
-
-    return _Broker(config)
-
-
 class EmbeddedBroker:
     """amqtt running in the current event loop; `async with` starts and stops it."""
 
@@ -207,7 +188,9 @@ class EmbeddedBroker:
             fd = os.open(password_file, os.O_WRONLY | os.O_CREAT, 0o600)
             with os.fdopen(fd, "w", encoding="utf-8") as out:
                 out.write(password_lines(self.settings.accounts))
-        self._broker = _make_broker(self.settings.amqtt_config(password_file))
+        from broker.amqtt_broker import make_broker  # imported late: amqtt is slow to import
+
+        self._broker = make_broker(self.settings.amqtt_config(password_file))
         # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).
         self._broker._create_ssl_context = amqtt_listener_context
         amqtt_log = logging.getLogger("amqtt.broker")

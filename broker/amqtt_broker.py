@@ -1,0 +1,415 @@
+"""The amqtt broker gridfleet embeds, mended where amqtt 0.12.1 lets one client hurt the others.
+
+amqtt is untyped: its objects are `Any` here. Every override names the amqtt 0.12.1 behaviour it
+changes; check them again when amqtt is upgraded.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import weakref
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+from typing import Any
+
+from amqtt.adapters import (
+    StreamReaderAdapter,
+    StreamWriterAdapter,
+    WebSocketsReader,
+    WebSocketsWriter,
+)
+from amqtt.broker import Broker
+from amqtt.errors import MQTTError
+from amqtt.mqtt.connack import NOT_AUTHORIZED, ConnackPacket
+from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
+from amqtt.utils import gen_client_id
+
+from gridfleet.errors import ConfigError
+from gridfleet.protocol.constants import MAX_VIEW_BYTES
+
+log = logging.getLogger("gridfleet.broker")
+
+# The largest MQTT packet (headers included, as Mosquitto's max_packet_size counts) a client may
+# send: the protocol's largest message, a retained fleet view, plus room for any topic (at most
+# 64 KiB). A bigger one disconnects its sender before its body is read.
+MAX_PACKET_BYTES = MAX_VIEW_BYTES + 64 * 1024
+# Per connection: live messages handed to it and not yet written out (QoS 0) or acknowledged
+# (QoS 1). Past either limit the broker drops further messages for it, QoS 0 and 1 alike (as
+# Mosquitto's max_queued_messages / max_queued_bytes). One message always fits, whatever its size.
+MAX_QUEUED_MESSAGES = 1000
+MAX_QUEUED_BYTES = 32 * 1024 * 1024
+
+_TAKEOVER_WAIT_S = 5.0  # how long a newcomer waits for the connection it displaces to end
+_PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What one client may cost the broker."""
+
+    max_packet_bytes: int = MAX_PACKET_BYTES
+    max_queued_messages: int = MAX_QUEUED_MESSAGES
+    max_queued_bytes: int = MAX_QUEUED_BYTES
+
+    def __post_init__(self) -> None:
+        for name in ("max_packet_bytes", "max_queued_messages", "max_queued_bytes"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"broker {name} must be at least 1, not {getattr(self, name)}")
+
+
+@dataclass
+class Backlog:
+    """One connection's live messages not yet written out (QoS 0) or acknowledged (QoS 1)."""
+
+    client_id: str
+    messages: int = 0
+    bytes: int = 0
+    dropped: int = 0  # messages refused because the backlog was full
+
+    def admit(self, size: int, limits: Limits) -> bool:
+        """Count in a message of `size` bytes, or count it dropped when the backlog is full."""
+        full = self.messages >= limits.max_queued_messages or (
+            self.messages > 0 and self.bytes + size > limits.max_queued_bytes
+        )
+        if full:
+            self.dropped += 1
+            return False
+        self.messages += 1
+        self.bytes += size
+        return True
+
+    def release(self, size: int) -> None:
+        """Count out a message that was written out, acknowledged, or abandoned."""
+        self.messages -= 1
+        self.bytes -= size
+
+
+def make_broker(
+    config: dict[str, Any],
+    *,
+    max_packet_bytes: int = MAX_PACKET_BYTES,
+    max_queued_messages: int = MAX_QUEUED_MESSAGES,
+    max_queued_bytes: int = MAX_QUEUED_BYTES,
+) -> GridfleetBroker:
+    """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits."""
+    return GridfleetBroker(config, Limits(max_packet_bytes, max_queued_messages, max_queued_bytes))
+
+
+class _GuardedReader:
+    """A connection's amqtt reader that hangs up, at its fixed header, on a packet over the limit.
+
+    amqtt 0.12.1 has no packet size limit: it reads a PUBLISH body of any remaining length (up to
+    the protocol's 256 MiB) into memory, then relays and retains it. It reads each fixed header a
+    byte at a time and then exactly the body's remaining length, so this reader can follow the
+    packet boundaries and refuse before the body is read; amqtt then sees the end of the stream.
+    """
+
+    def __init__(self, reader: Any, hang_up: Callable[[], object], limit: int, peer: str) -> None:
+        self._reader = reader
+        self._hang_up = hang_up
+        self._limit = limit
+        self.peer = peer
+        self.client_id: str | None = None  # known once CONNECT is read
+        self._header = bytearray()  # the fixed header read so far
+        self._left = 0  # bytes of the current packet's body amqtt has not read yet
+        self.closed = False
+
+    async def read(self, n: int = -1) -> bytes:
+        """Up to `n` bytes, as amqtt's ReaderAdapter; b"" once the connection is refused."""
+        if self.closed:
+            return b""
+        if self._left == 0:  # at a fixed header: amqtt reads it one byte at a time
+            if n != 1:
+                return self._refuse(f"a read of {n} bytes where a packet header starts")
+            data: bytes = await self._reader.read(1)
+            if data:
+                self._header += data
+                if len(self._header) > 1 and not data[0] & 0x80:  # the last length byte
+                    return self._end_of_header(data)
+                if len(self._header) > 5:  # amqtt would refuse it too (MQTT-2.2.3)
+                    return self._refuse("a remaining length of more than 4 bytes")
+            return data
+        if n < 0 or n > self._left:  # a malformed packet: amqtt lost track of its boundaries
+            return self._refuse(f"a read of {n} bytes with {self._left} left in the packet")
+        data = await self._reader.read(n)
+        self._left -= len(data)
+        return data
+
+    def _end_of_header(self, last: bytes) -> bytes:
+        body = sum((b & 0x7F) << (7 * i) for i, b in enumerate(self._header[1:]))
+        size = len(self._header) + body
+        self._header.clear()
+        if size > self._limit:
+            return self._refuse(f"a {size}-byte packet, over the {self._limit}-byte limit")
+        self._left = body
+        return last
+
+    def _refuse(self, why: str) -> bytes:
+        who = f"client {self.client_id}" if self.client_id else "a client"
+        log.warning("broker: %s from %s sent %s: disconnected", who, self.peer, why)
+        self.hang_up()
+        return b""
+
+    def hang_up(self) -> None:
+        """Close the connection now, without waiting for the client to read what is pending."""
+        self.closed = True
+        self._hang_up()
+
+    def feed_eof(self) -> None:
+        """As amqtt's ReaderAdapter."""
+        self._reader.feed_eof()
+
+
+class _Outlet:
+    """A client's handler as amqtt's delivery code sees it: live messages pass its Backlog.
+
+    amqtt 0.12.1 starts one task per message and subscriber; for a subscriber that does not read
+    they wait for ever, each holding its message, so the broker grows without bound. Here a
+    message past the backlog's limit is dropped instead, and logged once per connection.
+    """
+
+    def __init__(self, handler: Any, backlog: Backlog, limits: Limits) -> None:
+        self._handler = handler
+        self._backlog = backlog
+        self._limits = limits
+
+    def mqtt_publish(
+        self, topic: str, data: bytes, qos: int, retain: bool, ack_timeout: int | None = None
+    ) -> Any:
+        """A future of the delivery (a coroutine for retained replays, as amqtt expects)."""
+        if retain:
+            # amqtt 0.12.1 sets retain only when it replays retained messages to a subscriber:
+            # bounded by the retained store, one subscription at a time (it awaits each replay
+            # before reading the client's next packet), and never dropped.
+            return self._handler.mqtt_publish(topic, data, qos, retain, ack_timeout)
+        size = len(data)
+        backlog = self._backlog
+        if not backlog.admit(size, self._limits):
+            if backlog.dropped == 1:
+                log.warning(
+                    "broker: client %s is not reading: dropping its messages beyond %d queued "
+                    "(%d bytes), first on %s (logged once per connection)",
+                    backlog.client_id,
+                    backlog.messages,
+                    backlog.bytes,
+                    topic,
+                )
+            dropped: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+            dropped.set_result(None)
+            return dropped
+        # amqtt wraps this in asyncio.ensure_future, which returns a task as it is; counting out
+        # on completion also covers a task cancelled before it ever ran.
+        task = asyncio.ensure_future(self._send(topic, data, qos, ack_timeout))
+        task.add_done_callback(lambda _: backlog.release(size))
+        return task
+
+    async def _send(self, topic: str, data: bytes, qos: int, ack_timeout: int | None) -> None:
+        # Returns nothing: amqtt keeps finished tasks a while, and the message is not needed.
+        await self._handler.mqtt_publish(topic, data, qos, False, ack_timeout)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._handler, name)
+
+
+def _peer(info: Iterable[Any] | None) -> str:
+    host, port, *_ = info or ("?", "?")
+    return f"{host}:{port}"
+
+
+class GridfleetBroker(Broker):  # type: ignore[misc]
+    """amqtt's Broker with gridfleet's limits, and its client-id takeover behind authentication."""
+
+    def __init__(self, config: dict[str, Any], limits: Limits | None = None) -> None:
+        super().__init__(config)
+        self.limits = limits or Limits()
+        self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
+        self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
+        self._prune_at = _PRUNE_FLOOR
+
+    def bound_port(self, listener: str = "default") -> int:
+        """The port `listener` listens on (the one the OS picked for port 0)."""
+        return int(self._servers[listener].instance.sockets[0].getsockname()[1])
+
+    def backlog(self, client_id: str) -> Backlog | None:
+        """A copy of connected client `client_id`'s backlog (None: not connected or no message)."""
+        entry = self._sessions.get(client_id)
+        found = None if entry is None else self._backlogs.get(entry[1])
+        return None if found is None else replace(found)
+
+    # ---- packet size -------------------------------------------------------------------------
+
+    async def stream_connected(self, reader: Any, writer: Any, listener_name: str) -> None:
+        """A TCP (or TLS) connection: amqtt's, with the packet size guard on its reader."""
+        guard = _GuardedReader(
+            StreamReaderAdapter(reader),
+            writer.transport.abort,
+            self.limits.max_packet_bytes,
+            _peer(writer.get_extra_info("peername")),
+        )
+        await self._client_connected(listener_name, guard, StreamWriterAdapter(writer))
+
+    async def ws_connected(self, websocket: Any, listener_name: str) -> None:
+        """A websocket connection: amqtt's, with the packet size guard on its reader."""
+        # The websockets library caps one frame at 1 MiB, but amqtt joins frames into packets.
+        guard = _GuardedReader(
+            WebSocketsReader(websocket),
+            websocket.transport.abort,
+            self.limits.max_packet_bytes,
+            _peer(websocket.remote_address),
+        )
+        await self._client_connected(listener_name, guard, WebSocketsWriter(websocket))
+
+    # ---- authentication before takeover ------------------------------------------------------
+
+    async def _initialize_client_session(
+        self, reader: Any, writer: Any, remote_address: str, remote_port: int
+    ) -> tuple[Any, Any]:
+        """Read CONNECT, check the credentials, and only then take over an existing session.
+
+        amqtt 0.12.1 deletes (clean session) or adopts (persistent session) the session of a
+        client already using the newcomer's client id as soon as it has read CONNECT, and checks
+        the credentials only afterwards: a stranger with a wrong password connecting as
+        `coordinator` cut the coordinator off. Its clean-session takeover also left the displaced
+        connection open without subscriptions, where MQTT-3.1.4-2 requires it be disconnected;
+        its persistent takeover could mark the adopted session disconnected under the newcomer.
+        The session bookkeeping after the check is amqtt's own, copied.
+        """
+        peer = f"{remote_address}:{remote_port}"
+        try:
+            handler, incoming = await BrokerProtocolHandler.init_from_connect(
+                reader, writer, self.plugins_manager
+            )
+        except Exception as exc:  # anything unreadable ends the connection
+            # amqtt 0.12.1 left the socket open after some of these; close it.
+            with contextlib.suppress(Exception):
+                await writer.close()
+            raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
+        # amqtt's _authenticate ignores its listener argument in 0.12.1.
+        if not await super()._authenticate(incoming, None):
+            await ConnackPacket.build(0, NOT_AUTHORIZED).to_stream(writer)
+            await writer.close()
+            raise MQTTError(f"{peer}: client id {incoming.client_id!r} not authorized")
+        if isinstance(reader, _GuardedReader):
+            reader.client_id = incoming.client_id
+        if incoming.client_id:
+            await self._displace(incoming.client_id)
+
+        # amqtt 0.12.1 from here on (plus will_retain and is_anonymous, which it did not carry
+        # over to a resumed session).
+        session = incoming
+        if incoming.clean_session:
+            if incoming.client_id:
+                await self._delete_session(incoming.client_id)
+            else:
+                incoming.client_id = gen_client_id()
+            incoming.parent = 0
+        elif incoming.client_id in self._sessions:
+            session = self._sessions[incoming.client_id][0]
+            for name in (
+                "will_flag",
+                "will_message",
+                "will_topic",
+                "will_qos",
+                "will_retain",
+                "keep_alive",
+                "username",
+                "password",
+                "is_anonymous",
+            ):
+                setattr(session, name, getattr(incoming, name))
+            session.parent = 1
+        else:
+            incoming.parent = 0
+        delay = self.config.get("timeout-disconnect-delay", 0)
+        if session.keep_alive > 0 and isinstance(delay, int):
+            session.keep_alive += delay
+
+        session.attributes["gridfleet.authenticated"] = True  # for _authenticate, next
+        self._ended[handler] = asyncio.Event()
+        return handler, session
+
+    async def _authenticate(self, session: Any, listener: Any) -> bool:
+        """amqtt's check, skipped for the session just authenticated above (Argon2 costs ~30 ms)."""
+        if session.attributes.pop("gridfleet.authenticated", False):
+            return True
+        return bool(await super()._authenticate(session, listener))
+
+    async def _displace(self, client_id: str) -> None:
+        """Disconnect the connection holding `client_id` and wait until amqtt has let it go."""
+        entry = self._sessions.get(client_id)
+        if entry is None or entry[0].transitions.state != "connected":
+            return
+        old = entry[1]
+        log.info("broker: client id %s taken over by a new connection", client_id)
+        ended = self._ended.get(old)
+        if isinstance(old.reader, _GuardedReader):
+            old.reader.hang_up()  # at once, even if it does not read what is pending
+        # As amqtt's own takeover: its message loop sees a disconnection and ends the session
+        # (sending its will) before the newcomer's first message.
+        await old.handle_connection_closed()
+        if ended is not None:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(ended.wait(), _TAKEOVER_WAIT_S)
+
+    async def _handle_client_session(
+        self,
+        reader: Any,
+        writer: Any,
+        client_session: Any,
+        handler: Any,
+        server: Any,
+        listener_name: str,
+    ) -> None:
+        """amqtt's; then tells a newcomer waiting in `_displace` that this connection ended."""
+        try:
+            await super()._handle_client_session(
+                reader, writer, client_session, handler, server, listener_name
+            )
+        finally:
+            ended = self._ended.pop(handler, None)
+            if ended is not None:
+                ended.set()
+
+    # ---- per-client queue ----------------------------------------------------------------------
+
+    def _get_handler(self, session: Any) -> Any:
+        """The session's handler behind its backlog (amqtt 0.12.1 only publishes through this)."""
+        handler = super()._get_handler(session)
+        if handler is None:
+            return None
+        backlog = self._backlogs.get(handler)
+        if backlog is None:
+            backlog = self._backlogs[handler] = Backlog(str(session.client_id))
+        return _Outlet(handler, backlog, self.limits)
+
+    async def _run_broadcast(self, running_tasks: deque[asyncio.Task[Any]]) -> None:
+        """amqtt's, then a sweep of finished deliveries when they pile up."""
+        await super()._run_broadcast(running_tasks)
+        # amqtt 0.12.1 (_broadcast_loop) drops finished deliveries only from the front of this
+        # deque: one delivery stuck on a client that does not read kept every later one, of every
+        # client, in memory. Sweep the finished ones wherever they are (amortised: the sweep runs
+        # when the deque has doubled since the last one).
+        if len(running_tasks) > self._prune_at:
+            pending = [t for t in running_tasks if not t.done()]
+            for task in running_tasks:
+                if task.done() and not task.cancelled() and task.exception() is not None:
+                    log.debug("broker: a delivery failed: %r", task.exception())
+            running_tasks.clear()
+            running_tasks.extend(pending)
+            self._prune_at = max(_PRUNE_FLOOR, 2 * len(running_tasks))
+
+    # ---- retained messages -------------------------------------------------------------------
+
+    async def _publish_retained_messages_for_subscription(
+        self, subscription: tuple[str, int], session: Any
+    ) -> None:
+        """amqtt's, only for filters the session itself holds."""
+        # amqtt 0.12.1 replays, to every client that connects, the retained messages matching
+        # *every* filter any client ever subscribed to (it loops over the broker-wide
+        # subscription table instead of the session's own).
+        holders = self._subscriptions.get(subscription[0], ())
+        if any(s is session or s.client_id == session.client_id for s, _ in holders):
+            await super()._publish_retained_messages_for_subscription(subscription, session)
