@@ -31,6 +31,22 @@ test("bad input is reported and changes nothing", () => {
   assert.equal(v.stopped, true, "an invalid payload never releases");
 });
 
+test("a held press stops the fleet on the page until it is cleared; the latch wins", () => {
+  const v = new FleetView();
+  v.apply("estop", null, "released|dashboard|ok", 0);
+  v.apply("device_stop", "dev1", "engaged|dev1|button", 1);
+  assert.equal(v.stopped, true);
+  assert.deepEqual(v.estop, { engaged: true, by: "dev1", reason: "button", press: true });
+  assert.match(v.apply("device_stop", "dev1", "released|dev1|button", 2), /invalid stop press of dev1/);
+  assert.equal(v.stopped, true, "a press cannot release");
+  v.apply("estop", null, "engaged|dev1|button", 3); // the coordinator's copy
+  assert.deepEqual(v.estop, { engaged: true, by: "dev1", reason: "button" });
+  v.apply("estop", null, "released|operator|checked", 4);
+  assert.equal(v.stopped, true, "released, but the press is not cleared yet");
+  v.apply("device_stop", "dev1", "", 5); // cleared by the coordinator after the release
+  assert.equal(v.stopped, false);
+});
+
 test("a cleared retained message removes the unit", () => {
   const v = new FleetView();
   v.apply("state", "u1", state([0, 0]), 0);

@@ -3,7 +3,7 @@ import assert from "node:assert/strict";
 import { readFileSync } from "node:fs";
 import { test } from "node:test";
 import {
-  decodeEstop, encodeEstop, FINAL_JOB_STATES, ID_RE, makeClientId, parseTopic, PROTOCOL_VERSION, Stamper,
+  decodeEstop, decodePress, encodeEstop, FINAL_JOB_STATES, ID_RE, makeClientId, parseTopic, PROTOCOL_VERSION, Stamper,
   subscriptions, topicsFor,
 } from "../static/js/protocol.js";
 import * as generated from "../static/js/protocol_table.js";
@@ -22,6 +22,18 @@ test("topics follow protocol.md", () => {
   assert.equal(subs["lab/a/v1/fleet/routes"].qos, 0);
   assert.equal(subs["lab/a/v1/fleet/estop"].qos, 1);
   assert.ok("lab/a/v1/replies/dash-1" in subs);
+  assert.equal(subs["lab/a/v1/units/+/stop"].qos, 1);
+  assert.equal(subs["lab/a/v1/devices/+/stop"].qos, 1);
+});
+
+test("a stop press is engage-only and names its source", () => {
+  assert.deepEqual(parseTopic(T.prefix, "lab/a/v1/devices/dev1/stop"), { kind: "device_stop", id: "dev1" });
+  assert.deepEqual(parseTopic(T.prefix, "lab/a/v1/units/unit2/stop"), { kind: "stop", id: "unit2" });
+  assert.equal(parseTopic(T.prefix, "lab/a/v1/devices/dev1/bogus"), null);
+  assert.deepEqual(decodePress("engaged|dev1|button", "dev1"), { engaged: true, by: "dev1", reason: "button" });
+  assert.equal(decodePress("", "dev1"), null);
+  assert.throws(() => decodePress("released|dev1|button", "dev1"), /not a stop press of dev1/);
+  assert.throws(() => decodePress("engaged|dev2|button", "dev1"), /not a stop press of dev1/);
 });
 
 test("parseTopic routes ours and refuses the rest", () => {
@@ -95,10 +107,12 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       assert.equal(T[kind], topic);
     }
     // Every topic the page subscribes to, at the topic's own QoS.
-    const filter = spec.placeholder === "unit" ? T.allUnits(kind) : spec.placeholder === "client" ? T.reply("dash-1") : topic;
+    const filter = spec.placeholder === "unit" ? T.allUnits(kind)
+      : spec.placeholder === "client" ? T.reply("dash-1")
+      : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  assert.equal(Object.keys(subs).length, 10);
+  assert.equal(Object.keys(subs).length, 12); // 10, and every unit's and device's stop press
   assert.throws(() => T.allUnits("estop"), /not a per-unit topic kind/);
   assert.throws(() => T.request("jobs"), /not a request kind/);
   const e = TABLE.estop;

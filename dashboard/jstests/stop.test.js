@@ -21,6 +21,13 @@ test("pressed here: shown at once, before the broker has it, and not yet releasa
   assert.equal(estopLook(released, true).banner, "EMERGENCY STOP — sending…");
 });
 
+test("a press not latched yet: shown, but nothing to release", () => {
+  const look = estopLook({ engaged: true, by: "dev1", reason: "button", press: true }, false);
+  assert.equal(look.state, "engaged");
+  assert.match(look.banner, /pressed on dev1: button \(not latched yet/);
+  assert.equal(look.canRelease, false);
+});
+
 test("engaged on the broker: who stopped and why, and the release", () => {
   const byDevice = { engaged: true, by: "device1", reason: "button pressed" };
   assert.deepEqual(estopLook(byDevice, false), {

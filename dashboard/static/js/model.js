@@ -1,7 +1,7 @@
 // The fleet as the page knows it, built only from MQTT messages. Pure: no DOM, no network, no clock
 // (callers pass `now` in milliseconds).
 
-import { decodeEstop, FINAL_JOB_STATES } from "./protocol.js";
+import { decodeEstop, decodePress, FINAL_JOB_STATES } from "./protocol.js";
 
 export const HIGHLIGHT_MS = 4000; // how long a newly discovered obstacle stays highlighted
 const key = (sq) => `${sq[0]},${sq[1]}`;
@@ -16,7 +16,8 @@ export class FleetView {
     this.routes = {}; // unit -> {released, planned, target}
     this.routesStep = null; // the coordinator's step, from its routes (published every step)
     this.coordinator = null;
-    this.estop = null; // {engaged, by, reason} or null when nobody has said
+    this.latch = null; // fleet/estop: {engaged, by, reason} or null when nobody has said
+    this.presses = new Map(); // "kind/id" -> the held stop press of a unit or device
     this.obstacles = new Map(); // "x,y" -> first seen (ms)
     this.lastError = null;
   }
@@ -33,10 +34,16 @@ export class FleetView {
   /** Apply one message; returns a string describing a problem, or null. */
   apply(kind, id, text, now) {
     if (kind === "estop") {
-      if (text === "") { this.estop = null; return null; }
+      if (text === "") { this.latch = null; return null; }
       const signal = decodeEstop(text);
       if (!signal) return `ignored an invalid emergency-stop payload: ${text.slice(0, 60)}`;
-      this.estop = signal;
+      this.latch = signal;
+      return null;
+    }
+    if (kind === "stop" || kind === "device_stop") {
+      let press;
+      try { press = decodePress(text, id); } catch (e) { return `ignored an invalid stop press of ${id}`; }
+      if (press) this.presses.set(`${kind}/${id}`, press); else this.presses.delete(`${kind}/${id}`);
       return null;
     }
     if (text === "") { // a cleared retained message
@@ -154,6 +161,16 @@ export class FleetView {
   onMap(x, y) {
     const m = this.map;
     return !!m && Number.isInteger(x) && Number.isInteger(y) && x >= 0 && y >= 0 && x < m.width && y < m.height;
+  }
+
+  /**
+   * The stop as protocol.md 5.1 reads it: the latch when engaged, else a held press (marked
+   * `press: true`: the coordinator has not copied it into the latch yet), else the latch.
+   */
+  get estop() {
+    if (this.latch?.engaged) return this.latch;
+    const press = this.presses.values().next().value;
+    return press ? { ...press, press: true } : this.latch;
   }
 
   get stopped() { return !!this.estop?.engaged; }

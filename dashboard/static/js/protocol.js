@@ -12,6 +12,10 @@ export const FINAL_JOB_STATES = new Set(FINAL_STATES);
 
 const kindsWhere = (test) => Object.keys(TOPICS).filter((kind) => test(TOPICS[kind], kind));
 const UNIT_KINDS = new Set(kindsWhere((t) => t.placeholder === "unit"));
+// A device topic's last level -> its kind (devices/<device>/stop is `device_stop`).
+const DEVICE_KINDS = new Map(
+  kindsWhere((t) => t.placeholder === "device").map((k) => [TOPICS[k].pattern.split("/").pop(), k]),
+);
 const REQUEST_KINDS = new Set(kindsWhere((t) => t.pattern.startsWith("requests/")));
 // Fleet-wide topics by path (fleet/..., errors, coordinator/status); the page reads no requests.
 const FLEET_KINDS = new Map(
@@ -42,6 +46,7 @@ export function topicsFor(root) {
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
     allUnits: (kind) => topicOf(p, check(UNIT_KINDS, kind, "a per-unit topic kind"), "+"),
+    allDevices: (kind) => topicOf(p, check(new Set(DEVICE_KINDS.values()), kind, "a per-device topic kind"), "+"),
     request: (kind) => topicOf(p, check(REQUEST_KINDS, kind, "a request kind")),
     reply: (client) => topicOf(p, "reply", client),
   };
@@ -56,6 +61,9 @@ export function subscriptions(topics, clientId) {
   const subs = {};
   for (const kind of SUBSCRIBED_UNIT_KINDS) subs[topics.allUnits(kind)] = { qos: TOPICS[kind].qos };
   for (const kind of SUBSCRIBED_FLEET_KINDS) subs[topics[kind]] = { qos: TOPICS[kind].qos };
+  // Every stop press, so a press shows even before the coordinator copies it into the latch.
+  subs[topics.allUnits("stop")] = { qos: TOPICS.stop.qos };
+  subs[topics.allDevices("device_stop")] = { qos: TOPICS.device_stop.qos };
   subs[topics.reply(clientId)] = { qos: TOPICS.reply.qos };
   return subs;
 }
@@ -66,6 +74,9 @@ export function parseTopic(prefix, topic) {
   const rest = topic.slice(prefix.length + 1).split("/");
   if (rest.length === 3 && rest[0] === "units" && UNIT_KINDS.has(rest[2]) && ID_RE.test(rest[1])) {
     return { kind: rest[2], id: rest[1] };
+  }
+  if (rest.length === 3 && rest[0] === "devices" && DEVICE_KINDS.has(rest[2]) && ID_RE.test(rest[1])) {
+    return { kind: DEVICE_KINDS.get(rest[2]), id: rest[1] };
   }
   if (rest.length === 2 && topicOf(prefix, "reply", rest[1]) === topic && ID_RE.test(rest[1])) {
     return { kind: "reply", id: rest[1] };
@@ -99,6 +110,14 @@ export function decodeEstop(text) {
   if (parts.length < 2 || (parts[0] !== ESTOP.engaged && parts[0] !== ESTOP.released)) return null;
   if (!ID_RE.test(parts[1])) return null;
   return { engaged: parts[0] === ESTOP.engaged, by: parts[1], reason: parts.slice(2).join(ESTOP.separator) };
+}
+
+/** A stop press of `source` (its own stop topic): {engaged, by, reason}; null when cleared (empty). */
+export function decodePress(text, source) {
+  if (text === "") return null;
+  const signal = decodeEstop(text);
+  if (!signal || !signal.engaged || signal.by !== source) throw new Error(`not a stop press of ${source}`);
+  return signal;
 }
 
 /** A client id for this page: prefix plus random hex, always a valid protocol id. */

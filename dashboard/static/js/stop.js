@@ -22,15 +22,19 @@ export function estopLook(estop, localStop) {
   const stopped = engaged || localStop;
   let banner = null;
   if (stopped) {
-    banner = engaged
-      ? `EMERGENCY STOP — engaged by ${estop.by}${estop.reason ? ": " + estop.reason : ""}`
-      : "EMERGENCY STOP — sending…";
+    const why = engaged ? `${estop.by}${estop.reason ? ": " + estop.reason : ""}` : "";
+    banner = !engaged
+      ? "EMERGENCY STOP — sending…"
+      : estop.press
+        ? `EMERGENCY STOP — pressed on ${why} (not latched yet: is the coordinator running?)`
+        : `EMERGENCY STOP — engaged by ${why}`;
   }
   return {
     state: stopped ? "engaged" : (estop ? "released" : "unknown"),
     banner,
     stopLabel: stopped ? "STOPPED" : "STOP",
-    canRelease: engaged, // only a stop the broker has can be released
+    // Only a latched stop can be released: a press alone waits for the coordinator to latch it.
+    canRelease: engaged && !estop.press,
   };
 }
 
