@@ -208,7 +208,10 @@ class _Outlet:
 
     async def _send(self, topic: str, data: bytes, qos: int, ack_timeout: int | None) -> None:
         # Returns nothing: amqtt keeps finished tasks a while, and the message is not needed.
-        await self._handler.mqtt_publish(topic, data, qos, False, ack_timeout)
+        # amqtt 0.12.1 gives a QoS 1 message up after 5 s without PUBACK, logging a warning; its
+        # broadcast loop would log each again, with a traceback, as a failed task.
+        with contextlib.suppress(TimeoutError):
+            await self._handler.mqtt_publish(topic, data, qos, False, ack_timeout)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._handler, name)

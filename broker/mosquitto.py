@@ -9,6 +9,7 @@ import os
 import secrets
 from pathlib import Path
 
+from broker.amqtt_broker import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from gridfleet.accounts import Accounts, rules
 from gridfleet.protocol import Topics
 
@@ -51,3 +52,68 @@ def write_files(accounts: Accounts, topics: Topics, directory: Path) -> tuple[Pa
             out.write(text)
         written.append(path)
     return written[0], written[1]
+
+
+def mosquitto_conf(
+    password_file: Path,
+    acl_file: Path,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 1883,
+    ws_port: int | None = 9001,
+    tls_cert: Path | None = None,
+    tls_key: Path | None = None,
+    persistence_dir: Path | None = None,
+    max_packet_bytes: int = MAX_PACKET_BYTES,
+    max_queued_messages: int = MAX_QUEUED_MESSAGES,
+    max_queued_bytes: int = MAX_QUEUED_BYTES,
+) -> str:
+    """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits.
+
+    `persistence_dir` None: nothing survives a restart of Mosquitto, the latched emergency stop
+    (a retained message) included; a directory keeps retained messages across restarts.
+    """
+    tls = tls_cert is not None and tls_key is not None
+    lines = [
+        "# gridfleet fleet broker (broker/mosquitto.py); passwd and acl: 'gridfleet accounts "
+        "mosquitto'",
+        "per_listener_settings false",
+        "allow_anonymous false",
+        "# Started as root, Mosquitto reads these as user mosquitto: let that user read them.",
+        f"password_file {password_file}",
+        f"acl_file {acl_file}",
+        "",
+    ]
+    listeners: list[tuple[int, list[str]]] = [(port, [])]
+    if ws_port is not None:
+        listeners.append((ws_port, ["protocol websockets"]))
+    for number, extra in listeners:
+        lines += [f"listener {number} {host}", *extra]
+        if tls:
+            lines += [f"certfile {tls_cert}", f"keyfile {tls_key}"]
+    lines += [
+        "",
+        "# The protocol's largest message is a retained fleet view of 8 MiB (protocol.md). A bigger",
+        "# packet disconnects its sender, as on the embedded broker (message_size_limit would drop",
+        "# it and keep the connection; one behaviour for both brokers).",
+        f"max_packet_size {max_packet_bytes}",
+        "# A client that does not read: past these its messages are dropped, as on the embedded",
+        "# broker.",
+        f"max_queued_messages {max_queued_messages}",
+        f"max_queued_bytes {max_queued_bytes}",
+        "",
+    ]
+    if persistence_dir is None:
+        lines += [
+            "# Nothing survives a restart: not even a latched emergency stop (retained).",
+            "persistence false",
+        ]
+    else:
+        lines += [
+            "# Retained messages (the latched emergency stop among them) survive a restart; a crash",
+            "# loses at most the last minute.",
+            "persistence true",
+            f"persistence_location {str(persistence_dir).rstrip('/')}/",
+            "autosave_interval 60",
+        ]
+    return "\n".join(lines) + "\n"
