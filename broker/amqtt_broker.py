@@ -1,8 +1,7 @@
-"""The amqtt broker gridfleet embeds, mended where amqtt 0.12.1 lets one client hurt the others.
+"""The amqtt broker gridfleet embeds, mended where amqtt 0.12.1 lets one client hurt the others."""
 
-amqtt is untyped: its objects are `Any` here. Every override names the amqtt 0.12.1 behaviour it
-changes; check them again when amqtt is upgraded.
-"""
+# amqtt is untyped: its objects are `Any` here. Every override names the amqtt 0.12.1 behaviour
+# it changes; check them again when amqtt is upgraded.
 
 from __future__ import annotations
 
@@ -99,13 +98,12 @@ def make_broker(
 
 
 class _GuardedReader:
-    """A connection's amqtt reader that hangs up, at its fixed header, on a packet over the limit.
+    """A connection's amqtt reader that hangs up, at its fixed header, on a packet over the limit."""
 
-    amqtt 0.12.1 has no packet size limit: it reads a PUBLISH body of any remaining length (up to
-    the protocol's 256 MiB) into memory, then relays and retains it. It reads each fixed header a
-    byte at a time and then exactly the body's remaining length, so this reader can follow the
-    packet boundaries and refuse before the body is read; amqtt then sees the end of the stream.
-    """
+    # amqtt 0.12.1 has no packet size limit: it reads a PUBLISH body of any remaining length (up to
+    # the protocol's 256 MiB) into memory, then relays and retains it. It reads each fixed header a
+    # byte at a time and then exactly the body's remaining length, so this reader can follow the
+    # packet boundaries and refuse before the body is read; amqtt then sees the end of the stream.
 
     def __init__(self, reader: Any, hang_up: Callable[[], object], limit: int, peer: str) -> None:
         self._reader = reader
@@ -164,12 +162,11 @@ class _GuardedReader:
 
 
 class _Outlet:
-    """A client's handler as amqtt's delivery code sees it: live messages pass its Backlog.
+    """A client's handler as amqtt's delivery code sees it: live messages pass its Backlog."""
 
-    amqtt 0.12.1 starts one task per message and subscriber; for a subscriber that does not read
-    they wait for ever, each holding its message, so the broker grows without bound. Here a
-    message past the backlog's limit is dropped instead, and logged once per connection.
-    """
+    # amqtt 0.12.1 starts one task per message and subscriber; for a subscriber that does not read
+    # they wait for ever, each holding its message, so the broker grows without bound. Here a
+    # message past the backlog's limit is dropped instead, and logged once per connection.
 
     def __init__(self, handler: Any, backlog: Backlog, limits: Limits) -> None:
         self._handler = handler
@@ -270,16 +267,14 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
     async def _initialize_client_session(
         self, reader: Any, writer: Any, remote_address: str, remote_port: int
     ) -> tuple[Any, Any]:
-        """Read CONNECT, check the credentials, and only then take over an existing session.
-
-        amqtt 0.12.1 deletes (clean session) or adopts (persistent session) the session of a
-        client already using the newcomer's client id as soon as it has read CONNECT, and checks
-        the credentials only afterwards: a stranger with a wrong password connecting as
-        `coordinator` cut the coordinator off. Its clean-session takeover also left the displaced
-        connection open without subscriptions, where MQTT-3.1.4-2 requires it be disconnected;
-        its persistent takeover could mark the adopted session disconnected under the newcomer.
-        The session bookkeeping after the check is amqtt's own, copied.
-        """
+        """Read CONNECT, check the credentials, and only then take over an existing session."""
+        # amqtt 0.12.1 deletes (clean session) or adopts (persistent session) the session of a
+        # client already using the newcomer's client id as soon as it has read CONNECT, and checks
+        # the credentials only afterwards: a stranger with a wrong password connecting as
+        # `coordinator` cut the coordinator off. Its clean-session takeover also left the displaced
+        # connection open without subscriptions, where MQTT-3.1.4-2 requires it be disconnected;
+        # its persistent takeover could mark the adopted session disconnected under the newcomer.
+        # The session bookkeeping after the check is amqtt's own, copied.
         peer = f"{remote_address}:{remote_port}"
         try:
             handler, incoming = await BrokerProtocolHandler.init_from_connect(

@@ -68,11 +68,9 @@ def mosquitto_conf(
     max_queued_messages: int = MAX_QUEUED_MESSAGES,
     max_queued_bytes: int = MAX_QUEUED_BYTES,
 ) -> str:
-    """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits.
-
-    `persistence_dir` None: nothing survives a restart of Mosquitto, the latched emergency stop
-    (a retained message) included; a directory keeps retained messages across restarts.
-    """
+    """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits."""
+    # persistence_dir None: nothing survives a restart of Mosquitto, the latched emergency stop (a
+    # retained message) included; a directory keeps retained messages across restarts.
     tls = tls_cert is not None and tls_key is not None
     lines = [
         "# gridfleet fleet broker (broker/mosquitto.py); passwd and acl: 'gridfleet accounts "

@@ -1,5 +1,4 @@
-"""Hostile and overloading clients: oversized packets, subscribers that do not read, and strangers
-reusing another client's id, against the embedded broker (and the packet limit on Mosquitto)."""
+"""Hostile clients: oversized packets, subscribers that do not read, strangers reusing a client id."""
 
 from __future__ import annotations
 
