@@ -26,20 +26,11 @@ from amqtt.mqtt.connack import NOT_AUTHORIZED, ConnackPacket
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.utils import gen_client_id
 
+from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from gridfleet.errors import ConfigError
-from gridfleet.protocol.constants import MAX_VIEW_BYTES
 
 log = logging.getLogger("gridfleet.broker")
 
-# The largest MQTT packet (headers included, as Mosquitto's max_packet_size counts) a client may
-# send: the protocol's largest message, a retained fleet view, plus room for any topic (at most
-# 64 KiB). A bigger one disconnects its sender before its body is read.
-MAX_PACKET_BYTES = MAX_VIEW_BYTES + 64 * 1024
-# Per connection: live messages handed to it and not yet written out (QoS 0) or acknowledged
-# (QoS 1). Past either limit the broker drops further messages for it, QoS 0 and 1 alike (as
-# Mosquitto's max_queued_messages / max_queued_bytes). One message always fits, whatever its size.
-MAX_QUEUED_MESSAGES = 1000
-MAX_QUEUED_BYTES = 32 * 1024 * 1024
 
 _TAKEOVER_WAIT_S = 5.0  # how long a newcomer waits for the connection it displaces to end
 _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out

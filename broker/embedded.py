@@ -12,6 +12,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.tls import amqtt_listener_context, server_context
 from gridfleet.accounts import Accounts, rules
 from gridfleet.errors import ConfigError
@@ -28,6 +29,9 @@ _SETTING_TYPES = {
     "max_connections": int,
     "tls_cert": str,
     "tls_key": str,
+    "max_packet_bytes": int,
+    "max_queued_messages": int,
+    "max_queued_bytes": int,
 }
 
 
@@ -43,12 +47,18 @@ class BrokerSettings:
     root: str = DEFAULT_ROOT  # the topic root the accounts' rules are made for
     tls_cert: Path | None = None  # with tls_key: the listeners are mqtts and wss
     tls_key: Path | None = None
+    max_packet_bytes: int = MAX_PACKET_BYTES  # a bigger packet disconnects its sender
+    max_queued_messages: int = MAX_QUEUED_MESSAGES  # per client; past them, messages are dropped
+    max_queued_bytes: int = MAX_QUEUED_BYTES
 
     def __post_init__(self) -> None:
         for name in ("port", "ws_port"):
             value = getattr(self, name)
             if value is not None and not 0 <= value <= 65535:
                 raise ConfigError(f"broker {name} {value} is outside 0..65535")
+        for name in ("max_packet_bytes", "max_queued_messages", "max_queued_bytes"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"broker {name} {getattr(self, name)} must be at least 1")
         if self.accounts is None and not is_loopback(self.host):
             raise ConfigError(
                 f"listening on {self.host} lets anyone on that network drive the fleet: give "
@@ -134,7 +144,7 @@ def password_lines(accounts: Accounts) -> str:
 
 def load_settings(path: str | Path, base: BrokerSettings | None = None) -> BrokerSettings:
     """Read a TOML file with a [broker] table (host, port, ws_port, max_connections, tls_cert,
-    tls_key; relative files are relative to the TOML file)."""
+    tls_key, the max_packet_bytes/max_queued_* limits; files are relative to the TOML file)."""
     p = Path(path)
     try:
         data = tomllib.loads(read_text(p, "broker config", ConfigError))
@@ -190,7 +200,13 @@ class EmbeddedBroker:
                 out.write(password_lines(self.settings.accounts))
         from broker.amqtt_broker import make_broker  # imported late: amqtt is slow to import
 
-        self._broker = make_broker(self.settings.amqtt_config(password_file))
+        s = self.settings
+        self._broker = make_broker(
+            s.amqtt_config(password_file),
+            max_packet_bytes=s.max_packet_bytes,
+            max_queued_messages=s.max_queued_messages,
+            max_queued_bytes=s.max_queued_bytes,
+        )
         # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).
         self._broker._create_ssl_context = amqtt_listener_context
         amqtt_log = logging.getLogger("amqtt.broker")

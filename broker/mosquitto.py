@@ -9,7 +9,7 @@ import os
 import secrets
 from pathlib import Path
 
-from broker.amqtt_broker import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
+from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from gridfleet.accounts import Accounts, rules
 from gridfleet.protocol import Topics
 

@@ -146,6 +146,9 @@ def test_settings_come_from_a_config_file(tmp_path: Path) -> None:
     path = tmp_path / "broker.toml"
     path.write_text('[broker]\nport = 1999\nws_port = 9999\nhost = "127.0.0.1"\n')
     assert load_settings(path) == BrokerSettings(port=1999, ws_port=9999)
+    path.write_text("[broker]\nmax_packet_bytes = 65536\nmax_queued_messages = 50\n")
+    limited = load_settings(path)
+    assert (limited.max_packet_bytes, limited.max_queued_messages) == (65536, 50)
 
 
 @pytest.mark.parametrize(
@@ -154,6 +157,7 @@ def test_settings_come_from_a_config_file(tmp_path: Path) -> None:
         ("[broker]\nport = 'x'\n", "must be int"),
         ("[broker]\nprot = 1\n", "unknown broker setting 'prot'"),
         ("[broker]\nport = 70000\n", "outside 0..65535"),
+        ("[broker]\nmax_queued_messages = 0\n", "max_queued_messages 0 must be at least 1"),
         ("[broker\n", "cannot read broker config"),
     ],
 )

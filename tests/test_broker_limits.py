@@ -15,8 +15,9 @@ import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
-from broker.amqtt_broker import MAX_PACKET_BYTES, GridfleetBroker, make_broker
+from broker.amqtt_broker import GridfleetBroker, make_broker
 from broker.embedded import BrokerSettings
+from broker.limits import MAX_PACKET_BYTES
 from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import Accounts, default_accounts
 from gridfleet.config import parse_broker_url
@@ -121,6 +122,20 @@ def test_a_bigger_packet_disconnects_its_sender_and_reaches_nobody(
     late.subscribe(f"{root}/#")
     late.wait(f"{root}/marker")  # retained messages come in the order they were kept
     assert late.received(topic) == []
+
+
+def test_the_packet_limit_is_a_broker_setting() -> None:
+    settings = BrokerSettings(port=0, ws_port=None, max_packet_bytes=4096)
+    with BrokerThread(settings) as small, MqttProbe(small.url) as live:
+        live.subscribe(f"{ROOT}/#")
+        sender = Client(small.url, "over-4k")
+        sender.client.publish(f"{ROOT}/big", b"x" * 5000, qos=0)
+        sender.poll_until(lambda: sender.disconnected, what="the 5000-byte packet's sender")
+        sender.close()
+        with MqttProbe(small.url) as other:
+            other.publish(f"{ROOT}/fits", b"y" * 3000)
+            live.wait(f"{ROOT}/fits")
+        assert live.received(f"{ROOT}/big") == []
 
 
 # ---- a subscriber that does not read ------------------------------------------------------------
