@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import get_args
 
 from broker.certs import DEFAULT_HOSTS, make_tls, write_tls
-from broker.mosquitto import write_files
+from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import (
     Account,
     Role,
@@ -35,10 +35,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add.add_argument("--role", required=True, choices=get_args(Role))
     add.add_argument("--unit", help="the unit a unit or device account belongs to")
     add.add_argument("--file", type=Path, required=True, help="accounts file to add to")
-    mosq = sub.add_parser("mosquitto", help="write Mosquitto's password and ACL files from them")
+    mosq = sub.add_parser(
+        "mosquitto", help="write Mosquitto's password, ACL and config files from them"
+    )
     mosq.add_argument("--file", type=Path, required=True, help="accounts file")
-    mosq.add_argument("--out", type=Path, required=True, help="directory for passwd and acl")
+    mosq.add_argument(
+        "--out", type=Path, required=True, help="directory for passwd, acl and mosquitto.conf"
+    )
     mosq.add_argument("--root", default=DEFAULT_ROOT, help=f"topic root (default {DEFAULT_ROOT!r})")
+    mosq.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)"
+    )
+    mosq.add_argument("--port", type=int, default=1883, help="MQTT port (default 1883)")
+    mosq.add_argument("--ws-port", type=int, default=9001, help="websocket port (default 9001)")
+    mosq.add_argument("--no-ws", action="store_true", help="no websocket listener")
+    mosq.add_argument("--tls-cert", type=Path, help="server certificate ('accounts tls')")
+    mosq.add_argument("--tls-key", type=Path, help="its private key")
+    mosq.add_argument(
+        "--persistence",
+        type=Path,
+        help="where Mosquitto keeps retained messages (the latched stop among them) across "
+        "restarts (default OUT/data; 'none': nothing survives a restart)",
+    )
     tls = sub.add_parser("tls", help="make a local CA and the broker's TLS certificate")
     tls.add_argument("--out", type=Path, required=True, help="directory for the three files")
     tls.add_argument(
@@ -71,16 +89,42 @@ def run(args: argparse.Namespace) -> int:
         )
         return 0
     if args.action == "mosquitto":
-        passwd, acl = write_files(load_accounts(args.file), Topics(args.root), args.out)
-        print(
-            f"wrote {passwd} and {acl}: in mosquitto.conf, 'password_file {passwd}', "
-            f"'acl_file {acl}' and 'allow_anonymous false'"
-        )
-        return 0
+        return _mosquitto(args)
     # A unit account is named after its unit unless --unit says otherwise.
     unit = args.unit if args.unit is not None else (args.name if args.role == "unit" else None)
     accounts = load_accounts(args.file)
     accounts = accounts.with_account(Account(args.name, new_password(), args.role, unit))
     write_accounts(accounts, args.file)
     print(f"added {args.role} account {args.name} to {args.file}")
+    return 0
+
+
+def _mosquitto(args: argparse.Namespace) -> int:
+    """`gridfleet accounts mosquitto`: passwd, acl and a mosquitto.conf that uses them."""
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise ConfigError("TLS needs both --tls-cert FILE and --tls-key FILE")
+    out = args.out.resolve()
+    passwd, acl = write_files(load_accounts(args.file), Topics(args.root), out)
+    persistence = args.persistence if args.persistence is not None else out / "data"
+    keep = None if str(persistence) == "none" else persistence.resolve()
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+    conf = out / "mosquitto.conf"
+    conf.write_text(
+        mosquitto_conf(
+            passwd,
+            acl,
+            host=args.host,
+            port=args.port,
+            ws_port=None if args.no_ws else args.ws_port,
+            tls_cert=None if args.tls_cert is None else args.tls_cert.resolve(),
+            tls_key=None if args.tls_key is None else args.tls_key.resolve(),
+            persistence_dir=keep,
+        ),
+        encoding="utf-8",
+    )
+    print(
+        f"wrote {passwd}, {acl} and {conf} (allow_anonymous false): run 'mosquitto -c {conf}'; "
+        "started as root, Mosquitto reads passwd and acl as user mosquitto: chown them to it"
+    )
     return 0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import socket
 import stat
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from broker.mosquitto import password_hash, write_files
+from broker.mosquitto import mosquitto_conf, password_hash, write_files
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.protocol import Topics
 
@@ -49,10 +50,10 @@ def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> I
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     conf = here / "mosquitto.conf"
-    conf.write_text(
-        "per_listener_settings false\nallow_anonymous false\npersistence false\n"
-        f"password_file {passwd}\nacl_file {acl}\nuser root\nlistener {port} 127.0.0.1\n"
-    )
+    # The product's own config ('gridfleet accounts mosquitto'); as root, Mosquitto would drop to
+    # user mosquitto, which cannot read the owner-only files.
+    as_root = "user root\n" if os.geteuid() == 0 else ""
+    conf.write_text(mosquitto_conf(passwd, acl, port=port, ws_port=None) + as_root)
     proc = subprocess.Popen(
         [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
     )
@@ -108,6 +109,9 @@ def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
     )
     assert done.returncode == 0, done.stderr
     assert "allow_anonymous false" in done.stdout
+    conf = (out / "mosquitto.conf").read_text()
+    assert f"password_file {out.resolve() / 'passwd'}" in conf and "listener 1883 127.0.0.1" in conf
+    assert f"persistence_location {out.resolve() / 'data'}/" in conf  # the latched stop survives
     for name in ("passwd", "acl"):
         assert stat.S_IMODE((out / name).stat().st_mode) == 0o600
     acl = (out / "acl").read_text()
