@@ -1,10 +1,18 @@
-"""The Flask app: the page, its static files, the MQTT.js bundle from node_modules, and settings."""
+"""The Flask app: the page, its static files, the MQTT.js bundle from node_modules, settings and
+the login."""
 
 from __future__ import annotations
 
-from flask import Flask, Response, jsonify, send_from_directory
+from flask import Flask, Response, jsonify, request, send_from_directory
 
-from dashboard.settings import INSTALL_HINT, PACKAGE_DIR, DashboardSettings, settings_payload
+from dashboard.auth import current_user, install_login
+from dashboard.settings import (
+    INSTALL_HINT,
+    LOGIN_FIRST,
+    PACKAGE_DIR,
+    DashboardSettings,
+    settings_payload,
+)
 
 STATIC = PACKAGE_DIR / "static"
 
@@ -15,14 +23,23 @@ def create_app(settings: DashboardSettings) -> Flask:
     # The page is small and changes with upgrades: never let a browser run yesterday's code.
     app.config["SEND_FILE_MAX_AGE_DEFAULT"] = 0
     app.extensions["gridfleet_settings"] = settings
+    secret = install_login(app, settings)
 
     @app.get("/")
     def index() -> Response:
         return send_from_directory(STATIC, "index.html")
 
     @app.get("/api/settings")
-    def api_settings() -> Response:
-        return jsonify(settings_payload(settings, settings.mqtt_bundle.is_file()))
+    def api_settings() -> tuple[Response, int]:
+        user = current_user(settings, secret)
+        if settings.accounts is not None and user is None:
+            body, status = {"error": LOGIN_FIRST, "login": {"required": True, "user": None}}, 401
+        else:
+            present = settings.mqtt_bundle.is_file()
+            body, status = settings_payload(settings, present, user, request.host), 200
+        response = jsonify(body)
+        response.headers["Cache-Control"] = "no-store"  # it may hold a password
+        return response, status
 
     @app.get("/vendor/mqtt.esm.js")
     def mqtt_bundle() -> Response:

@@ -4,18 +4,24 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
+from collections.abc import Mapping
 
 from dashboard.app import create_app
 from dashboard.server import DashboardServer
 from dashboard.settings import INSTALL_HINT, DashboardSettings
+from gridfleet.accounts import load_accounts
 from gridfleet.config import DEFAULT_WS_URL
+from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.maps import load_map
 from gridfleet.options import add_common
 from gridfleet.scenario import load_scenario
 
 log = logging.getLogger("gridfleet.dashboard")
+SECRET_ENV = "GRIDFLEET_DASHBOARD_SECRET"
+MIN_SECRET = 32
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,7 +30,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--broker-ws",
         default=DEFAULT_WS_URL,
         metavar="URL",
-        help=f"the broker's MQTT-over-websocket URL, as the browser reaches it (default {DEFAULT_WS_URL})",
+        help=f"the broker's MQTT-over-websocket URL, ws:// or wss://, as the browser reaches it "
+        f"(default {DEFAULT_WS_URL}; a 0.0.0.0 host: the host the browser loaded the page from)",
+    )
+    parser.add_argument(
+        "--accounts",
+        metavar="FILE",
+        help="accounts file ('gridfleet accounts init'): people log in with an operator or "
+        "dashboard account, and the page uses that account on the broker; the session secret "
+        f"is random per start (everybody logs in again after a restart) unless ${SECRET_ENV} "
+        f"holds one of at least {MIN_SECRET} characters",
     )
     parser.add_argument(
         "--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)"
@@ -41,7 +56,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_common(parser, broker=False)
 
 
-def settings_from(args: argparse.Namespace) -> DashboardSettings:
+def secret_from(environ: Mapping[str, str]) -> bytes | None:
+    """The session secret from the environment (None: a random one per start)."""
+    secret = environ.get(SECRET_ENV)
+    if secret is None:
+        return None
+    if len(secret) < MIN_SECRET:
+        raise ConfigError(f"${SECRET_ENV}: give at least {MIN_SECRET} random characters")
+    return secret.encode()
+
+
+def settings_from(
+    args: argparse.Namespace, environ: Mapping[str, str] = os.environ
+) -> DashboardSettings:
     """Settings from parsed flags; bad files or URLs raise GridfleetError with the reason."""
     grid: GridMap | None = None
     colors: dict[str, str] = {}
@@ -57,6 +84,8 @@ def settings_from(args: argparse.Namespace) -> DashboardSettings:
         client_prefix=args.client_prefix,
         map=grid,
         colors=colors,
+        accounts=None if args.accounts is None else load_accounts(args.accounts),
+        secret_key=secret_from(environ),
     )
 
 
@@ -66,7 +95,14 @@ def run(args: argparse.Namespace) -> int:
     if not settings.mqtt_bundle.is_file():
         log.warning("%s", INSTALL_HINT)
     server = DashboardServer(create_app(settings), args.host, args.port).bind()
-    log.info("dashboard on %s (broker %s, root %r)", server.url, settings.broker_ws, settings.root)
+    login = ", login required" if settings.accounts is not None else ""
+    log.info(
+        "dashboard on %s (broker %s, root %r%s)",
+        server.url,
+        settings.broker_ws,
+        settings.root,
+        login,
+    )
     # SIGTERM is how `gridfleet up` (and systemd) ask for a stop: leave cleanly with code 0.
     signal.signal(signal.SIGTERM, _leave)
     server.serve_forever()

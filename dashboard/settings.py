@@ -1,11 +1,15 @@
-"""What the page needs to know (broker, topic root, map): built and checked without any I/O."""
+"""What the page needs to know (broker, topic root, map, who logs in): built and checked without
+any I/O."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
+from dashboard.login import LOGIN_ROLES
+from gridfleet.accounts import Account, Accounts
 from gridfleet.config import parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
@@ -18,6 +22,9 @@ INSTALL_HINT = (
     "MQTT.js is not installed: run 'npm ci' in the dashboard/ folder "
     "(or 'make install' at the top of the repository), then reload the page."
 )
+LOGIN_FIRST = "log in to see the fleet"
+# A broker listening on every address: the browser reaches it where it reached the page.
+WILDCARD_HOSTS = ("0.0.0.0", "::")
 
 
 @dataclass(frozen=True)
@@ -30,12 +37,33 @@ class DashboardSettings:
     map: GridMap | None = None
     colors: dict[str, str] = field(default_factory=dict)
     node_modules: Path = PACKAGE_DIR / "node_modules"
+    # With accounts, people log in before the page gets any broker credentials.
+    accounts: Accounts | None = field(default=None, repr=False)
+    secret_key: bytes | None = field(default=None, repr=False)  # None: a random one per start
 
     def __post_init__(self) -> None:
         url = parse_broker_url(self.broker_ws)
-        if url.scheme != "ws":
+        if not url.websocket:
             raise ConfigError(
-                f"dashboard broker URL {self.broker_ws!r}: the page needs a websocket URL, ws://host:port"
+                f"dashboard broker URL {self.broker_ws!r}: the page needs a websocket URL, "
+                "ws://host:port or wss://host:port"
+            )
+        if url.username is not None:
+            raise ConfigError(
+                f"dashboard broker URL {url}: no login in the URL (every visitor would get it): "
+                "give --accounts FILE and people log in at the page"
+            )
+        if url.ca_file is not None:
+            raise ConfigError(
+                f"dashboard broker URL {url}: a browser trusts a CA only from its own "
+                "certificate store: import the CA file there and leave out ?cafile="
+            )
+        if self.accounts is not None and not any(
+            a.role in LOGIN_ROLES for a in self.accounts.accounts.values()
+        ):
+            raise ConfigError(
+                "the accounts have no operator or dashboard account: nobody could log in "
+                "('gridfleet accounts add NAME --role operator --file FILE')"
             )
         Topics(self.root)  # raises ProtocolError naming a bad root
         validate_id(self.client_prefix, "client id prefix")
@@ -46,11 +74,41 @@ class DashboardSettings:
         return self.node_modules / MQTT_BUNDLE
 
 
-def settings_payload(settings: DashboardSettings, bundle_present: bool) -> dict[str, Any]:
-    """The JSON body of /api/settings."""
+def browser_broker_url(broker_ws: str, page_host: str | None) -> str:
+    """The broker's websocket URL as the browser reaches it.
+
+    A broker on a wildcard address (0.0.0.0) is reached at the host the page came from (its Host
+    header): the dashboard cannot know which of the machine's addresses a browser used.
+    """
+    url = parse_broker_url(broker_ws)
+    host = urlsplit(f"//{page_host}").hostname if page_host else None
+    if url.host not in WILDCARD_HOSTS or not host:
+        return broker_ws
+    netloc = f"[{host}]" if ":" in host else host
+    return urlsplit(broker_ws)._replace(netloc=f"{netloc}:{url.port}").geturl()
+
+
+def settings_payload(
+    settings: DashboardSettings,
+    bundle_present: bool,
+    user: Account | None = None,
+    page_host: str | None = None,
+) -> dict[str, Any]:
+    """The JSON body of /api/settings; with accounts, for a logged-in `user` only.
+
+    The page connects to the broker as the person who logged in (their own account), not as one
+    shared dashboard account: the broker's rules and logs then apply to each person, and removing
+    a person's account from the file shuts them out of the broker as well as the page.
+    """
+    assert settings.accounts is None or user is not None, "no settings before the login"
     grid = settings.map
     return {
-        "broker_ws": settings.broker_ws,
+        "broker_ws": browser_broker_url(settings.broker_ws, page_host),
+        "login": {
+            "required": settings.accounts is not None,
+            "user": None if user is None else user.name,
+        },
+        "mqtt": None if user is None else {"username": user.name, "password": user.password},
         "root": settings.root,
         "prefix": Topics(settings.root).prefix,
         "client_prefix": settings.client_prefix,

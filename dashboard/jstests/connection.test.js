@@ -14,7 +14,7 @@ class FakeClient extends EventEmitter {
   publish(topic, payload, options) { this.published.push({ topic, payload, options }); }
 }
 
-function open() {
+function open(login = undefined) {
   const calls = { status: [], messages: [], log: [] };
   let client = null;
   const mqtt = { connect: (url, options) => (client = new FakeClient(url, options)) };
@@ -23,7 +23,7 @@ function open() {
     onStatus: (state, text) => calls.status.push([state, text]),
     onMessage: (topic, payload) => calls.messages.push([topic, payload]),
     onLog: (text) => calls.log.push(text),
-  }).start();
+  }, login).start();
   return { conn, client, calls, subs };
 }
 
@@ -88,4 +88,15 @@ test("messages and errors are passed on; publish goes to the client", () => {
   assert.equal(conn.connected, true);
   conn.publish("t", "p", { qos: 1, retain: true });
   assert.deepEqual(client.published, [{ topic: "t", payload: "p", options: { qos: 1, retain: true } }]);
+});
+
+test("with an account the client logs in with it; stop ends the client", () => {
+  const { client, conn } = open({ username: "operator", password: "pw" });
+  assert.deepEqual(client.options, {
+    clientId: "dash-1", ...CLIENT_OPTIONS, username: "operator", password: "pw",
+  });
+  let ended = null;
+  client.end = (force) => { ended = force; };
+  conn.stop();
+  assert.equal(ended, true);
 });

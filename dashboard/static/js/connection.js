@@ -15,9 +15,10 @@ export class BrokerConnection {
   /**
    * `mqtt` is the MQTT.js module (its `connect`), `subs` the subscriptions ({topic: {qos}}).
    * Callbacks: `onStatus(state, text)` with state "connected", "reconnecting" or "failed";
-   * `onMessage(topic, payload)`; `onLog(text)` for broker errors.
+   * `onMessage(topic, payload)`; `onLog(text)` for broker errors. `login` is {username, password}
+   * when the broker has accounts, else {}.
    */
-  constructor(mqtt, url, clientId, subs, { onStatus, onMessage, onLog }) {
+  constructor(mqtt, url, clientId, subs, { onStatus, onMessage, onLog }, login = {}) {
     this.mqtt = mqtt;
     this.url = url;
     this.clientId = clientId;
@@ -25,12 +26,13 @@ export class BrokerConnection {
     this.onStatus = onStatus;
     this.onMessage = onMessage;
     this.onLog = onLog;
+    this.login = login;
     this.state = "connecting"; // as the page says before the first status
     this.client = null;
   }
 
   start() {
-    const client = this.mqtt.connect(this.url, { clientId: this.clientId, ...CLIENT_OPTIONS });
+    const client = this.mqtt.connect(this.url, { clientId: this.clientId, ...CLIENT_OPTIONS, ...this.login });
     this.client = client;
     client.on("connect", () => {
       client.subscribe(this.subs, (err) => {
@@ -44,6 +46,11 @@ export class BrokerConnection {
     client.on("error", (err) => this.onLog(`broker error: ${err.message}`));
     client.on("message", (topic, payload) => this.onMessage(topic, payload));
     return this;
+  }
+
+  /** Close the connection for good (logging out). */
+  stop() {
+    this.client?.end(true);
   }
 
   status(state, text) {

@@ -1,6 +1,7 @@
 // The page's wiring: loads its settings and MQTT.js, then ties the broker connection, the fleet
 // model, the request bookkeeping, the forms, the map's click modes and the view together.
 //
+//   login.js       the settings from the dashboard server, logging in and out
 //   connection.js  the MQTT.js client, its status, subscribing on every connect
 //   model.js       FleetView: the fleet as the page knows it, from messages alone
 //   requests.js    request ids, the requests waiting, the words for replies and error reports
@@ -13,6 +14,7 @@ import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
 import { squareAt } from "./draw.js";
 import { Forms } from "./forms.js";
+import { loadSettings, logIn, logOut, mqttLogin } from "./login.js";
 import { FleetView } from "./model.js";
 import { ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor } from "./protocol.js";
 import { Requests, sentFeedback } from "./requests.js";
@@ -22,14 +24,18 @@ import { log, PageView, showConnection, showFatal } from "./view.js";
 const $ = (sel) => document.querySelector(sel);
 
 async function start() {
-  let settings;
-  try {
-    const res = await fetch("/api/settings");
-    settings = await res.json();
-  } catch (e) {
-    showFatal(`cannot load /api/settings from the dashboard server: ${e}`);
+  const loaded = await loadSettings(fetch);
+  if (loaded.kind === "login") {
+    showLogin(loaded.message); // no settings, no broker credentials, no MQTT connection
     return;
   }
+  if (loaded.kind === "error") {
+    showFatal(loaded.message);
+    return;
+  }
+  const settings = loaded.settings;
+  document.body.dataset.auth = settings.login?.required ? "in" : "none";
+  if (settings.login?.user) showUser(settings.login.user);
   if (!settings.mqtt_js.available) {
     showFatal(settings.mqtt_js.hint);
     return;
@@ -45,6 +51,46 @@ async function start() {
   const wanted = params.get("client");
   const clientId = wanted && ID_RE.test(wanted) ? wanted : makeClientId(settings.client_prefix);
   new Dashboard(mqtt, settings, clientId).run();
+}
+
+// ---- login ----
+function showLogin(message) {
+  document.body.dataset.auth = "login";
+  $("#login").hidden = false;
+  $("#login-message").textContent = message;
+  $("#login-form input[name=username]").focus();
+}
+
+function bindLogin() {
+  const form = $("#login-form");
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    const button = form.querySelector("button[type=submit]");
+    button.disabled = true; // one attempt at a time
+    $("#login-message").textContent = "logging in…";
+    const result = await logIn(fetch, form.username.value, form.password.value);
+    button.disabled = false;
+    form.password.value = "";
+    if (!result.ok) {
+      $("#login-message").textContent = result.message;
+      return;
+    }
+    $("#login").hidden = true;
+    $("#login-message").textContent = "";
+    start();
+  });
+}
+
+function showUser(user) {
+  $("#user").textContent = user;
+  $("#user").hidden = false;
+  const button = $("#logout");
+  button.hidden = false;
+  button.addEventListener("click", async () => {
+    button.disabled = true;
+    await logOut(fetch);
+    location.reload(); // drops the broker connection and everything the page heard
+  });
 }
 
 class Dashboard {
@@ -66,7 +112,7 @@ class Dashboard {
       onStatus: (state, text) => { showConnection(state, text); this.renderEstop(); },
       onMessage: (topic, payload) => this.onMessage(topic, payload),
       onLog: log,
-    });
+    }, mqttLogin(settings));
     document.body.dataset.clientId = clientId;
   }
 
@@ -190,4 +236,5 @@ class Dashboard {
   }
 }
 
+bindLogin();
 start();

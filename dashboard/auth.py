@@ -1,0 +1,70 @@
+"""The login's HTTP side: the session cookie and the /api/login and /api/logout routes."""
+
+from __future__ import annotations
+
+import secrets
+
+from flask import Flask, Response, jsonify, request, session
+
+from dashboard.login import LoginRefused, Throttle, check_login, session_account, session_tag
+from dashboard.settings import DashboardSettings
+from gridfleet.accounts import Account
+
+NOT_JSON = 'send {"username": …, "password": …} as JSON'
+
+
+def current_user(settings: DashboardSettings, secret: bytes) -> Account | None:
+    """The account this request's session is logged in as (None: anonymous, or no accounts)."""
+    if settings.accounts is None:
+        return None
+    return session_account(settings.accounts, secret, session.get("user"), session.get("tag"))
+
+
+def install_login(app: Flask, settings: DashboardSettings) -> bytes:
+    """Configure the session cookie and add the login routes; returns the session secret."""
+    # Random per start unless configured: a restart then logs everybody out (README, Dashboard).
+    secret = settings.secret_key or secrets.token_bytes(32)
+    app.secret_key = secret
+    app.config.update(
+        SESSION_COOKIE_NAME="gridfleet_session",
+        SESSION_COOKIE_HTTPONLY=True,
+        # Sent only with requests from the page itself: another site cannot use the login.
+        SESSION_COOKIE_SAMESITE="Strict",
+    )
+    throttle = Throttle()
+
+    @app.post("/api/login")
+    def login() -> tuple[Response, int]:
+        if settings.accounts is None:
+            return jsonify({"error": "this dashboard has no accounts: no login needed"}), 400
+        # JSON only: a form on another site cannot send it without the browser asking us first.
+        body = request.get_json(silent=True) if request.is_json else None
+        if not isinstance(body, dict) or not all(
+            isinstance(body.get(k), str) for k in ("username", "password")
+        ):
+            return jsonify({"error": NOT_JSON}), 400
+        who = request.remote_addr or "?"
+        wait = throttle.wait_s(who)
+        if wait > 0:
+            text = f"too many failed logins: try again in {wait:.0f} s"
+            response = jsonify({"error": text})
+            response.headers["Retry-After"] = str(max(1, round(wait)))
+            return response, 429
+        try:
+            account = check_login(settings.accounts, body["username"], body["password"])
+        except LoginRefused as refused:
+            throttle.failed(who)
+            session.clear()
+            return jsonify({"error": str(refused)}), 401
+        throttle.succeeded(who)
+        session.clear()
+        session["user"] = account.name
+        session["tag"] = session_tag(secret, account)
+        return jsonify({"user": account.name}), 200
+
+    @app.post("/api/logout")
+    def logout() -> tuple[Response, int]:
+        session.clear()
+        return jsonify({"ok": True}), 200
+
+    return secret

@@ -1,0 +1,214 @@
+"""The dashboard's login without a browser: the pure check and throttle, then the Flask app."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from flask import Flask
+from flask.testing import FlaskClient
+
+from dashboard.app import create_app
+from dashboard.cli import secret_from, settings_from
+from dashboard.login import (
+    REFUSED,
+    LoginRefused,
+    Throttle,
+    check_login,
+    session_account,
+    session_tag,
+)
+from dashboard.settings import DashboardSettings, browser_broker_url
+from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.errors import ConfigError
+from system.cli import build_parser
+
+
+@pytest.fixture
+def accounts() -> Accounts:
+    return default_accounts(["unit1"])
+
+
+@pytest.fixture
+def app(accounts: Accounts) -> Flask:
+    return create_app(DashboardSettings(broker_ws="ws://127.0.0.1:9001", accounts=accounts))
+
+
+@pytest.fixture
+def client(app: Flask) -> FlaskClient:
+    return app.test_client()
+
+
+def log_in(client: FlaskClient, user: str, password: str) -> tuple[int, dict[str, object]]:
+    res = client.post("/api/login", json={"username": user, "password": password})
+    return res.status_code, res.get_json()
+
+
+# ---- pure -------------------------------------------------------------------------------------
+
+
+def test_check_login_takes_people_accounts_only(accounts: Accounts) -> None:
+    for name in ("operator", "dashboard"):
+        assert check_login(accounts, name, accounts.get(name).password).name == name
+    for user, password in (("operator", "wrong password!"), ("nobody", "whatever1234")):
+        with pytest.raises(LoginRefused, match=f"^{REFUSED}$"):  # same words: no name leaks
+            check_login(accounts, user, password)
+    with pytest.raises(LoginRefused, match="unit1 is a unit account: log in with an operator"):
+        check_login(accounts, "unit1", accounts.get("unit1").password)
+
+
+def test_a_session_ends_when_the_password_changes(accounts: Accounts) -> None:
+    secret = b"s" * 32
+    operator = accounts.get("operator")
+    tag = session_tag(secret, operator)
+    assert session_account(accounts, secret, "operator", tag) == operator
+    changed = default_accounts(["unit1"])  # same names, new passwords
+    assert session_account(changed, secret, "operator", tag) is None
+    assert session_account(accounts, b"t" * 32, "operator", tag) is None  # another secret
+    unit_tag = session_tag(secret, accounts.get("unit1"))
+    assert session_account(accounts, secret, "unit1", unit_tag) is None  # not a person's account
+    assert session_account(accounts, secret, None, tag) is None
+
+
+def test_throttle_makes_an_address_wait_after_repeated_failures() -> None:
+    now = [100.0]
+    throttle = Throttle(limit=3, window_s=60, clock=lambda: now[0], max_clients=2)
+    for _ in range(3):
+        assert throttle.wait_s("a") == 0
+        throttle.failed("a")
+    assert throttle.wait_s("a") == 60 and throttle.wait_s("b") == 0
+    now[0] += 45
+    assert throttle.wait_s("a") == 15
+    now[0] += 15
+    assert throttle.wait_s("a") == 0  # the failures aged out
+    throttle.failed("b")
+    throttle.failed("c")
+    throttle.failed("d")  # at most two addresses are remembered
+    assert len(throttle._failures) == 2
+    throttle.succeeded("d")
+    assert "d" not in throttle._failures
+
+
+def test_the_page_reaches_a_wildcard_broker_where_it_reached_the_page() -> None:
+    assert browser_broker_url("ws://0.0.0.0:9001", "192.168.1.10:5000") == "ws://192.168.1.10:9001"
+    assert browser_broker_url("wss://0.0.0.0:9001", "fleet.lan") == "wss://fleet.lan:9001"
+    assert browser_broker_url("ws://[::]:9001", "[fd00::5]:5000") == "ws://[fd00::5]:9001"
+    assert browser_broker_url("ws://10.0.0.2:9001", "other:5000") == "ws://10.0.0.2:9001"
+
+
+@pytest.mark.parametrize(
+    ("url", "words"),
+    [
+        ("ws://u:pw1234567890@127.0.0.1:9001", "no login in the URL"),
+        ("mqtts://127.0.0.1:8883", "ws://host:port or wss://"),
+    ],
+)
+def test_dashboard_urls_the_page_cannot_use_are_refused(url: str, words: str) -> None:
+    with pytest.raises(ConfigError, match=words):
+        DashboardSettings(broker_ws=url)
+
+
+def test_wss_is_accepted_and_accounts_need_someone_to_log_in(accounts: Accounts) -> None:
+    assert DashboardSettings(broker_ws="wss://fleet.lan:9001").broker_ws == "wss://fleet.lan:9001"
+    units_only = Accounts({"unit1": accounts.get("unit1")})
+    with pytest.raises(ConfigError, match="nobody could log in"):
+        DashboardSettings(accounts=units_only)
+
+
+def test_session_secret_comes_from_the_environment_or_is_random() -> None:
+    assert secret_from({}) is None
+    assert secret_from({"GRIDFLEET_DASHBOARD_SECRET": "k" * 40}) == b"k" * 40
+    with pytest.raises(ConfigError, match="at least 32"):
+        secret_from({"GRIDFLEET_DASHBOARD_SECRET": "short"})
+
+
+def test_cli_reads_the_accounts_file(tmp_path: Path, accounts: Accounts) -> None:
+    path = tmp_path / "accounts.toml"
+    write_accounts(accounts, path)
+    args = build_parser(only="dashboard").parse_args(["dashboard", "--accounts", str(path)])
+    settings = settings_from(args, {})
+    assert settings.accounts == accounts and settings.secret_key is None
+
+
+# ---- the app ----------------------------------------------------------------------------------
+
+
+def passwords(accounts: Accounts) -> list[bytes]:
+    return [a.password.encode() for a in accounts.accounts.values()]
+
+
+def test_anonymous_visitor_gets_401_and_no_credential(
+    client: FlaskClient, accounts: Accounts
+) -> None:
+    res = client.get("/api/settings")
+    assert res.status_code == 401
+    assert res.get_json()["error"] == "log in to see the fleet"
+    assert res.headers["Cache-Control"] == "no-store"
+    raw = res.data + str(res.headers).encode()
+    assert not any(p in raw for p in passwords(accounts))
+    assert b"broker_ws" not in res.data and b"mqtt" not in res.data
+    page = client.get("/")
+    assert page.status_code == 200 and b'id="login-form"' in page.data
+    assert not any(p in page.data for p in passwords(accounts))
+
+
+def test_wrong_password_says_so_and_opens_no_session(
+    client: FlaskClient, accounts: Accounts
+) -> None:
+    status, body = log_in(client, "operator", "not the password")
+    assert (status, body) == (401, {"error": REFUSED})
+    assert client.get_cookie("gridfleet_session") is None
+    assert client.get("/api/settings").status_code == 401
+    status, body = log_in(client, "unit1", accounts.get("unit1").password)
+    assert status == 401 and "log in with an operator or dashboard account" in str(body["error"])
+    assert client.get("/api/settings").status_code == 401
+
+
+def test_login_gives_the_person_their_own_broker_account_until_logout(
+    client: FlaskClient, accounts: Accounts
+) -> None:
+    operator = accounts.get("operator")
+    assert log_in(client, "operator", operator.password) == (200, {"user": "operator"})
+    cookie = client.get_cookie("gridfleet_session")
+    assert cookie is not None and cookie.same_site == "Strict" and cookie.http_only
+    assert operator.password not in cookie.value  # the session names the user, never a password
+    body = client.get("/api/settings").get_json()
+    assert body["mqtt"] == {"username": "operator", "password": operator.password}
+    assert body["login"] == {"required": True, "user": "operator"}
+    assert body["broker_ws"] == "ws://127.0.0.1:9001"
+    assert client.post("/api/logout").status_code == 200
+    res = client.get("/api/settings")
+    assert res.status_code == 401 and operator.password.encode() not in res.data
+
+
+def test_login_takes_json_only(client: FlaskClient, accounts: Accounts) -> None:
+    password = accounts.get("operator").password
+    # What a form on another site could send: refused, however right the password.
+    form = client.post("/api/login", data={"username": "operator", "password": password})
+    assert form.status_code == 400 and "as JSON" in form.get_json()["error"]
+    assert client.post("/api/login", json=["operator", password]).status_code == 400
+    assert client.post("/api/login", json={"username": "operator"}).status_code == 400
+    assert client.get("/api/login").status_code == 405
+    assert client.get("/api/settings").status_code == 401
+
+
+def test_repeated_failures_are_slowed_down_and_break_nothing(
+    client: FlaskClient, accounts: Accounts
+) -> None:
+    statuses = [log_in(client, "operator", f"guess number {n}")[0] for n in range(8)]
+    assert statuses == [401] * 5 + [429] * 3
+    res = client.post("/api/login", json={"username": "operator", "password": "x" * 20})
+    assert "too many failed logins" in res.get_json()["error"] and int(res.headers["Retry-After"])
+    assert client.get("/healthz").status_code == 200  # the server still answers
+    other = client.application.test_client()
+    other.environ_base["REMOTE_ADDR"] = "127.0.0.2"  # another address is not held up
+    assert log_in(other, "operator", accounts.get("operator").password)[0] == 200
+
+
+def test_without_accounts_nothing_changes() -> None:
+    client = create_app(DashboardSettings()).test_client()
+    body = client.get("/api/settings").get_json()
+    assert body["mqtt"] is None and body["login"] == {"required": False, "user": None}
+    assert json.dumps(body).count("password") == 0
+    assert client.post("/api/login", json={"username": "a", "password": "b"}).status_code == 400
