@@ -17,8 +17,8 @@ from pathlib import Path
 from typing import Any, Literal, TextIO
 
 from broker.embedded import BrokerSettings
-from gridfleet.accounts import Accounts
-from gridfleet.config import with_credentials
+from gridfleet.accounts import Accounts, load_accounts
+from gridfleet.config import with_ca_file, with_credentials
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import Scenario, with_units
@@ -28,7 +28,9 @@ from system.threads import ServiceThread, coordinator_thread, fleet_thread
 
 Mode = Literal["threads", "processes"]
 
-BROKER_READY = re.compile(r"listening on (mqtt://\S+)(?: and (ws://\S+))?")
+BROKER_READY = re.compile(r"listening on (mqtts?://\S+)(?: and (wss?://\S+))?")
+# A broker on every address is reached by its neighbours on this machine through loopback.
+LOOPBACK_OF = {"0.0.0.0": "127.0.0.1"}
 DASHBOARD_READY = re.compile(r"(http://\S+)")
 
 
@@ -50,6 +52,13 @@ class SystemSpec:
     ws_port: int | None = 0  # None: no websocket listener
     dashboard_port: int | None = None  # processes only: serve the dashboard on this port
     accounts: Accounts | None = field(default=None, repr=False)  # threads: each part its own
+    # Each part logs in as its own account from this file: processes read it themselves (no
+    # password on a command line); threads load it when `accounts` is not given.
+    accounts_file: Path | None = None
+    listen: str = "127.0.0.1"  # processes: where an embedded broker and the dashboard listen
+    tls_cert: Path | None = None  # processes: an embedded broker's certificate and key (TLS)
+    tls_key: Path | None = None
+    ca_file: Path | None = None  # processes: the CA the parts trust for an embedded TLS broker
     feed: bool = False  # processes only: submit the scenario's jobs and goals
     demo: bool = False  # with feed: keep random feasible jobs coming
 
@@ -97,8 +106,12 @@ class Assembly:
         in_threads_only = (spec.seed, spec.coordinator_id, spec.sensors_see_units, spec.accounts)
         if mode == "processes" and in_threads_only != (0, "coordinator", True, None):
             raise ConfigError(
-                "seed, coordinator id, blind sensors and accounts are set only in threads"
+                "seed, coordinator id, blind sensors and loaded accounts are set only in threads "
+                "(processes take accounts_file)"
             )
+        in_processes_only = (spec.listen, spec.tls_cert, spec.tls_key, spec.ca_file)
+        if mode == "threads" and in_processes_only != ("127.0.0.1", None, None, None):
+            raise ConfigError("the listen address and TLS are set only as processes")
         self.spec = spec
         self.mode = mode
         self.system = System(supervisor=supervisor)
@@ -111,13 +124,14 @@ class Assembly:
         """Start broker (if ours), coordinator and units in threads; blocks until each is ready."""
         spec, system = self.spec, self.system
         try:
+            accounts = self._accounts()
             if system.url:
                 pass  # our broker already runs as a process (see __aenter__)
             elif spec.broker is None:
                 settings = BrokerSettings(
                     port=spec.mqtt_port,
                     ws_port=spec.ws_port,
-                    accounts=spec.accounts,
+                    accounts=accounts,
                     root=spec.root,
                 )
                 system.broker_thread = BrokerThread(settings)
@@ -132,8 +146,8 @@ class Assembly:
                 db_path = Path(self._tmp.name) / "jobs.db"
             scenario = with_units(spec.scenario)
             coordinator_url = system.url
-            if spec.accounts is not None:
-                login = spec.accounts.get("coordinator")
+            if accounts is not None:
+                login = accounts.get("coordinator")
                 coordinator_url = with_credentials(system.url, login.name, login.password)
             coordinator = coordinator_thread(
                 scenario,
@@ -151,13 +165,27 @@ class Assembly:
                 root=spec.root,
                 step_s=spec.step_s,
                 sensors_see_units=spec.sensors_see_units,
-                accounts=spec.accounts,
+                accounts=accounts,
             )
             system.threads["robots"] = fleet.start(timeout)
         except BaseException:
             self.stop()
             raise
         return system
+
+    def _accounts(self) -> Accounts | None:
+        """The accounts the threads log in with: given, or read from the spec's file."""
+        if self.spec.accounts is None and self.spec.accounts_file is not None:
+            return load_accounts(self.spec.accounts_file)
+        return self.spec.accounts
+
+    @property
+    def logins(self) -> list[str]:
+        """The flags that make a child process log in as its own account."""
+        # The file, never the passwords, on the command lines: `ps` shows those to everyone.
+        return (
+            [] if self.spec.accounts_file is None else ["--accounts", str(self.spec.accounts_file)]
+        )
 
     def stop(self, timeout: float = 60.0) -> None:
         """Stop every thread in reverse order (units say offline first), then our broker."""
@@ -184,15 +212,16 @@ class Assembly:
         if system.supervisor is None:
             system.supervisor = Supervisor()
         sup = system.supervisor
+        logins = self.logins
         if spec.broker is None:
-            system.url, system.ws_url = await start_broker_process(
-                sup, spec.mqtt_port, spec.ws_port
-            )
+            system.url, system.ws_url = await start_broker_process(sup, spec, logins)
+            if spec.ca_file is not None:
+                system.url = with_ca_file(system.url, str(spec.ca_file))
         else:
             if spec.dashboard_port is not None and not spec.broker_ws:
                 raise ConfigError("with --broker, also give --broker-ws for the dashboard")
             system.url, system.ws_url = spec.broker, spec.broker_ws
-        common = ["--broker", system.url, "--root", spec.root]
+        common = ["--broker", system.url, "--root", spec.root, *logins]
         step = ["--step", str(spec.step_s)]
         scenario = str(spec.scenario.path)
         coordinator = ["coordinator", *common, "--map", str(spec.scenario.map_path), *step]
@@ -211,10 +240,13 @@ class Assembly:
                 system.ws_url,
                 "--root",
                 spec.root,
+                "--host",
+                spec.listen,
                 "--port",
                 str(spec.dashboard_port),
                 "--scenario",
                 scenario,
+                *logins,
             )
             child = await sup.start(ChildSpec("dashboard", dashboard, ready=DASHBOARD_READY))
             system.children["dashboard"] = child
@@ -238,7 +270,7 @@ class Assembly:
                 self.system.supervisor = Supervisor(out=self._quiet, stop_timeout=20.0)
                 try:
                     self.system.url, self.system.ws_url = await start_broker_process(
-                        self.system.supervisor, self.spec.mqtt_port, self.spec.ws_port
+                        self.system.supervisor, self.spec, self.logins
                     )
                     return await asyncio.to_thread(self.start_threads)
                 except BaseException:
@@ -267,11 +299,19 @@ class Assembly:
 
 
 async def start_broker_process(
-    supervisor: Supervisor, mqtt_port: int = 0, ws_port: int | None = 0, host: str = "127.0.0.1"
+    supervisor: Supervisor, spec: SystemSpec, logins: list[str] | None = None
 ) -> tuple[str, str | None]:
-    """An embedded broker as a supervised child process; its MQTT and websocket URLs."""
-    argv = ["broker", "--host", host, "--port", str(mqtt_port)]
-    argv += ["--no-ws"] if ws_port is None else ["--ws-port", str(ws_port)]
+    """An embedded broker as a supervised child process; the MQTT and websocket URLs its
+    neighbours on this machine use (loopback when it listens on every address)."""
+    argv = ["broker", "--host", spec.listen, "--port", str(spec.mqtt_port), "--root", spec.root]
+    argv += ["--no-ws"] if spec.ws_port is None else ["--ws-port", str(spec.ws_port)]
+    if spec.tls_cert is not None and spec.tls_key is not None:
+        argv += ["--tls-cert", str(spec.tls_cert), "--tls-key", str(spec.tls_key)]
+    argv += logins or []
     child = await supervisor.start(ChildSpec("broker", cli(*argv), ready=BROKER_READY))
     assert child.ready_match is not None
-    return child.ready_match.group(1), child.ready_match.group(2)
+    url = child.ready_match.group(1)
+    host = LOOPBACK_OF.get(spec.listen)
+    if host is not None:
+        url = url.replace(f"//{spec.listen}:", f"//{host}:", 1)
+    return url, child.ready_match.group(2)

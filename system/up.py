@@ -6,17 +6,33 @@ import argparse
 import asyncio
 from pathlib import Path
 
+from broker.embedded import is_loopback
+from broker.tls import server_context
+from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import check_step
+from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
-from gridfleet.scenario import load_scenario, with_units
-from system.assembly import Assembly, SystemSpec
+from gridfleet.scenario import Scenario, load_scenario, with_units
+from system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from system.supervisor import Supervisor, run_until_signal
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+MAKE_ACCOUNTS = "gridfleet accounts init --scenario FILE --out FILE"
+
+EPILOG = """\
+On loopback (the default) nothing needs setting up. To run on a LAN:
+  gridfleet accounts init --scenario maps/playfield.toml --out fleet-accounts.toml
+  gridfleet up --listen 0.0.0.0 --accounts fleet-accounts.toml
+then open http://THIS-MACHINE:5000 and log in as 'operator' with its password from the file.
+With TLS ('gridfleet accounts tls --out fleet-tls --host 127.0.0.1 --host THIS-MACHINE'):
+  add --tls-cert fleet-tls/server.pem --tls-key fleet-tls/server.key --ca-file fleet-tls/ca.pem
+"""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet up`."""
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = EPILOG
     parser.add_argument(
         "--scenario",
         type=Path,
@@ -33,6 +49,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--demo", action="store_true", help="keep a stream of random feasible jobs coming"
     )
     add_common(parser, own_broker="the embedded broker, on --mqtt-port")
+    parser.add_argument(
+        "--listen",
+        default="127.0.0.1",
+        metavar="ADDR",
+        help="address the embedded broker and the dashboard listen on (default 127.0.0.1: this "
+        "machine only; 0.0.0.0: every network, which needs --accounts)",
+    )
+    parser.add_argument(
+        "--accounts",
+        type=Path,
+        metavar="FILE",
+        help=f"accounts file ({MAKE_ACCOUNTS!r}): the broker lets in only them, each component "
+        "logs in as its own account, and people log in at the dashboard",
+    )
+    parser.add_argument(
+        "--tls-cert",
+        type=Path,
+        metavar="FILE",
+        help="the embedded broker's certificate ('gridfleet accounts tls'): mqtts:// and wss://; "
+        "needs --tls-key and --ca-file",
+    )
+    parser.add_argument("--tls-key", type=Path, metavar="FILE", help="its private key")
     parser.add_argument(
         "--mqtt-port",
         type=int,
@@ -52,12 +90,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--db", type=Path, help="coordinator job database (default: per user)")
 
 
-async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
-    """Start every component in order, as processes; returns the dashboard URL."""
-    # Checked here, not by each component after the broker is up: one line, nothing started.
+def check_accounts(path: Path, scenario: Scenario) -> Accounts:
+    """The accounts file, when it has an account for every component; else ConfigError."""
+    accounts = load_accounts(path)
+    for name, role in [("coordinator", "coordinator"), ("operator", "operator")] + [
+        (u.id, "unit") for u in scenario.units
+    ]:
+        if name not in accounts.accounts:
+            raise ConfigError(
+                f"{path}: no account {name!r}, which 'up' needs: gridfleet accounts add {name} "
+                f"--role {role} --file {path}"
+            )
+    return accounts
+
+
+def check_tls(args: argparse.Namespace) -> None:
+    """--tls-cert, --tls-key and --ca-file go together, for the embedded broker; else ConfigError."""
+    if args.tls_cert is None and args.tls_key is None:
+        return
+    if args.broker is not None:
+        raise ConfigError(
+            "--tls-cert is for the embedded broker; an external one is reached by its mqtts:// "
+            "--broker URL and --ca-file"
+        )
+    if args.tls_cert is None or args.tls_key is None or args.ca_file is None:
+        raise ConfigError(
+            "TLS needs --tls-cert, --tls-key and --ca-file ('gridfleet accounts tls --out DIR' "
+            "makes server.pem, server.key and ca.pem)"
+        )
+    server_context(args.tls_cert, args.tls_key)  # a bad file: one line now, not a dying broker
+
+
+def spec_from(args: argparse.Namespace) -> SystemSpec:
+    """What to run; every mistake raises ConfigError in one line before anything starts."""
     check_step(args.step)
-    spec = SystemSpec(
-        scenario=with_units(load_scenario(args.scenario)),
+    if not is_loopback(args.listen) and args.accounts is None:
+        raise ConfigError(
+            f"--listen {args.listen} lets anyone on that network drive the fleet: give "
+            f"--accounts FILE (make it with '{MAKE_ACCOUNTS}'), or listen on 127.0.0.1"
+        )
+    check_tls(args)
+    scenario = with_units(load_scenario(args.scenario))
+    accounts_file = None
+    if args.accounts is not None:
+        check_accounts(args.accounts, scenario)
+        accounts_file = args.accounts.resolve()  # the children may run elsewhere
+    return SystemSpec(
+        scenario=scenario,
         broker=args.broker,
         broker_ws=args.broker_ws,
         root=args.root,
@@ -66,22 +145,42 @@ async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
         mqtt_port=args.mqtt_port,
         ws_port=args.ws_port,
         dashboard_port=args.port,
+        accounts_file=accounts_file,
+        listen=args.listen,
+        tls_cert=args.tls_cert,
+        tls_key=args.tls_key,
+        ca_file=None if args.broker is not None or args.ca_file is None else Path(args.ca_file),
         feed=True,
         demo=args.demo,
     )
+
+
+async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:
+    """Start every component in order, as processes; returns what to open, in words."""
+    spec = spec_from(args)  # checked here, not by each component once the broker is up
     system = await Assembly(spec, "processes", supervisor).start_processes()
     assert system.dashboard_url is not None
-    return system.dashboard_url
+    return where_to_open(system.dashboard_url, spec.listen, spec.accounts_file is not None)
+
+
+def where_to_open(url: str, listen: str, login: bool) -> str:
+    """The dashboard's address for a person: on every address, here and from elsewhere."""
+    said = url
+    here = LOOPBACK_OF.get(listen)
+    if here is not None:
+        local = url.replace(f"//{listen}:", f"//{here}:", 1)
+        said = f"{local} (from other machines: {url.replace(listen, 'THIS-MACHINE', 1)})"
+    return f"{said}, log in as operator" if login else said
 
 
 async def _main(args: argparse.Namespace) -> int:
     supervisor = Supervisor()
     try:
-        url = await bring_up(args, supervisor)
+        where = await bring_up(args, supervisor)
     except BaseException:
         await supervisor.stop()
         raise
-    supervisor.say("up", f"gridfleet is running: open {url} (Ctrl-C stops everything)")
+    supervisor.say("up", f"gridfleet is running: open {where} (Ctrl-C stops everything)")
     return await run_until_signal(supervisor)
 
 
