@@ -10,7 +10,7 @@ import contextlib
 import logging
 import weakref
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -210,11 +210,26 @@ def _peer(info: Iterable[Any] | None) -> str:
     return f"{host}:{port}"
 
 
+class _Subscriptions(dict[str, list[tuple[Any, int]]]):
+    """amqtt's subscription table (filter -> sessions), iterated over a snapshot."""
+
+    # amqtt 0.12.1's _run_broadcast awaits the ACL check while iterating this table: a client
+    # subscribing to a new filter meanwhile raised "dictionary changed size during iteration"
+    # and the message reached nobody further (seen in `gridfleet up --accounts` at start-up).
+
+    def items(self) -> list[tuple[str, list[tuple[Any, int]]]]:  # type: ignore[override]
+        return list(super().items())
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(list(super().__iter__()))
+
+
 class GridfleetBroker(Broker):  # type: ignore[misc]
     """amqtt's Broker with gridfleet's limits, and its client-id takeover behind authentication."""
 
     def __init__(self, config: dict[str, Any], limits: Limits | None = None) -> None:
         super().__init__(config)
+        self._subscriptions = _Subscriptions()  # empty, as amqtt made it
         self.limits = limits or Limits()
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
         self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
@@ -278,8 +293,10 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
         # amqtt's _authenticate ignores its listener argument in 0.12.1.
         if not await super()._authenticate(incoming, None):
-            await ConnackPacket.build(0, NOT_AUTHORIZED).to_stream(writer)
-            await writer.close()
+            # A refused client may hang up first (over TLS a reset surfaced as a traceback).
+            with contextlib.suppress(ConnectionError):
+                await ConnackPacket.build(0, NOT_AUTHORIZED).to_stream(writer)
+                await writer.close()
             raise MQTTError(f"{peer}: client id {incoming.client_id!r} not authorized")
         if isinstance(reader, _GuardedReader):
             reader.client_id = incoming.client_id
