@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import os
 import re
 import signal
 import subprocess
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -16,43 +14,11 @@ import pytest
 from gridfleet.protocol import Connection, Topics, decode
 from system.broker_thread import BrokerThread
 
+from support.output import Output, alive
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 pytestmark = pytest.mark.slow
-
-
-def alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
-class Output:
-    """Collects a process's output lines in a thread, so tests can wait for a line."""
-
-    def __init__(self, proc: subprocess.Popen[str]) -> None:
-        self.lines: list[str] = []
-        assert proc.stdout is not None
-        stream = proc.stdout
-        self._thread = threading.Thread(
-            target=lambda: self.lines.extend(iter(stream.readline, "")), daemon=True
-        )
-        self._thread.start()
-
-    def wait(self, pattern: str, timeout: float = 60) -> re.Match[str]:
-        regex = re.compile(pattern)
-        return wait_for(
-            lambda: next((m for m in map(regex.search, list(self.lines)) if m), None),
-            timeout,
-            what=f"output matching {pattern!r}",
-        )
-
-    @property
-    def text(self) -> str:
-        return "".join(self.lines)
 
 
 @pytest.mark.timeout(240)  # its waits (start 90 s, stop 60 s) are the limits that matter

@@ -1,0 +1,167 @@
+"""`gridfleet up` on a network: --listen needs --accounts, and with accounts (and TLS) every
+component logs in as its own account and the playfield's jobs get done."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import urllib.request
+from http.cookiejar import CookieJar
+from pathlib import Path
+
+import pytest
+
+from broker.certs import make_tls, write_tls
+from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.config import with_ca_file
+from gridfleet.errors import ConfigError
+from gridfleet.protocol import JobsView, Topics, decode
+from gridfleet.scenario import load_scenario
+from system.cli import build_parser
+from system.up import spec_from
+
+from support.output import Output, alive
+from support.probe import MqttProbe
+from support.security import login
+from support.wait import wait_for
+
+REPO = Path(__file__).resolve().parent.parent
+PLAYFIELD = REPO / "maps" / "playfield.toml"
+UP = [sys.executable, "-m", "system", "up"]
+
+
+@pytest.fixture
+def accounts() -> Accounts:
+    return default_accounts([u.id for u in load_scenario(PLAYFIELD).units])
+
+
+@pytest.fixture
+def accounts_file(accounts: Accounts, tmp_path: Path) -> Path:
+    path = tmp_path / "fleet-accounts.toml"
+    write_accounts(accounts, path)
+    return path
+
+
+def up_args(*argv: str) -> object:
+    return spec_from(build_parser(only="up").parse_args(["up", *argv]))
+
+
+def test_listen_beyond_loopback_without_accounts_refuses_in_one_line() -> None:
+    out = subprocess.run(
+        [*UP, "--listen", "0.0.0.0", "--mqtt-port", "0", "--ws-port", "0", "--port", "0"],
+        capture_output=True, text=True, timeout=60, check=False, cwd=REPO,
+    )  # fmt: skip
+    assert out.returncode == 2 and out.stdout == ""  # nothing started, not even the broker
+    assert out.stderr.count("\n") == 1, out.stderr
+    assert out.stderr.startswith("gridfleet up: error: --listen 0.0.0.0 lets anyone")
+    assert "gridfleet accounts init --scenario FILE --out FILE" in out.stderr
+
+
+def test_mistakes_in_accounts_and_tls_are_named_before_anything_starts(
+    tmp_path: Path, accounts_file: Path
+) -> None:
+    corridor = tmp_path / "corridor-accounts.toml"
+    write_accounts(default_accounts(["east", "west"]), corridor)
+    with pytest.raises(ConfigError, match=r"no account 'unit1'.*accounts add unit1 --role unit"):
+        up_args("--accounts", str(corridor))
+    with pytest.raises(ConfigError, match="--tls-cert, --tls-key and --ca-file"):
+        up_args("--accounts", str(accounts_file), "--tls-cert", str(tmp_path / "server.pem"))
+    with pytest.raises(ConfigError, match="no such TLS certificate"):
+        up_args(
+            *("--tls-cert", str(tmp_path / "nope.pem"), "--tls-key", str(tmp_path / "k")),
+            *("--ca-file", str(accounts_file)),
+        )
+    spec = up_args("--listen", "0.0.0.0", "--accounts", str(accounts_file))
+    assert getattr(spec, "accounts_file") == accounts_file.resolve()  # noqa: B009
+
+
+class Dashboard:
+    """A person's browser session with the dashboard, as plain HTTP."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(CookieJar()))
+
+    def call(self, path: str, body: dict[str, str] | None = None) -> tuple[int, dict[str, object]]:
+        data = None if body is None else json.dumps(body).encode()
+        request = urllib.request.Request(f"{self.url}{path}", data=data)
+        request.add_header("Content-Type", "application/json")
+        try:
+            with self.opener.open(request, timeout=10) as res:
+                return res.status, json.loads(res.read())
+        except urllib.error.HTTPError as err:
+            return err.code, json.loads(err.read())
+
+
+@pytest.fixture
+def tls(tmp_path: Path) -> Path:
+    out = tmp_path / "tls"
+    out.mkdir()
+    write_tls(make_tls(), out)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize("with_tls", [False, True], ids=["plain", "tls"])
+def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
+    with_tls: bool, accounts: Accounts, accounts_file: Path, tls: Path, tmp_path: Path
+) -> None:
+    argv = ["--accounts", str(accounts_file), "--scenario", str(PLAYFIELD), "--step", "0.05"]
+    argv += ["--mqtt-port", "0", "--ws-port", "0", "--port", "0", "--db", str(tmp_path / "j.db")]
+    if with_tls:
+        argv += ["--tls-cert", str(tls / "server.pem"), "--tls-key", str(tls / "server.key")]
+        argv += ["--ca-file", str(tls / "ca.pem")]
+    proc = subprocess.Popen(
+        [*UP, *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO
+    )
+    out = Output(proc)
+    try:
+        ready = out.wait(r"listening on (mqtts?://\S+) and (wss?://\S+)", timeout=60)
+        url, ws_url = ready.group(1), ready.group(2)
+        assert (url.startswith("mqtts://"), ws_url.startswith("wss://")) == (with_tls, with_tls)
+        if with_tls:
+            url = with_ca_file(url, str(tls / "ca.pem"))
+        page = out.wait(r"gridfleet is running: open (http://\S+), log in as operator", 60)
+        # The broker lets nobody in without an account (each component got in with its own).
+        with pytest.raises(AssertionError, match="Not authorized"):
+            MqttProbe(url).connect(timeout=5)
+        # The dashboard hands the broker login to a logged-in person only.
+        person = Dashboard(page.group(1))
+        assert person.call("/api/settings")[0] == 401
+        operator = accounts.get("operator")
+        assert person.call("/api/login", {"username": "operator", "password": "nope"})[0] == 401
+        login_ok = person.call(
+            "/api/login", {"username": "operator", "password": operator.password}
+        )
+        assert login_ok == (200, {"user": "operator"})
+        status, settings = person.call("/api/settings")
+        assert status == 200 and settings["broker_ws"] == ws_url
+        assert settings["mqtt"] == {"username": "operator", "password": operator.password}
+
+        # Every job of the playfield gets done. The broker's rules let each role publish only
+        # its own topics: a unit's state only from its account, orders only from the
+        # coordinator's, requests only from the people's side: done jobs mean each used its own.
+        topics = Topics("gridfleet")
+        with MqttProbe(login(url, accounts, "dashboard")) as watcher:
+            watcher.subscribe(topics.fleet("jobs"))
+
+            def all_done() -> bool:
+                seen = watcher.received(topics.fleet("jobs"))
+                jobs = decode(JobsView, seen[-1].payload).jobs if seen else []
+                mine = [j for j in jobs if re.match(r"playfield-\d{6}-job-\d$", j.id)]
+                return len(mine) == 4 and all(j.state == "done" for j in mine)
+
+            wait_for(all_done, timeout=60, what="the playfield's four jobs done")
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text[-3000:]
+    assert "Traceback" not in out.text and "DIED" not in out.text, out.text[-6000:]
+    assert not any(a.password in out.text for a in accounts.accounts.values())
+    pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", out.text)]
+    assert len(pids) == 5
+    wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
