@@ -90,13 +90,13 @@ test("messages and errors are passed on; publish goes to the client", () => {
   assert.deepEqual(client.published, [{ topic: "t", payload: "p", options: { qos: 1, retain: true } }]);
 });
 
-test("with an account the client logs in with it; stop ends the client", () => {
+test("with an account the client logs in with it; stop ends the client", async () => {
   const { client, conn } = open({ username: "operator", password: "pw" });
   assert.deepEqual(client.options, {
     clientId: "dash-1", ...CLIENT_OPTIONS, username: "operator", password: "pw",
   });
   let ended = null;
-  client.end = (force) => { ended = force; };
-  conn.stop();
+  client.end = (force, options, cb) => { ended = force; cb(); };
+  await conn.stop();
   assert.equal(ended, true);
 });

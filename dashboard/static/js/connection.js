@@ -48,9 +48,12 @@ export class BrokerConnection {
     return this;
   }
 
-  /** Close the connection for good (logging out). */
+  /** Close the connection for good (logging out); resolves once it is closed. */
   stop() {
-    this.client?.end(true);
+    return new Promise((done) => {
+      if (!this.client) { done(); return; }
+      this.client.end(true, {}, () => done());
+    });
   }
 
   status(state, text) {

@@ -50,8 +50,11 @@ async function start() {
   const params = new URLSearchParams(location.search);
   const wanted = params.get("client");
   const clientId = wanted && ID_RE.test(wanted) ? wanted : makeClientId(settings.client_prefix);
-  new Dashboard(mqtt, settings, clientId).run();
+  dashboard = new Dashboard(mqtt, settings, clientId);
+  dashboard.run();
 }
+
+let dashboard = null; // the running page, once logged in (or without accounts)
 
 // ---- login ----
 function showLogin(message) {
@@ -89,7 +92,9 @@ function showUser(user) {
   button.addEventListener("click", async () => {
     button.disabled = true;
     await logOut(fetch);
-    location.reload(); // drops the broker connection and everything the page heard
+    // Closed before the reload, so the broker sees the person leave at once.
+    await Promise.race([dashboard?.client.stop(), new Promise((done) => setTimeout(done, 1000))]);
+    location.reload(); // the login form again, and nothing the page heard
   });
 }
 
