@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.accounts import default_accounts
 from gridfleet.errors import ConfigError
 from gridfleet.scenario import load_scenario
 from system.assembly import Assembly, SystemSpec
@@ -22,6 +23,9 @@ MAPS = Path(__file__).resolve().parent.parent / "maps"
         ("threads", {"feed": True}, "only as processes"),
         ("processes", {"seed": 3}, "only in threads"),
         ("processes", {"sensors_see_units": False}, "only in threads"),
+        ("processes", {"accounts": default_accounts(["east"])}, "processes take accounts_file"),
+        ("threads", {"listen": "0.0.0.0"}, "only as processes"),
+        ("threads", {"tls_cert": Path("server.pem")}, "only as processes"),
     ],
 )
 def test_settings_of_the_other_mode_are_refused(

@@ -21,7 +21,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.protocol import JobsView, Topics, decode
 from gridfleet.scenario import load_scenario
 from system.cli import build_parser
-from system.up import spec_from
+from system.up import spec_from, where_to_open
 
 from support.output import Output, alive
 from support.probe import MqttProbe
@@ -165,3 +165,10 @@ def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
     pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", out.text)]
     assert len(pids) == 5
     wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
+
+
+def test_a_person_is_told_where_to_open_the_dashboard() -> None:
+    assert where_to_open("http://127.0.0.1:5000", "127.0.0.1", False) == "http://127.0.0.1:5000"
+    assert where_to_open("http://0.0.0.0:5000", "0.0.0.0", True) == (
+        "http://127.0.0.1:5000 (from other machines: http://THIS-MACHINE:5000), log in as operator"
+    )
