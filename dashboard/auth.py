@@ -30,6 +30,7 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
         SESSION_COOKIE_HTTPONLY=True,
         # Sent only with requests from the page itself: another site cannot use the login.
         SESSION_COOKIE_SAMESITE="Strict",
+        SESSION_COOKIE_SECURE=settings.https,
     )
     throttle = Throttle()
 

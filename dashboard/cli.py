@@ -6,10 +6,12 @@ import argparse
 import logging
 import os
 import signal
+import ssl
 from collections.abc import Mapping
+from pathlib import Path
 
 from dashboard.app import create_app
-from dashboard.server import DashboardServer
+from dashboard.server import DashboardServer, https_context
 from dashboard.settings import INSTALL_HINT, DashboardSettings
 from gridfleet.accounts import load_accounts
 from gridfleet.config import DEFAULT_WS_URL
@@ -48,6 +50,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--client-prefix", default="dashboard", help="prefix of the page's MQTT client ids"
     )
+    parser.add_argument(
+        "--tls-cert",
+        type=Path,
+        metavar="FILE",
+        help="serve the page over HTTPS with this certificate (the broker's, from 'gridfleet "
+        "accounts tls', does): the login's password then crosses the network encrypted",
+    )
+    parser.add_argument("--tls-key", type=Path, metavar="FILE", help="its private key")
     where = parser.add_mutually_exclusive_group()
     where.add_argument(
         "--scenario", metavar="FILE", help="show this scenario's map until fleet/map arrives"
@@ -86,7 +96,17 @@ def settings_from(
         colors=colors,
         accounts=None if args.accounts is None else load_accounts(args.accounts),
         secret_key=secret_from(environ),
+        https=args.tls_cert is not None,
     )
+
+
+def tls_from(args: argparse.Namespace) -> ssl.SSLContext | None:
+    """The HTTPS context --tls-cert and --tls-key ask for (None: plain HTTP)."""
+    if args.tls_cert is None and args.tls_key is None:
+        return None
+    if args.tls_cert is None or args.tls_key is None:
+        raise ConfigError("HTTPS needs both --tls-cert FILE and --tls-key FILE")
+    return https_context(args.tls_cert, args.tls_key)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -94,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from(args)
     if not settings.mqtt_bundle.is_file():
         log.warning("%s", INSTALL_HINT)
-    server = DashboardServer(create_app(settings), args.host, args.port).bind()
+    server = DashboardServer(create_app(settings), args.host, args.port, tls_from(args)).bind()
     login = ", login required" if settings.accounts is not None else ""
     log.info(
         "dashboard on %s (broker %s, root %r%s)",

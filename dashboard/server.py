@@ -1,21 +1,48 @@
-"""Run the dashboard's Flask app in a background thread (tests, `gridfleet up`)."""
+"""Run the dashboard's Flask app in a background thread (tests, `gridfleet up`), over HTTP or
+HTTPS."""
 
 from __future__ import annotations
 
+import ssl
 import threading
+from pathlib import Path
 from types import TracebackType
 
 from flask import Flask
 from werkzeug.serving import BaseWSGIServer, make_server
 
+from gridfleet.errors import ConfigError
+
+
+def https_context(cert: Path, key: Path) -> ssl.SSLContext:
+    """A server context for `cert` and `key` (PEM); ConfigError naming a bad file."""
+    for path, what in ((cert, "certificate"), (key, "key")):
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such TLS {what} file")
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    try:
+        context.load_cert_chain(cert, key)
+    except ssl.SSLError as exc:
+        raise ConfigError(
+            f"{cert} and {key}: not a PEM certificate and its key ({exc.reason})"
+        ) from None
+    return context
+
 
 class DashboardServer:
     """A threaded werkzeug server for one app; port 0 picks a free port."""
 
-    def __init__(self, app: Flask, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(
+        self,
+        app: Flask,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        tls: ssl.SSLContext | None = None,
+    ) -> None:
         self.app = app
         self.host = host
         self.requested_port = port
+        self.tls = tls
         self._server: BaseWSGIServer | None = None
         self._thread: threading.Thread | None = None
 
@@ -27,13 +54,15 @@ class DashboardServer:
 
     @property
     def url(self) -> str:
-        """e.g. http://127.0.0.1:5000"""
-        return f"http://{self.host}:{self.port}"
+        """e.g. http://127.0.0.1:5000 (https:// with TLS)"""
+        return f"{'https' if self.tls else 'http'}://{self.host}:{self.port}"
 
     def bind(self) -> DashboardServer:
         """Open the listening socket (so `url` is known) without serving yet; returns self."""
         if self._server is None:
-            self._server = make_server(self.host, self.requested_port, self.app, threaded=True)
+            self._server = make_server(
+                self.host, self.requested_port, self.app, threaded=True, ssl_context=self.tls
+            )
         return self
 
     def start(self) -> DashboardServer:

@@ -40,6 +40,7 @@ class DashboardSettings:
     # With accounts, people log in before the page gets any broker credentials.
     accounts: Accounts | None = field(default=None, repr=False)
     secret_key: bytes | None = field(default=None, repr=False)  # None: a random one per start
+    https: bool = False  # the page is served over HTTPS: its cookie goes over HTTPS only
 
     def __post_init__(self) -> None:
         url = parse_broker_url(self.broker_ws)

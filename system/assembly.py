@@ -31,7 +31,7 @@ Mode = Literal["threads", "processes"]
 BROKER_READY = re.compile(r"listening on (mqtts?://\S+)(?: and (wss?://\S+))?")
 # A broker on every address is reached by its neighbours on this machine through loopback.
 LOOPBACK_OF = {"0.0.0.0": "127.0.0.1"}
-DASHBOARD_READY = re.compile(r"(http://\S+)")
+DASHBOARD_READY = re.compile(r"(https?://\S+)")
 
 
 @dataclass(frozen=True)
@@ -187,6 +187,14 @@ class Assembly:
             [] if self.spec.accounts_file is None else ["--accounts", str(self.spec.accounts_file)]
         )
 
+    @property
+    def tls_files(self) -> list[str]:
+        """The flags that give a child process the embedded broker's certificate and key."""
+        cert, key = self.spec.tls_cert, self.spec.tls_key
+        return (
+            [] if cert is None or key is None else ["--tls-cert", str(cert), "--tls-key", str(key)]
+        )
+
     def stop(self, timeout: float = 60.0) -> None:
         """Stop every thread in reverse order (units say offline first), then our broker."""
         errors: list[BaseException] = []
@@ -247,6 +255,7 @@ class Assembly:
                 "--scenario",
                 scenario,
                 *logins,
+                *self.tls_files,
             )
             child = await sup.start(ChildSpec("dashboard", dashboard, ready=DASHBOARD_READY))
             system.children["dashboard"] = child

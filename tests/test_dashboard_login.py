@@ -10,7 +10,7 @@ from flask import Flask
 from flask.testing import FlaskClient
 
 from dashboard.app import create_app
-from dashboard.cli import secret_from, settings_from
+from dashboard.cli import secret_from, settings_from, tls_from
 from dashboard.login import (
     REFUSED,
     LoginRefused,
@@ -212,3 +212,16 @@ def test_without_accounts_nothing_changes() -> None:
     assert body["mqtt"] is None and body["login"] == {"required": False, "user": None}
     assert json.dumps(body).count("password") == 0
     assert client.post("/api/login", json={"username": "a", "password": "b"}).status_code == 400
+
+
+def test_https_flags_need_both_files(tmp_path: Path) -> None:
+    parser = build_parser(only="dashboard")
+    half = parser.parse_args(["dashboard", "--tls-cert", str(tmp_path / "server.pem")])
+    with pytest.raises(ConfigError, match="both --tls-cert FILE and --tls-key FILE"):
+        tls_from(half)
+    missing = parser.parse_args(
+        ["dashboard", "--tls-cert", str(tmp_path / "s.pem"), "--tls-key", str(tmp_path / "k")]
+    )
+    with pytest.raises(ConfigError, match="no such TLS certificate file"):
+        tls_from(missing)
+    assert tls_from(parser.parse_args(["dashboard"])) is None

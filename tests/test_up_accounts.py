@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import signal
+import ssl
 import subprocess
 import sys
 import urllib.request
@@ -81,9 +82,13 @@ def test_mistakes_in_accounts_and_tls_are_named_before_anything_starts(
 class Dashboard:
     """A person's browser session with the dashboard, as plain HTTP."""
 
-    def __init__(self, url: str) -> None:
+    def __init__(self, url: str, ca_file: Path | None = None) -> None:
         self.url = url
-        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(CookieJar()))
+        self.cookies = CookieJar()
+        https = urllib.request.HTTPSHandler(context=ssl.create_default_context(cafile=ca_file))
+        self.opener = urllib.request.build_opener(
+            urllib.request.HTTPCookieProcessor(self.cookies), https
+        )
 
     def call(self, path: str, body: dict[str, str] | None = None) -> tuple[int, dict[str, object]]:
         data = None if body is None else json.dumps(body).encode()
@@ -125,12 +130,14 @@ def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
         assert (url.startswith("mqtts://"), ws_url.startswith("wss://")) == (with_tls, with_tls)
         if with_tls:
             url = with_ca_file(url, str(tls / "ca.pem"))
-        page = out.wait(r"gridfleet is running: open (http://\S+), log in as operator", 60)
+        page = out.wait(r"gridfleet is running: open (https?://\S+), log in as operator", 60)
+        # With TLS the page too is served over HTTPS: the login's password is never in clear.
+        assert page.group(1).startswith("https://" if with_tls else "http://")
         # The broker lets nobody in without an account (each component got in with its own).
         with pytest.raises(AssertionError, match="Not authorized"):
             MqttProbe(url).connect(timeout=5)
         # The dashboard hands the broker login to a logged-in person only.
-        person = Dashboard(page.group(1))
+        person = Dashboard(page.group(1), tls / "ca.pem" if with_tls else None)
         assert person.call("/api/settings")[0] == 401
         operator = accounts.get("operator")
         assert person.call("/api/login", {"username": "operator", "password": "nope"})[0] == 401
@@ -138,6 +145,7 @@ def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
             "/api/login", {"username": "operator", "password": operator.password}
         )
         assert login_ok == (200, {"user": "operator"})
+        assert [c.secure for c in person.cookies] == [with_tls]  # over HTTPS only, with TLS
         status, settings = person.call("/api/settings")
         assert status == 200 and settings["broker_ws"] == ws_url
         assert settings["mqtt"] == {"username": "operator", "password": operator.password}
