@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import shutil
-import socket
 import stat
 import subprocess
 import sys
@@ -17,15 +14,14 @@ from broker.mosquitto import mosquitto_conf, password_hash, write_files
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.protocol import Topics
 
+from support.mosquitto import running_mosquitto
 from support.security import (
     check_a_unit_cannot_forge,
     check_only_operators_write_the_latch,
     check_strangers_are_refused,
 )
-from support.wait import wait_for
 
 T = Topics("mosq")
-MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
 def test_password_hashes_are_mosquittos_own_format() -> None:
@@ -41,34 +37,13 @@ def accounts() -> Accounts:
 
 @pytest.fixture(scope="module")
 def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
-    """Mosquitto on a free loopback port with the accounts' files; its URL without credentials."""
-    if not Path(MOSQUITTO).exists():
-        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
+    """Mosquitto with the config 'gridfleet accounts mosquitto' writes; its URL (no login)."""
     here = tmp_path_factory.mktemp("mosquitto")
     passwd, acl = write_files(accounts, T, here)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    conf = here / "mosquitto.conf"
-    # The product's own config ('gridfleet accounts mosquitto'); as root, Mosquitto would drop to
-    # user mosquitto, which cannot read the owner-only files.
-    as_root = "user root\n" if os.geteuid() == 0 else ""
-    conf.write_text(mosquitto_conf(passwd, acl, port=port, ws_port=None) + as_root)
-    proc = subprocess.Popen(
-        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-
-    def listening() -> bool:
-        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
-        with socket.socket() as probe:
-            return probe.connect_ex(("127.0.0.1", port)) == 0
-
-    try:
-        wait_for(listening, 10, what="mosquitto listening")
+    with running_mosquitto(
+        here, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
+    ) as port:
         yield f"mqtt://127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def test_strangers_and_wrong_passwords_are_refused(mosquitto: str, accounts: Accounts) -> None:

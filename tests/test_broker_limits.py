@@ -3,12 +3,8 @@
 from __future__ import annotations
 
 import asyncio
-import shutil
-import socket
-import subprocess
 import threading
 from collections.abc import Callable, Iterator
-from pathlib import Path
 from typing import Any
 
 import paho.mqtt.client as mqtt
@@ -25,13 +21,13 @@ from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from system.broker_thread import BrokerThread
 
+from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
 ROOT = "lim"
 T = Topics(ROOT)
-MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
 class Client:
@@ -285,31 +281,12 @@ def test_the_right_password_still_takes_the_client_id_over(
 @pytest.fixture(scope="module")
 def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """Mosquitto on a free loopback port, configured by mosquitto_conf; its URL."""
-    if not Path(MOSQUITTO).exists():
-        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
     here = tmp_path_factory.mktemp("mosquitto")
     passwd, acl = write_files(accounts, T, here)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    conf = here / "mosquitto.conf"
-    # Run as root (tests in CI), Mosquitto would read the 0600 files as user mosquitto and fail.
-    conf.write_text(mosquitto_conf(passwd, acl, port=port, ws_port=None) + "user root\n")
-    proc = subprocess.Popen(
-        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
-
-    def listening() -> bool:
-        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
-        with socket.socket() as probe:
-            return probe.connect_ex(("127.0.0.1", port)) == 0
-
-    try:
-        wait_for(listening, 10, what="mosquitto listening")
+    with running_mosquitto(
+        here, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
+    ) as port:
         yield f"mqtt://127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def test_mosquitto_with_the_recommended_lines_refuses_an_oversized_packet(

@@ -3,8 +3,6 @@ gridfleet's own client (aiomqtt, through a `gridfleet` command with --ca-file)."
 
 from __future__ import annotations
 
-import shutil
-import socket
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -15,10 +13,9 @@ import pytest
 from broker.certs import make_tls, write_tls
 from gridfleet.config import with_ca_file
 
+from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.wait import wait_for
-
-MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
 @pytest.fixture(scope="module")
@@ -32,32 +29,15 @@ def tls(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def mosquitto_tls(tls: Path) -> Iterator[str]:
     """Mosquitto with only a TLS listener on a free loopback port; its mqtts:// URL."""
-    if not Path(MOSQUITTO).exists():
-        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    conf = tls / "mosquitto.conf"
-    # `user root`: run as root, Mosquitto drops to its own user first and cannot read the 0600 key.
-    conf.write_text(
-        "allow_anonymous true\npersistence false\nuser root\n"
-        f"listener {port} 127.0.0.1\ncertfile {tls / 'server.pem'}\nkeyfile {tls / 'server.key'}\n"
-    )
-    proc = subprocess.Popen(
-        [MOSQUITTO, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
 
-    def listening() -> bool:
-        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
-        with socket.socket() as probe:
-            return probe.connect_ex(("127.0.0.1", port)) == 0
+    def conf(port: int) -> str:
+        return (
+            f"allow_anonymous true\npersistence false\nlistener {port} 127.0.0.1\n"
+            f"certfile {tls / 'server.pem'}\nkeyfile {tls / 'server.key'}\n"
+        )
 
-    try:
-        wait_for(listening, 10, what="mosquitto listening")
+    with running_mosquitto(tls, conf) as port:
         yield f"mqtts://127.0.0.1:{port}"
-    finally:
-        proc.terminate()
-        proc.wait(10)
 
 
 def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
