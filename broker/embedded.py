@@ -13,12 +13,13 @@ from types import TracebackType
 from typing import Any
 
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
-from broker.tls import amqtt_listener_context, server_context
+from broker.tls import amqtt_listener_context
 from gridfleet.accounts import Accounts, rules
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.textfile import read_text
+from gridfleet.tls import server_context
 
 log = logging.getLogger("gridfleet.broker")
 

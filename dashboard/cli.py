@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from dashboard.app import create_app
-from dashboard.server import DashboardServer, https_context
+from dashboard.server import DashboardServer
 from dashboard.settings import INSTALL_HINT, DashboardSettings
 from gridfleet.accounts import load_accounts
 from gridfleet.config import DEFAULT_WS_URL
@@ -20,6 +20,7 @@ from gridfleet.grid import GridMap
 from gridfleet.maps import load_map
 from gridfleet.options import add_common
 from gridfleet.scenario import load_scenario
+from gridfleet.tls import server_context
 
 log = logging.getLogger("gridfleet.dashboard")
 SECRET_ENV = "GRIDFLEET_DASHBOARD_SECRET"
@@ -106,7 +107,7 @@ def tls_from(args: argparse.Namespace) -> ssl.SSLContext | None:
         return None
     if args.tls_cert is None or args.tls_key is None:
         raise ConfigError("HTTPS needs both --tls-cert FILE and --tls-key FILE")
-    return https_context(args.tls_cert, args.tls_key)
+    return server_context(args.tls_cert, args.tls_key)
 
 
 def run(args: argparse.Namespace) -> int:

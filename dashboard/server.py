@@ -5,28 +5,10 @@ from __future__ import annotations
 
 import ssl
 import threading
-from pathlib import Path
 from types import TracebackType
 
 from flask import Flask
 from werkzeug.serving import BaseWSGIServer, make_server
-
-from gridfleet.errors import ConfigError
-
-
-def https_context(cert: Path, key: Path) -> ssl.SSLContext:
-    """A server context for `cert` and `key` (PEM); ConfigError naming a bad file."""
-    for path, what in ((cert, "certificate"), (key, "key")):
-        if not path.is_file():
-            raise ConfigError(f"{path}: no such TLS {what} file")
-    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
-    try:
-        context.load_cert_chain(cert, key)
-    except ssl.SSLError as exc:
-        raise ConfigError(
-            f"{cert} and {key}: not a PEM certificate and its key ({exc.reason})"
-        ) from None
-    return context
 
 
 class DashboardServer:

@@ -7,12 +7,12 @@ import asyncio
 from pathlib import Path
 
 from broker.embedded import is_loopback
-from broker.tls import server_context
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from gridfleet.tls import server_context
 from system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from system.supervisor import Supervisor, run_until_signal
 
