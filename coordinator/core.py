@@ -44,6 +44,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
     Connection,
+    EstopSignal,
     Factsheet,
     HeaderStamper,
     RouteView,
@@ -58,6 +59,9 @@ from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
 from gridfleet.protocol.stop import LATCH
 
 PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
+# After connecting, how long the retained latch may take to arrive before the broker is taken to
+# have lost it (as units wait for it: protocol.md §5.1).
+LATCH_WAIT_S = 1.0
 # Longest a step waits past its period for units to acknowledge the orders of the previous step:
 # half the shortest hold timeout, so units never hold for want of orders while we wait.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
@@ -93,6 +97,9 @@ class CoordinatorCore:
         self.step_no = 0
         self.estop = False  # whether the fleet is stopped: the latch, or a held press
         self.stop = StopView()
+        # After a (re)connect: when the retained latch can have arrived; None once it did, or
+        # once we re-asserted it (a restarted broker without persistence lost it).
+        self._latch_due: float | None = None
         self.goals: dict[str, Cell] = {}
         self.orders = Orders(nonce)
         self.moves = Moves(self.planner)
@@ -117,8 +124,9 @@ class CoordinatorCore:
         """The retained coordinator status: `online`, `offline`, or `broken` (the last will)."""
         return self.say.status(state, self.step_no, self.world.step_period_s, self.estop)
 
-    def on_connect(self) -> Effects:
+    def on_connect(self, now: float = 0.0) -> Effects:
         """Connected (and `online` said): every view goes out again."""
+        self._latch_due = now + LATCH_WAIT_S
         self.views.reconnected()
         persist = self._persist()
         return self._effects(self._views(), persist)
@@ -201,6 +209,8 @@ class CoordinatorCore:
     def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
         signal = self.stop.apply(kind, source, topic, payload)
+        if kind == LATCH:
+            self._latch_due = None  # the broker still has the latch: nothing to re-assert
         publish: list[Outbound] = []
         if kind == LATCH and signal is not None and not signal.engaged:
             # An operator's release: the presses are cleared, or a restart would read them again.
@@ -265,8 +275,8 @@ class CoordinatorCore:
             return self._effects([*self._holds(), report])
         persist = self._persist()
         self.orders.expect(result.orders)
+        publish = self._reassert_latch(now)
         self._releasing = set()
-        publish = []
         for unit_id, plan in result.orders.items():
             order = self.say.order(unit_id, plan)
             publish.append(order)
@@ -278,6 +288,25 @@ class CoordinatorCore:
         # units acknowledged these orders would only add load; they could not move on it.
         until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None
         return self._effects(publish, persist, acks_until=until)
+
+    def _reassert_latch(self, now: float) -> list[Outbound]:
+        """The engaged latch again, when no retained latch came after connecting.
+
+        A broker restarted without persistence has lost every retained message, the latch among
+        them: a unit connecting now would find no stop (protocol.md §5.1). A latch an operator
+        released while we were away does arrive, and is then not overridden.
+        """
+        if self._latch_due is None or now < self._latch_due:
+            return []
+        self._latch_due = None
+        cause = self.stop.cause
+        if cause is None:
+            return []
+        self._log.append(
+            (logging.WARNING, f"emergency stop re-asserted on the broker ({cause.by})")
+        )
+        engaged = EstopSignal(True, cause.by, cause.reason)
+        return [Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(engaged))]
 
     def _decide(self, now: float) -> StepResult:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""

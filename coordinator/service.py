@@ -91,7 +91,7 @@ class Coordinator:
             self.store.close()
 
     async def _on_connect(self) -> None:
-        await self._apply(self.core.on_connect())
+        await self._apply(self.core.on_connect(self.clock()))
         self.ready.set()
         log.info("coordinator online at %s (root %s)", self.endpoint.where, self.topics.root)
 

@@ -534,6 +534,29 @@ def test_a_cleared_stop_that_is_not_engaged_is_only_reported(core: CoordinatorCo
     assert not core.estop
 
 
+def test_a_latch_the_broker_lost_is_re_asserted_once_after_reconnecting(
+    core: CoordinatorCore,
+) -> None:
+    estop(core, b"engaged|dashboard|x")
+    core.on_connect(10.0)  # a restarted broker: no retained latch will come
+    assert ESTOP not in [o.topic for o in core.step(10.5).publish]  # it may still arrive
+    effects = core.step(11.0)
+    assert published(effects)[0] == (ESTOP, "engaged|dashboard|x", 1, True)
+    assert (logging.WARNING, "emergency stop re-asserted on the broker (dashboard)") in effects.log
+    assert ESTOP not in [o.topic for o in core.step(12.0).publish]  # once
+
+
+@pytest.mark.parametrize("retained", [b"released|operator|done while away", b"engaged|dashboard|x"])
+def test_a_latch_still_on_the_broker_is_not_re_asserted(
+    core: CoordinatorCore, retained: bytes
+) -> None:
+    estop(core, b"engaged|dashboard|x")
+    core.on_connect(10.0)
+    estop(core, retained, 10.1)  # the broker kept it (an operator may have released it meanwhile)
+    assert ESTOP not in [o.topic for o in core.step(12.0).publish]
+    assert core.estop == retained.startswith(b"engaged")
+
+
 PRESS = "gridfleet/v1/devices/dev1/stop"
 UNIT_PRESS = "gridfleet/v1/units/unit2/stop"
 

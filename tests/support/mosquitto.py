@@ -25,11 +25,14 @@ def free_port() -> int:
 
 
 @contextmanager
-def running_mosquitto(directory: Path, conf: Callable[[int], str]) -> Iterator[int]:
-    """Mosquitto with the config `conf(port)` written into `directory`; yields its port."""
+def running_mosquitto(
+    directory: Path, conf: Callable[[int], str], port: int | None = None
+) -> Iterator[int]:
+    """Mosquitto with the config `conf(port)` written into `directory` (on `port`, else a free
+    one); yields its port."""
     if not Path(MOSQUITTO).exists():
         pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
-    port = free_port()
+    port = port or free_port()
     path = directory / "mosquitto.conf"
     # Started as root, Mosquitto drops to user mosquitto, who cannot read owner-only (0600) files.
     as_root = "user root\n" if os.geteuid() == 0 else ""

@@ -1,0 +1,87 @@
+"""A latched stop is back on a restarted broker that kept nothing, within a step of the coordinator's
+return: it re-asserts the latch when no retained one arrives (protocol.md §5.1); on amqtt and on
+Mosquitto, each without persistence."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import AbstractContextManager
+from pathlib import Path
+
+import pytest
+
+from gridfleet.protocol import Topics, decode_estop
+from gridfleet.scenario import load_scenario
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, coordinator_thread
+
+from support.mosquitto import free_port, running_mosquitto
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+ROOT = "restart"
+T = Topics(ROOT)
+STEP_S = 0.1
+
+# A broker that can be stopped and started again on the same port: (url, restart).
+Restartable = tuple[str, Callable[[], None]]
+
+
+@pytest.fixture
+def amqtt() -> Iterator[Restartable]:
+    with BrokerThread() as broker:
+        yield broker.url, broker.restart
+
+
+@pytest.fixture
+def mosquitto(tmp_path: Path) -> Iterator[Restartable]:
+    port = free_port()
+
+    def conf(p: int) -> str:
+        return f"allow_anonymous true\npersistence false\nlistener {p} 127.0.0.1\n"
+
+    running: list[AbstractContextManager[int]] = [running_mosquitto(tmp_path, conf, port)]
+    running[0].__enter__()
+
+    def restart() -> None:
+        running[0].__exit__(None, None, None)
+        running[0] = running_mosquitto(tmp_path, conf, port)
+        running[0].__enter__()
+
+    try:
+        yield f"mqtt://127.0.0.1:{port}", restart
+    finally:
+        running[0].__exit__(None, None, None)
+
+
+def latch_on(url: str) -> bytes | None:
+    """The retained latch a client connecting now reads (None: nothing retained)."""
+    with MqttProbe(url) as probe:
+        probe.subscribe(T.fleet("estop"))
+        probe.subscribe(f"{ROOT}/marker")
+        probe.publish(f"{ROOT}/marker", b"m")  # comes back after any retained latch
+        probe.wait(f"{ROOT}/marker")
+        seen = probe.received(T.fleet("estop"))
+        return seen[-1].payload if seen else None
+
+
+@pytest.mark.parametrize("broker", ["amqtt", "mosquitto"])
+def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
+    broker: str, request: pytest.FixtureRequest, tmp_path: Path
+) -> None:
+    url, restart = request.getfixturevalue(broker)
+    coordinator: ServiceThread = coordinator_thread(
+        load_scenario(PLAYFIELD), url, root=ROOT, step_s=STEP_S, db_path=tmp_path / "jobs.db"
+    ).start(30)
+    try:
+        with MqttProbe(url) as operator:
+            operator.publish(T.fleet("estop"), b"engaged|operator|soak", qos=1, retain=True)
+            core = coordinator.service.core  # type: ignore[attr-defined]
+            wait_for(lambda: coordinator.call(lambda: core.estop), what="the coordinator stopped")
+        restart()
+        assert latch_on(url) in (None, b"engaged|operator|soak")  # the broker may be empty now
+        engaged = wait_for(lambda: latch_on(url), 20, what="the latch back on the broker")
+        assert decode_estop(engaged).engaged and decode_estop(engaged).by == "operator"
+    finally:
+        coordinator.stop(30)
