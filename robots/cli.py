@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import logging
+from pathlib import Path
 
 from gridfleet.errors import ConfigError
 from gridfleet.options import accounts_of, add_common
@@ -39,6 +40,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="coordinated",
         help="follow the coordinator's orders, or plan to the scenario's goals (default coordinated)",
     )
+    parser.add_argument(
+        "--state",
+        type=Path,
+        metavar="FILE",
+        help="keep where the units stand and what they carry in this SQLite file, and resume "
+        "from it after a restart (default: start from the scenario)",
+    )
 
 
 def build(args: argparse.Namespace) -> Fleet:
@@ -57,6 +65,7 @@ def build(args: argparse.Namespace) -> Fleet:
         step=args.step,
         mode=args.mode,
         accounts=accounts_of(args),
+        state_path=args.state,
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 
 from gridfleet.accounts import Accounts
 from gridfleet.config import check_step, parse_broker_url, with_credentials
@@ -14,6 +15,7 @@ from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
 from gridfleet.scenario import Scenario, with_units
 from robots.runner import UnitRunner
+from robots.saved import Saved, SavedUnits
 from robots.unit import Mode, UnitLogic
 from robots.world import WorldSim
 
@@ -34,6 +36,7 @@ class Fleet:
         reconnect_s: float = 0.1,
         sensors_see_units: bool = True,
         accounts: Accounts | None = None,
+        state_path: Path | None = None,
     ) -> None:
         parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
         known = [u.id for u in with_units(scenario).units]
@@ -49,6 +52,12 @@ class Fleet:
         self.scenario = scenario
         self.topics = Topics(root)
         self.world = WorldSim.from_scenario(scenario, sensors_see_units=sensors_see_units)
+        # Where the local units stood and what they carried when this process last ran.
+        self.saved = None if state_path is None else SavedUnits(state_path)
+        resumed = {} if self.saved is None else self.saved.load(scenario.grid, local)
+        _check_resumed(scenario, local, resumed, state_path)
+        for uid, was in resumed.items():
+            self.world.resume(uid, was.position)
         for spec in scenario.units:
             if spec.id not in local:
                 self.world.place(spec.id, spec.start)  # best guess until its state arrives
@@ -58,15 +67,17 @@ class Fleet:
         for spec in scenario.units:
             if spec.id not in local:
                 continue
+            was = resumed.get(spec.id, Saved(spec.start))
             logic = UnitLogic(
                 spec.id,
                 scenario.grid,
-                spec.start,
+                was.position,
                 spec.capacity,
                 step,
                 mode=mode,
                 goal=wanted.get(spec.id),
             )
+            logic.job_id, logic.load_kg = was.job_id, was.load_kg
             url = broker_url
             if accounts is not None:  # each unit logs in as itself
                 account = accounts.get(spec.id)
@@ -79,8 +90,15 @@ class Fleet:
                 color=spec.color,
                 watch_remote=not self.runners and len(local) < len(known),
                 reconnect_s=reconnect_s,
+                on_step=None if self.saved is None else self._save,
             )
+            if self.saved is not None:
+                self._save(logic)
         self.ready = asyncio.Event()  # set once every local unit is online
+
+    def _save(self, logic: UnitLogic) -> None:
+        assert self.saved is not None
+        self.saved.save(logic.unit_id, Saved(logic.position, logic.job_id, logic.load_kg))
 
     @property
     def logic(self) -> dict[str, UnitLogic]:
@@ -99,9 +117,32 @@ class Fleet:
                 t.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await asyncio.gather(*tasks, watcher, return_exceptions=True)
+            if self.saved is not None:
+                self.saved.close()
 
     async def _watch_ready(self, stop: asyncio.Event) -> None:
         while not stop.is_set():
             await asyncio.gather(*(r.online.wait() for r in self.runners.values()))
             self.ready.set()
             return
+
+
+def _check_resumed(
+    scenario: Scenario, local: Sequence[str], resumed: Mapping[str, Saved], path: Path | None
+) -> None:
+    """Saved squares and loads must fit the scenario: one local unit a square, within capacity."""
+    seen: dict[Cell, str] = {}
+    for spec in scenario.units:
+        if spec.id not in local:
+            continue
+        was = resumed.get(spec.id, Saved(spec.start))
+        if was.load_kg > spec.capacity:
+            raise ConfigError(
+                f"{path}: unit {spec.id} carries {was.load_kg} kg, over its capacity "
+                f"{spec.capacity} kg"
+            )
+        other = seen.setdefault(was.position, spec.id)
+        if other != spec.id:
+            raise ConfigError(
+                f"{path}: units {other} and {spec.id} would both stand on {list(was.position)}"
+            )

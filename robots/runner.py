@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from gridfleet.endpoint import Backoff, Endpoint, Outbound
 from gridfleet.protocol import Topics
@@ -33,8 +33,10 @@ class UnitRunner:
         watch_remote: bool = False,
         reconnect_s: float = 0.1,
         max_reconnect_s: float = 5.0,
+        on_step: Callable[[UnitLogic], None] | None = None,
     ) -> None:
         self.core = UnitCore(logic, topics, color=color)
+        self.on_step = on_step  # after each step, e.g. to save where the unit stands
         self.world = world
         self.id = logic.unit_id
         # One client id per runner: two processes started with the same unit never kick each other.
@@ -111,9 +113,12 @@ class UnitRunner:
 
     def tick(self) -> list[Outbound]:
         """One step: sense, decide, move in the world (atomically: nothing awaits in between)."""
-        return self.core.tick(
+        outs = self.core.tick(
             lambda: self.world.sense(self.id), lambda d: self.world.move(self.id, d), self._now()
         )
+        if self.on_step is not None:
+            self.on_step(self.logic)
+        return outs
 
     async def _send(self, outs: Sequence[Outbound]) -> None:
         """Publish what the core returned, in its order; dropped while disconnected."""

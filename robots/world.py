@@ -120,6 +120,10 @@ class WorldSim:
         self.remote.add(unit_id)
         self.moves.setdefault(unit_id, 0)
 
+    def resume(self, unit_id: str, cell: Cell) -> None:
+        """Put a unit simulated here on `cell`: where it stood before this process restarted."""
+        self._relocate(unit_id, cell)
+
     def observe(self, unit_id: str, cell: Cell) -> None:
         """A unit seen on `cell` in its published state; units simulated here are the truth."""
         if unit_id in self._positions and unit_id not in self.remote:

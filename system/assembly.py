@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, Literal, TextIO
 
 from broker.embedded import BrokerSettings
+from coordinator.store import default_db_path
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import with_ca_file, with_credentials
 from gridfleet.errors import ConfigError
@@ -238,7 +239,10 @@ class Assembly:
         system.children["coordinator"] = await sup.start(
             ChildSpec("coordinator", cli(*coordinator))
         )
-        robots = cli("robots", *common, "--scenario", scenario, *step)
+        # The units resume where they stood after a restart, next to the coordinator's jobs.
+        units_state = units_state_path(spec.db_path)
+        units_state.parent.mkdir(parents=True, exist_ok=True)
+        robots = cli("robots", *common, "--scenario", scenario, *step, "--state", str(units_state))
         system.children["robots"] = await sup.start(ChildSpec("robots", robots))
         if spec.dashboard_port is not None:
             assert system.ws_url is not None
@@ -324,3 +328,9 @@ async def start_broker_process(
     if host is not None:
         url = url.replace(f"//{spec.listen}:", f"//{host}:", 1)
     return url, child.ready_match.group(2)
+
+
+def units_state_path(db_path: Path | None) -> Path:
+    """Where `up`'s units keep their squares and loads: beside the coordinator's job store."""
+    jobs = db_path if db_path is not None else default_db_path()
+    return jobs.with_name(f"{jobs.stem}.units.sqlite3")

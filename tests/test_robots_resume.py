@@ -1,0 +1,134 @@
+"""A units process killed mid-job resumes where its units stood, with what they carried
+(`gridfleet robots --state FILE`), and the job completes; bad state files are refused."""
+
+from __future__ import annotations
+
+import signal
+import sqlite3
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from gridfleet.errors import ConfigError
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics
+from gridfleet.scenario import load_scenario
+from robots.fleet import Fleet
+from robots.saved import Saved, SavedUnits
+from system.broker_thread import BrokerThread
+from system.threads import ServiceThread, coordinator_thread
+
+from support.operator_peer import OperatorPeer
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+STEP_S = 0.05
+
+
+def robots(url: str, root: str, state: Path) -> subprocess.Popen[bytes]:
+    """`gridfleet robots` for the playfield, saving to `state`."""
+    argv = ["robots", "--broker", url, "--root", root, "--scenario", str(PLAYFIELD)]
+    argv += ["--step", str(STEP_S), "--state", str(state)]
+    return subprocess.Popen([sys.executable, "-m", "system", *argv], stderr=subprocess.PIPE)
+
+
+@pytest.fixture
+def coordinator(broker: BrokerThread, root: str, tmp_path: Path) -> Iterator[ServiceThread]:
+    thread = coordinator_thread(
+        load_scenario(PLAYFIELD), broker.url, root=root, step_s=STEP_S, db_path=tmp_path / "j.db"
+    ).start(30)
+    yield thread
+    thread.stop(30)
+
+
+@pytest.mark.timeout(120)
+def test_a_units_process_killed_mid_job_resumes_and_the_job_completes(
+    broker: BrokerThread,
+    coordinator: ServiceThread,
+    probe_factory: Callable[..., MqttProbe],
+    root: str,
+    tmp_path: Path,
+) -> None:
+    op = OperatorPeer(probe_factory(), Topics(root), "tester")
+    state = tmp_path / "units.sqlite3"
+    first = robots(broker.url, root, state)
+    try:
+        # A long carry: picked up at [1, 1], delivered at [8, 8].
+        assert op.submit_job(Cell(1, 1), Cell(8, 8), 1.5, job_id="r1").accepted
+
+        def carrying() -> str | None:
+            jobs = op.listed_jobs()
+            job = jobs.get("r1")
+            return job.unit if job is not None and job.state == "to_dropoff" else None
+
+        unit = wait_for(carrying, 30, what="r1 on its way to the dropoff")
+        first.send_signal(signal.SIGKILL)  # no goodbye, nothing flushed by us
+        first.wait(10)
+        was = op.last_state(unit)
+        assert was is not None and was.job_id == "r1"
+        seen = len(op.states(unit))
+        second = robots(broker.url, root, state)
+        try:
+            back = wait_for(lambda: op.states(unit)[seen:], 20, what=f"{unit} back")[0]
+            # Where it stood (at most the one square it moved after its last state) and loaded.
+            assert back.position.manhattan(was.position) <= 1, (back.position, was.position)
+            assert (back.job_id, back.load_kg) == ("r1", 1.5)
+            wait_for(lambda: op.all_final(["r1"]), 60, what="r1 final")
+            assert op.listed_jobs()["r1"].state == "done", op.listed_jobs()["r1"]
+        finally:
+            second.send_signal(signal.SIGTERM)
+            assert second.wait(20) == 0
+    finally:
+        if first.poll() is None:
+            first.kill()
+
+
+def test_a_fresh_state_file_starts_from_the_scenario_and_keeps_each_step(tmp_path: Path) -> None:
+    scenario = load_scenario(PLAYFIELD)
+    state = tmp_path / "units.sqlite3"
+    fleet = Fleet(scenario, "mqtt://127.0.0.1:1", step=STEP_S, state_path=state)
+    starts = {u.id: u.start for u in scenario.units}
+    assert {uid: lg.position for uid, lg in fleet.logic.items()} == starts
+    saved = SavedUnits(state).load(scenario.grid, list(starts))
+    assert saved == {uid: Saved(cell) for uid, cell in starts.items()}
+
+
+def write_row(state: Path, *row: object) -> None:
+    SavedUnits(state).close()  # the table
+    with sqlite3.connect(state) as db:
+        db.execute("INSERT OR REPLACE INTO units VALUES (?, ?, ?, ?, ?)", row)
+
+
+@pytest.mark.parametrize(
+    ("row", "problem"),
+    [
+        (("unit1", 99, 0, None, 0.0), "not a free square"),
+        (("unit1", 0, 0, None, -1.0), "is not a mass"),
+        (("unit1", 0, 0, "bad id!", 1.0), "job id"),
+        (("unit1", 0, 0, "j1", 500.0), "over its capacity"),
+    ],
+)
+def test_a_bad_state_file_is_refused_naming_the_problem(
+    tmp_path: Path, row: tuple[object, ...], problem: str
+) -> None:
+    state = tmp_path / "units.sqlite3"
+    write_row(state, *row)
+    with pytest.raises(ConfigError, match=problem):
+        Fleet(load_scenario(PLAYFIELD), "mqtt://127.0.0.1:1", state_path=state)
+
+
+def test_two_units_on_one_square_or_a_file_that_is_no_database_are_refused(tmp_path: Path) -> None:
+    scenario = load_scenario(PLAYFIELD)
+    state = tmp_path / "units.sqlite3"
+    other = next(u for u in scenario.units if u.id != "unit1")
+    write_row(state, "unit1", other.start.x, other.start.y, None, 0.0)
+    with pytest.raises(ConfigError, match="would both stand on"):
+        Fleet(scenario, "mqtt://127.0.0.1:1", state_path=state)
+    junk = tmp_path / "junk.sqlite3"
+    junk.write_bytes(b"this is not a database" * 100)
+    with pytest.raises(ConfigError, match=r"junk\.sqlite3"):
+        Fleet(scenario, "mqtt://127.0.0.1:1", state_path=junk)
