@@ -23,6 +23,7 @@ class UnitRecord:
     state: UnitState | None = None
     state_at: float | None = None  # when the latest state arrived (monotonic seconds)
     lost_since: float | None = None  # when it stopped counting as active (None: active)
+    interval_s: float | None = None  # how far apart its states arrive (moving average)
     rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
 
     @property
@@ -106,6 +107,11 @@ class World:
             ):
                 new.append(c)
         rec = self.unit(unit_id)
+        if rec.state_at is not None and not rec.rejoined:
+            # A loaded broker or machine spaces states out: the loss timeout grows with them. One
+            # long silence (a real loss) counts only up to the timeout it already had.
+            gap = min(now - rec.state_at, self.stale_after_s(rec))
+            rec.interval_s = gap if rec.interval_s is None else 0.8 * rec.interval_s + 0.2 * gap
         rec.state = msg
         rec.state_at = now
         rec.rejoined = False
@@ -126,9 +132,13 @@ class World:
             )
 
     def stale_after_s(self, rec: UnitRecord) -> float:
-        """How long a unit's state may be silent before it counts as lost."""
+        """How long a unit's state may be silent before it counts as lost.
+
+        Five periods: its declared step period, or the interval its states have been arriving
+        at when that is longer (a unit that is only late is not lost; protocol.md §8).
+        """
         period = rec.factsheet.step_period_s if rec.factsheet else self.step_period_s
-        return max(MIN_TIMEOUT_S, STALE_AFTER_STEPS * period)
+        return max(MIN_TIMEOUT_S, STALE_AFTER_STEPS * max(period, rec.interval_s or 0.0))
 
     def is_active(self, rec: UnitRecord, now: float) -> bool:
         """Online (not offline/broken) with a fresh state."""

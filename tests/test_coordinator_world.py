@@ -57,3 +57,24 @@ def test_a_restarted_coordinator_adopts_a_job_a_unit_reports_carrying() -> None:
     core.step(1.0)
     assert (job.state, job.unit) == ("loaded", "u")
     assert orders_in(core.step(2.0))["u"].target == Cell(3, 2)  # on to the dropoff
+
+
+def test_a_unit_whose_states_come_late_is_not_lost_but_one_that_stops_is() -> None:
+    world = World(GridMap.from_rows(ROWS), step_period_s=0.05)  # timeout: max(0.5, 5 x 0.05)
+    here = state(Cell(0, 0), {}, [])
+    t = 0.0
+    world.on_state("u", here, t)
+    for _ in range(20):  # an overloaded broker: states every 0.3 s, not every 0.05 s
+        t += 0.3
+        world.on_state("u", here, t)
+    assert "u" in world.roll_call(t + 1.0)  # silent 1 s: late, not lost (5 x ~0.3 s)
+    assert "u" not in world.roll_call(t + 2.0)  # silent 2 s: lost
+
+
+def test_one_long_silence_does_not_stretch_the_timeout() -> None:
+    world = World(GridMap.from_rows(ROWS), step_period_s=0.05)
+    here = state(Cell(0, 0), {}, [])
+    for i in range(10):
+        world.on_state("u", here, i * 0.05)
+    world.on_state("u", here, 60.0)  # back after a minute away
+    assert world.stale_after_s(world.units["u"]) < 1.0
