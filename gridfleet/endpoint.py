@@ -26,6 +26,7 @@ from gridfleet.protocol.messages import Message
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.endpoint")
+GOODBYE_S = 2.0  # the longest a clean stop waits for its goodbye to be acknowledged
 
 Handler = Callable[[str, bytes], Awaitable[None]]
 Hook = Callable[[], Awaitable[None]]
@@ -187,11 +188,15 @@ class Endpoint:
                     raise error
             if self._broken.is_set() or not stop.is_set():
                 raise aiomqtt.MqttError("the session ended")
-            with contextlib.suppress(aiomqtt.MqttError):
-                if on_stop is not None:
-                    await on_stop()
-                if self._offline is not None:
-                    await send(client, self._offline())
+            # Bounded: a broker stopping at the same moment never acknowledges the goodbye, and
+            # each QoS 1 publish would wait out aiomqtt's 10 s timeout (seen with SIGTERM to
+            # broker and coordinator together); the last will covers a goodbye that did not go.
+            with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
+                async with asyncio.timeout(GOODBYE_S):
+                    if on_stop is not None:
+                        await on_stop()
+                    if self._offline is not None:
+                        await send(client, self._offline())
             self._lose()
 
     async def _receive(self, client: aiomqtt.Client, handle: Handler) -> None:

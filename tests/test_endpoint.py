@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from gridfleet.endpoint import Backoff, Endpoint, Outbound
+from gridfleet.endpoint import GOODBYE_S, Backoff, Endpoint, Outbound
 from gridfleet.protocol import Topics
 from system.broker_thread import BrokerThread
 
@@ -176,3 +177,23 @@ async def test_on_stop_runs_before_offline_and_only_on_a_clean_stop(
     await async_wait_for(lambda: connection_of(probe, topics)[-1:] == [b"broken"], what="will")
     assert calls == []  # no goodbye from a unit that lost power
     probe.close()
+
+
+async def test_a_clean_stop_does_not_wait_long_for_a_broker_that_stopped_answering(
+    fresh_broker: BrokerThread, topics: Topics
+) -> None:
+    # The broker stops answering (as one stopping at the same moment): the goodbye is never
+    # acknowledged. The stop waits at most GOODBYE_S for it, not aiomqtt's 10 s per publish.
+    endpoint = make(fresh_broker.url, topics)
+    stop = asyncio.Event()
+    task = asyncio.create_task(endpoint.run(stop, lambda topic, payload: asyncio.sleep(0)))
+    await async_wait_for(lambda: endpoint.online.is_set() or task.done(), what="online")
+    loop = fresh_broker._loop  # freezing the broker's own loop is the point here
+    assert loop is not None
+    frozen = threading.Event()
+    loop.call_soon_threadsafe(lambda: frozen.wait(GOODBYE_S + 6))  # blocks the broker's loop
+    try:
+        stop.set()
+        await asyncio.wait_for(task, GOODBYE_S + 3)
+    finally:
+        frozen.set()
