@@ -13,6 +13,7 @@ from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
 from robots.fleet import Fleet
+from robots.truth import write_truth
 
 log = logging.getLogger("robots")
 
@@ -47,6 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="keep where the units stand and what they carry in this SQLite file, and resume "
         "from it after a restart (default: start from the scenario)",
     )
+    parser.add_argument(
+        "--truth",
+        type=Path,
+        metavar="FILE",
+        help="append the simulated world's collisions, moves and squares to FILE as one JSON "
+        "line per step (for outside checkers such as `gridfleet bench soak`)",
+    )
 
 
 def build(args: argparse.Namespace) -> Fleet:
@@ -72,12 +80,14 @@ def build(args: argparse.Namespace) -> Fleet:
 def run(args: argparse.Namespace) -> int:
     """Run until Ctrl-C or SIGTERM; every unit says "offline" on the way out."""
     fleet = build(args)
-    asyncio.run(_main(fleet))
+    asyncio.run(_main(fleet, args.truth, args.step))
     return 0
 
 
-async def _main(fleet: Fleet) -> None:
+async def _main(fleet: Fleet, truth: Path | None = None, step: float = DEFAULT_STEP_S) -> None:
     stop = stop_on_signals()
+    if truth is not None:
+        writer = asyncio.create_task(write_truth(fleet.world, truth, step, stop))
     log.info(
         "running %s on %s (%s)",
         ", ".join(fleet.runners),
@@ -85,6 +95,8 @@ async def _main(fleet: Fleet) -> None:
         fleet.logic[next(iter(fleet.runners))].mode,
     )
     await fleet.run(stop)
+    if truth is not None:
+        await writer
     log.info(
         "stopped: %d moves, %d collisions, %d prevented",
         sum(fleet.world.moves.values()),

@@ -1,0 +1,384 @@
+"""The chaos soak: the real system in separate processes, faults injected while jobs flow, and
+the checks of `bench.soak_check` over what was recorded.
+
+Two lanes of faults: the main lane kills (SIGKILL or SIGTERM) and restarts the units process,
+the coordinator and the embedded broker, pauses processes (SIGSTOP/SIGCONT) past the staleness
+timeout, and cuts or slows every client's connection through `FaultyProxy`; one fault at a time,
+each followed by its recovery. The stop lane engages the stop from an operator (the latch) or a
+device (a press) and releases it as an operator; it engages only between main-lane faults (a unit
+cannot obey a stop it cannot read), and main-lane faults then strike while the stop is held.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import random
+import signal
+import socket
+import tempfile
+import time
+import uuid
+from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import aiomqtt
+
+from bench.soak_check import FINAL, Disturbed, Event, Limits, Stop, Truth, Verdict, check
+from bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
+from bench.soak_listen import SoakListener
+from bench.soak_proxy import FaultyProxy
+from bench.soak_scenario import make_soak_scenario
+from gridfleet.bus import make_client
+from gridfleet.config import parse_broker_url
+from gridfleet.protocol import Topics
+from system.assembly import SystemSpec, cli, start_broker_process
+from system.supervisor import Child, ChildSpec, Supervisor
+
+RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
+DEVICE = "soak-dev"
+RELEASE_AGAIN_S = 5.0  # an operator whose release did not take releases again after this
+
+
+@dataclass(frozen=True)
+class SoakConfig:
+    """What to soak and for how long."""
+
+    minutes: float
+    units: int = 12
+    seed: int = 0
+    broker: str | None = None  # None: an embedded broker the soak restarts too
+    step_s: float = 0.1
+    faults: tuple[str, ...] = FAMILIES
+    drain_s: float = 90.0  # after the faults: time for every job to end
+    stranded_s: float = 30.0
+
+
+@dataclass
+class SoakResult:
+    """The figures and what the checks found."""
+
+    minutes: float
+    units: int
+    faults: Counter[str]
+    verdict: Verdict
+    recoveries_s: list[float] = field(default_factory=list)  # after each broker restart
+    unrecovered: list[str] = field(default_factory=list)  # faults the system did not recover from
+    release_repeats: int = 0  # operator releases that had to be given again (not a failure)
+
+    @property
+    def ok(self) -> bool:
+        """Every check passed and every fault was recovered from."""
+        return self.verdict.ok and not self.unrecovered
+
+    def as_json(self) -> dict[str, Any]:
+        """The JSON `gridfleet bench soak --json` prints."""
+        v = self.verdict
+        return {
+            "minutes": self.minutes,
+            "units": self.units,
+            "faults": dict(sorted(self.faults.items())),
+            "collisions": v.collisions,
+            "moved_while_stopped": v.moved_while_stopped,
+            "jobs_submitted": v.jobs_submitted,
+            "jobs_done": v.jobs_done,
+            "jobs_lost": v.jobs_lost,
+            "jobs_duplicated": v.jobs_duplicated,
+            "units_stranded": v.units_stranded,
+            "faults_unrecovered": len(self.unrecovered),
+            "release_repeats": self.release_repeats,
+            "max_recovery_s": round(max(self.recoveries_s), 3) if self.recoveries_s else None,
+            "ok": self.ok,
+            "details": v.details + self.unrecovered,
+        }
+
+
+def free_port() -> int:
+    """A free loopback port (for a broker that must come back on the same one)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def read_truth(path: Path) -> Iterator[Truth]:
+    """The truth lines a units process wrote (a line cut short by SIGKILL is skipped)."""
+    if not path.exists():
+        return
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            d = json.loads(line)
+        except ValueError:
+            continue
+        positions = {u: (p[0], p[1]) for u, p in d["positions"].items()}
+        yield Truth(d["t"], d["pid"], d["collisions"], positions)
+
+
+class Soak:
+    """One soak run in a temporary directory; `run()` returns its result."""
+
+    def __init__(self, cfg: SoakConfig, workdir: Path, log: TextIO) -> None:
+        self.cfg = cfg
+        self.dir = workdir
+        self.rng = random.Random(cfg.seed)
+        self.root = f"soak-{uuid.uuid4().hex[:8]}"
+        self.topics = Topics(self.root)
+        self.scenario = make_soak_scenario(cfg.units, cfg.seed, workdir)
+        self.unit_ids = [u.id for u in self.scenario.units]
+        self.sup = Supervisor(out=log, restart_delay=0.3, max_restart_delay=2.0, stable_after=3.0)
+        self.children: dict[str, Child] = {}
+        self.faults: Counter[str] = Counter()
+        self.recoveries: list[float] = []
+        self.release_repeats = 0
+        self.unrecovered: list[str] = []
+        self.recorded: list[Event] = []  # the soak's own events: disturbances and releases
+        self.tasks: list[asyncio.Task[None]] = []
+        self.calm = asyncio.Lock()  # held by a main-lane fault, and while a stop is engaged
+        self.broker_url = ""
+        self.proxy: FaultyProxy | None = None
+        self.listener: SoakListener | None = None
+        self.truth = workdir / "truth.jsonl"
+
+    # ---- the system ---------------------------------------------------------------------
+
+    async def start(self) -> None:
+        """Broker (ours, on a fixed port), proxy, coordinator, units, feed and the listener."""
+        cfg = self.cfg
+        if cfg.broker is None:
+            spec = SystemSpec(self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None)
+            self.broker_url, _ = await start_broker_process(self.sup, spec)
+            self.children["broker"] = self.sup.children[-1]
+        else:
+            self.broker_url = cfg.broker
+        target = parse_broker_url(self.broker_url)
+        self.proxy = FaultyProxy(target.host, target.port)
+        via = f"mqtt://127.0.0.1:{await self.proxy.start()}"
+        self.listener = SoakListener(self.broker_url, self.topics, f"{self.root}-listener")
+        self.tasks.append(asyncio.create_task(self.listener.run()))
+        common = ["--broker", via, "--root", self.root, "--step", str(cfg.step_s)]
+        scenario = str(self.scenario.path)
+        coordinator = cli("coordinator", *common, "--map", str(self.scenario.map_path))
+        coordinator += ["--db", str(self.dir / "jobs.db")]
+        robots = cli("robots", *common, "--scenario", scenario)
+        robots += ["--state", str(self.dir / "units.sqlite3"), "--truth", str(self.truth)]
+        keep = str(max(2, cfg.units // 2))
+        feed = cli("feed", *common, "--scenario", scenario, "--demo", "--keep-active", keep)
+        for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
+            self.children[name] = await self.sup.start(ChildSpec(name, argv))
+        await self._wait_flowing(time.time(), "start-up")
+
+    async def _wait_flowing(self, since: float, what: str) -> float | None:
+        """Wait until every unit's state and the coordinator's routes arrived after `since`;
+        the time that took, or None (and reported) after RECOVERY_WAIT_S."""
+        listener = self.listener
+        assert listener is not None
+        deadline = time.monotonic() + RECOVERY_WAIT_S
+        while time.monotonic() < deadline:
+            late = [u for u in self.unit_ids if listener.last_state.get(u, 0.0) <= since]
+            if not late and listener.last_routes > since:
+                return time.time() - since
+            await asyncio.sleep(0.05)  # polling the listener, with a deadline
+        late = [u for u in self.unit_ids if listener.last_state.get(u, 0.0) <= since]
+        self.unrecovered.append(
+            f"{what}: after {RECOVERY_WAIT_S:.0f} s, no state from {', '.join(late) or 'none'}"
+            + ("" if listener.last_routes > since else " and no routes from the coordinator")
+        )
+        return None
+
+    # ---- the main lane ------------------------------------------------------------------
+
+    async def main_lane(self, deadline: float) -> None:
+        """One process or link fault at a time, each with its recovery, until `deadline`."""
+        families = [f for f in self.cfg.faults if f != "broker" or self.cfg.broker is None]
+        for fault in main_faults(self.rng, families, self.cfg.step_s):
+            await asyncio.sleep(self.rng.uniform(0.5, 2.0))  # the schedule's pacing
+            if time.monotonic() >= deadline:
+                return
+            async with self.calm:
+                start = time.time()
+                self.faults[fault.kind] += 1
+                await self._apply(fault)
+                end = time.time()
+                if await self._wait_flowing(end, f"{fault.kind} at {start:.2f}") is None:
+                    end = time.time()
+                self.recorded.append(Disturbed(start, time.time()))
+
+    async def _apply(self, fault: Fault) -> None:
+        proxy = self.proxy
+        assert proxy is not None
+        if fault.kind.startswith(("kill_", "term_")):
+            await self._restart(
+                fault.target, signal.SIGKILL if "kill" in fault.kind else signal.SIGTERM
+            )
+        elif fault.kind.startswith("pause_"):
+            process = self.children[fault.target].process
+            assert process is not None
+            process.send_signal(signal.SIGSTOP)
+            try:
+                await asyncio.sleep(fault.hold_s)  # the fault itself: paused this long
+            finally:
+                process.send_signal(signal.SIGCONT)
+        elif fault.kind == "cut":
+            proxy.refusing = True
+            proxy.cut()
+            try:
+                await asyncio.sleep(fault.hold_s)  # the fault itself: the link stays down
+            finally:
+                proxy.refusing = False
+        elif fault.kind == "delay":
+            proxy.latency_s = fault.latency_s
+            try:
+                await asyncio.sleep(fault.hold_s)  # the fault itself: a slow link for a while
+            finally:
+                proxy.latency_s = 0.0
+
+    async def _restart(self, name: str, sig: signal.Signals) -> None:
+        """Signal a process and wait until the supervisor has it running (and ready) again."""
+        child = self.children[name]
+        old = child.process
+        assert old is not None
+        old.send_signal(sig)
+        await old.wait()
+        deadline = time.monotonic() + RECOVERY_WAIT_S
+        while child.process is old or (
+            child.spec.ready is not None and not child.ready_event.is_set()
+        ):
+            if time.monotonic() > deadline:
+                self.unrecovered.append(f"{name} not restarted within {RECOVERY_WAIT_S:.0f} s")
+                return
+            await asyncio.sleep(0.02)  # polling the supervisor, with a deadline
+        if name == "broker":
+            # Recovery: from the broker back up to every unit's state flowing again.
+            took = await self._wait_flowing(time.time(), f"broker restart ({sig.name})")
+            if took is not None:
+                self.recoveries.append(took)
+
+    # ---- the stop lane ------------------------------------------------------------------
+
+    async def stop_lane(self, deadline: float) -> None:
+        """Stops engaged (only between main-lane faults) and released, until `deadline`."""
+        for fault in stop_faults(self.rng, self.cfg.faults):
+            await asyncio.sleep(self.rng.uniform(1.0, 4.0))  # the schedule's pacing
+            if time.monotonic() >= deadline:
+                return
+            async with self.calm:
+                self.faults[fault.kind] += 1
+                if fault.kind == "estop_operator":
+                    await self.publish(self.topics.fleet("estop"), "engaged|operator|soak")
+                else:
+                    topic = self.topics.device("device_stop", DEVICE)
+                    await self.publish(topic, f"engaged|{DEVICE}|button")
+                await self._wait_shown(True)
+            await asyncio.sleep(fault.hold_s)  # the fault itself: the stop held this long
+            await self.release()
+
+    async def _wait_shown(self, engaged: bool, within: float = 10.0) -> None:
+        """Until every unit's state shows the stop (or not), or `within` seconds."""
+        listener = self.listener
+        assert listener is not None
+        deadline = time.monotonic() + within
+        while time.monotonic() < deadline:
+            shown = [listener.estop_shown.get(u) == engaged for u in self.unit_ids]
+            if all(shown) and listener.stopped == engaged:
+                return
+            await asyncio.sleep(0.05)  # polling the listener, with a deadline
+
+    async def release(self) -> None:
+        """An operator's release on the latch; the coordinator clears the device's press."""
+        await self.publish(self.topics.fleet("estop"), "released|operator|soak")
+        # The stop window ends when the operator releases: moves from then on are allowed.
+        self.recorded.append(Stop(time.time(), False))
+        await self._wait_released()
+
+    async def _wait_released(self) -> None:
+        """Until the listener sees the fleet released, releasing again every few seconds.
+
+        A release given while the coordinator is down does not clear a device's press; the
+        coordinator, back, reads the press as new and engages the latch again (the safe side):
+        an operator then releases once more, and so does the soak (counted).
+        """
+        listener = self.listener
+        assert listener is not None
+        deadline = time.monotonic() + RECOVERY_WAIT_S
+        again = time.monotonic() + RELEASE_AGAIN_S
+        while listener.stopped:
+            if time.monotonic() > deadline:
+                self.unrecovered.append(
+                    f"stop not released {RECOVERY_WAIT_S:.0f} s after the operator's release"
+                )
+                return
+            if time.monotonic() > again:
+                self.release_repeats += 1
+                await self.publish(self.topics.fleet("estop"), "released|operator|soak")
+                again = time.monotonic() + RELEASE_AGAIN_S
+            await asyncio.sleep(0.05)  # polling the listener, with a deadline
+
+    async def publish(self, topic: str, payload: str) -> None:
+        """Publish retained at QoS 1 straight to the broker, retrying while it restarts."""
+        deadline = time.monotonic() + RECOVERY_WAIT_S
+        while True:
+            try:
+                async with make_client(
+                    self.broker_url, f"{self.root}-op-{uuid.uuid4().hex[:4]}"
+                ) as c:
+                    await c.publish(topic, payload.encode(), qos=1, retain=True)
+                return
+            except aiomqtt.MqttError:
+                if time.monotonic() > deadline:
+                    raise
+                await asyncio.sleep(0.1)  # the broker is restarting: try again shortly
+
+    # ---- the end ------------------------------------------------------------------------
+
+    async def drain(self) -> None:
+        """Faults over: release any stop, stop the feed, and give every job time to end."""
+        listener = self.listener
+        assert listener is not None
+        if listener.stopped:
+            await self.release()
+        feed = self.children["operator"]
+        feed.spec.restart = False
+        if feed.process is not None and feed.process.returncode is None:
+            feed.process.send_signal(signal.SIGTERM)
+            await feed.process.wait()
+        deadline = time.monotonic() + self.cfg.drain_s
+        while time.monotonic() < deadline:
+            if listener.jobs and all(s in FINAL for s in listener.jobs.values()):
+                return
+            await asyncio.sleep(0.2)  # polling the listener, with a deadline
+
+    async def run(self) -> SoakResult:
+        """Start, inject faults for the configured minutes, drain, stop, check."""
+        try:
+            await self.start()
+            deadline = time.monotonic() + self.cfg.minutes * 60
+            lanes = [self.main_lane(deadline), self.stop_lane(deadline)]
+            await asyncio.gather(*lanes)
+            await self.drain()
+        finally:
+            await self.sup.stop()
+            for task in self.tasks:
+                task.cancel()
+            await asyncio.gather(*self.tasks, return_exceptions=True)
+            if self.proxy is not None:
+                await self.proxy.close()
+        assert self.listener is not None
+        events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
+        limits = Limits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
+        verdict = check(events, limits)
+        return SoakResult(
+            self.cfg.minutes,
+            self.cfg.units,
+            self.faults,
+            verdict,
+            self.recoveries,
+            self.unrecovered,
+        )
+
+
+async def run_soak(cfg: SoakConfig, log: TextIO) -> SoakResult:
+    """One soak run in a temporary directory of its own."""
+    with tempfile.TemporaryDirectory(prefix="gridfleet-soak-") as tmp:
+        return await Soak(cfg, Path(tmp), log).run()

@@ -1,0 +1,225 @@
+"""The soak's oracle: a pure function of the events recorded during a run.
+
+Checks: zero collisions (the world simulation's own count), no move while a stop is engaged,
+every job ends exactly once (none lost, none done twice), and no unit stranded.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+FINAL = frozenset({"done", "cancelled", "rejected", "failed"})
+
+Square = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class Truth:
+    """One line of the units process's ground truth (`gridfleet robots --truth`)."""
+
+    t: float
+    pid: int
+    collisions: int
+    positions: dict[str, Square]
+
+
+@dataclass(frozen=True)
+class Stop:
+    """The stop seen engaged (latch or press) by the listener, or released by the soak's operator."""
+
+    t: float
+    engaged: bool
+
+
+@dataclass(frozen=True)
+class JobSeen:
+    """A job's state in a `fleet/jobs` view the listener received."""
+
+    t: float
+    job: str
+    state: str
+
+
+@dataclass(frozen=True)
+class StateSeen:
+    """A unit's state the listener received: where it stood and whether it had work."""
+
+    t: float
+    unit: str
+    position: Square
+    busy: bool  # not idle, or carrying a job, and not held by a stop (status `stopped`)
+
+
+@dataclass(frozen=True)
+class Disturbed:
+    """A window in which units may legitimately stand still: a fault and its recovery."""
+
+    start: float
+    end: float
+
+
+Event = Truth | Stop | JobSeen | StateSeen | Disturbed
+
+
+@dataclass(frozen=True)
+class Limits:
+    """How long is too long."""
+
+    step_s: float
+    grace_steps: float = 2.0  # one step to read the stop, one for the truth sampler's phase
+    stranded_s: float = 30.0  # undisturbed seconds a busy unit may stand on one square
+
+
+@dataclass
+class Verdict:
+    """What the checks found; `ok` when nothing."""
+
+    collisions: int = 0
+    moved_while_stopped: int = 0
+    jobs_submitted: int = 0
+    jobs_done: int = 0
+    jobs_lost: int = 0
+    jobs_duplicated: int = 0
+    units_stranded: int = 0
+    details: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when every check passed."""
+        return not (
+            self.collisions
+            or self.moved_while_stopped
+            or self.jobs_lost
+            or self.jobs_duplicated
+            or self.units_stranded
+        )
+
+
+def check(events: Iterable[Event], limits: Limits) -> Verdict:
+    """Run every check over the recorded events (any order: they are sorted by time)."""
+    ordered = sorted(events, key=_time)
+    verdict = Verdict()
+    truths = [e for e in ordered if isinstance(e, Truth)]
+    verdict.collisions = _collisions(truths, verdict.details)
+    stops = _stop_windows([e for e in ordered if isinstance(e, Stop)])
+    verdict.moved_while_stopped = _moved_while_stopped(truths, stops, limits, verdict.details)
+    _jobs([e for e in ordered if isinstance(e, JobSeen)], verdict)
+    quiet = [(d.start, d.end) for d in ordered if isinstance(d, Disturbed)] + stops
+    states = [e for e in ordered if isinstance(e, StateSeen)]
+    verdict.units_stranded = _stranded(states, quiet, limits, verdict.details)
+    return verdict
+
+
+def _time(event: Event) -> float:
+    return event.start if isinstance(event, Disturbed) else event.t
+
+
+def _collisions(truths: Sequence[Truth], details: list[str]) -> int:
+    # Each units process counts from zero: the total is the sum of every run's last count.
+    last: dict[int, int] = {}
+    for truth in truths:
+        last[truth.pid] = max(last.get(truth.pid, 0), truth.collisions)
+    total = sum(last.values())
+    if total:
+        details.append(f"{total} collisions counted by the world simulation")
+    return total
+
+
+def _stop_windows(stops: Sequence[Stop]) -> list[tuple[float, float]]:
+    """[engaged, released) windows; one still engaged at the end lasts for ever."""
+    windows: list[tuple[float, float]] = []
+    since: float | None = None
+    for stop in stops:
+        if stop.engaged and since is None:
+            since = stop.t
+        elif not stop.engaged and since is not None:
+            windows.append((since, stop.t))
+            since = None
+    if since is not None:
+        windows.append((since, float("inf")))
+    return windows
+
+
+def _moved_while_stopped(
+    truths: Sequence[Truth],
+    stops: Sequence[tuple[float, float]],
+    limits: Limits,
+    details: list[str],
+) -> int:
+    """Units whose square changed between two truth samples both well inside a stop window."""
+    grace = limits.grace_steps * limits.step_s
+    moved: set[tuple[str, int]] = set()  # (unit, window) counted once each
+    for n, (start, end) in enumerate(stops):
+        inside = [t for t in truths if start + grace <= t.t < end]
+        # Across process runs too: a restarted units process must resume where its units stood.
+        for before, after in itertools.pairwise(inside):
+            for unit, square in after.positions.items():
+                was = before.positions.get(unit)
+                if was is not None and was != square and (unit, n) not in moved:
+                    moved.add((unit, n))
+                    details.append(
+                        f"{unit} moved {list(was)} -> {list(square)} at {after.t:.2f}, "
+                        f"{after.t - start:.2f} s after the stop was seen engaged"
+                    )
+    return len(moved)
+
+
+def _jobs(seen: Sequence[JobSeen], verdict: Verdict) -> None:
+    """Every job seen must end, and end once: its states after a final one never change."""
+    history: dict[str, list[str]] = defaultdict(list)
+    for event in seen:
+        states = history[event.job]
+        if not states or states[-1] != event.state:
+            states.append(event.state)
+    verdict.jobs_submitted = len(history)
+    for job, states in history.items():
+        finals = [s for s in states if s in FINAL]
+        verdict.jobs_done += states[-1] == "done"
+        if states[-1] not in FINAL:
+            verdict.jobs_lost += 1
+            verdict.details.append(f"job {job} never ended: {' -> '.join(states)}")
+        elif len(finals) > 1 or states.index(finals[0]) != len(states) - 1:
+            verdict.jobs_duplicated += 1
+            verdict.details.append(f"job {job} ended more than once: {' -> '.join(states)}")
+
+
+def _stranded(
+    states: Sequence[StateSeen],
+    quiet: Sequence[tuple[float, float]],
+    limits: Limits,
+    details: list[str],
+) -> int:
+    """Busy units that stood on one square for `stranded_s` of undisturbed time."""
+    stranded: set[str] = set()
+    since: dict[str, tuple[float, Square]] = {}  # unit -> (when it became busy here, square)
+    for state in states:
+        was = since.get(state.unit)
+        if not state.busy:
+            since.pop(state.unit, None)
+            continue
+        if was is None or was[1] != state.position:
+            since[state.unit] = (state.t, state.position)
+            continue
+        still = state.t - was[0] - _overlap(was[0], state.t, quiet)
+        if still >= limits.stranded_s and state.unit not in stranded:
+            stranded.add(state.unit)
+            details.append(
+                f"{state.unit} busy on {list(state.position)} for {still:.1f} undisturbed s "
+                f"(from {was[0]:.2f})"
+            )
+    return len(stranded)
+
+
+def _overlap(start: float, end: float, windows: Sequence[tuple[float, float]]) -> float:
+    """Seconds of [start, end] covered by the (possibly overlapping) windows."""
+    covered = 0.0
+    cursor = start
+    for w_start, w_end in sorted(windows):
+        lo, hi = max(w_start, cursor), min(w_end, end)
+        if hi > lo:
+            covered += hi - lo
+            cursor = hi
+    return covered

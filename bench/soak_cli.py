@@ -1,0 +1,98 @@
+"""`gridfleet bench soak`: the chaos soak from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import sys
+
+from bench.soak import SoakConfig, SoakResult, run_soak
+from bench.soak_faults import FAMILIES, parse_families
+from gridfleet.config import check_step, parse_broker_url
+from gridfleet.errors import ConfigError
+
+
+def families(text: str) -> tuple[str, ...]:
+    """argparse type of --faults."""
+    try:
+        return tuple(parse_families(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"{exc} (known: {','.join(FAMILIES)})") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet bench soak`."""
+    parser.add_argument("--minutes", type=float, default=5.0, help="minutes of faults (default 5)")
+    parser.add_argument("--units", type=int, default=12, help="units (default 12)")
+    parser.add_argument("--seed", type=int, default=0, help="fault schedule and extra units")
+    parser.add_argument("--step", type=float, default=0.1, help="step period, s (default 0.1)")
+    parser.add_argument(
+        "--broker", help="an external broker (default: an embedded one, restarted as a fault)"
+    )
+    parser.add_argument(
+        "--faults",
+        type=families,
+        default=FAMILIES,
+        help=f"fault families to inject (default all: {','.join(FAMILIES)})",
+    )
+    parser.add_argument(
+        "--drain", type=float, default=90.0, help="seconds for jobs to end after the faults"
+    )
+    parser.add_argument(
+        "--stranded", type=float, default=30.0, help="undisturbed seconds a busy unit may stand"
+    )
+    parser.add_argument("--verbose", action="store_true", help="the components' log on stderr")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def config(args: argparse.Namespace) -> SoakConfig:
+    """The run the flags describe; one clear line (ConfigError) for each bad flag."""
+    if not args.minutes > 0:
+        raise ConfigError(f"--minutes {args.minutes}: give a positive number of minutes")
+    if args.units < 1:
+        raise ConfigError(f"--units {args.units}: give at least 1")
+    check_step(args.step)
+    if args.broker is not None:
+        parse_broker_url(args.broker)
+    return SoakConfig(
+        minutes=args.minutes,
+        units=args.units,
+        seed=args.seed,
+        broker=args.broker,
+        step_s=args.step,
+        faults=args.faults,
+        drain_s=args.drain,
+        stranded_s=args.stranded,
+    )
+
+
+def print_result(result: SoakResult) -> None:
+    """A few lines for people."""
+    out = result.as_json()
+    faults = ", ".join(f"{k} {v}" for k, v in out["faults"].items())
+    print(f"soak: {out['minutes']} min, {out['units']} units; faults: {faults or 'none'}")
+    for key in (
+        "collisions", "moved_while_stopped", "jobs_submitted", "jobs_done", "jobs_lost",
+        "jobs_duplicated", "units_stranded", "faults_unrecovered", "max_recovery_s",
+    ):  # fmt: skip
+        print(f"  {key:<20} {out[key]}")
+    for line in out["details"]:
+        print(f"  ! {line}")
+    print("OK" if result.ok else "FAILED")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Entry point of `gridfleet bench soak`: exit 1 when a check fails."""
+    cfg = config(args)
+    logging.disable(logging.WARNING)  # the figures are the output; faults make components warn
+    with open(os.devnull, "w") as quiet:
+        result = asyncio.run(run_soak(cfg, sys.stderr if args.verbose else quiet))
+    if args.json:
+        json.dump(result.as_json(), sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print_result(result)
+    return 0 if result.ok else 1

@@ -1,0 +1,62 @@
+"""The soak's fault schedule: which fault comes next and for how long, drawn from a seeded RNG."""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+# Families the CLI's --faults selects from; each gives one or more counted kinds.
+FAMILIES = ("units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press")
+STOP_FAMILIES = ("estop", "press")  # the stop lane; the rest are the main lane's
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One fault: its counted kind, what it hits, how long it lasts, and a latency for `delay`."""
+
+    kind: str  # e.g. kill_broker, term_units, pause_coordinator, cut, delay, estop_operator
+    target: str = ""  # the process: broker, coordinator or robots
+    hold_s: float = 0.0  # paused, link down, slowed or stop held this long
+    latency_s: float = 0.0
+
+
+def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> Iterator[Fault]:
+    """Process and link faults for ever: every selected family once per round, in seeded order."""
+    staleness = 5 * step_s  # the coordinator's and units' staleness timeout
+    chosen = [f for f in FAMILIES if f in families and f not in STOP_FAMILIES]
+    while chosen:
+        order = list(chosen)
+        rng.shuffle(order)
+        for family in order:
+            if family in ("units", "coordinator", "broker"):
+                how = rng.choice(("kill", "term"))
+                yield Fault(f"{how}_{family}", "robots" if family == "units" else family)
+            elif family == "pause":
+                target = rng.choice(("robots", "coordinator"))
+                name = "units" if target == "robots" else target
+                # Past the staleness timeout, or the pause tests nothing.
+                hold = rng.uniform(staleness + 0.5, staleness + 2.5)
+                yield Fault(f"pause_{name}", target, hold)
+            elif family == "cut":
+                yield Fault("cut", hold_s=rng.uniform(0.0, 2.0))
+            elif family == "delay":
+                yield Fault("delay", hold_s=rng.uniform(2.0, 5.0), latency_s=rng.uniform(0.05, 0.5))
+
+
+def stop_faults(rng: random.Random, families: Sequence[str]) -> Iterator[Fault]:
+    """Stops engaged and released for ever, from an operator or a device, alternating at random."""
+    chosen = [f for f in STOP_FAMILIES if f in families]
+    while chosen:
+        family = rng.choice(chosen)
+        kind = "estop_operator" if family == "estop" else "estop_device"
+        yield Fault(kind, hold_s=rng.uniform(1.0, 4.0))
+
+
+def parse_families(text: str) -> list[str]:
+    """`units,cut` → ['units', 'cut']; ValueError naming an unknown family."""
+    families = [f.strip() for f in text.split(",") if f.strip()]
+    unknown = [f for f in families if f not in FAMILIES]
+    if unknown or not families:
+        raise ValueError(f"unknown fault {unknown[0]!r}" if unknown else "give at least one fault")
+    return families

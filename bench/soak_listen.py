@@ -1,0 +1,88 @@
+"""The soak's listener on `<root>/v1/#`, straight on the broker (not through the faulty proxy):
+it records unit states, job states and the stop as checker events, and reconnects after a
+broker restart."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import aiomqtt
+
+from bench.soak_check import Event, JobSeen, StateSeen, Stop
+from gridfleet.bus import make_client
+from gridfleet.endpoint import payload_of
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol import TOPICS, JobsView, Topics, UnitState, decode
+from gridfleet.protocol.device import decode_estop, decode_press
+
+
+class SoakListener:
+    """Records what the fleet says, as `Event`s in `events`, for the whole run."""
+
+    def __init__(self, url: str, topics: Topics, client_id: str) -> None:
+        self.url = url
+        self.topics = topics
+        self.client_id = client_id
+        self.events: list[Event] = []
+        self.last_state: dict[str, float] = {}  # unit -> wall time of its latest state here
+        self.jobs: dict[str, str] = {}  # job -> latest state seen
+        self.latch = False
+        self.presses: set[str] = set()  # topics of the presses held
+        self.connected = asyncio.Event()
+        self.last_routes = 0.0  # wall time of the coordinator's latest routes view here
+        self.estop_shown: dict[str, bool] = {}  # unit -> whether its latest state shows the stop
+
+    @property
+    def stopped(self) -> bool:
+        """The fleet is stopped while the latch is engaged or any press is held (§5.1)."""
+        return self.latch or bool(self.presses)
+
+    async def run(self) -> None:
+        """Listen for ever, reconnecting whenever the broker goes away."""
+        while True:
+            try:
+                async with make_client(self.url, self.client_id, keepalive=2) as client:
+                    await client.subscribe(f"{self.topics.prefix}/#", qos=1)
+                    self.connected.set()
+                    async for message in client.messages:
+                        self.take(str(message.topic), payload_of(message), time.time())
+            except aiomqtt.MqttError:
+                pass  # the broker restarts: try again shortly
+            self.connected.clear()
+            await asyncio.sleep(0.1)  # pacing of reconnection attempts
+
+    def take(self, topic: str, payload: bytes, now: float) -> None:
+        """One message; what does not parse is not ours to judge here."""
+        try:
+            kind, who = self.topics.parse(topic)
+            was = self.stopped
+            if kind == "state" and who is not None:
+                state = decode(UnitState, payload)
+                self.last_state[who] = now
+                self.estop_shown[who] = state.estop
+                # A unit that shows `stopped` is held by a stop: blocked, not stranded.
+                busy = state.status != "stopped" and (
+                    state.job_id is not None or state.status != "idle"
+                )
+                square = (state.position.x, state.position.y)
+                self.events.append(StateSeen(now, who, square, busy))
+            elif kind == "jobs":
+                view = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+                for job in view.jobs:
+                    if self.jobs.get(job.id) != job.state:
+                        self.jobs[job.id] = job.state
+                        self.events.append(JobSeen(now, job.id, job.state))
+            elif kind == "routes":
+                self.last_routes = now
+            elif kind == "estop":
+                self.latch = decode_estop(payload).engaged
+            elif kind in ("stop", "device_stop") and who is not None:
+                if decode_press(payload, who) is None:
+                    self.presses.discard(topic)
+                else:
+                    self.presses.add(topic)
+            if self.stopped != was:
+                self.events.append(Stop(now, self.stopped))
+        except ProtocolError:
+            pass

@@ -1,0 +1,144 @@
+"""`gridfleet bench soak`: a one-minute chaos soak through the CLI, and its parts alone."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
+from bench.soak_proxy import FaultyProxy
+from gridfleet.scenario import load_scenario
+from robots.truth import write_truth
+from robots.world import WorldSim
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
+    """Run `python -m system bench soak ARGS` and capture its output."""
+    return subprocess.run(
+        [sys.executable, "-m", "system", "bench", "soak", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(420)
+def test_one_minute_soak_is_green_and_reports_every_figure() -> None:
+    done = soak(
+        "--minutes", "1", "--units", "6", "--seed", "1", "--drain", "120", "--json", timeout=400
+    )
+    out: dict[str, Any] = json.loads(done.stdout)
+    assert done.returncode == 0, out["details"]
+    assert out["minutes"] == 1
+    for family in ("units", "coordinator", "broker", "pause", "cut", "delay"):
+        assert any(family in kind for kind in out["faults"]), (family, out["faults"])
+    assert out["faults"].get("estop_operator", 0) + out["faults"].get("estop_device", 0) >= 2
+    assert out["collisions"] == 0 and out["moved_while_stopped"] == 0
+    assert out["jobs_submitted"] > 0 and out["jobs_done"] > 0
+    assert out["jobs_lost"] == 0 and out["jobs_duplicated"] == 0
+    assert out["units_stranded"] == 0 and out["faults_unrecovered"] == 0
+    assert out["max_recovery_s"] is not None and out["max_recovery_s"] > 0
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--minutes", "0"], "--minutes 0"),
+        (["--units", "0"], "--units 0"),
+        (["--faults", "units,meteor"], "meteor"),
+        (["--broker", "http://nowhere"], "http://nowhere"),
+    ],
+)
+def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
+    done = soak(*args, timeout=30)
+    assert done.returncode == 2 and says in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_the_schedule_is_seeded_and_covers_every_family_each_round() -> None:
+    import random
+
+    first = [
+        f.kind
+        for f, _ in zip(main_faults(random.Random(3), FAMILIES, 0.1), range(12), strict=False)
+    ]
+    again = [
+        f.kind
+        for f, _ in zip(main_faults(random.Random(3), FAMILIES, 0.1), range(12), strict=False)
+    ]
+    assert first == again
+    round_one = {k.split("_")[-1] for k in first[:6]}
+    assert round_one == {"units", "coordinator", "broker", "cut", "delay"} | (
+        round_one - {"units", "coordinator", "broker", "cut", "delay"}
+    )
+    pauses = [
+        f for f, _ in zip(main_faults(random.Random(0), ["pause"], 0.1), range(5), strict=False)
+    ]
+    assert all(f.hold_s > 5 * 0.1 for f in pauses)  # past the staleness timeout
+    stops = {
+        f.kind
+        for f, _ in zip(stop_faults(random.Random(0), ["estop", "press"]), range(20), strict=False)
+    }
+    assert stops == {"estop_operator", "estop_device"}
+    assert parse_families("units, cut") == ["units", "cut"]
+    with pytest.raises(ValueError, match="meteor"):
+        parse_families("meteor")
+
+
+async def test_the_proxy_forwards_cuts_and_delays() -> None:
+    async def echo(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        while data := await reader.read(100):
+            writer.write(data)
+            await writer.drain()
+        writer.close()
+
+    server = await asyncio.start_server(echo, "127.0.0.1", 0)
+    proxy = FaultyProxy("127.0.0.1", server.sockets[0].getsockname()[1])
+    port = await proxy.start()
+    try:
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        writer.write(b"ping")
+        assert await asyncio.wait_for(reader.readexactly(4), 5) == b"ping"
+        proxy.latency_s = 0.2
+        t0 = time.monotonic()
+        writer.write(b"slow")
+        assert await asyncio.wait_for(reader.readexactly(4), 5) == b"slow"
+        assert time.monotonic() - t0 >= 0.4  # both ways
+        proxy.latency_s = 0.0
+        assert proxy.cut() == 1
+        assert await asyncio.wait_for(reader.read(100), 5) == b""  # the client sees it close
+        writer.close()
+        proxy.refusing = True
+        reader, writer = await asyncio.open_connection("127.0.0.1", port)
+        assert await asyncio.wait_for(reader.read(100), 5) == b""  # the link is down
+        writer.close()
+    finally:
+        await proxy.close()
+        server.close()
+
+
+async def test_truth_lines_carry_the_world(tmp_path: Path) -> None:
+    world = WorldSim.from_scenario(load_scenario(REPO / "maps" / "playfield.toml"))
+    stop = asyncio.Event()
+    path = tmp_path / "truth.jsonl"
+    writer = asyncio.create_task(write_truth(world, path, 0.01, stop))
+    deadline = time.monotonic() + 10
+    while not path.exists() or len(path.read_text().splitlines()) < 2:
+        assert time.monotonic() < deadline
+        await asyncio.sleep(0.01)  # polling the file, with a deadline
+    stop.set()
+    await writer
+    line = json.loads(path.read_text().splitlines()[-1])
+    assert line["collisions"] == 0 and line["moves"] == 0
+    assert set(line["positions"]) == set(world.positions)

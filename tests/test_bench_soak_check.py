@@ -1,0 +1,104 @@
+"""The soak's oracle on made-up event streams: a clean one passes, each bad one fails its check."""
+
+from __future__ import annotations
+
+from bench.soak_check import Disturbed, Event, JobSeen, Limits, StateSeen, Stop, Truth, check
+
+LIMITS = Limits(step_s=0.1, stranded_s=5.0)
+HOME = {"u1": (0, 0), "u2": (5, 5)}
+
+
+def truth(t: float, pid: int = 1, collisions: int = 0, **moved: tuple[int, int]) -> Truth:
+    """A truth sample: both units at home unless moved."""
+    return Truth(t, pid, collisions, {**HOME, **moved})
+
+
+def clean() -> list[Event]:
+    """A run where nothing goes wrong: a stop held still, one job done, units idle at the end."""
+    return [
+        truth(0.0),
+        truth(0.1, u1=(1, 0)),
+        Stop(1.0, True),
+        truth(1.05, u1=(2, 0)),  # within the grace: the unit had not read the stop yet
+        truth(1.3, u1=(2, 0)),
+        truth(1.9, u1=(2, 0)),
+        Stop(2.0, False),
+        truth(2.1, u1=(3, 0)),
+        JobSeen(0.0, "j1", "queued"),
+        JobSeen(0.5, "j1", "to_pickup"),
+        JobSeen(3.0, "j1", "done"),
+        JobSeen(0.0, "j2", "rejected"),
+        StateSeen(0.0, "u1", (0, 0), True),
+        StateSeen(3.0, "u1", (3, 0), False),
+    ]
+
+
+def test_a_clean_run_passes() -> None:
+    verdict = check(clean(), LIMITS)
+    assert verdict.ok, verdict.details
+    assert (verdict.jobs_submitted, verdict.jobs_done) == (2, 1)
+
+
+def test_a_collision_fails_and_every_process_run_counts() -> None:
+    # The second units process counts from zero again: 2 + 1, not max.
+    events = [*clean(), truth(0.2, pid=1, collisions=2), truth(5.0, pid=2, collisions=1)]
+    verdict = check(events, LIMITS)
+    assert verdict.collisions == 3 and not verdict.ok
+
+
+def test_a_move_while_stopped_fails() -> None:
+    events = [*clean(), truth(1.6, u1=(2, 0), u2=(5, 6))]
+    verdict = check(events, LIMITS)
+    assert verdict.moved_while_stopped == 1 and not verdict.ok
+    assert "u2 moved" in verdict.details[0]
+
+
+def test_a_teleport_by_a_restarted_units_process_while_stopped_fails() -> None:
+    events = [*clean(), truth(1.6, pid=2, u1=(0, 0))]  # back to its start
+    assert check(events, LIMITS).moved_while_stopped == 1
+
+
+def test_a_stop_still_engaged_at_the_end_lasts() -> None:
+    events: list[Event] = [truth(0.0), Stop(1.0, True), truth(1.5), truth(9.0, u1=(0, 1))]
+    assert check(events, LIMITS).moved_while_stopped == 1
+
+
+def test_a_lost_job_fails() -> None:
+    events = [*clean(), JobSeen(1.0, "j3", "queued"), JobSeen(2.0, "j3", "to_pickup")]
+    verdict = check(events, LIMITS)
+    assert verdict.jobs_lost == 1 and not verdict.ok
+    assert verdict.jobs_submitted == 3
+
+
+def test_a_job_done_twice_fails() -> None:
+    events = [*clean(), JobSeen(4.0, "j1", "to_dropoff"), JobSeen(5.0, "j1", "done")]
+    verdict = check(events, LIMITS)
+    assert verdict.jobs_duplicated == 1 and not verdict.ok
+
+
+def test_a_job_that_ends_two_ways_fails() -> None:
+    events = [*clean(), JobSeen(4.0, "j1", "cancelled")]
+    assert check(events, LIMITS).jobs_duplicated == 1
+
+
+def test_a_stranded_unit_fails() -> None:
+    events = [*clean(), *(StateSeen(4.0 + n, "u2", (5, 5), True) for n in range(7))]
+    verdict = check(events, LIMITS)
+    assert verdict.units_stranded == 1 and not verdict.ok
+
+
+def test_standing_still_through_faults_and_stops_is_not_stranded() -> None:
+    # 6 s busy on one square, but 2 s of it disturbed by a fault and 1 s stopped: 3 s is fine.
+    events = [
+        *clean(),
+        *(StateSeen(4.0 + n, "u2", (5, 5), True) for n in range(7)),
+        Disturbed(5.0, 7.0),
+        Stop(8.0, True),
+        Stop(9.0, False),
+    ]
+    assert check(events, LIMITS).units_stranded == 0
+
+
+def test_an_idle_unit_standing_still_is_not_stranded() -> None:
+    events = [*clean(), *(StateSeen(4.0 + n, "u2", (5, 5), False) for n in range(20))]
+    assert check(events, LIMITS).units_stranded == 0
