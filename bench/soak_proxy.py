@@ -53,7 +53,9 @@ class FaultyProxy:
             self._sockets.add(upstream)
             await asyncio.gather(self._pipe(reader, upstream), self._pipe(up_reader, writer))
         except (OSError, asyncio.IncompleteReadError):
-            pass  # the broker is down or a side hung up: the client sees the link close
+            if upstream is None:
+                # The broker is down: reset, as a refused connection would, not a clean close.
+                writer.transport.abort()
         finally:
             self._links.discard(task)
             for end in (writer, upstream):
