@@ -200,9 +200,8 @@ class Soak:
                 start = time.time()
                 self.faults[fault.kind] += 1
                 await self._apply(fault)
-                end = time.time()
-                if await self._wait_flowing(end, f"{fault.kind} at {start:.2f}") is None:
-                    end = time.time()
+                # Disturbed from the fault until everything flows again (or the wait gave up).
+                await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
                 self.recorded.append(Disturbed(start, time.time()))
 
     async def _apply(self, fault: Fault) -> None:
