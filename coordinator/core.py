@@ -26,14 +26,16 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from coordinator import inbound, requests
+from coordinator.answers import Answers
 from coordinator.effects import Effects, Messages, Status
 from coordinator.inbound import Arrival, Request, StopPayload
 from coordinator.jobs import Job, JobBook
 from coordinator.moves import Moves
 from coordinator.orders import OrderPlan, Orders
+from coordinator.pace import StepRate
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
 from coordinator.views import Views
@@ -105,6 +107,8 @@ class CoordinatorCore:
         self.moves = Moves(self.planner)
         self.progress = JobProgress(world, jobs, self.goals)
         self.views = Views()
+        self.answers = Answers()  # a retried request gets its first answer (answers.py)
+        self.pace = StepRate()
         self.errors_reported = 0
         self._releasing: set[Outbound] = set()  # the last step's orders that release squares
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
@@ -122,7 +126,8 @@ class CoordinatorCore:
 
     def status(self, state: Status) -> Outbound:
         """The retained coordinator status: `online`, `offline`, or `broken` (the last will)."""
-        return self.say.status(state, self.step_no, self.world.step_period_s, self.estop)
+        period = self.world.step_period_s
+        return self.say.status(state, self.step_no, period, self.estop, self.pace.achieved_step_s)
 
     def on_connect(self, now: float = 0.0) -> Effects:
         """Connected (and `online` said): every view goes out again."""
@@ -235,7 +240,10 @@ class CoordinatorCore:
 
     def _on_request(self, topic: str, req: Request, now: float) -> Effects:
         sender = req.header.sender
-        if isinstance(req, SubmitJob):
+        known = self.answers.recall(req)  # a retry gets its first answer and changes nothing
+        if known is not None:
+            outcome = known
+        elif isinstance(req, SubmitJob):
             outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no)
         elif isinstance(req, CancelJob):
             outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
@@ -255,7 +263,10 @@ class CoordinatorCore:
             now_due, views_at = self.views.after_request(now)
             if now_due:
                 publish += self._views()
-        return self._effects(publish, persist, views_at=views_at)
+        effects = self._effects(publish, persist, views_at=views_at)
+        if known is None:  # a new request: its answer is kept
+            effects = replace(effects, answered=(self.answers.remember(req, outcome),))
+        return effects
 
     def _refuse(self, topic: str, reason: str, request_id: str | None) -> Outbound:
         self.errors_reported += 1
@@ -284,6 +295,8 @@ class CoordinatorCore:
                 self._releasing.add(order)
         publish.append(self.say.routes(result.step, result.routes))
         publish += self._views()
+        if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
+            publish.append(self.status("online"))
         # Back-pressure: when states come back late (an overloaded broker), a step before the
         # units acknowledged these orders would only add load; they could not move on it.
         until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from coordinator.answers import Answer
 from coordinator.jobs import Job, JobBook
 from coordinator.orders import OrderPlan
 from coordinator.requests import Outcome
@@ -31,6 +32,7 @@ class Effects:
 
     publish: tuple[Outbound, ...] = ()  # in this order
     persist: tuple[Job, ...] = ()  # jobs changed: store them before publishing
+    answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
     acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then
     views_at: float | None = None  # call `views_due` at this time (end of a batch period)
@@ -79,7 +81,14 @@ class Messages:
         payload = error_report(self.stamp("errors"), topic, reason, request_id)
         return Outbound.of("errors", self.topics.fleet("errors"), payload)
 
-    def status(self, state: Status, step: int, step_period_s: float, estop: bool) -> Outbound:
+    def status(
+        self,
+        state: Status,
+        step: int,
+        step_period_s: float,
+        estop: bool,
+        achieved_step_s: float | None = None,
+    ) -> Outbound:
         """The coordinator's retained status."""
         status = CoordinatorStatus(
             header=self.stamp("coordinator"),
@@ -88,6 +97,7 @@ class Messages:
             step_period_s=step_period_s,
             estop=estop,
             version=__version__,
+            achieved_step_s=achieved_step_s,
         )
         return Outbound.of("coordinator", self.topics.fleet("coordinator"), status)
 

@@ -35,8 +35,15 @@ def submit(
         world.check_square(req.dropoff, "dropoff")
     except ProtocolError as exc:
         return Outcome(False, str(exc))
-    if req.job_id is not None and req.job_id in jobs.jobs:
-        return Outcome(False, f"job id {req.job_id!r} is taken", req.job_id)
+    taken = jobs.get(req.job_id) if req.job_id is not None else None
+    if taken is not None:
+        if not _same_job(taken, req, sender):
+            return Outcome(False, f"job id {taken.id!r} is taken", taken.id)
+        # The same job again from the same client (a retry whose first answer is forgotten):
+        # answered as it was then, and nothing changes.
+        if taken.state == "rejected":
+            return Outcome(False, taken.reason, taken.id)
+        return Outcome(True, None, taken.id)
     job_id = req.job_id or jobs.new_id()
     job = Job(
         id=job_id,
@@ -56,6 +63,17 @@ def submit(
         return Outcome(False, reason, job_id)
     jobs.add(job)
     return Outcome(True, None, job_id)
+
+
+def _same_job(job: Job, req: SubmitJob, sender: str | None) -> bool:
+    """Whether `req` from `sender` asks for exactly `job`."""
+    return (job.pickup, job.dropoff, job.mass_kg, job.priority, job.submitted_by) == (
+        req.pickup,
+        req.dropoff,
+        req.mass_kg,
+        req.priority,
+        sender,
+    )
 
 
 def cancel(

@@ -55,6 +55,7 @@ class Coordinator:
             topics=self.topics,
             stamp=HeaderStamper(client_id),
         )
+        self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.world = self.core.world
         self.endpoint = Endpoint(
             broker,
@@ -133,8 +134,8 @@ class Coordinator:
                 await self.endpoint.publish(out)
 
     def _save(self, effects: Effects) -> None:
-        if effects.persist:
-            self.store.save(effects.persist)
+        if effects.persist or effects.answered:
+            self.store.save(effects.persist, effects.answered)
 
     async def _views_after(self, at: float) -> None:
         await asyncio.sleep(max(0.0, at - self.clock()))  # pacing: the end of a batch period

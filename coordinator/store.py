@@ -1,4 +1,7 @@
-"""SQLite persistence of jobs (stdlib sqlite3), so a restarted coordinator loses no job."""
+"""SQLite persistence of jobs and of the answers to requests (stdlib sqlite3).
+
+A restarted coordinator loses no job, and still recognises a request retried across the restart.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +12,7 @@ from pathlib import Path
 
 import platformdirs
 
+from coordinator.answers import ANSWERS_KEPT, Answer
 from coordinator.jobs import Job
 
 
@@ -18,16 +22,22 @@ def default_db_path() -> Path:
 
 
 class JobStore:
-    """One table of jobs as JSON rows, keyed by id; every save is one committed transaction."""
+    """Jobs and answers as JSON rows; every save is one committed transaction."""
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, answers_kept: int = ANSWERS_KEPT) -> None:
         self.path = Path(path)
+        self.answers_kept = answers_kept
         if str(path) != ":memory:":
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._db = sqlite3.connect(str(path))
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, ord INTEGER, data TEXT NOT NULL)"
+        )
+        # Newest answer last (by rowid: a replaced row gets a new one).
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS answers (sender TEXT, request_id TEXT, data TEXT NOT NULL, "
+            "PRIMARY KEY (sender, request_id))"
         )
         self._db.commit()
 
@@ -36,10 +46,16 @@ class JobStore:
         rows = self._db.execute("SELECT data FROM jobs ORDER BY ord").fetchall()
         return [Job.from_dict(json.loads(r[0])) for r in rows]
 
-    def save(self, jobs: Iterable[Job]) -> None:
-        """Insert or update `jobs` in one transaction."""
+    def load_answers(self) -> list[Answer]:
+        """The latest stored answers, oldest first."""
+        rows = self._db.execute("SELECT data FROM answers ORDER BY rowid").fetchall()
+        return [Answer.from_dict(json.loads(r[0])) for r in rows]
+
+    def save(self, jobs: Iterable[Job], answers: Iterable[Answer] = ()) -> None:
+        """Insert or update `jobs` and `answers` in one transaction (a job with its answer)."""
         rows = [(j.id, j.order, json.dumps(j.to_dict())) for j in jobs]
-        if not rows:
+        answered = [(a.sender, a.request_id, json.dumps(a.to_dict())) for a in answers]
+        if not rows and not answered:
             return
         with self._db:
             self._db.executemany(
@@ -47,6 +63,15 @@ class JobStore:
                 "ON CONFLICT(id) DO UPDATE SET ord = excluded.ord, data = excluded.data",
                 rows,
             )
+            if answered:
+                self._db.executemany(
+                    "INSERT OR REPLACE INTO answers (sender, request_id, data) VALUES (?, ?, ?)",
+                    answered,
+                )
+                self._db.execute(
+                    "DELETE FROM answers WHERE rowid <= (SELECT MAX(rowid) FROM answers) - ?",
+                    (self.answers_kept,),
+                )
 
     def close(self) -> None:
         """Close the database."""

@@ -53,7 +53,9 @@ def hdr(seq: int) -> dict[str, Any]:
     return header_json("coordinator", seq)
 
 
-def status(seq: int, state: str, *, step: int = 0, estop: bool = False) -> dict[str, Any]:
+def status(
+    seq: int, state: str, *, step: int = 0, estop: bool = False, achieved: float | None = None
+) -> dict[str, Any]:
     return {
         "header": hdr(seq),
         "state": state,
@@ -61,6 +63,7 @@ def status(seq: int, state: str, *, step: int = 0, estop: bool = False) -> dict[
         "step_period_s": 1.0,
         "estop": estop,
         "version": "0.1.0",
+        "achieved_step_s": achieved,
     }
 
 

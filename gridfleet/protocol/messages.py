@@ -285,3 +285,6 @@ class CoordinatorStatus(Message):
     step_period_s: Annotated[float, Field(gt=0, le=60, allow_inf_nan=False)] = 1.0
     estop: bool = False
     version: Annotated[str, StringConstraints(max_length=32)] = "0"
+    # The mean time one step actually took over the last few seconds (None until measured): on
+    # a loaded machine or broker it is longer than `step_period_s`.
+    achieved_step_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] | None = None
