@@ -34,8 +34,12 @@ def make_client(
     will: aiomqtt.Will | None = None,
     keepalive: int = 10,
     max_queued_outgoing: int | None = 10_000,
+    timeout: float = 10.0,
 ) -> aiomqtt.Client:
-    """An unconnected aiomqtt client for `url` (use it as `async with`)."""
+    """An unconnected aiomqtt client for `url` (use it as `async with`).
+
+    `timeout` bounds connecting, and every call that is not given a timeout of its own.
+    """
     broker = url if isinstance(url, BrokerURL) else parse_broker_url(url)
     return aiomqtt.Client(
         hostname=broker.host,
@@ -51,4 +55,5 @@ def make_client(
         max_queued_outgoing_messages=max_queued_outgoing,
         socket_options=SOCKET_OPTIONS,
         tls_context=tls_context(broker.ca_file) if broker.tls else None,
+        timeout=timeout,
     )

@@ -27,6 +27,12 @@ from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.endpoint")
 GOODBYE_S = 2.0  # the longest a clean stop waits for its goodbye to be acknowledged
+# A connection accepted and then dropped before the CONNACK (a broker going down, a proxy whose
+# broker is down) is never refused: without a bound of its own the connect waits out aiomqtt's
+# 10 s, and recovery after a broker restart took ~11 s (bench soak). Acknowledgements of
+# subscriptions and publishes keep the longer bound: a loaded broker is slow, not gone.
+CONNECT_S = 3.0
+ACK_S = 10.0
 
 Handler = Callable[[str, bytes], Awaitable[None]]
 Hook = Callable[[], Awaitable[None]]
@@ -68,7 +74,7 @@ async def _finish(work: Awaitable[Any]) -> Any:
 
 async def send(client: aiomqtt.Client, out: Outbound) -> None:
     """Publish `out` on `client` with its QoS and retain flag."""
-    await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain)
+    await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain, timeout=ACK_S)
 
 
 def payload_of(message: aiomqtt.Message) -> bytes:
@@ -159,9 +165,9 @@ class Endpoint:
         on_stop: Hook | None,
     ) -> None:
         will = self._will().will() if self._will is not None else None
-        async with make_client(self.url, self.client_id, will=will) as client:
+        async with make_client(self.url, self.client_id, will=will, timeout=CONNECT_S) as client:
             for topic, qos in self._subscriptions():
-                await client.subscribe(topic, qos=qos)
+                await client.subscribe(topic, qos=qos, timeout=ACK_S)
             self._client = client
             self._broken = asyncio.Event()
             self.connects += 1

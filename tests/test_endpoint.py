@@ -7,7 +7,7 @@ import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from gridfleet.endpoint import GOODBYE_S, Backoff, Endpoint, Outbound
+from gridfleet.endpoint import CONNECT_S, GOODBYE_S, Backoff, Endpoint, Outbound
 from gridfleet.protocol import Topics
 from system.broker_thread import BrokerThread
 
@@ -197,3 +197,27 @@ async def test_a_clean_stop_does_not_wait_long_for_a_broker_that_stopped_answeri
         await asyncio.wait_for(task, GOODBYE_S + 3)
     finally:
         frozen.set()
+
+
+async def test_a_broker_that_accepts_and_never_answers_is_retried_soon(topics: Topics) -> None:
+    # As a broker going down, or a proxy in front of one: the TCP connection is accepted, no
+    # CONNACK comes. Each try gives up after CONNECT_S, not aiomqtt's 10 s, and tries again.
+    accepted: list[asyncio.StreamWriter] = []
+
+    async def silent(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        accepted.append(writer)
+
+    server = await asyncio.start_server(silent, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    endpoint = make(f"mqtt://127.0.0.1:{port}", topics)
+    stop = asyncio.Event()
+    task = asyncio.create_task(endpoint.run(stop, lambda topic, payload: asyncio.sleep(0)))
+    try:
+        await async_wait_for(lambda: len(accepted) >= 2, 2 * CONNECT_S + 2, what="a second try")
+    finally:
+        stop.set()
+        await asyncio.wait_for(task, 10)
+        for writer in accepted:
+            writer.close()
+        server.close()
+        await server.wait_closed()
