@@ -1,10 +1,15 @@
-"""The operator client: sends requests to the coordinator, awaits replies, follows the queue view."""
+"""The operator client: sends requests to the coordinator, awaits replies, follows the queue view.
+
+A request is re-sent, the same (same id), until its reply arrives: a loaded broker drops
+messages, and the coordinator answers a retry with its first answer (protocol.md §6).
+"""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import logging
+import secrets
 from collections.abc import AsyncIterator, Sequence
 
 import aiomqtt
@@ -34,12 +39,17 @@ from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.operator")
+WAIT_S = 60.0  # how long a request waits for its reply in all, re-sent meanwhile
+RETRY_S = 2.0  # the first wait before a request is sent again; it doubles up to RETRY_MOST_S
+RETRY_MOST_S = 10.0
 
 
 class Operator:
     """Sends requests to the coordinator and awaits their replies; tracks the job queue view."""
 
-    def __init__(self, client: aiomqtt.Client, topics: Topics, client_id: str) -> None:
+    def __init__(
+        self, client: aiomqtt.Client, topics: Topics, client_id: str, retry_s: float = RETRY_S
+    ) -> None:
         self.client = client
         self.topics = topics
         self.client_id = client_id
@@ -49,8 +59,13 @@ class Operator:
         self.coordinator_online = asyncio.Event()
         self.planned_units: set[str] = set()  # units in the coordinator's latest routes view
         self.routes_changed = asyncio.Event()
+        self.retry_s = retry_s
+        self.resent = 0  # requests sent again for want of a reply (figures for the bench)
         self._pending: dict[str, asyncio.Future[Reply]] = {}
         self._count = 0
+        # Request ids must be unique per sender across restarts (the coordinator remembers them),
+        # and a client id may be reused: a random part per session.
+        self._session = secrets.token_hex(3)
 
     async def start(self) -> None:
         """Subscribe to replies and the queue view."""
@@ -92,7 +107,7 @@ class Operator:
 
     def _next_id(self) -> str:
         self._count += 1
-        return f"{self.client_id}-{self._count}"
+        return f"{self.client_id}-{self._session}-{self._count}"[-64:]
 
     async def _request(
         self, kind: str, model: type[Request], timeout: float, **fields: object
@@ -110,16 +125,35 @@ class Operator:
         return await self._send(kind, request, timeout)
 
     async def _send(self, kind: str, request: Request, timeout: float) -> Reply:
-        future: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
-        self._pending[request.request_id] = future
-        await send(self.client, Outbound.of(kind, self.topics.request(kind), request))
+        """Send `request` until its reply arrives, backing off; give up after `timeout` s."""
+        loop = asyncio.get_running_loop()
+        future: asyncio.Future[Reply] = loop.create_future()
+        rid = request.request_id
+        self._pending[rid] = future
+        out = Outbound.of(kind, self.topics.request(kind), request)
+        deadline = loop.time() + timeout
+        pause, tries = self.retry_s, 0
         try:
-            return await asyncio.wait_for(future, timeout)
-        except TimeoutError:
-            self._pending.pop(request.request_id, None)
-            raise GridfleetError(
-                f"no reply from the coordinator to {kind} within {timeout:.0f} s"
-            ) from None
+            while (left := deadline - loop.time()) > 0:
+                if tries:
+                    self.resent += 1
+                    log.info(
+                        "no reply to %s %s yet: sending it again (try %d)", kind, rid, tries + 1
+                    )
+                tries += 1
+                # A publish the broker is slow to acknowledge must not eat the whole wait.
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(send(self.client, out), left)
+                left = deadline - loop.time()
+                with contextlib.suppress(TimeoutError):
+                    return await asyncio.wait_for(asyncio.shield(future), max(0, min(pause, left)))
+                pause = min(2 * pause, RETRY_MOST_S)
+        finally:
+            self._pending.pop(rid, None)
+        raise GridfleetError(
+            f"no reply from the coordinator to {kind} {rid} after {_tries(tries)} over "
+            f"{timeout:.0f} s: is it running?"
+        )
 
     async def submit_job(
         self,
@@ -128,7 +162,7 @@ class Operator:
         mass_kg: float,
         job_id: str | None = None,
         priority: int = 0,
-        timeout: float = 10.0,
+        timeout: float = WAIT_S,
     ) -> Reply:
         """Queue a job; returns the coordinator's reply."""
         return await self._request(
@@ -142,11 +176,11 @@ class Operator:
             job_id=job_id,
         )
 
-    async def set_goal(self, unit: str, target: Cell | None, timeout: float = 10.0) -> Reply:
+    async def set_goal(self, unit: str, target: Cell | None, timeout: float = WAIT_S) -> Reply:
         """Send one unit to `target` (None clears its goal)."""
         return await self._request("set_goal", SetGoal, timeout, unit=unit, target=target)
 
-    async def cancel_job(self, job_id: str, timeout: float = 10.0) -> Reply:
+    async def cancel_job(self, job_id: str, timeout: float = WAIT_S) -> Reply:
         """Delete a queued job or abort an active one."""
         return await self._request("cancel_job", CancelJob, timeout, job_id=job_id)
 
@@ -178,11 +212,17 @@ class Operator:
         return sum(1 for j in self.jobs.jobs if j.state not in FINAL_JOB_STATES)
 
 
+def _tries(n: int) -> str:
+    return "1 try" if n == 1 else f"{n} tries"
+
+
 @contextlib.asynccontextmanager
-async def operator_session(url: str, topics: Topics, client_id: str) -> AsyncIterator[Operator]:
+async def operator_session(
+    url: str, topics: Topics, client_id: str, retry_s: float = RETRY_S
+) -> AsyncIterator[Operator]:
     """A connected Operator, subscribed and listening in the background until the block ends."""
     async with make_client(url, client_id) as client:
-        operator = Operator(client, topics, client_id)
+        operator = Operator(client, topics, client_id, retry_s)
         await operator.start()
         listener = asyncio.create_task(operator.listen())
         try:

@@ -71,6 +71,7 @@ class SimulationResult:
     prevented: int = 0
     messages: int = 0
     wall_time_s: float = 0.0
+    requests_resent: int = 0  # requests sent again for want of a reply (a loaded broker)
     units: list[dict[str, Any]] = field(default_factory=list)
     jobs: list[dict[str, Any]] = field(default_factory=list)
     goals: list[dict[str, Any]] = field(default_factory=list)
@@ -183,6 +184,7 @@ async def simulate(
             # Taken now: the coordinator may step once more while the run shuts down.
             outcome.steps = monitor.step
         finally:
+            outcome.requests_resent = operator.resent
             for listener in listeners:
                 listener.cancel()
     # Read once every service has stopped: the world no longer changes.
@@ -236,7 +238,8 @@ def summary(outcome: SimulationResult, scenario: Scenario) -> str:
     lines = [
         f"{scenario.name}: {'finished' if outcome.finished else 'NOT finished'} in "
         f"{outcome.steps} steps ({outcome.wall_time_s:.1f} s), {outcome.collisions} collisions,"
-        f" {outcome.prevented} prevented moves, {outcome.messages} messages",
+        f" {outcome.prevented} prevented moves, {outcome.messages} messages,"
+        f" {outcome.requests_resent} requests re-sent",
         f"jobs: {done} done of {len(outcome.jobs)}",
     ]
     for job in outcome.jobs:

@@ -2,18 +2,19 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 import { Stamper } from "../static/js/protocol.js";
-import { Requests, sentFeedback } from "../static/js/requests.js";
+import { RETRY_MOST_MS, Requests, sentFeedback, sessionTag } from "../static/js/requests.js";
 
-const requests = (client = "dash-1") => new Requests(client, new Stamper(client));
+const requests = (client = "dash-1", options = {}) =>
+  new Requests(client, new Stamper(client), { session: "s1", ...options });
 const reply = (fields) => JSON.stringify({ header: { sender: "coordinator" }, ...fields });
 
 test("each request gets its own id and a message naming us as sender and reply topic", () => {
   const r = requests();
   const a = r.create("submit_job", "job", "job [1,1] → [8,8], 1.5 kg", { pickup: [1, 1], mass_kg: 1.5 });
   const b = r.create("set_goal", "goal", "goal [2, 2] for u1", { unit: "u1", target: [2, 2] });
-  assert.equal(a.request_id, "dash-1-1");
-  assert.equal(b.request_id, "dash-1-2");
-  assert.equal(a.message.request_id, "dash-1-1");
+  assert.equal(a.request_id, "dash-1-s1-1");
+  assert.equal(b.request_id, "dash-1-s1-2");
+  assert.equal(a.message.request_id, "dash-1-s1-1");
   assert.equal(a.message.reply_to, "dash-1");
   assert.deepEqual(a.message.pickup, [1, 1]);
   assert.equal(a.message.mass_kg, 1.5);
@@ -28,7 +29,46 @@ test("request ids stay within 64 characters, keeping the counter", () => {
   const client = `d${"x".repeat(63)}`;
   const { request_id } = requests(client).create("cancel_job", "cancel", "delete job j", { job_id: "j" });
   assert.equal(request_id.length, 64);
-  assert.ok(request_id.endsWith("x-1"));
+  assert.ok(request_id.endsWith("x-s1-1"));
+});
+
+test("ids differ between page loads with the same client id", () => {
+  const stamper = new Stamper("dash-1");
+  const one = new Requests("dash-1", stamper).create("cancel_job", "cancel", "delete job j", {});
+  const two = new Requests("dash-1", stamper).create("cancel_job", "cancel", "delete job j", {});
+  assert.match(sessionTag(), /^[0-9a-f]{6}$/);
+  assert.notEqual(one.request_id, two.request_id); // one chance in 16 million to fail
+});
+
+test("a request without a reply is sent again, the same, backing off", () => {
+  const r = requests("dash-1", { retryMs: 1000, waitMs: 60000 });
+  const { request_id, message } = r.create("submit_job", "job", "job x", { mass_kg: 1 }, 0);
+  const resent = [];
+  for (let now = 0; now <= 30000; now += 500) {
+    for (const m of r.due(now).resend) resent.push([now, m]);
+  }
+  assert.deepEqual(resent.map(([now]) => now), [1000, 3000, 7000, 15000, 25000]);
+  for (const [, m] of resent) assert.deepEqual(m, { kind: "submit_job", message });
+  assert.ok(25000 - 15000 <= RETRY_MOST_MS);
+  r.reply(reply({ request_id, accepted: true, job_id: "j" }));
+  assert.deepEqual(r.due(40000), { resend: [], feedback: [] }, "answered: nothing more goes out");
+});
+
+test("a request waited for too long is given up, and its form says so in words", () => {
+  const r = requests("dash-1", { retryMs: 1000, waitMs: 10000 });
+  const { request_id } = r.create("cancel_job", "cancel", "delete job j", { job_id: "j" }, 0);
+  let tries = 1;
+  for (let now = 0; now < 10000; now += 500) tries += r.due(now).resend.length;
+  const { resend, feedback } = r.due(10000);
+  assert.deepEqual(resend, []);
+  assert.deepEqual(feedback, [{
+    form: "cancel",
+    kind: "refused",
+    text: `delete job j: no reply from the coordinator to cancel_job ${request_id} after ${tries} tries over 10 s: is it running?`,
+  }]);
+  assert.equal(tries, 4); // at 0, 1, 3 and 7 s
+  assert.equal(r.pending.size, 0);
+  assert.deepEqual(r.reply(reply({ request_id, accepted: true })), { feedback: null, log: null }, "too late");
 });
 
 test("an accepted reply says so once, with the new job's id", () => {

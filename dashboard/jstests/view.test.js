@@ -56,3 +56,12 @@ test("the coordinator's badge", () => {
   assert.deepEqual(coordinatorBadge(null, null), { state: "unknown", text: "coordinator: not seen" });
   assert.deepEqual(coordinatorBadge({ state: "online" }, 42), { state: "online", text: "coordinator: online, step 42" });
 });
+
+test("the badge shows the step time the coordinator achieves against the one set", () => {
+  const status = { state: "online", step_period_s: 0.005, achieved_step_s: 0.0079 };
+  assert.equal(coordinatorBadge(status, 9).text, "coordinator: online, step 9 · 7.9 ms a step (set 5 ms)");
+  const slow = { state: "online", step_period_s: 1, achieved_step_s: 1.25 };
+  assert.equal(coordinatorBadge(slow, 3).text, "coordinator: online, step 3 · 1.25 s a step (set 1 s)");
+  const unmeasured = { state: "online", step_period_s: 1, achieved_step_s: null };
+  assert.equal(coordinatorBadge(unmeasured, 3).text, "coordinator: online, step 3");
+});

@@ -4,7 +4,7 @@
 //   login.js       the settings from the dashboard server, logging in and out
 //   connection.js  the MQTT.js client, its status, subscribing on every connect
 //   model.js       FleetView: the fleet as the page knows it, from messages alone
-//   requests.js    request ids, the requests waiting, the words for replies and error reports
+//   requests.js    request ids, the requests waiting (sent again until answered), the words
 //   forms.js       the goal and job forms: checks, requests, messages
 //   clicks.js      what a click on the map means in each click mode
 //   stop.js        STOP, hold to release, and how the stop shows
@@ -137,6 +137,7 @@ class Dashboard {
     };
     requestAnimationFrame(frame);
     setInterval(() => this.page.seen(Date.now()), 500);
+    setInterval(() => this.retry(Date.now()), 500);
   }
 
   // ---- messages in, requests out ----
@@ -165,6 +166,15 @@ class Dashboard {
     const { message } = this.requests.create(kind, form, what, body);
     this.client.publish(this.topics.request(kind), JSON.stringify(message), { qos: 1, retain: false });
     this.show({ feedback: sentFeedback(form, what, this.client.connected), log: null });
+  }
+
+  /** Requests still without a reply go out again; those waited for too long are given up. */
+  retry(now) {
+    const { resend, feedback } = this.requests.due(now);
+    for (const { kind, message } of resend) {
+      this.client.publish(this.topics.request(kind), JSON.stringify(message), { qos: 1, retain: false });
+    }
+    for (const f of feedback) this.show({ feedback: f, log: f.text });
   }
 
   publishEstop(engaged) {

@@ -4,25 +4,66 @@
 //
 // Feedback is {form, kind, text}: `form` names the form that sent the request ("goal", "job",
 // "cancel"), `kind` is "pending", "ok" or "refused".
+//
+// A loaded broker drops messages: a request is sent again, the same (same id: the coordinator
+// answers a retry with its first answer, protocol.md §6), until its reply comes, backing off from
+// `retryMs` to RETRY_MOST_MS; after `waitMs` in all the form says the coordinator did not answer.
+
+export const RETRY_MS = 2000;
+export const RETRY_MOST_MS = 10000;
+export const WAIT_MS = 60000;
+
+/** A few random hex digits: request ids stay unique across page loads with one client id. */
+export function sessionTag() {
+  return Math.floor(Math.random() * 0x1000000).toString(16).padStart(6, "0");
+}
 
 export class Requests {
-  /** `stamper` gives each message its header (protocol.js `Stamper`). */
-  constructor(clientId, stamper) {
+  /** `stamper` gives each message its header (protocol.js `Stamper`); `session` goes in every id. */
+  constructor(clientId, stamper, { session = sessionTag(), retryMs = RETRY_MS, waitMs = WAIT_MS } = {}) {
     this.clientId = clientId;
     this.stamper = stamper;
-    this.pending = new Map(); // request_id -> {form, what}
+    this.session = session;
+    this.retryMs = retryMs;
+    this.waitMs = waitMs;
+    this.pending = new Map(); // request_id -> {form, what, kind, message, first, next, pause, tries}
     this.next = 1;
   }
 
   /**
    * A new request of `kind` from `form`, described to the operator as `what`; `body` holds its
-   * fields. Returns {request_id, message}; the request waits for its reply from now on.
+   * fields. Returns {request_id, message}; the request, sent at `now` (ms), waits for its reply.
    */
-  create(kind, form, what, body) {
-    const request_id = `${this.clientId}-${this.next++}`.slice(-64);
+  create(kind, form, what, body, now = Date.now()) {
+    const request_id = `${this.clientId}-${this.session}-${this.next++}`.slice(-64);
     const message = { header: this.stamper.header(kind), request_id, reply_to: this.clientId, ...body };
-    this.pending.set(request_id, { form, what });
+    const pause = this.retryMs;
+    this.pending.set(request_id, { form, what, kind, message, first: now, next: now + pause, pause, tries: 1 });
     return { request_id, message };
+  }
+
+  /**
+   * What is due at `now` (ms): {resend: [{kind, message}], feedback: [...]}. Requests without a
+   * reply are sent again, the same; one waiting `waitMs` in all is given up, and its form says so.
+   */
+  due(now) {
+    const resend = [];
+    const feedback = [];
+    for (const [id, req] of this.pending) {
+      if (now - req.first >= this.waitMs) {
+        this.pending.delete(id);
+        const tries = req.tries === 1 ? "1 try" : `${req.tries} tries`;
+        const over = Math.round(this.waitMs / 1000);
+        const text = `${req.what}: no reply from the coordinator to ${req.kind} ${id} after ${tries} over ${over} s: is it running?`;
+        feedback.push({ form: req.form, kind: "refused", text });
+      } else if (now >= req.next) {
+        req.tries += 1;
+        req.pause = Math.min(2 * req.pause, RETRY_MOST_MS);
+        req.next = now + req.pause;
+        resend.push({ kind: req.kind, message: req.message });
+      }
+    }
+    return { resend, feedback };
   }
 
   /**

@@ -53,7 +53,15 @@ export function finishedCounts(finished, counts) {
 
 /** The coordinator's badge: {state, text}, from its status and its latest step. */
 export function coordinatorBadge(c, step) {
-  return { state: c?.state ?? "unknown", text: c ? `coordinator: ${c.state}, step ${step}` : "coordinator: not seen" };
+  if (!c) return { state: "unknown", text: "coordinator: not seen" };
+  return { state: c.state, text: `coordinator: ${c.state}, step ${step}${stepPace(c)}` };
+}
+
+/** " · 7.9 ms a step (set 5 ms)": the step time it achieves, once it has measured one. */
+export function stepPace(c) {
+  if (typeof c?.achieved_step_s !== "number") return "";
+  const time = (s) => (s < 1 ? `${+(s * 1000).toFixed(1)} ms` : `${+s.toFixed(2)} s`);
+  return ` · ${time(c.achieved_step_s)} a step (set ${time(c.step_period_s)})`;
 }
 
 // ---- on the page ----
