@@ -16,7 +16,7 @@ from coordinator.service import Coordinator
 from coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
-from gridfleet.protocol import Topics
+from gridfleet.protocol import Topics, encode
 from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
@@ -349,3 +349,19 @@ async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_
             )
             burst_s = replies[-1].at - replies[0].at
             assert len(views) <= 2 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
+
+
+async def test_a_submit_retried_after_a_restart_gets_its_first_answer_and_no_second_job(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path, units=PLAYFIELD_UNITS[:1]) as r:
+        request = r.op.send_submit_job(Cell(1, 8), Cell(8, 8), 1.0)  # the coordinator names it
+        first = await asyncio.to_thread(r.op.reply_to, request.request_id)
+        await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
+        r.op.raw_request("submit_job", encode(request))  # its reply was lost: the same again
+        again = await async_wait_for(
+            lambda: [x for x in r.op.replies() if x.request_id == request.request_id][1:],
+            what="the reply to the retry",
+        )
+        assert (again[0].accepted, again[0].job_id) == (True, first.job_id)
+        assert list(r.coordinator.core.jobs.jobs) == [first.job_id]
