@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from broker.mosquitto import mosquitto_conf, password_hash, write_files
+from broker.mosquitto import password_hash
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.protocol import Topics
 
-from support.mosquitto import running_mosquitto
+from support.mosquitto import mosquitto_with_accounts
 from support.security import (
     check_a_unit_cannot_forge,
     check_only_operators_write_the_latch,
@@ -38,12 +38,8 @@ def accounts() -> Accounts:
 @pytest.fixture(scope="module")
 def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """Mosquitto with the config 'gridfleet accounts mosquitto' writes; its URL (no login)."""
-    here = tmp_path_factory.mktemp("mosquitto")
-    passwd, acl = write_files(accounts, T, here)
-    with running_mosquitto(
-        here, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
-    ) as port:
-        yield f"mqtt://127.0.0.1:{port}"
+    with mosquitto_with_accounts(accounts, T, tmp_path_factory.mktemp("mosquitto")) as url:
+        yield url
 
 
 def test_strangers_and_wrong_passwords_are_refused(mosquitto: str, accounts: Accounts) -> None:

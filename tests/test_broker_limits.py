@@ -14,14 +14,13 @@ from paho.mqtt.enums import CallbackAPIVersion
 from broker.amqtt_broker import GridfleetBroker, make_broker
 from broker.embedded import BrokerSettings
 from broker.limits import MAX_PACKET_BYTES
-from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import Accounts, default_accounts
 from gridfleet.config import parse_broker_url
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from system.broker_thread import BrokerThread
 
-from support.mosquitto import running_mosquitto
+from support.mosquitto import mosquitto_with_accounts
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
@@ -281,12 +280,8 @@ def test_the_right_password_still_takes_the_client_id_over(
 @pytest.fixture(scope="module")
 def mosquitto(accounts: Accounts, tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """Mosquitto on a free loopback port, configured by mosquitto_conf; its URL."""
-    here = tmp_path_factory.mktemp("mosquitto")
-    passwd, acl = write_files(accounts, T, here)
-    with running_mosquitto(
-        here, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
-    ) as port:
-        yield f"mqtt://127.0.0.1:{port}"
+    with mosquitto_with_accounts(accounts, T, tmp_path_factory.mktemp("mosquitto")) as url:
+        yield url
 
 
 def test_mosquitto_with_the_recommended_lines_refuses_an_oversized_packet(

@@ -12,6 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from broker.mosquitto import mosquitto_conf, write_files
+from gridfleet.accounts import Accounts
+from gridfleet.protocol import Topics
+
 from support.wait import wait_for
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
@@ -52,3 +56,13 @@ def running_mosquitto(
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+@contextmanager
+def mosquitto_with_accounts(accounts: Accounts, topics: Topics, directory: Path) -> Iterator[str]:
+    """Mosquitto with the files and config 'gridfleet accounts mosquitto' writes; its URL."""
+    passwd, acl = write_files(accounts, topics, directory)
+    with running_mosquitto(
+        directory, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
+    ) as port:
+        yield f"mqtt://127.0.0.1:{port}"
