@@ -144,8 +144,12 @@ def step_one(core: CoordinatorCore, yard: Yard, now: float) -> bool:
 def test_goal_pins_a_unit_until_reached() -> None:
     core, yard = one_unit(5.0)
 
+    ids = iter(range(1, 100))
+
     def set_goal(unit: str, target: Cell) -> Reply:
-        goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit=unit, target=target)
+        # Each request its own id: a reused id is a retry of the first (protocol.md §6).
+        rid = f"g{next(ids)}"
+        goal = SetGoal(header=header("t"), request_id=rid, reply_to="t", unit=unit, target=target)
         return reply_in(request(core, "set_goal", goal, 0.0))
 
     bad = set_goal("nobody", Cell(1, 1))
