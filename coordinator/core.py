@@ -213,12 +213,15 @@ class CoordinatorCore:
 
     def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
+        was_latched = self.stop.latch_engaged
         signal = self.stop.apply(kind, source, topic, payload)
         if kind == LATCH:
             self._latch_due = None  # the broker still has the latch: nothing to re-assert
         publish: list[Outbound] = []
-        if kind == LATCH and signal is not None and not signal.engaged:
+        if kind == LATCH and signal is not None and not signal.engaged and was_latched:
             # An operator's release: the presses are cleared, or a restart would read them again.
+            # Only a latch going from engaged to released is one: the retained `released` a
+            # reconnect replays is no release of a press that came after it (the safe side).
             for held in self.stop.release_presses():
                 publish.append(Outbound.of(self.topics.parse(held)[0], held, b""))
         elif kind != LATCH and signal is not None and not self.stop.latch_engaged:
@@ -277,16 +280,16 @@ class CoordinatorCore:
 
     def step(self, now: float) -> Effects:
         """One coordinator step: every order (or hold), the routes and the changed views."""
+        publish = self._reassert_latch(now)  # first, and even when the step below fails
         try:
             result = self._decide(now)
         except Exception as exc:  # a bug must not take the coordinator down: hold everyone
             self._log.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
             status = self.topics.fleet("coordinator")
             report = self._refuse(status, f"internal error in step {self.step_no}: {exc!r}", None)
-            return self._effects([*self._holds(), report])
+            return self._effects([*publish, *self._holds(), report])
         persist = self._persist()
         self.orders.expect(result.orders)
-        publish = self._reassert_latch(now)
         self._releasing = set()
         for unit_id, plan in result.orders.items():
             order = self.say.order(unit_id, plan)

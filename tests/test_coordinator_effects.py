@@ -622,6 +622,19 @@ def test_an_operator_release_clears_every_held_press(core: CoordinatorCore) -> N
     assert published(press(core, b"")) == []  # our own clearing comes back: nothing more
 
 
+def test_a_released_latch_replayed_on_reconnect_does_not_clear_a_press(
+    core: CoordinatorCore,
+) -> None:
+    # A press arrived and the connection broke before its copy into the latch went out: the
+    # broker still holds the old `released`, which a reconnect replays. That is no release.
+    estop(core, b"released|operator|earlier")
+    press(core, b"engaged|dev1|button")
+    core.on_connect(10.0)
+    effects = estop(core, b"released|operator|earlier", 10.1)
+    assert PRESS not in [o.topic for o in effects.publish]  # the press is not cleared
+    assert core.estop
+
+
 def test_a_press_read_on_restart_under_a_released_latch_stops_the_fleet_again() -> None:
     # Pressed while the coordinator was away: the broker's latch still says released.
     fresh = make_core(GRID)
