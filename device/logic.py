@@ -144,6 +144,9 @@ class DeviceLogic:
         """The broker is gone: show offline; direction is stale until the retained one returns."""
         self.online = False
         self._sent_this_session = False
+        # Read afresh on the next session: a press cleared meanwhile (an operator's release) is
+        # not replayed, and one still held is.
+        self.pressed = False
 
     # -- what goes out ---------------------------------------------------------------------------
 

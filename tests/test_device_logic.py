@@ -223,3 +223,14 @@ def test_a_press_is_sent_at_once_then_every_retry_until_it_comes_back() -> None:
     assert published(logic.due(11.6)) == [stop]  # a new session sends it at once
     assert logic.receive(PRESS, b"engaged|dev1|button") == []
     assert logic.due(20.0) == []  # confirmed: no more sends
+
+
+def test_a_press_cleared_while_offline_is_not_shown_after_reconnecting() -> None:
+    logic = online_logic()
+    logic.on_message(DIR, b"E")
+    logic.press()
+    logic.on_message(PRESS, logic.stop_payload)
+    logic.disconnected()  # meanwhile an operator releases and the press is cleared
+    logic.connected()
+    logic.on_message(ESTOP, b"released|operator|checked")  # retained; no press is replayed
+    assert logic.pattern == "direction" and logic.leds == Leds(E=True)

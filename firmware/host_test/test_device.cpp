@@ -332,3 +332,22 @@ TEST_CASE("what the device subscribes to and publishes is what protocol_table.h 
   CHECK(r.mqtt.published[1].payload == p::kEstopEngaged + sep + "dev1" + sep + gf::kButtonReason);
   CHECK(r.mqtt.published[1].retained == p::kTopicDeviceStopRetained);
 }
+
+TEST_CASE("a press cleared while offline is not shown after reconnecting") {
+  Rig r;
+  r.tick();
+  r.mqtt.route(kDir, "E", true);
+  bouncyPress(r);
+  CHECK(r.device.pressed());
+  r.mqtt.drop();
+  r.mqtt.brokerUp = false;
+  r.run(10);
+  CHECK_FALSE(r.device.online());
+  r.mqtt.retained.erase(kPress);  // meanwhile an operator released and the press was cleared
+  r.mqtt.retained[kEstop] = "released|operator|checked";
+  r.mqtt.brokerUp = true;
+  r.run(40000);  // reconnected: the retained values come back, no press among them
+  REQUIRE(r.device.online());
+  CHECK_FALSE(r.device.pressed());
+  CHECK(r.device.leds() == gf::Leds{false, true, false, false});
+}

@@ -114,7 +114,12 @@ class Dashboard {
       onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.dirty = true; },
     });
     this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subscriptions(this.topics, clientId), {
-      onStatus: (state, text) => { showConnection(state, text); this.renderEstop(); },
+      onStatus: (state, text) => {
+        // Presses are read afresh from the retained ones: one cleared meanwhile is not replayed.
+        if (state === "connected") this.view.presses.clear();
+        showConnection(state, text);
+        this.renderEstop();
+      },
       onMessage: (topic, payload) => this.onMessage(topic, payload),
       onLog: log,
     }, mqttLogin(settings));

@@ -86,6 +86,8 @@ void Device::connectIfDue(uint32_t now) {
 
 void Device::lost() {
   online_ = false;
+  // Read afresh on the next session: a press cleared meanwhile is not replayed, one held is.
+  pressed_ = false;
   stop_.connectionLost();
   // Reconnect at once the first time; the back-off grows only with failed attempts.
   attempted_ = false;
