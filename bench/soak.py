@@ -40,6 +40,7 @@ from system.supervisor import Child, ChildSpec, Supervisor
 
 RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
 DEVICE = "soak-dev"
+STALL_S = 90.0  # no fault injected for this long: the soak reports where it waits
 RELEASE_AGAIN_S = 5.0  # an operator whose release did not take releases again after this
 
 
@@ -122,6 +123,7 @@ class Soak:
     def __init__(self, cfg: SoakConfig, workdir: Path, log: TextIO) -> None:
         self.cfg = cfg
         self.dir = workdir
+        self.log = log
         self.rng = random.Random(cfg.seed)
         self.root = f"soak-{uuid.uuid4().hex[:8]}"
         self.topics = Topics(self.root)
@@ -329,6 +331,25 @@ class Soak:
                     raise
                 await asyncio.sleep(0.1)  # the broker is restarting: try again shortly
 
+    async def _watchdog(self, quiet_s: float = STALL_S) -> None:
+        """Say where every task waits, once, when no fault has been injected for `quiet_s`.
+
+        A 5-minute run was once seen injecting nothing after start-up, with every child healthy;
+        this leaves the evidence in the log the next time instead of a silent hang.
+        """
+        seen, since = -1, time.monotonic()
+        while True:
+            await asyncio.sleep(min(5.0, quiet_s / 2))  # a coarse look: it only reports
+            count = sum(self.faults.values())
+            if count != seen:
+                seen, since = count, time.monotonic()
+            elif time.monotonic() - since > quiet_s:
+                print(f"soak: no fault for {quiet_s:g} s; where each task waits:", file=self.log)
+                for task in asyncio.all_tasks():
+                    task.print_stack(file=self.log)
+                self.unrecovered.append(f"the soak itself stalled: no fault for {quiet_s:g} s")
+                return
+
     # ---- the end ------------------------------------------------------------------------
 
     async def drain(self) -> None:
@@ -352,6 +373,7 @@ class Soak:
         """Start, inject faults for the configured minutes, drain, stop, check."""
         try:
             await self.start()
+            self.tasks.append(asyncio.create_task(self._watchdog()))
             deadline = time.monotonic() + self.cfg.minutes * 60
             lanes = [self.main_lane(deadline), self.stop_lane(deadline)]
             await asyncio.gather(*lanes)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import io
 import json
 import subprocess
 import sys
@@ -12,6 +13,7 @@ from typing import Any
 
 import pytest
 
+from bench.soak import Soak, SoakConfig
 from bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
 from bench.soak_proxy import FaultyProxy
 from gridfleet.scenario import load_scenario
@@ -142,3 +144,12 @@ async def test_truth_lines_carry_the_world(tmp_path: Path) -> None:
     line = json.loads(path.read_text().splitlines()[-1])
     assert line["collisions"] == 0 and line["moves"] == 0
     assert set(line["positions"]) == set(world.positions)
+
+
+def test_a_soak_that_injects_nothing_says_where_it_waits(tmp_path: Path) -> None:
+    log = io.StringIO()
+    soak = Soak(SoakConfig(minutes=1, units=2), tmp_path, log)
+    asyncio.run(asyncio.wait_for(soak._watchdog(quiet_s=0.2), 10))
+    assert "no fault for 0.2 s; where each task waits:" in log.getvalue()
+    assert "_watchdog" in log.getvalue()  # the stacks themselves
+    assert soak.unrecovered == ["the soak itself stalled: no fault for 0.2 s"]
