@@ -373,10 +373,14 @@ class Soak:
         """Start, inject faults for the configured minutes, drain, stop, check."""
         try:
             await self.start()
-            self.tasks.append(asyncio.create_task(self._watchdog()))
             deadline = time.monotonic() + self.cfg.minutes * 60
             lanes = [self.main_lane(deadline), self.stop_lane(deadline)]
-            await asyncio.gather(*lanes)
+            watchdog = asyncio.create_task(self._watchdog())  # the lanes only: not the drain
+            try:
+                await asyncio.gather(*lanes)
+            finally:
+                watchdog.cancel()
+                await asyncio.gather(watchdog, return_exceptions=True)
             await self.drain()
         finally:
             await self.sup.stop()
