@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test check lint typecheck pytest firmware-test install schemas clean system-deps
+.PHONY: run test check lint typecheck pytest soak firmware-test install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
@@ -45,6 +45,10 @@ lint: $(STAMP)
 
 typecheck: $(STAMP)
 	$(BIN)/mypy
+
+# The one-minute chaos soak, out of `make test` for now (see bench/README.md, "soak").
+soak: $(STAMP)
+	$(BIN)/pytest -m soak
 
 pytest: $(STAMP)
 	$(BIN)/pytest

@@ -34,7 +34,7 @@ def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
     )
 
 
-@pytest.mark.slow
+@pytest.mark.soak
 @pytest.mark.timeout(420)
 def test_one_minute_soak_is_green_and_reports_every_figure() -> None:
     done = soak(
