@@ -150,10 +150,11 @@ def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
 
     page.locator("#logout").click()
     expect(page.locator("#login-form")).to_be_visible()
-    # Playwright's sync API takes in events only inside its own calls: wait with one of them,
-    # not by polling is_closed(), which never sees a close that comes after the last call.
-    if not sockets[0].is_closed():
-        sockets[0].wait_for_event("close", timeout=10_000)
+    # The page closes its broker connection and reloads: the closed socket, or (when the close
+    # takes longer than the page's 1 s wait, on a loaded machine) the document that held it is
+    # gone, which ends its connections too. Playwright reports no close for those.
+    reloaded = page.evaluate("performance.getEntriesByType('navigation')[0].type")
+    assert sockets[0].is_closed() or reloaded == "reload", reloaded
     assert len(sockets) == 1  # the reloaded page opened none
     status = page.evaluate("fetch('/api/settings').then(r => r.status)")
     assert status == 401
