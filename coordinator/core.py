@@ -187,7 +187,7 @@ class CoordinatorCore:
         latch = self.stop.latch
         if topic != self.topics.fleet(LATCH) or latch is None or not latch.engaged:
             return []
-        return [Outbound.of(LATCH, topic, encode_estop(latch))]
+        return [self._latch_out(latch)]
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
@@ -227,7 +227,7 @@ class CoordinatorCore:
         elif kind != LATCH and signal is not None and not self.stop.latch_engaged:
             # Mirrored into the latch, which only operators release: a source that clears or
             # overwrites its own press cannot release the fleet.
-            publish.append(Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal)))
+            publish.append(self._latch_out(signal))
         if self.stop.engaged == self.estop:
             return self._effects(publish)  # engaging (or releasing) is idempotent
         self.estop = self.stop.engaged
@@ -321,8 +321,11 @@ class CoordinatorCore:
         self._log.append(
             (logging.WARNING, f"emergency stop re-asserted on the broker ({cause.by})")
         )
-        engaged = EstopSignal(True, cause.by, cause.reason)
-        return [Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(engaged))]
+        return [self._latch_out(cause)]  # the engaged latch, or a held press (engaged too)
+
+    def _latch_out(self, signal: EstopSignal) -> Outbound:
+        """`signal` on the latch, retained (restored, re-asserted or copied from a press)."""
+        return Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal))
 
     def _decide(self, now: float) -> StepResult:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""
