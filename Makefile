@@ -46,7 +46,7 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
-# The one-minute chaos soak, out of `make test` for now (see bench/README.md, "soak").
+# The one-minute chaos soak alone (it runs in `make test` too).
 soak: $(STAMP)
 	$(BIN)/pytest -m soak
 

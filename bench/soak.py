@@ -40,7 +40,8 @@ from system.supervisor import Child, ChildSpec, Supervisor
 
 RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
 DEVICE = "soak-dev"
-STALL_S = 90.0  # no fault injected for this long: the soak reports where it waits
+STALL_S = 90.0  # no progress (start-up done, a fault injected) this long: say where it waits
+EXIT_WAIT_S = 15.0  # a process signalled to stop that is still running after this is a finding
 RELEASE_AGAIN_S = 5.0  # an operator whose release did not take releases again after this
 
 
@@ -132,6 +133,8 @@ class Soak:
         self.sup = Supervisor(out=log, restart_delay=0.3, max_restart_delay=2.0, stable_after=3.0)
         self.children: dict[str, Child] = {}
         self.faults: Counter[str] = Counter()
+        self.progress = 0  # start-up done, or a fault injected: what the watchdog watches
+        self.stalled = False  # set by the watchdog when it gave up on the run
         self.recoveries: list[float] = []
         self.release_repeats = 0
         self.unrecovered: list[str] = []
@@ -170,6 +173,7 @@ class Soak:
         for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
             self.children[name] = await self.sup.start(ChildSpec(name, argv))
         await self._wait_flowing(time.time(), "start-up")
+        self.progress += 1
 
     async def _wait_flowing(self, since: float, what: str) -> float | None:
         """Wait until every unit's state and the coordinator's routes arrived after `since`;
@@ -201,6 +205,7 @@ class Soak:
             async with self.calm:
                 start = time.time()
                 self.faults[fault.kind] += 1
+                self.progress += 1
                 await self._apply(fault)
                 # Disturbed from the fault until everything flows again (or the wait gave up).
                 await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
@@ -241,7 +246,14 @@ class Soak:
         old = child.process
         assert old is not None
         old.send_signal(sig)
-        await old.wait()
+        try:
+            await asyncio.wait_for(old.wait(), EXIT_WAIT_S)
+        except TimeoutError:
+            # A component that outlives SIGTERM is a finding (an operator's `kill` would not
+            # stop it either); kill it so the soak goes on.
+            self.unrecovered.append(f"{name} still running {EXIT_WAIT_S:g} s after {sig.name}")
+            old.kill()
+            await old.wait()
         deadline = time.monotonic() + RECOVERY_WAIT_S
         while child.process is old or (
             child.spec.ready is not None and not child.ready_event.is_set()
@@ -266,6 +278,7 @@ class Soak:
                 return
             async with self.calm:
                 self.faults[fault.kind] += 1
+                self.progress += 1
                 if fault.kind == "estop_operator":
                     await self.publish(self.topics.fleet("estop"), "engaged|operator|soak")
                 else:
@@ -331,8 +344,11 @@ class Soak:
                     raise
                 await asyncio.sleep(0.1)  # the broker is restarting: try again shortly
 
-    async def _watchdog(self, quiet_s: float = STALL_S) -> None:
-        """Say where every task waits, once, when no fault has been injected for `quiet_s`.
+    async def _watchdog(
+        self, quiet_s: float = STALL_S, work: asyncio.Task[None] | None = None
+    ) -> None:
+        """Say where every task waits, once, when the soak makes no progress for `quiet_s`,
+        then cancel `work` so the run ends with the evidence instead of hanging.
 
         A 5-minute run was once seen injecting nothing after start-up, with every child healthy;
         this leaves the evidence in the log the next time instead of a silent hang.
@@ -340,14 +356,16 @@ class Soak:
         seen, since = -1, time.monotonic()
         while True:
             await asyncio.sleep(min(5.0, quiet_s / 2))  # a coarse look: it only reports
-            count = sum(self.faults.values())
-            if count != seen:
-                seen, since = count, time.monotonic()
+            if self.progress != seen:
+                seen, since = self.progress, time.monotonic()
             elif time.monotonic() - since > quiet_s:
-                print(f"soak: no fault for {quiet_s:g} s; where each task waits:", file=self.log)
+                print(f"soak: no progress for {quiet_s:g} s; where each task waits:", file=self.log)
                 for task in asyncio.all_tasks():
                     task.print_stack(file=self.log)
-                self.unrecovered.append(f"the soak itself stalled: no fault for {quiet_s:g} s")
+                self.unrecovered.append(f"the soak itself stalled: no progress for {quiet_s:g} s")
+                self.stalled = True
+                if work is not None:
+                    work.cancel()
                 return
 
     # ---- the end ------------------------------------------------------------------------
@@ -362,22 +380,34 @@ class Soak:
         feed.spec.restart = False
         if feed.process is not None and feed.process.returncode is None:
             feed.process.send_signal(signal.SIGTERM)
-            await feed.process.wait()
+            try:
+                await asyncio.wait_for(feed.process.wait(), EXIT_WAIT_S)
+            except TimeoutError:
+                self.unrecovered.append(f"operator still running {EXIT_WAIT_S:g} s after SIGTERM")
+                feed.process.kill()
+                await feed.process.wait()
         deadline = time.monotonic() + self.cfg.drain_s
         while time.monotonic() < deadline:
             if listener.jobs and all(s in FINAL for s in listener.jobs.values()):
                 return
             await asyncio.sleep(0.2)  # polling the listener, with a deadline
 
+    async def _start_and_inject(self) -> None:
+        """Start the system, then both lanes of faults for the configured minutes."""
+        await self.start()
+        deadline = time.monotonic() + self.cfg.minutes * 60
+        await asyncio.gather(self.main_lane(deadline), self.stop_lane(deadline))
+
     async def run(self) -> SoakResult:
         """Start, inject faults for the configured minutes, drain, stop, check."""
+        work = asyncio.create_task(self._start_and_inject())
+        watchdog = asyncio.create_task(self._watchdog(work=work))  # not the drain: it is bounded
         try:
-            await self.start()
-            deadline = time.monotonic() + self.cfg.minutes * 60
-            lanes = [self.main_lane(deadline), self.stop_lane(deadline)]
-            watchdog = asyncio.create_task(self._watchdog())  # the lanes only: not the drain
             try:
-                await asyncio.gather(*lanes)
+                await work
+            except asyncio.CancelledError:
+                if not self.stalled:
+                    raise  # the run itself was cancelled (Ctrl-C), not the watchdog's doing
             finally:
                 watchdog.cancel()
                 await asyncio.gather(watchdog, return_exceptions=True)

@@ -45,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stranded", type=float, default=30.0, help="undisturbed seconds a busy unit may stand"
     )
     parser.add_argument("--verbose", action="store_true", help="the components' log on stderr")
+    parser.add_argument(
+        "--log", metavar="FILE", help="the components' log (and a stall's evidence) into FILE"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -88,8 +91,9 @@ def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet bench soak`: exit 1 when a check fails."""
     cfg = config(args)
     logging.disable(logging.WARNING)  # the figures are the output; faults make components warn
-    with open(os.devnull, "w") as quiet:
-        result = asyncio.run(run_soak(cfg, sys.stderr if args.verbose else quiet))
+    where = args.log or os.devnull
+    with open(where, "w", encoding="utf-8", buffering=1) as log:
+        result = asyncio.run(run_soak(cfg, sys.stderr if args.verbose else log))
     if args.json:
         json.dump(result.as_json(), sys.stdout)
         sys.stdout.write("\n")

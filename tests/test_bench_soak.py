@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import io
 import json
 import subprocess
@@ -36,12 +37,13 @@ def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
 
 @pytest.mark.soak
 @pytest.mark.timeout(420)
-def test_one_minute_soak_is_green_and_reports_every_figure() -> None:
-    done = soak(
-        "--minutes", "1", "--units", "6", "--seed", "1", "--drain", "120", "--json", timeout=400
-    )
+def test_one_minute_soak_is_green_and_reports_every_figure(tmp_path: Path) -> None:
+    log = tmp_path / "soak.log"
+    args = ["--minutes", "1", "--units", "6", "--seed", "1", "--drain", "120", "--json"]
+    done = soak(*args, "--log", str(log), timeout=400)
     out: dict[str, Any] = json.loads(done.stdout)
-    assert done.returncode == 0, out["details"]
+    # On a failure, the components' last words and (after a stall) where every task waited.
+    assert done.returncode == 0, (out["details"], log.read_text()[-20000:])
     assert out["minutes"] == 1
     for family in ("units", "coordinator", "broker", "pause", "cut", "delay"):
         assert any(family in kind for kind in out["faults"]), (family, out["faults"])
@@ -150,6 +152,20 @@ def test_a_soak_that_injects_nothing_says_where_it_waits(tmp_path: Path) -> None
     log = io.StringIO()
     soak = Soak(SoakConfig(minutes=1, units=2), tmp_path, log)
     asyncio.run(asyncio.wait_for(soak._watchdog(quiet_s=0.2), 10))
-    assert "no fault for 0.2 s; where each task waits:" in log.getvalue()
+    assert "no progress for 0.2 s; where each task waits:" in log.getvalue()
     assert "_watchdog" in log.getvalue()  # the stacks themselves
-    assert soak.unrecovered == ["the soak itself stalled: no fault for 0.2 s"]
+    assert soak.unrecovered == ["the soak itself stalled: no progress for 0.2 s"]
+
+
+def test_a_stalled_soak_is_ended_by_its_watchdog_not_left_hanging(tmp_path: Path) -> None:
+    soak = Soak(SoakConfig(minutes=1, units=2), tmp_path, io.StringIO())
+
+    async def stalled_run() -> bool:
+        work = asyncio.create_task(asyncio.Event().wait())  # a lane that waits for ever
+        await soak._watchdog(quiet_s=0.2, work=work)
+        with contextlib.suppress(asyncio.CancelledError):
+            await work
+        return work.cancelled()
+
+    assert asyncio.run(asyncio.wait_for(stalled_run(), 10))
+    assert soak.stalled
