@@ -2,15 +2,16 @@
 
 Pure: unit records, the job book and a caller-supplied time in; job state changes out (the book's
 `changed` set says which). Lost units: a job not yet picked up goes back to the queue; a job whose
-item the unit had already picked up becomes `failed` once the unit has said goodbye or stayed
-away too long (the item is on a unit nobody can reach), with a reason naming the unit and the
-square where it was last seen.
+item the unit had already picked up becomes `failed` once the unit has stayed away too long (the
+item is on a unit nobody can reach), with a reason naming the unit and the square where it was
+last seen. A unit that comes back with an item of a job that is over puts it back (returns.py).
 """
 
 from __future__ import annotations
 
 from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason
 from coordinator.jobs import CARRYING_STATES, JobBook
+from coordinator.returns import stray_items
 from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
 from gridfleet.paths import DistanceFieldCache
@@ -27,6 +28,7 @@ class JobProgress:
         self.world = world
         self.jobs = jobs
         self.goals = goals
+        self.returns: dict[str, Action] = {}  # unit -> putting down an item of a job now over
 
     def requeue_on_restart(self) -> None:
         """Jobs not picked up yet go back to the queue; carried ones wait for their unit's state."""
@@ -38,6 +40,7 @@ class JobProgress:
         """Pick-ups, drop-offs, refusals, lost units and goals reached, from the latest states."""
         self._adopt_carried(units, active)
         self._progress_jobs(units, active, now, step_no)
+        self.returns = stray_items(units, active, self.jobs, self.world.grid)
         for unit_id, goal in list(self.goals.items()):
             rec = self.world.units.get(unit_id)
             if rec is not None and rec.position == goal:
@@ -68,10 +71,11 @@ class JobProgress:
             if rec.id not in active:
                 if job.state in CARRYING_STATES:
                     # The item is on that unit: nobody else can finish the job. A unit that is
-                    # only late (a busy machine, a network hiccup) carries on when it is heard
-                    # again, so wait for it; give up once it has said goodbye or stayed away.
+                    # only late (a busy machine, a network hiccup) or restarted (it says goodbye
+                    # and resumes with the item on board) carries on when it is heard again, so
+                    # wait for it; give up once it has stayed away too long.
                     away = 0.0 if rec.lost_since is None else now - rec.lost_since
-                    if rec.connection == "offline" or away > self._give_up_after_s(rec):
+                    if away > self._give_up_after_s(rec):
                         self.jobs.set(
                             job,
                             "failed",
@@ -165,6 +169,9 @@ class JobProgress:
         goal = self.goals.get(unit_id)
         if goal is not None:
             return goal
+        stray = self.returns.get(unit_id)
+        if stray is not None:
+            return stray.square
         job = self.jobs.of_unit(unit_id)
         if job is not None:
             return job.dropoff if job.state in CARRYING_STATES else job.pickup
@@ -172,8 +179,13 @@ class JobProgress:
 
     def action(self, unit_id: str) -> Action | None:
         """What a unit does at the end of its route: pick its job's item up, or drop it."""
+        if unit_id in self.goals:
+            return None
+        stray = self.returns.get(unit_id)
+        if stray is not None:
+            return stray
         job = self.jobs.of_unit(unit_id)
-        if job is None or unit_id in self.goals:
+        if job is None:
             return None
         if job.state in CARRYING_STATES:
             return Action(kind="drop", job_id=job.id, square=job.dropoff, mass_kg=job.mass_kg)

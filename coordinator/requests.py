@@ -88,8 +88,11 @@ def cancel(
     who = sender or "an operator"
     if job.state in CARRYING_STATES and job.unit is not None:
         rec = world.units.get(job.unit)
-        where = list(rec.position) if rec and rec.position else "unknown"
-        reason = f"cancelled by {who}; the item stays on unit {job.unit} at {where}"
+        if world.grid.is_free(job.pickup):
+            where = f"at its pickup {list(job.pickup)}"
+        else:  # the pickup is blocked now: put down where it stands (returns.py)
+            where = f"where it stands ({list(rec.position) if rec and rec.position else '?'})"
+        reason = f"cancelled by {who}; unit {job.unit} puts the item back {where}, then is free"
     elif job.unit is not None:
         reason = f"cancelled by {who}; unit {job.unit} released"
     else:

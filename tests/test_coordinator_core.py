@@ -8,12 +8,13 @@ so a move the world refuses (`prevented`) is a failure of the coordinator.
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 
 import pytest
 
 from coordinator.core import CoordinatorCore
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import Connection, Order, Reply, SetGoal, SubmitJob
+from gridfleet.protocol import CancelJob, Connection, Order, Reply, SetGoal, SubmitJob
 from robots.unit import UnitLogic
 
 from support.coordinator_drive import from_unit, make_core, meet, orders_in, reply_in, request
@@ -215,8 +216,81 @@ def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
     assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
 
 
-def test_a_carrying_unit_that_goes_offline_fails_its_job_at_once() -> None:
+def test_a_carrying_unit_that_restarts_finishes_its_job() -> None:
+    # A restarted units process says goodbye, then resumes with the item on board (`--state`).
+    core, yard, now = _carrying_unit()
+    from_unit(core, "connection", "u", Connection(header=header("u"), state="offline"), now)
+    for _ in range(3):
+        now += 1.0
+        core.step(now)
+    assert next(iter(core.jobs.jobs.values())).state == "to_dropoff"
+    from_unit(core, "connection", "u", Connection(header=header("u"), state="online"), now)
+    from_unit(core, "state", "u", yard.state("u"), now)
+    assert _run_to_end(core, yard, now) == "done"
+
+
+def test_a_carrying_unit_offline_for_good_fails_its_job() -> None:
     core, _, now = _carrying_unit()
     from_unit(core, "connection", "u", Connection(header=header("u"), state="offline"), now)
-    core.step(now + 1.0)
-    assert next(iter(core.jobs.jobs.values())).state == "failed"
+    for _ in range(200):  # 20 times its 5 s loss timeout, not at once: it may come back with it
+        now += 1.0
+        core.step(now)
+    job = next(iter(core.jobs.jobs.values()))
+    assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
+
+
+def _submit(core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell) -> None:
+    req = SubmitJob(
+        header=header("t"),
+        request_id=rid,
+        reply_to="t",
+        pickup=pickup,
+        dropoff=dropoff,
+        mass_kg=1.0,
+    )
+    assert reply_in(request(core, "submit_job", req, 0.0)).accepted
+
+
+def _steps_until(core: CoordinatorCore, yard: Yard, now: float, done: Callable[[], bool]) -> float:
+    for _ in range(60):
+        now += 1.0
+        step_one(core, yard, now)
+        if done():
+            return now
+    raise AssertionError("not within 60 steps")
+
+
+def test_a_unit_back_with_the_item_of_a_failed_job_puts_it_back_and_works_again() -> None:
+    # The soak found this: a job failed while its units process was down; the process resumed
+    # with the item on board, and the unit, never given another job, stood for ever.
+    core, yard, now = _carrying_unit()
+    for _ in range(200):  # gone long enough for its job to fail
+        now += 1.0
+        core.step(now)
+    failed = next(iter(core.jobs.jobs.values()))
+    assert failed.state == "failed"
+    unit = yard.units["u"]
+    assert unit.job_id == failed.id
+    from_unit(core, "state", "u", yard.state("u"), now)  # back, the item still on board
+    _submit(core, "r2", Cell(9, 1), Cell(0, 0))
+    now = _steps_until(core, yard, now, lambda: unit.job_id is None)
+    assert unit.position == failed.pickup and unit.load_kg == 0.0  # put back where it was
+    second = core.jobs.get("r2") or next(j for j in core.jobs.jobs.values() if j is not failed)
+    _steps_until(core, yard, now, lambda: second.state == "done")
+    assert failed.state == "failed"  # final: it never changes again
+
+
+def test_a_cancelled_carried_job_frees_its_unit_for_the_next_one() -> None:
+    core, yard, now = _carrying_unit()
+    job = next(iter(core.jobs.jobs.values()))
+    cancel = CancelJob(header=header("t"), request_id="c", reply_to="t", job_id=job.id)
+    assert reply_in(request(core, "cancel_job", cancel, now)).accepted
+    assert job.state == "cancelled" and f"back at its pickup {list(job.pickup)}" in (
+        job.reason or ""
+    )
+    _submit(core, "r2", Cell(9, 1), Cell(0, 0))
+    unit = yard.units["u"]
+    now = _steps_until(core, yard, now, lambda: unit.job_id is None)
+    assert unit.position == job.pickup
+    second = next(j for j in core.jobs.jobs.values() if j is not job)
+    _steps_until(core, yard, now, lambda: second.state == "done")
