@@ -16,10 +16,11 @@ import json
 import random
 import signal
 import socket
+import statistics
 import tempfile
 import time
 import uuid
-from collections import Counter
+from collections import Counter, defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -70,6 +71,7 @@ class SoakResult:
     recoveries_s: list[float] = field(default_factory=list)  # after each broker restart
     unrecovered: list[str] = field(default_factory=list)  # faults the system did not recover from
     release_repeats: int = 0  # operator releases that had to be given again (not a failure)
+    fault_s: dict[str, list[float]] = field(default_factory=dict)  # main-lane fault to flowing
 
     @property
     def ok(self) -> bool:
@@ -93,6 +95,10 @@ class SoakResult:
             "faults_unrecovered": len(self.unrecovered),
             "release_repeats": self.release_repeats,
             "max_recovery_s": round(max(self.recoveries_s), 3) if self.recoveries_s else None,
+            "median_fault_s": {
+                kind: round(statistics.median(took), 2)
+                for kind, took in sorted(self.fault_s.items())
+            },
             "ok": self.ok,
             "details": v.details + self.unrecovered,
         }
@@ -133,6 +139,7 @@ class Soak:
         self.sup = Supervisor(out=log, restart_delay=0.3, max_restart_delay=2.0, stable_after=3.0)
         self.children: dict[str, Child] = {}
         self.faults: Counter[str] = Counter()
+        self.fault_s: defaultdict[str, list[float]] = defaultdict(list)  # fault to flowing again
         self.progress = 0  # start-up done, or a fault injected: what the watchdog watches
         self.stalled = False  # set by the watchdog when it gave up on the run
         self.recoveries: list[float] = []
@@ -199,7 +206,7 @@ class Soak:
         """One process or link fault at a time, each with its recovery, until `deadline`."""
         families = [f for f in self.cfg.faults if f != "broker" or self.cfg.broker is None]
         for fault in main_faults(self.rng, families, self.cfg.step_s):
-            await asyncio.sleep(self.rng.uniform(0.5, 2.0))  # the schedule's pacing
+            await asyncio.sleep(self.rng.uniform(0.2, 1.0))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return
             async with self.calm:
@@ -210,6 +217,7 @@ class Soak:
                 # Disturbed from the fault until everything flows again (or the wait gave up).
                 await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
                 self.recorded.append(Disturbed(start, time.time()))
+                self.fault_s[fault.kind].append(time.time() - start)
 
     async def _apply(self, fault: Fault) -> None:
         proxy = self.proxy
@@ -420,6 +428,8 @@ class Soak:
             if self.proxy is not None:
                 await self.proxy.close()
         assert self.listener is not None
+        for at, report in self.listener.errors:
+            print(f"[errors     ] {at:.2f} {report}", file=self.log)
         events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
         limits = Limits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)
@@ -430,10 +440,15 @@ class Soak:
             verdict,
             self.recoveries,
             self.unrecovered,
+            self.release_repeats,
+            dict(self.fault_s),
         )
 
 
-async def run_soak(cfg: SoakConfig, log: TextIO) -> SoakResult:
-    """One soak run in a temporary directory of its own."""
+async def run_soak(cfg: SoakConfig, log: TextIO, keep: Path | None = None) -> SoakResult:
+    """One soak run in a temporary directory of its own, or in `keep` (left for a post-mortem)."""
+    if keep is not None:
+        keep.mkdir(parents=True, exist_ok=True)
+        return await Soak(cfg, keep, log).run()
     with tempfile.TemporaryDirectory(prefix="gridfleet-soak-") as tmp:
         return await Soak(cfg, Path(tmp), log).run()

@@ -8,6 +8,7 @@ import json
 import logging
 import os
 import sys
+from pathlib import Path
 
 from bench.soak import SoakConfig, SoakResult, run_soak
 from bench.soak_faults import FAMILIES, parse_families
@@ -47,6 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--verbose", action="store_true", help="the components' log on stderr")
     parser.add_argument(
         "--log", metavar="FILE", help="the components' log (and a stall's evidence) into FILE"
+    )
+    parser.add_argument(
+        "--keep",
+        metavar="DIR",
+        type=Path,
+        help="run in DIR and leave its job store, units' state and ground truth there",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -93,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     logging.disable(logging.WARNING)  # the figures are the output; faults make components warn
     where = args.log or os.devnull
     with open(where, "w", encoding="utf-8", buffering=1) as log:
-        result = asyncio.run(run_soak(cfg, sys.stderr if args.verbose else log))
+        result = asyncio.run(run_soak(cfg, sys.stderr if args.verbose else log, args.keep))
     if args.json:
         json.dump(result.as_json(), sys.stdout)
         sys.stdout.write("\n")

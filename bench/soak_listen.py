@@ -32,6 +32,7 @@ class SoakListener:
         self.connected = asyncio.Event()
         self.last_routes = 0.0  # wall time of the coordinator's latest routes view here
         self.estop_shown: dict[str, bool] = {}  # unit -> whether its latest state shows the stop
+        self.errors: list[tuple[float, str]] = []  # what was reported on `errors`, for the log
 
     @property
     def stopped(self) -> bool:
@@ -75,6 +76,8 @@ class SoakListener:
                         self.events.append(JobSeen(now, job.id, job.state))
             elif kind == "routes":
                 self.last_routes = now
+            elif kind == "errors":
+                self.errors.append((now, payload.decode("utf-8", "replace")))
             elif kind == "estop":
                 self.latch = decode_estop(payload).engaged
             elif kind in ("stop", "device_stop") and who is not None:
