@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
+import os
+import sys
 from pathlib import Path
 
 from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
@@ -74,6 +77,12 @@ async def serve(settings: BrokerSettings) -> None:
         ws = f" and {broker.ws_url}" if broker.ws_url else ""
         print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)
         await stop.wait()
+    if broker.abandoned:
+        # amqtt's own tasks could hold up the loop's shutdown as they held up the broker's; end
+        # the process now (its sockets close with it): a supervisor is waiting to restart it.
+        logging.shutdown()
+        sys.stdout.flush()
+        os._exit(0)
 
 
 def run(args: argparse.Namespace) -> int:

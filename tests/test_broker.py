@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import re
 import shutil
 import subprocess
@@ -11,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from broker import embedded
 from broker.embedded import BrokerSettings, load_settings
 from gridfleet.errors import ConfigError
 from system.broker_thread import BrokerThread
@@ -203,3 +205,25 @@ def test_a_busy_port_is_one_line_and_exit_2(broker: BrokerThread) -> None:
     assert out.returncode == 2, out.stderr
     assert out.stderr.strip().count("\n") == 0 and "Traceback" not in out.stderr + out.stdout
     assert f"cannot listen on 127.0.0.1 port {broker.port}" in out.stderr
+
+
+async def test_a_broker_whose_shutdown_hangs_still_stops_within_its_bound(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # amqtt drains its whole broadcast queue on shutdown; after an overload that outlasted the
+    # supervisor's 15 s wait after SIGTERM (the chaos soak saw it).
+    monkeypatch.setattr(embedded, "SHUTDOWN_S", 0.2)
+    broker = embedded.EmbeddedBroker(BrokerSettings(port=0, ws_port=None))
+    await broker.start()
+    real_shutdown = broker._broker.shutdown
+
+    async def draining_for_ever() -> None:
+        await asyncio.Event().wait()
+
+    broker._broker.shutdown = draining_for_ever
+    try:
+        await asyncio.wait_for(broker.stop(), 5)
+        assert broker.abandoned
+        assert "stopped without draining" in caplog.text
+    finally:
+        await real_shutdown()
