@@ -160,12 +160,12 @@ class World:
         return active
 
     def capacities(self) -> list[float]:
-        """Capacities of every unit with a factsheet that has not said it is offline."""
-        return [
-            u.factsheet.capacity_kg
-            for u in self.units.values()
-            if u.factsheet is not None and u.connection != "offline"
-        ]
+        """Capacities of every unit with a factsheet: what the fleet could ever carry.
+
+        A unit that said `offline` counts too: a restarted units process says goodbye and comes
+        back, and the heavy jobs only it can carry must wait for it, not be rejected.
+        """
+        return [u.factsheet.capacity_kg for u in self.units.values() if u.factsheet is not None]
 
     def _sorted_obstacles(self) -> list[Cell]:
         return sorted(self.obstacles, key=lambda c: (c.y, c.x))

@@ -239,14 +239,16 @@ def test_a_carrying_unit_offline_for_good_fails_its_job() -> None:
     assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
 
 
-def _submit(core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell) -> None:
+def _submit(
+    core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell, mass_kg: float = 1.0
+) -> None:
     req = SubmitJob(
         header=header("t"),
         request_id=rid,
         reply_to="t",
         pickup=pickup,
         dropoff=dropoff,
-        mass_kg=1.0,
+        mass_kg=mass_kg,
     )
     assert reply_in(request(core, "submit_job", req, 0.0)).accepted
 
@@ -294,3 +296,21 @@ def test_a_cancelled_carried_job_frees_its_unit_for_the_next_one() -> None:
     assert unit.position == job.pickup
     second = next(j for j in core.jobs.jobs.values() if j is not job)
     _steps_until(core, yard, now, lambda: second.state == "done")
+
+
+def test_a_heavy_job_waits_for_the_only_unit_that_can_carry_it_to_restart() -> None:
+    # The soak found heavy jobs rejected ("exceeds every unit's capacity") while the units
+    # process restarted: every unit had said offline for a second.
+    core, yard = one_unit(10.0)
+    small = UnitLogic("small", core.world.grid, Cell(9, 9), 5.0, 1.0)
+    meet(core, small.report(header("small")), 5.0)  # online: it could carry 5 kg at most
+    offline = Connection(header=header("u"), state="offline")
+    from_unit(core, "connection", "u", offline, 0.0)
+    _submit(core, "heavy", Cell(9, 1), Cell(0, 0), mass_kg=7.0)
+    job = next(iter(core.jobs.jobs.values()))
+    for now in (1.0, 2.0, 3.0):
+        core.step(now)
+    assert job.state == "queued"
+    from_unit(core, "connection", "u", Connection(header=header("u"), state="online"), 3.0)
+    from_unit(core, "state", "u", yard.state("u"), 3.0)
+    _steps_until(core, yard, 3.0, lambda: job.state == "done")
