@@ -206,7 +206,7 @@ class Soak:
         """One process or link fault at a time, each with its recovery, until `deadline`."""
         families = [f for f in self.cfg.faults if f != "broker" or self.cfg.broker is None]
         for fault in main_faults(self.rng, families, self.cfg.step_s):
-            await asyncio.sleep(self.rng.uniform(0.2, 1.0))  # the schedule's pacing
+            await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return
             async with self.calm:

@@ -39,9 +39,9 @@ def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> I
                 hold = rng.uniform(staleness + 0.5, staleness + 2.5)
                 yield Fault(f"pause_{name}", target, hold)
             elif family == "cut":
-                yield Fault("cut", hold_s=rng.uniform(0.0, 1.5))
+                yield Fault("cut", hold_s=rng.uniform(0.0, 1.0))
             elif family == "delay":
-                yield Fault("delay", hold_s=rng.uniform(1.5, 4.0), latency_s=rng.uniform(0.05, 0.5))
+                yield Fault("delay", hold_s=rng.uniform(1.0, 3.0), latency_s=rng.uniform(0.05, 0.5))
 
 
 def stop_faults(rng: random.Random, families: Sequence[str]) -> Iterator[Fault]:
