@@ -116,7 +116,7 @@ async def simulate(
     record: bool = False,
     sensors_see_units: bool = True,
 ) -> SimulationResult:
-    """Run broker, coordinator and units in this process until the scenario is done."""
+    """Run coordinator and units in this process (an own broker in a child) until done."""
     started = time.monotonic()
     outcome = SimulationResult()
     goals = [GoalProgress(g.unit, g.target) for g in scenario.goals]
@@ -129,6 +129,9 @@ async def simulate(
         step_s=step,
         ws_port=None,
         sensors_see_units=sensors_see_units,
+        # Its own process: in this one, amqtt shares the interpreter with the coordinator and
+        # every unit, and at short steps its queue grew without bound (bench/README.md).
+        own_broker="processes",
     )
     async with contextlib.AsyncExitStack() as stack:
         system = await stack.enter_async_context(Assembly(spec, "threads"))
