@@ -10,6 +10,7 @@ from typing import Any
 
 import pytest
 
+from bench.busy_scenario import make_busy
 from gridfleet.scenario import load_scenario
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
@@ -132,3 +133,17 @@ def test_a_scenario_without_units_is_refused_before_anything_starts(tmp_path: Pa
     assert out.stderr.strip() == (
         f"gridfleet simulate: error: {tmp_path / 'empty.toml'}: no units to run (add [[units]] tables)"
     )
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_a_busy_fleet_at_a_5_ms_step_finishes_every_job(tmp_path: Path) -> None:
+    # Issue 13's overload: 16 units and 40 jobs at 5 ms once ended with "no reply from the
+    # coordinator to submit_job" (amqtt's queue, in the simulation's own interpreter, grew
+    # without bound). Slower than nominal is fine; every job done is the point.
+    scenario = make_busy(16, 40, 1, tmp_path)
+    out = simulate(str(scenario.path), "--step", "0.005", "--max-steps", "20000", "--json")
+    assert out.returncode == 0, failure_report(out)
+    result: dict[str, Any] = json.loads(out.stdout)
+    assert result["collisions"] == 0
+    assert [j["state"] for j in result["jobs"]] == ["done"] * 40
