@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import ipaddress
 import logging
 import os
 import tempfile
@@ -16,6 +15,7 @@ from typing import Any
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.tls import amqtt_listener_context
 from gridfleet.accounts import Accounts, rules
+from gridfleet.config import is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -124,16 +124,6 @@ class BrokerSettings:
                 },
             }
         return {"listeners": listeners, "plugins": plugins}
-
-
-def is_loopback(host: str) -> bool:
-    """Whether `host` is a loopback address (or `localhost`)."""
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
 
 
 def password_lines(accounts: Accounts) -> str:

@@ -14,7 +14,7 @@ from dashboard.app import create_app
 from dashboard.server import DashboardServer
 from dashboard.settings import INSTALL_HINT, DashboardSettings
 from gridfleet.accounts import load_accounts
-from gridfleet.config import DEFAULT_WS_URL
+from gridfleet.config import DEFAULT_WS_URL, is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.maps import load_map
@@ -113,6 +113,11 @@ def tls_from(args: argparse.Namespace) -> ssl.SSLContext | None:
 def run(args: argparse.Namespace) -> int:
     """Serve until Ctrl-C."""
     settings = settings_from(args)
+    if settings.accounts is None and not is_loopback(args.host):
+        raise ConfigError(
+            f"serving on {args.host} without --accounts lets anyone on that network drive the "
+            "fleet: give --accounts FILE (people then log in), or serve on 127.0.0.1"
+        )
     if not settings.mqtt_bundle.is_file():
         log.warning("%s", INSTALL_HINT)
     server = DashboardServer(create_app(settings), args.host, args.port, tls_from(args)).bind()

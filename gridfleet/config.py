@@ -6,6 +6,7 @@ signed the broker's certificate (without it the system's trusted CAs count).
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from dataclasses import dataclass, field
 from urllib.parse import parse_qs, quote, unquote, urlsplit
@@ -140,3 +141,13 @@ def check_step(step_s: float, flag: str = "--step") -> float:
             f"{flag} {step_s:g}: the step period must be in (0, {MAX_STEP_S:g}] seconds"
         )
     return step_s
+
+
+def is_loopback(host: str) -> bool:
+    """Whether `host` is a loopback address (or `localhost`)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False

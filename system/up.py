@@ -6,9 +6,8 @@ import argparse
 import asyncio
 from pathlib import Path
 
-from broker.embedded import is_loopback
 from gridfleet.accounts import Accounts, load_accounts
-from gridfleet.config import check_step
+from gridfleet.config import check_step, is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
 from gridfleet.scenario import Scenario, load_scenario, with_units

@@ -152,3 +152,12 @@ def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_serving_beyond_loopback_without_accounts_is_refused_in_one_line() -> None:
+    # Like the broker: a page anyone on the network can open must ask who they are.
+    cmd = [sys.executable, "-m", "system.cli", "dashboard", "--host", "0.0.0.0", "--port", "0"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 2, done.stderr
+    assert "without --accounts lets anyone on that network drive the fleet" in done.stderr
+    assert "Traceback" not in done.stderr
