@@ -27,10 +27,12 @@ async def cancel_and_wait(task: asyncio.Task[Any], retry_s: float = 0.05) -> Non
 
 
 def stop_on_signals() -> asyncio.Event:
-    """An event set by SIGINT or SIGTERM (Ctrl-C, `gridfleet up`, systemd): the way to stop."""
+    """An event set by SIGINT, SIGTERM or SIGHUP (Ctrl-C, `gridfleet up`, systemd, a closed
+    terminal): the way to stop."""
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    hangup = getattr(signal, "SIGHUP", None)  # not on Windows
+    for sig in (signal.SIGINT, signal.SIGTERM, *([hangup] if hangup else [])):
         with contextlib.suppress(NotImplementedError):  # no signal handlers on Windows' loop
             loop.add_signal_handler(sig, stop.set)
     return stop

@@ -19,6 +19,7 @@ import aiomqtt
 from gridfleet import __version__
 from gridfleet.config import redacted
 from gridfleet.errors import GridfleetError
+from gridfleet.lifeline import die_with_parent
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("system.up", "start everything: broker, coordinator, units and dashboard"),
@@ -71,6 +72,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the console script."""
+    die_with_parent()  # started by `gridfleet up` (or another supervisor): end with it
     args_list = list(sys.argv[1:] if argv is None else argv)
     command = next((a for a in args_list if a in COMMANDS), None)
     parser = build_parser(only=command)

@@ -14,11 +14,11 @@ import signal
 import sys
 import time
 from asyncio import FIRST_COMPLETED
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TextIO
 
 from gridfleet.errors import ComponentError
+from gridfleet.lifeline import PARENT_ENV
 from gridfleet.tasks import stop_on_signals
 
 log = logging.getLogger("gridfleet.up")
@@ -74,11 +74,24 @@ class Supervisor:
         self.children: list[Child] = []
         self._stopping = False
         self._watchers: list[asyncio.Task[None]] = []
+        self.output_lost = asyncio.Event()  # our output's reader is gone: time to stop
 
     def say(self, name: str, line: str) -> None:
         """Print one line with the component's name in front."""
-        self.out.write(f"[{name:<11}] {line}\n")
-        self.out.flush()
+        try:
+            self.out.write(f"[{name:<11}] {line}\n")
+            self.out.flush()
+        except (BrokenPipeError, ValueError):
+            # Nobody reads us any more (`gridfleet up | head`, a closed terminal): carry on
+            # without output, and let whoever waits on `output_lost` stop everything.
+            if self.out is sys.stdout:
+                # What is still buffered would fail again at exit: fd 1 goes nowhere from now on.
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, sys.stdout.fileno())
+                os.close(null)
+            else:
+                self.out = open(os.devnull, "w")  # noqa: SIM115 - for the rest of this process
+            self.output_lost.set()
 
     async def start(self, spec: ChildSpec, ready_timeout: float = 60.0) -> Child:
         """Start a child; when it has a ready pattern, wait until its output matches."""
@@ -102,7 +115,12 @@ class Supervisor:
         return child
 
     async def _spawn(self, child: Child) -> None:
-        env = {**os.environ, "PYTHONUNBUFFERED": "1", **child.spec.env}
+        env = {
+            **os.environ,
+            "PYTHONUNBUFFERED": "1",
+            PARENT_ENV: str(os.getpid()),
+            **child.spec.env,
+        }
         # A session of its own: a terminal's Ctrl-C reaches only the supervisor, which then stops
         # the children in a safe order (units first, broker last).
         child.process = await asyncio.create_subprocess_exec(
@@ -197,8 +215,15 @@ class Supervisor:
         ]
 
 
-async def run_until_signal(supervisor: Supervisor, body: Callable[[], object] | None = None) -> int:
-    """Wait for SIGINT/SIGTERM, then stop everything (a child that keeps dying is no reason)."""
-    await stop_on_signals().wait()
+async def run_until_signal(supervisor: Supervisor, stop: asyncio.Event | None = None) -> int:
+    """Wait for SIGINT, SIGTERM or SIGHUP (`stop`, when the caller armed them already), or for
+    our output to be closed, then stop everything (a child that keeps dying is no reason)."""
+    stop = stop or stop_on_signals()
+    waits = [asyncio.ensure_future(e.wait()) for e in (stop, supervisor.output_lost)]
+    try:
+        await asyncio.wait(waits, return_when=FIRST_COMPLETED)
+    finally:
+        for w in waits:
+            w.cancel()
     await supervisor.stop()
     return 0

@@ -11,6 +11,7 @@ from gridfleet.config import check_step, is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from gridfleet.tasks import stop_on_signals
 from gridfleet.tls import server_context
 from system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from system.supervisor import Supervisor, run_until_signal
@@ -179,8 +180,9 @@ async def _main(args: argparse.Namespace) -> int:
     except BaseException:
         await supervisor.stop()
         raise
+    stop = stop_on_signals()  # before saying so: a signal right after the line must stop us
     supervisor.say("up", f"gridfleet is running: open {where} (Ctrl-C stops everything)")
-    return await run_until_signal(supervisor)
+    return await run_until_signal(supervisor, stop)
 
 
 def run(args: argparse.Namespace) -> int:

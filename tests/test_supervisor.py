@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import subprocess
 import sys
 import time
 
@@ -156,3 +157,14 @@ async def test_a_child_that_dies_before_it_is_ready_fails_at_once_with_its_last_
         )
     await sup.stop()
     assert "restarting" not in out.getvalue()  # it would only die again
+
+
+def test_a_child_arms_its_parent_death_signal_once_and_hides_it_from_its_own_children() -> None:
+    # In a process of its own: the armed signal stays with the process that asked for it.
+    code = (
+        "import os; from gridfleet.lifeline import PARENT_ENV, die_with_parent\n"
+        "env = {PARENT_ENV: str(os.getppid())}\n"
+        "print(die_with_parent(env), PARENT_ENV in env, die_with_parent({}))\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stdout.split() == ["True", "False", "False"]

@@ -115,3 +115,65 @@ def test_up_refuses_a_bad_step_before_starting_anything() -> None:
     assert out.stderr.strip() == (
         "gridfleet up: error: --step -1: the step period must be in (0, 60] seconds"
     )
+
+
+def _up(broker: BrokerThread, root: str, tmp_path: Path, playfield: Path) -> subprocess.Popen[str]:
+    """`gridfleet up` on the test's broker, its output on a pipe."""
+    return subprocess.Popen(
+        [
+            sys.executable, "-m", "system.cli", "up", "--broker", broker.url,
+            "--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.05",
+            "--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield),
+        ],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )  # fmt: skip
+
+
+def _running(proc: subprocess.Popen[str]) -> tuple[list[int], str]:
+    """Read `up`'s output until it says it is running: the components' pids and that output."""
+    assert proc.stdout is not None
+    lines: list[str] = []
+    for line in iter(proc.stdout.readline, ""):  # bounded by the test's timeout
+        lines.append(line)
+        if "gridfleet is running" in line:
+            break
+    text = "".join(lines)
+    pids = [int(p) for p in re.findall(r"started \(pid (\d+)\)", text)]
+    assert len(pids) >= 4, text[-3000:]
+    return pids, text
+
+
+@pytest.mark.timeout(180)
+def test_up_killed_with_sigkill_leaves_no_component_running(
+    broker: BrokerThread, root: str, tmp_path: Path, playfield: Path
+) -> None:
+    proc = _up(broker, root, tmp_path, playfield)
+    pids, _ = _running(proc)
+    proc.kill()  # nothing of `up` runs after this: the components must notice on their own
+    proc.wait(timeout=10)
+    wait_for(lambda: not any(alive(p) for p in pids), 30, what="every component to exit")
+
+
+@pytest.mark.timeout(180)
+def test_up_stops_everything_on_sighup(
+    broker: BrokerThread, root: str, tmp_path: Path, playfield: Path
+) -> None:
+    proc = _up(broker, root, tmp_path, playfield)
+    pids, _ = _running(proc)
+    out = Output(proc)
+    proc.send_signal(signal.SIGHUP)  # the terminal was closed
+    assert proc.wait(timeout=60) == 0, out.text[-3000:]
+    assert "Traceback" not in out.text
+    wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
+
+
+@pytest.mark.timeout(180)
+def test_up_stops_everything_when_its_output_is_closed(
+    broker: BrokerThread, root: str, tmp_path: Path, playfield: Path
+) -> None:
+    proc = _up(broker, root, tmp_path, playfield)  # as in `gridfleet up | head`
+    pids, _ = _running(proc)
+    assert proc.stdout is not None
+    proc.stdout.close()  # the reader is gone; the next line `up` writes finds the pipe closed
+    assert proc.wait(timeout=60) == 0
+    wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
