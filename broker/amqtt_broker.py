@@ -27,6 +27,7 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.utils import gen_client_id
 
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
+from broker.quiet import GONE, quiet_normal_closes
 from gridfleet.errors import ConfigError
 
 log = logging.getLogger("gridfleet.broker")
@@ -85,6 +86,7 @@ def make_broker(
     max_queued_bytes: int = MAX_QUEUED_BYTES,
 ) -> GridfleetBroker:
     """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits."""
+    quiet_normal_closes()
     return GridfleetBroker(config, Limits(max_packet_bytes, max_queued_messages, max_queued_bytes))
 
 
@@ -198,7 +200,8 @@ class _Outlet:
         # Returns nothing: amqtt keeps finished tasks a while, and the message is not needed.
         # amqtt 0.12.1 gives a QoS 1 message up after 5 s without PUBACK, logging a warning; its
         # broadcast loop would log each again, with a traceback, as a failed task.
-        with contextlib.suppress(TimeoutError):
+        # A client that has gone (a reloaded browser tab) has nothing more to receive.
+        with contextlib.suppress(TimeoutError, *GONE):
             await self._handler.mqtt_publish(topic, data, qos, False, ack_timeout)
 
     def __getattr__(self, name: str) -> Any:

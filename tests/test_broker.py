@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import logging
 import re
 import shutil
 import subprocess
@@ -10,7 +11,9 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import paho.mqtt.client as mqtt
 import pytest
+import websockets
 
 from broker import embedded
 from broker.embedded import BrokerSettings, load_settings
@@ -227,3 +230,38 @@ async def test_a_broker_whose_shutdown_hangs_still_stops_within_its_bound(
         assert "stopped without draining" in caplog.text
     finally:
         await real_shutdown()
+
+
+def _mqtt_packet(kind: int, body: bytes) -> bytes:
+    return bytes([kind, len(body)]) + body  # bodies here are under 128 bytes
+
+
+async def test_a_browser_tab_closing_mid_stream_leaves_the_log_quiet(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # Reloading the dashboard closes its websocket (1001, going away) while messages are on
+    # their way to it: amqtt logged an "Unhandled exception" and tracebacks of failed tasks.
+    caplog.set_level(logging.WARNING)
+    async with embedded.EmbeddedBroker(BrokerSettings(port=0, ws_port=0)) as broker:
+        publisher = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="publisher")
+        publisher.connect("127.0.0.1", broker.port)
+        publisher.loop_start()
+        try:
+            for tab in range(3):
+                page = await websockets.connect(broker.ws_url, subprotocols=["mqtt"])
+                client_id = f"page-{tab}".encode()
+                connect = b"\x00\x04MQTT\x04\x02\x00\x3c" + len(client_id).to_bytes(2, "big")
+                await page.send(_mqtt_packet(0x10, connect + client_id))
+                await page.recv()  # CONNACK
+                await page.send(_mqtt_packet(0x82, b"\x00\x01\x00\x03x/#\x00"))
+                await page.recv()  # SUBACK
+                for _ in range(200):
+                    publisher.publish("x/y", b"z" * 100)
+                await page.close(code=1001)  # the tab goes away with messages on their way
+                for _ in range(200):
+                    publisher.publish("x/y", b"z" * 100)
+        finally:
+            publisher.loop_stop()
+            publisher.disconnect()
+    noisy = [r.getMessage() for r in caplog.records if r.name.startswith("amqtt")]
+    assert noisy == []
