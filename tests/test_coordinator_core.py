@@ -314,3 +314,23 @@ def test_a_heavy_job_waits_for_the_only_unit_that_can_carry_it_to_restart() -> N
     from_unit(core, "connection", "u", Connection(header=header("u"), state="online"), 3.0)
     from_unit(core, "state", "u", yard.state("u"), 3.0)
     _steps_until(core, yard, 3.0, lambda: job.state == "done")
+
+
+# `assigned` lasts only within a step here: a unit that hears from us gets it `to_pickup` at once.
+@pytest.mark.parametrize("state", ["queued", "to_pickup", "loaded", "to_dropoff"])
+def test_a_job_cancelled_in_any_state_leaves_its_unit_free_for_the_next(state: str) -> None:
+    # Issue 14: a cancel after pick-up took the unit out of service for good.
+    core, yard = one_unit(10.0)
+    _submit(core, "first", Cell(0, 3), Cell(9, 9))
+    job = next(iter(core.jobs.jobs.values()))
+    now = 0.0
+    if state != "queued":
+        now = _steps_until(core, yard, now, lambda: job.state == state)
+    cancel = CancelJob(header=header("t"), request_id="c", reply_to="t", job_id=job.id)
+    assert reply_in(request(core, "cancel_job", cancel, now)).accepted
+    assert job.state == "cancelled"
+    _submit(core, "second", Cell(9, 1), Cell(0, 0))
+    second = next(j for j in core.jobs.jobs.values() if j is not job)
+    unit = yard.units["u"]
+    _steps_until(core, yard, now, lambda: second.state == "done")
+    assert job.state == "cancelled" and unit.job_id is None and unit.load_kg == 0.0
