@@ -86,3 +86,22 @@ def capacity_reason(mass_kg: float, capacities: Sequence[float]) -> str | None:
     if mass_kg > largest:
         return f"mass {mass_kg} kg exceeds every unit's capacity (largest {largest} kg)"
     return None
+
+
+def reach_reason(
+    cache: DistanceFieldCache,
+    pickup: Cell,
+    dropoff: Cell,
+    mass_kg: float,
+    units: Sequence[tuple[Cell, float]],
+) -> str | None:
+    """Why no unit able to carry `mass_kg` could ever do the job (walls and known obstacles), or
+    None when one could (or none is known yet). `units`: (square, capacity) of every unit known."""
+    capable = [square for square, capacity in units if capacity >= mass_kg]
+    if not capable:
+        return None  # capacity_reason says why, or no unit is known yet: wait
+    if cache.distance(pickup, dropoff) == UNREACHABLE:
+        return f"dropoff {list(dropoff)} cannot be reached from pickup {list(pickup)}"
+    if all(cache.distance(square, pickup) == UNREACHABLE for square in capable):
+        return f"no unit that can carry {mass_kg} kg can reach pickup {list(pickup)}"
+    return None

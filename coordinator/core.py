@@ -247,7 +247,8 @@ class CoordinatorCore:
         if known is not None:
             outcome = known
         elif isinstance(req, SubmitJob):
-            outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no)
+            cache = self.planner.cache
+            outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no, cache)
         elif isinstance(req, CancelJob):
             outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
         else:

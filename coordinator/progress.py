@@ -9,12 +9,12 @@ last seen. A unit that comes back with an item of a job that is over puts it bac
 
 from __future__ import annotations
 
-from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason
+from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason, reach_reason
 from coordinator.jobs import CARRYING_STATES, JobBook
 from coordinator.returns import stray_items
 from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
-from gridfleet.paths import DistanceFieldCache
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Action
 
 LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
@@ -132,6 +132,7 @@ class JobProgress:
             reason = capacity_reason(job.mass_kg, capacities)
             if reason is not None:
                 self.jobs.set(job, "rejected", reason=reason, done_step=step_no)
+        self._fail_unreachable(cache, step_no)
         busy = {j.unit for j in self.jobs.active()}
         slots = []
         for u in units:
@@ -155,6 +156,22 @@ class JobProgress:
         for job_id, unit_id in allocate(cache, slots, requests).items():
             job = self.jobs.jobs[job_id]
             self.jobs.set(job, "assigned", unit=unit_id, reason=None)
+
+    def _fail_unreachable(self, cache: DistanceFieldCache, step_no: int) -> None:
+        # Discovered obstacles can wall a job's squares off for good (the map only gains them).
+        carriers = self.world.carriers()
+        for job in self.jobs.active() + self.jobs.queued():
+            if job.state in CARRYING_STATES:
+                rec = self.world.units.get(job.unit or "")
+                pos = rec.position if rec is not None else None
+                if pos is None or cache.distance(pos, job.dropoff) != UNREACHABLE:
+                    continue
+                reason = f"dropoff {list(job.dropoff)} cannot be reached any more from {list(pos)}"
+            else:
+                reason = reach_reason(cache, job.pickup, job.dropoff, job.mass_kg, carriers) or ""
+                if not reason:
+                    continue
+            self.jobs.set(job, "failed", reason=reason, done_step=step_no)
 
     def dispatch(self, units: list[UnitRecord], active: set[str]) -> None:
         """An assigned job whose unit hears from us this step is under way (`to_pickup`)."""

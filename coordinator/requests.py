@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from coordinator.allocation import capacity_reason
+from coordinator.allocation import capacity_reason, reach_reason
 from coordinator.jobs import CARRYING_STATES, Job, JobBook
 from coordinator.world import World
 from gridfleet.errors import ProtocolError
@@ -27,7 +27,12 @@ class Outcome:
 
 
 def submit(
-    req: SubmitJob, sender: str | None, world: World, jobs: JobBook, step_no: int
+    req: SubmitJob,
+    sender: str | None,
+    world: World,
+    jobs: JobBook,
+    step_no: int,
+    cache: DistanceFieldCache,
 ) -> Outcome:
     """Queue a job, or refuse it (nothing changes) with the reason."""
     try:
@@ -54,7 +59,9 @@ def submit(
         submitted_by=sender,
         created_step=step_no,
     )
-    reason = capacity_reason(req.mass_kg, world.capacities())
+    reason = capacity_reason(req.mass_kg, world.capacities()) or reach_reason(
+        cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
+    )
     if reason is not None:
         # Listed as rejected (not merely refused) so the queue view shows why.
         job.state = "rejected"

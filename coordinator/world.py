@@ -167,6 +167,14 @@ class World:
         """
         return [u.factsheet.capacity_kg for u in self.units.values() if u.factsheet is not None]
 
+    def carriers(self) -> list[tuple[Cell, float]]:
+        """(square, capacity) of every unit with a factsheet and a known square."""
+        return [
+            (u.position, u.factsheet.capacity_kg)
+            for u in self.units.values()
+            if u.factsheet is not None and u.position is not None
+        ]
+
     def _sorted_obstacles(self) -> list[Cell]:
         return sorted(self.obstacles, key=lambda c: (c.y, c.x))
 

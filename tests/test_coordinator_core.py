@@ -334,3 +334,50 @@ def test_a_job_cancelled_in_any_state_leaves_its_unit_free_for_the_next(state: s
     unit = yard.units["u"]
     _steps_until(core, yard, now, lambda: second.state == "done")
     assert job.state == "cancelled" and unit.job_id is None and unit.load_kg == 0.0
+
+
+POCKET_ROWS = [*ROWS[:9], "........@."]  # (9, 9) is reached only through (9, 8)
+
+
+def _pocket_unit() -> tuple[CoordinatorCore, Yard]:
+    grid = GridMap.from_rows(POCKET_ROWS)
+    core = make_core(grid)
+    yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 10.0, 1.0)])
+    meet(core, yard.state("u"), 10.0)
+    return core, yard
+
+
+def _obstacle_found(core: CoordinatorCore, yard: Yard, square: Cell, now: float) -> None:
+    """The unit reports `square` as an obstacle it has just sensed."""
+    state = yard.state("u").model_copy(update={"obstacles": [square]})
+    from_unit(core, "state", "u", state, now)
+
+
+def test_a_job_no_unit_could_ever_finish_is_refused_at_submission_with_the_reason() -> None:
+    core, yard = _pocket_unit()
+    _obstacle_found(core, yard, Cell(9, 8), 0.0)  # the pocket's only way in is blocked
+    req = SubmitJob(
+        header=header("t"),
+        request_id="r",
+        reply_to="t",
+        pickup=Cell(5, 9),
+        dropoff=Cell(9, 9),
+        mass_kg=1.0,
+    )
+    reply = reply_in(request(core, "submit_job", req, 0.0))
+    assert not reply.accepted
+    assert reply.reason == "dropoff [9, 9] cannot be reached from pickup [5, 9]"
+    job = next(iter(core.jobs.jobs.values()))
+    assert (job.state, job.reason) == ("rejected", reply.reason)
+
+
+def test_a_job_walled_off_by_a_discovered_obstacle_fails_with_the_reason() -> None:
+    core, yard = _pocket_unit()
+    _submit(core, "r", Cell(5, 9), Cell(9, 9))
+    job = next(iter(core.jobs.jobs.values()))
+    core.step(1.0)
+    assert job.state == "to_pickup"
+    _obstacle_found(core, yard, Cell(9, 8), 1.0)
+    core.step(2.0)
+    assert job.state == "failed"
+    assert job.reason == "dropoff [9, 9] cannot be reached from pickup [5, 9]"
