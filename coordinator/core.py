@@ -39,6 +39,7 @@ from coordinator.pace import StepRate
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
 from coordinator.views import Views
+from coordinator.waits import explain_waits
 from coordinator.world import World
 from gridfleet.endpoint import Outbound
 from gridfleet.errors import ProtocolError
@@ -338,6 +339,7 @@ class CoordinatorCore:
         if not self.estop:
             self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
             self.progress.dispatch(units, active)
+        explain_waits(self.jobs, self.world.units, active, set(self.goals), self.estop)
         targets = {u.id: self.progress.target(u.id) for u in units}
         moves: dict[str, Cell] = {}
         if not self.estop:

@@ -33,6 +33,8 @@ class Job:
     created_step: int = 0
     done_step: int | None = None
     order: int = 0  # submission order, so views and allocation are stable
+    wait: str | None = None  # why it waits (a WaitCode), while it is not final
+    wait_reason: str | None = None  # the same in words
 
     @property
     def final(self) -> bool:
@@ -53,6 +55,8 @@ class Job:
             submitted_by=self.submitted_by,
             created_step=self.created_step,
             done_step=self.done_step,
+            wait=None if self.final else self.wait,  # type: ignore[arg-type]
+            wait_reason=None if self.final else self.wait_reason,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -111,6 +115,13 @@ class JobBook:
         for key, value in fields.items():
             setattr(job, key, value)
         self.changed.add(job.id)
+
+    def explain(self, job: Job, wait: tuple[str, str] | None) -> None:
+        """Say why `job` waits (code, words), or that it does not; listed as changed if new."""
+        code, words = wait or (None, None)
+        if (job.wait, job.wait_reason) != (code, words):
+            job.wait, job.wait_reason = code, words
+            self.changed.add(job.id)
 
     def queued(self) -> list[Job]:
         """Jobs waiting for a unit, in submission order."""

@@ -17,7 +17,15 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import CancelJob, Connection, Order, Reply, SetGoal, SubmitJob
 from robots.unit import UnitLogic
 
-from support.coordinator_drive import from_unit, make_core, meet, orders_in, reply_in, request
+from support.coordinator_drive import (
+    TOPICS,
+    from_unit,
+    make_core,
+    meet,
+    orders_in,
+    reply_in,
+    request,
+)
 from support.coordinator_fakes import ROOM_ROWS, Yard
 from support.effects import header
 
@@ -381,3 +389,55 @@ def test_a_job_walled_off_by_a_discovered_obstacle_fails_with_the_reason() -> No
     core.step(2.0)
     assert job.state == "failed"
     assert job.reason == "dropoff [9, 9] cannot be reached from pickup [5, 9]"
+
+
+def _wait(job_id: str, core: CoordinatorCore) -> tuple[str | None, str | None]:
+    view = core.jobs.jobs[job_id].view()
+    return view.wait, view.wait_reason
+
+
+def test_every_waiting_job_says_why_in_code_and_words() -> None:
+    # Issue 14: in --demo, heavy jobs piled up while two units idled and nothing said why.
+    core, yard = one_unit(10.0)
+    small = UnitLogic("small", core.world.grid, Cell(9, 9), 2.0, 1.0)
+    meet(core, small.report(header("small")), 2.0)
+    _submit(core, "a", Cell(9, 1), Cell(0, 0), mass_kg=7.0)
+    _submit(core, "b", Cell(5, 9), Cell(0, 9), mass_kg=7.0)
+    jobs = core.jobs.jobs
+    now = _steps_until(core, yard, 0.0, lambda: any(j.state == "to_pickup" for j in jobs.values()))
+    first = next(j.id for j in jobs.values() if j.state == "to_pickup")
+    second = next(j.id for j in jobs.values() if j.state == "queued")
+    assert _wait(second, core) == (
+        "no_unit_free",
+        "every unit that can carry 7.0 kg is busy (u)",
+    )
+    core.on_message(TOPICS.fleet("estop"), b"engaged|dashboard|test", now + 0.5)
+    step_one(core, yard, now + 1.0)
+    assert _wait(first, core) == ("fleet_stopped", "the emergency stop is engaged")
+    core.on_message(TOPICS.fleet("estop"), b"released|dashboard|test", now + 1.5)
+    offline = Connection(header=header("u"), state="offline")
+    from_unit(core, "connection", "u", offline, now + 1.5)
+    core.step(now + 2.0)
+    assert _wait(second, core) == (
+        "no_capable_unit",
+        "no unit that can carry 7.0 kg is online (u)",
+    )
+    assert core.jobs.jobs[first].state == "queued"  # re-queued: not picked up yet
+    assert _wait(first, core)[0] == "no_capable_unit"
+
+
+def test_a_carried_job_whose_unit_is_away_says_so() -> None:
+    core, _, now = _carrying_unit()
+    offline = Connection(header=header("u"), state="offline")
+    from_unit(core, "connection", "u", offline, now)
+    core.step(now + 1.0)
+    job = next(iter(core.jobs.jobs))
+    assert _wait(job, core) == ("unit_away", "its unit u is not heard from (offline)")
+
+
+def test_a_final_job_says_no_wait() -> None:
+    core, yard = one_unit(10.0)
+    _submit(core, "a", Cell(9, 1), Cell(0, 0))
+    job = next(iter(core.jobs.jobs.values()))
+    _steps_until(core, yard, 0.0, lambda: job.state == "done")
+    assert job.view().wait is None and job.view().wait_reason is None

@@ -62,6 +62,8 @@ JobState = Literal[
     "failed",
 ]
 FINAL_JOB_STATES: frozenset[str] = frozenset({"done", "cancelled", "rejected", "failed"})
+# Why a job that is not final waits (protocol.md §5.3): the machine-readable half.
+WaitCode = Literal["fleet_stopped", "no_capable_unit", "no_unit_free", "unit_away", "unit_waiting"]
 
 
 Side = Literal["N", "E", "S", "W"]
@@ -206,6 +208,8 @@ class JobView(Model):
     submitted_by: Id | None = None
     created_step: Annotated[int, Field(ge=0, strict=True)] = 0
     done_step: Annotated[int, Field(ge=0, strict=True)] | None = None
+    wait: WaitCode | None = None
+    wait_reason: Text | None = None
 
 
 class JobsView(Message):
