@@ -233,9 +233,13 @@ class CoordinatorCore:
             return self._effects(publish)  # engaging (or releasing) is idempotent
         self.estop = self.stop.engaged
         cause = self.stop.cause or signal
-        assert cause is not None
-        word = "ENGAGED" if self.estop else "released"
-        line = (logging.WARNING, f"emergency stop {word} by {cause.by}: {cause.reason}")
+        if cause is not None:
+            word = "ENGAGED" if self.estop else "released"
+            line = (logging.WARNING, f"emergency stop {word} by {cause.by}: {cause.reason}")
+        else:
+            # The last press cleared (by us, before a restart) while the latch said released:
+            # its copy on the latch may still be on its way and would engage again.
+            line = (logging.WARNING, f"emergency stop released: {source}'s press was cleared")
         # The stop wins at once: every unit gets a hold now, not at the next step.
         if self.estop:
             publish += self._holds()

@@ -873,3 +873,17 @@ def test_a_failing_step_holds_every_unit_reports_it_and_the_next_step_runs(
     ]
     monkeypatch.undo()
     assert any(o.topic == ROUTES for o in core.step(3.0).publish)
+
+
+def test_a_press_cleared_while_its_latch_copy_is_on_its_way_releases_without_failing(
+    core: CoordinatorCore,
+) -> None:
+    # The soak saw this after a coordinator restart: the retained latch said released, a
+    # device's press said engaged, and the press's clearing (sent by the coordinator before
+    # it restarted) came next. The coordinator failed on it with an AssertionError.
+    press = "gridfleet/v1/devices/dev1/stop"
+    estop(core, b"released|dashboard|checked")
+    core.on_message(press, b"engaged|dev1|button", 1.5)
+    effects = core.on_message(press, b"", 1.6)
+    assert effects.log == ((logging.WARNING, "emergency stop released: dev1's press was cleared"),)
+    assert published(effects)[-1] == (STATUS, status(1, "online", step=0, estop=False), 1, True)
