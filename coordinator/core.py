@@ -47,6 +47,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
     Connection,
+    ControlUnit,
     EstopSignal,
     Factsheet,
     HeaderStamper,
@@ -104,15 +105,17 @@ class CoordinatorCore:
         # once we re-asserted it (a restarted broker without persistence lost it).
         self._latch_due: float | None = None
         self.goals: dict[str, Cell] = {}
+        self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
         self.orders = Orders(nonce)
         self.moves = Moves(self.planner)
-        self.progress = JobProgress(world, jobs, self.goals)
+        self.progress = JobProgress(world, jobs, self.goals, self.controls)
         self.views = Views()
         self.answers = Answers()  # a retried request gets its first answer (answers.py)
         self.pace = StepRate()
         self.errors_reported = 0
         self._releasing: set[Outbound] = set()  # the last step's orders that release squares
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
+        self._controls_changed: list[tuple[str, str | None]] = []  # for the next Effects
         self.progress.requeue_on_restart()
 
     # ---- the session ----------------------------------------------------------------------
@@ -208,7 +211,7 @@ class CoordinatorCore:
                 return self._effects([self.say.error(topic, forged, None)])
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
-        elif isinstance(msg, SubmitJob | CancelJob | SetGoal):
+        elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit):
             return self._on_request(topic, msg, now)
         return self._effects([])
 
@@ -256,6 +259,11 @@ class CoordinatorCore:
             outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no, cache)
         elif isinstance(req, CancelJob):
             outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
+        elif isinstance(req, ControlUnit):
+            before = self.controls.get(req.unit)
+            outcome = requests.control(req, self.world, self.jobs, self.controls)
+            if self.controls.get(req.unit) != before:
+                self._controls_changed.append((req.unit, self.controls.get(req.unit)))
         else:
             cache = self.planner.cache
             outcome = requests.set_goal(req, self.world, self.jobs, self.goals, cache)
@@ -343,7 +351,7 @@ class CoordinatorCore:
         if not self.estop:
             self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
             self.progress.dispatch(units, active)
-        explain_waits(self.jobs, self.world.units, active, set(self.goals), self.estop)
+        explain_waits(self.jobs, self.world.units, active, self.estop, self.goals, self.controls)
         targets = {u.id: self.progress.target(u.id) for u in units}
         moves: dict[str, Cell] = {}
         if not self.estop:
@@ -351,6 +359,7 @@ class CoordinatorCore:
                 u.id
                 for u in units
                 if u.id in settled
+                and u.id not in self.controls  # paused or out of service: holds
                 and u.state is not None
                 and not u.state.estop
                 and u.state.mode == "coordinated"
@@ -386,6 +395,7 @@ class CoordinatorCore:
                 released=order.released,
                 planned=order.planned,
                 target=order.target,
+                control=self.controls.get(u.id),  # type: ignore[arg-type]
             )
         return StepResult(self.step_no, orders, routes)
 
@@ -427,9 +437,11 @@ class CoordinatorCore:
         log: tuple[tuple[int, str], ...] = (),
     ) -> Effects:
         notes, self._log = (*self._log, *log), []
+        controls, self._controls_changed = tuple(self._controls_changed), []
         return Effects(
             publish=tuple(publish),
             persist=persist,
+            controls=controls,
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,
             views_at=views_at,

@@ -14,6 +14,7 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     Connection,
+    ControlUnit,
     Factsheet,
     SetGoal,
     SubmitJob,
@@ -25,7 +26,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
-Request = SubmitJob | CancelJob | SetGoal
+Request = SubmitJob | CancelJob | SetGoal | ControlUnit
 
 
 @dataclass(frozen=True)
@@ -42,10 +43,11 @@ _FROM_UNITS: dict[str, type[Connection] | type[Factsheet] | type[UnitState]] = {
     "factsheet": Factsheet,
     "state": UnitState,
 }
-_REQUESTS: dict[str, type[SubmitJob] | type[CancelJob] | type[SetGoal]] = {
+_REQUESTS: dict[str, type[Request]] = {
     "submit_job": SubmitJob,
     "cancel_job": CancelJob,
     "set_goal": SetGoal,
+    "control_unit": ControlUnit,
 }
 
 

@@ -24,10 +24,17 @@ LOST_CARRYING_MIN_S = 10.0
 class JobProgress:
     """Moves jobs along their life cycle from what units report; gives queued jobs to units."""
 
-    def __init__(self, world: World, jobs: JobBook, goals: dict[str, Cell]) -> None:
+    def __init__(
+        self,
+        world: World,
+        jobs: JobBook,
+        goals: dict[str, Cell],
+        controls: dict[str, str] | None = None,
+    ) -> None:
         self.world = world
         self.jobs = jobs
         self.goals = goals
+        self.controls = {} if controls is None else controls  # units paused or out of service
         self.returns: dict[str, Action] = {}  # unit -> putting down an item of a job now over
 
     def requeue_on_restart(self) -> None:
@@ -141,6 +148,7 @@ class JobProgress:
                 and u.id in settled
                 and u.id not in busy
                 and u.id not in self.goals
+                and u.id not in self.controls
                 and u.factsheet is not None
                 and u.state is not None
                 and u.state.job_id is None

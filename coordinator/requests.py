@@ -14,7 +14,7 @@ from coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
-from gridfleet.protocol import CancelJob, SetGoal, SubmitJob
+from gridfleet.protocol import CancelJob, ControlUnit, SetGoal, SubmitJob
 
 
 @dataclass(frozen=True)
@@ -129,4 +129,32 @@ def set_goal(
     if job is not None and job.state not in CARRYING_STATES:
         # The goal pins the unit: its job goes back to the queue for another unit.
         jobs.set(job, "queued", unit=None, reason=f"unit {req.unit} sent to a goal")
+    return Outcome(True)
+
+
+def control(req: ControlUnit, world: World, jobs: JobBook, controls: dict[str, str]) -> Outcome:
+    """Pause or resume a unit, take it out of service or back (protocol.md §6.4)."""
+    unit = req.unit
+    if world.units.get(unit) is None:
+        return Outcome(False, f"unknown unit {unit!r}")
+    held = controls.get(unit)
+    if req.command == "pause":
+        if held == "out_of_service":
+            return Outcome(False, f"unit {unit} is out of service: put it back in service first")
+        controls[unit] = "paused"
+    elif req.command == "resume":
+        if held != "paused":
+            return Outcome(
+                False, f"unit {unit} is not paused" + (" (out of service)" if held else "")
+            )
+        del controls[unit]
+    elif req.command == "out_of_service":
+        controls[unit] = "out_of_service"
+        job = jobs.of_unit(unit)
+        if job is not None and job.state not in CARRYING_STATES:
+            jobs.set(job, "queued", unit=None, reason=f"unit {unit} out of service; re-queued")
+    else:
+        if held != "out_of_service":
+            return Outcome(False, f"unit {unit} is not out of service")
+        del controls[unit]
     return Outcome(True)

@@ -56,6 +56,7 @@ class Coordinator:
             stamp=HeaderStamper(client_id),
         )
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
+        self.core.controls.update(self.store.load_controls())
         self.world = self.core.world
         self.endpoint = Endpoint(
             broker,
@@ -136,6 +137,8 @@ class Coordinator:
     def _save(self, effects: Effects) -> None:
         if effects.persist or effects.answered:
             self.store.save(effects.persist, effects.answered)
+        if effects.controls:
+            self.store.save_controls(effects.controls)
 
     async def _views_after(self, at: float) -> None:
         await asyncio.sleep(max(0.0, at - self.clock()))  # pacing: the end of a batch period

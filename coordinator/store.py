@@ -39,7 +39,26 @@ class JobStore:
             "CREATE TABLE IF NOT EXISTS answers (sender TEXT, request_id TEXT, data TEXT NOT NULL, "
             "PRIMARY KEY (sender, request_id))"
         )
+        # An operator's hold on a unit (paused, out of service) outlives a restart too.
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS controls (unit TEXT PRIMARY KEY, state TEXT NOT NULL)"
+        )
         self._db.commit()
+
+    def load_controls(self) -> dict[str, str]:
+        """Unit -> its hold (paused, out_of_service)."""
+        return dict(self._db.execute("SELECT unit, state FROM controls").fetchall())
+
+    def save_controls(self, changes: Iterable[tuple[str, str | None]]) -> None:
+        """Set or (None) lift units' holds, in one transaction."""
+        with self._db:
+            for unit, state in changes:
+                if state is None:
+                    self._db.execute("DELETE FROM controls WHERE unit = ?", (unit,))
+                else:
+                    self._db.execute(
+                        "INSERT OR REPLACE INTO controls (unit, state) VALUES (?, ?)", (unit, state)
+                    )
 
     def load(self) -> list[Job]:
         """Every stored job, in submission order."""

@@ -1,28 +1,53 @@
 """Why each job that is not final waits (protocol.md §5.3): a code and the same in words.
 
-Pure: the job book, the unit records and whether the fleet is stopped in; one (code, words) or
-None per job out. A person looking at the queue should never have to guess.
+Pure: the job book, the unit records, the units held (at a goal, paused, out of service) and
+whether the fleet is stopped in; one (code, words) or None per job out. A person looking at the
+queue should never have to guess.
 """
 
 from __future__ import annotations
+
+from collections.abc import Collection, Mapping
 
 from coordinator.jobs import Job, JobBook
 from coordinator.world import UnitRecord
 
 Wait = tuple[str, str]  # (WaitCode, words)
+_HOLD_WORDS = {"paused": "paused", "out_of_service": "out of service"}
+
+
+def explain_waits(
+    jobs: JobBook,
+    units: Mapping[str, UnitRecord],
+    active: Collection[str],
+    stopped: bool,
+    goals: Collection[str] = (),
+    controls: Mapping[str, str] | None = None,
+) -> None:
+    """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
+    controls = controls or {}
+    for job in [*jobs.queued(), *jobs.active()]:
+        if stopped:
+            jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
+        else:
+            jobs.explain(job, why_waiting(job, jobs, units, active, goals, controls))
 
 
 def why_waiting(
     job: Job,
     jobs: JobBook,
-    units: dict[str, UnitRecord],
-    active: set[str],
-    pinned: frozenset[str] | set[str] = frozenset(),
+    units: Mapping[str, UnitRecord],
+    active: Collection[str],
+    goals: Collection[str] = (),
+    controls: Mapping[str, str] | None = None,
 ) -> Wait | None:
-    """Why `job` is not moving on now, or None when nothing holds it up (`pinned`: units held
-    at a goal, which take no jobs)."""
+    """Why `job` is not moving on now, or None when nothing holds it up."""
+    controls = controls or {}
     if job.state == "queued":
-        return _why_queued(job, jobs, units, active, pinned)
+        return _why_queued(job, jobs, units, active, goals, controls)
+    held = controls.get(job.unit or "")
+    if held is not None:
+        return (f"unit_{held}", f"its unit {job.unit} is {_HOLD_WORDS[held]}")
     rec = units.get(job.unit or "")
     if rec is None or rec.state is None:
         return None
@@ -37,9 +62,10 @@ def why_waiting(
 def _why_queued(
     job: Job,
     jobs: JobBook,
-    units: dict[str, UnitRecord],
-    active: set[str],
-    pinned: frozenset[str] | set[str],
+    units: Mapping[str, UnitRecord],
+    active: Collection[str],
+    goals: Collection[str],
+    controls: Mapping[str, str],
 ) -> Wait | None:
     capable = sorted(
         u.id
@@ -51,30 +77,24 @@ def _why_queued(
         away = ", ".join(capable) or "none known"
         return ("no_capable_unit", f"no unit that can carry {job.mass_kg} kg is online ({away})")
     busy = {j.unit for j in jobs.active()}
-    free = [u for u in online if u not in busy and u not in pinned and _takes_jobs(units[u])]
-    if free:
-        return None  # one of them gets it at the next allocation
-    return (
-        "no_unit_free",
-        f"every unit that can carry {job.mass_kg} kg is busy ({', '.join(online)})",
-    )
+    why_not = {}
+    for u in online:
+        if u in controls:
+            why_not[u] = _HOLD_WORDS[controls[u]]
+        elif u in goals:
+            why_not[u] = "sent to a goal"
+        elif u in busy or not _takes_jobs(units[u]):
+            why_not[u] = "busy"
+    if len(why_not) < len(online):
+        return None  # a free one gets it at the next allocation
+    if all(why == "busy" for why in why_not.values()):
+        words = f"every unit that can carry {job.mass_kg} kg is busy ({', '.join(online)})"
+    else:
+        each = ", ".join(f"{u} {why}" for u, why in why_not.items())
+        words = f"no unit that can carry {job.mass_kg} kg is free ({each})"
+    return ("no_unit_free", words)
 
 
 def _takes_jobs(rec: UnitRecord) -> bool:
     st = rec.state
     return st is not None and st.job_id is None and st.mode == "coordinated" and not st.estop
-
-
-def explain_waits(
-    jobs: JobBook,
-    units: dict[str, UnitRecord],
-    active: set[str],
-    pinned: set[str],
-    stopped: bool,
-) -> None:
-    """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
-    for job in [*jobs.queued(), *jobs.active()]:
-        if stopped:
-            jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
-        else:
-            jobs.explain(job, why_waiting(job, jobs, units, active, pinned))

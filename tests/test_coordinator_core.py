@@ -14,7 +14,15 @@ import pytest
 
 from coordinator.core import CoordinatorCore
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import CancelJob, Connection, Order, Reply, SetGoal, SubmitJob
+from gridfleet.protocol import (
+    CancelJob,
+    Connection,
+    ControlUnit,
+    Order,
+    Reply,
+    SetGoal,
+    SubmitJob,
+)
 from robots.unit import UnitLogic
 
 from support.coordinator_drive import (
@@ -441,3 +449,57 @@ def test_a_final_job_says_no_wait() -> None:
     job = next(iter(core.jobs.jobs.values()))
     _steps_until(core, yard, 0.0, lambda: job.state == "done")
     assert job.view().wait is None and job.view().wait_reason is None
+
+
+def _control(core: CoordinatorCore, unit: str, command: str, rid: str) -> Reply:
+    req = ControlUnit(header=header("t"), request_id=rid, reply_to="t", unit=unit, command=command)
+    return reply_in(request(core, "control_unit", req, 0.0))
+
+
+def test_a_paused_unit_holds_with_its_job_and_finishes_it_once_resumed() -> None:
+    core, yard = one_unit(10.0)
+    _submit(core, "a", Cell(9, 1), Cell(0, 0))
+    job = next(iter(core.jobs.jobs.values()))
+    now = _steps_until(core, yard, 0.0, lambda: job.state == "to_pickup")
+    assert _control(core, "u", "pause", "p1").accepted
+    unit = yard.units["u"]
+    for _ in range(2):  # what it was released before the pause, then nothing
+        now += 1.0
+        step_one(core, yard, now)
+    where = unit.position
+    for _ in range(5):
+        now += 1.0
+        step_one(core, yard, now)
+    assert unit.position == where and job.state == "to_pickup" and job.unit == "u"
+    assert _wait(job.id, core) == ("unit_paused", "its unit u is paused")
+    assert _control(core, "u", "resume", "p2").accepted
+    _steps_until(core, yard, now, lambda: job.state == "done")
+
+
+def test_a_unit_out_of_service_gives_its_job_back_and_takes_none_until_back() -> None:
+    core, yard = one_unit(10.0)
+    _submit(core, "a", Cell(9, 1), Cell(0, 0))
+    job = next(iter(core.jobs.jobs.values()))
+    now = _steps_until(core, yard, 0.0, lambda: job.state == "to_pickup")
+    assert _control(core, "u", "out_of_service", "o1").accepted
+    assert (job.state, job.unit) == ("queued", None)
+    for _ in range(5):
+        now += 1.0
+        step_one(core, yard, now)
+    assert job.state == "queued"
+    assert _wait(job.id, core) == (
+        "no_unit_free",
+        "no unit that can carry 1.0 kg is free (u out of service)",
+    )
+    assert _control(core, "u", "in_service", "o2").accepted
+    _steps_until(core, yard, now, lambda: job.state == "done")
+
+
+def test_unit_control_refusals_are_in_words() -> None:
+    core, _ = one_unit(10.0)
+    assert _control(core, "ghost", "pause", "r1").reason == "unknown unit 'ghost'"
+    assert _control(core, "u", "resume", "r2").reason == "unit u is not paused"
+    assert _control(core, "u", "out_of_service", "r3").accepted
+    refused = _control(core, "u", "pause", "r4")
+    assert refused.reason == "unit u is out of service: put it back in service first"
+    assert _control(core, "u", "resume", "r5").reason == "unit u is not paused (out of service)"

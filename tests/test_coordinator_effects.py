@@ -114,7 +114,12 @@ def hold(seq: int, update_id: int, step: int = 1) -> dict[str, Any]:
 
 def routes(seq: int, step: int, released: Any = (), planned: Any = (), target: Any = None) -> Any:
     """The routes view with unit1's route."""
-    route = {"released": list(released), "planned": list(planned), "target": target}
+    route = {
+        "released": list(released),
+        "planned": list(planned),
+        "target": target,
+        "control": None,
+    }
     return {"header": hdr(seq), "step": step, "routes": {"unit1": route}}
 
 

@@ -16,7 +16,7 @@ from coordinator.service import Coordinator
 from coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
-from gridfleet.protocol import Topics, encode
+from gridfleet.protocol import Routes, Topics, decode, encode
 from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 
@@ -365,3 +365,23 @@ async def test_a_submit_retried_after_a_restart_gets_its_first_answer_and_no_sec
         )
         assert (again[0].accepted, again[0].job_id) == (True, first.job_id)
         assert list(r.coordinator.core.jobs.jobs) == [first.job_id]
+
+
+async def test_a_unit_taken_out_of_service_stays_out_across_a_coordinator_restart(
+    broker: BrokerThread, root: str, tmp_path: Path
+) -> None:
+    async with rig(broker, root, tmp_path) as r:
+        r.probe.subscribe(r.topics.fleet("routes"), qos=0)
+        sent = r.op.send_control_unit("unit2", "out_of_service")
+        await async_wait_for(lambda: r.op.find_reply(sent.request_id) is not None, what="reply")
+        await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
+        assert r.coordinator.core.controls == {"unit2": "out_of_service"}
+
+        def shown() -> bool:
+            seen = r.probe.received(r.topics.fleet("routes"))
+            if not seen:
+                return False
+            view = decode(Routes, seen[-1].payload).routes.get("unit2")
+            return view is not None and view.control == "out_of_service"
+
+        await async_wait_for(shown, what="unit2 out of service in the routes view")

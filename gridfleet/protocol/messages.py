@@ -63,7 +63,19 @@ JobState = Literal[
 ]
 FINAL_JOB_STATES: frozenset[str] = frozenset({"done", "cancelled", "rejected", "failed"})
 # Why a job that is not final waits (protocol.md §5.3): the machine-readable half.
-WaitCode = Literal["fleet_stopped", "no_capable_unit", "no_unit_free", "unit_away", "unit_waiting"]
+WaitCode = Literal[
+    "fleet_stopped",
+    "no_capable_unit",
+    "no_unit_free",
+    "unit_away",
+    "unit_waiting",
+    "unit_paused",
+    "unit_out_of_service",
+]
+# An operator's hold on one unit (protocol.md §6.4): paused keeps its job, out of service gives
+# up a job not picked up yet and takes no new one.
+UnitControlState = Literal["paused", "out_of_service"]
+UnitCommand = Literal["pause", "resume", "out_of_service", "in_service"]
 
 
 Side = Literal["N", "E", "S", "W"]
@@ -225,6 +237,7 @@ class RouteView(Model):
     released: list[Square] = Field(default_factory=list)
     planned: list[Square] = Field(default_factory=list)
     target: Square | None = None
+    control: UnitControlState | None = None  # an operator's hold on the unit, if any
 
 
 class Routes(Message):
@@ -262,6 +275,13 @@ class SetGoal(Request):
 
     unit: Id
     target: Square | None
+
+
+class ControlUnit(Request):
+    """`requests/control_unit`: pause or resume one unit, take it out of service or back."""
+
+    unit: Id
+    command: UnitCommand
 
 
 class Reply(Message):

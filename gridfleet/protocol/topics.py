@@ -81,6 +81,15 @@ TOPICS: dict[str, TopicSpec] = {
             "cancel_job", "requests/cancel_job", 1, False, "json", "CancelJob", MAX_REQUEST_BYTES
         ),
         TopicSpec("set_goal", "requests/set_goal", 1, False, "json", "SetGoal", MAX_REQUEST_BYTES),
+        TopicSpec(
+            "control_unit",
+            "requests/control_unit",
+            1,
+            False,
+            "json",
+            "ControlUnit",
+            MAX_REQUEST_BYTES,
+        ),
         TopicSpec("reply", "replies/{client}", 1, False, "json", "Reply", MAX_REQUEST_BYTES),
         TopicSpec("errors", "errors", 1, False, "json", "ErrorReport", MAX_REQUEST_BYTES),
         TopicSpec(
@@ -145,7 +154,7 @@ class Topics:
         return f"{self.prefix}/{spec.pattern}"
 
     def request(self, kind: str) -> str:
-        """The request topic of `kind` (submit_job, cancel_job, set_goal)."""
+        """The request topic of `kind` (submit_job, cancel_job, set_goal, control_unit)."""
         spec = TOPICS.get(kind)
         if spec is None or not spec.pattern.startswith("requests/"):
             raise ProtocolError(f"{kind!r} is not a request kind")

@@ -17,6 +17,7 @@ from typing import TypedDict, Unpack
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
+    ControlUnit,
     EstopSignal,
     HeaderStamper,
     Reply,
@@ -81,6 +82,18 @@ class OperatorPeer(FleetReader):
             target=target,
         )
         self._send("set_goal", request)
+        return request
+
+    def send_control_unit(self, unit: str, command: str) -> ControlUnit:
+        """`control_unit` without waiting: the request sent (its `request_id` finds the reply)."""
+        request = ControlUnit(
+            header=self.stamp("control_unit"),
+            request_id=self._request_id(),
+            reply_to=self.name,
+            unit=unit,
+            command=command,  # type: ignore[arg-type]
+        )
+        self._send("control_unit", request)
         return request
 
     def submit_job(

@@ -175,6 +175,16 @@ export const TOPICS = freeze({
     "schema": "schemas/SetGoal.json",
     "max_bytes": 16384
   },
+  "control_unit": {
+    "pattern": "requests/control_unit",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "ControlUnit",
+    "schema": "schemas/ControlUnit.json",
+    "max_bytes": 16384
+  },
   "reply": {
     "pattern": "replies/{client}",
     "placeholder": "client",
