@@ -47,6 +47,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=2000,
         help="give up after this many coordinator steps (default 2000)",
     )
+    parser.add_argument(
+        "--seed", type=int, default=0, help="the coordinator's tie-breaking seed (default 0)"
+    )
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="the coordinator's and units' cores in lockstep, without a broker: the same run "
+        "every time (steps, every job's done step), for comparing scenarios or planners",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object as the result")
     add_common(parser, own_broker="an embedded broker on a free port")
 
@@ -115,6 +124,7 @@ async def simulate(
     broker_url: str | None = None,
     record: bool = False,
     sensors_see_units: bool = True,
+    seed: int = 0,
 ) -> SimulationResult:
     """Run coordinator and units in this process (an own broker in a child) until done."""
     started = time.monotonic()
@@ -129,6 +139,7 @@ async def simulate(
         step_s=step,
         ws_port=None,
         sensors_see_units=sensors_see_units,
+        seed=seed,
         # Its own process: in this one, amqtt shares the interpreter with the coordinator and
         # every unit, and at short steps its queue grew without bound (bench/README.md).
         own_broker="processes",
@@ -267,7 +278,18 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         # Keep stdout for the one JSON object.
         logging.getLogger().setLevel(logging.WARNING)
-    outcome = asyncio.run(simulate(scenario, args.step, args.max_steps, args.root, args.broker))
+    if args.deterministic:
+        if args.broker is not None:
+            raise ConfigError("--deterministic runs without a broker: leave --broker out")
+        from system.lockstep import run_lockstep  # it imports this module's SimulationResult
+
+        started = time.monotonic()
+        outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed)
+        outcome.wall_time_s = round(time.monotonic() - started, 3)
+    else:
+        outcome = asyncio.run(
+            simulate(scenario, args.step, args.max_steps, args.root, args.broker, seed=args.seed)
+        )
     if args.json:
         json.dump(outcome.as_json(), sys.stdout)
         sys.stdout.write("\n")

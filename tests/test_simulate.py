@@ -147,3 +147,26 @@ def test_a_busy_fleet_at_a_5_ms_step_finishes_every_job(tmp_path: Path) -> None:
     result: dict[str, Any] = json.loads(out.stdout)
     assert result["collisions"] == 0
     assert [j["state"] for j in result["jobs"]] == ["done"] * 40
+
+
+def _without_wall_time(out: subprocess.CompletedProcess[str]) -> dict[str, Any]:
+    assert out.returncode == 0, failure_report(out)
+    result: dict[str, Any] = json.loads(out.stdout)
+    del result["wall_time_s"]  # the one figure that is the machine's, not the run's
+    return result
+
+
+def test_a_deterministic_run_is_the_same_every_time() -> None:
+    # Issue 14: warehouse took 184-417 steps over repeated runs; nobody could compare two
+    # scenarios or two planner versions with it.
+    args = (str(MAPS / "warehouse.toml"), "--deterministic", "--json")
+    first, second = (_without_wall_time(simulate(*args, timeout=120)) for _ in range(2))
+    assert first == second
+    assert first["finished"] and first["collisions"] == 0
+    assert all(isinstance(j["done_step"], int) for j in first["jobs"])
+
+
+def test_a_deterministic_run_takes_no_broker() -> None:
+    out = simulate(str(MAPS / "maze.toml"), "--deterministic", "--broker", "mqtt://127.0.0.1:1")
+    assert out.returncode == 2
+    assert "--deterministic runs without a broker" in out.stderr and "Traceback" not in out.stderr
