@@ -26,7 +26,7 @@ from robots.core import UnitCore
 from robots.unit import UnitLogic
 from robots.world import WorldSim
 from system.feed import scenario_job_id
-from system.simulate import SimulationResult
+from system.simulate import SimulationResult, job_json, units_json
 
 Handler = Callable[[str, bytes], list[Outbound]]
 OPERATOR = "lockstep"
@@ -184,28 +184,8 @@ def run_lockstep(scenario: Scenario, step_s: float, max_steps: int, seed: int) -
         prevented=sim.world.prevented,
         messages=sim.bus.messages,
     )
-    outcome.units = [
-        {
-            "id": u.id,
-            "capacity": u.capacity,
-            "position": list(sim.world.position(u.id)),
-            "moves": sim.world.moves[u.id],
-        }
-        for u in scenario.units
-    ]
-    outcome.jobs = [
-        {
-            "id": j.id,
-            "pickup": list(j.pickup),
-            "dropoff": list(j.dropoff),
-            "mass": j.mass_kg,
-            "state": j.state,
-            "unit": j.unit,
-            "done_step": j.done_step,
-            "reason": j.reason,
-        }
-        for j in sim.core.jobs.jobs.values()
-    ]
+    outcome.units = units_json(scenario, sim.world)
+    outcome.jobs = [job_json(j.view()) for j in sim.core.jobs.jobs.values()]
     outcome.goals = [
         {
             "unit": goal.unit,

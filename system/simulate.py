@@ -12,7 +12,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
@@ -27,6 +27,9 @@ from system.feed import scenario_job_id, submit_scenario
 from system.monitor import FleetMonitor
 from system.operator import Operator
 from system.threads import world_of
+
+if TYPE_CHECKING:
+    from robots.world import WorldSim
 
 log = logging.getLogger("gridfleet.simulate")
 STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
@@ -205,33 +208,13 @@ async def simulate(
     outcome.collisions = world.collisions
     outcome.prevented = world.prevented
     outcome.messages = monitor.messages
-    outcome.units = [
-        {
-            "id": u.id,
-            "capacity": u.capacity,
-            "position": list(world.position(u.id)),
-            "moves": world.moves[u.id],
-        }
-        for u in scenario.units
-    ]
+    outcome.units = units_json(scenario, world)
     # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
     # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
     jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
     in_view = {j.id for j in jobs if j.state == "rejected"}
     jobs += [j for j in refused_jobs if j.id not in in_view]
-    outcome.jobs = [
-        {
-            "id": j.id,
-            "pickup": list(j.pickup),
-            "dropoff": list(j.dropoff),
-            "mass": j.mass_kg,
-            "state": j.state,
-            "unit": j.unit,
-            "done_step": j.done_step,
-            "reason": j.reason,
-        }
-        for j in jobs
-    ]
+    outcome.jobs = [job_json(j) for j in jobs]
     outcome.goals = [
         {
             "unit": g.unit,
@@ -244,6 +227,33 @@ async def simulate(
     ]
     outcome.wall_time_s = round(time.monotonic() - started, 3)
     return outcome
+
+
+def job_json(j: JobView) -> dict[str, Any]:
+    """One job as the result lists it."""
+    return {
+        "id": j.id,
+        "pickup": list(j.pickup),
+        "dropoff": list(j.dropoff),
+        "mass": j.mass_kg,
+        "state": j.state,
+        "unit": j.unit,
+        "done_step": j.done_step,
+        "reason": j.reason,
+    }
+
+
+def units_json(scenario: Scenario, world: WorldSim) -> list[dict[str, Any]]:
+    """Every unit of the scenario as the result lists it: where it ended, how far it went."""
+    return [
+        {
+            "id": u.id,
+            "capacity": u.capacity,
+            "position": list(world.position(u.id)),
+            "moves": world.moves[u.id],
+        }
+        for u in scenario.units
+    ]
 
 
 def summary(outcome: SimulationResult, scenario: Scenario) -> str:

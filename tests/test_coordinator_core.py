@@ -186,15 +186,7 @@ def test_goal_pins_a_unit_until_reached() -> None:
 def _carrying_unit() -> tuple[CoordinatorCore, Yard, float]:
     """One unit under way to the dropoff with a job's item on board."""
     core, yard = one_unit(10.0)
-    req = SubmitJob(
-        header=header("t"),
-        request_id="r",
-        reply_to="t",
-        pickup=Cell(0, 1),
-        dropoff=Cell(9, 9),
-        mass_kg=1.0,
-    )
-    assert reply_in(request(core, "submit_job", req, 0.0)).accepted
+    _submit(core, "r", Cell(0, 1), Cell(9, 9))
     now = 0.0
     while core.jobs.jobs[next(iter(core.jobs.jobs))].state != "to_dropoff":
         now += 1.0
@@ -258,6 +250,12 @@ def test_a_carrying_unit_offline_for_good_fails_its_job() -> None:
 def _submit(
     core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell, mass_kg: float = 1.0
 ) -> None:
+    assert _ask_submit(core, rid, pickup, dropoff, mass_kg).accepted
+
+
+def _ask_submit(
+    core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell, mass_kg: float = 1.0
+) -> Reply:
     req = SubmitJob(
         header=header("t"),
         request_id=rid,
@@ -266,7 +264,7 @@ def _submit(
         dropoff=dropoff,
         mass_kg=mass_kg,
     )
-    assert reply_in(request(core, "submit_job", req, 0.0)).accepted
+    return reply_in(request(core, "submit_job", req, 0.0))
 
 
 def _steps_until(core: CoordinatorCore, yard: Yard, now: float, done: Callable[[], bool]) -> float:
@@ -372,15 +370,7 @@ def _obstacle_found(core: CoordinatorCore, yard: Yard, square: Cell, now: float)
 def test_a_job_no_unit_could_ever_finish_is_refused_at_submission_with_the_reason() -> None:
     core, yard = _pocket_unit()
     _obstacle_found(core, yard, Cell(9, 8), 0.0)  # the pocket's only way in is blocked
-    req = SubmitJob(
-        header=header("t"),
-        request_id="r",
-        reply_to="t",
-        pickup=Cell(5, 9),
-        dropoff=Cell(9, 9),
-        mass_kg=1.0,
-    )
-    reply = reply_in(request(core, "submit_job", req, 0.0))
+    reply = _ask_submit(core, "r", Cell(5, 9), Cell(9, 9))
     assert not reply.accepted
     assert reply.reason == "dropoff [9, 9] cannot be reached from pickup [5, 9]"
     job = next(iter(core.jobs.jobs.values()))
