@@ -83,6 +83,7 @@ def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
     conf = (out / "mosquitto.conf").read_text()
     assert f"password_file {out.resolve() / 'passwd'}" in conf and "listener 1883 127.0.0.1" in conf
     assert f"persistence_location {out.resolve() / 'data'}/" in conf  # the latched stop survives
+    assert "set_tcp_nodelay true" in conf  # small packets at once (docs/brokers.md)
     for name in ("passwd", "acl"):
         assert stat.S_IMODE((out / name).stat().st_mode) == 0o600
     acl = (out / "acl").read_text()
