@@ -328,7 +328,8 @@ class Soak:
         while listener.stopped:
             if time.monotonic() > deadline:
                 self.unrecovered.append(
-                    f"stop not released {RECOVERY_WAIT_S:.0f} s after the operator's release"
+                    f"stop not released {RECOVERY_WAIT_S:.0f} s after the operator's release "
+                    f"at {time.time() - RECOVERY_WAIT_S:.2f}"
                 )
                 return
             if time.monotonic() > again:

@@ -16,6 +16,8 @@ from gridfleet.errors import ProtocolError
 from gridfleet.protocol import TOPICS, JobsView, Topics, UnitState, decode
 from gridfleet.protocol.device import decode_estop, decode_press
 
+RETAINED_S = 0.5  # after (re)subscribing: the retained stop messages have arrived by then
+
 
 class SoakListener:
     """Records what the fleet says, as `Event`s in `events`, for the whole run."""
@@ -33,6 +35,8 @@ class SoakListener:
         self.last_routes = 0.0  # wall time of the coordinator's latest routes view here
         self.estop_shown: dict[str, bool] = {}  # unit -> whether its latest state shows the stop
         self.errors: list[tuple[float, str]] = []  # what was reported on `errors`, for the log
+        self.reported_stopped = False  # the stop as the last Stop event gave it
+        self.settling = False  # just (re)connected: the retained stop is still arriving
 
     @property
     def stopped(self) -> bool:
@@ -44,20 +48,41 @@ class SoakListener:
         while True:
             try:
                 async with make_client(self.url, self.client_id, keepalive=2) as client:
+                    self.reconnected()
                     await client.subscribe(f"{self.topics.prefix}/#", qos=1)
                     self.connected.set()
-                    async for message in client.messages:
-                        self.take(str(message.topic), payload_of(message), time.time())
+                    settle = asyncio.create_task(self._settle())
+                    try:
+                        async for message in client.messages:
+                            self.take(str(message.topic), payload_of(message), time.time())
+                    finally:
+                        settle.cancel()
             except aiomqtt.MqttError:
                 pass  # the broker restarts: try again shortly
             self.connected.clear()
             await asyncio.sleep(0.1)  # pacing of reconnection attempts
 
+    def reconnected(self) -> None:
+        """Read the stop afresh, as the units do: a broker restarted without persistence has no
+        press left to replay, and holding on to one seen before would see the fleet stopped for
+        ever. What the replay leaves is recorded once it settled."""
+        self.latch, self.presses, self.settling = False, set(), True
+
+    async def _settle(self) -> None:
+        """Once the retained messages had time to arrive: record the stop as it now stands."""
+        await asyncio.sleep(RETAINED_S)  # the replay comes right after subscribing
+        self.settling = False
+        self._note_stop(time.time())
+
+    def _note_stop(self, now: float) -> None:
+        if not self.settling and self.stopped != self.reported_stopped:
+            self.reported_stopped = self.stopped
+            self.events.append(Stop(now, self.stopped))
+
     def take(self, topic: str, payload: bytes, now: float) -> None:
         """One message; what does not parse is not ours to judge here."""
         try:
             kind, who = self.topics.parse(topic)
-            was = self.stopped
             if kind == "state" and who is not None:
                 state = decode(UnitState, payload)
                 self.last_state[who] = now
@@ -85,7 +110,6 @@ class SoakListener:
                     self.presses.discard(topic)
                 else:
                     self.presses.add(topic)
-            if self.stopped != was:
-                self.events.append(Stop(now, self.stopped))
+            self._note_stop(now)
         except ProtocolError:
             pass

@@ -14,9 +14,12 @@ from typing import Any
 
 import pytest
 
+from bench import soak_listen
 from bench.soak import Soak, SoakConfig
+from bench.soak_check import Stop
 from bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
 from bench.soak_proxy import FaultyProxy
+from gridfleet.protocol import Topics
 from gridfleet.scenario import load_scenario
 from robots.truth import write_truth
 from robots.world import WorldSim
@@ -169,3 +172,34 @@ def test_a_stalled_soak_is_ended_by_its_watchdog_not_left_hanging(tmp_path: Path
 
     assert asyncio.run(asyncio.wait_for(stalled_run(), 10))
     assert soak.stalled
+
+
+def test_the_listener_reads_the_stop_afresh_after_a_broker_restart(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The 30-minute soak reported "stop not released" 5 times: a broker restarted without
+    # persistence had lost a device's press, and the listener held on to it for ever.
+    monkeypatch.setattr(soak_listen, "RETAINED_S", 0.01)
+    topics = Topics("soak")
+    listener = soak_listen.SoakListener("mqtt://127.0.0.1:1", topics, "listener")
+    press = topics.device("device_stop", "dev")
+    listener.take(press, b"engaged|dev|button", 1.0)
+    assert listener.stopped
+    listener.reconnected()
+    listener.take(topics.fleet("estop"), b"released|operator|soak", 2.0)  # the replay
+    assert [e for e in listener.events if isinstance(e, Stop)] == [Stop(1.0, True)]
+    asyncio.run(listener._settle())  # nothing replayed the press: it is gone
+    assert not listener.stopped
+    stops = [e for e in listener.events if isinstance(e, Stop)]
+    assert stops[:1] == [Stop(1.0, True)] and len(stops) == 2 and stops[1].engaged is False
+
+
+def test_the_listener_keeps_a_stop_the_replay_confirms() -> None:
+    topics = Topics("soak")
+    listener = soak_listen.SoakListener("mqtt://127.0.0.1:1", topics, "listener")
+    listener.take(topics.fleet("estop"), b"engaged|operator|soak", 1.0)
+    listener.reconnected()
+    listener.take(topics.fleet("estop"), b"engaged|operator|soak", 2.0)  # the replay
+    listener.settling = False
+    listener._note_stop(2.5)
+    assert [e for e in listener.events if isinstance(e, Stop)] == [Stop(1.0, True)]
