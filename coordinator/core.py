@@ -104,6 +104,9 @@ class CoordinatorCore:
         # After a (re)connect: when the retained latch can have arrived; None once it did, or
         # once we re-asserted it (a restarted broker without persistence lost it).
         self._latch_due: float | None = None
+        # Likewise for the presses we hold: those the broker did not replay by then it lost.
+        self._presses_due: float | None = None
+        self._replayed: set[str] = set()  # press topics replayed since the last (re)connect
         self.goals: dict[str, Cell] = {}
         self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
         self.orders = Orders(nonce)
@@ -136,6 +139,8 @@ class CoordinatorCore:
     def on_connect(self, now: float = 0.0) -> Effects:
         """Connected (and `online` said): every view goes out again."""
         self._latch_due = now + LATCH_WAIT_S
+        self._presses_due = now + LATCH_WAIT_S
+        self._replayed = set()
         self.views.reconnected()
         persist = self._persist()
         return self._effects(self._views(), persist)
@@ -219,6 +224,8 @@ class CoordinatorCore:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
         was_latched = self.stop.latch_engaged
         signal = self.stop.apply(kind, source, topic, payload)
+        if kind != LATCH:
+            self._replayed.add(topic)
         if kind == LATCH:
             self._latch_due = None  # the broker still has the latch: nothing to re-assert
         publish: list[Outbound] = []
@@ -326,6 +333,14 @@ class CoordinatorCore:
         them: a unit connecting now would find no stop (protocol.md §5.1). A latch an operator
         released while we were away does arrive, and is then not overridden.
         """
+        if self._presses_due is not None and now >= self._presses_due:
+            self._presses_due = None
+            lost = [topic for topic in self.stop.presses if topic not in self._replayed]
+            if lost and not self.stop.latch_engaged:
+                # A press we hold the broker no longer has (and the latch does not say engaged):
+                # latched below, since only latched can an operator release it (a release is
+                # the latch going from engaged to released).
+                self._latch_due = now
         if self._latch_due is None or now < self._latch_due:
             return []
         self._latch_due = None

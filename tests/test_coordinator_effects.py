@@ -892,3 +892,32 @@ def test_a_press_cleared_while_its_latch_copy_is_on_its_way_releases_without_fai
     effects = core.on_message(press, b"", 1.6)
     assert effects.log == ((logging.WARNING, "emergency stop released: dev1's press was cleared"),)
     assert published(effects)[-1] == (STATUS, status(1, "online", step=0, estop=False), 1, True)
+
+
+def test_a_press_the_broker_lost_while_the_latch_says_released_is_latched_after_reconnecting(
+    core: CoordinatorCore,
+) -> None:
+    # Found by the 30-minute soak: the coordinator kept a press the restarted broker no longer
+    # had, under a retained `released` latch. It held the fleet, and no release could clear it
+    # (a release is only a latch going from engaged to released). Latched, it can be released.
+    estop(core, b"released|operator|earlier")
+    press(core, b"engaged|dev1|button")  # mirrored into the latch ...
+    core.on_connect(10.0)  # ... but the broker restarted before that came back
+    estop(core, b"released|operator|earlier", 10.1)  # the replay: the latch, no press
+    assert core.estop
+    effects = core.step(11.0)
+    assert published(effects)[0] == (ESTOP, "engaged|dev1|button", 1, True)
+    assert (logging.WARNING, "emergency stop re-asserted on the broker (dev1)") in effects.log
+    estop(core, b"engaged|dev1|button", 11.1)  # it comes back
+    released = estop(core, b"released|operator|checked", 12.0)
+    assert (PRESS, "", 1, True) in published(released)  # the press is cleared with it
+    assert not core.estop
+
+
+def test_a_press_the_broker_replays_is_not_latched_again(core: CoordinatorCore) -> None:
+    estop(core, b"engaged|dev1|button")
+    press(core, b"engaged|dev1|button")
+    core.on_connect(10.0)
+    estop(core, b"engaged|dev1|button", 10.1)
+    press(core, b"engaged|dev1|button")
+    assert ESTOP not in [o.topic for o in core.step(12.0).publish]
