@@ -201,6 +201,12 @@ class CoordinatorCore:
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
         unit = arrival.unit
+        if isinstance(msg, Factsheet) and unit is not None and self.world.on_foreign(unit, msg):
+            # Left on the broker by a run on another map (same root): not part of this fleet.
+            line = f"unit {unit} drives on another map ({msg.map_id}, ours {self.world.map_id}): ignored"
+            return self._effects([], log=((logging.WARNING, line),))
+        if unit is not None and unit in self.world.foreign:
+            return self._effects([])
         if isinstance(msg, Connection) and unit is not None:
             self.world.on_connection(unit, msg)
         elif isinstance(msg, Factsheet) and unit is not None:

@@ -48,6 +48,19 @@ class World:
 
     def __post_init__(self) -> None:
         self._grid = self.base.with_blocked(self.obstacles)
+        self.map_id = self.base.map_id()
+        self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
+
+    def on_foreign(self, unit_id: str, msg: Factsheet) -> bool:
+        """Whether `msg` shows a unit of another map (it is then forgotten, and ignored until a
+        factsheet of this map comes); True only the first time, to say so once."""
+        if msg.map_id is None or msg.map_id == self.map_id:
+            self.foreign.discard(unit_id)
+            return False
+        self.units.pop(unit_id, None)
+        first = unit_id not in self.foreign
+        self.foreign.add(unit_id)
+        return first
 
     @property
     def grid(self) -> GridMap:

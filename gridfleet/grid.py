@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Iterable, Iterator
 from enum import Enum
 from typing import NamedTuple
@@ -116,6 +117,12 @@ class GridMap:
     def rows(self) -> list[str]:
         """Text rows: '.' free, '@' blocked."""
         return ["".join("@" if b else "." for b in row) for row in self.blocked]
+
+    def map_id(self) -> str:
+        """A short fingerprint of the walls (not the name): units and coordinator on one map
+        share it (protocol.md §4.2)."""
+        text = "\n".join(self.rows()).encode()
+        return hashlib.sha256(text).hexdigest()[:12]
 
     def free_cells(self) -> list[Cell]:
         """Every free square, row by row."""

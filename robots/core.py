@@ -51,6 +51,7 @@ class UnitCore:
         self.stamp = stamp or HeaderStamper(self.id)
         self._sent_direction: bytes | None = None  # what `direction` says on this connection
         self.stop = StopView()  # the latch and the held presses, as this unit read them
+        self.map_id = logic.grid.map_id()  # the static map, before any obstacle is found
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
         """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
@@ -89,6 +90,7 @@ class UnitCore:
             capacity_kg=self.logic.capacity_kg,
             step_period_s=self.logic.step_s,
             color=self.color,
+            map_id=self.map_id,
         )
         return [
             self._connection("online"),

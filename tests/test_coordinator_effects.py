@@ -921,3 +921,27 @@ def test_a_press_the_broker_replays_is_not_latched_again(core: CoordinatorCore) 
     estop(core, b"engaged|dev1|button", 10.1)
     press(core, b"engaged|dev1|button")
     assert ESTOP not in [o.topic for o in core.step(12.0).publish]
+
+
+def test_a_unit_of_another_map_left_on_the_broker_is_ignored_and_said_once(
+    core: CoordinatorCore,
+) -> None:
+    # Issue 18: a playfield run's retained unit3 and unit4 (state, offline connection) were taken
+    # into the warehouse run's world on the same root; its routes held, 2.8 steps/s.
+    other = Factsheet(
+        header=header("unit9"), capacity_kg=5.0, step_period_s=1.0, map_id="0123456789ab"
+    )
+    first = from_unit(core, "factsheet", "unit9", other, 1.0)
+    assert first.log == (
+        (
+            logging.WARNING,
+            f"unit unit9 drives on another map (0123456789ab, ours {core.world.map_id}): ignored",
+        ),
+    )
+    assert from_unit(core, "factsheet", "unit9", other, 1.1).log == ()  # said once
+    offline = Connection(header=header("unit9"), state="offline")
+    assert published(from_unit(core, "connection", "unit9", offline, 1.2)) == []
+    assert "unit9" not in core.world.units
+    ours = other.model_copy(update={"map_id": core.world.map_id})
+    from_unit(core, "factsheet", "unit9", ours, 2.0)  # a unit of this map under that id
+    assert "unit9" in core.world.units

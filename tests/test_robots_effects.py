@@ -126,6 +126,7 @@ def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_sto
         "sensors": ["N", "E", "S", "W"],
         "color": "#d32f2f",
         "model": "gridfleet-sim",
+        "map_id": core.logic.grid.map_id(),  # the coordinator ignores units of another map
     }
     assert published(core.on_connect(0.0), ROOT) == [
         ("units/u1/connection", {"header": header_json("u1", 1), "state": "online"}, 1, True),

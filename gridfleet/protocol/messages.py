@@ -120,6 +120,8 @@ class Factsheet(Message):
     sensors: list[Side] = Field(default_factory=_all_sides)
     color: Annotated[str, StringConstraints(pattern=r"^#[0-9a-fA-F]{6}$")] = "#607d8b"
     model: Annotated[str, StringConstraints(max_length=64)] = "gridfleet-sim"
+    # The map the unit drives on (GridMap.map_id); a coordinator on another map ignores the unit.
+    map_id: Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{12}$")] | None = None
 
 
 class Leds(Model):
