@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "feed": ("system.feed", "submit a scenario's jobs and goals; --demo keeps jobs coming"),
     "simulate": ("system.simulate", "run a scenario to the end in accelerated time"),
     "accounts": ("system.accounts_cli", "make the broker accounts file; add accounts to it"),
+    "clean": ("system.clean", "clear a topic root's retained messages on a broker"),
     "bench": ("bench.cli", "benchmark the planner and the whole system"),
 }
 

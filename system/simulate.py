@@ -14,15 +14,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import aiomqtt
+
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.options import add_common
 from gridfleet.protocol import JobView, Topics
+from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario, with_units
 from system.assembly import Assembly, SystemSpec
+from system.clean import clean_root
 from system.feed import scenario_job_id, submit_scenario
 from system.monitor import FleetMonitor
 from system.operator import Operator
@@ -297,9 +301,21 @@ def run(args: argparse.Namespace) -> int:
         outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed)
         outcome.wall_time_s = round(time.monotonic() - started, 3)
     else:
-        outcome = asyncio.run(
-            simulate(scenario, args.step, args.max_steps, args.root, args.broker, seed=args.seed)
-        )
+        root = args.root
+        own_root = args.broker is not None and root == DEFAULT_ROOT
+        if own_root:
+            # A shared broker keeps what earlier runs retained under a root (units of another
+            # map, their `offline`): a root of this run's own, cleared when it is over.
+            root = f"gridfleet-sim-{uuid.uuid4().hex[:8]}"
+        try:
+            outcome = asyncio.run(
+                simulate(scenario, args.step, args.max_steps, root, args.broker, seed=args.seed)
+            )
+        finally:
+            if own_root:
+                # Best effort: a broker that failed the run may fail this too (said above).
+                with contextlib.suppress(aiomqtt.MqttError, OSError):
+                    asyncio.run(clean_root(args.broker, root))
     if args.json:
         json.dump(outcome.as_json(), sys.stdout)
         sys.stdout.write("\n")
