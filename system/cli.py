@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("system.simulate", "run a scenario to the end in accelerated time"),
     "accounts": ("system.accounts_cli", "make the broker accounts file; add accounts to it"),
     "clean": ("system.clean", "clear a topic root's retained messages on a broker"),
+    "status": ("system.status", "the fleet at a glance: the stop, the coordinator, units, jobs"),
     "bench": ("bench.cli", "benchmark the planner and the whole system"),
 }
 
