@@ -4,15 +4,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import math
 import sys
 import uuid
+from collections.abc import Callable
 from typing import TextIO
 
 from gridfleet.config import redacted
-from gridfleet.errors import ConfigError, GridfleetError
+from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.grid import Cell
-from gridfleet.options import add_common, broker_url
-from gridfleet.protocol import JobsView, Reply
+from gridfleet.options import add_actions, add_common, broker_url
+from gridfleet.protocol import JobsView, Reply, validate_id
+from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
 from gridfleet.protocol.topics import Topics
 from system.operator import operator_session
 
@@ -27,6 +30,8 @@ def square(text: str) -> Cell:
         raise argparse.ArgumentTypeError(f"{text!r} is not a square 'x,y'") from None
     if x < 0 or y < 0:
         raise argparse.ArgumentTypeError(f"{text!r}: squares start at 0,0 (top left)")
+    if x > MAX_COORD or y > MAX_COORD:
+        raise argparse.ArgumentTypeError(f"{text!r} is off every map: x and y go up to {MAX_COORD}")
     return Cell(x, y)
 
 
@@ -36,18 +41,67 @@ def kilograms(text: str) -> float:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of kg") from None
-    if not value > 0 or value == float("inf"):
+    if value == math.inf:
+        raise argparse.ArgumentTypeError(f"{text!r} is too large a number of kg")
+    if not value > 0:
         raise argparse.ArgumentTypeError(f"{text!r}: a mass must be more than 0 kg")
     return value
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Subcommands of `gridfleet job`."""
-    add_common(parser)
+def priority(text: str) -> int:
+    """A job's priority: a whole number from 0 to 100."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 100:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: a priority is a whole number from 0 to 100 (higher goes first)"
+        )
+    return value
+
+
+def identifier(what: str) -> Callable[[str], str]:
+    """An argparse type for an id (a job's, a unit's): the protocol's rule, in words."""
+
+    def check(text: str) -> str:
+        try:
+            return validate_id(text, what)
+        except ProtocolError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    check.__name__ = what  # argparse names the type in some messages
+    return check
+
+
+def reason(text: str) -> str:
+    """An emergency stop's reason: one line of at most MAX_ESTOP_REASON characters."""
+    if any(c in text for c in "\r\n\x00"):
+        raise argparse.ArgumentTypeError(f"{text[:40]!r}: a reason is one line")
+    if len(text) > MAX_ESTOP_REASON:
+        raise argparse.ArgumentTypeError(
+            f"{text[:20]!r}... has {len(text)} characters: a reason is one line of at most "
+            f"{MAX_ESTOP_REASON}"
+        )
+    return text
+
+
+def _add_flags(parser: argparse.ArgumentParser, *, everywhere: bool = False) -> None:
+    """The flags every action takes, before the action or after it."""
+    add_common(parser, everywhere=everywhere)
     parser.add_argument(
-        "--timeout", type=float, default=WAIT_S, help="seconds to wait for the coordinator"
+        "--timeout",
+        type=float,
+        default=argparse.SUPPRESS if everywhere else WAIT_S,
+        metavar="S",
+        help=f"seconds to wait for the coordinator (default {WAIT_S:g})",
     )
-    sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Subcommands of `gridfleet job`; the common flags go before the action or after it."""
+    _add_flags(parser)
+    sub = add_actions(parser, dest="action", required=True, metavar="ACTION")
     submit = sub.add_parser("submit", help="queue a pick-and-deliver job")
     submit.add_argument(
         "--pickup", type=square, required=True, metavar="X,Y", help="square to fetch from"
@@ -58,20 +112,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     submit.add_argument(
         "--mass", type=kilograms, required=True, metavar="KG", help="the item's mass in kg"
     )
-    submit.add_argument("--priority", type=int, default=0, help="0-100, higher goes first")
-    submit.add_argument("--id", dest="job_id", help="job id (default: the coordinator picks one)")
+    submit.add_argument(
+        "--priority", type=priority, default=0, metavar="0-100", help="higher goes first"
+    )
+    submit.add_argument(
+        "--id",
+        dest="job_id",
+        type=identifier("job id"),
+        help="job id (default: the coordinator picks one)",
+    )
     cancel = sub.add_parser("cancel", help="delete a queued job or abort an active one")
-    cancel.add_argument("job_id")
+    cancel.add_argument("job_id", type=identifier("job id"))
     goal = sub.add_parser("goal", help="send one unit to a square (or --clear its goal)")
-    goal.add_argument("unit")
-    where = goal.add_mutually_exclusive_group(required=True)
+    goal.add_argument("unit", type=identifier("unit id"))
+    where = goal.add_mutually_exclusive_group()  # neither: a worded refusal in `run`
     where.add_argument("target", nargs="?", type=square, metavar="X,Y")
     where.add_argument("--clear", action="store_true", help="clear the unit's goal")
     sub.add_parser("list", help="print the job queue")
     stop = sub.add_parser("stop", help="engage the fleet-wide emergency stop (latched)")
-    stop.add_argument("--reason", default="operator", help="one line, shown to everybody")
+    stop.add_argument("--reason", type=reason, default="operator", help="one line, for everybody")
     release = sub.add_parser("release", help="release the emergency stop")
-    release.add_argument("--reason", default="operator", help="one line, shown to everybody")
+    release.add_argument(
+        "--reason", type=reason, default="operator", help="one line, for everybody"
+    )
+    for action in sub.choices.values():
+        _add_flags(action, everywhere=True)
 
 
 def print_jobs(view: JobsView, out: TextIO) -> None:
@@ -129,6 +194,10 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet job`."""
-    if args.timeout <= 0:
-        raise ConfigError(f"--timeout {args.timeout}: give a positive number of seconds")
+    if not 0 < args.timeout < math.inf:
+        raise ConfigError(f"--timeout {args.timeout:g}: give a positive number of seconds")
+    if args.action == "goal" and args.target is None and not args.clear:
+        raise ConfigError(
+            f"goal {args.unit}: give the square to send it to, X,Y, or --clear to clear its goal"
+        )
     return asyncio.run(act(args, sys.stdout))

@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from gridfleet.config import parse_broker_url
+from gridfleet.config import DEFAULT_MQTT_URL, parse_broker_url, with_ca_file
 from gridfleet.errors import ConfigError
-from system.cli import COMMANDS, main
+from gridfleet.protocol.constants import DEFAULT_ROOT
+from system.cli import COMMANDS, build_parser, main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -79,3 +82,77 @@ def test_broker_urls_parse(url: str, expected: tuple[str, str, int, str]) -> Non
 def test_bad_broker_urls_are_refused(url: str) -> None:
     with pytest.raises(ConfigError, match="broker URL"):
         parse_broker_url(url)
+
+
+URL = "mqtt://10.0.0.7:1884"
+PICKUP = ["--pickup", "1,1", "--dropoff", "2,2", "--mass", "1"]
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["job", "list", "--broker", URL, "--root", "R", "--timeout", "5"],
+        ["job", "--broker", URL, "list", "--root", "R", "--timeout", "5"],
+        ["job", "--broker", URL, "--root", "R", "--timeout", "5", "list"],
+        ["job", "--timeout", "5", "--root", "R", "list", "--broker", URL],
+        ["job", "submit", *PICKUP, "--broker", URL, "--timeout", "5", "--root", "R"],
+        ["job", "--root", "R", "submit", "--broker", URL, *PICKUP, "--timeout", "5"],
+        [
+            "job",
+            "--root",
+            "X",
+            "--timeout",
+            "9",
+            "cancel",
+            "j1",
+            "--root",
+            "R",
+            "--timeout",
+            "5",
+            "--broker",
+            URL,
+        ],
+    ],
+)
+def test_job_takes_its_flags_before_or_after_the_action(argv: list[str]) -> None:
+    args = build_parser(only="job").parse_args(argv)
+    assert (args.broker, args.root, args.timeout) == (URL, "R", 5.0)
+
+
+def test_job_flags_left_out_after_the_action_keep_their_defaults() -> None:
+    args = build_parser(only="job").parse_args(["job", "list"])
+    assert (args.broker, args.root, args.timeout) == (DEFAULT_MQTT_URL, DEFAULT_ROOT, 10.0)
+    assert (args.ca_file, args.accounts, args.account) == (None, None, None)
+    args = build_parser(only="job").parse_args(
+        ["job", "--accounts", "f.toml", "stop", "--account", "ann"]
+    )
+    assert (args.accounts, args.account) == ("f.toml", "ann")
+
+
+@pytest.mark.parametrize(
+    ("before", "after"),
+    [
+        (["--ca-file", "ca.pem", "--broker", URL], []),
+        ([], ["--broker", URL, "--ca-file", "ca.pem"]),
+        ([], ["--ca-file", "ca.pem", "--broker", URL]),
+        (["--ca-file", "ca.pem"], ["--broker", URL]),
+        (["--broker", URL], ["--ca-file", "ca.pem"]),
+    ],
+)
+def test_the_ca_file_reaches_the_broker_url_wherever_the_two_flags_are(
+    before: list[str], after: list[str]
+) -> None:
+    args = build_parser(only="job").parse_args(["job", *before, "list", *after])
+    assert args.broker == with_ca_file(URL, "ca.pem")
+
+
+def test_negative_squares_reach_the_square_type() -> None:
+    """`-1,3` is a value (refused in words), not an unknown flag: argparse never sees it as one."""
+    parser = build_parser(only="job")
+    for argv in (
+        ["job", "submit", "--pickup", "-1,3", "--dropoff", "2,2", "--mass", "1"],
+        ["job", "goal", "u1", "-1,2"],
+    ):
+        with pytest.raises(SystemExit), contextlib.redirect_stderr(io.StringIO()) as err:
+            parser.parse_args(argv)
+        assert "squares start at 0,0" in err.getvalue().splitlines()[-1]

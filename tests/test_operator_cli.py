@@ -18,41 +18,55 @@ from support.probe import MqttProbe
 from support.wait import wait_for
 
 
+def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
+    """Run `gridfleet ARGS` in a process of its own."""
+    return subprocess.run(
+        [sys.executable, "-m", "system", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
 @pytest.fixture
 def job(broker: BrokerThread, root: str) -> Callable[..., subprocess.CompletedProcess[str]]:
-    """Run `gridfleet job ARGS` against the session broker under this test's root."""
+    """Run `gridfleet job ARGS --broker URL --root R` (the session broker, this test's root).
+
+    The common flags come after the action, where a new user puts them; `job_before` puts them
+    before it.
+    """
 
     def run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "system",
-                "job",
-                "--broker",
-                broker.url,
-                "--root",
-                root,
-                *list(args),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-            check=False,
-        )
+        return gridfleet("job", *args, "--broker", broker.url, "--root", root)
+
+    return run
+
+
+@pytest.fixture
+def job_before(broker: BrokerThread, root: str) -> Callable[..., subprocess.CompletedProcess[str]]:
+    """Run `gridfleet job --broker URL --root R ARGS`."""
+
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return gridfleet("job", "--broker", broker.url, "--root", root, *args)
 
     return run
 
 
 def test_submit_list_cancel_goal_and_refusal(
     job: Callable[..., subprocess.CompletedProcess[str]],
+    job_before: Callable[..., subprocess.CompletedProcess[str]],
     run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
     playfield: Path,
 ) -> None:
     _, fleet = run_system(playfield)
     world = world_of(fleet)
-    out = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "1.5", "--id", "crate")
+    out = job(
+        "submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "1.5", "--id", "crate",
+        "--timeout", "5",
+    )  # fmt: skip
     assert (out.returncode, out.stdout.strip()) == (0, "accepted: job crate"), out.stderr
+    assert "crate" in job_before("list").stdout  # the flags before the action work as well
     heavy = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "500")
     assert heavy.returncode == 1
     assert heavy.stdout.startswith("refused: ") and "capacity" in heavy.stdout
@@ -69,6 +83,8 @@ def test_submit_list_cancel_goal_and_refusal(
     assert cancel.returncode == 1 and "nonexistent" in cancel.stdout
     wall = job("goal", "unit1", "99,99")
     assert wall.returncode == 1 and wall.stdout.startswith("refused: ")
+    nobody = job("goal", "nobody", "1,1")
+    assert (nobody.returncode, nobody.stdout.strip()) == (1, "refused: unknown unit 'nobody'")
 
 
 def test_stop_and_release_are_latched_on_the_fleet_topic(
@@ -92,12 +108,39 @@ def test_stop_and_release_are_latched_on_the_fleet_topic(
     [
         (["submit", "--pickup", "1;1", "--dropoff", "2,2", "--mass", "1"], "not a square"),
         (["submit", "--pickup=-1,3", "--dropoff", "2,2", "--mass", "1"], "squares start at 0,0"),
+        (["submit", "--pickup", "-1,3", "--dropoff", "2,2", "--mass", "1"], "squares start at 0,0"),
+        (
+            ["submit", "--pickup", "1,1", "--dropoff", "-2,-2", "--mass", "1"],
+            "squares start at 0,0",
+        ),
+        (["goal", "unit1", "-1,2"], "'-1,2': squares start at 0,0"),
+        (["submit", "--pickup", "4096,1", "--dropoff", "2,2", "--mass", "1"], "up to 4095"),
         (["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "nan"], "more than 0 kg"),
-        (["goal", "unit1"], "one of the arguments"),
+        (["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "1e400"], "too large"),
+        (
+            ["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "1", "--priority", "500"],
+            "'500': a priority is a whole number from 0 to 100",
+        ),
+        (
+            ["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "1", "--priority", "-3"],
+            "'-3': a priority is a whole number from 0 to 100",
+        ),
+        (
+            ["submit", "--pickup", "1,1", "--dropoff", "2,2", "--mass", "1", "--id", "crate 7"],
+            "job id 'crate 7' is not a valid id: 1-64 characters of letters, digits",
+        ),
+        (["cancel", "a/b"], "job id 'a/b' is not a valid id: 1-64 characters"),
+        (["cancel", "x" * 65], "is not a valid id: 1-64 characters"),
+        (["goal", "unit 1", "1,1"], "unit id 'unit 1' is not a valid id"),
+        (["goal", "unit1"], "goal unit1: give the square to send it to, X,Y, or --clear"),
+        (
+            ["stop", "--reason", "x" * 201],
+            "has 201 characters: a reason is one line of at most 200",
+        ),
         (["--timeout", "1", "list"], "is the coordinator running?"),
         (["--timeout", "1", "cancel", "j1"], "the coordinator is not online"),
         (["stop", "--reason", "two\nlines"], "one line"),
-        (["--timeout", "0", "list"], "--timeout 0.0: give a positive number of seconds"),
+        (["--timeout", "0", "list"], "--timeout 0: give a positive number of seconds"),
     ],
 )
 def test_mistakes_are_one_line(
@@ -106,6 +149,18 @@ def test_mistakes_are_one_line(
     out = job(*args)
     assert out.returncode == 2
     assert "Traceback" not in out.stderr and message in out.stderr.strip().splitlines()[-1]
+    for leak in ("Input should", "String should", "pattern", "^[", "expected one argument"):
+        assert leak not in out.stderr
+
+
+def test_flags_after_the_action_are_used(broker: BrokerThread, root: str) -> None:
+    """`job list --broker URL --root R --timeout 1`: the refusal names what it was given."""
+    out = gridfleet("job", "list", "--broker", broker.url, "--root", root, "--timeout", "1")
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [
+        f"gridfleet job: error: no job queue on {broker.url} under root {root!r} within 1 s: "
+        "is the coordinator running?"
+    ]
 
 
 def test_unreachable_broker_is_one_line() -> None:
