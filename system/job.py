@@ -14,10 +14,10 @@ from gridfleet.config import redacted
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.options import add_actions, add_common, broker_url
-from gridfleet.protocol import JobsView, Reply, validate_id
+from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
 from gridfleet.protocol.topics import Topics
-from system.operator import operator_session
+from system.operator import Operator, operator_session
 
 WAIT_S = 10.0
 
@@ -148,15 +148,110 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
         print(line + (f"  ({job.reason})" if job.reason else ""), file=out)
 
 
+def _who(signal: EstopSignal) -> str:
+    return f"{signal.by}" + (f": {signal.reason}" if signal.reason else "")
+
+
+def _presses(operator: Operator) -> str:
+    """The held presses in words: "the press of unit2 (bumper hit)"."""
+    held = sorted(operator.stop.presses.values(), key=lambda p: p.by)
+    words = [f"{p.by}" + (f" ({p.reason})" if p.reason else "") for p in held]
+    return f"the press{'es' if len(words) > 1 else ''} of {', '.join(words)}"
+
+
+def _holds(presses: dict[str, EstopSignal]) -> str:
+    return "hold" if len(presses) > 1 else "holds"
+
+
+def _them(presses: dict[str, EstopSignal]) -> str:
+    return "them" if len(presses) > 1 else "it"
+
+
+async def engage(operator: Operator, why: str, out: TextIO) -> int:
+    """`job stop`: latch the stop, unless the latch already holds it (its cause stays)."""
+    view = await operator.stop_as_kept()
+    if view.latch is not None and view.latch.engaged:
+        print(
+            f"the emergency stop was already engaged (latched by {_who(view.latch)}); "
+            "left as it was",
+            file=out,
+        )
+        return 0
+    await operator.set_estop(True, why)
+    if view.presses:
+        print(
+            f"emergency stop ENGAGED: it was already engaged by {_presses(operator)}; "
+            "now it is latched too",
+            file=out,
+        )
+    else:
+        print("emergency stop ENGAGED", file=out)
+    return 0
+
+
+async def release(operator: Operator, why: str, timeout: float, out: TextIO) -> int:
+    """`job release`: release the latch when something holds the fleet; 1 if it stays stopped.
+
+    A press is cleared by the coordinator when the latch goes from engaged to released, so a
+    press the latch does not hold yet is waited for (the coordinator latches it at once).
+    """
+    view = await operator.stop_as_kept()
+    if not view.engaged and not operator.coordinator_stopped:
+        print("nothing to release: the emergency stop was not engaged", file=out)
+        return 0
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while view.presses and not view.latch_engaged and operator.coordinator_online.is_set():
+        operator.stop_changed.clear()
+        try:
+            await asyncio.wait_for(operator.stop_changed.wait(), deadline - loop.time())
+        except TimeoutError:
+            break
+    if view.presses and not view.latch_engaged:
+        held = f"not released: {_presses(operator)} {_holds(view.presses)} the fleet"
+        them = _them(view.presses)
+        if operator.coordinator_online.is_set():
+            print(
+                f"{held}, and the coordinator has not latched {them} within {timeout:g} s (only "
+                "a latched stop is released; the coordinator then clears the presses)",
+                file=out,
+            )
+        else:
+            print(
+                f"{held}, and no coordinator is online to clear {them} (it clears the presses "
+                "when an operator releases the latch): release once one runs",
+                file=out,
+            )
+        return 1
+    cause = view.cause
+    await operator.set_estop(False, why)
+    print(
+        "emergency stop released" + (f" (it was engaged by {_who(cause)})" if cause else ""),
+        file=out,
+    )
+    if not view.presses:
+        return 0
+    them = _them(view.presses)
+    if operator.coordinator_online.is_set():
+        print(f"{_presses(operator)} held it too: releasing the latch clears {them}", file=out)
+        return 0
+    print(
+        f"{_presses(operator)} still {_holds(view.presses)} the fleet: no coordinator is online "
+        f"to clear {them}, and once one runs it latches {them} again: release then",
+        file=out,
+    )
+    return 1
+
+
 async def act(args: argparse.Namespace, out: TextIO) -> int:
     """Do what the action says and print the outcome; 1 when the coordinator refused it."""
     client_id = f"cli-{uuid.uuid4().hex[:6]}"
     url = broker_url(args, "operator")
     async with operator_session(url, Topics(args.root), client_id) as operator:
-        if args.action in ("stop", "release"):
-            signal = await operator.set_estop(args.action == "stop", args.reason)
-            print(f"emergency stop {'ENGAGED' if signal.engaged else 'released'}", file=out)
-            return 0
+        if args.action == "stop":
+            return await engage(operator, args.reason, out)
+        if args.action == "release":
+            return await release(operator, args.reason, args.timeout, out)
         if args.action == "list":
             try:
                 await asyncio.wait_for(operator.jobs_changed.wait(), args.timeout)

@@ -1,7 +1,9 @@
 """The operator client: sends requests to the coordinator, awaits replies, follows the queue view.
 
 A request is re-sent, the same (same id), until its reply arrives: a loaded broker drops
-messages, and the coordinator answers a retry with its first answer (protocol.md §6).
+messages, and the coordinator answers a retry with its first answer (protocol.md §6). It also
+follows the emergency stop (the latch and every press) and the coordinator's status, so that
+`gridfleet job stop` and `release` know what they change before they change it.
 """
 
 from __future__ import annotations
@@ -36,12 +38,15 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
+from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.operator")
 WAIT_S = 60.0  # how long a request waits for its reply in all, re-sent meanwhile
 RETRY_S = 2.0  # the first wait before a request is sent again; it doubles up to RETRY_MOST_S
 RETRY_MOST_S = 10.0
+# How long to wait for the stop's retained messages when no coordinator status marks their end.
+STOP_SETTLE_S = 1.0
 
 
 class Operator:
@@ -57,6 +62,10 @@ class Operator:
         self.jobs: JobsView | None = None
         self.jobs_changed = asyncio.Event()
         self.coordinator_online = asyncio.Event()
+        self.coordinator: CoordinatorStatus | None = None  # its latest status, retained
+        self.coordinator_heard = asyncio.Event()
+        self.stop = StopView()  # the latch and the held presses, as the broker keeps them
+        self.stop_changed = asyncio.Event()
         self.planned_units: set[str] = set()  # units in the coordinator's latest routes view
         self.routes_changed = asyncio.Event()
         self.retry_s = retry_s
@@ -68,13 +77,19 @@ class Operator:
         self._session = secrets.token_hex(3)
 
     async def start(self) -> None:
-        """Subscribe to replies and the queue view."""
+        """Subscribe to the stop, replies, the queue view and, last, the coordinator's status.
+
+        A broker sends a subscription's retained messages before it handles the next one (amqtt
+        and Mosquitto alike), so the coordinator's retained status marks the end of the rest.
+        """
         t = self.topics
+        for topic, qos in stop_filters(t):
+            await self.client.subscribe(topic, qos=qos)
         for kind, topic in (
             ("reply", t.reply(self.client_id)),
             ("jobs", t.fleet("jobs")),
-            ("coordinator", t.fleet("coordinator")),
             ("routes", t.fleet("routes")),
+            ("coordinator", t.fleet("coordinator")),
         ):
             await self.client.subscribe(topic, qos=TOPICS[kind].qos)
 
@@ -83,8 +98,11 @@ class Operator:
         async for message in self.client.messages:
             payload = payload_of(message)
             try:
-                kind, _ = self.topics.parse(str(message.topic))
-                if kind == "reply":
+                kind, source = self.topics.parse(str(message.topic))
+                if kind in STOP_KINDS:
+                    self.stop.apply(kind, source, str(message.topic), payload)
+                    self.stop_changed.set()
+                elif kind == "reply":
                     reply = decode(Reply, payload)
                     future = self._pending.pop(reply.request_id, None)
                     if future is not None and not future.done():
@@ -98,6 +116,8 @@ class Operator:
                     self.routes_changed.set()
                 elif kind == "coordinator":
                     status = decode(CoordinatorStatus, payload)
+                    self.coordinator = status
+                    self.coordinator_heard.set()
                     if status.state == "online":
                         self.coordinator_online.set()
                     else:
@@ -191,6 +211,22 @@ class Operator:
             self.client, Outbound.of("estop", self.topics.fleet("estop"), encode_estop(signal))
         )
         return signal
+
+    async def stop_as_kept(self, wait_s: float = STOP_SETTLE_S) -> StopView:
+        """The stop as the broker keeps it (its retained latch and presses), to read before acting.
+
+        They have all arrived once the coordinator's retained status has (subscribed to last);
+        with no coordinator status on the broker, after `wait_s`.
+        """
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self.coordinator_heard.wait(), wait_s)
+        return self.stop
+
+    @property
+    def coordinator_stopped(self) -> bool:
+        """Whether a coordinator that is online says the fleet is stopped (its own view)."""
+        status = self.coordinator
+        return status is not None and status.state == "online" and status.estop
 
     async def wait_for_units(self, units: Sequence[str], timeout: float = 30.0) -> None:
         """Wait until the coordinator plans for every unit in `units` (it knows their state)."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -92,15 +93,108 @@ def test_stop_and_release_are_latched_on_the_fleet_topic(
     probe_factory: Callable[..., MqttProbe],
     topics: Topics,
 ) -> None:
-    assert job("stop", "--reason", "spill in aisle 3").returncode == 0
+    out = job("stop", "--reason", "spill in aisle 3")
+    assert (out.returncode, out.stdout) == (0, "emergency stop ENGAGED\n"), out.stderr
     late = probe_factory()  # retained: a client that connects later sees it
     late.subscribe(topics.fleet("estop"))
     signal = decode_estop(late.wait(topics.fleet("estop"), lambda m: m.retain).payload)
     assert signal.engaged and signal.reason == "spill in aisle 3"
-    assert job("release").returncode == 0
+    again = job("stop", "--reason", "second thoughts")
+    assert again.returncode == 0
+    assert again.stdout == (
+        f"the emergency stop was already engaged (latched by {signal.by}: spill in aisle 3); "
+        "left as it was\n"
+    )
+    out = job("release")
+    assert out.returncode == 0
+    assert (
+        out.stdout == f"emergency stop released (it was engaged by {signal.by}: spill in aisle 3)\n"
+    )
     later = probe_factory()
     later.subscribe(topics.fleet("estop"))
     assert not decode_estop(later.wait(topics.fleet("estop")).payload).engaged
+    assert [m.payload for m in late.received(topics.fleet("estop"))] == [
+        f"engaged|{signal.by}|spill in aisle 3".encode(),  # the second stop left it as it was
+        later.received(topics.fleet("estop"))[0].payload,
+    ]
+
+
+def test_release_when_nothing_was_engaged_says_so_and_changes_nothing(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+) -> None:
+    watcher = probe_factory()
+    watcher.subscribe(topics.fleet("estop"))
+    out = job("release")
+    assert (out.returncode, out.stdout, out.stderr) == (
+        0,
+        "nothing to release: the emergency stop was not engaged\n",
+        "",
+    )
+    assert job("stop").returncode == 0 and job("release").returncode == 0
+    again = job("release")  # released is not engaged either
+    assert again.stdout == "nothing to release: the emergency stop was not engaged\n"
+    time.sleep(0.3)
+    assert [decode_estop(m.payload).engaged for m in watcher.received(topics.fleet("estop"))] == [
+        True,
+        False,
+    ]
+
+
+def test_a_held_press_without_a_coordinator_is_named_and_not_released(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+) -> None:
+    unit = probe_factory()
+    unit.publish(topics.unit("stop", "unit2"), "engaged|unit2|bumper hit", retain=True)
+    out = job("release")
+    assert out.returncode == 1
+    assert out.stdout == (
+        "not released: the press of unit2 (bumper hit) holds the fleet, and no coordinator is "
+        "online to clear it (it clears the presses when an operator releases the latch): release "
+        "once one runs\n"
+    )
+    stop = job("stop")
+    assert stop.returncode == 0
+    assert stop.stdout == (
+        "emergency stop ENGAGED: it was already engaged by the press of unit2 (bumper hit); now it "
+        "is latched too\n"
+    )
+    released = job("release")
+    assert released.returncode == 1  # the press still holds the fleet
+    assert "the press of unit2 (bumper hit) still holds the fleet" in released.stdout
+    unit.publish(topics.unit("stop", "unit2"), b"", retain=True)
+    unit.publish(topics.fleet("estop"), b"", retain=True)
+
+
+def test_release_names_the_press_that_held_the_fleet_and_the_coordinator_clears_it(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+    playfield: Path,
+) -> None:
+    run_system(playfield)
+    bumper = probe_factory()
+    bumper.subscribe(topics.fleet("estop"))
+    bumper.publish(topics.unit("stop", "unit2"), "engaged|unit2|bumper hit", retain=True)
+    bumper.wait(topics.fleet("estop"), lambda m: m.payload == b"engaged|unit2|bumper hit")
+    stop = job("stop")
+    assert stop.stdout == (
+        "the emergency stop was already engaged (latched by unit2: bumper hit); left as it was\n"
+    )
+    out = job("release")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert out.stdout == (
+        "emergency stop released (it was engaged by unit2: bumper hit)\n"
+        "the press of unit2 (bumper hit) held it too: releasing the latch clears it\n"
+    )
+    presses = probe_factory()
+    presses.subscribe(topics.all_units("stop"))
+    time.sleep(0.5)
+    assert all(not m.payload for m in presses.received(topics.unit("stop", "unit2")))
 
 
 @pytest.mark.parametrize(
