@@ -1,0 +1,265 @@
+"""`gridfleet status`: the fleet at a glance, drawn from the retained topics."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gridfleet.grid import Cell
+from gridfleet.protocol import (
+    Connection,
+    CoordinatorStatus,
+    JobsView,
+    JobView,
+    Leds,
+    Routes,
+    RouteView,
+    Sensors,
+    Topics,
+    UnitState,
+    encode,
+)
+from gridfleet.protocol.messages import JobState, Message
+from system.broker_thread import BrokerThread
+from system.status import CLEAR, FleetStatus, render
+from system.threads import ServiceThread
+
+from support.effects import header
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+T = Topics("fleet")
+FREE = Sensors(N="free", E="free", S="free", W="free")
+
+
+def state(unit: str, x: int, y: int, **fields: Any) -> UnitState:
+    values: dict[str, Any] = {"status": "idle", "direction": "-", "leds": Leds(), **fields}
+    return UnitState(header=header(unit), step=7, position=Cell(x, y), sensors=FREE, **values)
+
+
+def job(job_id: str, state: JobState, unit: str | None = None, **fields: Any) -> JobView:
+    return JobView(
+        id=job_id, pickup=Cell(1, 1), dropoff=Cell(8, 8), mass_kg=1.5, state=state, unit=unit,
+        **fields,
+    )  # fmt: skip
+
+
+def fed(*messages: tuple[str, Message | bytes | str]) -> FleetStatus:
+    """A FleetStatus that read `messages` (topic, message or raw payload), as from the broker."""
+    fleet = FleetStatus()
+    for topic, message in messages:
+        payload = (
+            message.encode() if isinstance(message, str)
+            else message if isinstance(message, bytes)
+            else encode(message)
+        )  # fmt: skip
+        kind, source = T.parse(topic)
+        fleet.apply(kind, source, topic, payload)
+    return fleet
+
+
+def online(step: int = 1234, **fields: Any) -> tuple[str, CoordinatorStatus]:
+    status = CoordinatorStatus(
+        header=header("coordinator"), state="online", step=step, step_period_s=0.2, **fields
+    )
+    return T.fleet("coordinator"), status
+
+
+def test_a_running_fleet_in_lines() -> None:
+    fleet = fed(
+        online(achieved_step_s=0.213),
+        (T.unit("connection", "unit1"), Connection(header=header("unit1"), state="online")),
+        (T.unit("connection", "unit2"), Connection(header=header("unit2"), state="broken")),
+        (T.unit("state", "unit1"), state("unit1", 3, 1, status="moving", job_id="crate",
+                                         load_kg=1.5)),
+        (T.unit("state", "unit2"), state("unit2", 10, 5, status="waiting",
+                                         wait_reason="released square [5, 1] is blocked")),
+        (T.fleet("routes"), Routes(header=header("coordinator"), step=3, routes={
+            "unit1": RouteView(), "unit2": RouteView(control="out_of_service")})),
+        (T.fleet("jobs"), JobsView(header=header("coordinator"), jobs=[
+            job("crate", "to_dropoff", "unit1"),
+            job("old", "done", "unit1"),
+            job("big", "rejected", reason="too heavy"),
+            job("next", "queued", wait="no_unit_free",
+                wait_reason="every unit that can carry 1.5 kg is busy (unit1)"),
+        ])),
+    )  # fmt: skip
+    assert render(fleet) == [
+        "stop: clear",
+        "coordinator: online, step 1234, a step every 0.2 s, achieved 0.21 s",
+        "",
+        "units: 2, 1 online",
+        "  unit   connection  square  status                   job    load kg  waiting for",
+        "  unit1  online      3,1     moving                   crate  1.5",
+        "  unit2  broken      10,5    waiting, out of service  -      0        released square "
+        "[5, 1] is blocked",
+        "",
+        "jobs: 1 queued, 1 to_dropoff, 1 done, 1 rejected",
+        "  job    state       unit   waiting for",
+        "  crate  to_dropoff  unit1",
+        "  next   queued      -      every unit that can carry 1.5 kg is busy (unit1)",
+    ]
+
+
+def test_the_stop_says_who_holds_the_fleet() -> None:
+    latch = T.fleet("estop")
+    press = T.unit("stop", "unit2")
+    button = T.device("device_stop", "device-unit1")
+    assert render(fed((latch, "released|dashboard|checked")))[0] == "stop: clear"
+    assert render(fed((latch, "engaged|dashboard|operator pressed STOP")))[0] == (
+        "stop: ENGAGED, latched by dashboard (operator pressed STOP)"
+    )
+    pressed = fed(
+        (latch, "released|dashboard|"),
+        (press, "engaged|unit2|bumper hit"),
+        (button, "engaged|device-unit1|button"),
+    )
+    assert render(pressed)[0] == (
+        "stop: ENGAGED, pressed by device-unit1 (button), unit2 (bumper hit)"
+    )
+    both = fed((latch, "engaged|unit2|bumper hit"), (press, "engaged|unit2|bumper hit"))
+    assert render(both)[0] == (
+        "stop: ENGAGED, latched by unit2 (bumper hit); pressed by unit2 (bumper hit)"
+    )
+    cleared = fed((latch, "engaged|ann|"), (press, "engaged|unit2|x"), (latch, ""), (press, ""))
+    assert render(cleared)[0] == "stop: clear"  # `gridfleet clean` empties them
+    said = fed(online(estop=True))
+    assert render(said)[0] == (
+        "stop: ENGAGED (so says the coordinator; its latch is not on the broker yet)"
+    )
+
+
+def test_a_coordinator_that_is_not_running_and_an_empty_root() -> None:
+    offline = CoordinatorStatus(header=header("coordinator"), state="offline", step=88)
+    broken = CoordinatorStatus(header=header("coordinator"), state="broken")
+    assert render(fed((T.fleet("coordinator"), offline)))[1] == (
+        "coordinator: offline (stopped at step 88)"
+    )
+    assert render(fed((T.fleet("coordinator"), broken)))[1] == (
+        "coordinator: broken (gone without saying goodbye)"
+    )
+    assert render(FleetStatus()) == [
+        "stop: clear",
+        "coordinator: no status on the broker (has one ever run under this root?)",
+        "",
+        "units: none on the broker",
+        "",
+        "jobs: no job queue on the broker",
+    ]
+    empty = fed((T.fleet("jobs"), JobsView(header=header("coordinator"), jobs=[])))
+    assert render(empty)[-1] == "jobs: none"
+
+
+def test_a_unit_known_only_by_its_connection_and_a_long_queue() -> None:
+    jobs = [job(f"j{n:02}", "queued") for n in range(25)]
+    fleet = fed(
+        (T.unit("connection", "u9"), Connection(header=header("u9"), state="offline")),
+        (T.fleet("jobs"), JobsView(header=header("coordinator"), jobs=jobs)),
+    )
+    lines = render(fleet, most_jobs=3)
+    assert lines[3:6] == [
+        "units: 1, 0 online",
+        "  unit  connection  square  status  job  load kg  waiting for",
+        "  u9    offline     -       -       -    -",
+    ]
+    assert lines[7:] == [
+        "jobs: 25 queued",
+        "  job  state   unit  waiting for",
+        "  j00  queued  -",
+        "  j01  queued  -",
+        "  j02  queued  -",
+        "  ... and 22 more not final",
+    ]
+
+
+def status(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "system", "status", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_status_once_on_the_real_system(
+    broker: BrokerThread,
+    root: str,
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    probe_factory: Callable[..., MqttProbe],
+    playfield: Path,
+) -> None:
+    run_system(playfield)
+    topics = Topics(root)
+    probe = probe_factory()
+    probe.subscribe(topics.all_units("state"), qos=0)
+    units = ("unit1", "unit2", "unit3", "unit4")
+    wait_for(
+        lambda: all(probe.received(topics.unit("state", u)) for u in units), what="every state"
+    )
+    probe.publish(topics.fleet("estop"), "engaged|ann|spill in aisle 3", retain=True)
+    wait_for(
+        lambda: "latched by ann" in status("--once", "--broker", broker.url, "--root", root).stdout,
+        timeout=10,
+        interval=0.2,
+        what="the stop in the status",
+    )
+    out = status("--once", "--broker", broker.url, "--root", root)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert lines[0] == "stop: ENGAGED, latched by ann (spill in aisle 3)"
+    assert lines[1].startswith("coordinator: online, step ")
+    assert lines[3] == "units: 4, 4 online"
+    for unit in units:
+        assert any(line.split()[:2] == [unit, "online"] for line in lines), out.stdout
+    assert lines[-1] == "jobs: none"
+    probe.publish(topics.fleet("estop"), "released|ann|", retain=True)
+
+
+def test_status_once_without_a_coordinator_is_one_line(broker: BrokerThread, root: str) -> None:
+    out = status("--once", "--broker", broker.url, "--root", root, "--timeout", "1")
+    assert (out.returncode, out.stdout) == (2, "")
+    assert out.stderr.splitlines() == [
+        f"gridfleet status: error: nothing from the coordinator on {broker.url} under root "
+        f"{root!r} within 1 s: is it running?"
+    ]
+
+
+def test_status_redraws_until_ctrl_c(broker: BrokerThread, root: str) -> None:
+    watching = subprocess.Popen(
+        [sys.executable, "-m", "system", "status", "--broker", broker.url, "--root", root],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        time.sleep(3.5)  # starting up, then a drawing a second
+    finally:
+        os.kill(watching.pid, signal.SIGINT)
+        out, err = watching.communicate(timeout=20)
+    assert watching.returncode == 0, err
+    drawings = out.split(CLEAR)[1:]
+    assert len(drawings) >= 2, out
+    assert drawings[-1].splitlines()[1:4] == [
+        "(Ctrl-C to quit)",
+        "",
+        "stop: clear",
+    ]
+    assert drawings[-1].startswith(f"gridfleet status: {broker.url}, root {root!r}, ")
+
+
+@pytest.mark.parametrize("timeout", ["0", "-1", "nan"])
+def test_a_bad_timeout_is_one_line(timeout: str) -> None:
+    out = status("--once", "--timeout", timeout)
+    assert out.returncode == 2
+    assert out.stderr.splitlines() == [
+        f"gridfleet status: error: --timeout {float(timeout):g}: give a positive number of seconds"
+    ]
