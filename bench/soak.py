@@ -28,7 +28,17 @@ from typing import Any, TextIO
 
 import aiomqtt
 
-from bench.soak_check import FINAL, Disturbed, Event, Limits, Stop, Truth, Verdict, check
+from bench.soak_check import (
+    FINAL,
+    Disturbed,
+    Event,
+    Limits,
+    Released,
+    Stop,
+    Truth,
+    Verdict,
+    check,
+)
 from bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
 from bench.soak_listen import SoakListener
 from bench.soak_proxy import FaultyProxy
@@ -310,8 +320,8 @@ class Soak:
     async def release(self) -> None:
         """An operator's release on the latch; the coordinator clears the device's press."""
         await self.publish(self.topics.fleet("estop"), "released|operator|soak")
-        # The stop window ends when the operator releases: moves from then on are allowed.
-        self.recorded.append(Stop(time.time(), False))
+        # Moves are allowed from a release the listener then sees take (soak_check).
+        self.recorded.append(Released(time.time()))
         await self._wait_released()
 
     async def _wait_released(self) -> None:
@@ -335,6 +345,7 @@ class Soak:
             if time.monotonic() > again:
                 self.release_repeats += 1
                 await self.publish(self.topics.fleet("estop"), "released|operator|soak")
+                self.recorded.append(Released(time.time()))
                 again = time.monotonic() + RELEASE_AGAIN_S
             await asyncio.sleep(0.05)  # polling the listener, with a deadline
 
@@ -431,6 +442,21 @@ class Soak:
         assert self.listener is not None
         for at, report in self.listener.errors:
             print(f"[errors     ] {at:.2f} {report}", file=self.log)
+        # The stop as the listener saw it and the releases given, to read a verdict against.
+        stops = [
+            e for e in (*self.listener.events, *self.recorded) if isinstance(e, Stop | Released)
+        ]
+        for event in sorted(stops, key=lambda e: e.t):
+            if isinstance(event, Released):
+                said = "released by the soak's operator"
+            else:
+                said = f"seen {'engaged' if event.engaged else 'released'} by the listener"
+            print(f"[stop       ] {event.t:.2f} {said}", file=self.log)
+        lag, when = self.listener.worst_lag
+        print(
+            f"[listener   ] a unit's state reached it {lag:.2f} s late at worst, at {when:.2f}",
+            file=self.log,
+        )
         events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
         limits = Limits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)

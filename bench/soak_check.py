@@ -28,10 +28,17 @@ class Truth:
 
 @dataclass(frozen=True)
 class Stop:
-    """The stop seen engaged (latch or press) by the listener, or released by the soak's operator."""
+    """The stop as the listener saw it change: engaged (latch or press) or released."""
 
     t: float
     engaged: bool
+
+
+@dataclass(frozen=True)
+class Released:
+    """The soak's operator published a release (the first, or one given again)."""
+
+    t: float
 
 
 @dataclass(frozen=True)
@@ -61,7 +68,7 @@ class Disturbed:
     end: float
 
 
-Event = Truth | Stop | JobSeen | StateSeen | Disturbed
+Event = Truth | Stop | Released | JobSeen | StateSeen | Disturbed
 
 
 @dataclass(frozen=True)
@@ -104,7 +111,8 @@ def check(events: Iterable[Event], limits: Limits) -> Verdict:
     verdict = Verdict()
     truths = [e for e in ordered if isinstance(e, Truth)]
     verdict.collisions = _collisions(truths, verdict.details)
-    stops = _stop_windows([e for e in ordered if isinstance(e, Stop)])
+    releases = [e.t for e in ordered if isinstance(e, Released)]
+    stops = _stop_windows([e for e in ordered if isinstance(e, Stop)], releases)
     verdict.moved_while_stopped = _moved_while_stopped(truths, stops, limits, verdict.details)
     _jobs([e for e in ordered if isinstance(e, JobSeen)], verdict)
     quiet = [(d.start, d.end) for d in ordered if isinstance(d, Disturbed)] + stops
@@ -128,15 +136,21 @@ def _collisions(truths: Sequence[Truth], details: list[str]) -> int:
     return total
 
 
-def _stop_windows(stops: Sequence[Stop]) -> list[tuple[float, float]]:
-    """[engaged, released) windows; one still engaged at the end lasts for ever."""
+def _stop_windows(stops: Sequence[Stop], releases: Sequence[float]) -> list[tuple[float, float]]:
+    """[engaged, released) windows; one still engaged at the end lasts for ever.
+
+    The listener hears the release after the units may have: it shares one broker queue with
+    all the fleet's traffic (`#`), and under load lags by seconds. A window therefore ends at
+    the operator's latest release before the listener saw the fleet released, when there is one.
+    """
     windows: list[tuple[float, float]] = []
     since: float | None = None
     for stop in stops:
         if stop.engaged and since is None:
             since = stop.t
         elif not stop.engaged and since is not None:
-            windows.append((since, stop.t))
+            given = [r for r in releases if since <= r <= stop.t]
+            windows.append((since, max(given, default=stop.t)))
             since = None
     if since is not None:
         windows.append((since, float("inf")))

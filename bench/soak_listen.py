@@ -37,6 +37,7 @@ class SoakListener:
         self.errors: list[tuple[float, str]] = []  # what was reported on `errors`, for the log
         self.reported_stopped = False  # the stop as the last Stop event gave it
         self.settling = False  # just (re)connected: the retained stop is still arriving
+        self.worst_lag = (0.0, 0.0)  # (seconds a unit's live state took to reach us, when)
 
     @property
     def stopped(self) -> bool:
@@ -85,6 +86,9 @@ class SoakListener:
             kind, who = self.topics.parse(topic)
             if kind == "state" and who is not None:
                 state = decode(UnitState, payload)
+                if not self.settling:  # a retained state replayed is old, not late
+                    lag = now - state.header.timestamp.timestamp()
+                    self.worst_lag = max(self.worst_lag, (lag, now))
                 self.last_state[who] = now
                 self.estop_shown[who] = state.estop
                 # A unit that shows `stopped` is held by a stop: blocked, not stranded.

@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
-from bench.soak_check import Disturbed, Event, JobSeen, Limits, StateSeen, Stop, Truth, check
+from bench.soak_check import (
+    Disturbed,
+    Event,
+    JobSeen,
+    Limits,
+    Released,
+    StateSeen,
+    Stop,
+    Truth,
+    check,
+)
 
 LIMITS = Limits(step_s=0.1, stranded_s=5.0)
 HOME = {"u1": (0, 0), "u2": (5, 5)}
@@ -61,6 +71,38 @@ def test_a_teleport_by_a_restarted_units_process_while_stopped_fails() -> None:
 def test_a_stop_still_engaged_at_the_end_lasts() -> None:
     events: list[Event] = [truth(0.0), Stop(1.0, True), truth(1.5), truth(9.0, u1=(0, 1))]
     assert check(events, LIMITS).moved_while_stopped == 1
+
+
+def test_a_move_after_the_release_the_listener_heard_late_passes() -> None:
+    # The 30-minute soak: the listener, behind the whole fleet's traffic, saw the release 1.7 s
+    # after the operator gave it; the units moved on it at once.
+    events: list[Event] = [
+        truth(0.0),
+        Stop(1.0, True),
+        truth(1.5),
+        Released(2.0),
+        truth(2.1, u1=(1, 0)),
+        truth(3.5, u1=(2, 0)),
+        Stop(3.7, False),
+    ]
+    assert check(events, LIMITS).ok
+
+
+def test_a_move_before_a_release_given_again_fails() -> None:
+    # The first release did not take (a press still held); moves before the second one count.
+    events: list[Event] = [
+        truth(0.0),
+        Stop(1.0, True),
+        Released(2.0),
+        truth(2.5),
+        truth(3.0, u1=(1, 0)),
+        Released(7.0),
+        truth(7.5, u1=(2, 0)),
+        Stop(8.0, False),
+    ]
+    verdict = check(events, LIMITS)
+    assert verdict.moved_while_stopped == 1
+    assert "moved [0, 0] -> [1, 0] at 3.00" in verdict.details[0]
 
 
 def test_a_lost_job_fails() -> None:
