@@ -128,6 +128,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = goal.add_mutually_exclusive_group()  # neither: a worded refusal in `run`
     where.add_argument("target", nargs="?", type=square, metavar="X,Y")
     where.add_argument("--clear", action="store_true", help="clear the unit's goal")
+    for name, command in UNIT_ACTIONS.items():
+        control = sub.add_parser(name, help=UNIT_HELP[command])
+        control.add_argument("unit", type=identifier("unit id"))
     sub.add_parser("list", help="print the job queue")
     stop = sub.add_parser("stop", help="engage the fleet-wide emergency stop (latched)")
     stop.add_argument("--reason", type=reason, default="operator", help="one line, for everybody")
@@ -139,13 +142,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         _add_flags(action, everywhere=True)
 
 
+# `gridfleet job ACTION UNIT` -> the control_unit command it sends (protocol.md §6.4).
+UNIT_ACTIONS = {
+    "pause": "pause",
+    "resume": "resume",
+    "out-of-service": "out_of_service",
+    "in-service": "in_service",
+}
+UNIT_HELP = {
+    "pause": "hold one unit where it is; its job waits",
+    "resume": "let a paused unit go on",
+    "out_of_service": "take one unit out of service: no jobs, its unstarted job re-queued",
+    "in_service": "bring a unit back into service",
+}
+
+
 def print_jobs(view: JobsView, out: TextIO) -> None:
     """The queue as a table, active jobs first."""
     print(f"{'job':<24} {'state':<11} {'unit':<10} {'mass':>6}  pickup -> dropoff", file=out)
     for job in sorted(view.jobs, key=lambda j: (j.state in ("done", "cancelled"), j.id)):
         route = f"{list(job.pickup)} -> {list(job.dropoff)}"
         line = f"{job.id:<24} {job.state:<11} {job.unit or '-':<10} {job.mass_kg:>6.2f}  {route}"
-        print(line + (f"  ({job.reason})" if job.reason else ""), file=out)
+        if job.reason:
+            line += f"  ({job.reason})"
+        elif job.wait_reason:  # why a job not final is not moving (protocol.md §5.3)
+            line += f"  waits: {job.wait_reason}"
+        print(line, file=out)
 
 
 def _who(signal: EstopSignal) -> str:
@@ -276,6 +298,9 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             )
         elif args.action == "cancel":
             reply = await operator.cancel_job(args.job_id, args.timeout)
+        elif args.action in UNIT_ACTIONS:
+            command = UNIT_ACTIONS[args.action]
+            reply = await operator.control_unit(args.unit, command, args.timeout)
         else:
             reply = await operator.set_goal(
                 args.unit, None if args.clear else args.target, args.timeout

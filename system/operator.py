@@ -24,6 +24,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import (
     TOPICS,
     CancelJob,
+    ControlUnit,
     CoordinatorStatus,
     EstopSignal,
     HeaderStamper,
@@ -203,6 +204,10 @@ class Operator:
     async def cancel_job(self, job_id: str, timeout: float = WAIT_S) -> Reply:
         """Delete a queued job or abort an active one."""
         return await self._request("cancel_job", CancelJob, timeout, job_id=job_id)
+
+    async def control_unit(self, unit: str, command: str, timeout: float = WAIT_S) -> Reply:
+        """Pause or resume one unit, or take it out of service or back (protocol.md §6.4)."""
+        return await self._request("control_unit", ControlUnit, timeout, unit=unit, command=command)
 
     async def set_estop(self, engaged: bool, reason: str) -> EstopSignal:
         """Engage or release the fleet-wide emergency stop (retained: it latches); returns it."""

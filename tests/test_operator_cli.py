@@ -88,6 +88,37 @@ def test_submit_list_cancel_goal_and_refusal(
     assert (nobody.returncode, nobody.stdout.strip()) == (1, "refused: unknown unit 'nobody'")
 
 
+def test_units_are_paused_and_taken_out_of_service_and_a_waiting_job_says_why(
+    job: Callable[..., subprocess.CompletedProcess[str]],
+    broker: BrokerThread,
+    root: str,
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    playfield: Path,
+) -> None:
+    run_system(playfield)
+    assert job("stop", "--reason", "drill").returncode == 0
+    out = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "1", "--id", "crate")
+    assert out.returncode == 0, out.stdout + out.stderr
+    crate = next(line for line in job("list").stdout.splitlines() if line.startswith("crate"))
+    assert crate.endswith("waits: the emergency stop is engaged"), crate
+    assert job("release").returncode == 0
+    out = job("out-of-service", "unit1")
+    assert (out.returncode, out.stdout.strip()) == (0, "accepted"), out.stderr
+
+    def unit1() -> str:
+        status = gridfleet("status", "--once", "--broker", broker.url, "--root", root)
+        return next(line for line in status.stdout.splitlines() if "unit1" in line)
+
+    wait_for(lambda: "out of service" in unit1(), timeout=20, interval=0.5, what="shown")
+    assert job("pause", "unit1").stdout.startswith("refused: ")  # out of service: no pause
+    assert job("in-service", "unit1").stdout.strip() == "accepted"
+    again = job("in-service", "unit1")
+    assert again.returncode == 1 and again.stdout.startswith("refused: ")
+    assert (job("pause", "unit2").returncode, job("resume", "unit2").returncode) == (0, 0)
+    nobody = job("resume", "nobody")
+    assert (nobody.returncode, nobody.stdout.strip()) == (1, "refused: unknown unit 'nobody'")
+
+
 def test_stop_and_release_are_latched_on_the_fleet_topic(
     job: Callable[..., subprocess.CompletedProcess[str]],
     probe_factory: Callable[..., MqttProbe],
