@@ -99,8 +99,17 @@ def test_units_are_paused_and_taken_out_of_service_and_a_waiting_job_says_why(
     assert job("stop", "--reason", "drill").returncode == 0
     out = job("submit", "--pickup", "1,8", "--dropoff", "8,8", "--mass", "1", "--id", "crate")
     assert out.returncode == 0, out.stdout + out.stderr
-    crate = next(line for line in job("list").stdout.splitlines() if line.startswith("crate"))
-    assert crate.endswith("waits: the emergency stop is engaged"), crate
+
+    def crate() -> str:
+        return next(line for line in job("list").stdout.splitlines() if line.startswith("crate"))
+
+    # The wait is the coordinator's next step's; the view right after the submission may precede it.
+    wait_for(
+        lambda: crate().endswith("waits: the emergency stop is engaged"),
+        timeout=20,
+        interval=0.5,
+        what="the crate's wait listed",
+    )
     assert job("release").returncode == 0
     out = job("out-of-service", "unit1")
     assert (out.returncode, out.stdout.strip()) == (0, "accepted"), out.stderr
