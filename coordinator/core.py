@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 from coordinator import inbound, requests
 from coordinator.answers import Answers
 from coordinator.effects import Effects, Messages, Status
+from coordinator.events import EventLog
 from coordinator.inbound import Arrival, Request, StopPayload
 from coordinator.jobs import Job, JobBook
 from coordinator.moves import Moves
@@ -119,6 +120,8 @@ class CoordinatorCore:
         self._releasing: set[Outbound] = set()  # the last step's orders that release squares
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
         self._controls_changed: list[tuple[str, str | None]] = []  # for the next Effects
+        self.events = EventLog()  # the recent history, in words (fleet/events)
+        self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
 
     # ---- the session ----------------------------------------------------------------------
@@ -142,6 +145,7 @@ class CoordinatorCore:
         self._presses_due = now + LATCH_WAIT_S
         self._replayed = set()
         self.views.reconnected()
+        self.events.dirty = True  # the history goes out again with the other views
         persist = self._persist()
         return self._effects(self._views(), persist)
 
@@ -208,7 +212,10 @@ class CoordinatorCore:
         if unit is not None and unit in self.world.foreign:
             return self._effects([])
         if isinstance(msg, Connection) and unit is not None:
+            before = self.world.units[unit].connection if unit in self.world.units else None
             self.world.on_connection(unit, msg)
+            if msg.state != before:
+                self._unit_event(unit, msg.state)
         elif isinstance(msg, Factsheet) and unit is not None:
             self.world.on_factsheet(unit, msg)
         elif isinstance(msg, UnitState) and unit is not None:
@@ -256,6 +263,7 @@ class CoordinatorCore:
             # The last press cleared (by us, before a restart) while the latch said released:
             # its copy on the latch may still be on its way and would engage again.
             line = (logging.WARNING, f"emergency stop released: {source}'s press was cleared")
+        self.events.add(self.say.stamp.now(), "stop", line[1])
         # The stop wins at once: every unit gets a hold now, not at the next step.
         if self.estop:
             publish += self._holds()
@@ -282,6 +290,8 @@ class CoordinatorCore:
             outcome = requests.set_goal(req, self.world, self.jobs, self.goals, cache)
         publish = []
         if not outcome.accepted:
+            what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"
+            self.events.add(self.say.stamp.now(), "refusal", what, unit=getattr(req, "unit", None))
             reason = f"{type(req).__name__}: {outcome.reason}"
             publish.append(self._refuse(topic, reason, req.request_id))
         if req.reply_to is not None:
@@ -438,6 +448,9 @@ class CoordinatorCore:
             out.append(self.say.fleet_map(self.world))
         if send_jobs:
             out.append(self.say.jobs(self.jobs))
+        events = self.events.take(self.say.stamp("events"))
+        if events is not None:
+            out.append(Outbound.of("events", self.topics.fleet("events"), events))
         return out
 
     def _persist(self) -> tuple[Job, ...]:
@@ -446,7 +459,14 @@ class CoordinatorCore:
         self.jobs.changed.clear()
         if changed:
             self.views.jobs_dirty = True
+            self.events.jobs_changed(self.say.stamp.now(), changed, self.world.step_period_s)
         return changed
+
+    def _unit_event(self, unit: str, connection: str) -> None:
+        """A unit came online, went offline, or was lost (its last will)."""
+        words = {"online": "online", "offline": "offline", "broken": "lost (its connection broke)"}
+        text = f"unit {unit} {words.get(connection, connection)}"
+        self.events.add(self.say.stamp.now(), "unit", text, unit=unit)
 
     def _effects(
         self,
@@ -462,6 +482,7 @@ class CoordinatorCore:
         return Effects(
             publish=tuple(publish),
             persist=persist,
+            events=self.events.take_fresh(),
             controls=controls,
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,

@@ -15,6 +15,7 @@ from gridfleet import __version__
 from gridfleet.endpoint import Outbound, error_report
 from gridfleet.protocol import (
     CoordinatorStatus,
+    EventEntry,
     HeaderStamper,
     Order,
     Reply,
@@ -33,6 +34,7 @@ class Effects:
     publish: tuple[Outbound, ...] = ()  # in this order
     persist: tuple[Job, ...] = ()  # jobs changed: store them before publishing
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
+    events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
     controls: tuple[tuple[str, str | None], ...] = ()  # unit holds changed (None: lifted)
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
     acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then

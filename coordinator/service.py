@@ -57,6 +57,7 @@ class Coordinator:
         )
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.controls.update(self.store.load_controls())
+        self.core.events.restore(self.store.load_events())
         self.world = self.core.world
         self.endpoint = Endpoint(
             broker,
@@ -139,6 +140,8 @@ class Coordinator:
             self.store.save(effects.persist, effects.answered)
         if effects.controls:
             self.store.save_controls(effects.controls)
+        if effects.events:
+            self.store.save_events(effects.events)
 
     async def _views_after(self, at: float) -> None:
         await asyncio.sleep(max(0.0, at - self.clock()))  # pacing: the end of a batch period

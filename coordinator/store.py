@@ -14,6 +14,8 @@ import platformdirs
 
 from coordinator.answers import ANSWERS_KEPT, Answer
 from coordinator.jobs import Job
+from gridfleet.protocol import EventEntry
+from gridfleet.protocol.messages import MAX_EVENTS
 
 
 def default_db_path() -> Path:
@@ -43,7 +45,31 @@ class JobStore:
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS controls (unit TEXT PRIMARY KEY, state TEXT NOT NULL)"
         )
+        # The recent history (fleet/events), newest last by rowid.
+        self._db.execute("CREATE TABLE IF NOT EXISTS events (data TEXT NOT NULL)")
         self._db.commit()
+
+    def load_events(self) -> list[EventEntry]:
+        """The stored history, oldest first (rows that no longer parse are skipped)."""
+        rows = self._db.execute("SELECT data FROM events ORDER BY rowid").fetchall()
+        events = []
+        for (data,) in rows:
+            try:
+                events.append(EventEntry.model_validate_json(data))
+            except ValueError:
+                continue  # written by another version: the history is for people, not kept exact
+        return events[-MAX_EVENTS:]
+
+    def save_events(self, events: Iterable[EventEntry]) -> None:
+        """Append `events`, keeping the latest MAX_EVENTS, in one transaction."""
+        with self._db:
+            self._db.executemany(
+                "INSERT INTO events (data) VALUES (?)", [(e.model_dump_json(),) for e in events]
+            )
+            self._db.execute(
+                "DELETE FROM events WHERE rowid <= (SELECT MAX(rowid) FROM events) - ?",
+                (MAX_EVENTS,),
+            )
 
     def load_controls(self) -> dict[str, str]:
         """Unit -> its hold (paused, out_of_service)."""

@@ -179,7 +179,10 @@ def rules(account: Account, topics: Topics) -> Rules:
     if account.role == "coordinator":
         publish = [
             t.all_units("order"),
-            *(t.fleet(k) for k in ("map", "jobs", "routes", "errors", "coordinator", "estop")),
+            *(
+                t.fleet(k)
+                for k in ("map", "jobs", "routes", "events", "errors", "coordinator", "estop")
+            ),
             f"{t.prefix}/replies/+",
             *presses,  # cleared after an operator's release
         ]
@@ -208,7 +211,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         subscribe = [t.unit("direction", account.unit), t.fleet("estop"), own_press]
     else:  # dashboard, operator: the people's side
         publish = [
-            *(t.request(k) for k in ("submit_job", "cancel_job", "set_goal")),
+            *(t.request(k) for k in ("submit_job", "cancel_job", "set_goal", "control_unit")),
             t.all_units("goal"),
             t.fleet("estop"),
         ]

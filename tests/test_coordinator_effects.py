@@ -352,8 +352,8 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
             "UnitState: malformed JSON (Invalid JSON: EOF while parsing an object at line 1 column 1)",
         ),
         (
-            encode(state()).replace(b'"1.2"', b'"9.9"'),
-            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.2'",
+            encode(state()).replace(b'"1.3"', b'"9.9"'),
+            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.3'",
         ),
         (encode(state(Cell(1, 1))), "position [1, 1] is on a wall"),
         (
@@ -750,8 +750,8 @@ def test_a_bad_request_without_a_readable_reply_address_is_reported_only(
     ("payload", "reason"),
     [
         (
-            encode(submit()).replace(b'"1.2"', b'"2.0"'),
-            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.2'",
+            encode(submit()).replace(b'"1.3"', b'"2.0"'),
+            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.3'",
         ),
         (
             encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":0'),

@@ -201,7 +201,7 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
     # update of this order would look stale to the unit, which holds on the forged one.
     forged = {
         "header": {
-            "version": "1.2",
+            "version": "1.3",
             "seq": 0,
             "timestamp": "2026-11-23T00:00:00Z",
             "sender": "coordinator",

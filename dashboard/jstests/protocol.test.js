@@ -62,7 +62,7 @@ test("headers count per kind; client ids are valid ids", () => {
   assert.equal(s.header("submit_job").seq, 1);
   const h = s.header("set_goal");
   assert.equal(h.seq, 0);
-  assert.equal(h.version, "1.2");
+  assert.equal(h.version, "1.3");
   assert.equal(h.sender, "dash-1");
   assert.match(h.timestamp, /^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$/);
   const id = makeClientId("dashboard");
@@ -112,7 +112,7 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  assert.equal(Object.keys(subs).length, 12); // 10, and every unit's and device's stop press
+  assert.equal(Object.keys(subs).length, 13); // 11, and every unit's and device's stop press
   assert.throws(() => T.allUnits("estop"), /not a per-unit topic kind/);
   assert.throws(() => T.request("jobs"), /not a request kind/);
   const e = TABLE.estop;

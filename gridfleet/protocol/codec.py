@@ -58,6 +58,10 @@ class HeaderStamper:
         self._clock = clock or (lambda: datetime.now(UTC))
         self._seq: defaultdict[str, int] = defaultdict(int)
 
+    def now(self) -> datetime:
+        """The time by this stamper's clock (UTC), as its headers give it."""
+        return self._clock()
+
     def __call__(self, kind: str) -> Header:
         """The next header for a message on a topic of `kind`."""
         seq = self._seq[kind]

@@ -249,6 +249,26 @@ class Routes(Message):
     routes: dict[Id, RouteView]
 
 
+EventKind = Literal["job", "unit", "stop", "refusal"]
+MAX_EVENTS = 100  # the events view keeps the latest this many
+
+
+class EventEntry(Model):
+    """One thing that happened, in plain words, and the job or unit it concerns."""
+
+    at: datetime
+    kind: EventKind
+    text: Text
+    job: Id | None = None
+    unit: Id | None = None
+
+
+class EventsView(Message):
+    """`fleet/events`: the coordinator's recent history, oldest first, at most MAX_EVENTS."""
+
+    events: Annotated[list[EventEntry], Field(max_length=MAX_EVENTS)]
+
+
 class Request(Message):
     """Common fields of an operator request: an id to match the reply, and where to reply."""
 

@@ -74,6 +74,7 @@ TOPICS: dict[str, TopicSpec] = {
         TopicSpec("map", "fleet/map", 1, True, "json", "FleetMap", MAX_VIEW_BYTES),
         TopicSpec("jobs", "fleet/jobs", 1, True, "json", "JobsView", MAX_VIEW_BYTES),
         TopicSpec("routes", "fleet/routes", 0, True, "json", "Routes", MAX_VIEW_BYTES),
+        TopicSpec("events", "fleet/events", 1, True, "json", "EventsView", MAX_VIEW_BYTES),
         TopicSpec(
             "submit_job", "requests/submit_job", 1, False, "json", "SubmitJob", MAX_REQUEST_BYTES
         ),
@@ -147,7 +148,7 @@ class Topics:
         return f"{self.prefix}/units/+/{kind}"
 
     def fleet(self, kind: str) -> str:
-        """A fleet-wide or coordinator topic: estop, map, jobs, routes, errors, coordinator."""
+        """A fleet-wide or coordinator topic: estop, map, jobs, routes, events, errors, coordinator."""
         spec = TOPICS.get(kind)
         if spec is None or "{" in spec.pattern:
             raise ProtocolError(f"{kind!r} is not a fleet-wide topic kind")

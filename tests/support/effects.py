@@ -42,18 +42,24 @@ def header(sender: str, seq: int = 0) -> Header:
 
 def header_json(sender: str, seq: int) -> dict[str, Any]:
     """A header from `sender` at FIXED as a payload carries it (parsed JSON)."""
-    return {"version": "1.2", "seq": seq, "timestamp": STAMP, "sender": sender}
+    return {"version": "1.3", "seq": seq, "timestamp": STAMP, "sender": sender}
 
 
-def published(outs: Iterable[Outbound] | Carrying, root: str = "") -> list[Published]:
+def published(
+    outs: Iterable[Outbound] | Carrying, root: str = "", *, events: bool = False
+) -> list[Published]:
     """(topic, payload, QoS, retain) of each message, in order.
 
     The payload is parsed when it is JSON, else kept as text (the device topics are plain text);
-    `root` is cut off the front of every topic, which must start with it.
+    `root` is cut off the front of every topic, which must start with it. The coordinator's
+    history view (`fleet/events`) follows most changes: it is left out unless `events`
+    (tests/test_coordinator_events.py is about it).
     """
     sent = []
     for out in outs.publish if isinstance(outs, Carrying) else outs:
         assert out.topic.startswith(root), (out.topic, root)
+        if not events and out.topic.endswith("/fleet/events"):
+            continue
         text = out.payload.decode()
         payload = json.loads(text) if text.startswith("{") else text
         sent.append((out.topic.removeprefix(root), payload, out.qos, out.retain))

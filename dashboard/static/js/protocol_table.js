@@ -11,7 +11,7 @@ const freeze = (value) => {
   return value;
 };
 
-export const PROTOCOL_VERSION = "1.2";
+export const PROTOCOL_VERSION = "1.3";
 export const TOPIC_VERSION = "v1";
 export const DEFAULT_ROOT = "gridfleet";
 export const IDS = freeze({
@@ -143,6 +143,16 @@ export const TOPICS = freeze({
     "payload": "json",
     "model": "Routes",
     "schema": "schemas/Routes.json",
+    "max_bytes": 8388608
+  },
+  "events": {
+    "pattern": "fleet/events",
+    "placeholder": null,
+    "qos": 1,
+    "retained": true,
+    "payload": "json",
+    "model": "EventsView",
+    "schema": "schemas/EventsView.json",
     "max_bytes": 8388608
   },
   "submit_job": {

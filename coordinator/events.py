@@ -1,0 +1,114 @@
+"""The coordinator's recent history in plain words (`fleet/events`, protocol.md §5.7).
+
+Pure: the core tells it what changed and when (a datetime from its stamper's clock); it keeps the
+latest MAX_EVENTS, says which are new (to store), and whether the view is out of date.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+from datetime import datetime
+
+from coordinator.jobs import Job
+from gridfleet.protocol import EventEntry, EventsView, Header
+from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.protocol.messages import MAX_EVENTS, EventKind
+
+
+def _kg(mass: float) -> str:
+    return f"{mass:g} kg"
+
+
+def _square(cell: tuple[int, int]) -> str:
+    return f"[{cell[0]}, {cell[1]}]"
+
+
+class EventLog:
+    """The latest events, oldest first; `fresh` holds those not stored yet."""
+
+    def __init__(self) -> None:
+        self.events: deque[EventEntry] = deque(maxlen=MAX_EVENTS)
+        self.fresh: list[EventEntry] = []
+        self.dirty = False
+        self._jobs: dict[str, tuple[str, str | None]] = {}  # job -> (state, unit) last told
+
+    def restore(self, events: Iterable[EventEntry]) -> None:
+        """The history kept before a restart (oldest first); the view goes out again."""
+        self.events.extend(events)
+        self.dirty = True
+
+    def know(self, jobs: Iterable[Job]) -> None:
+        """Jobs as they stand (loaded from the store): only later changes are events."""
+        for job in jobs:
+            self._jobs[job.id] = (job.state, job.unit)
+
+    def add(
+        self,
+        at: datetime,
+        kind: EventKind,
+        text: str,
+        job: str | None = None,
+        unit: str | None = None,
+    ) -> None:
+        """One event, its text cut to one protocol text's length."""
+        line = " ".join(text.split())[:MAX_TEXT]
+        entry = EventEntry(at=at, kind=kind, text=line, job=job, unit=unit)
+        self.events.append(entry)
+        self.fresh.append(entry)
+        self.dirty = True
+
+    def jobs_changed(self, at: datetime, jobs: Iterable[Job], step_period_s: float) -> None:
+        """An event for each job whose state or unit changed since it was last told."""
+        for job in jobs:
+            before = self._jobs.get(job.id)
+            now = (job.state, job.unit)
+            if before == now:
+                continue
+            self._jobs[job.id] = now
+            text = self._job_text(job, before, step_period_s)
+            if text is not None:
+                self.add(at, "job", text, job=job.id, unit=job.unit)
+
+    @staticmethod
+    def _job_text(
+        job: Job, before: tuple[str, str | None] | None, step_period_s: float
+    ) -> str | None:
+        """What happened to `job`, in words; None when nothing worth telling (a re-plan)."""
+        name = f"job {job.id}"
+        if before is None:
+            if job.state == "rejected":
+                return f"{name} rejected: {job.reason or 'no reason given'}"
+            by = f" by {job.submitted_by}" if job.submitted_by else ""
+            return (
+                f"{name} queued{by} ({_kg(job.mass_kg)}, "
+                f"{_square(job.pickup)} -> {_square(job.dropoff)})"
+            )
+        state, unit = before
+        if job.state == "done":
+            took = ""
+            if job.done_step is not None:
+                took = f" in {(job.done_step - job.created_step) * step_period_s:.1f} s"
+            return f"{name} done by {job.unit or unit}{took}"
+        if job.state in ("cancelled", "failed", "rejected"):
+            why = f": {job.reason}" if job.reason else ""
+            return f"{name} {job.state}{why}"
+        if job.state in ("loaded", "to_dropoff") and state not in ("loaded", "to_dropoff"):
+            return f"{job.unit} picked up {name}"
+        if job.unit is not None and job.unit != unit and job.state in ("assigned", "to_pickup"):
+            return f"{name} assigned to {job.unit}"
+        if job.state == "queued" and state != "queued":
+            return f"{name} back in the queue" + (f" ({unit} let it go)" if unit else "")
+        return None
+
+    def take(self, header: Header) -> EventsView | None:
+        """The view when it changed since it last went out, else None."""
+        if not self.dirty:
+            return None
+        self.dirty = False
+        return EventsView(header=header, events=list(self.events))
+
+    def take_fresh(self) -> tuple[EventEntry, ...]:
+        """The events not stored yet (they count as stored from here on)."""
+        fresh, self.fresh = tuple(self.fresh), []
+        return fresh

@@ -1,0 +1,180 @@
+"""The coordinator's history in words (`fleet/events`, protocol.md §5.7): what each change says,
+that the view is bounded and retained, and that it outlives a restart."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from datetime import UTC, datetime
+from pathlib import Path
+
+from coordinator.events import EventLog
+from coordinator.jobs import Job
+from coordinator.store import JobStore
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import (
+    Connection,
+    EventEntry,
+    EventsView,
+    SubmitJob,
+    Topics,
+    decode,
+    encode,
+)
+from gridfleet.protocol.messages import MAX_EVENTS
+from system.threads import ServiceThread
+
+from support.coordinator_drive import TOPICS, from_unit, make_core, request
+from support.effects import header, published
+from support.probe import MqttProbe
+from support.wait import wait_for
+
+AT = datetime(2026, 11, 24, 9, 0, tzinfo=UTC)
+GRID = GridMap.from_rows(["....", ".@..", "...."])
+EVENTS = TOPICS.fleet("events")
+
+
+def texts(log: EventLog) -> list[str]:
+    return [e.text for e in log.events]
+
+
+def test_a_jobs_life_in_words() -> None:
+    log = EventLog()
+    job = Job("crate", Cell(1, 8), Cell(8, 8), 1.5, submitted_by="dashboard", created_step=10)
+    for state, unit, done in [
+        ("queued", None, None),
+        ("to_pickup", "unit2", None),
+        ("to_pickup", "unit2", None),  # no change: nothing to say
+        ("to_dropoff", "unit2", None),
+        ("done", "unit2", 152),
+    ]:
+        job = replace(job, state=state, unit=unit, done_step=done)
+        log.jobs_changed(AT, [job], 0.1)
+    assert texts(log) == [
+        "job crate queued by dashboard (1.5 kg, [1, 8] -> [8, 8])",
+        "job crate assigned to unit2",
+        "unit2 picked up job crate",
+        "job crate done by unit2 in 14.2 s",
+    ]
+    assert [e.job for e in log.events] == ["crate"] * 4
+    assert [e.unit for e in log.events] == [None, "unit2", "unit2", "unit2"]
+
+
+def test_cancelled_failed_rejected_and_requeued_say_why() -> None:
+    log = EventLog()
+    heavy = Job("big", Cell(0, 0), Cell(1, 1), 50.0, state="rejected", reason="too heavy")
+    log.jobs_changed(AT, [heavy], 1.0)
+    job = Job("j", Cell(0, 0), Cell(1, 1), 1.0, state="to_pickup", unit="u1")
+    log.know([job])  # loaded from the store: not news
+    log.jobs_changed(AT, [job], 1.0)
+    log.jobs_changed(AT, [replace(job, state="queued", unit=None)], 1.0)
+    log.jobs_changed(AT, [replace(job, state="cancelled", reason="by op")], 1.0)
+    assert texts(log) == [
+        "job big rejected: too heavy",
+        "job j back in the queue (u1 let it go)",
+        "job j cancelled: by op",
+    ]
+
+
+def test_the_history_keeps_the_latest_and_one_line_each() -> None:
+    log = EventLog()
+    for n in range(MAX_EVENTS + 5):
+        log.add(AT, "unit", f"event {n}")
+    log.add(AT, "refusal", "two\nlines " + "x" * 600)
+    assert len(log.events) == MAX_EVENTS
+    assert log.events[0].text == "event 6"
+    assert "\n" not in log.events[-1].text and len(log.events[-1].text) == 500
+    assert len(log.take_fresh()) == MAX_EVENTS + 6 and log.take_fresh() == ()
+
+
+def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
+    core = make_core(GRID)
+    core.on_connect()
+    unit1 = Connection(header=header("unit1"), state="online")
+    from_unit(core, "connection", "unit1", unit1, 0.0)
+    from_unit(core, "connection", "unit1", unit1, 0.0)  # said again: no news
+    lost = Connection(header=header("unit1", 1), state="broken")
+    from_unit(core, "connection", "unit1", lost, 0.0)
+    core.on_message(TOPICS.fleet("estop"), b"engaged|op|drill", 0.0)
+    submit = SubmitJob(
+        header=header("op"),
+        request_id="r1",
+        reply_to="op",
+        pickup=Cell(3, 0),
+        dropoff=Cell(3, 2),
+        mass_kg=1.0,
+    )
+    effects = request(core, "submit_job", submit, 0.0)
+    wall = submit.model_copy(update={"request_id": "r2", "pickup": Cell(1, 1)})
+    refused = request(core, "submit_job", wall, 0.0)
+    stepped = core.step(1.0)
+    # Each Effects carries its new entries, for the store.
+    assert [e.text for e in effects.events] == ["job job-1 queued by op (1 kg, [3, 0] -> [3, 2])"]
+    assert [e.kind for e in refused.events] == ["refusal"]
+    view = [p for p in published(stepped, events=True) if p[0] == EVENTS]
+    (payload,) = [p[1] for p in view]
+    assert [e["text"] for e in payload["events"]] == [
+        "unit unit1 online",
+        "unit unit1 lost (its connection broke)",
+        "emergency stop ENGAGED by op: drill",
+        "job job-1 queued by op (1 kg, [3, 0] -> [3, 2])",
+        "refused submit_job from op: pickup [1, 1] is on a wall",
+    ]
+    assert view[0][2:] == (1, True)  # QoS 1, retained
+    assert [p for p in published(core.step(2.0), events=True) if p[0] == EVENTS] == []
+
+
+def test_a_malformed_message_adds_nothing() -> None:
+    core = make_core(GRID)
+    core.on_connect()
+    core.step(1.0)
+    effects = core.on_message(TOPICS.request("submit_job"), b"{not json", 0.0)
+    effects = core.on_message(TOPICS.unit("connection", "unit1"), b"[]", 0.0)
+    assert effects.events == () and list(core.events.events) == []
+
+
+def test_the_store_keeps_the_latest_history_across_a_restart(tmp_path: Path) -> None:
+    store = JobStore(tmp_path / "jobs.db")
+    entries = [
+        EventEntry(at=AT, kind="unit", text=f"e{n}", unit="u1") for n in range(MAX_EVENTS + 3)
+    ]
+    store.save_events(entries[:50])
+    store.save_events(entries[50:])
+    store.close()
+    again = JobStore(tmp_path / "jobs.db")
+    loaded = again.load_events()
+    assert [e.text for e in loaded] == [f"e{n}" for n in range(3, MAX_EVENTS + 3)]
+    core = make_core(GRID)
+    core.events.restore(loaded)
+    (view,) = [p for p in published(core.on_connect(), events=True) if p[0] == EVENTS]
+    assert len(view[1]["events"]) == MAX_EVENTS
+
+
+def test_the_view_is_retained_and_kept_in_the_store(
+    run_system: Callable[..., tuple[ServiceThread, ServiceThread]],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+    playfield: Path,
+    tmp_path: Path,
+) -> None:
+    run_system(playfield)
+    probe = probe_factory()
+    probe.subscribe(topics.fleet("events"))
+    crate = SubmitJob(
+        header=header("op"), request_id="r1", pickup=Cell(1, 8), dropoff=Cell(8, 8), mass_kg=1.5
+    )
+    probe.publish(topics.request("submit_job"), encode(crate), qos=1)
+
+    def latest() -> list[str]:
+        got = probe.received(topics.fleet("events"))
+        return [e.text for e in decode(EventsView, got[-1].payload).events] if got else []
+
+    wait_for(lambda: any(" done by " in t for t in latest()), timeout=60, what="the job done")
+    late = probe_factory()  # retained: a page loaded now gets the history
+    late.subscribe(topics.fleet("events"))
+    kept = decode(EventsView, late.wait(topics.fleet("events"), lambda m: m.retain).payload)
+    assert any(e.text == "unit unit1 online" for e in kept.events)
+    assert any(e.text.startswith("job job-1 queued by op") for e in kept.events)
+    # In the coordinator's store too (run_system's): a restarted coordinator publishes it again.
+    stored = JobStore(tmp_path / "jobs.db").load_events()
+    assert any(" done by " in e.text for e in stored)
