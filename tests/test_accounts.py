@@ -136,8 +136,10 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert press in device.publish and T.fleet("estop") not in device.publish
     coordinator = rules(accounts.get("coordinator"), T)
     assert T.all_units("order") in coordinator.publish
+    assert T.fleet("events") in coordinator.publish  # the history the page shows
     operator = rules(accounts.get("operator"), T)
-    assert T.request("submit_job") in operator.publish
+    for kind in ("submit_job", "cancel_job", "set_goal", "control_unit"):
+        assert T.request(kind) in operator.publish, kind
     assert T.all_units("order") not in operator.publish and T.fleet("map") not in operator.publish
 
 
