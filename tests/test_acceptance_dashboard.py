@@ -491,6 +491,8 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
         # Kept only when the moment held from before the picture until after it.
         if not mid_run():
             return None
+        # The side panel from its top (filling the job form scrolled it down to the form).
+        system.page.locator("#side").evaluate("(side) => { side.scrollTop = 0; }")
         shot = system.dash.screenshot("dashboard-real-playfield")
         return shot if mid_run() else None
 

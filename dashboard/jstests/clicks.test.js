@@ -15,7 +15,9 @@ function clicks(state, ...steps) {
 }
 
 test("the page starts looking, with nothing chosen", () => {
-  assert.deepEqual(initialClicks(), { mode: "none", selectedUnit: null, pending: null });
+  assert.deepEqual(initialClicks(), {
+    mode: "none", selectedUnit: null, pending: null, selectedJob: null, zoom: { scale: 1, pan: [0, 0] },
+  });
   assert.deepEqual(MODES, ["none", "goal", "job"]);
 });
 

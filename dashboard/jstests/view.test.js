@@ -3,7 +3,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 import { FleetView } from "../static/js/model.js";
 import {
-  coordinatorBadge, finishedCells, finishedCounts, jobCells, mapTitle, seenText, unitCells,
+  controlButtons, coordinatorBadge, finishedCells, finishedCounts, jobCells, mapTitle, seenText, unitCells,
 } from "../static/js/view.js";
 
 const text = (cells) => cells.map(([t]) => t);
@@ -23,9 +23,20 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   assert.equal(unitCells(v.units.get("unit1"))[5][0], "0/2 kg", "an empty load before its first state");
   v.apply("state", "unit1", JSON.stringify({ position: [1, 0], status: "moving", job_id: "job-1", load_kg: 1.5 }), 0);
   assert.deepEqual(text(unitCells(v.units.get("unit1"))), ["unit1", "online", "[1, 0]", "moving", "job-1", "1.5/2 kg"]);
+  assert.equal(unitCells(v.units.get("unit1"))[4][1], "job carrying", "its item is on board");
   v.apply("state", "unit2", JSON.stringify({ position: [4, 4], status: "waiting", wait_reason: "released square [4, 5] is blocked", load_kg: 0 }), 0);
   assert.deepEqual(text(unitCells(v.units.get("unit2"))),
     ["unit2", "?", "[4, 4]", "waiting: released square [4, 5] is blocked", "—", "0 kg"]);
+  // Before pickup the queue names the unit's job; an operator's hold comes first in its status.
+  const [, , , status, job] = text(unitCells(v.units.get("unit2"), "job-7", "out_of_service"));
+  assert.deepEqual([status, job], ["out of service · waiting: released square [4, 5] is blocked", "job-7"]);
+});
+
+test("a unit row's buttons follow its hold", () => {
+  const commands = (control) => controlButtons(control).map(([, c]) => c);
+  assert.deepEqual(commands(null), ["pause", "out_of_service"]);
+  assert.deepEqual(commands("paused"), ["resume", "out_of_service"]);
+  assert.deepEqual(commands("out_of_service"), ["in_service"]);
 });
 
 test("when a unit was last heard of", () => {
@@ -36,11 +47,14 @@ test("when a unit was last heard of", () => {
 
 test("job rows", () => {
   const j = { id: "job-2", state: "to_pickup", unit: "unit2", pickup: [8, 8], dropoff: [1, 8], mass_kg: 4 };
-  assert.deepEqual(text(jobCells(j)), ["job-2", "to_pickup", "unit2", "[8,8] → [1,8]", "4"]);
-  assert.deepEqual(jobCells({ ...j, unit: null })[2], ["—", "unit"]);
-  assert.deepEqual(text(finishedCells({ id: "job-9", state: "rejected", unit: null, reason: "too heavy" })),
-    ["job-9", "rejected", "—", "too heavy"]);
-  assert.equal(finishedCells({ id: "job-0", state: "done", unit: "unit4" })[3][0], "");
+  assert.deepEqual(text(jobCells(j, 3)), ["3", "job-2", "to_pickup", "", "unit2", "[8,8] → [1,8]", "4"]);
+  assert.deepEqual(jobCells({ ...j, unit: null }, 3)[4], ["—", "unit"]);
+  const waiting = { ...j, state: "queued", unit: null, wait: "no_unit_free", wait_reason: "every unit that can carry 4 kg is busy (unit1)" };
+  assert.deepEqual(text(jobCells(waiting, 4)).slice(2, 4), ["queued", "every unit that can carry 4 kg is busy (unit1)"]);
+  assert.deepEqual(text(finishedCells({ id: "job-9", state: "rejected", unit: null, reason: "too heavy" }, 0.1)),
+    ["job-9", "rejected", "—", "—", "too heavy"]);
+  const done = { id: "job-0", state: "done", unit: "unit4", created_step: 10, done_step: 135 };
+  assert.deepEqual(text(finishedCells(done, 0.1)), ["job-0", "done", "unit4", "12.5 s", ""]);
 });
 
 test("finished counts: the coordinator's counts for every final state, ours for the rest", () => {

@@ -2,10 +2,12 @@
 // each step takes a state and returns a new one (the old one is never changed) and at most one
 // effect for the page to carry out.
 //
-// State: {mode, selectedUnit, pending}
+// State: {mode, selectedUnit, pending, selectedJob, zoom}
 //   mode          "none" (look), "goal" (click sets goal) or "job" (click picks job squares)
 //   selectedUnit  the unit chosen in the list, on the map or in the goal form; null for none
 //   pending       the job's pickup square once picked, until its dropoff is clicked (drawn ringed)
+//   selectedJob   the job chosen in the queue: its pickup and dropoff stand out, joined
+//   zoom          {scale, pan}: 1 and [0, 0] show the whole map (draw.js zoomAt, panBy)
 //
 // Effects: {type: "select", unit}, {type: "goal", square}, {type: "pickup", square},
 //          {type: "dropoff", square}
@@ -13,7 +15,7 @@
 export const MODES = ["none", "goal", "job"];
 
 export function initialClicks() {
-  return { mode: "none", selectedUnit: null, pending: null };
+  return { mode: "none", selectedUnit: null, pending: null, selectedJob: null, zoom: { scale: 1, pan: [0, 0] } };
 }
 
 /** The operator chose another click mode: a half-picked job is forgotten. */

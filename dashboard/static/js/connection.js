@@ -15,7 +15,7 @@ export class BrokerConnection {
   /**
    * `mqtt` is the MQTT.js module (its `connect`), `subs` the subscriptions ({topic: {qos}}).
    * Callbacks: `onStatus(state, text)` with state "connected", "reconnecting" or "failed";
-   * `onMessage(topic, payload)`; `onLog(text)` for broker errors. `login` is {username, password}
+   * `onMessage(topic, payload, retained)`; `onLog(text)` for broker errors. `login` is {username, password}
    * when the broker has accounts, else {}.
    */
   constructor(mqtt, url, clientId, subs, { onStatus, onMessage, onLog }, login = {}) {
@@ -44,7 +44,7 @@ export class BrokerConnection {
     client.on("close", () => { if (this.state === "connected") this.status("reconnecting", "broker: connection lost, reconnecting…"); });
     client.on("offline", () => this.status("reconnecting", "broker: offline, reconnecting…"));
     client.on("error", (err) => this.onLog(`broker error: ${err.message}`));
-    client.on("message", (topic, payload) => this.onMessage(topic, payload));
+    client.on("message", (topic, payload, packet) => this.onMessage(topic, payload, !!packet?.retain));
     return this;
   }
 

@@ -1,14 +1,52 @@
 // Draws the fleet on a canvas that fills its container. Returns the layout so clicks map to squares.
 
-const ARROW = { N: [0, -1], E: [1, 0], S: [0, 1], W: [-1, 0] };
+import { placeLabels, unitJob } from "./story.js";
 
-export function layoutFor(canvas, map) {
+const ARROW = { N: [0, -1], E: [1, 0], S: [0, 1], W: [-1, 0] };
+export const MAX_ZOOM = 40;
+
+/** The map fitted to the box (zoom 1), or `zoom.scale` times that, shifted by `zoom.pan` px. */
+export function fitLayout(w, h, cols, rows, zoom = { scale: 1, pan: [0, 0] }) {
+  const fit = Math.min(w / cols, h / rows);
+  // Whole pixels once a square is big enough to show its grid lines; fractions below, so a map
+  // of 500 x 140 squares still fits the box.
+  const raw = fit * zoom.scale;
+  const cell = raw >= 6 ? Math.floor(raw) : raw;
+  const ox = Math.floor((w - cell * cols) / 2 + zoom.pan[0]);
+  const oy = Math.floor((h - cell * rows) / 2 + zoom.pan[1]);
+  return { w, h, cell, ox, oy, cols, rows };
+}
+
+export function layoutFor(canvas, map, zoom) {
   const rect = canvas.parentElement.getBoundingClientRect();
   const w = Math.max(50, rect.width), h = Math.max(50, rect.height);
-  const cols = map ? map.width : 10, rows = map ? map.height : 10;
-  const cell = Math.max(2, Math.floor(Math.min(w / cols, h / rows)));
-  const ox = Math.floor((w - cell * cols) / 2), oy = Math.floor((h - cell * rows) / 2);
-  return { w, h, cell, ox, oy, cols, rows };
+  return fitLayout(w, h, map ? map.width : 10, map ? map.height : 10, zoom);
+}
+
+/**
+ * Zoom by `factor` about the point (px, py) of the canvas, the square under it staying put;
+ * the scale stays within 1 (the whole map) and MAX_ZOOM.
+ */
+export function zoomAt(zoom, layout, px, py, factor) {
+  const scale = Math.min(MAX_ZOOM, Math.max(1, zoom.scale * factor));
+  if (scale === 1) return { scale: 1, pan: [0, 0] };
+  const centred = fitLayout(layout.w, layout.h, layout.cols, layout.rows, { scale, pan: [0, 0] });
+  // The map's point under the pointer stays there: the origin moves towards or away from it.
+  const k = centred.cell / layout.cell;
+  const ox = px - (px - layout.ox) * k, oy = py - (py - layout.oy) * k;
+  return clampPan({ scale, pan: [ox - centred.ox, oy - centred.oy] }, layout);
+}
+
+/** Pan by (dx, dy) px, keeping part of the map in view. */
+export function panBy(zoom, layout, dx, dy) {
+  return clampPan({ scale: zoom.scale, pan: [zoom.pan[0] + dx, zoom.pan[1] + dy] }, layout);
+}
+
+function clampPan(zoom, layout) {
+  const next = fitLayout(layout.w, layout.h, layout.cols, layout.rows, { scale: zoom.scale, pan: [0, 0] });
+  // At most half the map's size beyond centred: some of it always shows.
+  const mx = Math.max(0, (next.cell * layout.cols) / 2), my = Math.max(0, (next.cell * layout.rows) / 2);
+  return { scale: zoom.scale, pan: [Math.max(-mx, Math.min(mx, zoom.pan[0])), Math.max(-my, Math.min(my, zoom.pan[1]))] };
 }
 
 /** Which square a point (relative to the canvas) is on, or null. */
@@ -19,7 +57,7 @@ export function squareAt(layout, px, py) {
 
 export function drawFleet(canvas, view, now, ui) {
   const map = view.map;
-  const L = layoutFor(canvas, map);
+  const L = layoutFor(canvas, map, ui.zoom);
   const dpr = window.devicePixelRatio || 1;
   if (canvas.width !== Math.round(L.w * dpr) || canvas.height !== Math.round(L.h * dpr)) {
     canvas.width = Math.round(L.w * dpr);
@@ -58,20 +96,37 @@ export function drawFleet(canvas, view, now, ui) {
   g.font = `bold ${Math.max(8, Math.floor(c * 0.32))}px sans-serif`;
   g.textAlign = "center";
   g.textBaseline = "middle";
+  const markers = [];
   for (const j of view.activeJobs()) {
     const color = j.unit ? view.colorOf(j.unit) : "#455a64";
-    for (const [sq, letter] of [[j.pickup, "P"], [j.dropoff, "D"]]) {
-      if (letter === "P" && (j.state === "loaded" || j.state === "to_dropoff")) continue;
-      const [sx, sy] = at(sq[0], sq[1]);
+    const n = view.jobNumbers.of(j.id);
+    const chosen = j.id === ui.selectedJob;
+    const carried = j.state === "loaded" || j.state === "to_dropoff";
+    if (chosen && !carried) {
+      // The selected job's pair, joined: where the item is and where it goes.
       g.strokeStyle = color;
       g.lineWidth = 2;
+      g.setLineDash([6, 4]);
+      g.beginPath();
+      g.moveTo(...mid(j.pickup[0], j.pickup[1]));
+      g.lineTo(...mid(j.dropoff[0], j.dropoff[1]));
+      g.stroke();
+      g.setLineDash([]);
+    }
+    for (const [sq, letter] of [[j.pickup, "P"], [j.dropoff, "D"]]) {
+      if (letter === "P" && carried) continue;
+      const [sx, sy] = at(sq[0], sq[1]);
+      g.strokeStyle = color;
+      g.lineWidth = chosen ? 4 : 2;
       g.setLineDash(letter === "P" ? [] : [4, 3]);
       g.strokeRect(sx + c * 0.12, sy + c * 0.12, c * 0.76, c * 0.76);
       g.setLineDash([]);
       g.fillStyle = color;
-      g.fillText(letter, sx + c * 0.5, sy + c * 0.5);
+      if (c >= 14) g.fillText(`${letter}${n}`, sx + c * 0.5, sy + c * 0.5);
+      markers.push(`${letter}${n}@${sq[0]},${sq[1]}`);
     }
   }
+  canvas.dataset.markers = markers.sort().join(" ");
   // Routes: released squares solid, planned rest dashed, target ringed.
   for (const [id, r] of Object.entries(view.routes)) {
     const u = view.units.get(id);
@@ -106,6 +161,8 @@ export function drawFleet(canvas, view, now, ui) {
   // Units on top.
   const drawn = [];
   const headings = [];
+  const carrying = [];
+  const labelled = [];
   for (const u of view.units.values()) {
     if (!u.state) continue;
     const [x, y] = u.state.position;
@@ -135,25 +192,42 @@ export function drawFleet(canvas, view, now, ui) {
       g.closePath();
       g.fill();
     }
+    if (u.state.load_kg > 0) {
+      // What it carries: a parcel on its back, with the job's number.
+      const job = unitJob(view, u.id);
+      const b = c * 0.3;
+      g.fillStyle = "#ffb300";
+      g.strokeStyle = "#5d4037";
+      g.lineWidth = 1.5;
+      g.fillRect(cx + c * 0.12, cy - c * 0.48, b, b);
+      g.strokeRect(cx + c * 0.12, cy - c * 0.48, b, b);
+      carrying.push(`${u.id}:${job ?? "?"}`);
+    }
     if (u.state.status === "stopped" || u.state.estop) {
       g.strokeStyle = "#d50000";
       g.lineWidth = 3;
       g.strokeRect(cx - c * 0.45, cy - c * 0.45, c * 0.9, c * 0.9);
     }
     g.globalAlpha = 1;
-    if (c >= 18) {
-      g.font = `${Math.max(8, Math.floor(c * 0.22))}px sans-serif`;
-      const ly = cy + c * 0.58 > L.oy + map.height * c ? cy - c * 0.55 : cy + c * 0.55;
-      // A white halo keeps the name readable over routes and markers in the next square.
-      g.strokeStyle = "rgba(255, 255, 255, 0.9)";
-      g.lineWidth = 3;
-      g.lineJoin = "round";
-      g.strokeText(u.id, cx, ly);
-      g.fillStyle = "#000";
-      g.fillText(u.id, cx, ly);
-    }
+    labelled.push({ id: u.id, cx, cy, r: c * 0.4 });
     drawn.push(`${u.id}@${x},${y}`);
   }
+  // Names last, where they overlap no other name and no unit (placeLabels).
+  const size = Math.max(10, Math.min(14, Math.floor(c * 0.35)));
+  g.font = `${size}px sans-serif`;
+  const items = labelled.map((it) => ({ ...it, w: g.measureText(it.id).width + 4, h: size + 2 }));
+  const labels = placeLabels(items, { x0: 0, y0: 0, x1: L.w, y1: L.h });
+  for (const label of labels) {
+    // A white halo keeps the name readable over routes and markers.
+    g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+    g.lineWidth = 3;
+    g.lineJoin = "round";
+    g.strokeText(label.id, label.x, label.y);
+    g.fillStyle = "#000";
+    g.fillText(label.id, label.x, label.y);
+  }
+  canvas.dataset.labels = JSON.stringify(labels.map((l) => [l.id, Math.round(l.x - l.w / 2), Math.round(l.y - l.h / 2), Math.round(l.w), Math.round(l.h)]));
+  canvas.dataset.carrying = carrying.sort().join(" ");
   if (ui.pending) {
     const [sx, sy] = at(ui.pending[0], ui.pending[1]);
     g.strokeStyle = "#00838f";
@@ -163,7 +237,7 @@ export function drawFleet(canvas, view, now, ui) {
   // What was drawn, for people using assistive tools and for tests.
   canvas.dataset.units = drawn.sort().join(" ");
   canvas.dataset.headings = headings.sort().join(" ");
-  canvas.dataset.cell = String(c);
+  canvas.dataset.cell = String(+c.toFixed(2));
   canvas.dataset.ox = String(L.ox);
   canvas.dataset.oy = String(L.oy);
   return L;
@@ -172,7 +246,7 @@ export function drawFleet(canvas, view, now, ui) {
 const baseCache = { map: null, key: "", canvas: null };
 
 function baseLayer(map, L, dpr) {
-  const key = `${L.w}x${L.h}@${dpr}`;
+  const key = `${L.w}x${L.h}@${dpr}:${L.cell}:${L.ox},${L.oy}`;
   if (baseCache.map === map && baseCache.key === key) return baseCache.canvas;
   const canvas = baseCache.canvas ?? document.createElement("canvas");
   canvas.width = Math.round(L.w * dpr);
@@ -184,9 +258,12 @@ function baseLayer(map, L, dpr) {
   g.fillStyle = "#fafafa";
   g.fillRect(L.ox, L.oy, map.width * c, map.height * c);
   g.fillStyle = "#37474f";
-  for (let y = 0; y < map.height; y++) {
+  // Only the squares in view: zoomed in on a big map, most are not.
+  const x0 = Math.max(0, Math.floor(-L.ox / c)), x1 = Math.min(map.width, Math.ceil((L.w - L.ox) / c));
+  const y0 = Math.max(0, Math.floor(-L.oy / c)), y1 = Math.min(map.height, Math.ceil((L.h - L.oy) / c));
+  for (let y = y0; y < y1; y++) {
     const row = map.rows[y];
-    for (let x = 0; x < map.width; x++) {
+    for (let x = x0; x < x1; x++) {
       if (row[x] !== ".") g.fillRect(L.ox + x * c, L.oy + y * c, c, c);
     }
   }
@@ -194,12 +271,53 @@ function baseLayer(map, L, dpr) {
     g.strokeStyle = "#d0d4d8";
     g.lineWidth = 1;
     g.beginPath();
-    for (let x = 0; x <= map.width; x++) { g.moveTo(L.ox + x * c + 0.5, L.oy); g.lineTo(L.ox + x * c + 0.5, L.oy + map.height * c); }
-    for (let y = 0; y <= map.height; y++) { g.moveTo(L.ox, L.oy + y * c + 0.5); g.lineTo(L.ox + map.width * c, L.oy + y * c + 0.5); }
+    for (let x = x0; x <= x1; x++) { g.moveTo(L.ox + x * c + 0.5, L.oy + y0 * c); g.lineTo(L.ox + x * c + 0.5, L.oy + y1 * c); }
+    for (let y = y0; y <= y1; y++) { g.moveTo(L.ox + x0 * c, L.oy + y * c + 0.5); g.lineTo(L.ox + x1 * c, L.oy + y * c + 0.5); }
     g.stroke();
   }
   Object.assign(baseCache, { map, key, canvas });
   return canvas;
+}
+
+/**
+ * The throughput chart: a bar per minute of jobs done (oldest left), and how busy the units are
+ * now as a line across. Its figures go in data attributes too, for tests and assistive tools.
+ */
+export function drawChart(canvas, perMinute, share) {
+  const key = `${perMinute.join(" ")}|${share}`;
+  if (canvas.dataset.key === key) return;
+  canvas.dataset.key = key;
+  canvas.dataset.perMinute = perMinute.join(" ");
+  canvas.dataset.utilisation = share == null ? "" : share.toFixed(2);
+  const dpr = window.devicePixelRatio || 1;
+  const w = canvas.clientWidth || 300, h = canvas.clientHeight || 80;
+  canvas.width = Math.round(w * dpr);
+  canvas.height = Math.round(h * dpr);
+  const g = canvas.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, w, h);
+  const top = Math.max(1, ...perMinute);
+  const bw = w / perMinute.length;
+  g.font = "10px sans-serif";
+  g.textAlign = "center";
+  g.textBaseline = "bottom";
+  perMinute.forEach((n, i) => {
+    const bh = ((h - 14) * n) / top;
+    g.fillStyle = "#4caf50";
+    g.fillRect(i * bw + 2, h - bh, bw - 4, bh);
+    if (n) { g.fillStyle = "#1b5e20"; g.fillText(String(n), i * bw + bw / 2, h - bh); }
+  });
+  if (share != null) {
+    const y = h - (h - 14) * share;
+    g.strokeStyle = "#1565c0";
+    g.lineWidth = 2;
+    g.setLineDash([5, 3]);
+    g.beginPath();
+    g.moveTo(0, y);
+    g.lineTo(w, y);
+    g.stroke();
+    g.setLineDash([]);
+  }
 }
 
 function drawTarget(g, [cx, cy], c, color) {

@@ -45,6 +45,15 @@ export function jobRequest(view, { pickup, dropoff, mass, priority, jobId }) {
   };
 }
 
+const COMMAND_WORDS = { pause: "pause", resume: "resume", out_of_service: "take out of service", in_service: "bring into service" };
+
+/** A control_unit request for a unit row's buttons (protocol.md §6.4). */
+export function controlRequest(unit, command) {
+  return { what: `${COMMAND_WORDS[command] ?? command} ${unit}`, body: { unit, command } };
+}
+
+export const FEEDBACK_MS = 10000; // how long an answer stays under its form: then it is stale
+
 /** A cancel_job request for the queue's "delete" button. */
 export function cancelRequest(jobId) {
   return { what: `delete job ${jobId}`, body: { job_id: jobId } };
@@ -65,6 +74,7 @@ export class Forms {
     this.onUnitChosen = onUnitChosen;
     this.goal = document.querySelector("#goal-form");
     this.job = document.querySelector("#job-form");
+    this.timers = {}; // form -> the timer that clears its answer
   }
 
   bind() {
@@ -75,13 +85,29 @@ export class Forms {
     });
     document.querySelector("#goal-clear").addEventListener("click", () => this.sendGoal(this.goal.unit.value, null));
     this.job.addEventListener("submit", (ev) => { ev.preventDefault(); this.submitJob(); });
+    // Editing a form again makes its last answer stale.
+    for (const [name, form] of [["goal", this.goal], ["job", this.job]]) {
+      form.addEventListener("input", () => this.feedback(name, "", ""));
+    }
   }
 
-  /** Show `text` under a form ("goal", "job" or "cancel"); `kind` colours it. */
+  /**
+   * Show `text` under a form ("goal", "job", "cancel" or "unit"); `kind` colours it. An answer
+   * clears itself after FEEDBACK_MS; one still waiting ("pending") stays until answered.
+   */
   feedback(form, kind, text) {
     const el = document.querySelector(`#${form}-feedback`);
     el.dataset.kind = kind;
     el.textContent = text;
+    clearTimeout(this.timers[form]);
+    if (text && kind !== "pending") {
+      this.timers[form] = setTimeout(() => { if (el.textContent === text) this.feedback(form, "", ""); }, FEEDBACK_MS);
+    }
+  }
+
+  controlUnit(unit, command) {
+    const req = controlRequest(unit, command);
+    this.send("control_unit", "unit", req.what, req.body);
   }
 
   sendGoal(unit, target) {

@@ -12,7 +12,7 @@
 
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
-import { squareAt } from "./draw.js";
+import { layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
 import { Forms } from "./forms.js";
 import { loadSettings, logIn, logOut, mqttLogin } from "./login.js";
 import { FleetView } from "./model.js";
@@ -105,7 +105,7 @@ class Dashboard {
     this.view = new FleetView(settings.map, settings.colors ?? {});
     this.page = new PageView(this.view);
     this.requests = new Requests(clientId, new Stamper(clientId));
-    this.ui = initialClicks(); // the map's click mode and what it has picked so far
+    this.ui = initialClicks(); // the map's click mode, what it picked, the chosen job, the zoom
     this.layout = null;
     this.dirty = true;
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
@@ -120,7 +120,7 @@ class Dashboard {
         showConnection(state, text);
         this.renderEstop();
       },
-      onMessage: (topic, payload) => this.onMessage(topic, payload),
+      onMessage: (topic, payload, retained) => this.onMessage(topic, payload, retained),
       onLog: log,
     }, mqttLogin(settings));
     document.body.dataset.clientId = clientId;
@@ -142,11 +142,12 @@ class Dashboard {
     };
     requestAnimationFrame(frame);
     setInterval(() => this.page.seen(Date.now()), 500);
+    setInterval(() => { this.view.utilisation.sample(this.view, Date.now()); this.dirty = true; }, 1000);
     setInterval(() => this.retry(Date.now()), 500);
   }
 
   // ---- messages in, requests out ----
-  onMessage(topic, payload) {
+  onMessage(topic, payload, retained = false) {
     const parsed = parseTopic(this.topics.prefix, topic);
     if (!parsed) return;
     const text = new TextDecoder().decode(payload);
@@ -154,9 +155,15 @@ class Dashboard {
       if (parsed.id === this.clientId) this.show(this.requests.reply(text));
       return;
     }
-    const problem = this.view.apply(parsed.kind, parsed.id, text, Date.now());
+    const problem = this.view.apply(parsed.kind, parsed.id, text, Date.now(), retained);
     if (problem) log(problem);
-    if (parsed.kind === "errors" && !problem) this.show(this.requests.error(this.view.lastError));
+    if (parsed.kind === "errors" && !problem) {
+      // A refused request of anybody's is in the coordinator's events, in words: only ours is
+      // shown here, under its form; other reports (a unit refusing an order) go in the log.
+      const { feedback, log: line } = this.requests.error(this.view.lastError);
+      const request = (this.view.lastError?.topic ?? "").includes("/requests/");
+      this.show({ feedback, log: request ? null : line });
+    }
     if (parsed.kind === "estop") this.localStop = false;
     this.dirty = true;
   }
@@ -208,7 +215,11 @@ class Dashboard {
       });
     }
     const canvas = $("#map");
-    canvas.addEventListener("click", (ev) => this.onMapClick(ev));
+    canvas.addEventListener("click", (ev) => {
+      if (this.dragged) { this.dragged = false; return; } // the end of a pan, not a click
+      this.onMapClick(ev);
+    });
+    this.bindZoom(canvas);
     canvas.addEventListener("mousemove", (ev) => {
       const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
       $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
@@ -216,12 +227,52 @@ class Dashboard {
     this.forms.bind();
     $("#jobs tbody").addEventListener("click", (ev) => {
       const btn = ev.target.closest("button[data-cancel]");
-      if (btn) this.forms.cancelJob(btn.dataset.cancel);
+      if (btn) { this.forms.cancelJob(btn.dataset.cancel); return; }
+      const row = ev.target.closest("tr[data-job]");
+      if (row) this.selectJob(row.dataset.job);
     });
     $("#units tbody").addEventListener("click", (ev) => {
+      const btn = ev.target.closest("button[data-command]");
+      if (btn) { this.forms.controlUnit(btn.dataset.unit, btn.dataset.command); return; }
       const row = ev.target.closest("tr[data-unit]");
       if (row) this.selectUnit(row.dataset.unit);
     });
+  }
+
+  /** The wheel zooms about the pointer, a drag pans, "fit map" shows it whole again. */
+  bindZoom(canvas) {
+    const layout = () => this.layout ?? layoutFor(canvas, this.view.map, this.ui.zoom);
+    canvas.addEventListener("wheel", (ev) => {
+      ev.preventDefault(); // the page itself does not scroll under the map
+      const factor = ev.deltaY < 0 ? 1.25 : 0.8;
+      this.ui = { ...this.ui, zoom: zoomAt(this.ui.zoom, layout(), ev.offsetX, ev.offsetY, factor) };
+      this.dirty = true;
+    }, { passive: false });
+    let from = null;
+    canvas.addEventListener("pointerdown", (ev) => { from = [ev.clientX, ev.clientY]; this.dragged = false; });
+    canvas.addEventListener("pointermove", (ev) => {
+      if (!from || ev.buttons === 0) { from = null; return; }
+      const [dx, dy] = [ev.clientX - from[0], ev.clientY - from[1]];
+      if (!this.dragged && Math.hypot(dx, dy) < 5) return; // a click that wobbled
+      this.dragged = true;
+      canvas.classList.add("panning");
+      from = [ev.clientX, ev.clientY];
+      this.ui = { ...this.ui, zoom: panBy(this.ui.zoom, layout(), dx, dy) };
+      this.dirty = true;
+    });
+    const end = () => { from = null; canvas.classList.remove("panning"); };
+    canvas.addEventListener("pointerup", end);
+    canvas.addEventListener("pointerleave", end);
+    $("#fit").addEventListener("click", () => {
+      this.ui = { ...this.ui, zoom: { scale: 1, pan: [0, 0] } };
+      this.dirty = true;
+    });
+  }
+
+  /** A job row chosen: its P and D stand out on the map, joined; chosen again, unchosen. */
+  selectJob(id) {
+    this.ui = { ...this.ui, selectedJob: this.ui.selectedJob === id ? null : id };
+    this.dirty = true;
   }
 
   selectUnit(id) {

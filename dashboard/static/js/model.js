@@ -2,6 +2,7 @@
 // (callers pass `now` in milliseconds).
 
 import { decodeEstop, decodePress, FINAL_JOB_STATES } from "./protocol.js";
+import { JobNumbers, Utilisation } from "./story.js";
 
 export const HIGHLIGHT_MS = 4000; // how long a newly discovered obstacle stays highlighted
 const key = (sq) => `${sq[0]},${sq[1]}`;
@@ -18,8 +19,11 @@ export class FleetView {
     this.coordinator = null;
     this.latch = null; // fleet/estop: {engaged, by, reason} or null when nobody has said
     this.presses = new Map(); // "kind/id" -> the held stop press of a unit or device
-    this.obstacles = new Map(); // "x,y" -> first seen (ms)
+    this.obstacles = new Map(); // "x,y" -> first seen (ms); -Infinity: known before the page was
     this.lastError = null;
+    this.events = []; // the coordinator's recent history (fleet/events), oldest first
+    this.jobNumbers = new JobNumbers(); // P3 on the map goes with D3 and row 3
+    this.utilisation = new Utilisation(); // sampled by the page (utilisation.sample)
   }
 
   unit(id) {
@@ -31,8 +35,12 @@ export class FleetView {
     return u;
   }
 
-  /** Apply one message; returns a string describing a problem, or null. */
-  apply(kind, id, text, now) {
+  /**
+   * Apply one message; returns a string describing a problem, or null. `retained`: replayed by
+   * the broker on subscribing, so what it says was known before the page loaded.
+   */
+  apply(kind, id, text, now, retained = false) {
+    const seen = retained ? -Infinity : now; // an obstacle is "new" only if found since the load
     if (kind === "estop") {
       if (text === "") { this.latch = null; return null; }
       const signal = decodeEstop(text);
@@ -68,13 +76,13 @@ export class FleetView {
         const u = this.unit(id);
         u.state = msg;
         u.lastSeen = now;
-        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, now);
+        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
         break;
       }
       case "map": {
         if (!Array.isArray(msg.rows)) return "ignored a map without rows";
         this.map = msg;
-        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, now);
+        for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
         break;
       }
       case "jobs":
@@ -87,6 +95,7 @@ export class FleetView {
         break;
       case "coordinator": this.coordinator = msg; break;
       case "errors": this.lastError = msg; break;
+      case "events": this.events = Array.isArray(msg.events) ? msg.events : []; break;
       default: break;
     }
     return null;

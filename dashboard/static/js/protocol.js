@@ -43,6 +43,7 @@ export function topicsFor(root) {
     map: topicOf(p, "map"),
     jobs: topicOf(p, "jobs"),
     routes: topicOf(p, "routes"),
+    events: topicOf(p, "events"),
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
     allUnits: (kind) => topicOf(p, check(UNIT_KINDS, kind, "a per-unit topic kind"), "+"),
@@ -54,7 +55,7 @@ export function topicsFor(root) {
 
 // What the page reads: every unit's connection, factsheet and state, the fleet views, its replies.
 const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state"];
-const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors"];
+const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events"];
 
 /** What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0). */
 export function subscriptions(topics, clientId) {

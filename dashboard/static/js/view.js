@@ -2,8 +2,9 @@
 // the message log. What each cell says comes from pure functions (testable under node); `PageView`
 // puts it on the page.
 
-import { drawFleet } from "./draw.js";
+import { drawChart, drawFleet } from "./draw.js";
 import { syncRows } from "./rows.js";
+import { donePerMinute, durationText, eventLines, latestFinished, tookSeconds, unitJob } from "./story.js";
 
 const $ = (sel) => document.querySelector(sel);
 const FINAL_COUNTED = ["done", "cancelled", "rejected", "failed"];
@@ -14,16 +15,31 @@ export function mapTitle(map) {
   return map ? `${map.name} ${map.width} x ${map.height}` : "no map yet";
 }
 
-/** The units table's cells for unit `u` (a FleetView unit): [text, className] each. */
-export function unitCells(u) {
+const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
+
+/**
+ * The units table's cells for unit `u` (a FleetView unit): [text, className] each. `job`: the job
+ * it works on (its own, or the queue's before pickup); `control`: an operator's hold on it.
+ */
+export function unitCells(u, job = u.state?.job_id ?? null, control = null) {
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
-  const status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+  let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+  if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
+  // A job whose item is on board is marked (the load says how heavy).
+  const carrying = s && s.load_kg > 0 ? "job carrying" : "job";
   return [
     [u.id, "id"], [u.connection ?? "?", "link"],
     [s ? `[${s.position[0]}, ${s.position[1]}]` : "—", "pos"], [status, "status"],
-    [s?.job_id ?? "—", "job"], [s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "load"],
+    [job ?? "—", carrying], [s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "load"],
   ];
+}
+
+/** The unit row's control buttons for `control` (null, paused, out_of_service): [label, command]. */
+export function controlButtons(control) {
+  if (control === "out_of_service") return [["in service", "in_service"]];
+  if (control === "paused") return [["resume", "resume"], ["out of service", "out_of_service"]];
+  return [["pause", "pause"], ["out of service", "out_of_service"]];
 }
 
 /** When unit `u` was last heard of, at `now` (ms). */
@@ -31,13 +47,16 @@ export function seenText(u, now) {
   return u.lastSeen == null ? "never" : `${Math.max(0, Math.round((now - u.lastSeen) / 1000))} s ago`;
 }
 
-export function jobCells(j) {
-  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
-    [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]];
+/** A job of the queue: `n` its number on the map (P n, D n), and why it waits, if it does. */
+export function jobCells(j, n) {
+  return [[String(n), "no"], [j.id, "id"], [j.state, "state"], [j.wait_reason ?? "", "waits"],
+    [j.unit ?? "—", "unit"], [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]];
 }
 
-export function finishedCells(j) {
-  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [j.reason ?? "", "reason"]];
+/** A finished job; `periodS` the coordinator's step period, for how long it took. */
+export function finishedCells(j, periodS) {
+  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
+    [durationText(tookSeconds(j, periodS)), "took"], [j.reason ?? "", "reason"]];
 }
 
 /**
@@ -77,9 +96,35 @@ export class PageView {
     const layout = drawFleet($("#map"), this.view, now, ui);
     $("#map-name").textContent = mapTitle(this.view.map);
     this.units(now, ui);
-    this.jobs();
+    this.jobs(ui);
     this.coordinator();
+    this.events();
+    this.chart();
     return layout;
+  }
+
+  /** The coordinator's recent history, newest first: it survives a reload (fleet/events). */
+  events() {
+    const lines = eventLines(this.view.events);
+    const ul = $("#events");
+    if (ul.dataset.count === String(this.view.events.length) && ul.dataset.last === (lines[0]?.text ?? "")) return;
+    ul.dataset.count = String(this.view.events.length);
+    ul.dataset.last = lines[0]?.text ?? "";
+    ul.replaceChildren(...lines.map((line) => {
+      const li = document.createElement("li");
+      li.className = `event-${line.kind}`;
+      const time = document.createElement("time");
+      time.textContent = line.time;
+      li.append(time, ` ${line.text}`);
+      return li;
+    }));
+  }
+
+  /** Jobs done per minute and how busy the units are. */
+  chart() {
+    const c = this.view.coordinator;
+    const perMinute = donePerMinute(this.view.finishedJobs(), this.view.coordinatorStep(), c?.step_period_s);
+    drawChart($("#chart"), perMinute, this.view.utilisation.latest());
   }
 
   units(now, ui) {
@@ -87,14 +132,17 @@ export class PageView {
     syncRows($("#units tbody"), ids, {
       keyName: "unit",
       key: (id) => id,
-      cells: (id) => unitCells(this.view.units.get(id)),
+      cells: (id) => unitCells(this.view.units.get(id), unitJob(this.view, id), this.view.routes[id]?.control),
       extra: (tr, id, fresh) => {
         const u = this.view.units.get(id);
         if (fresh) {
           const seen = document.createElement("td");
           seen.className = "seen";
-          tr.append(seen);
+          const control = document.createElement("td");
+          control.className = "control";
+          tr.append(seen, control);
         }
+        this.controls(tr.querySelector("td.control"), id);
         tr.dataset.link = u.connection ?? "unknown";
         tr.classList.toggle("selected", id === ui.selectedUnit);
         tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
@@ -102,6 +150,22 @@ export class PageView {
       },
     });
     this.seen(now);
+  }
+
+  /** A unit's pause / out-of-service buttons, rebuilt only when its hold changes. */
+  controls(td, id) {
+    const control = this.view.routes[id]?.control ?? "";
+    if (td.dataset.control === control && td.children.length) return;
+    td.dataset.control = control;
+    td.replaceChildren(...controlButtons(control || null).map(([label, command]) => {
+      const b = document.createElement("button");
+      b.type = "button";
+      b.dataset.unit = id;
+      b.dataset.command = command;
+      b.textContent = label;
+      b.title = `${label}: ${id}`;
+      return b;
+    }));
   }
 
   /** The "seen" column and the silent mark: they change with the clock alone. */
@@ -115,14 +179,16 @@ export class PageView {
     }
   }
 
-  jobs() {
+  jobs(ui) {
     const active = this.view.activeJobs();
     syncRows($("#jobs tbody"), active, {
       keyName: "job",
       key: (j) => j.id,
-      cells: jobCells,
+      cells: (j) => jobCells(j, this.view.jobNumbers.of(j.id)),
       extra: (tr, j, fresh) => {
         tr.className = `job-${j.state}`;
+        tr.classList.toggle("selected", j.id === ui.selectedJob);
+        tr.children[3].title = j.wait_reason ?? ""; // the whole reason, when the cell cuts it
         if (!fresh) return;
         const td = document.createElement("td");
         const b = document.createElement("button");
@@ -136,10 +202,11 @@ export class PageView {
     });
     $("#queue-count").textContent = `(${active.length})`;
     const finished = this.view.finishedJobs();
-    syncRows($("#finished tbody"), finished, {
+    const period = this.view.coordinator?.step_period_s;
+    syncRows($("#finished tbody"), latestFinished(finished), {
       keyName: "job",
       key: (j) => j.id,
-      cells: finishedCells,
+      cells: (j) => finishedCells(j, period),
       extra: (tr, j) => { tr.className = `job-${j.state}`; },
     });
     $("#finished-counts").textContent = finishedCounts(finished, this.view.counts);

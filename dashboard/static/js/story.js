@@ -1,0 +1,139 @@
+// What the page tells about the fleet's work: each unit's job, numbered pickup/dropoff pairs,
+// finished jobs newest first with how long they took, the coordinator's event log, and the
+// figures of the throughput chart. Pure: no DOM, no clock (callers pass `now` in ms).
+
+export const FINISHED_SHOWN = 20; // the finished table's rows: the latest, newest first
+export const CHART_MINUTES = 10; // the chart's span
+export const SAMPLE_MS = 5000; // how often the page samples how busy the units are
+
+/** The job unit `id` works on: its own state's, else the one the queue assigns it (not final). */
+export function unitJob(view, id) {
+  const own = view.units.get(id)?.state?.job_id;
+  if (own) return own;
+  return view.activeJobs().find((j) => j.unit === id)?.id ?? null;
+}
+
+/** Stable numbers for jobs, so a pickup "P3" is matched with its dropoff "D3" and its row. */
+export class JobNumbers {
+  constructor() {
+    this.numbers = new Map();
+    this.next = 1;
+  }
+
+  /** The number of job `id`, given the first time it is asked for. */
+  of(id) {
+    if (!this.numbers.has(id)) this.numbers.set(id, this.next++);
+    return this.numbers.get(id);
+  }
+}
+
+/** Seconds job `j` took from submission to its end, from the coordinator's steps; null if unknown. */
+export function tookSeconds(j, periodS) {
+  if (!Number.isInteger(j.done_step) || !Number.isInteger(j.created_step) || !(periodS > 0)) return null;
+  return Math.max(0, j.done_step - j.created_step) * periodS;
+}
+
+/** "8.5 s", "2 min 05 s", "1 h 02 min". */
+export function durationText(seconds) {
+  if (seconds == null) return "—";
+  if (seconds < 60) return `${+seconds.toFixed(1)} s`;
+  const s = Math.round(seconds);
+  if (s < 3600) return `${Math.floor(s / 60)} min ${String(s % 60).padStart(2, "0")} s`;
+  return `${Math.floor(s / 3600)} h ${String(Math.floor((s % 3600) / 60)).padStart(2, "0")} min`;
+}
+
+/** The finished jobs newest first (by the step they ended), at most `most`. */
+export function latestFinished(finished, most = FINISHED_SHOWN) {
+  const step = (j) => (Number.isInteger(j.done_step) ? j.done_step : -1);
+  return [...finished].sort((a, b) => step(b) - step(a) || (a.id < b.id ? 1 : -1)).slice(0, most);
+}
+
+/** "10:04:31", local time, of an ISO timestamp; "" when it does not parse. */
+export function clockText(iso) {
+  const d = new Date(iso);
+  if (Number.isNaN(d.getTime())) return "";
+  return [d.getHours(), d.getMinutes(), d.getSeconds()].map((n) => String(n).padStart(2, "0")).join(":");
+}
+
+/** The coordinator's event history (oldest first, as published) as log lines, newest first. */
+export function eventLines(events) {
+  if (!Array.isArray(events)) return [];
+  return events
+    .filter((e) => e && typeof e.text === "string")
+    .map((e) => ({ time: clockText(e.at), text: e.text, kind: e.kind ?? "", job: e.job ?? null, unit: e.unit ?? null }))
+    .reverse();
+}
+
+/**
+ * Jobs done in each of the last `minutes` minutes, oldest first, from the steps they ended at
+ * (`step` is the coordinator's latest): the history survives a reload, as the jobs view does.
+ */
+export function donePerMinute(finished, step, periodS, minutes = CHART_MINUTES) {
+  const counts = new Array(minutes).fill(0);
+  if (!Number.isInteger(step) || !(periodS > 0)) return counts;
+  for (const j of finished) {
+    if (j.state !== "done" || !Number.isInteger(j.done_step)) continue;
+    const ago = Math.floor(((step - j.done_step) * periodS) / 60);
+    if (ago >= 0 && ago < minutes) counts[minutes - 1 - ago] += 1;
+  }
+  return counts;
+}
+
+/** Units online and, of those, units with work (a job, a goal or moving), at one moment. */
+export function busyUnits(view) {
+  let online = 0, busy = 0;
+  for (const u of view.units.values()) {
+    if (u.connection !== "online" || !u.state) continue;
+    online += 1;
+    if (unitJob(view, u.id) || u.state.status !== "idle") busy += 1;
+  }
+  return { online, busy };
+}
+
+/** Samples of how busy the units were: the share of online units with work, kept `minutes`. */
+export class Utilisation {
+  constructor(minutes = CHART_MINUTES) {
+    this.keepMs = minutes * 60000;
+    this.samples = []; // {t, share}
+  }
+
+  /** Take a sample at `now` (ms) unless the last one is less than SAMPLE_MS old. */
+  sample(view, now) {
+    const last = this.samples[this.samples.length - 1];
+    if (last && now - last.t < SAMPLE_MS) return;
+    const { online, busy } = busyUnits(view);
+    if (online === 0) return;
+    this.samples.push({ t: now, share: busy / online });
+    while (this.samples.length && now - this.samples[0].t > this.keepMs) this.samples.shift();
+  }
+
+  /** The latest share, 0..1, or null before the first sample. */
+  latest() {
+    return this.samples.length ? this.samples[this.samples.length - 1].share : null;
+  }
+}
+
+/**
+ * Places one label per item where it overlaps no other label, no unit and stays in `bounds`:
+ * below, above, right or left of its unit; an item with no free place gets none (the units table
+ * names every unit). Items are {id, cx, cy, r, w, h}; returns [{id, x, y, w, h}] (x, y: centre).
+ */
+export function placeLabels(items, bounds) {
+  const boxes = (x, y, w, h) => ({ x0: x - w / 2, y0: y - h / 2, x1: x + w / 2, y1: y + h / 2 });
+  const overlaps = (a, b) => a.x0 < b.x1 && b.x0 < a.x1 && a.y0 < b.y1 && b.y0 < a.y1;
+  const inside = (a) => a.x0 >= bounds.x0 && a.y0 >= bounds.y0 && a.x1 <= bounds.x1 && a.y1 <= bounds.y1;
+  const taken = items.map((it) => ({ id: it.id, ...boxes(it.cx, it.cy, 2 * it.r, 2 * it.r) }));
+  const placed = [];
+  for (const it of items) {
+    const gap = it.r + it.h / 2 + 1;
+    const side = it.r + it.w / 2 + 2;
+    const spots = [[it.cx, it.cy + gap], [it.cx, it.cy - gap], [it.cx + side, it.cy], [it.cx - side, it.cy]];
+    for (const [x, y] of spots) {
+      const box = boxes(x, y, it.w, it.h);
+      if (!inside(box) || taken.some((t) => t.id !== it.id && overlaps(box, t)) || placed.some((p) => overlaps(box, p.box))) continue;
+      placed.push({ id: it.id, x, y, w: it.w, h: it.h, box });
+      break;
+    }
+  }
+  return placed.map(({ box, ...label }) => label);
+}
