@@ -28,7 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--db", default=None, metavar="PATH", help=f"job database (default {default_db_path()})"
     )
-    parser.add_argument("--client-id", default="coordinator", help="MQTT client id and sender")
+    parser.add_argument(
+        "--client-id",
+        default=None,
+        help="MQTT client id and sender (default 'coordinator'; under another --root the client "
+        "id names the root too, so fleets can share a broker)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -38,12 +38,16 @@ class Coordinator:
         root: str = "gridfleet",
         step_s: float = 1.0,
         db_path: str | Path | None = None,
-        client_id: str = "coordinator",
+        client_id: str | None = None,
         seed: int = 0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.broker = broker
         self.topics = Topics(root)
+        # The sender its messages name, and its MQTT client id: one per root by default, so
+        # fleets sharing a broker do not take each other's connection (Topics.client_id).
+        sender = client_id or "coordinator"
+        client_id = client_id or self.topics.client_id("coordinator")
         self.step_s = step_s
         self.clock = clock
         self.store = JobStore(db_path if db_path is not None else default_db_path())
@@ -53,7 +57,7 @@ class Coordinator:
             nonce=secrets.token_hex(3),
             seed=seed,
             topics=self.topics,
-            stamp=HeaderStamper(client_id),
+            stamp=HeaderStamper(sender),
         )
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.controls.update(self.store.load_controls())

@@ -35,7 +35,7 @@ class VirtualDevice:
         self.logic = logic
         self.endpoint = Endpoint(
             url,
-            logic.device,
+            Topics(root).client_id(logic.device),  # per root: fleets may share a broker
             name=f"device {logic.device}",
             subscriptions=logic.subscriptions,
             will=lambda: logic.connection("broken"),

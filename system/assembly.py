@@ -46,7 +46,7 @@ class SystemSpec:
     step_s: float = 0.5
     db_path: Path | None = None  # the coordinator's job store (None: per user, as a service)
     seed: int = 0
-    coordinator_id: str = "coordinator"
+    coordinator_id: str | None = None  # default: 'coordinator', its client id per root
     sensors_see_units: bool = True  # threads only: sensors blind to units test the orders alone
     own_broker: Mode = "threads"  # where an embedded broker runs when the services are threads
     mqtt_port: int = 0  # an embedded broker's ports (0: free ones)
@@ -105,7 +105,7 @@ class Assembly:
         if mode == "threads" and (spec.dashboard_port is not None or spec.feed):
             raise ConfigError("the dashboard and the feed run only as processes")
         in_threads_only = (spec.seed, spec.coordinator_id, spec.sensors_see_units, spec.accounts)
-        if mode == "processes" and in_threads_only != (0, "coordinator", True, None):
+        if mode == "processes" and in_threads_only != (0, None, True, None):
             raise ConfigError(
                 "seed, coordinator id, blind sensors and loaded accounts are set only in threads "
                 "(processes take accounts_file)"

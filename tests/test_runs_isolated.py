@@ -11,11 +11,15 @@ from typing import Any
 
 import pytest
 
+from coordinator.service import Coordinator
+from gridfleet.protocol import Routes, Topics, decode
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
+from system.threads import ServiceThread
 
 from support.mosquitto import free_port, running_mosquitto
 from support.probe import MqttProbe
+from support.wait import wait_for
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 
@@ -105,3 +109,43 @@ def test_clean_says_when_the_broker_is_not_there() -> None:
     out = gridfleet("clean", "--broker", f"mqtt://127.0.0.1:{free_port()}", timeout=60)
     assert out.returncode == 2 and "error: MQTT with" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_client_ids_name_the_root_but_for_the_default_one() -> None:
+    assert Topics().client_id("coordinator") == "coordinator"
+    assert Topics("lab/a").client_id("coordinator") == "coordinator@lab.a"
+    long = Topics("/".join(["x" * 30] * 4)).client_id("coordinator")
+    assert len(long) <= 64 and long.startswith("coordinator@xxx")
+    assert long != Topics("/".join(["x" * 30] * 3 + ["y" * 30])).client_id("coordinator")
+
+
+def test_two_fleets_on_one_broker_keep_their_coordinators_connected(
+    broker: BrokerThread, tmp_path: Path, root: str
+) -> None:
+    # Both coordinators were MQTT client `coordinator`: each connection took the other's over,
+    # for ever (on Mosquitto as on the embedded broker).
+    grid = load_scenario(Path(__file__).resolve().parent.parent / "maps" / "playfield.toml").grid
+    roots = (f"{root}/a", f"{root}/b")
+    probe = MqttProbe(broker.url).connect()
+    for r in roots:
+        probe.subscribe(Topics(r).fleet("routes"), qos=0)
+
+    def coordinator(n: int) -> ServiceThread:
+        db = tmp_path / f"{n}.db"
+        return ServiceThread(
+            lambda: Coordinator(broker.url, grid, root=roots[n], step_s=0.05, db_path=db),
+            f"coordinator-{n}",
+        )
+
+    def steps(r: str) -> int:
+        seen = probe.received(Topics(r).fleet("routes"))
+        return decode(Routes, seen[-1].payload).step if seen else 0
+
+    try:
+        with coordinator(0) as first, coordinator(1) as second:
+            # 40 steps each (2 s) side by side: a takeover reconnects within 0.1 s.
+            wait_for(lambda: min(steps(r) for r in roots) >= 40, timeout=30, what="40 steps each")
+            connects = [s.service.endpoint.connects for s in (first, second)]  # type: ignore[attr-defined]
+    finally:
+        probe.close()
+    assert connects == [1, 1]

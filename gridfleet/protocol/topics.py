@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import re
 from dataclasses import dataclass
 from typing import Literal
@@ -13,6 +14,7 @@ from gridfleet.protocol.constants import (
     MAX_DEVICE_CONNECTION_BYTES,
     MAX_DIRECTION_BYTES,
     MAX_ESTOP_BYTES,
+    MAX_ID_CHARS,
     MAX_REQUEST_BYTES,
     MAX_VIEW_BYTES,
     ROOT_SEGMENT_PATTERN,
@@ -134,6 +136,22 @@ class Topics:
             )
         self.root = root
         self.prefix = f"{root}/{TOPIC_VERSION}"
+
+    def client_id(self, name: str) -> str:
+        """An MQTT client id for the one `name` of this root's fleet (e.g. its coordinator).
+
+        Client ids are broker-wide: two fleets sharing a broker under two roots, each with a
+        client `coordinator`, would take each other's connection over and over. The default root
+        keeps the bare name; another root is added to it (hashed when that would be too long).
+        """
+        if self.root == DEFAULT_ROOT:
+            return name
+        tag = self.root.replace("/", ".")
+        full = f"{name}@{tag}"
+        if len(full) <= MAX_ID_CHARS:
+            return full
+        digest = hashlib.sha256(self.root.encode()).hexdigest()[:12]
+        return f"{name}@{tag[: MAX_ID_CHARS - len(name) - 14]}~{digest}"
 
     def unit(self, kind: str, unit: str) -> str:
         """The per-unit topic of `kind` (connection, factsheet, state, order, goal, direction, stop)."""
