@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test check lint typecheck pytest soak firmware-test install schemas clean system-deps
+.PHONY: run test test-mosquitto check lint typecheck pytest soak firmware-test install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
@@ -52,6 +52,11 @@ soak: $(STAMP)
 
 pytest: $(STAMP)
 	$(BIN)/pytest
+
+# Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
+# (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
+test-mosquitto: system-deps $(STAMP)
+	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi

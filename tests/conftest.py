@@ -1,7 +1,9 @@
-"""Shared fixtures: a real amqtt broker on free loopback ports, and a topic root per test."""
+"""Shared fixtures: a real broker on free loopback ports (amqtt, or Mosquitto), and a topic root
+per test."""
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,24 +16,57 @@ from system.assembly import Assembly, SystemSpec
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread
 
+from support.mosquitto import MosquittoBroker
 from support.probe import MqttProbe
 
 REPO = Path(__file__).resolve().parent.parent
 MAPS = REPO / "maps"
 
 
+# Which broker the `broker` and `fresh_broker` fixtures start: the embedded amqtt (default), or
+# Debian's Mosquitto (`make test-mosquitto`). Tests that are about amqtt itself say so with the
+# `amqtt_only` marker.
+BROKER_KIND = os.environ.get("GRIDFLEET_TEST_BROKER", "amqtt")
+if BROKER_KIND not in ("amqtt", "mosquitto"):
+    raise pytest.UsageError(f"GRIDFLEET_TEST_BROKER={BROKER_KIND!r}: give amqtt or mosquitto")
+BROKER_FIXTURES = {"broker", "fresh_broker"}
+
+
+def _start_broker(tmp: pytest.TempPathFactory) -> BrokerThread | MosquittoBroker:
+    if BROKER_KIND == "mosquitto":
+        return MosquittoBroker(tmp.mktemp("mosquitto"))
+    return BrokerThread()
+
+
 @pytest.fixture(scope="session")
-def broker() -> Iterator[BrokerThread]:
-    """One embedded broker for the session; tests keep apart through their own topic root."""
-    with BrokerThread() as running:
-        yield running
+def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BrokerThread]:
+    """One broker for the session; tests keep apart through their own topic root."""
+    with _start_broker(tmp_path_factory) as running:
+        yield running  # type: ignore[misc]  # Mosquitto: the same interface, duck-typed
 
 
 @pytest.fixture
-def fresh_broker() -> Iterator[BrokerThread]:
+def fresh_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BrokerThread]:
     """A broker of this test's own, for tests that stop or restart it."""
-    with BrokerThread() as running:
-        yield running
+    with _start_broker(tmp_path_factory) as running:
+        yield running  # type: ignore[misc]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On Mosquitto: only the tests that talk to the suite's broker, and not the amqtt-only ones.
+
+    The others (pure cores, parsers, systems with a broker of their own) run the same whatever
+    broker the fixtures would start; `make test` runs them, once.
+    """
+    if BROKER_KIND != "mosquitto":
+        return
+    keep, drop = [], []
+    for item in items:
+        uses = set(getattr(item, "fixturenames", ())) & BROKER_FIXTURES
+        (keep if uses and item.get_closest_marker("amqtt_only") is None else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = keep
 
 
 @pytest.fixture

@@ -30,7 +30,7 @@ from system.threads import ServiceThread, world_of
 
 from support.browser import OpenDashboard
 from support.probe import MqttProbe
-from support.wait import wait_for
+from support.wait import WaitTimeout, wait_for
 
 pytestmark = pytest.mark.browser
 
@@ -428,14 +428,21 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
     wait_for(lists_match_the_coordinator, timeout=30, what="pending and done jobs listed")
 
     # At the end: every job done by a unit able to carry it, the queue empty, the counts right.
-    wait_for(
-        lambda: (
-            all(r["state"] == "done" for r in system.page_jobs().values())
-            and len(system.page_jobs()) == len(jobs)
-        ),
-        timeout=40,
-        what="every job done on the page",
-    )
+    try:
+        wait_for(
+            lambda: (
+                all(r["state"] == "done" for r in system.page_jobs().values())
+                and len(system.page_jobs()) == len(jobs)
+            ),
+            timeout=40,
+            what="every job done on the page",
+        )
+    except WaitTimeout as exc:  # say where each job and unit stood, to tell a stall from a slow run
+        view = system.jobs()
+        states = {j.id: (j.state, j.unit, j.wait_reason) for j in view.jobs} if view else None
+        raise WaitTimeout(
+            f"{exc}: page {system.page_jobs()}; coordinator {states}; units {unit_rows(system)}"
+        ) from None
     expect(system.page.locator("#queue-count")).to_have_text("(0)")
     expect(system.page.locator("#finished-counts")).to_have_text(f"done {len(jobs)}")
     rows = system.page_jobs()

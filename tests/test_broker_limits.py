@@ -28,6 +28,9 @@ from support.wait import wait_for
 ROOT = "lim"
 T = Topics(ROOT)
 
+# The embedded broker's own limits (its Mosquitto counterparts start a Mosquitto of their own).
+pytestmark = pytest.mark.amqtt_only
+
 
 class Client:
     """A bare paho client with no network thread: it reads and writes only while the test polls."""

@@ -15,7 +15,7 @@ import pytest
 from playwright.sync_api import expect
 
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.protocol import ControlUnit, JobView, RouteView, Topics, decode
+from gridfleet.protocol import ControlUnit, EventEntry, JobView, RouteView, Topics, decode
 from gridfleet.protocol.messages import JobState
 from gridfleet.scenario import load_scenario
 
@@ -159,19 +159,13 @@ def test_the_event_log_is_the_coordinators_and_survives_a_reload(
 ) -> None:
     fleet_of(PLAYFIELD, probe, topics, coordinator)
     at = datetime(2026, 11, 24, 9, 5, 7, tzinfo=UTC)
-    events = [
-        {
-            "at": at.isoformat(),
-            "kind": "job",
-            "text": "job crate queued by dashboard",
-            "job": "crate",
-        },
-        {"at": at.isoformat(), "kind": "stop", "text": "emergency stop ENGAGED by operator: drill"},
-        {"at": at.isoformat(), "kind": "job", "text": "job crate done by unit2 in 14.2 s"},
-    ]
-    header = {"version": "1.3", "seq": 0, "timestamp": at.isoformat(), "sender": "coordinator"}
-    payload = json.dumps({"header": header, "events": events}).encode()
-    probe.publish(topics.fleet("events"), payload, qos=1, retain=True)
+    coordinator.events(
+        [
+            EventEntry(at=at, kind="job", text="job crate queued by dashboard", job="crate"),
+            EventEntry(at=at, kind="stop", text="emergency stop ENGAGED by operator: drill"),
+            EventEntry(at=at, kind="job", text="job crate done by unit2 in 14.2 s", job="crate"),
+        ]
+    )
     dash = open_dashboard(root)
     lines = dash.page.locator("#events li")
     expect(lines).to_have_count(3)

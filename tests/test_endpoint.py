@@ -7,6 +7,8 @@ import threading
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
+import pytest
+
 from gridfleet.endpoint import CONNECT_S, GOODBYE_S, Backoff, Endpoint, Outbound
 from gridfleet.protocol import Topics
 from system.broker_thread import BrokerThread
@@ -179,6 +181,7 @@ async def test_on_stop_runs_before_offline_and_only_on_a_clean_stop(
     probe.close()
 
 
+@pytest.mark.amqtt_only  # freezes the embedded broker's own event loop
 async def test_a_clean_stop_does_not_wait_long_for_a_broker_that_stopped_answering(
     fresh_broker: BrokerThread, topics: Topics
 ) -> None:

@@ -215,6 +215,7 @@ def test_only_the_retained_kinds_reach_a_late_subscriber(
     coordinator.map(GRID)
     coordinator.jobs([])
     coordinator.routes({})
+    coordinator.events([])
     coordinator.status()
     coordinator.reply("dash", "r-1", True)
     coordinator.error(topics.request("submit_job"), "malformed JSON")

@@ -21,6 +21,8 @@ from gridfleet.protocol import (
     Connection,
     CoordinatorStatus,
     ErrorReport,
+    EventEntry,
+    EventsView,
     Factsheet,
     FleetMap,
     HeaderStamper,
@@ -185,6 +187,12 @@ class CoordinatorPeer:
         counts: dict[JobState, int] = dict(Counter(job.state for job in jobs))
         message = JobsView(header=self.stamp("jobs"), jobs=list(jobs), counts=counts)
         publish(self.probe, "jobs", self.topics.fleet("jobs"), message)
+        return message
+
+    def events(self, events: Sequence[EventEntry]) -> EventsView:
+        """`fleet/events`: the recent history in words."""
+        message = EventsView(header=self.stamp("events"), events=list(events))
+        publish(self.probe, "events", self.topics.fleet("events"), message)
         return message
 
     def routes(self, routes: Mapping[str, RouteView], step: int = 1) -> Routes:

@@ -28,6 +28,13 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _popen(conf: Path, log: Path) -> subprocess.Popen[bytes]:
+    """Mosquitto on `conf`, its log into `log`: a pipe nobody reads fills up (64 KiB, a few hundred
+    connections logged) and Mosquitto then blocks writing to it, accepting nobody."""
+    with log.open("ab") as out:
+        return subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=out, stderr=out)
+
+
 @contextmanager
 def running_mosquitto(
     directory: Path, conf: Callable[[int], str], port: int | None = None
@@ -41,12 +48,11 @@ def running_mosquitto(
     # Started as root, Mosquitto drops to user mosquitto, who cannot read owner-only (0600) files.
     as_root = "user root\n" if os.geteuid() == 0 else ""
     path.write_text(conf(port) + as_root)
-    proc = subprocess.Popen(
-        [MOSQUITTO, "-c", str(path)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-    )
+    log = directory / "mosquitto.log"
+    proc = _popen(path, log)
 
     def listening() -> bool:
-        assert proc.poll() is None, f"mosquitto exited: {proc.stderr.read() if proc.stderr else ''}"
+        assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
         with socket.socket() as probe:
             return probe.connect_ex(("127.0.0.1", port)) == 0
 
@@ -66,3 +72,83 @@ def mosquitto_with_accounts(accounts: Accounts, topics: Topics, directory: Path)
         directory, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
     ) as port:
         yield f"mqtt://127.0.0.1:{port}"
+
+
+class MosquittoBroker:
+    """Debian's Mosquitto as the suite's broker (GRIDFLEET_TEST_BROKER=mosquitto): TCP and
+    websockets on free loopback ports, anonymous, the interface of BrokerThread the tests use."""
+
+    def __init__(self, directory: Path) -> None:
+        self.directory = directory
+        self.port = free_port()
+        self.ws_port = free_port()
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def url(self) -> str:
+        """TCP URL, e.g. mqtt://127.0.0.1:41234."""
+        return f"mqtt://127.0.0.1:{self.port}"
+
+    @property
+    def ws_url(self) -> str:
+        """Websocket URL for the dashboard, e.g. ws://127.0.0.1:41235."""
+        return f"ws://127.0.0.1:{self.ws_port}"
+
+    def config(self) -> str:
+        """As docs/brokers.md says to run it, minus accounts (tests keep apart by topic root)."""
+        return "\n".join(
+            [
+                "per_listener_settings false",
+                "allow_anonymous true",
+                "set_tcp_nodelay true",
+                "persistence false",
+                f"listener {self.port} 127.0.0.1",
+                f"listener {self.ws_port} 127.0.0.1",
+                "protocol websockets",
+                "",
+            ]
+        )
+
+    def start(self, timeout: float = 10.0) -> None:
+        """Start Mosquitto and wait until both listeners accept connections."""
+        if not Path(MOSQUITTO).exists():
+            pytest.fail(
+                "mosquitto is not installed: make test installs it (apt-get install mosquitto)"
+            )
+        path = self.directory / "mosquitto.conf"
+        path.write_text(self.config())
+        log = self.directory / "mosquitto.log"
+        self._proc = proc = _popen(path, log)
+
+        def listening() -> bool:
+            assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
+            for port in (self.port, self.ws_port):
+                with socket.socket() as probe:
+                    if probe.connect_ex(("127.0.0.1", port)) != 0:
+                        return False
+            return True
+
+        wait_for(listening, timeout, what="mosquitto listening")
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Stop it (every client is disconnected); retained messages are gone with it."""
+        if self._proc is not None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout)
+            except subprocess.TimeoutExpired:  # still flushing to clients: as a crash would
+                self._proc.kill()
+                self._proc.wait(timeout)
+            self._proc = None
+
+    def restart(self) -> None:
+        """Stop and start again on the same ports."""
+        self.stop()
+        self.start()
+
+    def __enter__(self) -> MosquittoBroker:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
