@@ -9,6 +9,7 @@ import argparse
 import asyncio
 import logging
 import random
+import signal
 import time
 import uuid
 from pathlib import Path
@@ -124,4 +125,8 @@ def run(args: argparse.Namespace) -> int:
         await until_stopped(work, stop_on_signals())
 
     asyncio.run(main())
+    # Done on its own (no --demo): a stop that comes while the interpreter winds down is no
+    # reason to die of it (`gridfleet up` stopping at that moment saw the feed killed, -15).
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
     return 0
