@@ -105,11 +105,12 @@ export class PageView {
 
   /** The coordinator's recent history, newest first: it survives a reload (fleet/events). */
   events() {
-    const lines = eventLines(this.view.events);
     const ul = $("#events");
-    if (ul.dataset.count === String(this.view.events.length) && ul.dataset.last === (lines[0]?.text ?? "")) return;
-    ul.dataset.count = String(this.view.events.length);
-    ul.dataset.last = lines[0]?.text ?? "";
+    const newest = this.view.events[this.view.events.length - 1];
+    const key = `${this.view.events.length}|${newest?.at ?? ""}|${newest?.text ?? ""}`;
+    if (ul.dataset.key === key) return; // rebuilt only when the history changed
+    ul.dataset.key = key;
+    const lines = eventLines(this.view.events);
     ul.replaceChildren(...lines.map((line) => {
       const li = document.createElement("li");
       li.className = `event-${line.kind}`;
