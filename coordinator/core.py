@@ -215,7 +215,7 @@ class CoordinatorCore:
             before = self.world.units[unit].connection if unit in self.world.units else None
             self.world.on_connection(unit, msg)
             if msg.state != before:
-                self._unit_event(unit, msg.state)
+                self.events.unit_changed(self.say.stamp.now(), unit, msg.state)
         elif isinstance(msg, Factsheet) and unit is not None:
             self.world.on_factsheet(unit, msg)
         elif isinstance(msg, UnitState) and unit is not None:
@@ -448,9 +448,9 @@ class CoordinatorCore:
             out.append(self.say.fleet_map(self.world))
         if send_jobs:
             out.append(self.say.jobs(self.jobs))
-        events = self.events.take(self.say.stamp("events"))
-        if events is not None:
-            out.append(Outbound.of("events", self.topics.fleet("events"), events))
+        if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
+            view = self.events.take(self.say.stamp("events"))
+            out.append(Outbound.of("events", self.topics.fleet("events"), view))
         return out
 
     def _persist(self) -> tuple[Job, ...]:
@@ -461,12 +461,6 @@ class CoordinatorCore:
             self.views.jobs_dirty = True
             self.events.jobs_changed(self.say.stamp.now(), changed, self.world.step_period_s)
         return changed
-
-    def _unit_event(self, unit: str, connection: str) -> None:
-        """A unit came online, went offline, or was lost (its last will)."""
-        words = {"online": "online", "offline": "offline", "broken": "lost (its connection broke)"}
-        text = f"unit {unit} {words.get(connection, connection)}"
-        self.events.add(self.say.stamp.now(), "unit", text, unit=unit)
 
     def _effects(
         self,

@@ -101,10 +101,13 @@ class EventLog:
             return f"{name} back in the queue" + (f" ({unit} let it go)" if unit else "")
         return None
 
-    def take(self, header: Header) -> EventsView | None:
-        """The view when it changed since it last went out, else None."""
-        if not self.dirty:
-            return None
+    def unit_changed(self, at: datetime, unit: str, connection: str) -> None:
+        """A unit came online, went offline, or was lost (its last will)."""
+        words = {"online": "online", "offline": "offline", "broken": "lost (its connection broke)"}
+        self.add(at, "unit", f"unit {unit} {words.get(connection, connection)}", unit=unit)
+
+    def take(self, header: Header) -> EventsView:
+        """The view, which counts as sent from here on (the caller checks `dirty` first)."""
         self.dirty = False
         return EventsView(header=header, events=list(self.events))
 

@@ -89,7 +89,7 @@ def test_the_history_keeps_the_latest_and_one_line_each() -> None:
 
 def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
     core = make_core(GRID)
-    core.on_connect()
+    sent = [core.on_connect()]
     unit1 = Connection(header=header("unit1"), state="online")
     from_unit(core, "connection", "unit1", unit1, 0.0)
     from_unit(core, "connection", "unit1", unit1, 0.0)  # said again: no news
@@ -108,6 +108,7 @@ def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
     wall = submit.model_copy(update={"request_id": "r2", "pickup": Cell(1, 1)})
     refused = request(core, "submit_job", wall, 0.0)
     stepped = core.step(1.0)
+    sent += [effects, refused, stepped]
     # Each Effects carries its new entries, for the store.
     assert [e.text for e in effects.events] == ["job job-1 queued by op (1 kg, [3, 0] -> [3, 2])"]
     assert [e.kind for e in refused.events] == ["refusal"]
@@ -122,6 +123,15 @@ def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
     ]
     assert view[0][2:] == (1, True)  # QoS 1, retained
     assert [p for p in published(core.step(2.0), events=True) if p[0] == EVENTS] == []
+    back = Connection(header=header("unit1", 2), state="online")
+    from_unit(core, "connection", "unit1", back, 0.0)
+    sent.append(core.step(3.0))
+    # On connecting, after the accepted request, after each step with news: a topic's seq
+    # counts what went out, not the views that had nothing new.
+    seqs = [
+        p[1]["header"]["seq"] for e in sent for p in published(e, events=True) if p[0] == EVENTS
+    ]
+    assert seqs == [0, 1, 2, 3]
 
 
 def test_a_malformed_message_adds_nothing() -> None:
