@@ -291,7 +291,8 @@ class CoordinatorCore:
         publish = []
         if not outcome.accepted:
             what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"
-            self.events.add(self.say.stamp.now(), "refusal", what, unit=getattr(req, "unit", None))
+            about = (outcome.job_id, getattr(req, "unit", None))  # the job, the unit it concerns
+            self.events.add(self.say.stamp.now(), "refusal", what, *about)
             reason = f"{type(req).__name__}: {outcome.reason}"
             publish.append(self._refuse(topic, reason, req.request_id))
         if req.reply_to is not None:

@@ -32,6 +32,8 @@ class EventLog:
         self.fresh: list[EventEntry] = []
         self.dirty = False
         self._jobs: dict[str, tuple[str, str | None]] = {}  # job -> (state, unit) last told
+        # Jobs from before a restart: their steps count from another run, so no duration.
+        self._earlier: set[str] = set()
 
     def restore(self, events: Iterable[EventEntry]) -> None:
         """The history kept before a restart (oldest first); the view goes out again."""
@@ -42,6 +44,7 @@ class EventLog:
         """Jobs as they stand (loaded from the store): only later changes are events."""
         for job in jobs:
             self._jobs[job.id] = (job.state, job.unit)
+            self._earlier.add(job.id)
 
     def add(
         self,
@@ -70,15 +73,14 @@ class EventLog:
             if text is not None:
                 self.add(at, "job", text, job=job.id, unit=job.unit)
 
-    @staticmethod
     def _job_text(
-        job: Job, before: tuple[str, str | None] | None, step_period_s: float
+        self, job: Job, before: tuple[str, str | None] | None, step_period_s: float
     ) -> str | None:
         """What happened to `job`, in words; None when nothing worth telling (a re-plan)."""
         name = f"job {job.id}"
         if before is None:
             if job.state == "rejected":
-                return f"{name} rejected: {job.reason or 'no reason given'}"
+                return None  # refused as it came: the refusal event says why, naming the job
             by = f" by {job.submitted_by}" if job.submitted_by else ""
             return (
                 f"{name} queued{by} ({_kg(job.mass_kg)}, "
@@ -87,18 +89,21 @@ class EventLog:
         state, unit = before
         if job.state == "done":
             took = ""
-            if job.done_step is not None:
+            if job.done_step is not None and job.id not in self._earlier:
                 took = f" in {(job.done_step - job.created_step) * step_period_s:.1f} s"
             return f"{name} done by {job.unit or unit}{took}"
         if job.state in ("cancelled", "failed", "rejected"):
-            why = f": {job.reason}" if job.reason else ""
-            return f"{name} {job.state}{why}"
+            why = job.reason or ""
+            if why.startswith(job.state):  # "cancelled by op; ...": said once, not twice
+                return f"{name} {why}"
+            return f"{name} {job.state}" + (f": {why}" if why else "")
         if job.state in ("loaded", "to_dropoff") and state not in ("loaded", "to_dropoff"):
             return f"{job.unit} picked up {name}"
         if job.unit is not None and job.unit != unit and job.state in ("assigned", "to_pickup"):
             return f"{name} assigned to {job.unit}"
         if job.state == "queued" and state != "queued":
-            return f"{name} back in the queue" + (f" ({unit} let it go)" if unit else "")
+            why = (job.reason or "").removesuffix("; re-queued")
+            return f"{name} back in the queue" + (f": {why}" if why else "")
         return None
 
     def unit_changed(self, at: datetime, unit: str, connection: str) -> None:

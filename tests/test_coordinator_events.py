@@ -3,16 +3,21 @@ that the view is bounded and retained, and that it outlives a restart."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator, Callable
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
+from coordinator.core import CoordinatorCore
 from coordinator.events import EventLog
 from coordinator.jobs import Job
+from coordinator.service import Coordinator
 from coordinator.store import JobStore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
+    CancelJob,
     Connection,
     EventEntry,
     EventsView,
@@ -22,12 +27,15 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import MAX_EVENTS
+from robots.unit import UnitLogic
+from system.broker_thread import BrokerThread
 from system.threads import ServiceThread
 
-from support.coordinator_drive import TOPICS, from_unit, make_core, request
-from support.effects import header, published
+from support.coordinator_drive import TOPICS, from_unit, make_core, meet, orders_in, request
+from support.coordinator_fakes import ROOM_ROWS, Yard
+from support.effects import STAMP, header, published
 from support.probe import MqttProbe
-from support.wait import wait_for
+from support.wait import async_wait_for, wait_for
 
 AT = datetime(2026, 11, 24, 9, 0, tzinfo=UTC)
 GRID = GridMap.from_rows(["....", ".@..", "...."])
@@ -62,17 +70,39 @@ def test_a_jobs_life_in_words() -> None:
 
 def test_cancelled_failed_rejected_and_requeued_say_why() -> None:
     log = EventLog()
-    heavy = Job("big", Cell(0, 0), Cell(1, 1), 50.0, state="rejected", reason="too heavy")
-    log.jobs_changed(AT, [heavy], 1.0)
     job = Job("j", Cell(0, 0), Cell(1, 1), 1.0, state="to_pickup", unit="u1")
     log.know([job])  # loaded from the store: not news
     log.jobs_changed(AT, [job], 1.0)
-    log.jobs_changed(AT, [replace(job, state="queued", unit=None)], 1.0)
-    log.jobs_changed(AT, [replace(job, state="cancelled", reason="by op")], 1.0)
-    assert texts(log) == [
-        "job big rejected: too heavy",
-        "job j back in the queue (u1 let it go)",
-        "job j cancelled: by op",
+    lost = "unit u1 was lost; re-queued"
+    log.jobs_changed(AT, [replace(job, state="queued", unit=None, reason=lost)], 1.0)
+    cancelled = replace(job, state="cancelled", unit=None, reason="cancelled by op")
+    log.jobs_changed(AT, [cancelled], 1.0)
+    heavy = Job("big", Cell(0, 0), Cell(1, 1), 50.0)
+    log.jobs_changed(AT, [heavy], 1.0)
+    log.jobs_changed(AT, [replace(heavy, state="rejected", reason="too heavy for any unit")], 1.0)
+    far = Job("far", Cell(0, 0), Cell(1, 1), 1.0, state="to_dropoff", unit="u2")
+    log.know([far])
+    log.jobs_changed(AT, [replace(far, state="failed", reason="unit u2 was lost")], 1.0)
+    assert texts(log)[:2] + texts(log)[3:] == [
+        "job j back in the queue: unit u1 was lost",
+        "job j cancelled by op",
+        "job big rejected: too heavy for any unit",
+        "job far failed: unit u2 was lost",
+    ]
+
+
+def test_a_job_from_before_a_restart_is_done_without_a_duration() -> None:
+    # Its created_step counted the steps of the run before; this run counts from 0 again.
+    log = EventLog()
+    carried = Job("j", Cell(0, 0), Cell(1, 1), 1.0, state="to_dropoff", unit="u1")
+    log.know([replace(carried, created_step=500)])
+    log.jobs_changed(AT, [replace(carried, state="done", created_step=500, done_step=30)], 1.0)
+    assert texts(log) == ["job j done by u1"]
+    core = make_core(
+        GRID, jobs=[Job("k", Cell(0, 0), Cell(3, 2), 1.0, state="to_pickup", unit="u1")]
+    )
+    assert [e.text for e in core.restored().events] == [
+        "job k back in the queue: coordinator restarted"
     ]
 
 
@@ -134,6 +164,91 @@ def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
     assert seqs == [0, 1, 2, 3]
 
 
+def _drive(core: CoordinatorCore, yard: Yard, now: float, until: Callable[[], bool]) -> float:
+    """Step the core and its one unit `u` (which follows its orders) until `until()`."""
+    while not until():
+        now += 1.0
+        assert now < 100, "never got there"
+        order = orders_in(core.step(now)).get("u")
+        if order is not None:
+            yard.units["u"].on_order(order, now)
+        yard.tick("u", now)
+        from_unit(core, "state", "u", yard.state("u"), now)
+    return now
+
+
+def test_the_view_tells_a_jobs_whole_life_a_cancel_the_stop_and_the_unit() -> None:
+    grid = GridMap.from_rows(ROOM_ROWS)
+    core = make_core(grid)
+    core.on_connect()
+    yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 5.0, 1.0)])
+    meet(core, yard.state("u"), 5.0)
+
+    def submit(job_id: str, pickup: Cell, dropoff: Cell) -> None:
+        req = SubmitJob(
+            header=header("t"),
+            request_id=job_id,
+            pickup=pickup,
+            dropoff=dropoff,
+            mass_kg=1.5,
+            job_id=job_id,
+        )
+        request(core, "submit_job", req, 0.0)
+
+    def state(job_id: str) -> str:
+        return core.jobs.jobs[job_id].state
+
+    submit("crate", Cell(0, 1), Cell(9, 9))
+    now = _drive(core, yard, 0.0, lambda: state("crate") == "done")
+    crate = core.jobs.jobs["crate"]
+    assert crate.done_step is not None and crate.done_step > crate.created_step
+    took = float(crate.done_step - crate.created_step)  # steps of 1 s
+    submit("box", Cell(1, 1), Cell(9, 0))
+    now = _drive(core, yard, now, lambda: state("box") == "to_dropoff")
+    cancel = CancelJob(header=header("t"), request_id="c1", job_id="box")
+    request(core, "cancel_job", cancel, now)
+    core.on_message(TOPICS.fleet("estop"), b"engaged|op|spill", now)
+    core.on_message(TOPICS.fleet("estop"), b"released|op|done", now)
+    gone = Connection(header=header("u", 1), state="offline")
+    from_unit(core, "connection", "u", gone, now)
+    (view,) = [p for p in published(core.step(now + 1), events=True) if p[0] == EVENTS]
+    assert [(e["kind"], e["text"], e["job"], e["unit"]) for e in view[1]["events"]] == [
+        ("unit", "unit u online", None, "u"),
+        ("job", "job crate queued by t (1.5 kg, [0, 1] -> [9, 9])", "crate", None),
+        ("job", "job crate assigned to u", "crate", "u"),
+        ("job", "u picked up job crate", "crate", "u"),
+        ("job", f"job crate done by u in {took:.1f} s", "crate", "u"),
+        ("job", "job box queued by t (1.5 kg, [1, 1] -> [9, 0])", "box", None),
+        ("job", "job box assigned to u", "box", "u"),
+        ("job", "u picked up job box", "box", "u"),
+        (
+            "job",
+            "job box cancelled by t; unit u puts the item back at its pickup [1, 1], then is free",
+            "box",
+            "u",
+        ),
+        ("stop", "emergency stop ENGAGED by op: spill", None, None),
+        ("stop", "emergency stop released by op: done", None, None),
+        ("unit", "unit u offline", None, "u"),
+    ]
+    assert all(e["at"] == STAMP for e in view[1]["events"])  # the core's injected clock
+
+
+def test_a_job_no_unit_can_carry_is_one_refusal_naming_it() -> None:
+    grid = GridMap.from_rows(ROOM_ROWS)
+    core = make_core(grid)
+    yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 5.0, 1.0)])
+    meet(core, yard.state("u"), 5.0)
+    heavy = SubmitJob(
+        header=header("t"), request_id="r", pickup=Cell(0, 1), dropoff=Cell(9, 9), mass_kg=50.0
+    )
+    effects = request(core, "submit_job", heavy, 0.0)
+    assert core.jobs.jobs["job-1"].state == "rejected"  # listed, so the queue view says why
+    ((kind, text, job),) = [(e.kind, e.text, e.job) for e in effects.events]
+    assert (kind, job) == ("refusal", "job-1")
+    assert text.startswith("refused submit_job from t: ") and "50" in text
+
+
 def test_a_malformed_message_adds_nothing() -> None:
     core = make_core(GRID)
     core.on_connect()
@@ -188,3 +303,47 @@ def test_the_view_is_retained_and_kept_in_the_store(
     # In the coordinator's store too (run_system's): a restarted coordinator publishes it again.
     stored = JobStore(tmp_path / "jobs.db").load_events()
     assert any(" done by " in e.text for e in stored)
+
+
+async def test_a_restarted_coordinator_publishes_the_history_it_kept(
+    broker: BrokerThread,
+    topics: Topics,
+    probe_factory: Callable[..., MqttProbe],
+    tmp_path: Path,
+) -> None:
+    grid = GridMap.from_rows(ROOM_ROWS)
+    db = tmp_path / "jobs.db"
+    latch = topics.fleet("estop")
+
+    def told(probe: MqttProbe) -> list[str]:
+        """The texts of the latest events view `probe` received (an empty payload is none)."""
+        got = [m for m in probe.received(topics.fleet("events")) if m.payload]
+        return [e.text for e in decode(EventsView, got[-1].payload).events] if got else []
+
+    @contextlib.asynccontextmanager
+    async def running() -> AsyncIterator[Coordinator]:
+        coordinator = Coordinator(broker.url, grid, root=topics.root, step_s=0.05, db_path=db)
+        stop = asyncio.Event()
+        task = asyncio.create_task(coordinator.run(stop))
+        try:
+            await asyncio.wait_for(coordinator.ready.wait(), 10)
+            yield coordinator
+        finally:
+            stop.set()
+            await task
+
+    probe = probe_factory()
+    probe.subscribe(topics.fleet("events"))
+    history = ["emergency stop ENGAGED by op: drill", "emergency stop released by op: ok"]
+    async with running():
+        probe.publish(latch, b"engaged|op|drill", retain=True)
+        await async_wait_for(lambda: told(probe) == history[:1], what="the stop engaged")
+        probe.publish(latch, b"released|op|ok", retain=True)
+        await async_wait_for(lambda: told(probe) == history, what="the stop released")
+    probe.publish(topics.fleet("events"), b"", retain=True)  # the broker forgets: only the store
+    late = probe_factory()
+    late.subscribe(topics.fleet("events"))
+    async with running():
+        # The released latch it reads again is no news: the view is the history it kept.
+        await async_wait_for(lambda: told(late), what="the events view after the restart")
+        assert told(late) == history
