@@ -445,13 +445,18 @@ class CoordinatorCore:
     def _views(self) -> list[Outbound]:
         send_map, send_jobs = self.views.take()
         out = []
-        if send_map:
-            out.append(self.say.fleet_map(self.world))
-        if send_jobs:
-            out.append(self.say.jobs(self.jobs))
-        if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
-            view = self.events.take(self.say.stamp("events"))
-            out.append(Outbound.of("events", self.topics.fleet("events"), view))
+        try:
+            if send_map:
+                out.append(self.say.fleet_map(self.world))
+            if send_jobs:
+                out.append(self.say.jobs(self.jobs))
+            if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
+                view = self.events.take(self.say.stamp("events"))
+                out.append(Outbound.of("events", self.topics.fleet("events"), view))
+        except Exception as exc:  # a view that cannot be built must not stop the orders
+            self._log.append((logging.ERROR, f"views of step {self.step_no} failed: {exc!r}"))
+            status = self.topics.fleet("coordinator")
+            out.append(self._refuse(status, f"internal error in the views: {exc!r}", None))
         return out
 
     def _persist(self) -> tuple[Job, ...]:

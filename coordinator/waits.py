@@ -11,9 +11,25 @@ from collections.abc import Collection, Mapping
 
 from coordinator.jobs import Job, JobBook
 from coordinator.world import UnitRecord
+from gridfleet.protocol.constants import MAX_TEXT
 
 Wait = tuple[str, str]  # (WaitCode, words)
 _HOLD_WORDS = {"paused": "paused", "out_of_service": "out of service"}
+NAMED = 8  # units a reason names before "and N more": a hall of 500 must fit in MAX_TEXT
+
+
+def _named(items: list[str]) -> str:
+    """`a, b, c`, or the first NAMED and how many more."""
+    if len(items) <= NAMED:
+        return ", ".join(items)
+    return f"{', '.join(items[:NAMED])} and {len(items) - NAMED} more"
+
+
+def _clipped(wait: Wait | None) -> Wait | None:
+    """Words within the protocol's MAX_TEXT (a unit's own reason may already be that long)."""
+    if wait is None or len(wait[1]) <= MAX_TEXT:
+        return wait
+    return (wait[0], wait[1][: MAX_TEXT - 1] + "…")
 
 
 def explain_waits(
@@ -30,7 +46,7 @@ def explain_waits(
         if stopped:
             jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
         else:
-            jobs.explain(job, why_waiting(job, jobs, units, active, goals, controls))
+            jobs.explain(job, _clipped(why_waiting(job, jobs, units, active, goals, controls)))
 
 
 def why_waiting(
@@ -74,7 +90,7 @@ def _why_queued(
     )
     online = [u for u in capable if u in active]
     if not online:
-        away = ", ".join(capable) or "none known"
+        away = _named(capable) or "none known"
         return ("no_capable_unit", f"no unit that can carry {job.mass_kg} kg is online ({away})")
     busy = {j.unit for j in jobs.active()}
     why_not = {}
@@ -88,9 +104,9 @@ def _why_queued(
     if len(why_not) < len(online):
         return None  # a free one gets it at the next allocation
     if all(why == "busy" for why in why_not.values()):
-        words = f"every unit that can carry {job.mass_kg} kg is busy ({', '.join(online)})"
+        words = f"every unit that can carry {job.mass_kg} kg is busy ({_named(online)})"
     else:
-        each = ", ".join(f"{u} {why}" for u, why in why_not.items())
+        each = _named([f"{u} {why}" for u, why in why_not.items()])
         words = f"no unit that can carry {job.mass_kg} kg is free ({each})"
     return ("no_unit_free", words)
 

@@ -493,3 +493,46 @@ def test_unit_control_refusals_are_in_words() -> None:
     refused = _control(core, "u", "pause", "r4")
     assert refused.reason == "unit u is out of service: put it back in service first"
     assert _control(core, "u", "resume", "r5").reason == "unit u is not paused (out of service)"
+
+
+def test_a_wait_in_a_hall_of_a_hundred_units_names_a_few_and_fits_the_view() -> None:
+    # bench system at 100 units: the reason named all 100, passed MAX_TEXT, and the jobs view
+    # failed to encode, taking the coordinator's step loop down with it.
+    grid = GridMap.from_rows(["." * 20] * 12)
+    core = make_core(grid)
+    core.on_connect()
+    cells = [Cell(x, y) for y in range(0, 12, 2) for x in range(20)][:100]
+    for i, cell in enumerate(cells):
+        uid = f"u{i:03}"
+        meet(core, UnitLogic(uid, grid, cell, 2.0, 1.0).report(header(uid)), 2.0)
+    _submit(core, "r1", Cell(1, 1), Cell(18, 11))
+    for i in range(100):
+        gone = Connection(header=header(f"u{i:03}"), state="offline")
+        from_unit(core, "connection", f"u{i:03}", gone, 0.5)
+    effects = core.step(1.0)
+    (job,) = core.jobs.jobs.values()
+    code, words = _wait(job.id, core)
+    assert code == "no_capable_unit"
+    assert words == (
+        "no unit that can carry 1.0 kg is online "
+        "(u000, u001, u002, u003, u004, u005, u006, u007 and 92 more)"
+    )
+    views = [m for m in effects.publish if m.topic == TOPICS.fleet("jobs")]
+    assert len(views) == 1  # it went out
+
+
+def test_a_view_that_cannot_be_built_is_reported_and_the_orders_still_go(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    core, _ = one_unit(10.0)
+    core.on_connect()
+    _submit(core, "a", Cell(9, 1), Cell(0, 0))
+
+    def broken(*_: object) -> None:
+        raise ValueError("too long")
+
+    monkeypatch.setattr(core.say, "jobs", broken)
+    effects = core.step(1.0)
+    assert "u" in orders_in(effects)
+    errors = [m for m in effects.publish if m.topic == TOPICS.fleet("errors")]
+    assert len(errors) == 1 and b"internal error in the views" in errors[0].payload
