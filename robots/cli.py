@@ -7,12 +7,14 @@ import asyncio
 import logging
 from pathlib import Path
 
+from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.options import accounts_of, add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
 from robots.fleet import Fleet
+from robots.shards import run_sharded
 from robots.truth import write_truth
 
 log = logging.getLogger("robots")
@@ -55,6 +57,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="append the simulated world's collisions, moves and squares to FILE as one JSON "
         "line per step (for outside checkers such as `gridfleet bench soak`)",
     )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="run the units in N processes sharing one simulated world, for large fleets "
+        "(default 1: all in this process)",
+    )
 
 
 def build(args: argparse.Namespace) -> Fleet:
@@ -79,9 +89,33 @@ def build(args: argparse.Namespace) -> Fleet:
 
 def run(args: argparse.Namespace) -> int:
     """Run until Ctrl-C or SIGTERM; every unit says "offline" on the way out."""
+    if args.workers != 1:
+        return _run_sharded(args)
     fleet = build(args)
     asyncio.run(_main(fleet, args.truth, args.step))
     return 0
+
+
+def _run_sharded(args: argparse.Namespace) -> int:
+    """`--workers N`: the scenario's units over N processes (checked here, before any starts)."""
+    if args.workers < 1:
+        raise ConfigError(f"--workers {args.workers}: give at least 1")
+    if args.units is not None:
+        raise ConfigError("--workers shards every unit of the scenario: leave out --units")
+    parse_broker_url(args.broker)
+    check_step(args.step)
+    accounts_of(args)  # a bad accounts file: one line now, not one per worker
+    return run_sharded(
+        Path(args.scenario),
+        args.broker,
+        root=args.root,
+        workers=args.workers,
+        step_s=args.step,
+        mode=args.mode,
+        accounts=getattr(args, "accounts", None),
+        state=args.state,
+        truth=args.truth,
+    )
 
 
 async def _main(fleet: Fleet, truth: Path | None = None, step: float = DEFAULT_STEP_S) -> None:

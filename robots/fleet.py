@@ -17,7 +17,7 @@ from gridfleet.scenario import Scenario, with_units
 from robots.runner import UnitRunner
 from robots.saved import Saved, SavedUnits
 from robots.unit import Mode, UnitLogic
-from robots.world import WorldSim
+from robots.world import SimulatedWorld, WorldSim
 
 
 class Fleet:
@@ -37,6 +37,7 @@ class Fleet:
         sensors_see_units: bool = True,
         accounts: Accounts | None = None,
         state_path: Path | None = None,
+        world: SimulatedWorld | None = None,
     ) -> None:
         parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
         known = [u.id for u in with_units(scenario).units]
@@ -51,7 +52,11 @@ class Fleet:
         check_step(step)
         self.scenario = scenario
         self.topics = Topics(root)
-        self.world = WorldSim.from_scenario(scenario, sensors_see_units=sensors_see_units)
+        # A world shared with the other processes of a sharded fleet holds every unit already.
+        shared = world is not None
+        self.world: SimulatedWorld = world or WorldSim.from_scenario(
+            scenario, sensors_see_units=sensors_see_units
+        )
         # Where the local units stood and what they carried when this process last ran.
         self.saved = None if state_path is None else SavedUnits(state_path)
         resumed = {} if self.saved is None else self.saved.load(scenario.grid, local)
@@ -59,7 +64,7 @@ class Fleet:
         for uid, was in resumed.items():
             self.world.resume(uid, was.position)
         for spec in scenario.units:
-            if spec.id not in local:
+            if spec.id not in local and isinstance(self.world, WorldSim):
                 self.world.place(spec.id, spec.start)  # best guess until its state arrives
         wanted = {g.unit: g.target for g in scenario.goals} if mode == "standalone" else {}
         wanted.update(goals or {})
@@ -88,7 +93,7 @@ class Fleet:
                 url,
                 self.topics,
                 color=spec.color,
-                watch_remote=not self.runners and len(local) < len(known),
+                watch_remote=not shared and not self.runners and len(local) < len(known),
                 reconnect_s=reconnect_s,
                 on_step=None if self.saved is None else self._save,
             )

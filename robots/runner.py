@@ -16,7 +16,7 @@ from gridfleet.protocol import Topics
 from gridfleet.tasks import cancel_and_wait
 from robots.core import UnitCore
 from robots.unit import UnitLogic
-from robots.world import WorldSim
+from robots.world import SimulatedWorld
 
 
 class UnitRunner:
@@ -25,7 +25,7 @@ class UnitRunner:
     def __init__(
         self,
         logic: UnitLogic,
-        world: WorldSim,
+        world: SimulatedWorld,
         broker_url: str,
         topics: Topics,
         *,
@@ -113,9 +113,12 @@ class UnitRunner:
 
     def tick(self) -> list[Outbound]:
         """One step: sense, decide, move in the world (atomically: nothing awaits in between)."""
-        outs = self.core.tick(
-            lambda: self.world.sense(self.id), lambda d: self.world.move(self.id, d), self._now()
-        )
+        with self.world.turn():  # and no unit of another process steps meanwhile
+            outs = self.core.tick(
+                lambda: self.world.sense(self.id),
+                lambda d: self.world.move(self.id, d),
+                self._now(),
+            )
         if self.on_step is not None:
             self.on_step(self.logic)
         return outs

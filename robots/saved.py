@@ -36,8 +36,11 @@ class SavedUnits:
     def __init__(self, path: Path) -> None:
         self.path = path
         try:
-            # One process writes it; a SIGKILL loses nothing the OS already has (synchronous off).
-            self._db = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+            # Each unit's row has one writer (a sharded fleet's workers share the file, hence the
+            # busy timeout); a SIGKILL loses nothing the OS already has (synchronous off).
+            self._db = sqlite3.connect(
+                path, isolation_level=None, check_same_thread=False, timeout=10.0
+            )
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=OFF")
             self._db.execute(_SCHEMA)

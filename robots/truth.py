@@ -9,10 +9,10 @@ import os
 import time
 from pathlib import Path
 
-from robots.world import WorldSim
+from robots.world import SimulatedWorld
 
 
-def truth_line(world: WorldSim) -> str:
+def truth_line(world: SimulatedWorld) -> str:
     """One JSON line: wall time, this process, the world's collision and move counts, every square."""
     return json.dumps(
         {
@@ -27,7 +27,9 @@ def truth_line(world: WorldSim) -> str:
     )
 
 
-async def write_truth(world: WorldSim, path: Path, period_s: float, stop: asyncio.Event) -> None:
+async def write_truth(
+    world: SimulatedWorld, path: Path, period_s: float, stop: asyncio.Event
+) -> None:
     """Append a truth line every `period_s` until `stop`, and one last line then."""
     # Appended and flushed line by line: a process killed with SIGKILL leaves whole lines only,
     # and a restarted one adds to the same file (its pid tells the runs apart).

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import contextlib
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Literal
+from typing import Literal, Protocol
 
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol.messages import SensorReading
@@ -19,6 +20,25 @@ class Collision:
     kind: Literal["vertex", "swap", "wall", "obstacle"]
     units: tuple[str, ...]
     square: Cell
+
+
+class SimulatedWorld(Protocol):
+    """What a unit's shell needs of the world: `WorldSim` in one process, `SharedWorld` across."""
+
+    @property
+    def positions(self) -> Mapping[str, Cell]: ...
+    @property
+    def moves(self) -> Mapping[str, int]: ...
+    @property
+    def prevented(self) -> int: ...
+    @property
+    def collisions(self) -> int: ...
+    def turn(self) -> contextlib.AbstractContextManager[None]: ...
+    def position(self, unit_id: str) -> Cell: ...
+    def sense(self, unit_id: str) -> dict[Direction, SensorReading]: ...
+    def move(self, unit_id: str, direction: Direction) -> bool: ...
+    def resume(self, unit_id: str, cell: Cell) -> None: ...
+    def observe(self, unit_id: str, cell: Cell) -> None: ...
 
 
 class WorldSim:
@@ -78,6 +98,11 @@ class WorldSim:
     def position(self, unit_id: str) -> Cell:
         """Where `unit_id` is (KeyError for an unknown unit)."""
         return self._positions[unit_id]
+
+    @contextlib.contextmanager
+    def turn(self) -> Iterator[None]:
+        """One unit's step: already atomic, as every unit here runs on one event loop."""
+        yield
 
     def square(self, cell: Cell, exclude: str | None = None) -> SensorReading:
         """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""

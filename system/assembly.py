@@ -60,6 +60,8 @@ class SystemSpec:
     tls_cert: Path | None = None  # processes: an embedded broker's certificate and key (TLS)
     tls_key: Path | None = None
     ca_file: Path | None = None  # processes: the CA the parts trust for an embedded TLS broker
+    unit_workers: int = 1  # processes only: the units over this many processes, one world
+    truth: Path | None = None  # processes only: the units write the world's ground truth here
     feed: bool = False  # processes only: submit the scenario's jobs and goals
     demo: bool = False  # with feed: keep random feasible jobs coming
 
@@ -113,6 +115,10 @@ class Assembly:
         in_processes_only = (spec.listen, spec.tls_cert, spec.tls_key, spec.ca_file)
         if mode == "threads" and in_processes_only != ("127.0.0.1", None, None, None):
             raise ConfigError("the listen address and TLS are set only as processes")
+        if mode == "threads" and (spec.unit_workers != 1 or spec.truth is not None):
+            raise ConfigError("unit workers and a truth file are set only as processes")
+        if spec.unit_workers < 1:
+            raise ConfigError(f"{spec.unit_workers} unit workers: give at least 1")
         self.spec = spec
         self.mode = mode
         self.system = System(supervisor=supervisor)
@@ -243,6 +249,10 @@ class Assembly:
         units_state = units_state_path(spec.db_path)
         units_state.parent.mkdir(parents=True, exist_ok=True)
         robots = cli("robots", *common, "--scenario", scenario, *step, "--state", str(units_state))
+        if spec.unit_workers > 1:
+            robots += ["--workers", str(spec.unit_workers)]
+        if spec.truth is not None:
+            robots += ["--truth", str(spec.truth)]
         system.children["robots"] = await sup.start(ChildSpec("robots", robots))
         if spec.dashboard_port is not None:
             assert system.ws_url is not None

@@ -156,5 +156,8 @@ def fleet_thread(
 
 def world_of(fleet: ServiceThread) -> WorldSim:
     """The ground-truth world simulation of a running fleet."""
+    from robots.world import WorldSim  # the robots layer, loaded when used (as above)
+
     service: Fleet = fleet.service  # type: ignore[assignment]
+    assert isinstance(service.world, WorldSim)  # a fleet in a thread is never sharded
     return service.world

@@ -13,6 +13,7 @@ from gridfleet.options import add_common
 from gridfleet.scenario import Scenario, load_scenario, with_units
 from gridfleet.tasks import stop_on_signals
 from gridfleet.tls import server_context
+from robots.shards import workers_for
 from system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from system.supervisor import Supervisor, run_until_signal
 
@@ -88,6 +89,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--port", type=int, default=5000, help="dashboard port (default 5000)")
     parser.add_argument("--db", type=Path, help="coordinator job database (default: per user)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        metavar="N",
+        help="run the simulated units in N processes (default: one per 50 units, at most one "
+        "per core)",
+    )
 
 
 def check_accounts(path: Path, scenario: Scenario) -> Accounts:
@@ -131,6 +139,9 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         )
     check_tls(args)
     scenario = with_units(load_scenario(args.scenario))
+    workers = workers_for(len(scenario.units)) if args.workers is None else args.workers
+    if workers < 1:
+        raise ConfigError(f"--workers {args.workers}: give at least 1")
     accounts_file = None
     if args.accounts is not None:
         check_accounts(args.accounts, scenario)
@@ -152,6 +163,7 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         ca_file=None if args.broker is not None or args.ca_file is None else Path(args.ca_file),
         feed=True,
         demo=args.demo,
+        unit_workers=workers,
     )
 
 
