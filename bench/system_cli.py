@@ -48,6 +48,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--broker", help="broker URL, e.g. mqtt://127.0.0.1:1883 (default: embedded amqtt)"
     )
     parser.add_argument("--seed", type=int, default=0, help="map, starts and jobs (default 0)")
+    parser.add_argument(
+        "--deploy",
+        choices=["processes", "threads"],
+        default="processes",
+        help="processes: broker, coordinator and unit workers each in their own, as deployed "
+        "(default); threads: coordinator and units in threads of the bench",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="unit processes (default: one per 50 units, at most one per core)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -65,6 +77,10 @@ def check(args: argparse.Namespace) -> None:
         raise ConfigError(f"--repeat {args.repeat}: give at least 1")
     if args.estops < 1:
         raise ConfigError(f"--estops {args.estops}: give at least 1")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers {args.workers}: give at least 1")
+    if args.workers not in (None, 1) and args.deploy == "threads":
+        raise ConfigError("--workers: unit workers are processes, not with --deploy threads")
     if args.broker is not None:
         parse_broker_url(args.broker)
 
@@ -90,6 +106,7 @@ COLUMNS = (
     ("state p50 ms", "state_latency_ms_p50", ".1f"),
     ("state p99 ms", "state_latency_ms_p99", ".1f"),
     ("estop ms", "estop_ms_median", ".1f"),
+    ("estop p99 ms", "estop_ms_p99", ".1f"),
     ("collisions", "collisions", "d"),
     ("prevented", "prevented", ".0f"),
 )
@@ -117,6 +134,8 @@ async def _bench(args: argparse.Namespace, results: list[list[SystemResult]]) ->
                 broker_url=args.broker,
                 estops=args.estops,
                 warmup_s=args.warmup,
+                deploy=args.deploy,
+                workers=args.workers,
             )
             runs.append(result)
             if not args.json:
@@ -126,6 +145,12 @@ async def _bench(args: argparse.Namespace, results: list[list[SystemResult]]) ->
                     file=sys.stderr,
                     flush=True,
                 )
+                for p in result.processes:
+                    print(
+                        f"    {p.name}: {p.cpu_pct:.0f} % of a core, peak {p.peak_rss_mb:.0f} MB",
+                        file=sys.stderr,
+                        flush=True,
+                    )
 
 
 async def _main(args: argparse.Namespace, results: list[list[SystemResult]]) -> bool:
@@ -156,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
     finished = asyncio.run(_main(args, results))
     summaries = [summarise(runs) for runs in results if runs]
     if args.json:
-        config = {k: getattr(args, k) for k in ("units", "step", "duration", "repeat", "seed")}
+        keys = ("units", "step", "duration", "repeat", "seed", "deploy", "workers")
+        config = {k: getattr(args, k) for k in keys}
         config["broker"] = args.broker or "embedded amqtt"
         output = {
             "config": config,
@@ -168,7 +194,10 @@ def run(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         broker = args.broker or "embedded amqtt (a process of its own)"
-        print(f"system bench: step {args.step} s, {args.duration} s measured, broker {broker}")
+        print(
+            f"system bench: step {args.step} s, {args.duration} s measured, broker {broker}, "
+            f"deployed as {args.deploy}"
+        )
         print_table(summaries, sys.stdout)
         if not finished:
             print("interrupted: the table shows the runs that finished")

@@ -7,6 +7,8 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from bench.system_procs import ProcessFigures
+
 
 @dataclass(frozen=True)
 class SystemResult:
@@ -15,6 +17,8 @@ class SystemResult:
     units: int
     step_s: float
     broker: str  # "embedded amqtt" or the URL given
+    deploy: str  # "processes" (as deployed) or "threads"
+    unit_workers: int  # processes the units ran in
     map_size: tuple[int, int]
     free_squares: int
     duration_s: float  # the measured window as it really lasted
@@ -30,10 +34,12 @@ class SystemResult:
     state_latency_ms_p50: float | None
     state_latency_ms_p99: float | None
     estop_ms: tuple[float | None, ...]  # publish → the monitor saw every unit stopped; None: never
+    estop_ms_p99: float | None  # over every engagement; None when any was never shown
     estop_applied_ms: tuple[float | None, ...]  # publish → the last unit's state was made
     moved_while_stopped: int  # world moves after every unit showed the stop (must be 0)
     collisions: int  # the world simulation's ground truth (must be 0)
     prevented: int  # moves the world refused (a unit tried a blocked square)
+    processes: tuple[ProcessFigures, ...] = ()  # each process: CPU % of a core, peak RSS
 
     @property
     def estop_ms_median(self) -> float | None:
@@ -47,6 +53,7 @@ class SystemResult:
         data["map_size"] = list(self.map_size)
         data["estop_ms"] = list(self.estop_ms)
         data["estop_applied_ms"] = list(self.estop_applied_ms)
+        data["processes"] = [asdict(p) for p in self.processes]
         data["estop_ms_median"] = self.estop_ms_median
         return data
 
@@ -59,6 +66,7 @@ SUMMARY_FIELDS = (
     "state_latency_ms_p50",
     "state_latency_ms_p99",
     "estop_ms_median",
+    "estop_ms_p99",
     "collisions",
     "prevented",
     "moved_while_stopped",

@@ -37,6 +37,12 @@ def test_small_run_reports_every_figure(broker: BrokerThread) -> None:
     assert out["finished"] is True
     (run,) = out["runs"]
     assert run["units"] == 5 and run["broker"] == broker.url
+    # As deployed: the coordinator and the units in processes of their own, each one measured.
+    assert (run["deploy"], run["unit_workers"]) == ("processes", 1)
+    names = {p["name"] for p in run["processes"]}
+    assert names == {"bench", "coordinator", "robots"}, names
+    assert all(p["peak_rss_mb"] > 10 and p["cpu_pct"] >= 0 for p in run["processes"])
+    assert run["estop_ms_p99"] is not None and run["estop_ms_p99"] >= max(run["estop_ms"]) / 2
     assert run["messages"] > 0 and run["messages_per_s"] > 0
     assert run["per_kind_per_s"]["state"] > 0 and run["per_kind_per_s"]["order"] > 0
     assert run["steps"] > 0 and run["step_rate"] > 0 and run["nominal_step_rate"] == 20.0
@@ -75,6 +81,8 @@ def test_embedded_broker_table() -> None:
         (["--repeat", "0"], "--repeat 0"),
         (["--broker", "mqtt://127.0.0.1:{closed}"], "cannot reach the broker"),
         (["--broker", "http://nowhere"], "http://nowhere"),
+        (["--workers", "0"], "--workers 0"),
+        (["--workers", "2", "--deploy", "threads"], "not with --deploy threads"),
     ],
 )
 def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
@@ -88,6 +96,31 @@ def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
     message = (done.stderr + done.stdout).strip()
     assert len(message.splitlines()) == 1, message
     assert says in message
+
+
+def test_units_sharded_over_processes_are_one_world_and_all_stop(broker: BrokerThread) -> None:
+    done = bench(
+        "--units", "6", "--workers", "2", "--step", "0.05", "--duration", "2", "--warmup", "0.5",
+        "--repeat", "1", "--estops", "3", "--broker", broker.url, "--json",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (run,) = json.loads(done.stdout)["runs"]
+    assert run["unit_workers"] == 2
+    assert {p["name"] for p in run["processes"]} >= {"units-0", "units-1"}
+    assert run["moves_per_unit_s"] > 0 and run["collisions"] == 0 and run["prevented"] == 0
+    assert all(v is not None for v in run["estop_ms"])  # every unit of both shards stopped
+    assert run["moved_while_stopped"] == 0
+
+
+def test_the_bench_in_threads_still_runs() -> None:
+    done = bench(
+        "--units", "4", "--step", "0.05", "--duration", "1", "--warmup", "0.3",
+        "--repeat", "1", "--estops", "1", "--deploy", "threads", "--json",
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (run,) = json.loads(done.stdout)["runs"]
+    assert run["deploy"] == "threads" and run["steps"] > 0
+    assert {p["name"] for p in run["processes"]} == {"bench+coordinator+units", "broker"}
 
 
 @pytest.mark.parametrize("units", [1, 6, 50, 200])

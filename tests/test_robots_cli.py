@@ -31,6 +31,10 @@ def cli(*args: str) -> subprocess.CompletedProcess[str]:
         (["--units", "unit1,unit9"], "unknown unit 'unit9'"),
         (["--step", "0"], "--step 0: the step period must be in (0, 60] seconds"),
         (["--broker", "http://x"], "scheme must be mqtt://, mqtts://, ws:// or wss://"),
+        (["--workers", "0"], "--workers 0: give at least 1"),
+        (["--workers", "2", "--units", "unit1"], "--workers shards every unit of the scenario"),
+        (["--workers", "2", "--step", "-1"], "--step -1"),
+        (["--workers", "2", "--broker", "http://x"], "scheme must be mqtt://"),
     ],
 )
 def test_user_mistakes_are_one_line_errors(
