@@ -18,6 +18,9 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Action, UnitState
 from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
+# A step waits for acknowledgements only while more than one in LATE_SHARE of the units ordered
+# still owe one (see Orders.holding_back).
+LATE_SHARE = 10
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 
 
@@ -70,8 +73,9 @@ class Orders:
         self.nonce = nonce  # per run, so a restarted coordinator's orders are new orders
         self.tracks: dict[str, Track] = {}
         # Orders of the last step not yet acknowledged: unit -> (order id, update id). The next
-        # step waits for them (a while): units could not move on orders they have not seen.
+        # step waits for them (a while) unless only a few are late (holding_back).
         self.awaiting: dict[str, tuple[str, int]] = {}
+        self._late_allowed = 0  # of the awaited units, how many the next step goes on without
 
     def track(self, unit_id: str) -> Track:
         """The Track of `unit_id`, created on first use."""
@@ -175,6 +179,18 @@ class Orders:
     def expect(self, plans: dict[str, OrderPlan]) -> None:
         """Await an acknowledgement of each of this step's orders: the unit's next state."""
         self.awaiting = {u: (p.order_id, p.update_id) for u, p in plans.items()}
+        self._late_allowed = len(plans) // LATE_SHARE
+
+    @property
+    def holding_back(self) -> bool:
+        """Whether the next step should wait: more units than a few late ones still owe acks.
+
+        A late unit gets no new squares until its state shows it settled, whatever the step (the
+        planner moves settled units only), so waiting for the slowest of a hundred would only
+        slow the others; when most acknowledgements are late (an overloaded broker), waiting
+        keeps steps from piling more orders onto it.
+        """
+        return len(self.awaiting) > self._late_allowed
 
     def heard(self, unit_id: str, state: UnitState) -> str | None:
         """A unit's state arrived: it may acknowledge the order awaited from it.

@@ -2,7 +2,8 @@
 
 Every decision is the core's (coordinator/core.py): the shell hands it what arrives and the time,
 and does what the returned Effects say: persist, publish, come back for batched views, and pace
-the step loop (one step per period, waiting a while for the last step's acknowledgements).
+the step loop (one step per period, waiting a while for the last step's acknowledgements while more than a
+few late units owe them).
 """
 
 from __future__ import annotations
@@ -119,7 +120,7 @@ class Coordinator:
                     next_at = self.clock()  # late: no burst of steps to catch up
                 await _wait(delay, stop)
                 until = effects.acks_until
-                if until is not None and self.core.orders.awaiting and self.clock() < until:
+                if until is not None and self.core.orders.holding_back and self.clock() < until:
                     self._acked.clear()
                     await _wait(until - self.clock(), stop, self._acked)
                     next_at = max(next_at, self.clock())
@@ -128,16 +129,23 @@ class Coordinator:
                 await cancel_and_wait(self._views_later)
 
     async def _apply(self, effects: Effects) -> None:
-        if not effects.awaiting:
+        if not self.core.orders.holding_back:
             self._acked.set()
         for level, line in effects.log:
             log.log(level, line)
         self._save(effects)
         if effects.views_at is not None:
             self._views_later = asyncio.create_task(self._views_after(effects.views_at))
-        for out in effects.publish:
-            if not self.core.withdrawn(out):
-                await self.endpoint.publish(out)
+        # Every message is handed to the client before any acknowledgement is awaited: in the
+        # core's order on the wire (paho queues each in the first, synchronous part of a
+        # publish), and a step's hundred orders take one round trip to the broker, not a hundred.
+        sends = [
+            asyncio.ensure_future(self.endpoint.publish(out))
+            for out in effects.publish
+            if not self.core.withdrawn(out)
+        ]
+        if sends:
+            await asyncio.gather(*sends)
 
     def _save(self, effects: Effects) -> None:
         if effects.persist or effects.answered:

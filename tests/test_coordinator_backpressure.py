@@ -7,13 +7,16 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from gridfleet.grid import Cell
+from coordinator.orders import OrderPlan, Orders
+from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Order, Routes, Sensors, Topics, decode
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from gridfleet.scenario import load_scenario
+from robots.unit import UnitLogic
 from system.broker_thread import BrokerThread
 from system.threads import coordinator_thread
 
+from support.effects import header
 from support.fleet_peer import UnitPeer
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -92,3 +95,23 @@ def test_steps_wait_for_acknowledgements_of_moves(
     finally:
         stop.set()
         beat.join(2)
+
+
+def test_a_few_late_units_do_not_hold_back_the_steps_of_the_rest() -> None:
+    # bench system, 100 units: each step waited for the slowest unit's acknowledgement.
+    orders = Orders("n")
+    grid = GridMap.from_rows(["." * 20])
+
+    def step(units: int, acking: int) -> bool:
+        plans = {f"u{i}": OrderPlan(f"n-u{i}", 1, 1, [], [], None, None) for i in range(units)}
+        orders.expect(plans)
+        for i in range(acking):
+            state = UnitLogic(f"u{i}", grid, Cell(i, 0), 1.0, 1.0).report(header(f"u{i}"))
+            orders.heard(
+                f"u{i}", state.model_copy(update={"order_id": f"n-u{i}", "order_update_id": 1})
+            )
+        return orders.holding_back
+
+    assert step(20, 0) and step(20, 17)  # three of twenty late: wait (a while)
+    assert not step(20, 18) and not step(20, 20)  # two late: they get no squares meanwhile
+    assert step(1, 0) and not step(1, 1)  # one unit: it is the fleet
