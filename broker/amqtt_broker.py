@@ -24,6 +24,7 @@ from amqtt.broker import Broker
 from amqtt.errors import MQTTError
 from amqtt.mqtt.connack import NOT_AUTHORIZED, ConnackPacket
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
+from amqtt.mqtt.publish import PublishPacket
 from amqtt.utils import gen_client_id
 
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
@@ -177,6 +178,8 @@ class _Outlet:
             return self._handler.mqtt_publish(topic, data, qos, retain, ack_timeout)
         size = len(data)
         backlog = self._backlog
+        if qos == 0 and self._write_now(topic, data):
+            return _done()
         if not backlog.admit(size, self._limits):
             if backlog.dropped == 1:
                 log.warning(
@@ -196,6 +199,27 @@ class _Outlet:
         task.add_done_callback(lambda _: backlog.release(size))
         return task
 
+    def _write_now(self, topic: str, data: bytes) -> bool:
+        """Write a QoS 0 message to the socket at once, when that keeps order and costs nothing.
+
+        amqtt 0.12.1 delivers each message to each subscriber in a task of its own (wait_for,
+        a write lock, drain): at a fleet's thousands of messages a second that bookkeeping was
+        most of the broker's time. A QoS 0 message needs none of it while the client keeps up:
+        nothing of its is queued behind (so order holds) and its socket takes what is written
+        (asyncio buffers nothing). Otherwise the queued path below, with its limits, takes it.
+        """
+        writer = getattr(self._handler, "writer", None)
+        if not isinstance(writer, StreamWriterAdapter):
+            return False  # websockets (the page) frame each message in drain: the queued path
+        if writer.is_closed or self._backlog.messages:
+            return False
+        transport = writer._writer.transport
+        if transport.is_closing() or transport.get_write_buffer_size():
+            return False
+        packet = PublishPacket.build(topic, bytes(data), None, False, 0, False)
+        writer.write(packet.to_bytes())
+        return True
+
     async def _send(self, topic: str, data: bytes, qos: int, ack_timeout: int | None) -> None:
         # Returns nothing: amqtt keeps finished tasks a while, and the message is not needed.
         # amqtt 0.12.1 gives a QoS 1 message up after 5 s without PUBACK, logging a warning; its
@@ -206,6 +230,12 @@ class _Outlet:
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._handler, name)
+
+
+def _done() -> asyncio.Future[None]:
+    done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+    done.set_result(None)
+    return done
 
 
 def _peer(info: Iterable[Any] | None) -> str:
