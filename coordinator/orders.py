@@ -45,6 +45,7 @@ class Track:
     route_no: int = 0
     update_id: int = 0
     content_update: int = 0  # update id at which the current released squares were first sent
+    acked_update: int = 0  # the latest update of this order the unit's state has shown
     sent: list[Cell] = field(default_factory=list)  # released squares of the latest order
     unacked: set[Cell] = field(default_factory=set)  # every square sent since the last ack
     target: Cell | None = None
@@ -147,6 +148,7 @@ class Orders:
             t.update_id = 0
             t.target = target
             t.content_update = 0
+            t.acked_update = 0
         t.update_id += 1
         if released != t.sent or t.content_update == 0:
             t.content_update = t.update_id
@@ -177,9 +179,18 @@ class Orders:
         return list(t.sent) if t.sent[0].manhattan(pos) == 1 else []
 
     def expect(self, plans: dict[str, OrderPlan]) -> None:
-        """Await an acknowledgement of each of this step's orders: the unit's next state."""
-        self.awaiting = {u: (p.order_id, p.update_id) for u, p in plans.items()}
-        self._late_allowed = len(plans) // LATE_SHARE
+        """Await an acknowledgement of each of this step's orders that changes the unit's squares.
+
+        A heartbeat (the same squares again) needs none of its own: a unit answers it with its
+        next state, which may come a few steps later (protocol.md §4.1); until the squares it
+        repeats are acknowledged, it is their acknowledgement that is awaited.
+        """
+        self.awaiting = {
+            u: (p.order_id, self.track(u).content_update)
+            for u, p in plans.items()
+            if self.track(u).content_update > self.track(u).acked_update
+        }
+        self._late_allowed = len(self.awaiting) // LATE_SHARE
 
     @property
     def holding_back(self) -> bool:
@@ -210,6 +221,8 @@ class Orders:
             t.order_id, t.forged = None, True
             self.awaiting.pop(unit_id, None)
             return problem
+        if t is not None and state.order_id == t.order_id:
+            t.acked_update = max(t.acked_update, state.order_update_id)
         awaited = self.awaiting.get(unit_id)
         if awaited is not None and acknowledges(state, *awaited):
             del self.awaiting[unit_id]

@@ -29,6 +29,7 @@ from gridfleet.protocol import (
     decode_direction,
     encode_direction,
 )
+from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from robots.unit import Move, Sense, UnitLogic
 
@@ -50,6 +51,9 @@ class UnitCore:
         self.id = logic.unit_id
         self.stamp = stamp or HeaderStamper(self.id)
         self._sent_direction: bytes | None = None  # what `direction` says on this connection
+        # What the last state said (but its header and step), and the ticks since it went out.
+        self._told: tuple[object, ...] | None = None
+        self._quiet_ticks = 0
         self.stop = StopView()  # the latch and the held presses, as this unit read them
         self.map_id = logic.grid.map_id()  # the static map, before any obstacle is found
 
@@ -154,7 +158,9 @@ class UnitCore:
         verdict = self.logic.on_order(order, now)
         if verdict.result == "refused":
             return [self._report(topic, verdict.reason or ""), *self.state()]
-        return self.state() if verdict.result == "accepted" else []
+        if verdict.result != "accepted" or self._condition() == self._told:
+            return []  # a heartbeat: the next state (a step's change, or the heartbeat) has it
+        return self.state()
 
     def _on_goal(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
         try:
@@ -195,7 +201,30 @@ class UnitCore:
     def tick(self, sense: Sense, move: Move, now: float) -> list[Outbound]:
         """One step in the world `sense` reads and `move` changes; the state (and direction)."""
         self.logic.tick(sense, move, now)
+        self._quiet_ticks += 1
+        if self._quiet_ticks < STATE_HEARTBEAT_STEPS and self._condition() == self._told:
+            return []  # nothing to tell but the step count: the next change or heartbeat will
         return self.state()
+
+    def _condition(self) -> tuple[object, ...] | None:
+        """What a state would say, but its header and step count; None while news is pending."""
+        lg = self.logic
+        if lg.new_obstacles or lg.errors:
+            return None
+        return (
+            lg.position,
+            lg.direction,
+            lg.status,
+            lg.wait_reason,
+            lg.mode,
+            lg.job_id,
+            lg.load_kg,
+            tuple(lg.sensors.items()),
+            lg.order_id,  # not its update id: a heartbeat order changes nothing else
+            tuple(lg.released),
+            lg.goal,
+            lg.estop,
+        )
 
     def state(self) -> list[Outbound]:
         """The state now, and the direction when it changed; nothing while disconnected.
@@ -205,6 +234,7 @@ class UnitCore:
         """
         if not self.logic.connected:
             return []
+        self._told, self._quiet_ticks = self._condition(), 0
         state = self.logic.report(self.stamp("state"))
         outs = [Outbound.of("state", self.topics.unit("state", self.id), state)]
         direction = encode_direction(decode_direction(state.direction))

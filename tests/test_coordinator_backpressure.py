@@ -103,7 +103,12 @@ def test_a_few_late_units_do_not_hold_back_the_steps_of_the_rest() -> None:
     grid = GridMap.from_rows(["." * 20])
 
     def step(units: int, acking: int) -> bool:
-        plans = {f"u{i}": OrderPlan(f"n-u{i}", 1, 1, [], [], None, None) for i in range(units)}
+        plans = {}
+        for i in range(units):  # each unit's squares changed in update 1 of a fresh order
+            track = orders.track(f"u{i}")
+            track.order_id, track.update_id, track.content_update = f"n-u{i}", 1, 1
+            track.acked_update = 0
+            plans[f"u{i}"] = OrderPlan(f"n-u{i}", 1, 1, [Cell(i, 0)], [], None, None)
         orders.expect(plans)
         for i in range(acking):
             state = UnitLogic(f"u{i}", grid, Cell(i, 0), 1.0, 1.0).report(header(f"u{i}"))
@@ -115,3 +120,6 @@ def test_a_few_late_units_do_not_hold_back_the_steps_of_the_rest() -> None:
     assert step(20, 0) and step(20, 17)  # three of twenty late: wait (a while)
     assert not step(20, 18) and not step(20, 20)  # two late: they get no squares meanwhile
     assert step(1, 0) and not step(1, 1)  # one unit: it is the fleet
+    # A heartbeat (the same squares again, acknowledged) is not awaited.
+    orders.expect({"u0": OrderPlan("n-u0", 2, 2, [Cell(0, 0)], [], None, None)})
+    assert orders.awaiting == {}

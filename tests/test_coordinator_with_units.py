@@ -7,6 +7,7 @@ replies awaited).
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.grid import Cell
-from gridfleet.protocol import Topics
+from gridfleet.protocol import Topics, UnitState
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, coordinator_thread, world_of
@@ -22,7 +23,7 @@ from system.threads import ServiceThread, coordinator_thread, world_of
 from support.coordinator_fakes import PLAYFIELD_JOBS
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
-from support.wait import wait_for
+from support.wait import WaitTimeout, wait_for
 
 RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
 System = Callable[..., tuple[ServiceThread, ServiceThread]]
@@ -190,34 +191,45 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
     _, fleet = system()
     world = world_of(fleet)
     assert operator.submit_job(*PLAYFIELD_JOBS[0], job_id="f1").accepted
-    first = wait_for(
-        lambda: next((s for u in CAPACITY for s in operator.states(u) if s.order_id), None),
-        timeout=10,
-        what="an order under way",
-    )
-    assert first.order_id is not None
-    unit = first.order_id.split("-")[-2]  # <nonce>-<unit>-<route>
-    # The coordinator's current order id, an update id it will not reach: every later real
-    # update of this order would look stale to the unit, which holds on the forged one.
-    forged = {
-        "header": {
-            "version": "1.3",
-            "seq": 0,
-            "timestamp": "2026-11-23T00:00:00Z",
-            "sender": "coordinator",
-        },
-        "order_id": first.order_id,
-        "update_id": 2_000_000_000,
-        "step": 0,
-        "released": [],
-        "planned": [],
-        "target": None,
-        "action": None,
-    }
-    probe_factory().publish(topics.unit("order", unit), json.dumps(forged), qos=1)
+
+    def moving() -> UnitState | None:
+        """The newest state of a unit driving an order (its order id is the current one)."""
+        return next(
+            (s for u in CAPACITY if (s := operator.last_state(u)) and s.order_id and s.released),
+            None,
+        )
+
+    def reported() -> bool:
+        return any("never sent" in e.reason for e in operator.errors())
+
+    for _ in range(5):  # the order may change under us (a new route): forge the new one then
+        now = wait_for(moving, timeout=10, what="an order under way")
+        assert now.order_id is not None
+        unit = now.order_id.split("-")[-2]  # <nonce>-<unit>-<route>
+        # The coordinator's current order id, an update id it will not reach: every later real
+        # update of this order would look stale to the unit, which holds on the forged one.
+        forged = {
+            "header": {
+                "version": "1.3",
+                "seq": 0,
+                "timestamp": "2026-11-23T00:00:00Z",
+                "sender": "coordinator",
+            },
+            "order_id": now.order_id,
+            "update_id": 2_000_000_000,
+            "step": 0,
+            "released": [],
+            "planned": [],
+            "target": None,
+            "action": None,
+        }
+        probe_factory().publish(topics.unit("order", unit), json.dumps(forged), qos=1)
+        with contextlib.suppress(WaitTimeout):
+            wait_for(reported, timeout=3, what="the forged order reported")
+            break
     wait_for(lambda: operator.all_final(["f1"]), timeout=30, what="the job done all the same")
     assert operator.listed_jobs()["f1"].state == "done"
-    assert any("never sent" in e.reason for e in operator.errors())  # and it was reported
+    assert reported()  # and it was reported
     assert world.collisions == 0, world.log
 
 

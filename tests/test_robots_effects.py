@@ -248,6 +248,31 @@ def test_an_accepted_order_shows_its_first_move_at_once() -> None:
     ]
 
 
+def test_a_heartbeat_order_is_told_with_the_next_state_not_at_once() -> None:
+    # 100 units: a state for every heartbeat order was a third of the fleet's traffic.
+    core = ready()
+    hold = order_bytes("o1", 1, [])
+    assert published(core.on_message(ROOT + "units/u1/order", hold, 0.3), ROOT) == [
+        state(2, order_id="o1", order_update_id=1)  # a new order: news
+    ]
+    again = order_bytes("o1", 2, [])
+    assert core.on_message(ROOT + "units/u1/order", again, 0.35) == []  # nothing but its id
+    assert core.logic.order_update_id == 2  # taken all the same
+    moved = order_bytes("o1", 3, [Cell(1, 1)])
+    assert published(core.on_message(ROOT + "units/u1/order", moved, 0.4), ROOT)[0][1][
+        "released"
+    ] == [[1, 1]]  # squares released: at once
+
+
+def test_a_unit_standing_still_is_heard_every_third_step() -> None:
+    core = ready("standalone")  # its last state at step 1; no goal, so idle for good
+    sent = [bool(core.tick(lambda: FREE, refuse, 0.2 + 0.1 * n)) for n in range(1, 10)]
+    assert sent == [False, False, True] * 3
+    # Anything new goes out at once: here a sensor reading.
+    wall = {**FREE, Direction.N: "wall"}
+    assert published(core.tick(lambda: wall, refuse, 1.2), ROOT)[0][1]["sensors"]["N"] == "wall"
+
+
 def test_a_stale_order_publishes_nothing_and_changes_nothing() -> None:
     core = ready()
     core.on_message(ROOT + "units/u1/order", order_bytes("o1", 2, [Cell(1, 1)]), 0.3)

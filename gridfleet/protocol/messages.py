@@ -150,7 +150,7 @@ class UnitError(Model):
 
 
 class UnitState(Message):
-    """`units/<id>/state`: a unit's pose and condition, sent every step and on change."""
+    """`units/<id>/state`: a unit's pose and condition, sent on change and at least every 3 steps."""
 
     step: Annotated[int, Field(ge=0, strict=True)]
     position: Square
