@@ -40,11 +40,11 @@ from coordinator.pace import StepRate
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
 from coordinator.views import Views
-from coordinator.waits import explain_waits
+from coordinator.waits import Stuck, explain_waits
 from coordinator.world import World
 from gridfleet.endpoint import Outbound
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Cell
+from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
     CancelJob,
     Connection,
@@ -70,6 +70,9 @@ LATCH_WAIT_S = 1.0
 # Longest a step waits past its period for units to acknowledge the orders of the previous step:
 # half the shortest hold timeout, so units never hold for want of orders while we wait.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
+# A unit with a job that has not moved for this long (steps, and at least seconds) is stuck, and
+# its job says so: a person sees a jam that the planner does not resolve (protocol.md §5.3).
+STUCK_STEPS, STUCK_MIN_S = 30, 10.0
 
 
 @dataclass(frozen=True)
@@ -105,6 +108,8 @@ class CoordinatorCore:
         # After a (re)connect: when the retained latch can have arrived; None once it did, or
         # once we re-asserted it (a restarted broker without persistence lost it).
         self._latch_due: float | None = None
+        self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
+        self._stuck_told: set[str] = set()  # jobs whose stuck unit the events told already
         # Likewise for the presses we hold: those the broker did not replay by then it lost.
         self._presses_due: float | None = None
         self._replayed: set[str] = set()  # press topics replayed since the last (re)connect
@@ -369,6 +374,36 @@ class CoordinatorCore:
         )
         return [self._latch_out(cause)]  # the engaged latch, or a held press (engaged too)
 
+    def _tell_stuck(self) -> None:
+        """An event when a job's unit gets stuck (once, until it moves again)."""
+        stuck = {j.id: j for j in self.jobs.active() if j.wait == "unit_stuck"}
+        for job in stuck.values():
+            if job.id not in self._stuck_told:
+                at = self.say.stamp.now()
+                self.events.add(at, "job", f"job {job.id}: {job.wait_reason}", job.id, job.unit)
+        self._stuck_told = set(stuck)
+
+    def _stuck_after_s(self) -> float:
+        """How long a unit with a job may stand still before its job says it is stuck."""
+        return max(STUCK_MIN_S, STUCK_STEPS * self.world.step_period_s)
+
+    def _blocker(self, unit_id: str) -> str | None:
+        """The unit standing on the square that brings `unit_id` nearest to its target."""
+        rec = self.world.units.get(unit_id)
+        target = self.progress.target(unit_id)
+        if rec is None or rec.position is None or target is None or target == rec.position:
+            return None
+        cache, here = self.planner.cache, rec.position
+        grid = self.world.grid
+        ahead = [c for c in (here.step(d) for d in Direction) if grid.is_free(c)]
+        if not ahead:
+            return None
+        best = min(ahead, key=lambda c: cache.distance(c, target))
+        return next(
+            (u.id for u in self.world.units.values() if u.id != unit_id and u.position == best),
+            None,
+        )
+
     def _latch_out(self, signal: EstopSignal) -> Outbound:
         """`signal` on the latch, retained (restored, re-asserted or copied from a press)."""
         return Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal))
@@ -383,7 +418,13 @@ class CoordinatorCore:
         if not self.estop:
             self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
             self.progress.dispatch(units, active)
-        explain_waits(self.jobs, self.world.units, active, self.estop, self.goals, self.controls)
+        if self.estop:
+            self._free_since = now  # a unit held by the stop is not stuck: count from the release
+        stuck = Stuck(now, self._stuck_after_s(), self._blocker, self._free_since)
+        explain_waits(
+            self.jobs, self.world.units, active, self.estop, self.goals, self.controls, stuck
+        )
+        self._tell_stuck()
         targets = {u.id: self.progress.target(u.id) for u in units}
         moves: dict[str, Cell] = {}
         if not self.estop:

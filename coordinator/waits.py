@@ -7,7 +7,8 @@ queue should never have to guess.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass
 
 from coordinator.jobs import Job, JobBook
 from coordinator.world import UnitRecord
@@ -25,6 +26,24 @@ def _named(items: list[str]) -> str:
     return f"{', '.join(items[:NAMED])} and {len(items) - NAMED} more"
 
 
+@dataclass(frozen=True)
+class Stuck:
+    """How to tell a unit that has stopped making progress: the time, the threshold, who blocks."""
+
+    now: float
+    after_s: float  # a unit with a job not moving for this long is stuck
+    blocker: Callable[[str], str | None] = lambda _: None  # the unit in its way, if known
+    since: float = float("-inf")  # the fleet moves since (the stop's release): count from then
+
+
+_SPANS = ((3600, "over an hour"), (600, "over 10 min"), (300, "over 5 min"), (60, "over a minute"))
+
+
+def _over(seconds: float) -> str:
+    """A stand-still in words that change seldom (the view goes out again when they do)."""
+    return next((words for limit, words in _SPANS if seconds >= limit), f"{seconds:.0f} s")
+
+
 def _clipped(wait: Wait | None) -> Wait | None:
     """Words within the protocol's MAX_TEXT (a unit's own reason may already be that long)."""
     if wait is None or len(wait[1]) <= MAX_TEXT:
@@ -39,6 +58,7 @@ def explain_waits(
     stopped: bool,
     goals: Collection[str] = (),
     controls: Mapping[str, str] | None = None,
+    stuck: Stuck | None = None,
 ) -> None:
     """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
     controls = controls or {}
@@ -46,7 +66,8 @@ def explain_waits(
         if stopped:
             jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
         else:
-            jobs.explain(job, _clipped(why_waiting(job, jobs, units, active, goals, controls)))
+            why = why_waiting(job, jobs, units, active, goals, controls, stuck)
+            jobs.explain(job, _clipped(why))
 
 
 def why_waiting(
@@ -56,6 +77,7 @@ def why_waiting(
     active: Collection[str],
     goals: Collection[str] = (),
     controls: Mapping[str, str] | None = None,
+    stuck: Stuck | None = None,
 ) -> Wait | None:
     """Why `job` is not moving on now, or None when nothing holds it up."""
     controls = controls or {}
@@ -69,6 +91,16 @@ def why_waiting(
         return None
     if rec.id not in active:
         return ("unit_away", f"its unit {rec.id} is not heard from ({rec.connection or 'silent'})")
+    if stuck is not None and rec.moved_at is not None:
+        still = stuck.now - max(rec.moved_at, stuck.since)
+        if still >= stuck.after_s:
+            where = list(rec.state.position)
+            blocker = stuck.blocker(rec.id)
+            why = f"; {blocker} stands where it must go" if blocker else ""
+            return (
+                "unit_stuck",
+                f"its unit {rec.id} has not moved for {_over(still)} at {where}{why}",
+            )
     if rec.state.status == "waiting":
         why = rec.state.wait_reason or "its way is blocked"
         return ("unit_waiting", f"its unit {rec.id} waits: {why}")

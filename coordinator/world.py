@@ -25,6 +25,7 @@ class UnitRecord:
     lost_since: float | None = None  # when it stopped counting as active (None: active)
     interval_s: float | None = None  # how far apart its states arrive (moving average)
     rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
+    moved_at: float | None = None  # when its state last showed it on a new square
 
     @property
     def position(self) -> Cell | None:
@@ -125,6 +126,8 @@ class World:
             # long silence (a real loss) counts only up to the timeout it already had.
             gap = min(now - rec.state_at, self.stale_after_s(rec))
             rec.interval_s = gap if rec.interval_s is None else 0.8 * rec.interval_s + 0.2 * gap
+        if rec.state is None or rec.state.position != msg.position:
+            rec.moved_at = now
         rec.state = msg
         rec.state_at = now
         rec.rejoined = False

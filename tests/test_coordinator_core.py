@@ -536,3 +536,45 @@ def test_a_view_that_cannot_be_built_is_reported_and_the_orders_still_go(
     assert "u" in orders_in(effects)
     errors = [m for m in effects.publish if m.topic == TOPICS.fleet("errors")]
     assert len(errors) == 1 and b"internal error in the views" in errors[0].payload
+
+
+def test_a_unit_with_a_job_that_stops_making_progress_says_it_is_stuck_and_who_blocks() -> None:
+    # The hour-long warehouse demo: a loaded unit sat behind an idle one in a dead end for 21
+    # minutes, and its job's "waiting for" stayed empty. (Steps of 1 s: stuck after 30 s.)
+    grid = GridMap.from_rows(["......"])
+    core = make_core(grid)
+    core.on_connect()
+    u = UnitLogic("u", grid, Cell(0, 0), 5.0, 1.0)
+    b = UnitLogic("b", grid, Cell(1, 0), 0.5, 1.0)  # too weak for the job: it stays idle
+    meet(core, u.report(header("u")), 5.0)
+    meet(core, b.report(header("b")), 0.5)
+    _submit(core, "r", Cell(3, 0), Cell(5, 0))
+    (job,) = core.jobs.jobs.values()
+
+    def step_at(now: float) -> None:  # neither unit moves: b is in u's way
+        core.step(now)
+        from_unit(core, "state", "u", u.report(header("u")), now)
+        from_unit(core, "state", "b", b.report(header("b")), now)
+
+    for now in range(1, 30):
+        step_at(float(now))
+    assert _wait(job.id, core)[0] != "unit_stuck"  # 29 s: traffic, not yet a jam
+    effects = core.step(31.0)
+    stuck = "its unit u has not moved for 31 s at [0, 0]; b stands where it must go"
+    assert _wait(job.id, core) == ("unit_stuck", stuck)
+    assert [e.text for e in effects.events] == [f"job {job.id}: {stuck}"]  # told once
+    from_unit(core, "state", "u", u.report(header("u")), 31.0)
+    from_unit(core, "state", "b", b.report(header("b")), 31.0)
+    for now in range(32, 62):
+        step_at(float(now))
+    assert _wait(job.id, core)[1].startswith("its unit u has not moved for over a minute")
+    # Held by the emergency stop, a unit is not stuck: it counts again from the release.
+    core.on_message(TOPICS.fleet("estop"), b"engaged|dashboard|test", 62.0)
+    step_at(63.0)
+    assert _wait(job.id, core)[0] == "fleet_stopped"
+    core.on_message(TOPICS.fleet("estop"), b"released|dashboard|test", 64.0)
+    step_at(65.0)
+    assert _wait(job.id, core)[0] != "unit_stuck"
+    for now in range(66, 95):  # 31 s after the last step under the stop (63)
+        step_at(float(now))
+    assert _wait(job.id, core)[1].startswith("its unit u has not moved for 31 s")

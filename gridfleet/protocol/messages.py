@@ -69,6 +69,7 @@ WaitCode = Literal[
     "no_unit_free",
     "unit_away",
     "unit_waiting",
+    "unit_stuck",
     "unit_paused",
     "unit_out_of_service",
 ]
