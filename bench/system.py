@@ -21,7 +21,7 @@ import tempfile
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
@@ -184,31 +184,22 @@ async def run_system(
         scenario = make_scenario(units, seed, Path(tmp))
         if broker_url is not None:
             await check_broker(broker_url)
+        spec = SystemSpec(
+            scenario,
+            broker=broker_url,
+            root=root,
+            step_s=step_s,
+            db_path=Path(tmp) / "jobs.db",
+            ws_port=None,
+        )
+        truth = Path(tmp) / "truth.jsonl"
         if deploy == "processes":
             shards = workers if workers is not None else workers_for(units)
-            truth = Path(tmp) / "truth.jsonl"
-            spec = SystemSpec(
-                scenario,
-                broker=broker_url,
-                root=root,
-                step_s=step_s,
-                db_path=Path(tmp) / "jobs.db",
-                ws_port=None,
-                unit_workers=shards,
-                truth=truth,
-            )
+            spec = replace(spec, unit_workers=shards, truth=truth)
         else:
             shards = 1
-            spec = SystemSpec(
-                scenario,
-                broker=broker_url,
-                root=root,
-                step_s=step_s,
-                db_path=Path(tmp) / "jobs.db",
-                seed=seed,
-                coordinator_id=f"{root}-coordinator",
-                own_broker="processes",
-                ws_port=None,
+            spec = replace(
+                spec, seed=seed, coordinator_id=f"{root}-coordinator", own_broker="processes"
             )
         with open(os.devnull, "w") as quiet:  # the components' logs: the figures say it all
             supervisor = Supervisor(out=quiet, stop_timeout=20.0)

@@ -19,8 +19,8 @@ import numpy as np
 
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.protocol.messages import SensorReading
 from gridfleet.scenario import Scenario, with_units
+from robots.world import Sensing
 
 _NOBODY = -1  # a position not set yet
 
@@ -34,7 +34,7 @@ class SharedHandle:
     sensors_see_units: bool = True
 
 
-class SharedWorld:
+class SharedWorld(Sensing):
     """The world of a scenario in shared memory (see the module doc); `WorldSim`'s interface.
 
     Every unit of the scenario lives here: there are no remote units to observe. Sensors and moves
@@ -149,25 +149,11 @@ class SharedWorld:
             raise KeyError(unit_id)
         return Cell(x, y)
 
-    def square(self, cell: Cell, exclude: str | None = None) -> SensorReading:
-        """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
-        reading = self._truth(cell, exclude)
-        return "free" if reading == "unit" and not self.sensors_see_units else reading
-
-    def _truth(self, cell: Cell, exclude: str | None) -> SensorReading:
-        if not self.grid.in_bounds(cell):
-            return "wall"
-        if not self.grid.is_free(cell) or cell in self.hidden:
-            return "obstacle"
+    def _others_on(self, cell: Cell, exclude: str | None) -> bool:
         there = int(self._count[cell.y, cell.x])
         if exclude is not None and self.position(exclude) == cell:
             there -= 1
-        return "unit" if there > 0 else "free"
-
-    def sense(self, unit_id: str) -> dict[Direction, SensorReading]:
-        """The four distance sensors of `unit_id`: what is in each neighbouring square."""
-        here = self.position(unit_id)
-        return {d: self.square(here.step(d), exclude=unit_id) for d in Direction}
+        return there > 0
 
     def move(self, unit_id: str, direction: Direction) -> bool:
         """Move one square if it is free; otherwise refuse, count it as prevented, return False."""

@@ -41,7 +41,40 @@ class SimulatedWorld(Protocol):
     def observe(self, unit_id: str, cell: Cell) -> None: ...
 
 
-class WorldSim:
+class Sensing:
+    """Distance sensors over a world: walls and obstacles from the map, units where they stand."""
+
+    grid: GridMap
+    hidden: frozenset[Cell]
+    sensors_see_units: bool
+
+    def position(self, unit_id: str) -> Cell:
+        """Where `unit_id` is (KeyError for an unknown unit)."""
+        raise NotImplementedError
+
+    def _others_on(self, cell: Cell, exclude: str | None) -> bool:
+        """Whether a unit other than `exclude` stands on `cell`."""
+        raise NotImplementedError
+
+    def square(self, cell: Cell, exclude: str | None = None) -> SensorReading:
+        """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
+        reading = self._truth(cell, exclude)
+        return "free" if reading == "unit" and not self.sensors_see_units else reading
+
+    def _truth(self, cell: Cell, exclude: str | None) -> SensorReading:
+        if not self.grid.in_bounds(cell):
+            return "wall"
+        if not self.grid.is_free(cell) or cell in self.hidden:
+            return "obstacle"
+        return "unit" if self._others_on(cell, exclude) else "free"
+
+    def sense(self, unit_id: str) -> dict[Direction, SensorReading]:
+        """The four distance sensors of `unit_id`: what is in each neighbouring square."""
+        here = self.position(unit_id)
+        return {d: self.square(here.step(d), exclude=unit_id) for d in Direction}
+
+
+class WorldSim(Sensing):
     """Walls, fixed and hidden obstacles, and every unit's square; refuses and counts bad moves.
 
     Sensors: off the map reads `wall`; a fixed obstacle (`@` on the map) or a hidden obstacle
@@ -104,25 +137,9 @@ class WorldSim:
         """One unit's step: already atomic, as every unit here runs on one event loop."""
         yield
 
-    def square(self, cell: Cell, exclude: str | None = None) -> SensorReading:
-        """What a sensor sees in `cell`; the unit `exclude` (the one asking) is not seen."""
-        reading = self._truth(cell, exclude)
-        return "free" if reading == "unit" and not self.sensors_see_units else reading
-
-    def _truth(self, cell: Cell, exclude: str | None) -> SensorReading:
-        if not self.grid.in_bounds(cell):
-            return "wall"
-        if not self.grid.is_free(cell) or cell in self.hidden:
-            return "obstacle"
+    def _others_on(self, cell: Cell, exclude: str | None) -> bool:
         there = self._occupants.get(cell)
-        if there and (len(there) > 1 or exclude not in there):
-            return "unit"
-        return "free"
-
-    def sense(self, unit_id: str) -> dict[Direction, SensorReading]:
-        """The four distance sensors of `unit_id`: what is in each neighbouring square."""
-        here = self._positions[unit_id]
-        return {d: self.square(here.step(d), exclude=unit_id) for d in Direction}
+        return there is not None and (len(there) > 1 or exclude not in there)
 
     def move(self, unit_id: str, direction: Direction) -> bool:
         """Move one square if it is free; otherwise refuse, count it as prevented, return False."""
