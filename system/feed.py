@@ -59,14 +59,20 @@ async def submit_scenario(
 def random_job(
     scenario: Scenario, rng: random.Random, fields: DistanceFieldCache
 ) -> tuple[Cell, Cell, float]:
-    """A job some unit can carry between two distinct squares reachable from the units."""
+    """A job some unit can carry between two distinct squares reachable from the units.
+
+    Its mass is drawn for a unit picked at random, so the work fits the fleet's mix: a fleet of
+    small units and one big one gets mostly small jobs (masses up to the biggest capacity left
+    half the small units idle in the hour-long warehouse demo while heavy jobs queued).
+    """
     free = scenario.grid.free_cells()
-    heaviest = max(u.capacity for u in scenario.units)
     home = scenario.units[0].start
+    carrier = rng.choice(scenario.units).capacity
+    mass = min(carrier, max(0.1, round(rng.uniform(min(0.5, carrier), carrier), 1)))
     while True:
         pickup, dropoff = rng.sample(free, 2)
         if UNREACHABLE not in (fields.distance(home, pickup), fields.distance(home, dropoff)):
-            return pickup, dropoff, round(rng.uniform(0.5, heaviest), 1)
+            return pickup, dropoff, mass
 
 
 async def feed(
