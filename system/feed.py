@@ -12,6 +12,7 @@ import random
 import signal
 import time
 import uuid
+from collections.abc import Collection
 from pathlib import Path
 
 from gridfleet.config import check_step
@@ -57,7 +58,10 @@ async def submit_scenario(
 
 
 def random_job(
-    scenario: Scenario, rng: random.Random, fields: DistanceFieldCache
+    scenario: Scenario,
+    rng: random.Random,
+    fields: DistanceFieldCache,
+    avoid: Collection[Cell] = frozenset(),
 ) -> tuple[Cell, Cell, float]:
     """A job some unit can carry between two distinct squares reachable from the units.
 
@@ -65,7 +69,7 @@ def random_job(
     small units and one big one gets mostly small jobs (masses up to the biggest capacity left
     half the small units idle in the hour-long warehouse demo while heavy jobs queued).
     """
-    free = scenario.grid.free_cells()
+    free = [c for c in scenario.grid.free_cells() if c not in avoid]  # e.g. obstacles found
     home = scenario.units[0].start
     carrier = rng.choice(scenario.units).capacity
     mass = min(carrier, max(0.1, round(rng.uniform(min(0.5, carrier), carrier), 1)))
@@ -100,7 +104,8 @@ async def feed(
             await operator.jobs_changed.wait()
             operator.jobs_changed.clear()
             while operator.active_jobs() < keep_active:
-                pickup, dropoff, mass = random_job(scenario, rng, fields)
+                # Not onto obstacles the units have found (the coordinator would refuse it).
+                pickup, dropoff, mass = random_job(scenario, rng, fields, operator.obstacles)
                 await operator.submit_job(pickup, dropoff, mass)
                 await asyncio.sleep(step)  # pacing for the demo, not synchronisation
 

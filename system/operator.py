@@ -27,6 +27,7 @@ from gridfleet.protocol import (
     ControlUnit,
     CoordinatorStatus,
     EstopSignal,
+    FleetMap,
     HeaderStamper,
     JobsView,
     Reply,
@@ -73,6 +74,7 @@ class Operator:
         self.resent = 0  # requests sent again for want of a reply (figures for the bench)
         self._pending: dict[str, asyncio.Future[Reply]] = {}
         self._count = 0
+        self.obstacles: frozenset[Cell] = frozenset()  # found by the units (fleet/map)
         # Request ids must be unique per sender across restarts (the coordinator remembers them),
         # and a client id may be reused: a random part per session.
         self._session = secrets.token_hex(3)
@@ -89,6 +91,7 @@ class Operator:
         for kind, topic in (
             ("reply", t.reply(self.client_id)),
             ("jobs", t.fleet("jobs")),
+            ("map", t.fleet("map")),
             ("routes", t.fleet("routes")),
             ("coordinator", t.fleet("coordinator")),
         ):
@@ -111,6 +114,9 @@ class Operator:
                 elif kind == "jobs":
                     self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
                     self.jobs_changed.set()
+                elif kind == "map":
+                    fleet_map = decode(FleetMap, payload, TOPICS["map"].max_bytes)
+                    self.obstacles = frozenset(fleet_map.obstacles)
                 elif kind == "routes":
                     routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
                     self.planned_units = set(routes.routes)

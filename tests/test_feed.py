@@ -3,11 +3,20 @@
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
 from pathlib import Path
 
+from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
+from gridfleet.protocol import FleetMap, Topics, encode
 from gridfleet.scenario import load_scenario
+from system.broker_thread import BrokerThread
 from system.feed import random_job
+from system.operator import operator_session
+
+from support.effects import header
+from support.probe import MqttProbe
+from support.wait import async_wait_for
 
 WAREHOUSE = Path(__file__).resolve().parent.parent / "maps" / "warehouse.toml"
 
@@ -29,3 +38,30 @@ def test_demo_jobs_fit_the_fleets_mix_and_every_one_can_be_done() -> None:
     # About as many jobs fit the smallest units as there are such units (a fifth of the jobs
     # before, a uniform draw up to the biggest capacity, for a third of the units).
     assert share_small_jobs >= 0.8 * share_small_units, (share_small_jobs, share_small_units)
+
+
+def test_demo_jobs_avoid_the_obstacles_units_found() -> None:
+    # The hour-long demo: 34 demo jobs refused, "pickup [6, 7] is on a known obstacle".
+    scenario = load_scenario(WAREHOUSE)
+    fields = DistanceFieldCache(scenario.grid)
+    found = frozenset(scenario.grid.free_cells()[::3])
+    for seed in range(200):
+        pickup, dropoff, _ = random_job(scenario, random.Random(seed), fields, found)
+        assert pickup not in found and dropoff not in found
+
+
+async def test_the_operator_session_follows_the_obstacles_of_the_fleet_map(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    topics = Topics(root)
+    view = FleetMap(
+        header=header("coordinator"),
+        name="m",
+        width=3,
+        height=1,
+        rows=["..."],
+        obstacles=[Cell(1, 0)],
+    )
+    probe_factory().publish(topics.fleet("map"), encode(view), qos=1, retain=True)
+    async with operator_session(broker.url, topics, "op") as op:
+        await async_wait_for(lambda: op.obstacles == {Cell(1, 0)}, what="the found obstacle")
