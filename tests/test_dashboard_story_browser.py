@@ -291,6 +291,11 @@ def test_the_chart_counts_jobs_done_a_minute_and_how_busy_units_are(
     chart = dash.page.locator("#chart")
     expect(chart).to_have_attribute("data-per-minute", "0 0 0 0 0 0 0 0 1 2")
     expect(chart).to_have_attribute("data-utilisation", "0.25")  # 1 of 4 units online has work
+    # Labelled (the hour-long demo: no axis, a line without a value, an all-zero empty box).
+    expect(chart).to_have_attribute("data-busy", "25 % of units busy")
+    expect(chart).to_have_attribute("data-note", "")
+    coordinator.jobs([job("job-9", "to_dropoff", "unit1")])  # nothing done any more
+    expect(chart).to_have_attribute("data-note", "no job done in the last 10 min")
 
 
 def test_unit_rows_pause_and_take_out_of_service_and_jobs_say_why_they_wait(

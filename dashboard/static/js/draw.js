@@ -280,8 +280,9 @@ function baseLayer(map, L, dpr) {
 }
 
 /**
- * The throughput chart: a bar per minute of jobs done (oldest left), and how busy the units are
- * now as a line across. Its figures go in data attributes too, for tests and assistive tools.
+ * The throughput chart: a bar per minute of jobs done (oldest left, the current minute right),
+ * and how busy the units are now as a line across, labelled with its share. Its figures and
+ * labels go in data attributes too, for tests and assistive tools.
  */
 export function drawChart(canvas, perMinute, share) {
   const key = `${perMinute.join(" ")}|${share}`;
@@ -289,26 +290,50 @@ export function drawChart(canvas, perMinute, share) {
   canvas.dataset.key = key;
   canvas.dataset.perMinute = perMinute.join(" ");
   canvas.dataset.utilisation = share == null ? "" : share.toFixed(2);
+  const busy = share == null ? "" : `${Math.round(share * 100)} % of units busy`;
+  const none = perMinute.every((n) => n === 0);
+  canvas.dataset.busy = busy;
+  canvas.dataset.note = none ? `no job done in the last ${perMinute.length} min` : "";
   const dpr = window.devicePixelRatio || 1;
-  const w = canvas.clientWidth || 300, h = canvas.clientHeight || 80;
+  const w = canvas.clientWidth || 300, h = canvas.clientHeight || 96;
   canvas.width = Math.round(w * dpr);
   canvas.height = Math.round(h * dpr);
   const g = canvas.getContext("2d");
   g.setTransform(dpr, 0, 0, dpr, 0, 0);
   g.clearRect(0, 0, w, h);
+  const axis = 12; // the time axis under the bars
+  const plot = h - axis - 14; // room above the tallest bar for its count
+  const base = h - axis;
   const top = Math.max(1, ...perMinute);
   const bw = w / perMinute.length;
   g.font = "10px sans-serif";
-  g.textAlign = "center";
   g.textBaseline = "bottom";
+  g.textAlign = "center";
   perMinute.forEach((n, i) => {
-    const bh = ((h - 14) * n) / top;
+    const bh = (plot * n) / top;
     g.fillStyle = "#4caf50";
-    g.fillRect(i * bw + 2, h - bh, bw - 4, bh);
-    if (n) { g.fillStyle = "#1b5e20"; g.fillText(String(n), i * bw + bw / 2, h - bh); }
+    g.fillRect(i * bw + 2, base - bh, bw - 4, bh);
+    if (n) { g.fillStyle = "#1b5e20"; g.fillText(String(n), i * bw + bw / 2, base - bh); }
   });
+  g.strokeStyle = "#90a4ae";
+  g.lineWidth = 1;
+  g.beginPath();
+  g.moveTo(0, base + 0.5);
+  g.lineTo(w, base + 0.5);
+  g.stroke();
+  g.fillStyle = "#607d8b";
+  g.textBaseline = "top";
+  g.textAlign = "left";
+  g.fillText(`${perMinute.length} min ago`, 2, base + 1);
+  g.textAlign = "right";
+  g.fillText("this minute", w - 2, base + 1);
+  if (none) {
+    g.textAlign = "center";
+    g.textBaseline = "middle";
+    g.fillText(canvas.dataset.note, w / 2, base / 2);
+  }
   if (share != null) {
-    const y = h - (h - 14) * share;
+    const y = base - plot * share;
     g.strokeStyle = "#1565c0";
     g.lineWidth = 2;
     g.setLineDash([5, 3]);
@@ -317,6 +342,10 @@ export function drawChart(canvas, perMinute, share) {
     g.lineTo(w, y);
     g.stroke();
     g.setLineDash([]);
+    g.fillStyle = "#1565c0";
+    g.textAlign = "left";
+    g.textBaseline = y > 14 ? "bottom" : "top";
+    g.fillText(busy, 4, y - 1);
   }
 }
 
