@@ -324,4 +324,14 @@ def test_unit_rows_pause_and_take_out_of_service_and_jobs_say_why_they_wait(
     coordinator.routes({"unit2": RouteView(control="out_of_service")})
     expect(row(dash, "unit2").locator(".status")).to_have_text("out of service · idle")
     expect(row(dash, "unit2").locator("button[data-command]")).to_have_text(["in service"])
+    # A unit that says "idle" while its job is stuck shows what holds the job (the hour-long
+    # demo: loaded units jammed for 21 minutes read "idle" with no reason).
+    stuck = "its unit unit1 has not moved for over 5 min at [0, 0]; unit3 stands where it must go"
+    coordinator.jobs(
+        [
+            job("job-5", "queued", None, wait="no_unit_free", wait_reason=reason),
+            job("job-6", "to_pickup", "unit1", wait="unit_stuck", wait_reason=stuck),
+        ]
+    )
+    expect(row(dash, "unit1").locator(".status")).to_have_text(f"idle · {stuck}")
     assert dash.errors == []

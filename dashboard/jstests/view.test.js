@@ -30,6 +30,11 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   // Before pickup the queue names the unit's job; an operator's hold comes first in its status.
   const [, , , status, job] = text(unitCells(v.units.get("unit2"), "job-7", "out_of_service"));
   assert.deepEqual([status, job], ["out of service · waiting: released square [4, 5] is blocked", "job-7"]);
+  // A unit between orders says "idle" while its job is stuck: the job's words say what holds it.
+  const stuck = "its unit unit1 has not moved for over 5 min at [1, 0]; unit2 stands where it must go";
+  v.apply("state", "unit1", JSON.stringify({ position: [1, 0], status: "idle", job_id: "job-1", load_kg: 1.5 }), 0);
+  assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, stuck))[3], `idle · ${stuck}`);
+  assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, null))[3], "idle");
 });
 
 test("a unit row's buttons follow its hold", () => {

@@ -19,12 +19,15 @@ const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
 
 /**
  * The units table's cells for unit `u` (a FleetView unit): [text, className] each. `job`: the job
- * it works on (its own, or the queue's before pickup); `control`: an operator's hold on it.
+ * it works on (its own, or the queue's before pickup); `control`: an operator's hold on it;
+ * `jobWait`: why that job waits, in the coordinator's words (a unit between orders says "idle"
+ * while its job is stuck: the job's words say what holds it).
  */
-export function unitCells(u, job = u.state?.job_id ?? null, control = null) {
+export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null) {
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
   let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
+  if (jobWait && s && !s.wait_reason) status = `${s.status} · ${jobWait}`;
   if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
   // A job whose item is on board is marked (the load says how heavy).
   const carrying = s && s.load_kg > 0 ? "job carrying" : "job";
@@ -133,7 +136,11 @@ export class PageView {
     syncRows($("#units tbody"), ids, {
       keyName: "unit",
       key: (id) => id,
-      cells: (id) => unitCells(this.view.units.get(id), unitJob(this.view, id), this.view.routes[id]?.control),
+      cells: (id) => {
+        const job = unitJob(this.view, id);
+        const wait = this.view.activeJobs().find((j) => j.id === job)?.wait_reason ?? null;
+        return unitCells(this.view.units.get(id), job, this.view.routes[id]?.control, wait);
+      },
       extra: (tr, id, fresh) => {
         const u = this.view.units.get(id);
         if (fresh) {
@@ -147,7 +154,7 @@ export class PageView {
         tr.dataset.link = u.connection ?? "unknown";
         tr.classList.toggle("selected", id === ui.selectedUnit);
         tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
-        tr.children[3].title = u.state?.wait_reason ?? "";
+        tr.children[3].title = tr.children[3].textContent;  // the whole of a long status
       },
     });
     this.seen(now);
