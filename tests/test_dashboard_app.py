@@ -57,6 +57,8 @@ def test_page_static_files_and_bundle_are_served() -> None:
     client = create_app(DashboardSettings()).test_client()
     page = client.get("/")
     assert page.status_code == 200 and b'src="/static/js/main.js"' in page.data
+    # Its icon is in the page: a browser asks for no /favicon.ico (a 404 on every load before).
+    assert b'<link rel="icon" href="data:image/svg+xml,' in page.data
     for path in ("/static/js/main.js", "/static/js/model.js", "/static/style.css"):
         assert client.get(path).status_code == 200, path
     bundle = client.get("/vendor/mqtt.esm.js")

@@ -36,6 +36,13 @@ test("job numbers are given once and kept", () => {
   assert.deepEqual([n.of("a"), n.of("b"), n.of("a"), n.of("c")], [1, 2, 1, 3]);
 });
 
+test("a job id ending in a number keeps it, on every page and after a reload", () => {
+  const n = new JobNumbers();
+  assert.deepEqual([n.of("job-258"), n.of("job-3"), n.of("crate"), n.of("job-258")], [258, 3, 1, 258]);
+  assert.equal(n.of("other-3"), 2, "a number taken already: the next free one");
+  assert.equal(new JobNumbers().of("job-258"), 258, "a new page says the same");
+});
+
 test("how long a job took, in words", () => {
   assert.equal(tookSeconds({ created_step: 10, done_step: 135 }, 0.1), 12.5);
   assert.equal(tookSeconds({ created_step: 10, done_step: null }, 0.1), null);

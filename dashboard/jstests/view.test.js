@@ -35,6 +35,8 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   v.apply("state", "unit1", JSON.stringify({ position: [1, 0], status: "idle", job_id: "job-1", load_kg: 1.5 }), 0);
   assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, stuck))[3], `idle · ${stuck}`);
   assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, null))[3], "idle");
+  v.apply("state", "unit1", JSON.stringify({ position: [1, 0], status: "moving", job_id: "job-1", load_kg: 1.5 }), 0);
+  assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, stuck))[3], "moving", "under way: nothing to add");
 });
 
 test("a unit row's buttons follow its hold", () => {

@@ -122,7 +122,8 @@ export function drawFleet(canvas, view, now, ui) {
       g.strokeRect(sx + c * 0.12, sy + c * 0.12, c * 0.76, c * 0.76);
       g.setLineDash([]);
       g.fillStyle = color;
-      if (c >= 14) g.fillText(`${letter}${n}`, sx + c * 0.5, sy + c * 0.5);
+      // Squeezed into its box when long (P258): never cut off by the rings around it.
+      if (c >= 14) g.fillText(`${letter}${n}`, sx + c * 0.5, sy + c * 0.5, c * 0.68);
       markers.push(`${letter}${n}@${sq[0]},${sq[1]}`);
     }
   }

@@ -13,16 +13,30 @@ export function unitJob(view, id) {
   return view.activeJobs().find((j) => j.unit === id)?.id ?? null;
 }
 
-/** Stable numbers for jobs, so a pickup "P3" is matched with its dropoff "D3" and its row. */
+/**
+ * Stable numbers for jobs, so a pickup "P3" is matched with its dropoff "D3" and its row. A job
+ * id ending in a number keeps it ("job-258" is 258: every page, and every reload, says the same);
+ * others, or one whose number is taken, get the next number nobody has.
+ */
 export class JobNumbers {
   constructor() {
     this.numbers = new Map();
+    this.taken = new Set();
     this.next = 1;
   }
 
   /** The number of job `id`, given the first time it is asked for. */
   of(id) {
-    if (!this.numbers.has(id)) this.numbers.set(id, this.next++);
+    if (!this.numbers.has(id)) {
+      const own = /(\d{1,6})$/.exec(id);
+      let n = own ? Number(own[1]) : null;
+      if (n === null || n === 0 || this.taken.has(n)) {
+        while (this.taken.has(this.next)) this.next += 1;
+        n = this.next;
+      }
+      this.taken.add(n);
+      this.numbers.set(id, n);
+    }
     return this.numbers.get(id);
   }
 }

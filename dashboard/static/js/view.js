@@ -27,7 +27,8 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
   let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
-  if (jobWait && s && !s.wait_reason) status = `${s.status} · ${jobWait}`;
+  const quiet = s && !s.wait_reason && (s.status === "idle" || s.status === "holding");
+  if (jobWait && quiet) status = `${s.status} · ${jobWait}`;
   if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
   // A job whose item is on board is marked (the load says how heavy).
   const carrying = s && s.load_kg > 0 ? "job carrying" : "job";
