@@ -41,6 +41,9 @@ test("a job id ending in a number keeps it, on every page and after a reload", (
   assert.deepEqual([n.of("job-258"), n.of("job-3"), n.of("crate"), n.of("job-258")], [258, 3, 1, 258]);
   assert.equal(n.of("other-3"), 2, "a number taken already: the next free one");
   assert.equal(new JobNumbers().of("job-258"), 258, "a new page says the same");
+  const view = new JobNumbers();
+  view.claim(["too-heavy", "job-1", "job-2"]); // a queue view: numbered ids keep theirs first
+  assert.deepEqual([view.of("too-heavy"), view.of("job-1"), view.of("job-2")], [3, 1, 2]);
 });
 
 test("how long a job took, in words", () => {

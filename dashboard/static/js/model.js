@@ -87,6 +87,7 @@ export class FleetView {
       }
       case "jobs":
         this.jobs = Array.isArray(msg.jobs) ? msg.jobs : [];
+        this.jobNumbers.claim(this.jobs.map((j) => j.id)); // numbered ids first: theirs to keep
         this.counts = msg.counts ?? {};
         break;
       case "routes":

@@ -27,17 +27,29 @@ export class JobNumbers {
 
   /** The number of job `id`, given the first time it is asked for. */
   of(id) {
-    if (!this.numbers.has(id)) {
-      const own = /(\d{1,6})$/.exec(id);
-      let n = own ? Number(own[1]) : null;
-      if (n === null || n === 0 || this.taken.has(n)) {
-        while (this.taken.has(this.next)) this.next += 1;
-        n = this.next;
-      }
-      this.taken.add(n);
-      this.numbers.set(id, n);
+    if (!this.numbers.has(id) && !this.own(id)) {
+      while (this.taken.has(this.next)) this.next += 1;
+      this.give(id, this.next);
     }
     return this.numbers.get(id);
+  }
+
+  /** Give each of `ids` that ends in a free number that number, before any is counted out. */
+  claim(ids) {
+    for (const id of ids) if (!this.numbers.has(id)) this.own(id);
+  }
+
+  own(id) {
+    const m = /(\d{1,6})$/.exec(id);
+    const n = m ? Number(m[1]) : null;
+    if (n === null || this.taken.has(n)) return false;
+    this.give(id, n);
+    return true;
+  }
+
+  give(id, n) {
+    this.taken.add(n);
+    this.numbers.set(id, n);
   }
 }
 
