@@ -190,9 +190,7 @@ class _Outlet:
                     backlog.bytes,
                     topic,
                 )
-            dropped: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-            dropped.set_result(None)
-            return dropped
+            return _done()
         # amqtt wraps this in asyncio.ensure_future, which returns a task as it is; counting out
         # on completion also covers a task cancelled before it ever ran.
         task = asyncio.ensure_future(self._send(topic, data, qos, ack_timeout))
@@ -233,6 +231,7 @@ class _Outlet:
 
 
 def _done() -> asyncio.Future[None]:
+    """A delivery already over (written at once, or dropped): what amqtt awaits for it."""
     done: asyncio.Future[None] = asyncio.get_running_loop().create_future()
     done.set_result(None)
     return done

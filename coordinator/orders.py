@@ -185,11 +185,11 @@ class Orders:
         next state, which may come a few steps later (protocol.md §4.1); until the squares it
         repeats are acknowledged, it is their acknowledgement that is awaited.
         """
-        self.awaiting = {
-            u: (p.order_id, self.track(u).content_update)
-            for u, p in plans.items()
-            if self.track(u).content_update > self.track(u).acked_update
-        }
+        self.awaiting = {}
+        for u, p in plans.items():
+            t = self.track(u)
+            if t.content_update > t.acked_update:
+                self.awaiting[u] = (p.order_id, t.content_update)
         self._late_allowed = len(self.awaiting) // LATE_SHARE
 
     @property

@@ -2,8 +2,8 @@
 
 Every decision is the core's (coordinator/core.py): the shell hands it what arrives and the time,
 and does what the returned Effects say: persist, publish, come back for batched views, and pace
-the step loop (one step per period, waiting a while for the last step's acknowledgements while more than a
-few late units owe them).
+the step loop (one step per period, waiting a while for the last step's acknowledgements while
+more than a few late units owe them).
 """
 
 from __future__ import annotations

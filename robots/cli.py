@@ -98,8 +98,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_sharded(args: argparse.Namespace) -> int:
     """`--workers N`: the scenario's units over N processes (checked here, before any starts)."""
-    if args.workers < 1:
-        raise ConfigError(f"--workers {args.workers}: give at least 1")
     if args.units is not None:
         raise ConfigError("--workers shards every unit of the scenario: leave out --units")
     parse_broker_url(args.broker)

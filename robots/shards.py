@@ -21,7 +21,7 @@ from pathlib import Path
 
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.lifeline import PARENT_ENV, die_with_parent
-from gridfleet.scenario import Scenario, load_scenario, with_units
+from gridfleet.scenario import load_scenario, with_units
 from gridfleet.tasks import stop_on_signals
 from robots.shared_world import SharedHandle, SharedWorld
 from robots.truth import write_truth
@@ -113,13 +113,14 @@ def run_sharded(
     """Run every unit of the scenario over `workers` processes; 0 after a clean stop."""
     scenario = load_scenario(scenario_path)
     ids = [u.id for u in with_units(scenario).units]
+    groups = shares(ids, workers)  # a bad count is refused before anything is made
     context = multiprocessing.get_context("spawn")
     world = SharedWorld.create(scenario, context.Lock())
     specs = [
         WorkerSpec(
             scenario_path, broker, root, tuple(share), step_s, mode, accounts, state, world.handle
         )
-        for share in shares(ids, workers)
+        for share in groups
     ]
     procs = [
         context.Process(target=_worker, args=(s,), name=f"units-{i}") for i, s in enumerate(specs)
@@ -137,7 +138,7 @@ def run_sharded(
             len(procs),
             ", ".join(str(p.pid) for p in procs),
         )
-        failed = asyncio.run(_watch(procs, world, scenario, truth, step_s))
+        failed = asyncio.run(_watch(procs, world, truth, step_s))
     finally:
         _stop(procs)
         log.info("stopped: %d moves, %d prevented", sum(world.moves.values()), world.prevented)
@@ -148,11 +149,7 @@ def run_sharded(
 
 
 async def _watch(
-    procs: Sequence[BaseProcess],
-    world: SharedWorld,
-    scenario: Scenario,
-    truth: Path | None,
-    step_s: float,
+    procs: Sequence[BaseProcess], world: SharedWorld, truth: Path | None, step_s: float
 ) -> str | None:
     """Until a stop signal (None) or a worker's death (its name); writes the truth meanwhile."""
     stop = stop_on_signals()

@@ -25,6 +25,11 @@ from robots.world import Sensing
 _NOBODY = -1  # a position not set yet
 
 
+def _layout(n: int, cells: int) -> list[tuple[type[np.signedinteger[Any]], int]]:
+    """The block's arrays in order: positions (x, y), units per square, moves, refusals."""
+    return [(np.int32, 2 * n), (np.int32, cells), (np.int64, n), (np.int64, 1)]
+
+
 @dataclass(frozen=True)
 class SharedHandle:
     """What a worker needs to attach: the block's name and the lock (pickled at process start)."""
@@ -54,7 +59,7 @@ class SharedWorld(Sensing):
         self._index = {uid: i for i, uid in enumerate(self._ids)}
         n, cells = len(self._ids), self.grid.width * self.grid.height
         arrays, offset = [], 0
-        for dtype, size in ((np.int32, 2 * n), (np.int32, cells), (np.int64, n), (np.int64, 1)):
+        for dtype, size in _layout(n, cells):
             arrays.append(np.ndarray((size,), dtype=dtype, buffer=block.buf, offset=offset))
             offset += size * np.dtype(dtype).itemsize
         pos, count, self._moves, self._prevented = arrays
@@ -66,7 +71,7 @@ class SharedWorld(Sensing):
         """Bytes of shared memory the world of `scenario` takes."""
         scenario = with_units(scenario)
         n, cells = len(scenario.units), scenario.grid.width * scenario.grid.height
-        return 4 * 2 * n + 4 * cells + 8 * n + 8
+        return sum(size * np.dtype(dtype).itemsize for dtype, size in _layout(n, cells))
 
     @classmethod
     def create(
@@ -112,11 +117,6 @@ class SharedWorld(Sensing):
             yield
 
     # ---- WorldSim's interface -------------------------------------------------------------
-
-    @property
-    def remote(self) -> set[str]:
-        """None: every unit is simulated in this one world."""
-        return set()
 
     @property
     def positions(self) -> Mapping[str, Cell]:
