@@ -15,6 +15,7 @@ from system.feed import random_job
 from system.operator import operator_session
 
 from support.effects import header
+from support.fleet_peer import CoordinatorPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
@@ -65,3 +66,28 @@ async def test_the_operator_session_follows_the_obstacles_of_the_fleet_map(
     probe_factory().publish(topics.fleet("map"), encode(view), qos=1, retain=True)
     async with operator_session(broker.url, topics, "op") as op:
         await async_wait_for(lambda: op.obstacles == {Cell(1, 0)}, what="the found obstacle")
+
+
+async def test_a_malformed_fleet_map_changes_nothing_the_operator_knows(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    topics = Topics(root)
+    good = FleetMap(
+        header=header("coordinator"), name="m", width=3, height=1, rows=["..."], obstacles=[]
+    )
+    probe = probe_factory()
+    coordinator = CoordinatorPeer(probe, topics)
+    async with operator_session(broker.url, topics, "op") as op:
+        found = good.model_copy(update={"obstacles": [Cell(2, 0)]})
+        probe.publish(topics.fleet("map"), encode(found))
+        await async_wait_for(lambda: op.obstacles == {Cell(2, 0)}, what="the found obstacle")
+        for bad in (b"{not json", b'{"obstacles": [[-1, 0]]}', b"x" * 10):
+            probe.publish(topics.fleet("map"), bad)
+        coordinator.status("online", step=7)  # a marker: read after the bad maps
+        await async_wait_for(
+            lambda: op.coordinator is not None and op.coordinator.step == 7, what="the marker"
+        )
+        assert op.obstacles == {Cell(2, 0)}  # the bad maps changed nothing
+        later = good.model_copy(update={"obstacles": [Cell(1, 0)]})
+        probe.publish(topics.fleet("map"), encode(later))
+        await async_wait_for(lambda: op.obstacles == {Cell(1, 0)}, what="the next good map")

@@ -117,6 +117,15 @@ def test_up_refuses_a_bad_step_before_starting_anything() -> None:
     )
 
 
+def test_up_refuses_a_bad_unit_process_count_before_starting_anything() -> None:
+    out = subprocess.run(
+        [sys.executable, "-m", "system", "up", "--workers", "0", "--mqtt-port", "0"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert out.returncode == 2 and "started" not in out.stdout
+    assert out.stderr.strip() == "gridfleet up: error: --workers 0: give at least 1"
+
+
 def _up(broker: BrokerThread, root: str, tmp_path: Path, playfield: Path) -> subprocess.Popen[str]:
     """`gridfleet up` on the test's broker, its output on a pipe."""
     return subprocess.Popen(
