@@ -444,6 +444,9 @@ class CoordinatorCore:
                 targets,
                 self.progress.urgency(units),
             )
+        for uid, target in targets.items():
+            if target is None:  # an idle unit making way for another shows where it goes
+                targets[uid] = self.planner.parking(uid)
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:

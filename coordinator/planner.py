@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.parking import parking_square
 from coordinator.pibt import NONE, PIBT, neighbour_table
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance
@@ -49,6 +50,7 @@ class Planner:
         self._cache_size = cache_size
         self._priority: dict[str, float] = {}
         self._tiebreak: dict[str, float] = {}
+        self._parking: dict[str, Cell] = {}  # idle units making way: where each goes to wait
         self.set_grid(grid)
 
     @property
@@ -80,8 +82,10 @@ class Planner:
         """Next square of every agent; `reserved` squares are entered by nobody this step.
 
         `urgency` adds to an agent's priority (e.g. job priority). Priorities are updated here:
-        +1 for each agent with a target it has not reached, reset to 0 on arrival.
+        +1 for each agent with a target it has not reached, reset to 0 on arrival. An idle agent
+        on another's target is given a parking square to go to (`parking`).
         """
+        agents = self._making_way(agents)
         w = self._grid.width
         names = list(agents)
         specs = list(agents.values())
@@ -105,6 +109,51 @@ class Planner:
             if not done:
                 self._priority[a] += 1.0
         return {a: Cell(m % w, m // w) for a, m in zip(names, moves, strict=True)}
+
+    def parking(self, agent: str) -> Cell | None:
+        """Where idle `agent` is going to make way for another unit, if it is."""
+        return self._parking.get(agent)
+
+    def _making_way(self, agents: dict[str, AgentSpec]) -> dict[str, AgentSpec]:
+        """The agents, each idle one on another's target sent to a parking square."""
+        wanted = {s.target for s in agents.values() if s.target is not None}
+        out = agents
+        for a, s in agents.items():
+            if s.target is not None:
+                self._parking.pop(a, None)
+                continue
+            park = self._parking.get(a)
+            if park is not None and (park == s.position or park in wanted or not self._open(park)):
+                del self._parking[a]
+                park = None
+            if park is None and s.position in wanted and not s.frozen:
+                park = self._park(s.position, wanted, agents)
+            if park is not None:
+                self._parking[a] = park
+                if out is agents:
+                    out = dict(agents)
+                out[a] = AgentSpec(s.position, park, s.frozen)
+        return out
+
+    def _open(self, cell: Cell) -> bool:
+        return self._grid.in_bounds(cell) and bool(self._free[cell.y * self._grid.width + cell.x])
+
+    def _park(self, here: Cell, wanted: set[Cell], agents: dict[str, AgentSpec]) -> Cell | None:
+        # Off every target and off the way of those coming for `here`: parking on their way
+        # would only swap the two back and forth.
+        avoid = set(wanted)
+        for s in agents.values():
+            if s.target == here:
+                avoid.add(s.position)
+                avoid.update(self.route(s.position, here))
+        w = self._grid.width
+        flat = parking_square(
+            self._nbrs,
+            here.y * w + here.x,
+            {c.y * w + c.x for c in avoid},
+            {s.position.y * w + s.position.x for s in agents.values()},
+        )
+        return None if flat is None else Cell(flat % w, flat // w)
 
     def _urgent_first(
         self, names: list[str], settled: list[bool], urgency: dict[str, float]

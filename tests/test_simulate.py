@@ -170,3 +170,22 @@ def test_a_deterministic_run_takes_no_broker() -> None:
     out = simulate(str(MAPS / "maze.toml"), "--deterministic", "--broker", "mqtt://127.0.0.1:1")
     assert out.returncode == 2
     assert "--deterministic runs without a broker" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_an_idle_unit_in_a_pocket_makes_way_for_a_job_ending_there(tmp_path: Path) -> None:
+    # Issue 14's hour of `up --demo`: an idle unit at the end of a dead end stood on another
+    # unit's dropoff and the job waited 21 minutes. The idle unit now leaves to park elsewhere.
+    (tmp_path / "pocket.map").write_text(
+        "type octile\nheight 3\nwidth 5\nmap\n.@@@@\n.....\n.....\n"
+    )
+    (tmp_path / "pocket.toml").write_text(
+        'map = "pocket.map"\n'
+        '[[units]]\nid = "idle"\nstart = [0, 0]\ncapacity = 1.0\n'
+        '[[units]]\nid = "runner"\nstart = [4, 2]\ncapacity = 5.0\n'
+        '[[jobs]]\nid = "into-the-pocket"\npickup = [4, 1]\ndropoff = [0, 0]\nmass = 3.0\n'
+    )
+    out = simulate(str(tmp_path / "pocket.toml"), "--deterministic", "--max-steps", "200", "--json")
+    result = _without_wall_time(out)
+    assert result["collisions"] == 0
+    assert [(j["state"], j["unit"]) for j in result["jobs"]] == [("done", "runner")]
+    assert {u["id"]: u["position"] for u in result["units"]}["runner"] == [0, 0]

@@ -1,0 +1,39 @@
+"""Making way: where an idle unit standing on another unit's target goes to wait instead.
+
+Pure. PIBT moves an idle unit only when pushed, and a pushed unit that has nowhere to go but the
+pusher's square (the end of a dead end, a one-wide pocket) stays: the unit that needs that square
+waits forever. So an idle unit on a square another unit is heading for gets a target of its own,
+a parking square, and leaves before the other arrives (the corridor swap lets the two pass).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Collection, Sequence
+
+Index = int  # a square as a flat index: y * width + x
+JUNCTION = 3  # free neighbours of a square where a waiting unit blocks nobody's only way
+
+
+def parking_square(
+    nbrs: Sequence[tuple[Index, ...]],
+    start: Index,
+    avoid: Collection[Index],
+    occupied: Collection[Index],
+) -> Index | None:
+    """The nearest square off every target and free of units, a junction if one is reachable."""
+    seen = {start}
+    queue = deque([start])
+    fallback: Index | None = None
+    while queue:
+        here = queue.popleft()
+        if here != start and here not in avoid and here not in occupied:
+            if len(nbrs[here]) >= JUNCTION:
+                return here
+            if fallback is None:
+                fallback = here
+        for n in nbrs[here]:
+            if n not in seen:
+                seen.add(n)
+                queue.append(n)
+    return fallback
