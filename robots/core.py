@@ -44,10 +44,12 @@ class UnitCore:
         *,
         color: str = "#607d8b",
         stamp: HeaderStamper | None = None,
+        model: str = "gridfleet-sim",
     ) -> None:
         self.logic = logic
         self.topics = topics
         self.color = color
+        self.model = model  # the factsheet's `model`: what kind of unit this is
         self.id = logic.unit_id
         self.stamp = stamp or HeaderStamper(self.id)
         self._sent_direction: bytes | None = None  # what `direction` says on this connection
@@ -94,6 +96,7 @@ class UnitCore:
             capacity_kg=self.logic.capacity_kg,
             step_period_s=self.logic.step_s,
             color=self.color,
+            model=self.model,
             map_id=self.map_id,
         )
         return [

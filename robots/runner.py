@@ -34,8 +34,9 @@ class UnitRunner:
         reconnect_s: float = 0.1,
         max_reconnect_s: float = 5.0,
         on_step: Callable[[UnitLogic], None] | None = None,
+        model: str = "gridfleet-sim",
     ) -> None:
-        self.core = UnitCore(logic, topics, color=color)
+        self.core = UnitCore(logic, topics, color=color, model=model)
         self.on_step = on_step  # after each step, e.g. to save where the unit stands
         self.world = world
         self.id = logic.unit_id
