@@ -35,6 +35,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "clean": ("system.clean", "clear a topic root's retained messages on a broker"),
     "status": ("system.status", "the fleet at a glance: the stop, the coordinator, units, jobs"),
     "bench": ("bench.cli", "benchmark the planner and the whole system"),
+    "webots-world": ("robots.webots.cli", "write a Webots world (.wbt) for a scenario"),
 }
 
 
