@@ -257,6 +257,8 @@ class SupervisorDouble:
 
     def step(self, duration_ms: int) -> int:
         assert duration_ms > 0 and duration_ms % self.scene.basic_time_step == 0, duration_ms
+        if self.scene.end_at_step is not None and self.steps + 1 >= self.scene.end_at_step:
+            self.scene.ended.set()
         if self.scene.ended.is_set():
             return -1
         self.time_ms += duration_ms
@@ -317,6 +319,7 @@ class SceneDouble:
             w, d, _ = _numbers(self.field_value(node, "size"))
             self.obstacles.append((x - w / 2, y - d / 2, x + w / 2, y + d / 2))
         self.ended = threading.Event()  # set: every robot's next step returns -1 (Webots quits)
+        self.end_at_step: int | None = None  # a robot's step with this number ends Webots
         self.jumps: list[tuple[str, Cell, Cell]] = []  # translations more than one square
         self.robots = {
             r.unit_id: r
