@@ -101,6 +101,19 @@ def test_it_counts_a_unit_that_took_the_square_after_the_sensor_looked(make: Mak
     assert scene.truth.collisions == 1  # the double's ground truth saw the same
 
 
+def test_a_mirror_on_the_square_is_no_collision_of_this_world(make: Make) -> None:
+    # unit2 runs elsewhere; its mirror here follows its state a little late: not counted.
+    world, robot, scene = make(units=["unit1"])
+    sensor = robot.sensors["ds E"]
+    seen = sensor.getValue()
+    sensor.getValue = lambda: seen  # type: ignore[method-assign]
+    with scene.truth.lock:
+        scene.truth.resume("unit2", Cell(1, 0))
+    assert world.move("unit1", E)
+    assert world.collisions == 0
+    assert scene.truth.collisions == 1  # the double's truth still has both on one square
+
+
 def test_the_leds_show_the_intention_as_a_step_begins_and_ends(make: Make) -> None:
     intention = [Leds(N=False, E=True, S=False, W=False)]
     world, robot, _ = make(leds=lambda: intention[0])

@@ -21,7 +21,8 @@ from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import Factsheet, Topics, decode
 from gridfleet.scenario import Scenario, load_scenario
 from robots.fleet import Fleet
-from robots.webots.host import MODEL, WebotsUnit, run_controller
+from robots.webots.host import MODEL, WebotsUnit
+from robots.webots.main import run_controller
 from robots.webots.settings import read_settings
 from robots.webots.world_file import WorldOptions, world_text
 from system.broker_thread import BrokerThread

@@ -132,7 +132,8 @@ def test_the_grid_unit_proto_has_its_four_leds_and_what_the_course_asks() -> Non
     robot = GRID_UNIT.body
     assert robot.type == "Robot"
     assert robot.fields["supervisor"] == (True,)
-    for name in ("name", "color", "translation", "capacity", "broker", "map", "stepPeriod", "root"):
+    fields = ("name", "color", "translation", "capacity", "broker", "map", "stepPeriod", "root")
+    for name in (*fields, "mirror"):
         assert name in GRID_UNIT.interface, name
 
 

@@ -106,7 +106,7 @@ def test_every_shipped_scenario_makes_a_world_with_everything_in_its_place(path:
     assert len(names) == len(set(names))
 
 
-def test_a_world_can_hold_some_units_only_with_their_broker_root_and_step() -> None:
+def test_a_world_runs_some_units_and_mirrors_the_others() -> None:
     scenario = load_scenario(MAPS / "playfield.toml")
     world = world_of(
         scenario,
@@ -115,11 +115,18 @@ def test_a_world_can_hold_some_units_only_with_their_broker_root_and_step() -> N
         root="lab/fleet",
         step_s=0.5,
     )
-    (unit,) = world.of_type("GridUnit")
-    assert text_of(unit, "name") == "unit3"
-    assert text_of(unit, "broker") == "mqtt://10.0.0.5:1883"
-    assert text_of(unit, "root") == "lab/fleet"
-    assert numbers(unit, "stepPeriod") == [0.5]
+    units = {text_of(u, "name"): u for u in world.of_type("GridUnit")}
+    assert list(units) == ["unit1", "unit2", "unit3", "unit4"]  # every unit is shown
+    assert {n for n, u in units.items() if u.fields.get("mirror") == (True,)} == {
+        "unit1",
+        "unit2",
+        "unit4",
+    }
+    unit3 = units["unit3"]
+    assert "mirror" not in unit3.fields  # the PROTO's default: it runs here
+    assert text_of(unit3, "broker") == "mqtt://10.0.0.5:1883"
+    assert text_of(unit3, "root") == "lab/fleet"
+    assert numbers(unit3, "stepPeriod") == [0.5]
 
 
 def test_a_description_with_quotes_stays_one_string() -> None:
@@ -155,9 +162,10 @@ def test_the_command_writes_a_world_that_reads(tmp_path: Path) -> None:
     out.parent.mkdir()
     done = run_cli("maps/maze.toml", "-o", str(out), "--units", "unit2", "--step", "0.5")
     assert done.returncode == 0, done.stderr
-    assert done.stdout.startswith(f"wrote {out}: maze, 1 grid unit(s)")
+    assert done.stdout.startswith(f"wrote {out}: maze, 1 grid unit(s), 2 mirrored")
     world = read_world(out.read_text(encoding="utf-8"))
-    assert len(world.of_type("GridUnit")) == 1
+    mirrored = [u.fields.get("mirror") == (True,) for u in world.of_type("GridUnit")]
+    assert mirrored == [True, False, True]
     # The PROTOs are found from wherever the world is written.
     proto = (out.parent / world.externprotos[-1]).resolve()
     assert proto == REPO / "robots" / "webots" / "protos" / "GridUnit.proto"
@@ -178,14 +186,18 @@ def test_with_accounts_each_unit_logs_in_as_itself_and_the_file_is_private(
         "mqtt://192.168.1.10:1883",
         "--accounts",
         str(tmp_path / "fleet-accounts.toml"),
+        "--units",
+        "unit1,unit2",
     )
     assert done.returncode == 0, done.stderr
     assert stat.S_IMODE(out.stat().st_mode) == 0o600
     for unit in read_world(out.read_text(encoding="utf-8")).of_type("GridUnit"):
         uid = text_of(unit, "name")
-        password = accounts.get(uid).password
-        assert text_of(unit, "broker") == f"mqtt://{uid}:{password}@192.168.1.10:1883"
-    assert password not in done.stdout + done.stderr
+        # A unit run here logs in as itself; a mirror as the dashboard, which reads every state.
+        login = uid if uid in ("unit1", "unit2") else "dashboard"
+        password = accounts.get(login).password
+        assert text_of(unit, "broker") == f"mqtt://{login}:{password}@192.168.1.10:1883"
+        assert password not in done.stdout + done.stderr
 
 
 @pytest.mark.parametrize(

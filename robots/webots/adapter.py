@@ -102,15 +102,21 @@ class WebotsWorld:
         return device
 
     def _scene(self) -> tuple[list[Node], set[Cell]]:
-        """The other grid units of this Webots world, and the squares its obstacles stand on."""
+        """The other grid units run in this Webots world, and the squares of its obstacles.
+
+        Mirrors of units run elsewhere are left out: each follows its unit's state, a little
+        after the unit has moved, and would show collisions that never happened.
+        """
         children = _field(self.robot.getRoot(), "children", "the scene")
         others: list[Node] = []
         blocked: set[Cell] = set()
         for i in range(children.getCount()):
             node = children.getMFNode(i)
             kind = node.getTypeName()
-            if kind == UNIT_PROTO and _field(node, "name", kind).getSFString() != self.unit_id:
-                others.append(node)
+            if kind == UNIT_PROTO:
+                mirror = _field(node, "mirror", kind).getSFBool()
+                if not mirror and _field(node, "name", kind).getSFString() != self.unit_id:
+                    others.append(node)
             elif kind == OBSTACLE_PROTO:
                 blocked.add(_square_of(node))
         return others, blocked

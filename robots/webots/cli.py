@@ -31,8 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--units",
         metavar="ID,ID",
-        help="only these units (comma-separated); the others run elsewhere: in another Webots "
-        "or as simulated units (gridfleet robots --units)",
+        help="run only these units (comma-separated); the others run elsewhere (another Webots, "
+        "gridfleet robots --units) and this world shows them where their state says",
     )
     parser.add_argument(
         "--broker",
@@ -83,19 +83,23 @@ def options(args: argparse.Namespace, scenario: Scenario) -> WorldOptions:
         protos=protos_from(args.out.parent),
         source=str(args.scenario),
         units=units,
-        brokers=_brokers(args, scenario, broker),
+        brokers=_brokers(args, scenario, broker, units),
         root=args.root,
         step_s=check_step(args.step),
     )
 
 
-def _brokers(args: argparse.Namespace, scenario: Scenario, broker: str) -> dict[str, str]:
-    """Each unit's broker URL: the same broker, with the unit's own account when there are any."""
+def _brokers(
+    args: argparse.Namespace, scenario: Scenario, broker: str, units: list[str] | None
+) -> dict[str, str]:
+    """Each unit's broker URL: one broker; with accounts, a unit run here logs in as itself and
+    a mirror as the dashboard (which may read every unit's state)."""
     if args.accounts is None:
         return {u.id: broker for u in scenario.units}
     accounts = load_accounts(args.accounts)
     url = broker or DEFAULT_MQTT_URL
-    logins = {u.id: accounts.get(u.id) for u in scenario.units}
+    run_here = {u.id for u in scenario.units} if units is None else set(units)
+    logins = {u.id: accounts.get(u.id if u.id in run_here else "dashboard") for u in scenario.units}
     return {uid: with_credentials(url, a.name, a.password) for uid, a in logins.items()}
 
 
@@ -114,6 +118,11 @@ def run(args: argparse.Namespace) -> int:
             os.chmod(out, 0o600)  # an existing file keeps its mode through O_CREAT
     except OSError as exc:
         raise ConfigError(f"{out}: cannot write the world: {exc.strerror or exc}") from None
-    units = len(scenario.units) if wanted.units is None else len(wanted.units)
-    print(f"wrote {out}: {scenario.name}, {units} grid unit(s); open it in Webots {WEBOTS_VERSION}")
+    run_here = len(scenario.units) if wanted.units is None else len(wanted.units)
+    mirrors = len(scenario.units) - run_here
+    shown = f", {mirrors} mirrored" if mirrors else ""
+    print(
+        f"wrote {out}: {scenario.name}, {run_here} grid unit(s){shown}; "
+        f"open it in Webots {WEBOTS_VERSION}"
+    )
     return 0

@@ -31,6 +31,7 @@ class UnitSettings:
     grid: GridMap
     broker: str
     root: str
+    mirror: bool = False  # the unit runs elsewhere: this one shows where its state says it is
 
 
 def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> UnitSettings:
@@ -86,6 +87,7 @@ def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> U
         grid=grid,
         broker=broker,
         root=root,
+        mirror=field("mirror").getSFBool(),
     )
 
 

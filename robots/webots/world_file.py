@@ -6,7 +6,10 @@ is the course's: a RectangleArena whose floor holds every square of the map, its
 square (0, 0) is the origin (`geometry`). Blocked squares of the map and the scenario's hidden
 obstacles stand as `GridObstacle`s (the fleet still has to sense the hidden ones: only their
 colour differs here), and each unit of the scenario as a `GridUnit` on its start square, in its
-colour, with its capacity, the map and where to find the broker in its fields.
+colour, with its capacity, the map and where to find the broker in its fields. A world may run
+some units only: the others are there as mirrors, following their state (they run elsewhere:
+in another Webots, or as simulated units), so that this world shows them and its units' sensors
+see them.
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ class WorldOptions:
 
     protos: str = "../protos"  # the folder of GridUnit.proto, relative to the world file
     source: str = ""  # the scenario file as the world names it (its info)
-    units: Sequence[str] | None = None  # only these units (None: every unit of the scenario)
+    units: Sequence[str] | None = None  # run only these units, mirror the others (None: run all)
     brokers: Mapping[str, str] = field(default_factory=dict)  # per unit; "" or absent: default
     root: str = DEFAULT_ROOT
     step_s: float = DEFAULT_STEP_S
@@ -108,8 +111,6 @@ def world_text(scenario: Scenario, options: WorldOptions = WorldOptions()) -> st
         lines += _obstacle(cell, f"hidden obstacle {cell.x},{cell.y}", HIDDEN_COLOR)
     rows = grid.rows()
     for unit in scenario.units:
-        if unit.id not in chosen:
-            continue
         fields: list[tuple[str, str | list[str]]] = [
             ("translation", _vec(*metres(unit.start), UNIT_SIZE_M / 2)),
             ("name", _string(unit.id)),
@@ -123,6 +124,8 @@ def world_text(scenario: Scenario, options: WorldOptions = WorldOptions()) -> st
             fields.append(("broker", _string(broker)))
         if options.root != DEFAULT_ROOT:
             fields.append(("root", _string(options.root)))
+        if unit.id not in chosen:
+            fields.append(("mirror", "TRUE"))
         lines += _node("GridUnit", fields)
     return "\n".join(lines) + "\n"
 

@@ -32,7 +32,7 @@ def main() -> int:
             file=sys.stderr,
         )
         return 2
-    from robots.webots.host import run_controller
+    from robots.webots.main import run_controller
 
     return run_controller(Supervisor())
 
