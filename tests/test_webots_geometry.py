@@ -32,7 +32,8 @@ from robots.webots.geometry import (
 )
 
 from support.vrml import Node, read_proto
-from support.webots_double import PROTOS, Ray, _unit_geometry
+from support.webots_double import PROTOS
+from support.webots_rays import Ray, unit_geometry
 
 GRID_UNIT = read_proto((PROTOS / "GridUnit.proto").read_text(encoding="utf-8"))
 
@@ -106,7 +107,7 @@ def test_a_colour_out_of_range_is_refused(bad: tuple[float, ...]) -> None:
 
 
 def test_the_grid_unit_proto_places_its_sensors_as_the_geometry_says() -> None:
-    side, rays = _unit_geometry(GRID_UNIT)
+    side, rays = unit_geometry(GRID_UNIT)
     assert side == UNIT_SIZE_M
     by_name = {r.name: r for r in rays}
     assert sorted(by_name) == sorted(SENSOR_NAMES.values())

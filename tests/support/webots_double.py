@@ -22,7 +22,8 @@ from pathlib import Path
 from gridfleet.grid import Cell, Direction, GridMap
 from robots.world import WorldSim
 
-from support.vrml import Is, Node, Proto, Scalar, Value, read_proto, read_world
+from support.vrml import Is, Node, Scalar, Value, read_proto, read_world
+from support.webots_rays import Ray, hit, numbers, to_wall, unit_geometry
 
 PROTOS = Path(__file__).resolve().parents[2] / "robots" / "webots" / "protos"
 SQUARE_M = 0.1  # the course's square: the only number this double shares with the product
@@ -40,89 +41,22 @@ class SharedTruth(WorldSim):
         return self.lock
 
 
-@dataclass(frozen=True)
-class Ray:
-    """A distance sensor of the GridUnit PROTO: where it sits and looks, and its lookup table."""
-
-    name: str
-    x: float
-    y: float
-    heading: float
-    table: tuple[tuple[float, float], ...]  # (distance m, value)
-
-    @property
-    def range_m(self) -> float:
-        return self.table[-1][0]
-
-    def value(self, distance: float) -> float:
-        """The sensor's value for an object `distance` away (the lookup table, interpolated)."""
-        if distance >= self.range_m:
-            return self.table[-1][1]
-        for (d0, v0), (d1, v1) in zip(self.table, self.table[1:], strict=False):
-            if d0 <= distance <= d1:
-                return v0 + (v1 - v0) * (distance - d0) / (d1 - d0)
-        return self.table[0][1]
-
-
-def _numbers(value: Value) -> list[float]:
-    items = list(value) if isinstance(value, tuple | list) else []
-    return [float(v) for v in items if isinstance(v, float)]
-
-
-def _unit_geometry(proto: Proto) -> tuple[float, list[Ray]]:
-    """The GridUnit's body side and its distance sensors, as its PROTO file places them."""
-    body = next(n for n in proto.body.nodes() if n.def_name == "BODY")
-    geometry = body.fields["geometry"]
-    assert isinstance(geometry, Node) and geometry.type == "Box"
-    side = _numbers(geometry.fields["size"])[0]
-    rays = []
-    for node in proto.body.nodes():
-        if node.type != "DistanceSensor":
-            continue
-        x, y, _ = _numbers(node.fields["translation"])
-        rotation = _numbers(node.fields.get("rotation", (0.0, 0.0, 1.0, 0.0)))
-        assert rotation[:3] == [0.0, 0.0, 1.0], "a sensor turned about z only"
-        table = _numbers(node.fields["lookupTable"])
-        rows = tuple((table[i], table[i + 1]) for i in range(0, len(table), 3))
-        name = node.fields["name"]
-        assert isinstance(name, tuple) and isinstance(name[0], str)
-        rays.append(Ray(name[0], x, y, rotation[3], rows))
-    return side, rays
-
-
-def _slab(origin: float, step: float, low: float, high: float) -> tuple[float, float]:
-    """The ray's entry and exit parameters between two parallel lines (infinite if parallel)."""
-    if abs(step) < 1e-12:
-        return (-math.inf, math.inf) if low <= origin <= high else (math.inf, -math.inf)
-    t0, t1 = (low - origin) / step, (high - origin) / step
-    return (min(t0, t1), max(t0, t1))
-
-
-def hit(
-    px: float, py: float, dx: float, dy: float, box: tuple[float, float, float, float]
-) -> float:
-    """How far along the unit vector (dx, dy) from (px, py) the ray enters `box` (inf: never)."""
-    x0, y0, x1, y1 = box
-    ax, bx = _slab(px, dx, x0, x1)
-    ay, by = _slab(py, dy, y0, y1)
-    enter, leave = max(ax, ay), min(bx, by)
-    return enter if enter <= leave and leave >= 0 and enter >= 0 else math.inf
-
-
 class FieldDouble:
     """A field of a node: a value from the world file, or the unit's live translation."""
 
-    def __init__(self, value: Value, owner: SupervisorDouble | None = None) -> None:
+    def __init__(
+        self, value: Value | list[NodeDouble], owner: SupervisorDouble | None = None
+    ) -> None:
         self.value = value
         self.owner = owner  # set for a grid unit's translation: read from and set in the truth
 
-    def _items(self) -> list[Scalar | Node]:
+    def _items(self) -> list[Scalar | Node | NodeDouble]:
         return list(self.value) if isinstance(self.value, tuple | list) else []
 
     def getSFVec3f(self) -> list[float]:
         if self.owner is not None:
             return self.owner.translation()
-        return _numbers(self.value)
+        return numbers(self.value)
 
     def setSFVec3f(self, value: list[float]) -> None:
         if self.owner is None:
@@ -131,7 +65,7 @@ class FieldDouble:
         self.owner.pending = list(value)
 
     def getSFFloat(self) -> float:
-        (number,) = _numbers(self.value)
+        (number,) = numbers(self.value)
         return number
 
     def getSFString(self) -> str:
@@ -140,7 +74,7 @@ class FieldDouble:
         return text
 
     def getSFColor(self) -> list[float]:
-        return _numbers(self.value)
+        return numbers(self.value)
 
     def getSFBool(self) -> bool:
         (flag,) = self._items()
@@ -229,7 +163,7 @@ class SupervisorDouble:
         self.steps = 0
         self.pending: list[float] | None = None
         self.applied: list[Applied] = []
-        self.z = _numbers(scene.field_value(node, "translation"))[2]
+        self.z = numbers(scene.field_value(node, "translation"))[2]
         fields = {
             name: FieldDouble(scene.field_value(node, name)) for name in scene.unit_proto.interface
         }
@@ -306,17 +240,17 @@ class SceneDouble:
         self.obstacle_proto = read_proto(
             (PROTOS / "GridObstacle.proto").read_text(encoding="utf-8")
         )
-        self.unit_side, self.rays = _unit_geometry(self.unit_proto)
+        self.unit_side, self.rays = unit_geometry(self.unit_proto)
         (info,) = self.world.of_type("WorldInfo")
-        self.basic_time_step = int(_numbers(info.fields["basicTimeStep"])[0])
+        self.basic_time_step = int(numbers(info.fields["basicTimeStep"])[0])
         (arena,) = self.world.of_type("RectangleArena")
-        cx, cy, _ = _numbers(arena.fields["translation"])
-        sx, sy = _numbers(arena.fields["floorSize"])
+        cx, cy, _ = numbers(arena.fields["translation"])
+        sx, sy = numbers(arena.fields["floorSize"])
         self.floor = (cx - sx / 2, cy - sy / 2, cx + sx / 2, cy + sy / 2)
         self.obstacles: list[tuple[float, float, float, float]] = []
         for node in self.world.of_type("GridObstacle"):
-            x, y, _ = _numbers(self.field_value(node, "translation"))
-            w, d, _ = _numbers(self.field_value(node, "size"))
+            x, y, _ = numbers(self.field_value(node, "translation"))
+            w, d, _ = numbers(self.field_value(node, "size"))
             self.obstacles.append((x - w / 2, y - d / 2, x + w / 2, y + d / 2))
         self.ended = threading.Event()  # set: every robot's next step returns -1 (Webots quits)
         self.end_at_step: int | None = None  # a robot's step with this number ends Webots
@@ -371,22 +305,8 @@ class SceneDouble:
         ]
         boxes += self.obstacles
         nearest = min((hit(px, py, dx, dy, b) for b in boxes), default=math.inf)
-        nearest = min(nearest, self._wall(px, py, dx, dy))
+        nearest = min(nearest, to_wall(self.floor, px, py, dx, dy))
         return ray.value(nearest)
-
-    def _wall(self, px: float, py: float, dx: float, dy: float) -> float:
-        """How far the ray runs inside the floor before it meets the arena's wall."""
-        x0, y0, x1, y1 = self.floor
-        ts = []
-        if dx > 1e-12:
-            ts.append((x1 - px) / dx)
-        if dx < -1e-12:
-            ts.append((x0 - px) / dx)
-        if dy > 1e-12:
-            ts.append((y1 - py) / dy)
-        if dy < -1e-12:
-            ts.append((y0 - py) / dy)
-        return min(ts)
 
 
 def grid_of(world_text: str) -> GridMap:
