@@ -86,6 +86,17 @@ def test_a_move_the_sensor_sees_blocked_is_refused_and_counted(make: Make) -> No
     assert (world.prevented, robot.applied, scene.truth.collisions) == (1, [], 0)
 
 
+def test_a_translation_webots_did_not_take_is_no_move(make: Make) -> None:
+    world, robot, _ = make()
+    robot.node.fields["translation"].setSFVec3f = lambda value: None  # type: ignore[method-assign]
+    assert not world.move("unit1", E)
+    assert (world.position("unit1"), world.moves["unit1"], robot.square()) == (
+        Cell(0, 0),
+        0,
+        Cell(0, 0),
+    )
+
+
 def test_it_counts_a_unit_that_took_the_square_after_the_sensor_looked(make: Make) -> None:
     world, robot, scene = make()
     assert world.sense("unit1")[E] == "free"

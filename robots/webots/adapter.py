@@ -8,7 +8,7 @@ sensors measure from the new square, and the LEDs show the unit's intended move 
 step of the unit begins and ends.
 
 Every call into Webots goes through `call`, which runs it where the controller API may be used
-(the host's Webots thread, `robots.webots.host`; inline in tests). The robot is passed in, so
+(the one Webots thread, `robots.webots.clock`; inline in tests). The robot is passed in, so
 tests give a test double of Webots' `controller.Supervisor`.
 """
 
@@ -51,9 +51,9 @@ class WebotsWorld:
 
     It counts what `WorldSim` counts, for this unit: its moves, the moves it refused because a
     sensor saw the square taken (`prevented`), and collisions it finds in this Webots world after
-    a move: onto another grid unit's square (vertex), an obstacle's (obstacle) or off the map
-    (wall). Units in other Webots instances are not in this world; their positions arrive
-    through `observe` only.
+    a move: onto the square of another grid unit run in this world (vertex), of an obstacle
+    (obstacle), or off the map (wall). Units run elsewhere are here as mirrors at most, which
+    are not counted; a runner that watches other units' states tells it through `observe`.
     """
 
     def __init__(
@@ -153,7 +153,10 @@ class WebotsWorld:
         if self._sense()[direction] != "free":
             self.prevented += 1
             return False
-        self._place(self._here.step(direction))
+        target = self._here.step(direction)
+        self._place(target)
+        if self._here != target:  # Webots did not take the translation: the unit did not move
+            return False
         self._moves[self.unit_id] += 1
         self._check()
         return True
@@ -222,7 +225,7 @@ class WebotsWorld:
         return self._call(lambda: self._move(direction))
 
     def resume(self, unit_id: str, cell: Cell) -> None:
-        """Put this unit back on `cell` (where it stood before its controller restarted)."""
+        """Put this unit on `cell` at once: where it stood before a restart, where a mirror's is."""
         self._own(unit_id)
         self._call(lambda: self._place(cell))
 
