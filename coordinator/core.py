@@ -493,7 +493,7 @@ class CoordinatorCore:
             if send_map:
                 out.append(self.say.fleet_map(self.world))
             if send_jobs:
-                out.append(self.say.jobs(self.jobs))
+                out.append(self.say.jobs(self.jobs, self.step_no, self.world.step_period_s))
             if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
                 view = self.events.take(self.say.stamp("events"))
                 out.append(Outbound.of("events", self.topics.fleet("events"), view))

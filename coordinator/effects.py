@@ -108,6 +108,7 @@ class Messages:
         """The retained map with every discovered obstacle."""
         return Outbound.of("map", self.topics.fleet("map"), world.fleet_map(self.stamp("map")))
 
-    def jobs(self, book: JobBook) -> Outbound:
-        """The retained queue view."""
-        return Outbound.of("jobs", self.topics.fleet("jobs"), book.view(self.stamp("jobs")))
+    def jobs(self, book: JobBook, step_no: int, step_period_s: float) -> Outbound:
+        """The retained queue view at step `step_no`."""
+        view = book.view(self.stamp("jobs"), step_no, step_period_s)
+        return Outbound.of("jobs", self.topics.fleet("jobs"), view)

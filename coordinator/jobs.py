@@ -1,19 +1,22 @@
 """Jobs and their life cycle (protocol.md §5.3, §6): pure, no storage, no clock.
 
 queued → assigned → to_pickup → loaded → to_dropoff → done; or cancelled / rejected / failed.
+The queue view lists the jobs not finished, the latest finished ones and jobs done per minute, so
+its size does not grow with the jobs that ever finished.
 """
 
 from __future__ import annotations
 
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import asdict, dataclass
 from typing import Any
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Header, JobsView, JobView
-from gridfleet.protocol.messages import FINAL_JOB_STATES
+from gridfleet.protocol.messages import CHART_MINUTES, FINAL_JOB_STATES, FINISHED_LISTED
 
 ACTIVE_STATES = frozenset({"assigned", "to_pickup", "loaded", "to_dropoff"})
+
 CARRYING_STATES = frozenset({"loaded", "to_dropoff"})
 
 
@@ -82,9 +85,24 @@ class JobBook:
         self.jobs: dict[str, Job] = {}
         self.changed: set[str] = set()
         self._next = 1
+        self._counts: Counter[str] = Counter()
+        self._finished: deque[str] = deque(maxlen=FINISHED_LISTED)  # ids, the newest last
+        self._done_steps: deque[int] = deque()  # when jobs were done, oldest first
         for job in sorted(jobs or [], key=lambda j: j.order):
             self.jobs[job.id] = job
+            self._counts[job.state] += 1
         self._next = 1 + max((j.order for j in self.jobs.values()), default=0)
+        ended = sorted(
+            (j for j in self.jobs.values() if j.final),
+            key=lambda j: (j.done_step if j.done_step is not None else j.created_step, j.order),
+        )
+        for job in ended:
+            self._ended(job)
+
+    def _ended(self, job: Job) -> None:
+        self._finished.append(job.id)
+        if job.state == "done" and job.done_step is not None:
+            self._done_steps.append(job.done_step)
 
     def new_id(self) -> str:
         """A free id `job-<n>`."""
@@ -100,6 +118,9 @@ class JobBook:
         job.order = self._next
         self._next += 1
         self.jobs[job.id] = job
+        self._counts[job.state] += 1
+        if job.final:  # refused at submission: listed as finished at once
+            self._ended(job)
         self.changed.add(job.id)
         return job
 
@@ -111,9 +132,13 @@ class JobBook:
         """Move `job` to `state` (and set other fields); final jobs never change."""
         if job.final:
             raise ValueError(f"job {job.id} is already {job.state}")
+        self._counts[job.state] -= 1
+        self._counts[state] += 1
         job.state = state
         for key, value in fields.items():
             setattr(job, key, value)
+        if job.final:
+            self._ended(job)
         self.changed.add(job.id)
 
     def explain(self, job: Job, wait: tuple[str, str] | None) -> None:
@@ -135,11 +160,26 @@ class JobBook:
         """The job `unit_id` is working on, if any."""
         return next((j for j in self.active() if j.unit == unit_id), None)
 
-    def view(self, header: Header) -> JobsView:
-        """The retained queue view."""
-        counts = Counter(j.state for j in self.jobs.values())
+    def view(self, header: Header, step_no: int = 0, step_period_s: float = 1.0) -> JobsView:
+        """The retained queue view at coordinator step `step_no`."""
+        finished = [self.jobs[i] for i in reversed(self._finished)]
         return JobsView(
             header=header,
-            jobs=[j.view() for j in self.jobs.values()],
-            counts=dict(counts),  # type: ignore[arg-type]
+            jobs=[j.view() for j in self.jobs.values() if not j.final],
+            finished=[j.view() for j in finished],
+            counts={k: n for k, n in self._counts.items() if n > 0},  # type: ignore[misc]
+            done_per_minute=self.done_per_minute(step_no, step_period_s),
         )
+
+    def done_per_minute(self, step_no: int, step_period_s: float) -> list[int]:
+        """Jobs done in each of the last CHART_MINUTES minutes of steps, the current one last."""
+        per_minute = max(1, round(60 / step_period_s))  # steps in a minute
+        done = self._done_steps
+        while done and (step_no - done[0]) // per_minute >= CHART_MINUTES:
+            done.popleft()
+        counts = [0] * CHART_MINUTES
+        for at in done:
+            ago = (step_no - at) // per_minute
+            if 0 <= ago < CHART_MINUTES:
+                counts[CHART_MINUTES - 1 - ago] += 1
+        return counts

@@ -16,6 +16,7 @@ from gridfleet.grid import Cell
 from gridfleet.options import add_actions, add_common, broker_url
 from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
+from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.protocol.topics import Topics
 from system.operator import Operator, operator_session
 
@@ -158,9 +159,9 @@ UNIT_HELP = {
 
 
 def print_jobs(view: JobsView, out: TextIO) -> None:
-    """The queue as a table, active jobs first."""
+    """The queue as a table: jobs not finished, then the latest finished, newest first."""
     print(f"{'job':<24} {'state':<11} {'unit':<10} {'mass':>6}  pickup -> dropoff", file=out)
-    for job in sorted(view.jobs, key=lambda j: (j.state in ("done", "cancelled"), j.id)):
+    for job in view.listed():
         route = f"{list(job.pickup)} -> {list(job.dropoff)}"
         line = f"{job.id:<24} {job.state:<11} {job.unit or '-':<10} {job.mass_kg:>6.2f}  {route}"
         if job.reason:
@@ -168,6 +169,10 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
         elif job.wait_reason:  # why a job not final is not moving (protocol.md §5.3)
             line += f"  waits: {job.wait_reason}"
         print(line, file=out)
+    ended = sum(n for s, n in view.counts.items() if s in FINAL_JOB_STATES)
+    if ended > len(view.finished):
+        counts = ", ".join(f"{n} {s}" for s, n in view.counts.items() if s in FINAL_JOB_STATES)
+        print(f"... the latest {len(view.finished)} finished of {ended} ({counts})", file=out)
 
 
 def _who(signal: EstopSignal) -> str:

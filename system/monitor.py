@@ -9,7 +9,16 @@ import aiomqtt
 
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
-from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
+from gridfleet.protocol import (
+    TOPICS,
+    FleetMap,
+    JobsView,
+    JobView,
+    Routes,
+    Topics,
+    UnitState,
+    decode,
+)
 
 log = logging.getLogger("gridfleet.monitor")
 
@@ -25,6 +34,7 @@ class FleetMonitor:
         self.routes: list[Routes] = []  # every routes view seen, when `record` is set
         self.states: dict[str, UnitState] = {}
         self.jobs: JobsView | None = None
+        self.every_job: dict[str, JobView] = {}  # every job any view listed, as last listed
         self.map: FleetMap | None = None
         self.step = 0
         self.messages = 0
@@ -54,6 +64,8 @@ class FleetMonitor:
             self.on_state(unit, decode(UnitState, payload))
         elif kind == "jobs":
             self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+            # A view lists only the latest finished jobs: a run's report needs every one.
+            self.every_job.update((j.id, j) for j in self.jobs.listed())
         elif kind == "map":
             self.map = decode(FleetMap, payload, TOPICS["map"].max_bytes)
         elif kind == "routes":

@@ -118,7 +118,7 @@ def _all_done(monitor: FleetMonitor, accepted_jobs: int, goals: list[GoalProgres
         state = monitor.states.get(goal.unit)
         if goal.step is None and state is not None and state.position == goal.target:
             goal.step = monitor.step
-    jobs = monitor.jobs.jobs if monitor.jobs is not None else []
+    jobs = list(monitor.every_job.values())
     jobs_done = len(jobs) >= accepted_jobs and all(j.state in FINAL_JOB_STATES for j in jobs)
     return jobs_done and all(g.step is not None or g.refused for g in goals)
 
@@ -215,7 +215,7 @@ async def simulate(
     outcome.units = units_json(scenario, world)
     # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
     # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
-    jobs = list(monitor.jobs.jobs) if monitor.jobs is not None else []
+    jobs = list(monitor.every_job.values())
     in_view = {j.id for j in jobs if j.state == "rejected"}
     jobs += [j for j in refused_jobs if j.id not in in_view]
     outcome.jobs = [job_json(j) for j in jobs]

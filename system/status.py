@@ -15,6 +15,7 @@ import math
 import sys
 import time
 import uuid
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TextIO, get_args
@@ -165,10 +166,11 @@ def job_lines(jobs: JobsView | None, most: int = MAX_JOBS) -> list[str]:
     """The count of jobs per state, then the jobs that are not final (at most `most` of them)."""
     if jobs is None:
         return ["jobs: no job queue on the broker"]
-    if not jobs.jobs:
+    # The counts cover every job ever; a view without them is counted from what it lists.
+    counts = jobs.counts or Counter(j.state for j in jobs.listed())
+    if not counts:
         return ["jobs: none"]
-    counts = {s: sum(1 for j in jobs.jobs if j.state == s) for s in get_args(JobState)}
-    lines = ["jobs: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n)]
+    lines = ["jobs: " + ", ".join(f"{counts[s]} {s}" for s in get_args(JobState) if counts.get(s))]
     active = [j for j in jobs.jobs if j.state not in FINAL_JOB_STATES]
     rows = [(j.id, j.state, j.unit or "-", j.wait_reason or "") for j in active[:most]]
     if rows:

@@ -30,7 +30,7 @@ from gridfleet.protocol import (
     decode_estop,
     encode,
 )
-from gridfleet.protocol.messages import Message
+from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
 
 from support.coordinator_drive import TOPICS, from_unit, make_core, meet, orders_in, request
 from support.effects import header, header_json, published
@@ -91,11 +91,20 @@ def job(state: str, *, unit: str | None = None, **over: Any) -> dict[str, Any]:
     return out
 
 
-def jobs_view(seq: int, *jobs: dict[str, Any]) -> Any:
+def jobs_view(seq: int, *jobs: dict[str, Any], done_per_minute: list[int] | None = None) -> Any:
+    """The queue view listing `jobs`: those not final under `jobs`, the final ones under `finished`."""
     counts: dict[str, int] = {}
     for j in jobs:
         counts[j["state"]] = counts.get(j["state"], 0) + 1
-    return (JOBS, {"header": hdr(seq), "jobs": list(jobs), "counts": counts}, 1, True)
+    shown = [{k: v for k, v in j.items() if v is not None} for j in jobs]  # nulls left out
+    body = {
+        "header": hdr(seq),
+        "jobs": [j for j in shown if j["state"] not in FINAL_JOB_STATES],
+        "finished": [j for j in shown if j["state"] in FINAL_JOB_STATES],
+        "counts": counts,
+        "done_per_minute": done_per_minute or [0] * 10,
+    }
+    return (JOBS, body, 1, True)
 
 
 def hold(seq: int, update_id: int, step: int = 1) -> dict[str, Any]:
@@ -352,8 +361,8 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
             "UnitState: malformed JSON (Invalid JSON: EOF while parsing an object at line 1 column 1)",
         ),
         (
-            encode(state()).replace(b'"1.3"', b'"9.9"'),
-            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.3'",
+            encode(state()).replace(b'"1.4"', b'"9.9"'),
+            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.4'",
         ),
         (encode(state(Cell(1, 1))), "position [1, 1] is on a wall"),
         (
@@ -750,8 +759,8 @@ def test_a_bad_request_without_a_readable_reply_address_is_reported_only(
     ("payload", "reason"),
     [
         (
-            encode(submit()).replace(b'"1.3"', b'"2.0"'),
-            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.3'",
+            encode(submit()).replace(b'"1.4"', b'"2.0"'),
+            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.4'",
         ),
         (
             encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":0'),

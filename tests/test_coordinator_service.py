@@ -315,7 +315,7 @@ async def test_queue_view_follows_a_request_at_once_not_at_the_next_step(
 
             def listed(job_id: str, state: str) -> bool:
                 views = op.job_views()
-                return any(j.id == job_id and j.state == state for v in views for j in v.jobs)
+                return any(j.id == job_id and j.state == state for v in views for j in v.listed())
 
             op.send_submit_job(Cell(1, 1), Cell(8, 8), 1.0, job_id="j1")
             await async_wait_for(lambda: listed("j1", "queued"), timeout=5, what="j1 queued")

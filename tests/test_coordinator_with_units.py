@@ -210,7 +210,7 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
         # update of this order would look stale to the unit, which holds on the forged one.
         forged = {
             "header": {
-                "version": "1.3",
+                "version": "1.4",
                 "seq": 0,
                 "timestamp": "2026-11-23T00:00:00Z",
                 "sender": "coordinator",
@@ -264,9 +264,9 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     assert "offline" not in operator.connections(victim)
     wait_for(lambda: operator.job_state("k") == "done", timeout=30, what="done by another unit")
     # Back in the queue and re-assigned (both may fall in one coordinator step).
-    owners = [j.unit for view in operator.job_views() for j in view.jobs if j.id == "k" and j.unit]
+    owners = [j.unit for view in operator.job_views() for j in view.listed() if j.id == "k" and j.unit]
     assert owners[0] == victim and owners[-1] != victim
-    assert not any(j.state == "failed" for view in operator.job_views() for j in view.jobs)
+    assert not any(j.state == "failed" for view in operator.job_views() for j in view.listed())
     finisher = operator.listed_jobs()["k"].unit
     assert finisher in ("unit2", "unit3", "unit4") and finisher != victim
     assert "k" in carried_jobs(operator, finisher) and "k" not in carried_jobs(operator, victim)

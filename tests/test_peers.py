@@ -190,7 +190,8 @@ def test_a_coordinator_peer_publishes_the_protocols_messages(wire: Wire, topics:
         [(3, 0)],
     )
     view = decode(JobsView, wire.one(topics.fleet("jobs")))
-    assert view == sent[1] and view.jobs == jobs and view.counts == {"queued": 2, "rejected": 1}
+    assert view == sent[1] and view.listed() == jobs and view.counts == {"queued": 2, "rejected": 1}
+    assert [j.id for j in view.finished] == ["job-3"]  # the final ones apart, as the coordinator
     routes = decode(Routes, wire.one(topics.fleet("routes")))
     assert routes == sent[2] and routes.step == 7 and routes.routes["unit1"].released == [(1, 0)]
     status = decode(CoordinatorStatus, wire.one(topics.fleet("coordinator")))
@@ -398,7 +399,7 @@ def test_the_operator_reads_the_queue_view_connections_and_error_reports(
     report = coordinator.error(topics.request("submit_job"), "malformed JSON", "r-1")
 
     wait_for(lambda: len(op.job_views()) == 2, what="two queue views")
-    assert [v.jobs for v in op.job_views()] == [[queued], [done]]
+    assert [v.listed() for v in op.job_views()] == [[queued], [done]]
     assert op.listed_jobs() == {"job-1": done} and op.job_state("job-1") == "done"
     assert op.all_final(["job-1"]) and not op.all_final(["job-1", "job-2"])
     wait_for(lambda: len(op.probe.received(topics.unit("connection", "unit1"))) == 3, what="all 3")

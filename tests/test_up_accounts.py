@@ -159,7 +159,7 @@ def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
 
             def all_done() -> bool:
                 seen = watcher.received(topics.fleet("jobs"))
-                jobs = decode(JobsView, seen[-1].payload).jobs if seen else []
+                jobs = decode(JobsView, seen[-1].payload).listed() if seen else []
                 mine = [j for j in jobs if re.match(r"playfield-\d{6}-job-\d$", j.id)]
                 return len(mine) == 4 and all(j.state == "done" for j in mine)
 

@@ -19,7 +19,7 @@ M = TypeVar("M", bound=Message)
 
 def encode(message: Message) -> bytes:
     """Compact JSON bytes of `message`."""
-    return message.model_dump_json(exclude_none=False).encode("utf-8")
+    return message.model_dump_json(exclude_none=message.omits_nulls).encode("utf-8")
 
 
 def decode(

@@ -5,7 +5,7 @@ them, and `make schemas` copies them into protocol/protocol.json, the dashboard'
 protocol_table.js and the firmware's protocol_table.h.
 """
 
-PROTOCOL_VERSION = "1.3"  # header.version of every JSON message (protocol.md §3, §9)
+PROTOCOL_VERSION = "1.4"  # header.version of every JSON message (protocol.md §3, §9)
 TOPIC_VERSION = "v1"  # the topic level after the root; changes only with a new major version
 DEFAULT_ROOT = "gridfleet"
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import TYPE_CHECKING, Annotated, Literal
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
 
@@ -103,6 +103,9 @@ class Header(Model):
 
 class Message(Model):
     """A JSON message with its header."""
+
+    # Whether its fields that are null are left out on the wire (absent reads as null).
+    omits_nulls: ClassVar[bool] = False
 
     header: Header
 
@@ -227,11 +230,27 @@ class JobView(Model):
     wait_reason: Text | None = None
 
 
-class JobsView(Message):
-    """`fleet/jobs`: every job with its state and unit; finished ones stay listed."""
+FINISHED_LISTED = 20  # the queue view's latest finished jobs
+CHART_MINUTES = 10  # the queue view's jobs done per minute
 
-    jobs: list[JobView]
-    counts: dict[JobState, int] = Field(default_factory=dict)
+
+class JobsView(Message):
+    """`fleet/jobs`: the jobs not finished, the latest finished ones, and counts of all."""
+
+    omits_nulls: ClassVar[bool] = True  # a queued job's null unit, reason, ...: a third of it
+
+    jobs: list[JobView]  # every job not finished, in submission order
+    finished: Annotated[list[JobView], Field(max_length=FINISHED_LISTED)] = Field(
+        default_factory=list
+    )  # the latest finished jobs, newest first
+    counts: dict[JobState, int] = Field(default_factory=dict)  # every job ever, by state
+    done_per_minute: Annotated[list[Annotated[int, Field(ge=0)]], Field(max_length=60)] = Field(
+        default_factory=list
+    )  # jobs done in each of the last minutes of coordinator steps, the current one last
+
+    def listed(self) -> list[JobView]:
+        """Every job the view lists: those not finished, then the latest finished."""
+        return [*self.jobs, *self.finished]
 
 
 class RouteView(Model):

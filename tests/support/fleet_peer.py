@@ -39,7 +39,13 @@ from gridfleet.protocol import (
     decode,
     encode_direction,
 )
-from gridfleet.protocol.messages import JobState, Message, UnitStatus
+from gridfleet.protocol.messages import (
+    FINAL_JOB_STATES,
+    FINISHED_LISTED,
+    JobState,
+    Message,
+    UnitStatus,
+)
 
 from support.probe import MqttProbe
 
@@ -182,10 +188,18 @@ class CoordinatorPeer:
         publish(self.probe, "map", self.topics.fleet("map"), message)
         return message
 
-    def jobs(self, jobs: Sequence[JobView]) -> JobsView:
-        """`fleet/jobs`: the queue view, with the count of jobs in each state."""
+    def jobs(self, jobs: Sequence[JobView], done_per_minute: Sequence[int] = ()) -> JobsView:
+        """`fleet/jobs`: the queue view of `jobs` (the final ones as finished, latest first)."""
         counts: dict[JobState, int] = dict(Counter(job.state for job in jobs))
-        message = JobsView(header=self.stamp("jobs"), jobs=list(jobs), counts=counts)
+        ended = [j for j in jobs if j.state in FINAL_JOB_STATES]
+        ended.sort(key=lambda j: -1 if j.done_step is None else j.done_step, reverse=True)
+        message = JobsView(
+            header=self.stamp("jobs"),
+            jobs=[j for j in jobs if j.state not in FINAL_JOB_STATES],
+            finished=ended[:FINISHED_LISTED],  # the latest; `counts` counts them all
+            counts=counts,
+            done_per_minute=list(done_per_minute),
+        )
         publish(self.probe, "jobs", self.topics.fleet("jobs"), message)
         return message
 

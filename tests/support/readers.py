@@ -75,18 +75,22 @@ class FleetReader:
         return [decode(JobsView, m.payload, MAX_VIEW_BYTES) for m in seen]
 
     def listed_jobs(self) -> dict[str, JobView]:
-        """The newest queue view, by job id (empty before the first)."""
-        seen = self.probe.received(self.topics.fleet("jobs"))
-        if not seen:
-            return {}
-        return {j.id: j for j in decode(JobsView, seen[-1].payload, MAX_VIEW_BYTES).jobs}
+        """Every job the queue views listed, as the newest view to list it did, by job id.
+
+        A view lists only the latest finished jobs (protocol.md §5.3): one that finished earlier
+        is known from the views before.
+        """
+        jobs: dict[str, JobView] = {}
+        for view in self.job_views():
+            jobs.update((j.id, j) for j in view.listed())
+        return jobs
 
     def job_state(self, job_id: str) -> str | None:
-        """The job's state in the newest queue view (None: not listed)."""
+        """The job's state as the queue views last listed it (None: never listed)."""
         job = self.listed_jobs().get(job_id)
         return None if job is None else job.state
 
     def all_final(self, job_ids: list[str]) -> bool:
-        """Every job of `job_ids` is listed in the newest queue view and final."""
+        """Every job of `job_ids` has been listed as final."""
         jobs = self.listed_jobs()
         return all(i in jobs and jobs[i].state in FINAL_JOB_STATES for i in job_ids)

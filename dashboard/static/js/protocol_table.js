@@ -11,7 +11,7 @@ const freeze = (value) => {
   return value;
 };
 
-export const PROTOCOL_VERSION = "1.3";
+export const PROTOCOL_VERSION = "1.4";
 export const TOPIC_VERSION = "v1";
 export const DEFAULT_ROOT = "gridfleet";
 export const IDS = freeze({

@@ -1,0 +1,64 @@
+"""The queue view stays small: jobs under way, the latest finished, counts of all, done per minute."""
+
+from __future__ import annotations
+
+from coordinator.jobs import Job, JobBook
+from gridfleet.grid import Cell
+from gridfleet.protocol import encode
+from gridfleet.protocol.messages import CHART_MINUTES, FINISHED_LISTED
+
+from support.effects import header
+
+
+def book_with(done: int, queued: int = 3) -> JobBook:
+    """`done` jobs done one step apart (steps 1..done), then `queued` jobs waiting."""
+    book = JobBook()
+    for n in range(done + queued):
+        book.add(Job(f"job-{n + 1}", Cell(0, 0), Cell(1, 1), 1.0, created_step=n))
+    for n in range(done):
+        book.set(book.jobs[f"job-{n + 1}"], "done", done_step=n + 1)
+    return book
+
+
+def test_the_view_lists_the_jobs_under_way_and_only_the_latest_finished_newest_first() -> None:
+    book = book_with(done=50)
+    view = book.view(header("coordinator"), step_no=50, step_period_s=1.0)
+    assert [j.id for j in view.jobs] == ["job-51", "job-52", "job-53"]
+    assert [j.id for j in view.finished] == [
+        f"job-{n}" for n in range(50, 50 - FINISHED_LISTED, -1)
+    ]
+    assert view.counts == {"done": 50, "queued": 3}
+
+
+def test_its_size_does_not_grow_with_the_jobs_that_finished() -> None:
+    def size(done: int) -> int:
+        view = book_with(done).view(header("coordinator"), step_no=done, step_period_s=1.0)
+        return len(encode(view))
+
+    # Both list 3 waiting and 20 finished: only longer ids and counts differ (900 more finished
+    # jobs listed would be about 200 kB).
+    assert size(100) < 8000
+    assert size(1000) - size(100) < 300
+
+
+def test_jobs_done_per_minute_count_back_from_the_current_step() -> None:
+    book = JobBook()
+    # 0.5 s a step: 120 steps a minute. Done at steps 0, 100, 119, 120, 130 and 1300.
+    for n, at in enumerate([0, 100, 119, 120, 130, 1300]):
+        job = book.add(Job(f"j{n}", Cell(0, 0), Cell(1, 1), 1.0))
+        book.set(job, "done", done_step=at)
+    cancelled = book.add(Job("c", Cell(0, 0), Cell(1, 1), 1.0))
+    book.set(cancelled, "cancelled", done_step=125)
+    counts = book.done_per_minute(step_no=1319, step_period_s=0.5)
+    assert len(counts) == CHART_MINUTES
+    # Step 1319 is in minute 10 (steps 1200..1319 are 0 minutes ago); 1300 is there, the others
+    # more than 9 minutes ago (1319 - 130 = 1189 steps: minute 9 ago, the oldest shown).
+    assert counts == [2, 0, 0, 0, 0, 0, 0, 0, 0, 1]
+    assert book.done_per_minute(step_no=5000, step_period_s=0.5) == [0] * CHART_MINUTES
+
+
+def test_a_restarted_book_lists_the_same_finished_jobs_and_counts() -> None:
+    book = book_with(done=30)
+    again = JobBook(list(book.jobs.values()))
+    stamp = header("coordinator")
+    assert again.view(stamp, 30, 1.0) == book.view(stamp, 30, 1.0)
