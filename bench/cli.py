@@ -9,6 +9,10 @@ import importlib
 BENCHES: dict[str, tuple[str, str]] = {
     "planner": ("bench.planner_cli", "the planner alone on public MAPF instances (no broker)"),
     "system": ("bench.system_cli", "the whole system over a real broker: throughput, stop latency"),
+    "page": (
+        "bench.page_cli",
+        "the dashboard in Chromium at fleet scale: frame budget, fleet cost",
+    ),
     "soak": ("bench.soak_cli", "a chaos soak: faults injected while jobs flow, safety checked"),
 }
 

@@ -96,7 +96,7 @@ class Live:
         """Every job row on the page: its table (jobs or finished), state, unit and reason."""
         rows: dict[str, dict[str, str]] = self.page.evaluate(
             """() => Object.fromEntries([...document.querySelectorAll(
-                    '#jobs tbody tr, #finished tbody tr')].map((tr) => [tr.dataset.job, {
+                    '#jobs tbody tr[data-job], #finished tbody tr')].map((tr) => [tr.dataset.job, {
                 table: tr.closest('table').id,
                 state: tr.querySelector('.state').textContent,
                 unit: tr.querySelector('.unit').textContent,
@@ -158,7 +158,7 @@ def drawn(positions: dict[str, tuple[int, int]]) -> str:
 def unit_rows(live: Live) -> dict[str, dict[str, str]]:
     """The units panel: per unit, its link, square, status, job and load as shown."""
     rows: dict[str, dict[str, str]] = live.page.evaluate(
-        """() => Object.fromEntries([...document.querySelectorAll('#units tbody tr')].map(
+        """() => Object.fromEntries([...document.querySelectorAll('#units tbody tr[data-unit]')].map(
             (tr) => [tr.dataset.unit, Object.fromEntries([...tr.children].map(
                 (td) => [td.className, td.textContent]))]))"""
     )
@@ -279,7 +279,7 @@ def test_08_jobs_entered_on_the_page_are_done_deleted_or_refused(
     rows = system.page_jobs()
     view = system.jobs()
     assert view is not None
-    truth = {j.id: j for j in view.jobs}
+    truth = {j.id: j for j in view.listed()}
     for job_id, mass in (("heavy-1", 15), ("light-1", 4)):
         unit = rows[job_id]["unit"]
         assert rows[job_id]["table"] == "finished" and unit == truth[job_id].unit
@@ -294,7 +294,7 @@ def test_08_jobs_entered_on_the_page_are_done_deleted_or_refused(
         assert after[0].job_id is None and after[0].load_kg == 0
     assert rows["heavy-1"]["unit"] == "unit4"
     assert truth["heavy-2"].state == "cancelled" and truth["heavy-2"].unit is None
-    assert [j.state for j in view.jobs if j.mass_kg == 50] == ["rejected"]
+    assert [j.state for j in view.listed() if j.mass_kg == 50] == ["rejected"]
     expect(system.page.locator("#queue-count")).to_have_text("(0)")
     expect(system.page.locator("#finished-counts")).to_have_text(
         "done 2 · cancelled 1 · rejected 1"
@@ -405,8 +405,8 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
         view = system.jobs()
         if view is None:
             return False
-        done = {j.id for j in view.jobs if j.state == "done"}
-        pending = {j.id for j in view.jobs if j.state not in FINAL_JOB_STATES}
+        done = {j.id for j in view.listed() if j.state == "done"}
+        pending = {j.id for j in view.listed() if j.state not in FINAL_JOB_STATES}
         if not done or not pending:
             return False
         rows = system.page_jobs()
@@ -416,7 +416,7 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
         }
         count = system.page.locator("#queue-count").text_content()
         counts = system.page.locator("#finished-counts").text_content()
-        as_coordinator = {j.id: (j.state, j.unit or "—") for j in view.jobs if j.id in pending}
+        as_coordinator = {j.id: (j.state, j.unit or "—") for j in view.listed() if j.id in pending}
         return (
             shown_pending == pending
             and {j: (rows[j]["state"], rows[j]["unit"]) for j in pending} == as_coordinator
@@ -439,7 +439,7 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
         )
     except WaitTimeout as exc:  # say where each job and unit stood, to tell a stall from a slow run
         view = system.jobs()
-        states = {j.id: (j.state, j.unit, j.wait_reason) for j in view.jobs} if view else None
+        states = {j.id: (j.state, j.unit, j.wait_reason) for j in view.listed()} if view else None
         raise WaitTimeout(
             f"{exc}: page {system.page_jobs()}; coordinator {states}; units {unit_rows(system)}"
         ) from None
@@ -482,7 +482,7 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     def mid_run() -> bool:
         arrows = system.page.locator("#map").get_attribute("data-headings") or ""
         heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
-        moving = [u for u, r in unit_rows(system).items() if r["status"] == "moving"]
+        moving = [u for u, r in unit_rows(system).items() if r["status"].startswith("moving")]
         states = {r["state"] for r in system.page_jobs().values()}
         # Not in the instant between a unit's discovery and the re-plan around it (one step).
         known = obstacles_drawn(system)

@@ -285,7 +285,8 @@ def test_the_chart_counts_jobs_done_a_minute_and_how_busy_units_are(
             job("b", "done", "unit1", created_step=0, done_step=5500),
             job("c", "done", "unit2", created_step=0, done_step=5000),
             job("job-9", "to_dropoff", "unit1"),
-        ]
+        ],
+        done_per_minute=[0, 0, 0, 0, 0, 0, 0, 0, 1, 2],  # the coordinator counts them
     )
     dash = open_dashboard(root)
     chart = dash.page.locator("#chart")

@@ -67,11 +67,22 @@ test("obstacles are highlighted while new, then plain", () => {
   assert.equal(v.onMap(3, 0), false);
 });
 
-test("jobs split into active and finished; silent units", () => {
+test("the queue view: jobs under way indexed by unit, the latest finished, the chart's counts; silent units", () => {
   const v = new FleetView();
-  v.apply("jobs", null, JSON.stringify({ jobs: [{ id: "a", state: "queued" }, { id: "b", state: "done" }, { id: "c", state: "failed" }], counts: { done: 1 } }), 0);
-  assert.deepEqual(v.activeJobs().map((j) => j.id), ["a"]);
+  v.apply("jobs", null, JSON.stringify({
+    jobs: [{ id: "a", state: "queued" }, { id: "k", state: "to_pickup", unit: "u1" }],
+    finished: [{ id: "b", state: "done" }, { id: "c", state: "failed" }],
+    counts: { done: 7 }, done_per_minute: [0, 2, 5],
+  }), 0);
+  assert.deepEqual(v.activeJobs().map((j) => j.id), ["a", "k"]);
   assert.deepEqual(v.finishedJobs().map((j) => j.id), ["b", "c"]);
+  assert.equal(v.jobOfUnit.get("u1"), "k");
+  assert.equal(v.jobById.get("k").state, "to_pickup");
+  assert.deepEqual(v.donePerMinute, [0, 2, 5]);
+  // A finished job listed among the jobs (a view from elsewhere) still counts as finished.
+  v.apply("jobs", null, JSON.stringify({ jobs: [{ id: "a", state: "queued" }, { id: "d", state: "done" }] }), 0);
+  assert.deepEqual([v.activeJobs().map((j) => j.id), v.finishedJobs().map((j) => j.id)], [["a"], ["d"]]);
+  assert.deepEqual([v.jobOfUnit.size, v.donePerMinute], [0, []]);
   v.apply("factsheet", "u1", JSON.stringify({ capacity_kg: 1, step_period_s: 0.2 }), 0);
   v.apply("state", "u1", state([0, 0]), 0);
   const u = v.units.get("u1");

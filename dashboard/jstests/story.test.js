@@ -4,7 +4,7 @@ import assert from "node:assert/strict";
 import { fitLayout, MAX_ZOOM, panBy, squareAt, zoomAt } from "../static/js/draw.js";
 import { FleetView } from "../static/js/model.js";
 import {
-  busyUnits, donePerMinute, durationText, eventLines, JobNumbers, latestFinished, placeLabels,
+  busyUnits, durationText, eventLines, JobNumbers, latestFinished, placeLabels,
   tookSeconds, unitJob, Utilisation,
 } from "../static/js/story.js";
 
@@ -73,14 +73,6 @@ test("the coordinator's events, newest first, with a local time; junk skipped", 
     ["", "u1 online"], ["09:05:07", "emergency stop ENGAGED by operator: drill"], ["09:05:07", "job a queued"],
   ]);
   assert.deepEqual(eventLines("junk"), []);
-});
-
-test("jobs done per minute, from the steps they ended at", () => {
-  const done = (step, state = "done") => ({ id: `j${step}`, state, done_step: step });
-  // 0.1 s a step: 600 steps a minute; now at step 6000 (minute 10).
-  const jobs = [done(5999), done(5500), done(5000), done(4000), done(0), done(5990, "cancelled")];
-  assert.deepEqual(donePerMinute(jobs, 6000, 0.1, 10), [0, 0, 0, 0, 0, 0, 1, 0, 1, 2]);
-  assert.deepEqual(donePerMinute(jobs, null, 0.1, 3), [0, 0, 0], "no step yet: nothing to place");
 });
 
 test("utilisation is sampled at most every few seconds and kept for the chart's span", () => {

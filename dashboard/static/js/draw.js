@@ -1,6 +1,7 @@
 // Draws the fleet on a canvas that fills its container. Returns the layout so clicks map to squares.
 
 import { placeLabels, unitJob } from "./story.js";
+import { MANY_UNITS, STATE_COLORS, unitState } from "./units.js";
 
 const ARROW = { N: [0, -1], E: [1, 0], S: [0, 1], W: [-1, 0] };
 export const MAX_ZOOM = 40;
@@ -17,8 +18,9 @@ export function fitLayout(w, h, cols, rows, zoom = { scale: 1, pan: [0, 0] }) {
   return { w, h, cell, ox, oy, cols, rows };
 }
 
-export function layoutFor(canvas, map, zoom) {
-  const rect = canvas.parentElement.getBoundingClientRect();
+/** The layout in the canvas's box: `box` ({width, height}) when known, else measured now. */
+export function layoutFor(canvas, map, zoom, box = null) {
+  const rect = box ?? canvas.parentElement.getBoundingClientRect();
   const w = Math.max(50, rect.width), h = Math.max(50, rect.height);
   return fitLayout(w, h, map ? map.width : 10, map ? map.height : 10, zoom);
 }
@@ -55,9 +57,17 @@ export function squareAt(layout, px, py) {
   return x >= 0 && y >= 0 && x < layout.cols && y < layout.rows ? [x, y] : null;
 }
 
-export function drawFleet(canvas, view, now, ui) {
+export function drawFleet(canvas, view, now, ui, box = null) {
   const map = view.map;
-  const L = layoutFor(canvas, map, ui.zoom);
+  const L = layoutFor(canvas, map, ui.zoom, box);
+  // Many units: a colour per state (moving, waiting, ...) says more than 150 colours that repeat.
+  const byState = view.units.size >= MANY_UNITS;
+  const colorOf = (id) => {
+    if (!byState) return view.colorOf(id);
+    const u = view.units.get(id);
+    return u ? STATE_COLORS[unitState(u, view.routes[id]?.control, !!unitJob(view, id), view.isSilent(u, now))] : "#607d8b";
+  };
+  canvas.dataset.colors = byState ? "state" : "unit";
   const dpr = window.devicePixelRatio || 1;
   if (canvas.width !== Math.round(L.w * dpr) || canvas.height !== Math.round(L.h * dpr)) {
     canvas.width = Math.round(L.w * dpr);
@@ -97,11 +107,13 @@ export function drawFleet(canvas, view, now, ui) {
   g.textAlign = "center";
   g.textBaseline = "middle";
   const markers = [];
+  const crowded = view.activeJobs().length > MANY_UNITS; // then queued jobs are shown faintly
   for (const j of view.activeJobs()) {
-    const color = j.unit ? view.colorOf(j.unit) : "#455a64";
+    const color = j.unit ? (byState ? "#455a64" : view.colorOf(j.unit)) : "#455a64";
     const n = view.jobNumbers.of(j.id);
     const chosen = j.id === ui.selectedJob;
     const carried = j.state === "loaded" || j.state === "to_dropoff";
+    g.globalAlpha = crowded && !j.unit && !chosen ? 0.35 : 1;
     if (chosen && !carried) {
       // The selected job's pair, joined: where the item is and where it goes.
       g.strokeStyle = color;
@@ -127,11 +139,12 @@ export function drawFleet(canvas, view, now, ui) {
       markers.push(`${letter}${n}@${sq[0]},${sq[1]}`);
     }
   }
+  g.globalAlpha = 1;
   canvas.dataset.markers = markers.sort().join(" ");
   // Routes: released squares solid, planned rest dashed, target ringed.
   for (const [id, r] of Object.entries(view.routes)) {
     const u = view.units.get(id);
-    const color = view.colorOf(id);
+    const color = colorOf(id);
     const start = u?.state?.position;
     const path = [...(r.released ?? []), ...(r.planned ?? [])];
     const nRel = (r.released ?? []).length;
@@ -157,7 +170,7 @@ export function drawFleet(canvas, view, now, ui) {
   // Goals set in standalone mode.
   for (const u of view.units.values()) {
     const goal = u.state?.goal;
-    if (goal && !view.routes[u.id]?.target) drawTarget(g, mid(goal[0], goal[1]), c, view.colorOf(u.id));
+    if (goal && !view.routes[u.id]?.target) drawTarget(g, mid(goal[0], goal[1]), c, colorOf(u.id));
   }
   // Units on top.
   const drawn = [];
@@ -168,7 +181,7 @@ export function drawFleet(canvas, view, now, ui) {
     if (!u.state) continue;
     const [x, y] = u.state.position;
     const [cx, cy] = mid(x, y);
-    const color = view.colorOf(u.id);
+    const color = colorOf(u.id);
     const alive = u.connection !== "offline" && u.connection !== "broken";
     g.globalAlpha = alive ? 1 : 0.35;
     g.fillStyle = color;

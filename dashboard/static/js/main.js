@@ -22,6 +22,8 @@ import { bindStopControls, estopLook, estopPayload, showEstop } from "./stop.js"
 import { log, PageView, showConnection, showFatal } from "./view.js";
 
 const $ = (sel) => document.querySelector(sel);
+const PANEL_MS = 250; // the tables, chart and badges are filled in at most 4 times a second
+const PANEL_ONLY = new Set(["coordinator", "errors", "events", "reply"]); // nothing on the map
 
 async function start() {
   const loaded = await loadSettings(fetch);
@@ -104,14 +106,18 @@ class Dashboard {
     this.topics = topicsFor(settings.root);
     this.view = new FleetView(settings.map, settings.colors ?? {});
     this.page = new PageView(this.view);
+    this.page.onChange = () => { this.panelDirty = this.panelUrgent = true; }; // a search, a scroll
     this.requests = new Requests(clientId, new Stamper(clientId));
     this.ui = initialClicks(); // the map's click mode, what it picked, the chosen job, the zoom
     this.layout = null;
-    this.dirty = true;
+    this.dirty = true; // the map needs drawing
+    this.panelDirty = true; // the tables, the chart and the badges need filling in
+    this.panelUrgent = true; // ... at once (the operator did something), not at the next tick
+    this.panelAt = 0; // when the panel was last filled in
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
     this.forms = new Forms(this.view, {
       send: (kind, form, what, body) => this.request(kind, form, what, body),
-      onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.dirty = true; },
+      onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.touched(); },
     });
     this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subscriptions(this.topics, clientId), {
       onStatus: (state, text) => {
@@ -129,20 +135,31 @@ class Dashboard {
   run() {
     this.client.start();
     this.bindControls();
-    // The map's box changes with the window and with the page around it (e.g. the stop banner).
-    new ResizeObserver(() => { this.dirty = true; }).observe($("#canvas-wrap"));
+    // The map's box changes with the window and with the page around it (e.g. the stop banner);
+    // kept here, so drawing never asks the browser for a layout.
+    new ResizeObserver(([entry]) => {
+      this.page.mapBox = { width: entry.contentRect.width, height: entry.contentRect.height };
+      this.touched();
+    }).observe($("#canvas-wrap"));
     const frame = () => {
       const now = Date.now();
-      // Redraw on change, and while a fresh obstacle flashes.
+      // The map on every frame in which something changed (and while a fresh obstacle flashes);
+      // the tables at most every PANEL_MS: a fleet sends hundreds of messages a second, and
+      // rebuilding the panel for each frame's worth kept the page busy and the fleet waiting.
       if (this.dirty || this.view.knownObstacles(now).some((o) => o.fresh)) {
-        this.render(now);
+        this.layout = this.page.renderMap(now, this.ui);
         this.dirty = false;
+      }
+      if (this.panelDirty && (this.panelUrgent || now - this.panelAt >= PANEL_MS)) {
+        this.renderPanel(now);
+        this.panelDirty = this.panelUrgent = false;
+        this.panelAt = now;
       }
       requestAnimationFrame(frame);
     };
     requestAnimationFrame(frame);
     setInterval(() => this.page.seen(Date.now()), 500);
-    setInterval(() => { this.view.utilisation.sample(this.view, Date.now()); this.dirty = true; }, 1000);
+    setInterval(() => { this.view.utilisation.sample(this.view, Date.now()); this.panelDirty = true; }, 1000);
     setInterval(() => this.retry(Date.now()), 500);
   }
 
@@ -165,7 +182,13 @@ class Dashboard {
       this.show({ feedback, log: request ? null : line });
     }
     if (parsed.kind === "estop") this.localStop = false;
-    this.dirty = true;
+    if (!PANEL_ONLY.has(parsed.kind)) this.dirty = true;
+    this.panelDirty = true;
+  }
+
+  /** The operator changed something on the page: map and panel show it on the next frame. */
+  touched() {
+    this.dirty = this.panelDirty = this.panelUrgent = true;
   }
 
   /** Feedback and a log line from the request bookkeeping, either may be null. */
@@ -211,7 +234,7 @@ class Dashboard {
     for (const r of document.querySelectorAll("input[name=clickmode]")) {
       r.addEventListener("change", () => {
         this.ui = setMode(this.ui, r.value);
-        this.dirty = true;
+        this.touched();
       });
     }
     const canvas = $("#map");
@@ -223,7 +246,9 @@ class Dashboard {
     canvas.addEventListener("mousemove", (ev) => {
       const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
       $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
+      this.page.hoverCard(sq ? this.view.unitAt(sq[0], sq[1])?.id ?? null : null, ev.offsetX, ev.offsetY);
     });
+    canvas.addEventListener("mouseleave", () => this.page.hoverCard(null));
     this.forms.bind();
     $("#jobs tbody").addEventListener("click", (ev) => {
       const btn = ev.target.closest("button[data-cancel]");
@@ -246,7 +271,7 @@ class Dashboard {
       ev.preventDefault(); // the page itself does not scroll under the map
       const factor = ev.deltaY < 0 ? 1.25 : 0.8;
       this.ui = { ...this.ui, zoom: zoomAt(this.ui.zoom, layout(), ev.offsetX, ev.offsetY, factor) };
-      this.dirty = true;
+      this.touched();
     }, { passive: false });
     let from = null;
     canvas.addEventListener("pointerdown", (ev) => { from = [ev.clientX, ev.clientY]; this.dragged = false; });
@@ -258,27 +283,29 @@ class Dashboard {
       canvas.classList.add("panning");
       from = [ev.clientX, ev.clientY];
       this.ui = { ...this.ui, zoom: panBy(this.ui.zoom, layout(), dx, dy) };
-      this.dirty = true;
+      this.touched();
     });
     const end = () => { from = null; canvas.classList.remove("panning"); };
     canvas.addEventListener("pointerup", end);
     canvas.addEventListener("pointerleave", end);
     $("#fit").addEventListener("click", () => {
       this.ui = { ...this.ui, zoom: { scale: 1, pan: [0, 0] } };
-      this.dirty = true;
+      this.touched();
     });
   }
 
   /** A job row chosen: its P and D stand out on the map, joined; chosen again, unchosen. */
   selectJob(id) {
     this.ui = { ...this.ui, selectedJob: this.ui.selectedJob === id ? null : id };
-    this.dirty = true;
+    this.touched();
   }
 
-  selectUnit(id) {
+  /** A unit chosen in its row or on the map: marked on both; `reveal` scrolls its row into view. */
+  selectUnit(id, reveal = false) {
     this.ui = selectUnit(this.ui, id);
     this.forms.showUnit(id);
-    this.dirty = true;
+    if (reveal) this.page.revealUnit(id);
+    this.touched();
   }
 
   onMapClick(ev) {
@@ -287,18 +314,21 @@ class Dashboard {
     if (!sq) return;
     const { state, effect } = mapClick(this.ui, sq, this.view.unitAt(sq[0], sq[1])?.id ?? null);
     this.ui = state;
+    this.touched();
     if (!effect) return;
-    if (effect.type === "select") this.forms.showUnit(effect.unit);
+    if (effect.type === "select") {
+      this.forms.showUnit(effect.unit);
+      this.page.revealUnit(effect.unit); // its row, however far down the table
+    }
     else if (effect.type === "goal") this.forms.goalAt(effect.square);
     else if (effect.type === "pickup") this.forms.pickupAt(effect.square);
     else if (effect.type === "dropoff") this.forms.dropoffAt(effect.square);
-    this.dirty = true;
   }
 
   // ---- rendering ----
-  render(now) {
-    this.layout = this.page.render(now, this.ui);
-    this.forms.syncUnits([...this.view.units.keys()].sort(), this.ui.selectedUnit);
+  renderPanel(now) {
+    this.page.renderPanel(now, this.ui);
+    this.forms.syncUnits(this.page.unitIds(), this.ui.selectedUnit);
     this.renderEstop();
   }
 

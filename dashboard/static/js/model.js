@@ -12,8 +12,12 @@ export class FleetView {
     this.map = initialMap; // {name, width, height, rows, obstacles}
     this.colors = colors; // fallback unit colours, e.g. from the scenario
     this.units = new Map(); // id -> {id, connection, factsheet, state, lastSeen}
-    this.jobs = []; // JobView objects
-    this.counts = {};
+    this.jobs = []; // JobView objects of the jobs not finished (fleet/jobs `jobs`)
+    this.finished = []; // the latest finished jobs, newest first (fleet/jobs `finished`)
+    this.jobById = new Map(); // id -> a job not finished
+    this.jobOfUnit = new Map(); // unit id -> the id of the job the queue gives it
+    this.counts = {}; // every job the coordinator has known, by state
+    this.donePerMinute = []; // jobs done in each of the last minutes, the current one last
     this.routes = {}; // unit -> {released, planned, target}
     this.routesStep = null; // the coordinator's step, from its routes (published every step)
     this.coordinator = null;
@@ -85,11 +89,7 @@ export class FleetView {
         for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
         break;
       }
-      case "jobs":
-        this.jobs = Array.isArray(msg.jobs) ? msg.jobs : [];
-        this.jobNumbers.claim(this.jobs.map((j) => j.id)); // numbered ids first: theirs to keep
-        this.counts = msg.counts ?? {};
-        break;
+      case "jobs": this.takeJobs(msg); break;
       case "routes":
         this.routes = msg.routes ?? {};
         if (Number.isInteger(msg.step)) this.routesStep = msg.step;
@@ -100,6 +100,20 @@ export class FleetView {
       default: break;
     }
     return null;
+  }
+
+  /** The queue view: the jobs under way indexed once here, not looked up per unit and frame. */
+  takeJobs(msg) {
+    const listed = Array.isArray(msg.jobs) ? msg.jobs : [];
+    const finished = Array.isArray(msg.finished) ? msg.finished : [];
+    this.jobs = listed.filter((j) => !FINAL_JOB_STATES.has(j.state));
+    this.finished = [...finished, ...listed.filter((j) => FINAL_JOB_STATES.has(j.state))];
+    this.jobById = new Map(this.jobs.map((j) => [j.id, j]));
+    this.jobOfUnit = new Map();
+    for (const j of this.jobs) if (j.unit && !this.jobOfUnit.has(j.unit)) this.jobOfUnit.set(j.unit, j.id);
+    this.jobNumbers.claim([...this.jobs, ...this.finished].map((j) => j.id)); // numbered ids first: theirs to keep
+    this.counts = msg.counts ?? {};
+    this.donePerMinute = Array.isArray(msg.done_per_minute) ? msg.done_per_minute : [];
   }
 
   noteObstacle(sq, now) {
@@ -154,8 +168,8 @@ export class FleetView {
     return null;
   }
 
-  activeJobs() { return this.jobs.filter((j) => !FINAL_JOB_STATES.has(j.state)); }
-  finishedJobs() { return this.jobs.filter((j) => FINAL_JOB_STATES.has(j.state)); }
+  activeJobs() { return this.jobs; }
+  finishedJobs() { return this.finished; }
 
   colorOf(id) {
     return this.units.get(id)?.factsheet?.color ?? this.colors[id] ?? "#607d8b";

@@ -5,11 +5,13 @@
 /**
  * Make `tbody` show one row per item, in order. `key(item)` names the row (kept in
  * `tr.dataset[keyName]`); `cells(item)` gives `[text, className]` per cell; `extra(tr, item, fresh)`
- * may add to the row (e.g. a button once, when `fresh`) and set its classes.
+ * may add to the row (e.g. a button once, when `fresh`) and set its classes. `pad` ({top, bottom}
+ * in px): `items` are the rows in view of a longer table, and empty rows that high stand for the
+ * rest above and below, so the box scrolls as if every row were there.
  */
-export function syncRows(tbody, items, { keyName, key, cells, extra }) {
+export function syncRows(tbody, items, { keyName, key, cells, extra }, pad = null) {
   const old = new Map();
-  for (const tr of tbody.children) old.set(tr.dataset[keyName], tr);
+  for (const tr of tbody.children) if (tr.dataset[keyName] !== undefined) old.set(tr.dataset[keyName], tr);
   const rows = items.map((item) => {
     const id = key(item);
     const content = cells(item);
@@ -32,9 +34,27 @@ export function syncRows(tbody, items, { keyName, key, cells, extra }) {
     if (extra) extra(tr, item, fresh);
     return tr;
   });
+  // Spacers only when rows are left out: a table that fits has rows and nothing else.
+  if (pad?.top > 0) rows.unshift(spacer(tbody, "top", pad.top));
+  if (pad?.bottom > 0) rows.push(spacer(tbody, "bottom", pad.bottom));
   // Move rows only when the order or the set changed; unchanged rows are not touched.
   const current = [...tbody.children];
   if (current.length !== rows.length || rows.some((tr, i) => current[i] !== tr)) {
     tbody.replaceChildren(...rows);
   }
+}
+
+function spacer(tbody, where, px) {
+  let tr = tbody.querySelector(`:scope > tr.spacer-${where}`);
+  if (!tr) {
+    tr = document.createElement("tr");
+    tr.className = `spacer spacer-${where}`;
+    const td = document.createElement("td");
+    // As many columns as the header: more would add columns to a fixed-layout table.
+    td.colSpan = tbody.closest("table")?.tHead?.rows[0]?.cells.length ?? 1;
+    tr.append(td);
+  }
+  const height = `${Math.max(0, Math.round(px))}px`;
+  if (tr.firstChild.style.height !== height) tr.firstChild.style.height = height;
+  return tr;
 }

@@ -10,7 +10,7 @@ export const SAMPLE_MS = 5000; // how often the page samples how busy the units 
 export function unitJob(view, id) {
   const own = view.units.get(id)?.state?.job_id;
   if (own) return own;
-  return view.activeJobs().find((j) => j.unit === id)?.id ?? null;
+  return view.jobOfUnit.get(id) ?? null;
 }
 
 /**
@@ -88,21 +88,6 @@ export function eventLines(events) {
     .filter((e) => e && typeof e.text === "string")
     .map((e) => ({ time: clockText(e.at), text: e.text, kind: e.kind ?? "", job: e.job ?? null, unit: e.unit ?? null }))
     .reverse();
-}
-
-/**
- * Jobs done in each of the last `minutes` minutes, oldest first, from the steps they ended at
- * (`step` is the coordinator's latest): the history survives a reload, as the jobs view does.
- */
-export function donePerMinute(finished, step, periodS, minutes = CHART_MINUTES) {
-  const counts = new Array(minutes).fill(0);
-  if (!Number.isInteger(step) || !(periodS > 0)) return counts;
-  for (const j of finished) {
-    if (j.state !== "done" || !Number.isInteger(j.done_step)) continue;
-    const ago = Math.floor(((step - j.done_step) * periodS) / 60);
-    if (ago >= 0 && ago < minutes) counts[minutes - 1 - ago] += 1;
-  }
-  return counts;
 }
 
 /** Units online and, of those, units with work (a job, a goal or moving), at one moment. */

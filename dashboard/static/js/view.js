@@ -4,9 +4,11 @@
 
 import { drawChart, drawFleet } from "./draw.js";
 import { syncRows } from "./rows.js";
-import { donePerMinute, durationText, eventLines, latestFinished, tookSeconds, unitJob } from "./story.js";
+import { CHART_MINUTES, durationText, eventLines, latestFinished, tookSeconds, unitJob } from "./story.js";
+import { phaseText, shownUnits, unitState, visibleSlice } from "./units.js";
 
 const $ = (sel) => document.querySelector(sel);
+const ROW_H = 25; // px of a units or jobs row (style.css): the tables show only the rows in view
 const FINAL_COUNTED = ["done", "cancelled", "rejected", "failed"];
 
 // ---- what the page says (pure) ----
@@ -23,11 +25,13 @@ const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
  * `jobWait`: why that job waits, in the coordinator's words (a unit between orders says "idle"
  * while its job is stuck: the job's words say what holds it).
  */
-export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null) {
+export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null, phase = null) {
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
   let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
   const quiet = s && !s.wait_reason && (s.status === "idle" || s.status === "holding");
+  // Where its job takes it ("to pickup P3"), and why that job waits when the unit says nothing.
+  if (phase && s && (quiet || s.status === "moving")) status = `${s.status} · ${phase}`;
   if (jobWait && quiet) status = `${s.status} · ${jobWait}`;
   if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
   // A job whose item is on board is marked (the load says how heavy).
@@ -41,9 +45,10 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
 
 /** The unit row's control buttons for `control` (null, paused, out_of_service): [label, command]. */
 export function controlButtons(control) {
-  if (control === "out_of_service") return [["in service", "in_service"]];
-  if (control === "paused") return [["resume", "resume"], ["out of service", "out_of_service"]];
-  return [["pause", "pause"], ["out of service", "out_of_service"]];
+  if (control === "out_of_service") return [["in service", "in_service", "bring back into service"]];
+  const out = ["out", "out_of_service", "take out of service"];
+  if (control === "paused") return [["resume", "resume", "resume"], out];
+  return [["pause", "pause", "pause"], out];
 }
 
 /** When unit `u` was last heard of, at `now` (ms). */
@@ -64,14 +69,18 @@ export function finishedCells(j, periodS) {
 }
 
 /**
- * "done 3 · failed 1": the finished jobs by state. The coordinator's own counts win (it keeps
- * only the latest finished jobs in the view) for the states shown and for every final state.
+ * "done 3 · cancelled 1": the finished jobs by state, always in that order. The coordinator's
+ * counts (of every job ever) win over the latest finished jobs the view lists.
  */
 export function finishedCounts(finished, counts) {
   const shown = {};
   for (const j of finished) shown[j.state] = (shown[j.state] ?? 0) + 1;
-  for (const [k, v] of Object.entries(counts)) if (k in shown || FINAL_COUNTED.includes(k)) shown[k] = v;
-  return Object.entries(shown).map(([k, v]) => `${k} ${v}`).join(" · ");
+  const states = [...FINAL_COUNTED, ...Object.keys(shown).filter((k) => !FINAL_COUNTED.includes(k))];
+  return states
+    .map((k) => [k, counts[k] ?? shown[k] ?? 0])
+    .filter(([, n]) => n > 0)
+    .map(([k, n]) => `${k} ${n}`)
+    .join(" · ");
 }
 
 /** The coordinator's badge: {state, text}, from its status and its latest step. */
@@ -93,18 +102,63 @@ export class PageView {
   /** Shows FleetView `view`. */
   constructor(view) {
     this.view = view;
+    this.mapBox = null; // the map's box, {width, height}, from a ResizeObserver
+    this.shownIds = []; // the unit rows after search, filter and sort, in order
+    this.sortedIds = []; // every unit, by name
+    for (const id of ["#unit-search", "#unit-filter", "#unit-sort"]) {
+      $(id)?.addEventListener("input", () => { $("#units-box").scrollTop = 0; this.onChange?.(); });
+    }
+    for (const id of ["#units-box", "#jobs-box"]) $(id)?.addEventListener("scroll", () => this.onChange?.(), { passive: true });
   }
 
-  /** Draw and fill in everything; `ui` is the map's click state. Returns the map's layout. */
-  render(now, ui) {
-    const layout = drawFleet($("#map"), this.view, now, ui);
+  /** Draw the map; returns its layout. */
+  renderMap(now, ui) {
+    const layout = drawFleet($("#map"), this.view, now, ui, this.mapBox);
+    const legend = $("#state-legend");
+    const byState = $("#map").dataset.colors === "state";
+    if (legend.hidden === byState) legend.hidden = !byState;
+    return layout;
+  }
+
+  /** Fill in the tables, the badges, the events and the chart. */
+  renderPanel(now, ui) {
     $("#map-name").textContent = mapTitle(this.view.map);
     this.units(now, ui);
     this.jobs(ui);
     this.coordinator();
     this.events();
     this.chart();
-    return layout;
+  }
+
+  /** Every unit id, in order (for the goal form's list). */
+  unitIds() {
+    if (this.sortedIds.length !== this.view.units.size) this.sortedIds = [...this.view.units.keys()].sort();
+    return this.sortedIds;
+  }
+
+  /** The card of unit `id` beside the pointer at (x, y) on the map; null hides it. */
+  hoverCard(id, x = 0, y = 0) {
+    const card = $("#unit-card");
+    const row = id && this.unitRows().find((r) => r.id === id);
+    if (!row) { card.hidden = true; return; }
+    const [, link, square, status, job, load] = row.cells.map(([t]) => t);
+    card.textContent = `${id} · ${link} · ${square}\n${status}\njob ${job} · ${load}`;
+    card.style.left = `${x + 14}px`;
+    card.style.top = `${y + 14}px`;
+    card.hidden = false;
+  }
+
+  /** Scroll the units table to unit `id`'s row (clearing a search that hides it). */
+  revealUnit(id) {
+    let at = this.shownIds.indexOf(id);
+    if (at < 0) {
+      $("#unit-search").value = "";
+      $("#unit-filter").value = "all";
+      this.shownIds = this.unitRows().map((r) => r.id);
+      at = this.shownIds.indexOf(id);
+    }
+    const box = $("#units-box");
+    if (at >= 0) box.scrollTop = Math.max(0, at * ROW_H - box.clientHeight / 2);
   }
 
   /** The coordinator's recent history, newest first: it survives a reload (fleet/events). */
@@ -127,22 +181,39 @@ export class PageView {
 
   /** Jobs done per minute and how busy the units are. */
   chart() {
-    const c = this.view.coordinator;
-    const perMinute = donePerMinute(this.view.finishedJobs(), this.view.coordinatorStep(), c?.step_period_s);
+    // The coordinator counts jobs done per minute (the view lists only the latest finished).
+    const counts = this.view.donePerMinute.slice(-CHART_MINUTES);
+    const perMinute = [...new Array(CHART_MINUTES - counts.length).fill(0), ...counts];
     drawChart($("#chart"), perMinute, this.view.utilisation.latest());
   }
 
+  /** Each unit's row content, with its state for the filter. */
+  unitRows() {
+    const now = Date.now();
+    return this.unitIds().map((id) => {
+      const u = this.view.units.get(id);
+      const job = unitJob(this.view, id);
+      const queued = this.view.jobById.get(job);
+      const control = this.view.routes[id]?.control ?? null;
+      const phase = phaseText(queued, queued ? this.view.jobNumbers.of(queued.id) : null);
+      const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase);
+      const state = unitState(u, control, !!job, this.view.isSilent(u, now));
+      return { id, cells, state, status: cells[3][0], job, load: u.state?.load_kg ?? 0 };
+    });
+  }
+
   units(now, ui) {
-    const ids = [...this.view.units.keys()].sort();
-    syncRows($("#units tbody"), ids, {
+    const rows = this.unitRows();
+    const shown = shownUnits(rows, $("#unit-search").value, $("#unit-filter").value, $("#unit-sort").value);
+    this.shownIds = shown.map((r) => r.id);
+    const box = $("#units-box");
+    const slice = visibleSlice(shown.length, ROW_H, box.scrollTop, box.clientHeight || 400);
+    syncRows($("#units tbody"), shown.slice(slice.first, slice.last), {
       keyName: "unit",
-      key: (id) => id,
-      cells: (id) => {
-        const job = unitJob(this.view, id);
-        const wait = this.view.activeJobs().find((j) => j.id === job)?.wait_reason ?? null;
-        return unitCells(this.view.units.get(id), job, this.view.routes[id]?.control, wait);
-      },
-      extra: (tr, id, fresh) => {
+      key: (r) => r.id,
+      cells: (r) => r.cells,
+      extra: (tr, r, fresh) => {
+        const id = r.id;
         const u = this.view.units.get(id);
         if (fresh) {
           const seen = document.createElement("td");
@@ -155,9 +226,11 @@ export class PageView {
         tr.dataset.link = u.connection ?? "unknown";
         tr.classList.toggle("selected", id === ui.selectedUnit);
         tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
-        tr.children[3].title = tr.children[3].textContent;  // the whole of a long status
+        tr.children[3].title = tr.children[3].textContent; // the whole of a long status
+        tr.children[4].title = tr.children[4].textContent;
       },
-    });
+    }, slice);
+    $("#units-count").textContent = shown.length === rows.length ? `(${rows.length})` : `(${shown.length} of ${rows.length})`;
     this.seen(now);
   }
 
@@ -166,31 +239,34 @@ export class PageView {
     const control = this.view.routes[id]?.control ?? "";
     if (td.dataset.control === control && td.children.length) return;
     td.dataset.control = control;
-    td.replaceChildren(...controlButtons(control || null).map(([label, command]) => {
+    td.replaceChildren(...controlButtons(control || null).map(([label, command, what]) => {
       const b = document.createElement("button");
       b.type = "button";
       b.dataset.unit = id;
       b.dataset.command = command;
       b.textContent = label;
-      b.title = `${label}: ${id}`;
+      b.title = `${what}: ${id}`;
       return b;
     }));
   }
 
   /** The "seen" column and the silent mark: they change with the clock alone. */
   seen(now) {
-    for (const tr of document.querySelectorAll("#units tbody tr")) {
+    for (const tr of document.querySelectorAll("#units tbody tr[data-unit]")) {
       const u = this.view.units.get(tr.dataset.unit);
       const td = tr.querySelector(".seen");
       if (!u || !td) continue;
-      td.textContent = seenText(u, now);
+      const text = seenText(u, now);
+      if (td.textContent !== text) td.textContent = text;
       tr.classList.toggle("silent", this.view.isSilent(u, now));
     }
   }
 
   jobs(ui) {
     const active = this.view.activeJobs();
-    syncRows($("#jobs tbody"), active, {
+    const box = $("#jobs-box");
+    const slice = visibleSlice(active.length, ROW_H, box.scrollTop, box.clientHeight || 300);
+    syncRows($("#jobs tbody"), active.slice(slice.first, slice.last), {
       keyName: "job",
       key: (j) => j.id,
       cells: (j) => jobCells(j, this.view.jobNumbers.of(j.id)),
@@ -208,7 +284,7 @@ export class PageView {
         td.append(b);
         tr.append(td);
       },
-    });
+    }, slice);
     $("#queue-count").textContent = `(${active.length})`;
     const finished = this.view.finishedJobs();
     const period = this.view.coordinator?.step_period_s;
