@@ -30,7 +30,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from bench.busy_scenario import make_busy
 from bench.soak import free_port
 from gridfleet.errors import ConfigError
-from gridfleet.protocol import TOPICS, Routes, Topics, decode
+from gridfleet.protocol import TOPICS, JobsView, Routes, Topics, decode
 
 CHROMIUM = Path("/usr/bin/chromium")
 # Counted inside the page from its first script on: frames drawn, and tasks over 50 ms.
@@ -75,6 +75,7 @@ class PageResult:
     closed_steps_per_s: list[float] = field(default_factory=list)
     open: list[OpenPhase] = field(default_factory=list)
     jobs_view_bytes: list[int] = field(default_factory=list)
+    jobs_view_listed: list[int] = field(default_factory=list)
     routes_bytes: int = 0
 
     def summary(self) -> dict[str, Any]:
@@ -98,6 +99,15 @@ class PageResult:
             "steps_per_s_open": opened,
             "open_over_closed": round(opened / closed, 3) if closed else None,
             "jobs_view_bytes_max": max(self.jobs_view_bytes, default=0),
+            "jobs_view_bytes_per_job_max": max(
+                (
+                    round(b / n)
+                    for b, n in zip(self.jobs_view_bytes, self.jobs_view_listed, strict=True)
+                    if n
+                ),
+                default=0,
+            ),
+            "routes_bytes_max": self.routes_bytes,
         }
 
 
@@ -107,6 +117,7 @@ class StepCounter:
     def __init__(self, port: int, topics: Topics) -> None:
         self.step: int | None = None
         self.jobs_bytes: list[int] = []
+        self.jobs_listed: list[int] = []  # jobs each view listed (under way and finished)
         self.routes_bytes = 0
         self._topics = topics
         self._client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="bench-page-steps")
@@ -117,7 +128,9 @@ class StepCounter:
 
     def _on_message(self, _c: object, _u: object, msg: mqtt.MQTTMessage) -> None:
         if msg.topic == self._topics.fleet("jobs"):
+            view = decode(JobsView, msg.payload, TOPICS["jobs"].max_bytes)
             self.jobs_bytes.append(len(msg.payload))
+            self.jobs_listed.append(len(view.jobs) + len(view.finished))
             return
         self.routes_bytes = max(self.routes_bytes, len(msg.payload))
         self.step = decode(Routes, msg.payload, TOPICS["routes"].max_bytes).step
@@ -220,6 +233,7 @@ def run_page_bench(
     viewport: tuple[int, int],
     screenshot: Path | None = None,
     seed: int = 1,
+    warmup_s: float = 20.0,
 ) -> PageResult:
     """Alternate closed and open phases on one running fleet; every figure of every phase."""
     try:
@@ -235,7 +249,8 @@ def run_page_bench(
             executable_path=str(CHROMIUM), args=["--no-sandbox", "--disable-gpu"]
         )
         try:
-            steps.rate_over(5)  # the fleet under way, jobs flowing
+            # Past the first allocation of every queued job: the figures are the steady fleet's.
+            steps.rate_over(warmup_s)
             for _ in range(phases):
                 result.closed_steps_per_s.append(round(steps.rate_over(phase_s), 2))
                 page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
@@ -250,6 +265,7 @@ def run_page_bench(
                     page.screenshot(path=str(screenshot))
                 page.close()
             result.jobs_view_bytes = steps.jobs_bytes
+            result.jobs_view_listed = steps.jobs_listed
             result.routes_bytes = steps.routes_bytes
         finally:
             browser.close()

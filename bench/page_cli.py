@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--phase", type=float, default=20.0, help="seconds of each closed and open phase (20)"
     )
+    parser.add_argument(
+        "--warmup", type=float, default=20.0, help="seconds before the first phase (default 20)"
+    )
     parser.add_argument("--phases", type=int, default=3, help="closed/open pairs (default 3)")
     parser.add_argument(
         "--viewport", type=_viewport, default=(1280, 800), help="WIDTHxHEIGHT (1280x800)"
@@ -41,10 +44,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the bench and print its figures."""
     check_step(args.step)
-    if args.units < 1 or args.jobs < 0 or args.phases < 1 or args.phase < 5:
-        raise ConfigError("--units ≥ 1, --jobs ≥ 0, --phases ≥ 1, --phase ≥ 5")
+    if args.units < 1 or args.jobs < 0 or args.phases < 1 or args.phase < 5 or args.warmup < 0:
+        raise ConfigError("--units ≥ 1, --jobs ≥ 0, --phases ≥ 1, --phase ≥ 5, --warmup ≥ 0")
     result = run_page_bench(
-        args.units, args.jobs, args.step, args.phase, args.phases, args.viewport, args.screenshot
+        args.units,
+        args.jobs,
+        args.step,
+        args.phase,
+        args.phases,
+        args.viewport,
+        args.screenshot,
+        warmup_s=args.warmup,
     )
     print(report(result, args.json))
     return 0

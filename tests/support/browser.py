@@ -152,6 +152,7 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
         colors: dict[str, str] | None = None,
         client_id: str = "dash-test",
         wait_connected: bool = True,
+        viewport: dict[str, int] | None = None,
         **settings_kw: Any,
     ) -> OpenDashboard:
         settings = DashboardSettings(
@@ -162,7 +163,7 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
             **settings_kw,
         )
         server = DashboardServer(create_app(settings)).start()
-        context = chromium.new_context(viewport=VIEWPORT)
+        context = chromium.new_context(viewport=viewport or VIEWPORT)
         opened.append((context, server))
         page = context.new_page()
         page.set_default_timeout(10000)

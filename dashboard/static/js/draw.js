@@ -102,45 +102,11 @@ export function drawFleet(canvas, view, now, ui, box = null) {
       g.strokeRect(sx + 2, sy + 2, c - 4, c - 4);
     }
   }
-  // Pickup and dropoff markers of jobs still in play.
-  g.font = `bold ${Math.max(8, Math.floor(c * 0.32))}px sans-serif`;
-  g.textAlign = "center";
-  g.textBaseline = "middle";
-  const markers = [];
-  const crowded = view.activeJobs().length > MANY_UNITS; // then queued jobs are shown faintly
-  for (const j of view.activeJobs()) {
-    const color = j.unit ? (byState ? "#455a64" : view.colorOf(j.unit)) : "#455a64";
-    const n = view.jobNumbers.of(j.id);
-    const chosen = j.id === ui.selectedJob;
-    const carried = j.state === "loaded" || j.state === "to_dropoff";
-    g.globalAlpha = crowded && !j.unit && !chosen ? 0.35 : 1;
-    if (chosen && !carried) {
-      // The selected job's pair, joined: where the item is and where it goes.
-      g.strokeStyle = color;
-      g.lineWidth = 2;
-      g.setLineDash([6, 4]);
-      g.beginPath();
-      g.moveTo(...mid(j.pickup[0], j.pickup[1]));
-      g.lineTo(...mid(j.dropoff[0], j.dropoff[1]));
-      g.stroke();
-      g.setLineDash([]);
-    }
-    for (const [sq, letter] of [[j.pickup, "P"], [j.dropoff, "D"]]) {
-      if (letter === "P" && carried) continue;
-      const [sx, sy] = at(sq[0], sq[1]);
-      g.strokeStyle = color;
-      g.lineWidth = chosen ? 4 : 2;
-      g.setLineDash(letter === "P" ? [] : [4, 3]);
-      g.strokeRect(sx + c * 0.12, sy + c * 0.12, c * 0.76, c * 0.76);
-      g.setLineDash([]);
-      g.fillStyle = color;
-      // Squeezed into its box when long (P258): never cut off by the rings around it.
-      if (c >= 14) g.fillText(`${letter}${n}`, sx + c * 0.5, sy + c * 0.5, c * 0.68);
-      markers.push(`${letter}${n}@${sq[0]},${sq[1]}`);
-    }
-  }
-  g.globalAlpha = 1;
-  canvas.dataset.markers = markers.sort().join(" ");
+  // Pickup and dropoff markers of jobs still in play: redrawn only when the queue, the view or
+  // the chosen job changed (hundreds of jobs, drawn on every frame, were most of a frame).
+  const layer = markerLayer(view, L, dpr, ui.selectedJob, byState);
+  g.drawImage(layer.canvas, 0, 0, L.w, L.h);
+  if (canvas.dataset.markers !== layer.text) canvas.dataset.markers = layer.text;
   // Routes: released squares solid, planned rest dashed, target ringed.
   for (const [id, r] of Object.entries(view.routes)) {
     const u = view.units.get(id);
@@ -148,22 +114,21 @@ export function drawFleet(canvas, view, now, ui, box = null) {
     const start = u?.state?.position;
     const path = [...(r.released ?? []), ...(r.planned ?? [])];
     const nRel = (r.released ?? []).length;
-    let prev = start;
+    // Two strokes a unit: the released squares wide, the planned rest thin and faint. Not
+    // dashed: dashes cost more than the rest of the map together in a browser without a GPU.
     g.lineCap = "round";
-    path.forEach((sq, i) => {
-      if (prev) {
-        g.strokeStyle = color;
-        g.globalAlpha = i < nRel ? 0.9 : 0.45;
-        g.lineWidth = i < nRel ? Math.max(3, c * 0.14) : Math.max(2, c * 0.07);
-        g.setLineDash(i < nRel ? [] : [c * 0.15, c * 0.12]);
-        g.beginPath();
-        g.moveTo(...mid(prev[0], prev[1]));
-        g.lineTo(...mid(sq[0], sq[1]));
-        g.stroke();
-      }
-      prev = sq;
-    });
-    g.setLineDash([]);
+    g.strokeStyle = color;
+    for (const released of [true, false]) {
+      const part = released ? path.slice(0, nRel) : path.slice(nRel);
+      const from = released ? start : (path[nRel - 1] ?? start);
+      if (!from || !part.length) continue;
+      g.globalAlpha = released ? 0.9 : 0.4;
+      g.lineWidth = released ? Math.max(3, c * 0.14) : Math.max(1.5, c * 0.06);
+      g.beginPath();
+      g.moveTo(...mid(from[0], from[1]));
+      for (const sq of part) g.lineTo(...mid(sq[0], sq[1]));
+      g.stroke();
+    }
     g.globalAlpha = 1;
     if (r.target) drawTarget(g, mid(r.target[0], r.target[1]), c, color);
   }
@@ -255,6 +220,64 @@ export function drawFleet(canvas, view, now, ui, box = null) {
   canvas.dataset.ox = String(L.ox);
   canvas.dataset.oy = String(L.oy);
   return L;
+}
+
+const markerCache = { jobs: null, key: "", canvas: null, text: "" };
+
+function markerLayer(view, L, dpr, selectedJob, byState) {
+  const key = `${L.w}x${L.h}@${dpr}:${L.cell}:${L.ox},${L.oy}:${selectedJob}:${byState}`;
+  if (markerCache.jobs === view.jobs && markerCache.key === key) return markerCache;
+  const canvas = markerCache.canvas ?? document.createElement("canvas");
+  canvas.width = Math.round(L.w * dpr);
+  canvas.height = Math.round(L.h * dpr);
+  const g = canvas.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, L.w, L.h);
+  const c = L.cell;
+  const at = (x, y) => [L.ox + x * c, L.oy + y * c];
+  const mid = (x, y) => [L.ox + (x + 0.5) * c, L.oy + (y + 0.5) * c];
+  const ui = { selectedJob };
+  g.font = `bold ${Math.max(8, Math.floor(c * 0.32))}px sans-serif`;
+  g.textAlign = "center";
+  g.textBaseline = "middle";
+  const markers = [];
+  const crowded = view.activeJobs().length > MANY_UNITS; // then queued jobs are shown faintly
+  for (const j of view.activeJobs()) {
+    const color = j.unit ? (byState ? "#455a64" : view.colorOf(j.unit)) : "#455a64";
+    const n = view.jobNumbers.of(j.id);
+    const chosen = j.id === ui.selectedJob;
+    const carried = j.state === "loaded" || j.state === "to_dropoff";
+    g.globalAlpha = crowded && !j.unit && !chosen ? 0.35 : 1;
+    if (chosen && !carried) {
+      // The selected job's pair, joined: where the item is and where it goes.
+      g.strokeStyle = color;
+      g.lineWidth = 2;
+      g.setLineDash([6, 4]);
+      g.beginPath();
+      g.moveTo(...mid(j.pickup[0], j.pickup[1]));
+      g.lineTo(...mid(j.dropoff[0], j.dropoff[1]));
+      g.stroke();
+      g.setLineDash([]);
+    }
+    for (const [sq, letter] of [[j.pickup, "P"], [j.dropoff, "D"]]) {
+      if (letter === "P" && carried) continue;
+      const [sx, sy] = at(sq[0], sq[1]);
+      g.strokeStyle = color;
+      g.lineWidth = chosen ? 4 : 2;
+      g.strokeRect(sx + c * 0.12, sy + c * 0.12, c * 0.76, c * 0.76);
+      if (letter === "D" && c >= 8) {
+        // A dropoff is a box in a box (not dashed: see the routes).
+        g.lineWidth = 1;
+        g.strokeRect(sx + c * 0.22, sy + c * 0.22, c * 0.56, c * 0.56);
+      }
+      g.fillStyle = color;
+      // Squeezed into its box when long (P258): never cut off by the rings around it.
+      if (c >= 14) g.fillText(`${letter}${n}`, sx + c * 0.5, sy + c * 0.5, c * 0.68);
+      markers.push(`${letter}${n}@${sq[0]},${sq[1]}`);
+    }
+  }
+  g.globalAlpha = 1;
+  return Object.assign(markerCache, { jobs: view.jobs, key, canvas, text: markers.sort().join(" ") });
 }
 
 const baseCache = { map: null, key: "", canvas: null };

@@ -23,6 +23,7 @@ import { log, PageView, showConnection, showFatal } from "./view.js";
 
 const $ = (sel) => document.querySelector(sel);
 const PANEL_MS = 250; // the tables, chart and badges are filled in at most 4 times a second
+const MAP_MS = 100; // the map is redrawn for the fleet's news at most 20 times a second
 const PANEL_ONLY = new Set(["coordinator", "errors", "events", "reply"]); // nothing on the map
 
 async function start() {
@@ -111,6 +112,8 @@ class Dashboard {
     this.ui = initialClicks(); // the map's click mode, what it picked, the chosen job, the zoom
     this.layout = null;
     this.dirty = true; // the map needs drawing
+    this.mapUrgent = true; // ... on the next frame (the operator zoomed, panned, chose)
+    this.mapAt = 0; // when the map was last drawn
     this.panelDirty = true; // the tables, the chart and the badges need filling in
     this.panelUrgent = true; // ... at once (the operator did something), not at the next tick
     this.panelAt = 0; // when the panel was last filled in
@@ -143,12 +146,15 @@ class Dashboard {
     }).observe($("#canvas-wrap"));
     const frame = () => {
       const now = Date.now();
-      // The map on every frame in which something changed (and while a fresh obstacle flashes);
-      // the tables at most every PANEL_MS: a fleet sends hundreds of messages a second, and
-      // rebuilding the panel for each frame's worth kept the page busy and the fleet waiting.
-      if (this.dirty || this.view.knownObstacles(now).some((o) => o.fresh)) {
+      // The map when something changed (and while a fresh obstacle flashes), at most every
+      // MAP_MS unless the operator is at it; the tables at most every PANEL_MS: a fleet sends
+      // hundreds of messages a second, and redrawing for each frame's worth of them kept the
+      // page busy and the fleet waiting.
+      const flashing = this.view.knownObstacles(now).some((o) => o.fresh);
+      if ((this.dirty || flashing) && (this.mapUrgent || now - this.mapAt >= MAP_MS)) {
         this.layout = this.page.renderMap(now, this.ui);
-        this.dirty = false;
+        this.dirty = this.mapUrgent = false;
+        this.mapAt = now;
       }
       if (this.panelDirty && (this.panelUrgent || now - this.panelAt >= PANEL_MS)) {
         this.renderPanel(now);
@@ -188,7 +194,7 @@ class Dashboard {
 
   /** The operator changed something on the page: map and panel show it on the next frame. */
   touched() {
-    this.dirty = this.panelDirty = this.panelUrgent = true;
+    this.dirty = this.mapUrgent = this.panelDirty = this.panelUrgent = true;
   }
 
   /** Feedback and a log line from the request bookkeeping, either may be null. */

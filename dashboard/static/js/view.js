@@ -104,6 +104,7 @@ export class PageView {
     this.view = view;
     this.mapBox = null; // the map's box, {width, height}, from a ResizeObserver
     this.shownIds = []; // the unit rows after search, filter and sort, in order
+    this.revealing = null; // a unit whose row the next fill scrolls to
     this.sortedIds = []; // every unit, by name
     for (const id of ["#unit-search", "#unit-filter", "#unit-sort"]) {
       $(id)?.addEventListener("input", () => { $("#units-box").scrollTop = 0; this.onChange?.(); });
@@ -148,17 +149,9 @@ export class PageView {
     card.hidden = false;
   }
 
-  /** Scroll the units table to unit `id`'s row (clearing a search that hides it). */
+  /** Scroll the units table to unit `id`'s row at the next fill (clearing a search that hides it). */
   revealUnit(id) {
-    let at = this.shownIds.indexOf(id);
-    if (at < 0) {
-      $("#unit-search").value = "";
-      $("#unit-filter").value = "all";
-      this.shownIds = this.unitRows().map((r) => r.id);
-      at = this.shownIds.indexOf(id);
-    }
-    const box = $("#units-box");
-    if (at >= 0) box.scrollTop = Math.max(0, at * ROW_H - box.clientHeight / 2);
+    this.revealing = id;
   }
 
   /** The coordinator's recent history, newest first: it survives a reload (fleet/events). */
@@ -204,10 +197,23 @@ export class PageView {
 
   units(now, ui) {
     const rows = this.unitRows();
-    const shown = shownUnits(rows, $("#unit-search").value, $("#unit-filter").value, $("#unit-sort").value);
-    this.shownIds = shown.map((r) => r.id);
+    const pick = () => shownUnits(rows, $("#unit-search").value, $("#unit-filter").value, $("#unit-sort").value);
+    let shown = pick();
     const box = $("#units-box");
-    const slice = visibleSlice(shown.length, ROW_H, box.scrollTop, box.clientHeight || 400);
+    let scrollTop = box.scrollTop;
+    if (this.revealing) {
+      let at = shown.findIndex((r) => r.id === this.revealing);
+      if (at < 0 && rows.some((r) => r.id === this.revealing)) {
+        $("#unit-search").value = "";
+        $("#unit-filter").value = "all";
+        shown = pick();
+        at = shown.findIndex((r) => r.id === this.revealing);
+      }
+      if (at >= 0) scrollTop = Math.max(0, at * ROW_H - (box.clientHeight || 400) / 2);
+      this.revealing = null;
+    }
+    this.shownIds = shown.map((r) => r.id);
+    const slice = visibleSlice(shown.length, ROW_H, scrollTop, box.clientHeight || 400);
     syncRows($("#units tbody"), shown.slice(slice.first, slice.last), {
       keyName: "unit",
       key: (r) => r.id,
@@ -230,6 +236,7 @@ export class PageView {
         tr.children[4].title = tr.children[4].textContent;
       },
     }, slice);
+    if (box.scrollTop !== scrollTop) box.scrollTop = scrollTop; // the rows are there to scroll to now
     $("#units-count").textContent = shown.length === rows.length ? `(${rows.length})` : `(${shown.length} of ${rows.length})`;
     this.seen(now);
   }
