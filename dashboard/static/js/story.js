@@ -133,7 +133,22 @@ export function placeLabels(items, bounds) {
   const boxes = (x, y, w, h) => ({ x0: x - w / 2, y0: y - h / 2, x1: x + w / 2, y1: y + h / 2 });
   const overlaps = (a, b) => a.x0 < b.x1 && b.x0 < a.x1 && a.y0 < b.y1 && b.y0 < a.y1;
   const inside = (a) => a.x0 >= bounds.x0 && a.y0 >= bounds.y0 && a.x1 <= bounds.x1 && a.y1 <= bounds.y1;
-  const taken = items.map((it) => ({ id: it.id, ...boxes(it.cx, it.cy, 2 * it.r, 2 * it.r) }));
+  // Boxes in buckets of a grid, so each spot is checked against its neighbours only: with 500
+  // units, checking every box against every other took most of a frame.
+  const size = Math.max(16, ...items.map((it) => Math.max(it.w, it.h, 2 * it.r)));
+  const buckets = new Map();
+  const cells = (b, visit) => {
+    for (let gx = Math.floor(b.x0 / size); gx <= Math.floor(b.x1 / size); gx++) {
+      for (let gy = Math.floor(b.y0 / size); gy <= Math.floor(b.y1 / size); gy++) visit(`${gx},${gy}`);
+    }
+  };
+  const add = (box) => cells(box, (k) => { if (!buckets.has(k)) buckets.set(k, []); buckets.get(k).push(box); });
+  const clashes = (box, id) => {
+    let hit = false;
+    cells(box, (k) => { hit ||= (buckets.get(k) ?? []).some((t) => t.id !== id && overlaps(box, t)); });
+    return hit;
+  };
+  for (const it of items) add({ id: it.id, ...boxes(it.cx, it.cy, 2 * it.r, 2 * it.r) });
   const placed = [];
   for (const it of items) {
     const gap = it.r + it.h / 2 + 1;
@@ -141,10 +156,11 @@ export function placeLabels(items, bounds) {
     const spots = [[it.cx, it.cy + gap], [it.cx, it.cy - gap], [it.cx + side, it.cy], [it.cx - side, it.cy]];
     for (const [x, y] of spots) {
       const box = boxes(x, y, it.w, it.h);
-      if (!inside(box) || taken.some((t) => t.id !== it.id && overlaps(box, t)) || placed.some((p) => overlaps(box, p.box))) continue;
-      placed.push({ id: it.id, x, y, w: it.w, h: it.h, box });
+      if (!inside(box) || clashes(box, it.id)) continue;
+      add({ id: null, ...box }); // a placed label: in the way of every other
+      placed.push({ id: it.id, x, y, w: it.w, h: it.h });
       break;
     }
   }
-  return placed.map(({ box, ...label }) => label);
+  return placed;
 }

@@ -140,7 +140,7 @@ export class PageView {
   /** The card of unit `id` beside the pointer at (x, y) on the map; null hides it. */
   hoverCard(id, x = 0, y = 0) {
     const card = $("#unit-card");
-    const row = id && this.unitRows().find((r) => r.id === id);
+    const row = id && this.view.units.has(id) ? this.unitRow(id) : null;
     if (!row) { card.hidden = true; return; }
     const [, link, square, status, job, load] = row.cells.map(([t]) => t);
     card.textContent = `${id} · ${link} · ${square}\n${status}\njob ${job} · ${load}`;
@@ -183,16 +183,19 @@ export class PageView {
   /** Each unit's row content, with its state for the filter. */
   unitRows() {
     const now = Date.now();
-    return this.unitIds().map((id) => {
-      const u = this.view.units.get(id);
-      const job = unitJob(this.view, id);
-      const queued = this.view.jobById.get(job);
-      const control = this.view.routes[id]?.control ?? null;
-      const phase = phaseText(queued, queued ? this.view.jobNumbers.of(queued.id) : null);
-      const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase);
-      const state = unitState(u, control, !!job, this.view.isSilent(u, now));
-      return { id, cells, state, status: cells[3][0], job, load: u.state?.load_kg ?? 0 };
-    });
+    return this.unitIds().map((id) => this.unitRow(id, now));
+  }
+
+  /** Unit `id`'s row content: its cells, its state, and what the search and sort read. */
+  unitRow(id, now = Date.now()) {
+    const u = this.view.units.get(id);
+    const job = unitJob(this.view, id);
+    const queued = this.view.jobById.get(job);
+    const control = this.view.routes[id]?.control ?? null;
+    const phase = phaseText(queued, queued ? this.view.jobNumbers.of(queued.id) : null);
+    const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase);
+    const state = unitState(u, control, !!job, this.view.isSilent(u, now));
+    return { id, cells, state, status: cells[3][0], job, load: u.state?.load_kg ?? 0 };
   }
 
   units(now, ui) {
