@@ -64,6 +64,9 @@ class SystemSpec:
     truth: Path | None = None  # processes only: the units write the world's ground truth here
     feed: bool = False  # processes only: submit the scenario's jobs and goals
     demo: bool = False  # with feed: keep random feasible jobs coming
+    robots: bool = (
+        True  # processes only: run the scenario's simulated units (not: they join from elsewhere)
+    )
 
 
 def cli(*args: str) -> list[str]:
@@ -245,15 +248,8 @@ class Assembly:
         system.children["coordinator"] = await sup.start(
             ChildSpec("coordinator", cli(*coordinator))
         )
-        # The units resume where they stood after a restart, next to the coordinator's jobs.
-        units_state = units_state_path(spec.db_path)
-        units_state.parent.mkdir(parents=True, exist_ok=True)
-        robots = cli("robots", *common, "--scenario", scenario, *step, "--state", str(units_state))
-        if spec.unit_workers > 1:
-            robots += ["--workers", str(spec.unit_workers)]
-        if spec.truth is not None:
-            robots += ["--truth", str(spec.truth)]
-        system.children["robots"] = await sup.start(ChildSpec("robots", robots))
+        if spec.robots:
+            system.children["robots"] = await sup.start(self._robots(common, step))
         if spec.dashboard_port is not None:
             assert system.ws_url is not None
             dashboard = cli(
@@ -281,6 +277,19 @@ class Assembly:
                 ChildSpec("operator", feed, restart=spec.demo)
             )
         return system
+
+    def _robots(self, common: list[str], step: list[str]) -> ChildSpec:
+        """The simulated units' process: they resume where they stood, beside the job store."""
+        spec = self.spec
+        units_state = units_state_path(spec.db_path)
+        units_state.parent.mkdir(parents=True, exist_ok=True)
+        scenario = str(spec.scenario.path)
+        robots = cli("robots", *common, "--scenario", scenario, *step, "--state", str(units_state))
+        if spec.unit_workers > 1:
+            robots += ["--workers", str(spec.unit_workers)]
+        if spec.truth is not None:
+            robots += ["--truth", str(spec.truth)]
+        return ChildSpec("robots", robots)
 
     # ---- either -------------------------------------------------------------------------
 

@@ -90,6 +90,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", type=int, default=5000, help="dashboard port (default 5000)")
     parser.add_argument("--db", type=Path, help="coordinator job database (default: per user)")
     parser.add_argument(
+        "--no-robots",
+        action="store_true",
+        help="start no simulated units: the scenario's units join from elsewhere (Webots, "
+        "real robots: robots/webots/README.md)",
+    )
+    parser.add_argument(
         "--workers",
         type=int,
         metavar="N",
@@ -164,6 +170,7 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         feed=True,
         demo=args.demo,
         unit_workers=workers,
+        robots=not args.no_robots,
     )
 
 

@@ -186,3 +186,29 @@ def test_up_stops_everything_when_its_output_is_closed(
     proc.stdout.close()  # the reader is gone; the next line `up` writes finds the pipe closed
     assert proc.wait(timeout=60) == 0
     wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
+
+
+@pytest.mark.timeout(180)
+def test_up_without_robots_runs_the_rest_for_units_that_join_from_elsewhere(
+    broker: BrokerThread, root: str, tmp_path: Path, playfield: Path
+) -> None:
+    # Webots units (robots/webots/README.md) or real ones take the scenario's ids: a simulated
+    # unit1 beside them would be a second unit1.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "system.cli", "up", "--no-robots", "--broker", broker.url]
+        + ["--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.2"]
+        + ["--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    out = Output(proc)
+    try:
+        out.wait(r"gridfleet is running: open http://127\.0\.0\.1:\d+", timeout=90)
+        started = set(re.findall(r"^\[(\w+) *\] started", out.text, re.M))
+        assert {"coordinator", "dashboard"} <= started and "robots" not in started, out.text
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text[-3000:]
+    assert "[robots" not in out.text
