@@ -194,10 +194,11 @@ def test_up_without_robots_runs_the_rest_for_units_that_join_from_elsewhere(
 ) -> None:
     # Webots units (robots/webots/README.md) or real ones take the scenario's ids: a simulated
     # unit1 beside them would be a second unit1.
+    command = [sys.executable, "-m", "system.cli", "up", "--no-robots", "--broker", broker.url]
+    command += ["--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.2"]
+    command += ["--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield)]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "system.cli", "up", "--no-robots", "--broker", broker.url]
-        + ["--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.2"]
-        + ["--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield)],
+        command,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
