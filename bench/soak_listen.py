@@ -99,7 +99,7 @@ class SoakListener:
                 self.events.append(StateSeen(now, who, square, busy))
             elif kind == "jobs":
                 view = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
-                for job in view.jobs:
+                for job in view.listed():  # finished jobs are listed apart (protocol 1.4)
                     if self.jobs.get(job.id) != job.state:
                         self.jobs[job.id] = job.state
                         self.events.append(JobSeen(now, job.id, job.state))

@@ -25,6 +25,8 @@ from gridfleet.scenario import JobSpec, Scenario, load_scenario
 from gridfleet.tasks import stop_on_signals, until_stopped
 from system.operator import Operator, operator_session
 
+DEMO_KEEP_MIN = 6  # jobs the demo keeps queued at least (by default one per unit)
+
 log = logging.getLogger("gridfleet.feed")
 
 
@@ -85,10 +87,14 @@ async def feed(
     scenario: Scenario,
     demo: bool,
     step: float,
-    keep_active: int,
+    keep_active: int | None = None,
     seed: int | None = None,
 ) -> None:
-    """Submit the scenario's work; in demo mode keep `keep_active` jobs in the queue forever."""
+    """Submit the scenario's work; in demo mode keep `keep_active` jobs in the queue forever.
+
+    By default a job per unit, and at least 6: 6 jobs kept 144 of 150 units idle.
+    """
+    keep, pace = demo_queue(len(scenario.units), step, keep_active)
     client_id = f"feeder-{uuid.uuid4().hex[:6]}"
     topics = Topics(root)
     async with operator_session(url, topics, client_id) as operator:
@@ -103,11 +109,17 @@ async def feed(
         while True:
             await operator.jobs_changed.wait()
             operator.jobs_changed.clear()
-            while operator.active_jobs() < keep_active:
+            while operator.active_jobs() < keep:
                 # Not onto obstacles the units have found (the coordinator would refuse it).
                 pickup, dropoff, mass = random_job(scenario, rng, fields, operator.obstacles)
                 await operator.submit_job(pickup, dropoff, mass)
-                await asyncio.sleep(step)  # pacing for the demo, not synchronisation
+                await asyncio.sleep(pace)  # pacing for the demo, not synchronisation
+
+
+def demo_queue(units: int, step: float, keep_active: int | None = None) -> tuple[int, float]:
+    """How many jobs the demo keeps queued, and the pause between two of its submissions (s)."""
+    keep = keep_active or max(DEMO_KEEP_MIN, units)
+    return keep, step / max(1, keep // DEMO_KEEP_MIN)  # a big fleet's queue refilled as fast
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -119,14 +131,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--step", type=float, default=0.5, help="pace of demo submissions (s)")
     parser.add_argument(
-        "--keep-active", type=int, default=6, help="jobs the demo keeps in the queue (default 6)"
+        "--keep-active",
+        type=int,
+        help=f"jobs the demo keeps in the queue (default one per unit, at least {DEMO_KEEP_MIN})",
     )
 
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet feed`; stopped by SIGTERM, perhaps mid-submission, cleanly."""
     check_step(args.step)
-    if args.keep_active < 1:
+    if args.keep_active is not None and args.keep_active < 1:
         raise ConfigError(f"--keep-active {args.keep_active}: give at least 1")
     scenario = load_scenario(args.scenario)
     url = broker_url(args, "operator")

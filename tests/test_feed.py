@@ -6,12 +6,14 @@ import random
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
+
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import FleetMap, Topics, encode
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
-from system.feed import random_job
+from system.feed import demo_queue, random_job
 from system.operator import operator_session
 
 from support.effects import header
@@ -91,3 +93,11 @@ async def test_a_malformed_fleet_map_changes_nothing_the_operator_knows(
         later = good.model_copy(update={"obstacles": [Cell(1, 0)]})
         probe.publish(topics.fleet("map"), encode(later))
         await async_wait_for(lambda: op.obstacles == {Cell(1, 0)}, what="the next good map")
+
+
+def test_the_demo_keeps_a_job_queued_for_every_unit() -> None:
+    # 150 units with 6 jobs kept queued: 144 stood idle through the whole demo (issue 19).
+    assert demo_queue(4, 0.5) == (6, 0.5)  # a small fleet: at least 6, one every step
+    keep, pace = demo_queue(150, 0.2)
+    assert keep == 150 and pace == pytest.approx(0.2 / 25)  # refilled within a step or so
+    assert demo_queue(150, 0.2, keep_active=10) == (10, 0.2)
