@@ -90,12 +90,13 @@ def test_a_frozen_idle_unit_is_not_sent_away_until_it_may_move() -> None:
     assert planner.parking("A") is None
 
 
-def test_parking_prefers_the_nearest_junction_and_falls_back_to_the_nearest_square() -> None:
+def test_parking_prefers_open_floor_and_falls_back_to_the_nearest_square() -> None:
     grid, _, _ = parse(
         """
         #######
         #.....#
         ###.###
+        ##...##
         ###.###
         #######
         """
@@ -103,12 +104,13 @@ def test_parking_prefers_the_nearest_junction_and_falls_back_to_the_nearest_squa
     nbrs = neighbour_table(grid)
     w = grid.width
     start = 1 * w + 1
-    junction = 1 * w + 3  # (3, 1): three free neighbours
-    assert parking_square(nbrs, start, avoid=set(), occupied=set()) == junction
-    # The junction is somebody's target: the nearest other square will do.
-    assert parking_square(nbrs, start, avoid={junction}, occupied=set()) == 1 * w + 2
+    junction = 1 * w + 3  # (3, 1): where three aisles meet, not a place to wait
+    open_floor = 3 * w + 3  # (3, 3): four free neighbours
+    assert parking_square(nbrs, start, avoid=set(), occupied=set()) == open_floor
+    # The open floor is somebody's target: the nearest other square will do.
+    assert parking_square(nbrs, start, avoid={open_floor}, occupied=set()) == 1 * w + 2
     # A square it must pass on the way is no obstacle to getting there.
-    assert parking_square(nbrs, start, avoid={1 * w + 2}, occupied=set()) == junction
+    assert parking_square(nbrs, start, avoid={1 * w + 2, junction}, occupied=set()) == open_floor
     # Every other square taken: nowhere to go.
     others = set(range(w * grid.height)) - {start}
     assert parking_square(nbrs, start, avoid=set(), occupied=others) is None

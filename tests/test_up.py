@@ -21,6 +21,24 @@ from support.wait import wait_for
 pytestmark = pytest.mark.slow
 
 
+def started_up(*args: str) -> tuple[subprocess.Popen[str], Output]:
+    """`gridfleet up ARGS`, once it says it is running (its output read as it comes)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "system.cli", "up", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    out = Output(proc)
+    try:
+        out.wait(r"gridfleet is running: open http://127\.0\.0\.1:\d+", timeout=90)
+    except BaseException:
+        proc.kill()
+        proc.wait(30)
+        raise
+    return proc, out
+
+
 @pytest.mark.timeout(240)  # its waits (start 90 s, stop 60 s) are the limits that matter
 def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
     broker: BrokerThread,
@@ -30,34 +48,11 @@ def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
     playfield: Path,
 ) -> None:
     topics = Topics(root)
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "system.cli",
-            "up",
-            "--broker",
-            broker.url,
-            "--broker-ws",
-            broker.ws_url,
-            "--root",
-            root,
-            "--port",
-            "0",
-            "--step",
-            "0.05",
-            "--db",
-            str(tmp_path / "jobs.db"),
-            "--scenario",
-            str(playfield),
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    out = Output(proc)
+    proc, out = started_up(
+        "--broker", broker.url, "--broker-ws", broker.ws_url, "--root", root, "--port", "0",
+        "--step", "0.05", "--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield),
+    )  # fmt: skip
     try:
-        out.wait(r"gridfleet is running: open http://127\.0\.0\.1:\d+", timeout=90)
         probe = probe_factory()
         probe.subscribe(topics.all_units("state"), qos=0)
         # Every unit of the playfield is online and moving through the real components.
@@ -194,18 +189,12 @@ def test_up_without_robots_runs_the_rest_for_units_that_join_from_elsewhere(
 ) -> None:
     # Webots units (robots/webots/README.md) or real ones take the scenario's ids: a simulated
     # unit1 beside them would be a second unit1.
-    command = [sys.executable, "-m", "system.cli", "up", "--no-robots", "--broker", broker.url]
-    command += ["--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.2"]
-    command += ["--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield)]
-    proc = subprocess.Popen(
-        command,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    out = Output(proc)
+    proc, out = started_up(
+        "--no-robots", "--broker", broker.url, "--broker-ws", broker.ws_url, "--root", root,
+        "--port", "0", "--step", "0.2", "--db", str(tmp_path / "jobs.db"),
+        "--scenario", str(playfield),
+    )  # fmt: skip
     try:
-        out.wait(r"gridfleet is running: open http://127\.0\.0\.1:\d+", timeout=90)
         started = set(re.findall(r"^\[(\w+) *\] started", out.text, re.M))
         assert {"coordinator", "dashboard"} <= started and "robots" not in started, out.text
     finally:

@@ -222,17 +222,23 @@ export function drawFleet(canvas, view, now, ui, box = null) {
   return L;
 }
 
+/** An off-screen canvas the size of the view (`canvas` again, or a new one), cleared. */
+function layerCanvas(canvas, L, dpr) {
+  const layer = canvas ?? document.createElement("canvas");
+  layer.width = Math.round(L.w * dpr);
+  layer.height = Math.round(L.h * dpr);
+  const g = layer.getContext("2d");
+  g.setTransform(dpr, 0, 0, dpr, 0, 0);
+  g.clearRect(0, 0, L.w, L.h);
+  return [layer, g];
+}
+
 const markerCache = { jobs: null, key: "", canvas: null, text: "" };
 
 function markerLayer(view, L, dpr, selectedJob, byState) {
   const key = `${L.w}x${L.h}@${dpr}:${L.cell}:${L.ox},${L.oy}:${selectedJob}:${byState}`;
   if (markerCache.jobs === view.jobs && markerCache.key === key) return markerCache;
-  const canvas = markerCache.canvas ?? document.createElement("canvas");
-  canvas.width = Math.round(L.w * dpr);
-  canvas.height = Math.round(L.h * dpr);
-  const g = canvas.getContext("2d");
-  g.setTransform(dpr, 0, 0, dpr, 0, 0);
-  g.clearRect(0, 0, L.w, L.h);
+  const [canvas, g] = layerCanvas(markerCache.canvas, L, dpr);
   const c = L.cell;
   const at = (x, y) => [L.ox + x * c, L.oy + y * c];
   const mid = (x, y) => [L.ox + (x + 0.5) * c, L.oy + (y + 0.5) * c];
@@ -285,12 +291,7 @@ const baseCache = { map: null, key: "", canvas: null };
 function baseLayer(map, L, dpr) {
   const key = `${L.w}x${L.h}@${dpr}:${L.cell}:${L.ox},${L.oy}`;
   if (baseCache.map === map && baseCache.key === key) return baseCache.canvas;
-  const canvas = baseCache.canvas ?? document.createElement("canvas");
-  canvas.width = Math.round(L.w * dpr);
-  canvas.height = Math.round(L.h * dpr);
-  const g = canvas.getContext("2d");
-  g.setTransform(dpr, 0, 0, dpr, 0, 0);
-  g.clearRect(0, 0, L.w, L.h);
+  const [canvas, g] = layerCanvas(baseCache.canvas, L, dpr);
   const c = L.cell;
   g.fillStyle = "#fafafa";
   g.fillRect(L.ox, L.oy, map.width * c, map.height * c);
