@@ -41,7 +41,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
 from gridfleet.protocol.stop import LATCH, STOP_KINDS, stop_filters
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.tasks import cancel_and_wait, stop_on_signals, until_stopped
 
 log = logging.getLogger("gridfleet.status")
 WAIT_S = 10.0
@@ -288,7 +288,16 @@ def run(args: argparse.Namespace) -> int:
     except ProtocolError as exc:
         raise ConfigError(f"--root: {exc}") from None
     url = broker_url(args, "operator")
+
+    async def main() -> int:
+        # Ctrl-C, SIGTERM or a closed terminal is how the view is left; handled here, not by
+        # Python's default, which a shell's background job (SIGINT ignored) never gets.
+        done = await until_stopped(
+            show(url, root, args.once, args.timeout, sys.stdout), stop_on_signals()
+        )
+        return 0 if done is None else done
+
     try:
-        return asyncio.run(show(url, root, args.once, args.timeout, sys.stdout))
+        return asyncio.run(main())
     except KeyboardInterrupt:
-        return 0  # Ctrl-C is how the view is left
+        return 0  # a Ctrl-C before the handlers are in place

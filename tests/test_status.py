@@ -6,7 +6,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -33,6 +32,7 @@ from system.status import CLEAR, FleetStatus, render
 from system.threads import ServiceThread
 
 from support.effects import header
+from support.output import Output
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -237,15 +237,19 @@ def test_status_redraws_until_ctrl_c(broker: BrokerThread, root: str) -> None:
     watching = subprocess.Popen(
         [sys.executable, "-m", "system", "status", "--broker", broker.url, "--root", root],
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
         text=True,
     )
+    output = Output(watching)
     try:
-        time.sleep(3.5)  # starting up, then a drawing a second
+        # Two drawings (a second apart) before the Ctrl-C; CI saw a fixed 3.5 s fall short.
+        wait_for(lambda: output.text.count("(Ctrl-C to quit)") >= 2, 30, what="two drawings")
     finally:
         os.kill(watching.pid, signal.SIGINT)
-        out, err = watching.communicate(timeout=20)
-    assert watching.returncode == 0, err
+        watching.wait(timeout=20)
+        output.wait_closed()
+    out = output.text
+    assert watching.returncode == 0, out[-2000:]
     drawings = out.split(CLEAR)[1:]
     assert len(drawings) >= 2, out
     assert drawings[-1].splitlines()[1:4] == [

@@ -40,6 +40,12 @@ class Output:
             what=f"output matching {pattern!r}",
         )
 
+    def wait_closed(self, timeout: float = 10) -> None:
+        """Wait until the process's output has ended and every line of it is read."""
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            raise TimeoutError(f"the output did not end within {timeout:g} s")
+
     @property
     def text(self) -> str:
         """Everything so far."""
