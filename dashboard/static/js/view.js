@@ -103,9 +103,7 @@ export class PageView {
   constructor(view) {
     this.view = view;
     this.mapBox = null; // the map's box, {width, height}, from a ResizeObserver
-    this.shownIds = []; // the unit rows after search, filter and sort, in order
     this.revealing = null; // a unit whose row the next fill scrolls to
-    this.sortedIds = []; // every unit, by name
     for (const id of ["#unit-search", "#unit-filter", "#unit-sort"]) {
       $(id)?.addEventListener("input", () => { $("#units-box").scrollTop = 0; this.onChange?.(); });
     }
@@ -133,8 +131,7 @@ export class PageView {
 
   /** Every unit id, in order (for the goal form's list). */
   unitIds() {
-    if (this.sortedIds.length !== this.view.units.size) this.sortedIds = [...this.view.units.keys()].sort();
-    return this.sortedIds;
+    return [...this.view.units.keys()].sort();
   }
 
   /** The card of unit `id` beside the pointer at (x, y) on the map; null hides it. */
@@ -215,7 +212,6 @@ export class PageView {
       if (at >= 0) scrollTop = Math.max(0, at * ROW_H - (box.clientHeight || 400) / 2);
       this.revealing = null;
     }
-    this.shownIds = shown.map((r) => r.id);
     const slice = visibleSlice(shown.length, ROW_H, scrollTop, box.clientHeight || 400);
     syncRows($("#units tbody"), shown.slice(slice.first, slice.last), {
       keyName: "unit",
