@@ -16,7 +16,6 @@ from gridfleet.protocol import Header, JobsView, JobView
 from gridfleet.protocol.messages import CHART_MINUTES, FINAL_JOB_STATES, FINISHED_LISTED
 
 ACTIVE_STATES = frozenset({"assigned", "to_pickup", "loaded", "to_dropoff"})
-
 CARRYING_STATES = frozenset({"loaded", "to_dropoff"})
 
 

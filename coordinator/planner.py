@@ -123,7 +123,9 @@ class Planner:
                 self._parking.pop(a, None)
                 continue
             park = self._parking.get(a)
-            if park is not None and (park == s.position or park in wanted or not self._open(park)):
+            if park is not None and (
+                park == s.position or park in wanted or not self._grid.is_free(park)
+            ):
                 del self._parking[a]
                 park = None
             if park is None and s.position in wanted and not s.frozen:
@@ -134,9 +136,6 @@ class Planner:
                     out = dict(agents)
                 out[a] = AgentSpec(s.position, park, s.frozen)
         return out
-
-    def _open(self, cell: Cell) -> bool:
-        return self._grid.in_bounds(cell) and bool(self._free[cell.y * self._grid.width + cell.x])
 
     def _park(self, here: Cell, wanted: set[Cell], agents: dict[str, AgentSpec]) -> Cell | None:
         # Off every target and off the way of those coming for `here`: parking on their way
