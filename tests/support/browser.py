@@ -47,6 +47,8 @@ class OpenDashboard:
     def click_square(self, x: int, y: int) -> None:
         """Click the centre of square (x, y) on the map canvas."""
         canvas = self.page.locator("#map")
+        # Once the map is drawn (at most a tenth of a second after it arrives) it has a layout.
+        self.page.wait_for_function("document.querySelector('#map').dataset.cell !== undefined")
         cell, ox, oy = (
             float(canvas.get_attribute(f"data-{k}") or "nan") for k in ("cell", "ox", "oy")
         )

@@ -189,6 +189,7 @@ class Dashboard {
     }
     if (parsed.kind === "estop") this.localStop = false;
     if (!PANEL_ONLY.has(parsed.kind)) this.dirty = true;
+    if (parsed.kind === "map") this.mapUrgent = true; // rare, and the map's layout hangs on it
     this.panelDirty = true;
   }
 
