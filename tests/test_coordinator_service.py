@@ -348,7 +348,10 @@ async def test_a_burst_of_requests_gets_one_queue_view_per_batch_period_and_the_
                 what="a view listing all 40 jobs",
             )
             burst_s = replies[-1].at - replies[0].at
-            assert len(views) <= 2 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
+            # The first request's view, one per period the burst spans, the trailing one; plus one
+            # period of slack, as the burst is timed here, not on the coordinator's clock (CI once
+            # saw 3 views for a 48 ms burst). Without batching this would be 40 views.
+            assert len(views) <= 3 + burst_s / VIEWS_BATCH_S, (len(views), burst_s)
 
 
 async def test_a_submit_retried_after_a_restart_gets_its_first_answer_and_no_second_job(
