@@ -15,8 +15,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from operator import itemgetter
 
-import numpy as np
-
 from coordinator.pibt_swap import swap_partner
 from gridfleet.grid import GridMap
 
@@ -52,14 +50,14 @@ class PIBT:
         nbrs: Sequence[tuple[Index, ...]],
         pos: list[Index],
         goal: list[Index],
-        fields: list[np.ndarray | None],
+        fields: Sequence[Sequence[int] | None],
         settled: list[bool],
         rand: Callable[[], float],
     ) -> None:
         self.nbrs = nbrs
         self.pos = pos
         self.goal = goal  # target square, or NONE
-        self.fields = fields  # flat distance field towards the target, or None
+        self.fields = fields  # flat distance field towards the target (plain ints), or None
         self.settled = settled  # no target, or already on it
         self.rand = rand  # the last tie-breaker: the planner's seeded stream
         self.occupant: dict[Index, int] = {p: i for i, p in enumerate(pos)}
@@ -92,7 +90,7 @@ class PIBT:
     def dist(self, i: int, square: Index) -> int:
         """Steps from `square` to agent `i`'s target (0 for an agent without one)."""
         f = self.fields[i]
-        return 0 if f is None else int(f[square])
+        return 0 if f is None else f[square]
 
     def push(self, i: int, pusher: int | None = None) -> bool:
         """Move `i` to its best square still open, pushing its occupant along; False: it stays."""

@@ -24,6 +24,7 @@ import numpy as np
 
 from coordinator.parking import parking_square
 from coordinator.pibt import NONE, PIBT, neighbour_table
+from coordinator.unjam import Unjam
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance
 
@@ -47,6 +48,7 @@ class Planner:
 
     def __init__(self, grid: GridMap, seed: int = 0, cache_size: int = 4096) -> None:
         self._rng = np.random.default_rng(seed)
+        self._seed = seed
         self._cache_size = cache_size
         self._priority: dict[str, float] = {}
         self._tiebreak: dict[str, float] = {}
@@ -64,6 +66,10 @@ class Planner:
         self.cache = DistanceFieldCache(grid, size=self._cache_size)
         self._free = ~grid.blocked.reshape(-1)
         self._nbrs = neighbour_table(grid)
+        w = grid.width
+        self.unjam = Unjam(
+            self._nbrs, lambda sq: self.cache.flat(Cell(sq % w, sq // w)), self._seed
+        )
 
     def add_obstacles(self, cells: Iterable[Cell]) -> None:
         """Block newly discovered squares and re-plan around them."""
@@ -93,18 +99,21 @@ class Planner:
         for a, p in zip(names, pos, strict=True):
             if not self._free[p]:
                 raise ValueError(f"agent {a} stands on a blocked square {agents[a].position}")
-        fields = [None if s.target is None else self.cache.get(s.target).reshape(-1) for s in specs]
         settled = [s.settled for s in specs]
         order = self._urgent_first(names, settled, urgency or {})
         goal = [NONE if s.target is None else s.target.y * w + s.target.x for s in specs]
-        search = PIBT(self._nbrs, pos, goal, fields, settled, self._rng.random)
-        for c in reserved:
-            if self._grid.in_bounds(c):
-                search.reserve(c.y * w + c.x)
-        for i, s in enumerate(specs):
-            if s.frozen:
-                search.freeze(i)
-        moves = search.run(order)
+        held = {c.y * w + c.x for c in reserved if self._grid.in_bounds(c)}
+        frozen = [s.frozen for s in specs]
+        moves = self.unjam.moves(names, pos, goal, frozen, held)
+        if moves is None:
+            fields = [None if s.target is None else self.cache.flat(s.target) for s in specs]
+            search = PIBT(self._nbrs, pos, goal, fields, settled, self._rng.random)
+            for square in held:
+                search.reserve(square)
+            for i, still in enumerate(frozen):
+                if still:
+                    search.freeze(i)
+            moves = search.run(order)
         for a, done in zip(names, settled, strict=True):
             if not done:
                 self._priority[a] += 1.0

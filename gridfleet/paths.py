@@ -109,6 +109,12 @@ class DistanceFieldCache:
             self._fields.move_to_end(target)
         return field
 
+    def flat(self, target: Cell) -> memoryview:
+        """The field towards `target` by flat index (y * width + x), read as plain ints."""
+        # A memoryview over the same memory: indexing it gives a Python int, several times
+        # cheaper than a numpy scalar in the planner's hot loop, with no copy kept.
+        return self.get(target).reshape(-1).data
+
     def distance(self, start: Cell, target: Cell) -> int:
         """Path length from `start` to `target` (UNREACHABLE when cut off)."""
         return distance(self.get(target), start)

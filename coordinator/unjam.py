@@ -1,0 +1,151 @@
+"""The planner's way out of a livelock: notice the fleet going round in circles, then search.
+
+PIBT is fast but incomplete: with fixed targets a few agents can push each other back and forth
+forever while the rest wait on their targets. `Unjam` notes every configuration the fleet enters
+while the targets stay the same; one entered a third time means going round in circles, and so do
+STALL steps in a row none of which brought the fleet nearer its targets in all. Then
+LaCAM (`coordinator.lacam`) searches a way for everyone from there, and the planner follows it a
+configuration at a time. Units move asynchronously: an agent takes its next square of the plan
+when it stands on its square of the current one, only when whoever holds that square leaves it in
+the same step, and the plan goes on once every agent is where it says.
+
+Pure: flat squares in (y * width + x, as `coordinator.pibt`), next squares out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from coordinator.lacam import Config, LaCAM, NoSolution
+from coordinator.pibt import NONE, Index
+
+REVISITS = 2  # a configuration entered this many times again means a livelock
+STALL = 64  # ...and so do this many steps in a row without getting nearer the targets
+SEARCH_NODES = 2000  # LaCAM's first budget, in configurations; doubled on each retry...
+MAX_SEARCH_NODES = 64_000  # ...up to this
+PATIENCE = 16  # steps the fleet may take to reach the plan's next configuration before it is
+# dropped (a unit lost or stopped would hold the others on a plan that cannot go on)
+
+
+@dataclass
+class Unjam:
+    """Livelock detection and the plan out of it; kept by the planner between steps."""
+
+    nbrs: Sequence[tuple[Index, ...]]
+    field_of: Callable[[Index], Sequence[int]]  # the distance field towards a square
+    seed: int = 0
+    search_nodes: int = SEARCH_NODES
+    searches: int = 0  # how many times a livelock was seen and searched out of
+    _key: tuple[tuple[str, ...], Config] | None = None
+    _entered: dict[Config, int] = field(default_factory=dict)
+    _last: Config | None = None
+    _nearest: int = 0  # the least total distance to the targets seen under this key
+    _stalled: int = 0  # steps since that least distance was seen
+    _failed: int = 0  # searches out of budget under this key
+    _retry_at: float = REVISITS + 1
+    _plan: list[Config] | None = None
+    _at: int = 0  # the plan's configuration the fleet has last reached in full
+    _waited: int = 0  # steps since it reached it
+
+    def moves(
+        self,
+        names: Sequence[str],
+        pos: Sequence[Index],
+        goal: Sequence[Index],
+        frozen: Sequence[bool],
+        reserved: set[Index],
+    ) -> list[Index] | None:
+        """Next squares while getting out of a livelock; None: plan this step as usual."""
+        key = (tuple(names), tuple(goal))
+        if key != self._key:
+            self._reset(key)
+        config = tuple(pos)
+        if self._plan is not None:
+            out = self._follow(config, frozen, reserved)
+            if out is not None:
+                return out
+        if all(g in (NONE, p) for p, g in zip(pos, goal, strict=True)):
+            return None
+        entered = self._entered.get(config, 0)
+        if config != self._last:
+            self._last = config
+            entered = self._entered[config] = entered + 1
+        total = sum(self.field_of(g)[p] for p, g in zip(pos, goal, strict=True) if g != NONE)
+        if self._stalled == 0 or total < self._nearest:
+            self._nearest, self._stalled = total, 0
+        self._stalled += 1
+        if entered < self._retry_at and self._stalled < STALL * (self._retry_at - REVISITS):
+            return None
+        self._stalled = 1
+        self._search(config, goal, entered)
+        return None if self._plan is None else self._follow(config, frozen, reserved)
+
+    @property
+    def following(self) -> bool:
+        """Is a plan out of a livelock being followed?"""
+        return self._plan is not None
+
+    def _reset(self, key: tuple[tuple[str, ...], Config]) -> None:
+        self._key = key
+        self._entered.clear()
+        self._last = None
+        self._stalled = 0
+        self._failed = 0
+        self._retry_at = REVISITS + 1
+        self._plan = None
+
+    def _search(self, config: Config, goal: Sequence[Index], entered: int) -> None:
+        # An agent with no target stays where it is at the end, though it may make way meanwhile.
+        goals = [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
+        search = LaCAM(self.nbrs, config, goals, [self.field_of(g) for g in goals], self.seed)
+        budget = min(self.search_nodes << self._failed, MAX_SEARCH_NODES)
+        self.searches += 1
+        try:
+            plan = search.solve(lambda: search.nodes >= budget)
+        except NoSolution:
+            self._retry_at = float("inf")  # not with these targets: wait for them to change
+            return
+        if plan is None:
+            self._retry_at = 2 * entered  # out of budget: try again later with more
+            self._failed += 1
+            return
+        self._plan, self._at, self._waited = plan, 0, -1
+
+    def _follow(
+        self, config: Config, frozen: Sequence[bool], reserved: set[Index]
+    ) -> list[Index] | None:
+        plan = self._plan
+        assert plan is not None
+        self._waited += 1
+        while self._at + 1 < len(plan) and config == plan[self._at + 1]:
+            self._at += 1
+            self._waited = 0
+        if self._at + 1 >= len(plan):
+            self._plan = None  # done: everyone is on the plan's last configuration
+            return None
+        now, nxt = plan[self._at], plan[self._at + 1]
+        if self._waited > PATIENCE or any(
+            c != a and c != b for c, a, b in zip(config, now, nxt, strict=True)
+        ):
+            # Held up, or the fleet left the plan (a unit was moved by hand, say): PIBT again,
+            # and no new search before this configuration has come round twice as often.
+            self._plan = None
+            self._retry_at = max(self._retry_at, 2 * self._entered.get(config, 1))
+            self._stalled = 1
+            return None
+        moving = {
+            i
+            for i, (c, a, b) in enumerate(zip(config, now, nxt, strict=True))
+            if c == a != b and not frozen[i] and b not in reserved
+        }
+        holder = {c: i for i, c in enumerate(config)}
+        held = True
+        while held:  # drop moves into squares whose holders stay; repeat, as those stay too
+            held = False
+            for i in list(moving):
+                h = holder.get(nxt[i])
+                if h is not None and h not in moving:
+                    moving.discard(i)
+                    held = True
+        return [nxt[i] if i in moving else c for i, c in enumerate(config)]

@@ -1,0 +1,186 @@
+"""LaCAM and the planner's livelock fallback: complete where PIBT is not, validator-clean."""
+
+from __future__ import annotations
+
+import random
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import connected_components
+
+from bench.anchors import ScenAgent
+from bench.runs import run_one_shot
+from coordinator.lacam import LaCAM, NoSolution, is_valid_move
+from coordinator.pibt import neighbour_table
+from coordinator.planner import Planner
+from coordinator.unjam import PATIENCE, Unjam
+from coordinator.validate import validate_plan
+from gridfleet.grid import Cell, GridMap
+from gridfleet.paths import DistanceFieldCache, adjacency
+
+
+def random_problem(
+    seed: int, size: int, density: float, share: float
+) -> tuple[GridMap, list[ScenAgent]]:
+    """A seeded random map and `share` of its largest region's squares as agents' starts/goals."""
+    rng = np.random.default_rng(seed)
+    grid = GridMap(rng.random((size, size)) < density)
+    labels = connected_components(adjacency(grid), directed=False)[1].reshape(size, size)
+    free = ~grid.blocked
+    ys, xs = np.nonzero(free & (labels == np.bincount(labels[free]).argmax()))
+    cells = [Cell(int(x), int(y)) for x, y in zip(xs, ys, strict=True)]
+    pick = random.Random(seed)
+    n = int(len(cells) * share)
+    starts, goals = pick.sample(cells, n), pick.sample(cells, n)
+    return grid, [ScenAgent(s, g) for s, g in zip(starts, goals, strict=True)]
+
+
+def lacam(grid: GridMap, starts: list[Cell], goals: list[Cell]) -> LaCAM:
+    w = grid.width
+    cache = DistanceFieldCache(grid)
+    return LaCAM(
+        neighbour_table(grid),
+        [c.y * w + c.x for c in starts],
+        [c.y * w + c.x for c in goals],
+        [cache.flat(g) for g in goals],
+    )
+
+
+def cells(grid: GridMap, plan: list[tuple[int, ...]]) -> list[list[Cell]]:
+    return [[Cell(s % grid.width, s // grid.width) for s in config] for config in plan]
+
+
+def test_a_valid_move_may_stay_and_follow_a_unit_that_leaves() -> None:
+    assert is_valid_move((0, 1, 5), (1, 2, 5))  # 0 follows 1 along; 5 stays
+
+
+@pytest.mark.parametrize(
+    ("before", "after", "what"),
+    [
+        ((0, 2), (1, 1), "two on one square"),
+        ((0, 1), (1, 0), "a swap"),
+        ((0, 1, 3), (1, 3, 0), "a rotation of three"),
+        ((0, 1, 2, 5), (1, 2, 5, 0), "a rotation of four"),
+    ],
+)
+def test_an_invalid_move_is_refused(
+    before: tuple[int, ...], after: tuple[int, ...], what: str
+) -> None:
+    assert not is_valid_move(before, after), what
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_lacam_plans_from_the_starts_to_the_goals_and_breaks_no_rule(seed: int) -> None:
+    grid, agents = random_problem(seed, size=10, density=0.1, share=0.4)
+    search = lacam(grid, [a.start for a in agents], [a.goal for a in agents])
+    plan = search.solve()
+    assert plan is not None
+    assert plan[0] == search.starts and plan[-1] == search.goals
+    assert validate_plan(grid, cells(grid, plan)) == []
+
+
+def test_three_units_on_a_ring_of_four_get_round_by_the_free_square() -> None:
+    grid = GridMap.from_rows(["..", ".."])
+    ring = [Cell(0, 0), Cell(1, 0), Cell(1, 1), Cell(0, 1)]
+    plan = lacam(grid, ring[:3], ring[1:]).solve()  # each to the next square round
+    assert plan is not None and plan[-1] == (1, 3, 2)
+    assert validate_plan(grid, cells(grid, plan)) == []
+
+
+def test_four_units_on_a_ring_of_four_cannot_rotate() -> None:
+    # A rotation would do it in one step, but asynchronous units would each wait for the next.
+    grid = GridMap.from_rows(["..", ".."])
+    ring = [Cell(0, 0), Cell(1, 0), Cell(1, 1), Cell(0, 1)]
+    with pytest.raises(NoSolution, match="4 agents"):
+        lacam(grid, ring, ring[1:] + ring[:1]).solve()
+
+
+def test_two_units_that_must_swap_in_a_corridor_have_no_solution() -> None:
+    grid = GridMap.from_rows(["..."])
+    with pytest.raises(NoSolution, match="2 agents"):
+        lacam(grid, [Cell(0, 0), Cell(1, 0)], [Cell(1, 0), Cell(0, 0)]).solve()
+
+
+def test_a_search_told_to_stop_returns_none() -> None:
+    grid, agents = random_problem(1, size=10, density=0.1, share=0.4)
+    assert (
+        lacam(grid, [a.start for a in agents], [a.goal for a in agents]).solve(lambda: True) is None
+    )
+
+
+# PIBT alone leaves 2 of these 30 agents short of their goals, pushing each other back and forth.
+LIVELOCK = (2, 8, 0.1, 0.5)
+
+
+def test_pibt_alone_livelocks_on_this_problem() -> None:
+    grid, agents = random_problem(*LIVELOCK)
+    planner = Planner(grid)
+    planner.unjam.search_nodes = 0  # the search gives up at once: plain PIBT
+    result = run_one_shot(grid, agents, max_steps=300, planner=planner)
+    assert not result.solved and result.at_goal < len(agents)
+
+
+def test_the_planner_notices_the_livelock_and_searches_its_way_out() -> None:
+    grid, agents = random_problem(*LIVELOCK)
+    planner = Planner(grid)
+    result = run_one_shot(grid, agents, max_steps=300, planner=planner)
+    assert result.solved and result.at_goal == len(agents)
+    assert result.violations == 0
+    assert planner.unjam.searches >= 1
+
+
+def test_400_agents_on_a_32_by_32_map_all_reach_their_goals() -> None:
+    grid, agents = random_problem(0, size=32, density=0.1, share=0.43)
+    assert len(agents) >= 390
+    result = run_one_shot(grid, agents, max_steps=1000, planner=Planner(grid))
+    assert result.solved and result.violations == 0
+
+
+def line_unjam() -> tuple[Unjam, list[str], list[int]]:
+    """An Unjam on a line of 6 squares, for two agents going from 0 and 1 to 2 and 3."""
+    grid = GridMap.from_rows(["......"])
+    cache = DistanceFieldCache(grid)
+    return Unjam(neighbour_table(grid), lambda s: cache.flat(Cell(s, 0))), ["a", "b"], [2, 3]
+
+
+def trip(unjam: Unjam, names: list[str], goal: list[int]) -> list[int] | None:
+    """Enter (0, 1) three times, as a fleet going round in circles would: a search follows."""
+    for pos in ([0, 1], [1, 2], [0, 1], [1, 2]):
+        assert unjam.moves(names, pos, goal, [False, False], set()) is None
+    return unjam.moves(names, [0, 1], goal, [False, False], set())
+
+
+def test_a_configuration_entered_a_third_time_starts_a_search_and_its_plan_is_followed() -> None:
+    unjam, names, goal = line_unjam()
+    assert trip(unjam, names, goal) == [1, 2]
+    assert unjam.following and unjam.searches == 1
+    assert unjam.moves(names, [1, 2], goal, [False, False], set()) == [2, 3]
+    assert unjam.moves(names, [2, 3], goal, [False, False], set()) is None  # arrived: PIBT again
+    assert not unjam.following
+
+
+def test_a_unit_that_cannot_move_holds_the_one_behind_it_and_a_held_plan_is_dropped() -> None:
+    unjam, names, goal = line_unjam()
+    trip(unjam, names, goal)
+    for _ in range(PATIENCE):
+        # b is frozen (still moving, or stopped): a may not enter the square b holds.
+        assert unjam.moves(names, [0, 1], goal, [False, True], set()) == [0, 1]
+    assert unjam.moves(names, [0, 1], goal, [False, True], set()) is None
+    assert not unjam.following
+
+
+def test_a_reserved_square_is_not_entered_on_the_plan() -> None:
+    unjam, names, goal = line_unjam()
+    trip(unjam, names, goal)
+    assert unjam.moves(names, [0, 1], goal, [False, False], {2}) == [0, 1]
+
+
+def test_a_fleet_that_leaves_the_plan_or_new_targets_drop_it() -> None:
+    unjam, names, goal = line_unjam()
+    trip(unjam, names, goal)
+    assert unjam.moves(names, [0, 4], goal, [False, False], set()) is None  # b was moved by hand
+    assert not unjam.following
+    unjam, names, goal = line_unjam()
+    trip(unjam, names, goal)
+    assert unjam.moves(names, [0, 1], [2, 5], [False, False], set()) is None
+    assert not unjam.following
