@@ -65,11 +65,18 @@ def allocate(
     grid = cache.grid
     weight = float(grid.width * grid.height * 2 + 1)  # more than any travel on this map
     cost = np.full((len(jobs), len(units)), INFEASIBLE)
+    # One row at a time, all units at once: what `feasible` says of each pair, in numpy (a
+    # Python loop over pairs took most of a tick with hundreds of idle units and queued jobs).
+    inside = np.array([grid.in_bounds(u.position) for u in units])
+    at = np.array([u.position.y * grid.width + u.position.x for u in units]) * inside
+    capacity = np.where(inside, [u.capacity_kg for u in units], -np.inf)  # off the map: none
     for r, job in enumerate(jobs):
-        for c, unit in enumerate(units):
-            travel = feasible(cache, unit, job)
-            if travel is not None:
-                cost[r, c] = travel - weight * job.priority
+        carry = cache.distance(job.pickup, job.dropoff)
+        if carry == UNREACHABLE:
+            continue
+        to_pickup = cache.get(job.pickup).reshape(-1)[at]
+        ok = (to_pickup != UNREACHABLE) & (capacity >= job.mass_kg)
+        cost[r, ok] = to_pickup[ok] + carry - weight * job.priority
     rows, cols = linear_sum_assignment(cost)
     return {
         jobs[r].id: units[c].id

@@ -109,3 +109,26 @@ def test_impossible_mass_is_named_with_the_largest_capacity() -> None:
     assert reason == "mass 50.0 kg exceeds every unit's capacity (largest 20.0 kg)"
     assert capacity_reason(20.0, [2.0, 20.0]) is None
     assert capacity_reason(1.0, []) is None  # no unit known yet: wait, do not reject
+
+
+@settings(max_examples=100, deadline=None)
+@given(fleets())
+def test_every_pair_allocated_is_feasible_and_no_job_is_left_to_an_idle_unit_able_to_do_it(
+    fleet: tuple[list[UnitSlot], list[JobRequest]],
+) -> None:
+    units, jobs = fleet
+    pairs = allocate(CACHE, units, jobs)
+    by_id = {u.id: u for u in units}
+    travel = [feasible(CACHE, by_id[u], j) for j in jobs if (u := pairs.get(j.id))]
+    assert None not in travel
+    # The pairs are maximal: no job left out could have been done by a unit left idle.
+    idle = [u for u in units if u.id not in pairs.values()]
+    for job in jobs:
+        if job.id not in pairs:
+            assert all(feasible(CACHE, u, job) is None for u in idle)
+
+
+def test_a_unit_reported_off_the_map_gets_no_job() -> None:
+    job = JobRequest("j", FREE[0], FREE[1], 1.0)
+    assert allocate(CACHE, [UnitSlot("lost", Cell(-1, 99), 10.0)], [job]) == {}
+    assert allocate(CACHE, [UnitSlot("u", FREE[2], 10.0)], [job]) == {"j": "u"}
