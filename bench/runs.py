@@ -49,6 +49,16 @@ class Timing:
         return 1000 * float(np.percentile(self.seconds, 95)) if self.seconds else 0.0
 
     @property
+    def p99_ms(self) -> float:
+        """99th-percentile step time in milliseconds."""
+        return 1000 * float(np.percentile(self.seconds, 99)) if self.seconds else 0.0
+
+    @property
+    def mean_ms(self) -> float:
+        """Mean step time in milliseconds."""
+        return 1000 * statistics.fmean(self.seconds) if self.seconds else 0.0
+
+    @property
     def max_ms(self) -> float:
         """Slowest step in milliseconds (the first step computes most distance fields)."""
         return 1000 * max(self.seconds) if self.seconds else 0.0
@@ -83,7 +93,7 @@ class OneShotResult:
 
 
 @dataclass
-class _CheckedPlanner:
+class CheckedPlanner:
     """Steps a planner, timing each step and checking it with the plan validator (untimed)."""
 
     planner: StepPlanner
@@ -118,7 +128,7 @@ def run_lifelong(
     revealed = instance.agents
     finished = 0
     exhausted_at: int | None = None
-    checked = _CheckedPlanner(planner or Planner(instance.grid, seed=seed), instance.grid, clock)
+    checked = CheckedPlanner(planner or Planner(instance.grid, seed=seed), instance.grid, clock)
     for tick in range(ticks):
         agents = {a: AgentSpec(position[a], errands[a][0] if errands[a] else None) for a in names}
         position = checked.step(agents)
@@ -162,7 +172,7 @@ def run_one_shot(
     if UNREACHABLE in shortest:
         raise ValueError("an agent's goal cannot be reached from its start")
     arrived = {a: 0 if position[a] == goal[a] else None for a in names}
-    checked = _CheckedPlanner(planner or Planner(grid, seed=seed), grid, clock)
+    checked = CheckedPlanner(planner or Planner(grid, seed=seed), grid, clock)
     makespan: int | None = 0 if all(v == 0 for v in arrived.values()) else None
     step = 0
     while makespan is None and step < max_steps:
@@ -193,11 +203,7 @@ def random_instance(
     grid: GridMap, agents: int, horizon: int, seed: int = 0, name: str | None = None
 ) -> LifelongInstance:
     """A lifelong instance with random starts and one-errand tasks in the grid's largest region."""
-    labels = connected_components(adjacency(grid), directed=False)[1].reshape(grid.height, -1)
-    free = ~grid.blocked
-    biggest = np.bincount(labels[free]).argmax()
-    ys, xs = np.nonzero(free & (labels == biggest))
-    cells = [Cell(int(x), int(y)) for x, y in zip(xs, ys, strict=True)]
+    cells = largest_region(grid)
     if agents < 1 or agents > len(cells):
         raise ValueError(f"{agents} agents do not fit the {len(cells)} connected free squares")
     rng = random.Random(seed)
@@ -211,3 +217,12 @@ def random_instance(
         tasks=tasks,
         horizon=horizon,
     )
+
+
+def largest_region(grid: GridMap) -> list[Cell]:
+    """The free squares of `grid`'s largest 4-connected region."""
+    labels = connected_components(adjacency(grid), directed=False)[1].reshape(grid.height, -1)
+    free = ~grid.blocked
+    biggest = np.bincount(labels[free]).argmax()
+    ys, xs = np.nonzero(free & (labels == biggest))
+    return [Cell(int(x), int(y)) for x, y in zip(xs, ys, strict=True)]

@@ -13,6 +13,7 @@ import pytest
 
 from bench.anchors import LifelongInstance, ScenAgent, find_anchors, load_instance, load_scen
 from bench.runs import random_instance, run_lifelong, run_one_shot
+from bench.scale import run_scale
 from coordinator.planner import AgentSpec
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
@@ -210,7 +211,8 @@ def test_the_command_reports_every_suite_as_json(tmp_path: Path) -> None:
     anchors = write_anchors(tmp_path)
     out = bench(
         "--anchors", str(anchors), "--scen", "tiny.scen", "--agents", "1,2",
-        "--scale-map", "tiny.map", "--scale-agents", "3", "--scale-ticks", "10", "--json",
+        "--scale-map", "tiny.map", "--scale-agents", "3", "--scale-ticks", "10",
+        "--scale-pick-faces", "2", "--scale-stations", "1", "--json",
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
@@ -221,6 +223,7 @@ def test_the_command_reports_every_suite_as_json(tmp_path: Path) -> None:
     assert all(r["solved"] and r["sum_of_costs"] >= r["lower_bound"] for r in report["oneshot"])
     (scale,) = report["scale"]
     assert scale["agents"] == 3 and scale["ticks"] == 10 and scale["violations"] == 0
+    assert scale["tasks_finished"] >= 1 and scale["peak_rss_mb"] > 0 and scale["first_tick_s"] > 0
 
 
 def test_the_command_prints_tables_by_default(tmp_path: Path) -> None:
@@ -268,3 +271,15 @@ def test_a_reader_that_went_away_ends_the_command_quietly(tmp_path: Path) -> Non
     finally:
         os.close(write_end)
     assert out.returncode == 141 and "Traceback" not in out.stderr, out.stderr
+
+
+def test_a_scale_run_allocates_jobs_and_finishes_them_the_same_way_twice() -> None:
+    grid = GridMap.from_rows(["." * 16] * 12)
+    first = run_scale(grid, 20, 150, seed=4, pick_faces=10, stations=3)
+    assert first.tasks_finished >= 10 and first.violations == 0
+    assert len(first.planner.seconds) == len(first.allocation.seconds) == 149
+    assert run_scale(grid, 20, 150, seed=4, pick_faces=10, stations=3).tasks_finished == (
+        first.tasks_finished
+    )
+    with pytest.raises(ValueError, match="do not fit"):
+        run_scale(grid, 190, 5, pick_faces=10, stations=3)
