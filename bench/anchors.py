@@ -53,7 +53,8 @@ def find_anchors(given: str | Path | None) -> Path:
         candidates = [Path(given or os.environ[ANCHORS_ENV])]
     else:
         checkout = Path(__file__).resolve().parents[1]
-        candidates = [p.parent / "shared" / "anchors" for p in (checkout, Path.cwd())]
+        beside = [p.parent / "shared" / "anchors" for p in (checkout, Path.cwd().resolve())]
+        candidates = list(dict.fromkeys(beside))  # run from the checkout: the same folder twice
     for folder in candidates:
         if (folder / "maps").is_dir():
             return folder

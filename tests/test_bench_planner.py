@@ -11,7 +11,15 @@ from pathlib import Path
 
 import pytest
 
-from bench.anchors import LifelongInstance, ScenAgent, find_anchors, load_instance, load_scen
+from bench import anchors as bench_anchors
+from bench.anchors import (
+    ANCHORS_ENV,
+    LifelongInstance,
+    ScenAgent,
+    find_anchors,
+    load_instance,
+    load_scen,
+)
 from bench.runs import random_instance, run_lifelong, run_one_shot
 from bench.scale import run_scale
 from coordinator.planner import AgentSpec
@@ -127,6 +135,19 @@ def test_a_bad_scenario_line_is_named(tmp_path: Path, body: str, problem: str) -
 def test_missing_benchmark_data_says_how_to_point_at_it(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="pass --anchors DIR"):
         find_anchors(tmp_path / "nothing")
+
+
+def test_missing_data_beside_the_checkout_is_named_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    checkout = tmp_path / "gridfleet"
+    (checkout / "bench").mkdir(parents=True)
+    monkeypatch.setattr(bench_anchors, "__file__", str(checkout / "bench" / "anchors.py"))
+    monkeypatch.delenv(ANCHORS_ENV, raising=False)
+    monkeypatch.chdir(checkout)  # run from the checkout: both places are the same folder
+    with pytest.raises(ConfigError) as caught:
+        find_anchors(None)
+    assert str(caught.value).count(str(tmp_path / "shared" / "anchors")) == 1
 
 
 @pytest.mark.skipif(not SHARED_ANCHORS.is_dir(), reason="the public benchmark data is not here")
