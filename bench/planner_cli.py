@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from bench.anchors import find_anchors, lifelong_instances, load_instance, load_scen
+from bench.plot import plot_report
 from bench.runs import (
     LifelongResult,
     OneShotResult,
@@ -88,6 +89,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--repeat", type=_positive, default=1, help="runs of each (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="planner and scale-run seed")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    parser.add_argument(
+        "--plot",
+        type=Path,
+        help="also draw throughput and tick time against agents (needs matplotlib)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -104,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
         report["oneshot"] = _oneshot(anchors, args)
     if "scale" in suites:
         report["scale"] = _scale(anchors, args)
+    if args.plot:
+        plot_report(report, args.plot)
     if args.json:
         print(json.dumps(report, indent=2))
     else:

@@ -304,3 +304,23 @@ def test_a_scale_run_allocates_jobs_and_finishes_them_the_same_way_twice() -> No
     )
     with pytest.raises(ValueError, match="do not fit"):
         run_scale(grid, 190, 5, pick_faces=10, stations=3)
+
+
+def test_the_command_draws_its_figures_into_the_file_named(tmp_path: Path) -> None:
+    picture = tmp_path / "planner.png"
+    out = bench(
+        "--anchors", str(write_anchors(tmp_path)), "--suite", "lifelong,scale",
+        "--scale-map", "tiny.map", "--scale-agents", "3", "--scale-ticks", "5",
+        "--scale-pick-faces", "2", "--scale-stations", "1", "--plot", str(picture),
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_a_plot_that_cannot_be_written_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    out = bench(
+        "--anchors", str(write_anchors(tmp_path)), "--suite", "lifelong",
+        "--plot", str(tmp_path / "no-such-folder" / "planner.png"),
+    )  # fmt: skip
+    assert out.returncode == 2 and "--plot: cannot write" in out.stderr, out.stderr
+    assert "Traceback" not in out.stderr
