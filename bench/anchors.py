@@ -31,6 +31,9 @@ class LifelongInstance:
     horizon: int
     best_tasks_finished: int | None = None  # the competition's best, for reference
     action_model: str = "4-connected"
+    # MR24: this many tasks are known at the start and one more each time one is finished, and
+    # any agent may take any known task (None: MR23, agent i takes task i, then the next)
+    open_tasks: int | None = None
 
     @property
     def agents(self) -> int:
@@ -109,6 +112,11 @@ def load_instance(path: str | Path, maps: Path | None = None) -> LifelongInstanc
     if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
         raise ConfigError(f"{p}: 'horizon' must be a whole number of ticks > 0, got {horizon!r}")
     best = data.get("best_tasks_finished")
+    reveal = data.get("task_reveal_t")
+    if reveal is not None and (
+        not isinstance(reveal, list) or not all(isinstance(t, int) for t in reveal)
+    ):
+        raise ConfigError(f"{p}: 'task_reveal_t' must be a list of ticks, got {reveal!r:.60}")
     return LifelongInstance(
         name=str(data.get("name", p.stem)),
         grid=grid,
@@ -117,6 +125,7 @@ def load_instance(path: str | Path, maps: Path | None = None) -> LifelongInstanc
         horizon=horizon,
         best_tasks_finished=best if isinstance(best, int) else None,
         action_model=str(data.get("action_model", "4-connected")),
+        open_tasks=None if reveal is None else max(len(starts), reveal.count(0)),
     )
 
 

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 
 from bench.anchors import LifelongInstance, ScenAgent
+from coordinator.allocation import JobRequest, UnitSlot, allocate
 from coordinator.planner import AgentSpec, Planner
 from coordinator.validate import validate_step
 from gridfleet.grid import Cell, GridMap
@@ -120,29 +121,36 @@ def run_lifelong(
     clock: Clock = time.perf_counter,
     planner: StepPlanner | None = None,
 ) -> LifelongResult:
-    """Run `instance` for `horizon` ticks (default: its own); an agent takes the next task when done."""
+    """Run `instance` for `horizon` ticks (default: its own); an idle agent is given a task.
+
+    How is the instance's rule: MR23's stream (`_Stream`) or MR24's pool (`_Pool`)."""
     ticks = instance.horizon if horizon is None else horizon
     names = [str(i) for i in range(instance.agents)]
     position = dict(zip(names, instance.starts, strict=True))
-    errands: dict[str, list[Cell]] = {a: list(instance.tasks[i]) for i, a in enumerate(names)}
-    revealed = instance.agents
+    errands: dict[str, list[Cell]] = {a: [] for a in names}
+    tasks: _Stream | _Pool = (
+        _Stream(instance.tasks)
+        if instance.open_tasks is None
+        else _Pool(instance.tasks, instance.open_tasks, DistanceFieldCache(instance.grid))
+    )
+    tasks.give(names, position, errands)
     finished = 0
     exhausted_at: int | None = None
     checked = CheckedPlanner(planner or Planner(instance.grid, seed=seed), instance.grid, clock)
     for tick in range(ticks):
         agents = {a: AgentSpec(position[a], errands[a][0] if errands[a] else None) for a in names}
         position = checked.step(agents)
+        idle = []
         for a in names:
             if errands[a] and position[a] == errands[a][0]:
                 errands[a].pop(0)
-                if errands[a]:
-                    continue
-                finished += 1
-                if revealed < len(instance.tasks):
-                    errands[a] = list(instance.tasks[revealed])
-                    revealed += 1
-                elif exhausted_at is None:
-                    exhausted_at = tick
+                if not errands[a]:
+                    finished += 1
+                    tasks.reveal()
+                    idle.append(a)
+        tasks.give(idle, position, errands)
+        if exhausted_at is None and any(not errands[a] for a in idle):
+            exhausted_at = tick  # an agent done with its task found none left
     return LifelongResult(
         name=instance.name,
         agents=instance.agents,
@@ -153,6 +161,59 @@ def run_lifelong(
         violations=checked.violations,
         timing=Timing(tuple(checked.seconds)),
     )
+
+
+class _Stream:
+    """MR23's rule: agent i starts on task i; one that finishes takes the stream's next task."""
+
+    def __init__(self, tasks: Sequence[tuple[Cell, ...]]) -> None:
+        self._tasks = tasks
+        self._next = 0
+
+    def give(
+        self, idle: list[str], position: dict[str, Cell], errands: dict[str, list[Cell]]
+    ) -> None:
+        """The next tasks to the `idle` agents, in order."""
+        for a in idle:
+            if self._next < len(self._tasks):
+                errands[a] = list(self._tasks[self._next])
+                self._next += 1
+
+    def reveal(self) -> None:
+        """Nothing: the whole stream is known."""
+
+
+class _Pool:
+    """MR24's rule: `open` tasks known at the start and one more each time one is finished; the
+    coordinator's allocator gives known tasks to idle agents (least travel to the first errand)."""
+
+    def __init__(
+        self, tasks: Sequence[tuple[Cell, ...]], open_tasks: int, cache: DistanceFieldCache
+    ) -> None:
+        self._tasks = tasks
+        self._open = list(range(min(open_tasks, len(tasks))))
+        self._next = len(self._open)
+        self._cache = cache
+
+    def give(
+        self, idle: list[str], position: dict[str, Cell], errands: dict[str, list[Cell]]
+    ) -> None:
+        """Known tasks to the `idle` agents, as the allocator pairs them."""
+        if not idle or not self._open:
+            return
+        units = [UnitSlot(a, position[a], 1.0) for a in idle]
+        jobs = [JobRequest(str(k), self._tasks[k][0], self._tasks[k][-1], 0.0) for k in self._open]
+        pairs = allocate(self._cache, units, jobs)
+        for job, agent in pairs.items():
+            errands[agent] = list(self._tasks[int(job)])
+        taken = {int(job) for job in pairs}
+        self._open = [k for k in self._open if k not in taken]
+
+    def reveal(self) -> None:
+        """One more task of the stream becomes known."""
+        if self._next < len(self._tasks):
+            self._open.append(self._next)
+            self._next += 1
 
 
 def run_one_shot(

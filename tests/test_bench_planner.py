@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -177,6 +178,30 @@ def test_lifelong_counts_finished_tasks_and_notices_the_stream_running_out() -> 
 def test_a_multi_errand_task_finishes_when_its_last_errand_is_reached() -> None:
     inst = LifelongInstance("errands", CORRIDOR, (Cell(0, 0),), ((Cell(4, 0), Cell(2, 0)),), 6)
     assert run_lifelong(inst).tasks_finished == 1  # 4 ticks out, 2 back
+
+
+def test_a_pool_of_known_tasks_goes_to_the_nearest_agents_and_refills_as_tasks_finish() -> None:
+    # MR24's rule: two tasks known at the start, one more for each finished. The stream's own
+    # order would send the agent at 0 to the far end first; the allocator picks the near task.
+    tasks = ((Cell(4, 0),), (Cell(1, 0),), (Cell(0, 0),))
+    pooled = LifelongInstance("pool", CORRIDOR, (Cell(0, 0),), tasks, horizon=3, open_tasks=2)
+    streamed = LifelongInstance("stream", CORRIDOR, (Cell(0, 0),), tasks, horizon=3)
+    assert run_lifelong(streamed).tasks_finished == 0  # 4 squares to the first errand
+    # Task 1 (1 tick), then task 2, revealed meanwhile, (1 tick back) before the far task 0.
+    assert run_lifelong(pooled).tasks_finished == 2
+    assert run_lifelong(replace(pooled, horizon=20)).exhausted_at == 5
+
+
+def test_an_instance_with_reveal_times_keeps_as_many_tasks_known_as_it_starts_with(
+    tmp_path: Path,
+) -> None:
+    path = write_anchors(tmp_path) / "instances" / "TINY.json"
+    data = json.loads(path.read_text())
+    path.write_text(json.dumps({**data, "task_reveal_t": [0, 0, 0, 7]}))
+    assert load_instance(path).open_tasks == 3
+    path.write_text(json.dumps({**data, "task_reveal_t": "soon"}))
+    with pytest.raises(ConfigError, match="'task_reveal_t' must be a list of ticks"):
+        load_instance(path)
 
 
 class Teleporter:
