@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.guidance import MAX_SQUARES, Guidance
 from coordinator.parking import parking_square
 from coordinator.pibt import NONE, PIBT, neighbour_table
 from coordinator.unjam import Unjam
@@ -46,9 +47,14 @@ class AgentSpec:
 class Planner:
     """Plans one step at a time for a fleet on one grid; keeps priorities between steps."""
 
-    def __init__(self, grid: GridMap, seed: int = 0, cache_size: int = 4096) -> None:
+    def __init__(
+        self, grid: GridMap, seed: int = 0, cache_size: int = 4096, guided: bool | None = None
+    ) -> None:
+        """`guided`: traffic-flow guidance (`coordinator.guidance`); None: on for maps of up to
+        `guidance.MAX_SQUARES` squares."""
         self._rng = np.random.default_rng(seed)
         self._seed = seed
+        self._guided = guided
         self._cache_size = cache_size
         self._priority: dict[str, float] = {}
         self._tiebreak: dict[str, float] = {}
@@ -66,10 +72,17 @@ class Planner:
         self.cache = DistanceFieldCache(grid, size=self._cache_size)
         self._free = ~grid.blocked.reshape(-1)
         self._nbrs = neighbour_table(grid)
-        w = grid.width
-        self.unjam = Unjam(
-            self._nbrs, lambda sq: self.cache.flat(Cell(sq % w, sq // w)), self._seed
-        )
+        self.unjam = Unjam(self._nbrs, self._field_to, self._seed)
+        guided = self._guided
+        if guided is None:
+            guided = grid.width * grid.height <= MAX_SQUARES
+        # Guide paths follow the traffic of the grid they were made on: a new grid, new ones.
+        self.guidance = Guidance(self._nbrs, self._field_to) if guided else None
+
+    def _field_to(self, square: int) -> Sequence[int]:
+        """The plain distance field towards a flat square."""
+        w = self._grid.width
+        return self.cache.flat(Cell(square % w, square // w))
 
     def add_obstacles(self, cells: Iterable[Cell]) -> None:
         """Block newly discovered squares and re-plan around them."""
@@ -106,7 +119,9 @@ class Planner:
         frozen = [s.frozen for s in specs]
         moves = self.unjam.moves(names, pos, goal, frozen, held)
         if moves is None:
-            fields = [None if s.target is None else self.cache.flat(s.target) for s in specs]
+            if self.guidance is not None:
+                self.guidance.keep_only({a for a, s in agents.items() if s.target is not None})
+            fields = [self._field(a, s) for a, s in zip(names, specs, strict=True)]
             search = PIBT(self._nbrs, pos, goal, fields, settled, self._rng.random)
             for square in held:
                 search.reserve(square)
@@ -118,6 +133,16 @@ class Planner:
             if not done:
                 self._priority[a] += 1.0
         return {a: Cell(m % w, m // w) for a, m in zip(names, moves, strict=True)}
+
+    def _field(self, agent: str, spec: AgentSpec) -> Sequence[int] | None:
+        """The distance field `agent` descends this step (flat), or None without a target."""
+        if spec.target is None:
+            return None
+        if self.guidance is None:
+            return self.cache.flat(spec.target)
+        w = self._grid.width
+        here, target = spec.position, spec.target
+        return self.guidance.field(agent, here.y * w + here.x, target.y * w + target.x)
 
     def parking(self, agent: str) -> Cell | None:
         """Where idle `agent` is going to make way for another unit, if it is."""
