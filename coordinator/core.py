@@ -27,6 +27,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 from coordinator import inbound, requests
 from coordinator.answers import Answers
@@ -463,7 +464,7 @@ class CoordinatorCore:
                 action=self.progress.action(u.id),
                 estop=self.estop,
                 grid=self.world.grid,
-                route=lambda start, target: self.planner.route(start, target, PLANNED_SHOWN),
+                route=partial(self._route, u.id),
                 step_no=self.step_no,
             )
             orders[u.id] = order
@@ -474,6 +475,10 @@ class CoordinatorCore:
                 control=self.controls.get(u.id),  # type: ignore[arg-type]
             )
         return StepResult(self.step_no, orders, routes)
+
+    def _route(self, unit: str, start: Cell, target: Cell) -> list[Cell]:
+        """The way shown for `unit` from `start` to `target`: its guide path where it has one."""
+        return self.planner.route(start, target, PLANNED_SHOWN, unit)
 
     # ---- what every Effects carries ---------------------------------------------------------
 

@@ -79,6 +79,13 @@ class Guidance:
         guide = self._guides.get(unit)
         return [] if guide is None else guide.path[guide.at + 1 :]
 
+    def ahead(self, unit: str, square: Index, target: Index) -> list[Index] | None:
+        """`unit`'s guide path after `square` when it is guided to `target` through it, else None."""
+        guide = self._guides.get(unit)
+        if guide is None or guide.target != target or square not in guide.index:
+            return None
+        return guide.path[guide.index[square] + 1 :]
+
     def traffic(self, square: Index, onward: Index) -> int:
         """Guide paths still to take the edge `square` → `onward` (for tests and display)."""
         return self._edges.get((square, onward), 0)

@@ -206,8 +206,16 @@ class Planner:
             prio.append((-1.0 if done else base) + urgency.get(a, 0.0) + self._tiebreak[a])
         return sorted(range(len(names)), key=lambda i: -prio[i])
 
-    def route(self, start: Cell, target: Cell, limit: int = 256) -> list[Cell]:
-        """The shortest path after `start` to `target` (empty when unreachable), for display."""
+    def route(
+        self, start: Cell, target: Cell, limit: int = 256, unit: str | None = None
+    ) -> list[Cell]:
+        """The way after `start` to `target` (empty when unreachable), for display: `unit`'s guide
+        path when it is guided there through `start`, else a shortest path."""
+        w = self._grid.width
+        if unit is not None and self.guidance is not None:
+            ahead = self.guidance.ahead(unit, start.y * w + start.x, target.y * w + target.x)
+            if ahead is not None:
+                return [Cell(s % w, s // w) for s in ahead[:limit]]
         field = self.cache.get(target)
         d = distance(field, start)
         out: list[Cell] = []

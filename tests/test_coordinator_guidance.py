@@ -90,3 +90,13 @@ def test_a_guided_planner_sends_opposite_traffic_along_the_other_row() -> None:
     agents = {"a": AgentSpec(Cell(0, 0), Cell(8, 0)), "b": AgentSpec(Cell(7, 0), Cell(1, 0))}
     moves = planner.step(agents)
     assert moves == {"a": Cell(1, 0), "b": Cell(7, 1)}  # b steps aside at once, not at the meeting
+
+
+def test_the_route_shown_for_a_guided_unit_is_its_guide_path() -> None:
+    planner = Planner(HALL)
+    agents = {"a": AgentSpec(Cell(0, 0), Cell(8, 0)), "b": AgentSpec(Cell(7, 0), Cell(1, 0))}
+    planner.step(agents)
+    shown = planner.route(Cell(7, 1), Cell(1, 0), unit="b")
+    assert shown == [*(Cell(x, 1) for x in range(6, 0, -1)), Cell(1, 0)]
+    assert planner.route(Cell(7, 0), Cell(1, 0)) == [Cell(x, 0) for x in range(6, 0, -1)]
+    assert planner.route(Cell(5, 0), Cell(1, 0), unit="b")[0] == Cell(4, 0)  # off its guide
