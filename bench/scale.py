@@ -36,6 +36,7 @@ class ScaleResult:
     pick_faces: int
     stations: int
     tasks_finished: int
+    tasks_second_half: int  # finished in the second half of the run, when the fleet is busy
     first_tick_s: float  # the distance fields of every pick face and station, and tick 0
     planner: Timing  # the planner's step, ticks after the first
     allocation: Timing  # the allocator's share of each tick after the first
@@ -45,6 +46,12 @@ class ScaleResult:
     def tasks_per_tick(self) -> float:
         """Jobs done per tick, over the whole run."""
         return self.tasks_finished / self.ticks if self.ticks else 0.0
+
+    @property
+    def steady_tasks_per_tick(self) -> float:
+        """Jobs done per tick in the second half of the run (every unit long since busy)."""
+        half = self.ticks - self.ticks // 2
+        return self.tasks_second_half / half if half else 0.0
 
     @property
     def tick(self) -> Timing:
@@ -88,13 +95,13 @@ def run_scale(
     planner = Planner(grid, seed=seed, cache_size=pick_faces + stations + PARKING_FIELDS)
     checked = CheckedPlanner(planner, grid, clock)
     queue: deque[JobRequest] = deque()
-    made = finished = 0
+    made = finished = second_half = 0
     allocation: list[float] = []
     started = clock()
     for target in (*faces, *drops):
         planner.cache.get(target)  # in bulk, before the first tick
     first_tick_s = clock() - started
-    for _ in range(ticks):
+    for tick in range(ticks):
         began = clock()
         idle = [UnitSlot(a, u.position, u.capacity_kg) for a, u in units.items() if not u.errands]
         idle = idle[:ALLOCATE_AT_MOST]
@@ -116,7 +123,9 @@ def run_scale(
             u.position = moved[a]
             if u.errands and u.position == u.errands[0]:
                 u.errands.popleft()
-                finished += not u.errands
+                if not u.errands:
+                    finished += 1
+                    second_half += tick >= ticks // 2
     if ticks:
         first_tick_s += allocation[0] + checked.seconds[0]
     return ScaleResult(
@@ -126,6 +135,7 @@ def run_scale(
         pick_faces=pick_faces,
         stations=stations,
         tasks_finished=finished,
+        tasks_second_half=second_half,
         first_tick_s=first_tick_s,
         planner=Timing(tuple(checked.seconds[1:])),
         allocation=Timing(tuple(allocation[1:])),
