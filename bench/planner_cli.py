@@ -221,6 +221,7 @@ def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
                 "tasks_finished": result.tasks_finished,
                 "tasks_per_tick": result.tasks_per_tick,
                 "tasks_per_tick_second_half": result.steady_tasks_per_tick,
+                "travel_per_job": result.travel_per_job,
                 "first_tick_s": result.first_tick_s,
                 "tick_ms_mean": result.tick.mean_ms,
                 "tick_ms_p99": result.tick.p99_ms,

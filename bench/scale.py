@@ -37,6 +37,7 @@ class ScaleResult:
     stations: int
     tasks_finished: int
     tasks_second_half: int  # finished in the second half of the run, when the fleet is busy
+    travel_per_job: float  # mean shortest travel of a job given out: to its pickup, then on
     first_tick_s: float  # the distance fields of every pick face and station, and tick 0
     planner: Timing  # the planner's step, ticks after the first
     allocation: Timing  # the allocator's share of each tick after the first
@@ -97,6 +98,7 @@ def run_scale(
     queue: deque[JobRequest] = deque()
     made = finished = second_half = 0
     allocation: list[float] = []
+    travel: list[int] = []
     started = clock()
     for target in (*faces, *drops):
         planner.cache.get(target)  # in bulk, before the first tick
@@ -112,7 +114,12 @@ def run_scale(
         pairs = allocate(planner.cache, idle, list(queue)[: 2 * len(idle)])
         for job in queue:
             if job.id in pairs:
-                units[pairs[job.id]].errands.extend((job.pickup, job.dropoff))
+                unit = units[pairs[job.id]]
+                unit.errands.extend((job.pickup, job.dropoff))
+                travel.append(
+                    planner.cache.distance(unit.position, job.pickup)
+                    + planner.cache.distance(job.pickup, job.dropoff)
+                )
         queue = deque(j for j in queue if j.id not in pairs)
         allocation.append(clock() - began)
         specs = {
@@ -136,6 +143,7 @@ def run_scale(
         stations=stations,
         tasks_finished=finished,
         tasks_second_half=second_half,
+        travel_per_job=sum(travel) / len(travel) if travel else 0.0,
         first_tick_s=first_tick_s,
         planner=Timing(tuple(checked.seconds[1:])),
         allocation=Timing(tuple(allocation[1:])),

@@ -325,6 +325,7 @@ def test_a_scale_run_allocates_jobs_and_finishes_them_the_same_way_twice() -> No
     assert first.tasks_finished >= 10 and first.violations == 0
     assert 0 < first.tasks_second_half < first.tasks_finished
     assert first.steady_tasks_per_tick == first.tasks_second_half / 75
+    assert 1 <= first.travel_per_job <= 16 + 12  # a job crosses the room at most twice
     assert len(first.planner.seconds) == len(first.allocation.seconds) == 149
     assert run_scale(grid, 20, 150, seed=4, pick_faces=10, stations=3).tasks_finished == (
         first.tasks_finished
