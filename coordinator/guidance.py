@@ -7,7 +7,8 @@ above all, edges they take the other way (after Chen et al., "Traffic Flow Optim
 Lifelong Multi-Agent Path Finding", AAAI 2024, simplified). PIBT then descends the unit's own
 field: for any square, the steps to the nearest square of its guide path plus the path's
 remaining length there, so a unit pushed aside comes back to its path rather than cutting across
-everyone else's. A guide path's traffic counts only the part still ahead of its unit.
+everyone else's. A guide path's traffic counts only the part still ahead of its unit, and a few
+guide paths are made anew every step, so that none follows the traffic of long ago.
 
 Pure: the neighbour table and the distance fields (as A* heuristic) in; per-unit fields out. Each
 field is a list the size of the map, so guidance is for maps of up to `MAX_SQUARES` squares.
@@ -23,6 +24,7 @@ from coordinator.pibt import Index
 
 CONTRAFLOW = 1.0  # extra cost of an edge per guide path taking it the other way
 CROSSING = 0.1  # extra cost of entering a square per guide path entering it too
+RENEWED = 0.02  # share of guide paths made anew every step, round the fleet, for today's traffic
 MAX_SQUARES = 4096  # larger maps use the shared distance fields (a field per unit is too much)
 FAR = 1 << 30  # not reachable
 
@@ -49,6 +51,7 @@ class Guidance:
         self._guides: dict[str, _Guide] = {}
         self._edges: dict[tuple[Index, Index], int] = {}  # guide paths taking each edge, ahead
         self._entries: dict[Index, int] = {}  # guide paths entering each square, ahead
+        self._turn = 0  # where `renew` goes on from
 
     def field(self, unit: str, here: Index, target: Index) -> list[int]:
         """The field `unit` descends from `here` towards `target` (a new guide path if new)."""
@@ -62,6 +65,16 @@ class Guidance:
         guide = _Guide(target, path, {s: k for k, s in enumerate(path)}, self._descent(path))
         self._guides[unit] = guide
         return guide.field
+
+    def renew(self, units: Sequence[str]) -> None:
+        """Forget the guide paths of the next few `units` in turn: each gets a new one at its next
+        step, around the traffic as it is then (the others' paths have changed since)."""
+        if not units:
+            return
+        count = max(1, int(len(units) * RENEWED))
+        for k in range(self._turn, self._turn + count):
+            self.forget(units[k % len(units)])
+        self._turn = (self._turn + count) % len(units)
 
     def forget(self, unit: str) -> None:
         """`unit` has no target now (or is gone): its path's traffic no longer counts."""

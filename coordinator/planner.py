@@ -129,6 +129,8 @@ class Planner:
                 if still:
                     search.freeze(i)
             moves = search.run(order)
+            if self.guidance is not None:
+                self.guidance.renew(names)
         for a, done in zip(names, settled, strict=True):
             if not done:
                 self._priority[a] += 1.0

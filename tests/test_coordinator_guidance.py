@@ -100,3 +100,16 @@ def test_the_route_shown_for_a_guided_unit_is_its_guide_path() -> None:
     assert shown == [*(Cell(x, 1) for x in range(6, 0, -1)), Cell(1, 0)]
     assert planner.route(Cell(7, 0), Cell(1, 0)) == [Cell(x, 0) for x in range(6, 0, -1)]
     assert planner.route(Cell(5, 0), Cell(1, 0), unit="b")[0] == Cell(4, 0)  # off its guide
+
+
+def test_guide_paths_are_made_anew_in_turn_round_the_fleet() -> None:
+    g = guidance()
+    names = ["a", "b", "c"]
+    for i, unit in enumerate(names):
+        g.field(unit, sq(i, 0), sq(8, 1))
+    g.renew(names)
+    assert g.guide("a") == [] and g.guide("b") and g.guide("c")  # a's is made anew next step
+    assert g.traffic(sq(0, 0), sq(1, 0)) == 0  # and its traffic no longer counts
+    g.renew(names)
+    g.renew(names)
+    assert g.guide("b") == g.guide("c") == []
