@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -352,3 +353,19 @@ def test_a_plot_that_cannot_be_written_is_one_line_and_exit_2(tmp_path: Path) ->
     )  # fmt: skip
     assert out.returncode == 2 and "--plot: cannot write" in out.stderr, out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_the_pinned_checksums_name_every_file_the_default_suites_read() -> None:
+    pinned = (Path(__file__).resolve().parents[1] / "bench" / "anchors.sha256").read_text()
+    rows = [line.split() for line in pinned.splitlines()]
+    assert all(len(r) == 2 and len(r[0]) == 64 for r in rows)
+    named = {r[1] for r in rows}
+    assert {"maps/warehouse_large.map", "maps/random-32-32-10-random-1.scen"} <= named
+    assert {f"instances/MR23-I-0{i}.json" for i in (3, 4, 5, 7, 8)} <= named
+
+
+@pytest.mark.skipif(not SHARED_ANCHORS.is_dir(), reason="the public benchmark data is not here")
+def test_the_benchmark_data_here_is_what_the_checksums_pin() -> None:
+    pinned = (Path(__file__).resolve().parents[1] / "bench" / "anchors.sha256").read_text()
+    for digest, name in (line.split() for line in pinned.splitlines()):
+        assert hashlib.sha256((SHARED_ANCHORS / name).read_bytes()).hexdigest() == digest, name
