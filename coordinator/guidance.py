@@ -25,6 +25,8 @@ from coordinator.pibt import Index
 CONTRAFLOW = 1.0  # extra cost of an edge per guide path taking it the other way
 CROSSING = 0.1  # extra cost of entering a square per guide path entering it too
 RENEWED = 0.02  # share of guide paths made anew every step, round the fleet, for today's traffic
+WORK_PER_STEP = 65_536  # squares a step may search for new guide paths (64 on a 32 x 32 map):
+# a whole fleet given targets at once gets its guide paths over a few steps, not in one long one
 MAX_SQUARES = 4096  # larger maps use the shared distance fields (a field per unit is too much)
 FAR = 1 << 30  # not reachable
 
@@ -52,14 +54,24 @@ class Guidance:
         self._edges: dict[tuple[Index, Index], int] = {}  # guide paths taking each edge, ahead
         self._entries: dict[Index, int] = {}  # guide paths entering each square, ahead
         self._turn = 0  # where `renew` goes on from
+        self._left = 0  # new guide paths still to be made this step
+        self.begin_step()
 
-    def field(self, unit: str, here: Index, target: Index) -> list[int]:
-        """The field `unit` descends from `here` towards `target` (a new guide path if new)."""
+    def begin_step(self) -> None:
+        """A new step: new guide paths may be made again, up to this step's share."""
+        self._left = max(4, WORK_PER_STEP // max(1, len(self.nbrs)))
+
+    def field(self, unit: str, here: Index, target: Index) -> list[int] | None:
+        """The field `unit` descends from `here` towards `target` (a new guide path if new), or
+        None when this step's new guide paths are all made: then the plain field, this step."""
         guide = self._guides.get(unit)
         if guide is not None and guide.target == target:
             self._advance(guide, here)
             return guide.field
         self.forget(unit)
+        if self._left <= 0:
+            return None
+        self._left -= 1
         path = self._path(here, target)
         self._count(path, 0, +1)
         guide = _Guide(target, path, {s: k for k, s in enumerate(path)}, self._descent(path))

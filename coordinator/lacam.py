@@ -70,19 +70,21 @@ class LaCAM:
         self.goals: Config = tuple(goals)
         self.fields = fields
         self._rng = random.Random(seed)
-        self.nodes = 0  # configurations generated (the search's cost)
+        self.nodes = 0  # configurations generated
+        self.tries = 0  # successors asked of PIBT (the search's cost)
+        # Farther agents first at the start; afterwards PIBT's rule: +1 while short of the goal.
+        spread = max(1, max((fields[i][s] for i, s in enumerate(starts)), default=1))
+        root = self._node(self.starts, None, [fields[i][s] / spread for i, s in enumerate(starts)])
+        self._explored: dict[Config, _Node] = {root.config: root}
+        self._stack = [root]
 
     def solve(self, expired: Callable[[], bool] = lambda: False) -> list[Config] | None:
-        """Configurations from the starts to the goals, or None when `expired` said stop first.
+        """Configurations from the starts to the goals, or None when `expired` said stop first;
+        called again, the search goes on where it stopped.
 
         Raises NoSolution when the goals cannot be reached together."""
         n = len(self.starts)
-        # Farther agents first at the start; afterwards PIBT's rule: +1 while short of the goal.
-        spread = max(1, max((self.fields[i][s] for i, s in enumerate(self.starts)), default=1))
-        first = [self.fields[i][s] / spread for i, s in enumerate(self.starts)]
-        root = self._node(self.starts, None, first)
-        explored: dict[Config, _Node] = {root.config: root}
-        stack = [root]
+        explored, stack = self._explored, self._stack
         while stack:
             if expired():
                 return None
@@ -99,6 +101,7 @@ class LaCAM:
                 squares = [here, *self.nbrs[here]]
                 self._rng.shuffle(squares)
                 node.tree.extend(constraint.child(i, s) for s in squares)
+            self.tries += 1
             nxt = self._successor(node, constraint)
             if nxt is None:
                 continue

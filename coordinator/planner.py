@@ -121,6 +121,7 @@ class Planner:
         if moves is None:
             if self.guidance is not None:
                 self.guidance.keep_only({a for a, s in agents.items() if s.target is not None})
+                self.guidance.begin_step()
             fields = [self._field(a, s) for a, s in zip(names, specs, strict=True)]
             search = PIBT(self._nbrs, pos, goal, fields, settled, self._rng.random)
             for square in held:
@@ -144,7 +145,8 @@ class Planner:
             return self.cache.flat(spec.target)
         w = self._grid.width
         here, target = spec.position, spec.target
-        return self.guidance.field(agent, here.y * w + here.x, target.y * w + target.x)
+        guided = self.guidance.field(agent, here.y * w + here.x, target.y * w + target.x)
+        return self.cache.flat(target) if guided is None else guided
 
     def parking(self, agent: str) -> Cell | None:
         """Where idle `agent` is going to make way for another unit, if it is."""

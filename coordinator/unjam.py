@@ -4,7 +4,8 @@ PIBT is fast but incomplete: with fixed targets a few agents can push each other
 forever while the rest wait on their targets. `Unjam` notes every configuration the fleet enters
 while the targets stay the same; one entered a third time means going round in circles, and so do
 STALL steps in a row none of which brought the fleet nearer its targets in all. Then
-LaCAM (`coordinator.lacam`) searches a way for everyone from there, and the planner follows it a
+LaCAM (`coordinator.lacam`) searches a way for everyone from there, a little every step while the
+fleet holds still (so no step takes long), and the planner follows the way it finds a
 configuration at a time. Units move asynchronously: an agent takes its next square of the plan
 when it stands on its square of the current one, only when whoever holds that square leaves it in
 the same step, and the plan goes on once every agent is where it says.
@@ -22,8 +23,9 @@ from coordinator.pibt import NONE, Index
 
 REVISITS = 2  # a configuration entered this many times again means a livelock
 STALL = 64  # ...and so do this many steps in a row without getting nearer the targets
-SEARCH_NODES = 2000  # LaCAM's first budget, in configurations; doubled on each retry...
+SEARCH_NODES = 2000  # LaCAM's first budget, in successors tried; doubled on each retry...
 MAX_SEARCH_NODES = 64_000  # ...up to this
+STEP_WORK = 8000  # agents times successors a step may search for (~35 ms on this machine)
 PATIENCE = 16  # steps the fleet may take to reach the plan's next configuration before it is
 # dropped (a unit lost or stopped would hold the others on a plan that cannot go on)
 
@@ -44,6 +46,9 @@ class Unjam:
     _stalled: int = 0  # steps since that least distance was seen
     _failed: int = 0  # searches out of budget under this key
     _retry_at: float = REVISITS + 1
+    _search: LaCAM | None = None  # under way, from `_search_from`
+    _search_from: Config = ()
+    _search_budget: int = 0
     _plan: list[Config] | None = None
     _at: int = 0  # the plan's configuration the fleet has last reached in full
     _waited: int = 0  # steps since it reached it
@@ -65,6 +70,8 @@ class Unjam:
             out = self._follow(config, frozen, reserved)
             if out is not None:
                 return out
+        if self._search is not None:
+            return self._go_on(config, frozen, reserved)
         if all(g in (NONE, p) for p, g in zip(pos, goal, strict=True)):
             return None
         entered = self._entered.get(config, 0)
@@ -77,9 +84,16 @@ class Unjam:
         self._stalled += 1
         if entered < self._retry_at and self._stalled < STALL * (self._retry_at - REVISITS):
             return None
+        if any(frozen):
+            return None  # search once the fleet is still: it starts from where everyone stands
         self._stalled = 1
-        self._search(config, goal, entered)
-        return None if self._plan is None else self._follow(config, frozen, reserved)
+        # An agent with no target stays where it is at the end, though it may make way meanwhile.
+        goals = [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
+        self._search = LaCAM(self.nbrs, config, goals, [self.field_of(g) for g in goals], self.seed)
+        self._search_from = config
+        self._search_budget = min(self.search_nodes << self._failed, MAX_SEARCH_NODES)
+        self.searches += 1
+        return self._go_on(config, frozen, reserved)
 
     @property
     def following(self) -> bool:
@@ -94,23 +108,34 @@ class Unjam:
         self._failed = 0
         self._retry_at = REVISITS + 1
         self._plan = None
+        self._search = None
 
-    def _search(self, config: Config, goal: Sequence[Index], entered: int) -> None:
-        # An agent with no target stays where it is at the end, though it may make way meanwhile.
-        goals = [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
-        search = LaCAM(self.nbrs, config, goals, [self.field_of(g) for g in goals], self.seed)
-        budget = min(self.search_nodes << self._failed, MAX_SEARCH_NODES)
-        self.searches += 1
+    def _go_on(
+        self, config: Config, frozen: Sequence[bool], reserved: set[Index]
+    ) -> list[Index] | None:
+        """Search a step's worth: the way out once found, else everyone stays meanwhile."""
+        search = self._search
+        assert search is not None
+        if config != self._search_from:
+            self._search = None  # someone moved after all (by hand, say): PIBT again
+            return None
+        limit = min(search.tries + max(1, STEP_WORK // len(config)), self._search_budget)
         try:
-            plan = search.solve(lambda: search.nodes >= budget)
+            plan = search.solve(lambda: search.tries >= limit)
         except NoSolution:
+            self._search = None
             self._retry_at = float("inf")  # not with these targets: wait for them to change
-            return
+            return None
         if plan is None:
-            self._retry_at = 2 * entered  # out of budget: try again later with more
+            if search.tries < self._search_budget:
+                return list(config)
+            self._search = None
+            self._retry_at = 2 * self._entered.get(config, 1)  # try again later, with more
             self._failed += 1
-            return
+            return None
+        self._search = None
         self._plan, self._at, self._waited = plan, 0, -1
+        return self._follow(config, frozen, reserved)
 
     def _follow(
         self, config: Config, frozen: Sequence[bool], reserved: set[Index]

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import pytest
+
+from coordinator import guidance as guidance_module
 from coordinator.guidance import MAX_SQUARES, Guidance
 from coordinator.pibt import neighbour_table
 from coordinator.planner import AgentSpec, Planner
@@ -48,6 +51,7 @@ def test_the_field_leads_back_to_the_guide_path_and_along_it() -> None:
     g = guidance()
     g.field("a", sq(0, 0), sq(8, 0))
     field = g.field("b", sq(7, 0), sq(1, 0))
+    assert field is not None
     assert [field[sq(x, 1)] for x in (7, 4, 1)] == [7, 4, 1]  # on the path: what is left of it
     # Off the path, the nearest path square and the rest from there; b does not cut back across.
     assert field[sq(8, 0)] == 1 + field[sq(8, 1)]
@@ -75,7 +79,7 @@ def test_a_target_cut_off_gives_no_guide_and_the_unit_stays() -> None:
     grid = GridMap.from_rows(["..@.."])
     g = guidance(grid)
     field = g.field("a", 0, 4)
-    assert g.guide("a") == [] and field[0] < field[1]
+    assert field is not None and g.guide("a") == [] and field[0] < field[1]
 
 
 def test_the_planner_guides_on_small_maps_and_not_on_large_ones() -> None:
@@ -113,3 +117,14 @@ def test_guide_paths_are_made_anew_in_turn_round_the_fleet() -> None:
     g.renew(names)
     g.renew(names)
     assert g.guide("b") == g.guide("c") == []
+
+
+def test_a_step_makes_only_so_many_new_guide_paths_and_the_rest_wait_their_turn(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(guidance_module, "WORK_PER_STEP", 5 * HALL.width * HALL.height)
+    g = guidance()
+    made = [g.field(f"u{i}", sq(i % 9, i // 9), sq(8, 1)) for i in range(17)]
+    assert sum(f is not None for f in made) == 5  # the rest descend the plain field this step
+    g.begin_step()
+    assert g.field("u16", sq(7, 1), sq(8, 1)) is not None and g.guide("u16") == [sq(8, 1)]

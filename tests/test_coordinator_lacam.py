@@ -10,6 +10,7 @@ from scipy.sparse.csgraph import connected_components
 
 from bench.anchors import ScenAgent
 from bench.runs import run_one_shot
+from coordinator import unjam as unjam_module
 from coordinator.lacam import LaCAM, NoSolution, is_valid_move
 from coordinator.pibt import neighbour_table
 from coordinator.planner import Planner
@@ -183,4 +184,25 @@ def test_a_fleet_that_leaves_the_plan_or_new_targets_drop_it() -> None:
     unjam, names, goal = line_unjam()
     trip(unjam, names, goal)
     assert unjam.moves(names, [0, 1], [2, 5], [False, False], set()) is None
+    assert not unjam.following
+
+
+def test_a_search_longer_than_a_step_holds_everyone_still_until_it_has_a_way(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(unjam_module, "STEP_WORK", 1)  # one successor tried a step
+    unjam, names, goal = line_unjam()
+    assert trip(unjam, names, goal) == [0, 1]  # searching: nobody moves meanwhile
+    assert unjam.moves(names, [0, 1], goal, [False, False], set()) == [0, 1]
+    assert unjam.moves(names, [0, 1], goal, [False, False], set()) == [1, 2]  # found: off
+    assert unjam.following and unjam.searches == 1
+
+
+def test_a_fleet_that_moves_while_the_search_goes_on_drops_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setattr(unjam_module, "STEP_WORK", 1)
+    unjam, names, goal = line_unjam()
+    trip(unjam, names, goal)
+    assert unjam.moves(names, [0, 2], goal, [False, False], set()) is None  # b was moved
     assert not unjam.following
