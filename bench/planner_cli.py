@@ -187,6 +187,7 @@ def _oneshot(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
                 "sum_of_costs": result.sum_of_costs,
                 "lower_bound": result.lower_bound,
                 "soc_over_lower_bound": ratio,
+                "planning_s": sum(timing.seconds),
                 "violations": result.violations,
                 **_timing(timing),
             }

@@ -268,6 +268,7 @@ def test_the_command_reports_every_suite_as_json(tmp_path: Path) -> None:
     assert life["tasks_finished"] >= 2 and life["violations"] == 0 and life["ms_p50"] > 0
     assert [r["agents"] for r in report["oneshot"]] == [1, 2]
     assert all(r["solved"] and r["sum_of_costs"] >= r["lower_bound"] for r in report["oneshot"])
+    assert all(0 < r["planning_s"] < 5 for r in report["oneshot"])
     (scale,) = report["scale"]
     assert scale["agents"] == 3 and scale["ticks"] == 10 and scale["violations"] == 0
     assert scale["tasks_finished"] >= 1 and scale["peak_rss_mb"] > 0 and scale["first_tick_s"] > 0
