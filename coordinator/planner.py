@@ -122,6 +122,8 @@ class Planner:
             if self.guidance is not None:
                 self.guidance.keep_only({a for a, s in agents.items() if s.target is not None})
                 self.guidance.begin_step()
+                # Renewed here, not after the moves: between steps every unit shows its guide.
+                self.guidance.renew(names)
             fields = [self._field(a, s) for a, s in zip(names, specs, strict=True)]
             search = PIBT(self._nbrs, pos, goal, fields, settled, self._rng.random)
             for square in held:
@@ -130,8 +132,6 @@ class Planner:
                 if still:
                     search.freeze(i)
             moves = search.run(order)
-            if self.guidance is not None:
-                self.guidance.renew(names)
         for a, done in zip(names, settled, strict=True):
             if not done:
                 self._priority[a] += 1.0

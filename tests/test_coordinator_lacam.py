@@ -109,13 +109,14 @@ def test_a_search_told_to_stop_returns_none() -> None:
     )
 
 
-# PIBT alone leaves 2 of these 30 agents short of their goals, pushing each other back and forth.
+# PIBT alone (unguided) leaves 2 of these 30 agents short of their goals, pushing each other
+# back and forth.
 LIVELOCK = (2, 8, 0.1, 0.5)
 
 
 def test_pibt_alone_livelocks_on_this_problem() -> None:
     grid, agents = random_problem(*LIVELOCK)
-    planner = Planner(grid)
+    planner = Planner(grid, guided=False)
     planner.unjam.search_nodes = 0  # the search gives up at once: plain PIBT
     result = run_one_shot(grid, agents, max_steps=300, planner=planner)
     assert not result.solved and result.at_goal < len(agents)
@@ -123,7 +124,7 @@ def test_pibt_alone_livelocks_on_this_problem() -> None:
 
 def test_the_planner_notices_the_livelock_and_searches_its_way_out() -> None:
     grid, agents = random_problem(*LIVELOCK)
-    planner = Planner(grid)
+    planner = Planner(grid, guided=False)
     result = run_one_shot(grid, agents, max_steps=300, planner=planner)
     assert result.solved and result.at_goal == len(agents)
     assert result.violations == 0
