@@ -87,9 +87,13 @@ class JobBook:
         self._counts: Counter[str] = Counter()
         self._finished: deque[str] = deque(maxlen=FINISHED_LISTED)  # ids, the newest last
         self._done_steps: deque[int] = deque()  # when jobs were done, oldest first
+        # Indexes, so a step costs the jobs open, not every job ever finished (it grows all day).
+        self._open: dict[str, Job] = {}  # not final, in submission order
+        self._held: dict[str, Job] = {}  # unit -> the job it works on
         for job in sorted(jobs or [], key=lambda j: j.order):
             self.jobs[job.id] = job
             self._counts[job.state] += 1
+            self._index(job, None)
         self._next = 1 + max((j.order for j in self.jobs.values()), default=0)
         ended = sorted(
             (j for j in self.jobs.values() if j.final),
@@ -97,6 +101,21 @@ class JobBook:
         )
         for job in ended:
             self._ended(job)
+
+    def _index(self, job: Job, held_by: str | None) -> None:
+        """Bring the indexes up to `job`, which unit `held_by` worked on before the change."""
+        if job.final:
+            self._open.pop(job.id, None)
+        else:
+            self._open[job.id] = job
+        if held_by is not None and self._held.get(held_by) is job:
+            del self._held[held_by]
+            # Two jobs on one unit is a bug elsewhere, but the other one must not be forgotten.
+            other = next((j for j in self.active() if j.unit == held_by), None)
+            if other is not None:
+                self._held[held_by] = other
+        if job.state in ACTIVE_STATES and job.unit is not None:
+            self._held.setdefault(job.unit, job)
 
     def _ended(self, job: Job) -> None:
         self._finished.append(job.id)
@@ -118,6 +137,7 @@ class JobBook:
         self._next += 1
         self.jobs[job.id] = job
         self._counts[job.state] += 1
+        self._index(job, None)
         if job.final:  # refused at submission: listed as finished at once
             self._ended(job)
         self.changed.add(job.id)
@@ -133,9 +153,11 @@ class JobBook:
             raise ValueError(f"job {job.id} is already {job.state}")
         self._counts[job.state] -= 1
         self._counts[state] += 1
+        held_by = job.unit if job.state in ACTIVE_STATES else None
         job.state = state
         for key, value in fields.items():
             setattr(job, key, value)
+        self._index(job, held_by)
         if job.final:
             self._ended(job)
         self.changed.add(job.id)
@@ -149,22 +171,22 @@ class JobBook:
 
     def queued(self) -> list[Job]:
         """Jobs waiting for a unit, in submission order."""
-        return [j for j in self.jobs.values() if j.state == "queued"]
+        return [j for j in self._open.values() if j.state == "queued"]
 
     def active(self) -> list[Job]:
         """Jobs under way (assigned to a unit)."""
-        return [j for j in self.jobs.values() if j.state in ACTIVE_STATES]
+        return [j for j in self._open.values() if j.state in ACTIVE_STATES]
 
     def of_unit(self, unit_id: str) -> Job | None:
         """The job `unit_id` is working on, if any."""
-        return next((j for j in self.active() if j.unit == unit_id), None)
+        return self._held.get(unit_id)
 
     def view(self, header: Header, step_no: int = 0, step_period_s: float = 1.0) -> JobsView:
         """The retained queue view at coordinator step `step_no`."""
         finished = [self.jobs[i] for i in reversed(self._finished)]
         return JobsView(
             header=header,
-            jobs=[j.view() for j in self.jobs.values() if not j.final],
+            jobs=[j.view() for j in self._open.values()],
             finished=[j.view() for j in finished],
             counts={k: n for k, n in self._counts.items() if n > 0},  # type: ignore[misc]
             done_per_minute=self.done_per_minute(step_no, step_period_s),

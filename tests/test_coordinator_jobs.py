@@ -62,3 +62,27 @@ def test_a_restarted_book_lists_the_same_finished_jobs_and_counts() -> None:
     again = JobBook(list(book.jobs.values()))
     stamp = header("coordinator")
     assert again.view(stamp, 30, 1.0) == book.view(stamp, 30, 1.0)
+
+
+def test_a_units_job_follows_it_through_the_life_cycle_and_is_forgotten_when_final() -> None:
+    book = book_with(done=5, queued=2)
+    first, second = book.jobs["job-6"], book.jobs["job-7"]
+    assert book.of_unit("u1") is None
+    book.set(first, "assigned", unit="u1")
+    book.set(second, "assigned", unit="u2")
+    book.set(first, "to_pickup")
+    assert (book.of_unit("u1"), book.of_unit("u2")) == (first, second)
+    assert book.active() == [first, second] and book.queued() == []
+    book.set(second, "queued", unit=None)  # handed back, e.g. its unit went away
+    assert book.of_unit("u2") is None and book.queued() == [second]
+    book.set(first, "done", done_step=9)
+    assert book.of_unit("u1") is None and book.active() == []
+    assert [j.id for j in book.view(header("coordinator")).jobs] == ["job-7"]
+
+
+def test_a_restored_book_knows_which_unit_works_on_what() -> None:
+    book = book_with(done=3, queued=2)
+    book.set(book.jobs["job-5"], "loaded", unit="u9")
+    restored = JobBook([Job.from_dict(j.to_dict()) for j in book.jobs.values()])
+    assert restored.of_unit("u9") == book.jobs["job-5"]
+    assert [j.id for j in restored.queued()] == ["job-4"]
