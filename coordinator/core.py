@@ -36,7 +36,7 @@ from coordinator.events import EventLog
 from coordinator.inbound import Arrival, Request, StopPayload
 from coordinator.jobs import Job, JobBook
 from coordinator.moves import Moves
-from coordinator.orders import OrderPlan, Orders
+from coordinator.orders import OrderPlan, Orders, heartbeat_s
 from coordinator.pace import StepRate
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
@@ -117,6 +117,7 @@ class CoordinatorCore:
         self.goals: dict[str, Cell] = {}
         self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
         self.orders = Orders(nonce)
+        self._heartbeat_s = heartbeat_s(world.step_period_s)
         self.moves = Moves(self.planner)
         self.progress = JobProgress(world, jobs, self.goals, self.controls)
         self.views = Views()
@@ -336,6 +337,8 @@ class CoordinatorCore:
         self.orders.expect(result.orders)
         self._releasing = set()
         for unit_id, plan in result.orders.items():
+            if not plan.send:
+                continue
             order = self.say.order(unit_id, plan)
             publish.append(order)
             if plan.released:
@@ -466,6 +469,8 @@ class CoordinatorCore:
                 grid=self.world.grid,
                 route=partial(self._route, u.id),
                 step_no=self.step_no,
+                now=now,
+                heartbeat_s=self._heartbeat_s,
             )
             orders[u.id] = order
             routes[u.id] = RouteView(

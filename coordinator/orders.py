@@ -22,6 +22,14 @@ from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_
 # still owe one (see Orders.holding_back).
 LATE_SHARE = 10
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
+# An order that changes nothing is repeated once this share of a unit's hold time has passed.
+HEARTBEAT_SHARE = 3
+
+
+def heartbeat_s(step_period_s: float) -> float:
+    """How long an unchanged order goes unrepeated (protocol.md §4.4 rule 6): a third of the time
+    a unit waits for orders before it holds, so one late step cannot make it hold."""
+    return max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * step_period_s) / HEARTBEAT_SHARE
 
 
 @dataclass(frozen=True)
@@ -35,6 +43,7 @@ class OrderPlan:
     planned: list[Cell]
     target: Cell | None
     action: Action | None
+    send: bool = True  # False: nothing changed and the last one is recent; shown, not sent
 
 
 @dataclass
@@ -51,6 +60,8 @@ class Track:
     target: Cell | None = None
     waiting: int = 0
     forged: bool = False  # the unit follows an update we never sent: hold it, then a new order
+    sent_at: float = float("-inf")  # when the latest update went out
+    action: Action | None = None  # the action of the latest update
 
 
 def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool:
@@ -121,8 +132,14 @@ class Orders:
         grid: GridMap,
         route: Callable[[Cell, Cell], list[Cell]],
         step_no: int,
+        now: float = 0.0,
+        heartbeat_s: float = 0.0,
     ) -> OrderPlan:
-        """This step's order for an active unit: a new move, its remaining squares, or a hold."""
+        """This step's order for an active unit: a new move, its remaining squares, or a hold.
+
+        Sent when it changes anything, else only once `heartbeat_s` have passed since the last
+        (a repeat costs the broker, the unit and us a round trip, and tells the unit nothing).
+        """
         assert u.state is not None
         st = u.state
         t = self.track(u.id)
@@ -149,8 +166,13 @@ class Orders:
             t.target = target
             t.content_update = 0
             t.acked_update = 0
-        t.update_id += 1
-        if released != t.sent or t.content_update == 0:
+        action = None if estop else action
+        content = released != t.sent or t.content_update == 0  # awaits an acknowledgement
+        send = content or action != t.action or now - t.sent_at >= heartbeat_s
+        if send:
+            t.update_id += 1
+            t.sent_at, t.action = now, action
+        if content:
             t.content_update = t.update_id
             t.unacked |= set(released)
             t.sent = released
@@ -165,7 +187,8 @@ class Orders:
             released=released,
             planned=planned,
             target=target,
-            action=None if estop else action,
+            action=action,
+            send=send,
         )
 
     def _remaining(self, u: UnitRecord, t: Track) -> list[Cell]:
