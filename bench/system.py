@@ -35,6 +35,7 @@ from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
+from gridfleet.heap import freeze_after_start
 from gridfleet.paths import DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import Scenario
@@ -259,6 +260,7 @@ async def _measure(
     """The measured window and the stop trials, on a running system."""
     units = len(scenario.units)
     topics = Topics(root)
+    freeze_after_start()  # the listener is an instrument: no pauses of its own
     async with contextlib.AsyncExitStack() as stack:
         monitor_client = await stack.enter_async_context(make_client(url, f"{root}-monitor"))
         monitor = BenchMonitor(monitor_client, topics, units)

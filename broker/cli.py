@@ -11,6 +11,7 @@ from pathlib import Path
 
 from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.accounts import load_accounts
+from gridfleet.heap import freeze_after_start
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.tasks import stop_on_signals
 
@@ -76,6 +77,7 @@ async def serve(settings: BrokerSettings) -> None:
     async with EmbeddedBroker(settings) as broker:
         ws = f" and {broker.ws_url}" if broker.ws_url else ""
         print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)
+        freeze_after_start()
         await stop.wait()
     if broker.abandoned:
         # amqtt's own tasks could hold up the loop's shutdown as they held up the broker's; end

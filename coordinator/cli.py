@@ -8,6 +8,7 @@ import asyncio
 from coordinator.service import Coordinator
 from coordinator.store import default_db_path
 from gridfleet.config import check_step
+from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.options import add_common, broker_url
 from gridfleet.protocol.constants import DEFAULT_STEP_S
@@ -50,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     async def main() -> None:
+        freeze_after_start()
         await coordinator.run(stop_on_signals())
 
     asyncio.run(main())

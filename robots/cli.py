@@ -9,6 +9,7 @@ from pathlib import Path
 
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
+from gridfleet.heap import freeze_after_start
 from gridfleet.options import accounts_of, add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
@@ -118,6 +119,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
 
 async def _main(fleet: Fleet, truth: Path | None = None, step: float = DEFAULT_STEP_S) -> None:
     stop = stop_on_signals()
+    freeze_after_start()
     if truth is not None:
         writer = asyncio.create_task(write_truth(fleet.world, truth, step, stop))
     log.info(

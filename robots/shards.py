@@ -20,6 +20,7 @@ from multiprocessing.process import BaseProcess
 from pathlib import Path
 
 from gridfleet.errors import ConfigError, GridfleetError
+from gridfleet.heap import freeze_after_start
 from gridfleet.lifeline import PARENT_ENV, die_with_parent
 from gridfleet.scenario import load_scenario, with_units
 from gridfleet.tasks import stop_on_signals
@@ -85,6 +86,7 @@ def _worker(spec: WorkerSpec) -> None:
 
         async def main() -> None:
             stop = stop_on_signals()
+            freeze_after_start()
             log.info(
                 "worker %d running %d units on %s",
                 os.getpid(),

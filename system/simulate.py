@@ -20,6 +20,7 @@ from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
+from gridfleet.heap import freeze
 from gridfleet.options import add_common
 from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -164,6 +165,7 @@ async def simulate(
         outcome.monitor = monitor
         await operator.start()
         await monitor.start()
+        freeze()  # every part has started: no full collection pauses the run to scan them
         listeners = [asyncio.create_task(operator.listen()), asyncio.create_task(monitor.listen())]
         try:
             await asyncio.wait_for(operator.coordinator_online.wait(), 30)
