@@ -23,12 +23,12 @@ from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_
 LATE_SHARE = 10
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 # An order that changes nothing is repeated once this share of a unit's hold time has passed.
-HEARTBEAT_SHARE = 3
+HEARTBEAT_SHARE = 4
 
 
 def heartbeat_s(step_period_s: float) -> float:
-    """How long an unchanged order goes unrepeated (protocol.md §4.4 rule 6): a third of the time
-    a unit waits for orders before it holds, so one late step cannot make it hold."""
+    """How long an unchanged order goes unrepeated (protocol.md §4.4 rule 6): a quarter of the
+    time a unit waits for orders before it holds, so a late step or two cannot make it hold."""
     return max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * step_period_s) / HEARTBEAT_SHARE
 
 

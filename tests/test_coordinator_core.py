@@ -580,14 +580,14 @@ def test_a_unit_with_a_job_that_stops_making_progress_says_it_is_stuck_and_who_b
     assert _wait(job.id, core)[1].startswith("its unit u has not moved for 31 s")
 
 
-def test_an_order_that_changes_nothing_goes_out_again_only_after_a_third_of_the_hold_time() -> None:
+def test_an_order_that_changes_nothing_goes_out_again_after_a_quarter_of_the_hold_time() -> None:
     grid = GridMap.from_rows(ROWS)
     core = make_core(grid, step_s=0.1)
     yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 10.0, 0.1)])
     meet(core, yard.state("u"), 10.0, step_s=0.1)
     sent = [k for k in range(1, 8) if step_one(core, yard, k * 0.1)]
     # Idle: a hold at once, then the same again every other step (a unit holds after 0.5 s
-    # without orders; a third of that is 0.17 s).
+    # without orders; a quarter of that is 0.125 s).
     assert sent == [1, 3, 5, 7]
     assert yard.units["u"].status == "idle"
     # New squares go out at once, between two repeats, and the unit drives them.
