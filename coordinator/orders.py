@@ -132,8 +132,8 @@ class Orders:
         grid: GridMap,
         route: Callable[[Cell, Cell], list[Cell]],
         step_no: int,
-        now: float = 0.0,
-        heartbeat_s: float = 0.0,
+        now: float,
+        heartbeat_s: float,
     ) -> OrderPlan:
         """This step's order for an active unit: a new move, its remaining squares, or a hold.
 
