@@ -10,7 +10,7 @@ import contextlib
 import logging
 import weakref
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -20,7 +20,7 @@ from amqtt.adapters import (
     WebSocketsReader,
     WebSocketsWriter,
 )
-from amqtt.broker import Broker
+from amqtt.broker import Action, Broker
 from amqtt.errors import MQTTError
 from amqtt.mqtt.connack import NOT_AUTHORIZED, ConnackPacket
 from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
@@ -29,6 +29,7 @@ from amqtt.utils import gen_client_id
 
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.quiet import GONE, quiet_normal_closes
+from broker.routing import Subscriptions
 from gridfleet.errors import ConfigError
 
 log = logging.getLogger("gridfleet.broker")
@@ -36,6 +37,8 @@ log = logging.getLogger("gridfleet.broker")
 
 _TAKEOVER_WAIT_S = 5.0  # how long a newcomer waits for the connection it displaces to end
 _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out
+_YIELD_EVERY = 64  # messages routed in a row before other tasks get a turn
+_BROADCAST_STOP_S = 5.0  # at shutdown, how long deliveries still under way may take
 
 
 @dataclass(frozen=True)
@@ -242,26 +245,12 @@ def _peer(info: Iterable[Any] | None) -> str:
     return f"{host}:{port}"
 
 
-class _Subscriptions(dict[str, list[tuple[Any, int]]]):
-    """amqtt's subscription table (filter -> sessions), iterated over a snapshot."""
-
-    # amqtt 0.12.1's _run_broadcast awaits the ACL check while iterating this table: a client
-    # subscribing to a new filter meanwhile raised "dictionary changed size during iteration"
-    # and the message reached nobody further (seen in `gridfleet up --accounts` at start-up).
-
-    def items(self) -> list[tuple[str, list[tuple[Any, int]]]]:  # type: ignore[override]
-        return list(super().items())
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(list(super().__iter__()))
-
-
 class GridfleetBroker(Broker):  # type: ignore[misc]
     """amqtt's Broker with gridfleet's limits, and its client-id takeover behind authentication."""
 
     def __init__(self, config: dict[str, Any], limits: Limits | None = None) -> None:
         super().__init__(config)
-        self._subscriptions = _Subscriptions()  # empty, as amqtt made it
+        self._subscriptions = Subscriptions()  # empty, as amqtt made it
         self.limits = limits or Limits()
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
         self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
@@ -423,21 +412,74 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             backlog = self._backlogs[handler] = Backlog(str(session.client_id))
         return _Outlet(handler, backlog, self.limits)
 
-    async def _run_broadcast(self, running_tasks: deque[asyncio.Task[Any]]) -> None:
-        """amqtt's, then a sweep of finished deliveries when they pile up."""
-        await super()._run_broadcast(running_tasks)
-        # amqtt 0.12.1 (_broadcast_loop) drops finished deliveries only from the front of this
+    async def _broadcast_loop(self) -> None:
+        """amqtt's loop, without a task and a wait per message: each is routed as it is taken."""
+        # amqtt 0.12.1 starts a task for every message, and waits on it and on the shutdown
+        # future; a queue holding a burst is drained here in one go (yielding now and then).
+        running: deque[asyncio.Future[Any]] = self._tasks_queue
+        queue = self._broadcast_queue
+        try:
+            taken = 0
+            while True:
+                if queue.empty() or taken >= _YIELD_EVERY:
+                    taken = 0
+                    getter = asyncio.ensure_future(queue.get())
+                    shutdown = self._broadcast_shutdown_waiter
+                    await asyncio.wait([getter, shutdown], return_when=asyncio.FIRST_COMPLETED)
+                    if shutdown.done():
+                        getter.cancel()
+                        return
+                    broadcast = getter.result()
+                else:
+                    broadcast = queue.get_nowait()
+                taken += 1
+                await self._route(broadcast, running)
+                self._prune(running)
+        finally:
+            for task in running:
+                task.cancel()
+            if running:
+                await asyncio.wait(running, timeout=_BROADCAST_STOP_S)
+
+    async def _route(self, broadcast: dict[str, Any], running: deque[asyncio.Future[Any]]) -> None:
+        """Deliver one message to every subscription it matches, as amqtt 0.12.1 does."""
+        topic, data = broadcast["topic"], broadcast["data"]
+        forced = broadcast.get("qos")  # amqtt delivers at the subscription's QoS unless forced
+        checking = self.plugins_manager.is_topic_filtering_enabled()
+        for a_filter in self._subscriptions.matching(topic, self._matches):
+            for session, sub_qos in tuple(self._subscriptions.get(a_filter, ())):
+                qos = sub_qos if forced is None else forced
+                if checking and not await self._topic_filtering(
+                    session, topic=topic, action=Action.RECEIVE
+                ):
+                    continue
+                if session.transitions.state != "connected":
+                    # Kept for a persistent session that logged in, at QoS 1 and 2 (MQTT 3.1.2.4).
+                    if not session.clean_session and qos in (1, 2) and not session.is_anonymous:
+                        await self._retain_broadcast_message(broadcast, qos, session)
+                    continue
+                handler = self._get_handler(session)
+                if handler is not None:
+                    delivery = asyncio.ensure_future(
+                        handler.mqtt_publish(topic, data, qos, retain=False)
+                    )
+                    if not delivery.done():
+                        running.append(delivery)
+
+    def _prune(self, running: deque[asyncio.Future[Any]]) -> None:
+        """Drop finished deliveries once they pile up (amortised: when the deque has doubled)."""
+        # amqtt 0.12.1 (_broadcast_loop) dropped finished deliveries only from the front of this
         # deque: one delivery stuck on a client that does not read kept every later one, of every
-        # client, in memory. Sweep the finished ones wherever they are (amortised: the sweep runs
-        # when the deque has doubled since the last one).
-        if len(running_tasks) > self._prune_at:
-            pending = [t for t in running_tasks if not t.done()]
-            for task in running_tasks:
-                if task.done() and not task.cancelled() and task.exception() is not None:
-                    log.debug("broker: a delivery failed: %r", task.exception())
-            running_tasks.clear()
-            running_tasks.extend(pending)
-            self._prune_at = max(_PRUNE_FLOOR, 2 * len(running_tasks))
+        # client, in memory.
+        if len(running) <= self._prune_at:
+            return
+        pending = [t for t in running if not t.done()]
+        for task in running:
+            if task.done() and not task.cancelled() and task.exception() is not None:
+                log.debug("broker: a delivery failed: %r", task.exception())
+        running.clear()
+        running.extend(pending)
+        self._prune_at = max(_PRUNE_FLOOR, 2 * len(running))
 
     # ---- retained messages -------------------------------------------------------------------
 

@@ -8,6 +8,7 @@ import re
 import shutil
 import subprocess
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -265,3 +266,29 @@ async def test_a_browser_tab_closing_mid_stream_leaves_the_log_quiet(
             publisher.disconnect()
     noisy = [r.getMessage() for r in caplog.records if r.name.startswith("amqtt")]
     assert noisy == []
+
+
+def test_subscribing_and_unsubscribing_change_where_an_already_routed_topic_goes(
+    broker: BrokerThread, root: str, probe_factory: Callable[..., MqttProbe]
+) -> None:
+    # The embedded broker remembers which filters a topic matched: a filter added or dropped
+    # after the topic was first routed must still count (broker/routing.py).
+    topic, marker = f"{root}/units/u1/state", f"{root}/marker"
+    early, late, sender = probe_factory(), probe_factory(), probe_factory()
+    early.subscribe(f"{root}/units/+/state")
+    early.subscribe(marker)
+    sender.publish(topic, b"1")
+    early.wait(topic, lambda m: m.payload == b"1")
+    late.subscribe(f"{root}/#")
+    sender.publish(topic, b"2")
+    late.wait(topic, lambda m: m.payload == b"2")
+    unsubscribed = threading.Event()
+    early.client.on_unsubscribe = lambda *_: unsubscribed.set()
+    early.client.unsubscribe(f"{root}/units/+/state")
+    assert unsubscribed.wait(10), "no UNSUBACK"
+    sender.publish(topic, b"3")
+    sender.publish(marker, b"after 3")
+    early.wait(marker)  # the same publisher's messages keep their order: 3 came before this
+    late.wait(marker)
+    assert [m.payload for m in early.received(topic)] == [b"1", b"2"]
+    assert [m.payload for m in late.received(topic)] == [b"2", b"3"]
