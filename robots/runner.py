@@ -35,8 +35,12 @@ class UnitRunner:
         max_reconnect_s: float = 5.0,
         on_step: Callable[[UnitLogic], None] | None = None,
         model: str = "gridfleet-sim",
+        phase_s: float = 0.0,
     ) -> None:
         self.core = UnitCore(logic, topics, color=color, model=model)
+        # Where in the step period this unit steps: a unit has a clock of its own, so the units
+        # of one process do not all step (and publish) in the same instant.
+        self.phase_s = phase_s
         self.on_step = on_step  # after each step, e.g. to save where the unit stands
         self.world = world
         self.id = logic.unit_id
@@ -100,7 +104,7 @@ class UnitRunner:
 
     async def _ticks(self, stop: asyncio.Event) -> None:
         step_s = self.logic.step_s
-        due = self._now()
+        due = self._now() + self.phase_s
         while not stop.is_set() and not self.killed:
             due += step_s
             delay = due - self._now()

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from bench.system_scenario import make_scenario
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -132,3 +133,17 @@ def test_two_units_on_one_square_or_a_file_that_is_no_database_are_refused(tmp_p
     junk.write_bytes(b"this is not a database" * 100)
     with pytest.raises(ConfigError, match=r"junk\.sqlite3"):
         Fleet(scenario, "mqtt://127.0.0.1:1", state_path=junk)
+
+
+def test_a_process_s_units_step_in_groups_of_at_most_twelve_spread_over_the_step_period(
+    tmp_path: Path,
+) -> None:
+    # One process's units stepping in the same instant sent their states in one burst, and the
+    # last of them waited for all the others (bench/README.md, issue 15).
+    scenario = make_scenario(50, 0, tmp_path)
+    fleet = Fleet(scenario, "mqtt://127.0.0.1:1", step=0.2)
+    phases = [round(r.phase_s, 6) for r in fleet.runners.values()]
+    assert sorted(set(phases)) == [0.0, 0.04, 0.08, 0.12, 0.16]
+    assert all(phases.count(p) == 10 for p in set(phases))
+    few = Fleet(scenario, "mqtt://127.0.0.1:1", step=0.2, units=[u.id for u in scenario.units[:12]])
+    assert {r.phase_s for r in few.runners.values()} == {0.0}  # a dozen step together
