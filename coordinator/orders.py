@@ -19,8 +19,10 @@ from gridfleet.protocol import Action, UnitState
 from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 # A step waits for acknowledgements only while more than one in LATE_SHARE of the units ordered
-# still owe one (see Orders.holding_back).
-LATE_SHARE = 10
+# still owe one (see Orders.holding_back). A unit acknowledges with the state of its next step,
+# and units step when their own clocks say: at the next step, the units whose step comes late in
+# the period have not yet (protocol.md §4.3).
+LATE_SHARE = 3
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 # An order that changes nothing is repeated once this share of a unit's hold time has passed.
 HEARTBEAT_SHARE = 4
@@ -217,7 +219,7 @@ class Orders:
 
     @property
     def holding_back(self) -> bool:
-        """Whether the next step should wait: more units than a few late ones still owe acks.
+        """Whether the next step should wait: more than a third of the units ordered owe acks.
 
         A late unit gets no new squares until its state shows it settled, whatever the step (the
         planner moves settled units only), so waiting for the slowest of a hundred would only

@@ -2,8 +2,9 @@
 
 `UnitCore` wraps a `UnitLogic` with the wire: it reads every inbound topic a unit follows (the stop,
 orders, goals, the coordinator's status), connects, disconnects and steps, and returns the
-messages to publish as `Outbound`s, in the order they must leave: the state after every step and
-change, the direction only when it changed, an error report (with the reason) for every refused
+messages to publish as `Outbound`s, in the order they must leave: the state after a step that
+changed something (an accepted order's included) and at once on the stop, the direction whenever
+it changed (an order's first move at once), an error report (with the reason) for every refused
 message, `online` and the factsheet on connect. Time comes in as `now`; headers come from the
 stamper it is given, so tests can pin every payload.
 """
@@ -26,7 +27,6 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
     decode,
-    decode_direction,
     encode_direction,
 )
 from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
@@ -161,9 +161,11 @@ class UnitCore:
         verdict = self.logic.on_order(order, now)
         if verdict.result == "refused":
             return [self._report(topic, verdict.reason or ""), *self.state()]
-        if verdict.result != "accepted" or self._condition() == self._told:
-            return []  # a heartbeat: the next state (a step's change, or the heartbeat) has it
-        return self.state()
+        if verdict.result != "accepted":
+            return []
+        # The order is acknowledged by the next step's state, which usually shows the move it
+        # released too; the LEDs show that move at once.
+        return self.direction()
 
     def _on_goal(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
         try:
@@ -239,9 +241,14 @@ class UnitCore:
             return []
         self._told, self._quiet_ticks = self._condition(), 0
         state = self.logic.report(self.stamp("state"))
-        outs = [Outbound.of("state", self.topics.unit("state", self.id), state)]
-        direction = encode_direction(decode_direction(state.direction))
-        if direction != self._sent_direction:
-            self._sent_direction = direction
-            outs.append(Outbound.of("direction", self.topics.unit("direction", self.id), direction))
-        return outs
+        return [Outbound.of("state", self.topics.unit("state", self.id), state), *self.direction()]
+
+    def direction(self) -> list[Outbound]:
+        """The direction, when it changed since it was last sent; nothing while disconnected."""
+        if not self.logic.connected:
+            return []
+        direction = encode_direction(self.logic.direction)
+        if direction == self._sent_direction:
+            return []
+        self._sent_direction = direction
+        return [Outbound.of("direction", self.topics.unit("direction", self.id), direction)]

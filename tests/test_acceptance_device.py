@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -19,7 +20,7 @@ import pytest
 from device.logic import DeviceLogic
 from device.shell import VirtualDevice
 from gridfleet.grid import Cell, Direction
-from gridfleet.protocol import Leds, Topics, UnitState, decode_direction, decode_estop
+from gridfleet.protocol import Leds, Topics, UnitState, decode, decode_direction, decode_estop
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, world_of
 
@@ -92,15 +93,56 @@ def assert_follows(shown: list[T], published: list[T]) -> None:
     assert len(shown) >= 0.9 * len(published) - 1, f"shown {shown} misses much of {published}"
 
 
-def check_intentions(unit: str, states: list[UnitState]) -> int:
-    """Check one unit's published states against protocol §4.3; returns the moves it checked.
+def in_order(sub: list[T], seq: list[T]) -> int:
+    """How many of `sub` appear in `seq` in the same order (the longest common subsequence)."""
+    row = [0] * (len(seq) + 1)
+    for x in sub:
+        diagonal = 0
+        for j, y in enumerate(seq, 1):
+            diagonal, row[j] = row[j], diagonal + 1 if x == y else max(row[j], row[j - 1])
+    return row[-1]
+
+
+def display(op: OperatorPeer, unit: str, since: float = 0.0) -> list[tuple[UnitState | None, Leds]]:
+    """What the unit's display showed, in order: each state with its LEDs, and each direction.
+
+    The display follows the `direction` topic (the device's feed), which names an order's first
+    move at once, between two steps, and each state's LEDs (protocol §4.3, §4.6). Messages are
+    ordered by their arrival at the probe (one connection: in the order the unit sent them).
+    """
+    seen = [
+        *op.probe.received(op.topics.unit("state", unit)),
+        *op.probe.received(op.topics.unit("direction", unit)),
+    ]
+    shown: list[tuple[UnitState | None, Leds]] = []
+    for m in sorted(seen, key=lambda m: m.at):
+        if m.at < since:
+            continue
+        if m.topic.endswith("/direction"):
+            d = decode_direction(m.payload)
+            shown.append((None, Leds(**{k.value: k is d for k in Direction})))
+        else:
+            state = decode(UnitState, m.payload)
+            shown.append((state, state.leds))
+    return shown
+
+
+def check_intentions(unit: str, shown: list[tuple[UnitState | None, Leds]]) -> int:
+    """Check what one unit showed against protocol §4.3 and §4.6; returns the moves it checked.
 
     Every state lights exactly the LED of its `direction` (none for `-`), all four while
     stopped; every move between two consecutive states (no QoS 0 gap in `seq`) is one square in
-    the direction the earlier state showed; a unit that showed a direction and then stepped
-    either made exactly that move, or was stopped or holding, or its own sensor saw a unit still
-    in the square it was released.
+    the direction the display showed last before it (a state's, or the direction topic's); a unit
+    that showed a direction and then stepped either made exactly that move, or was stopped or
+    holding, or its own sensor saw a unit still in the square it was released.
     """
+    states = [s for s, _ in shown if s is not None]
+    before_each: dict[int, Leds] = {}  # a state's seq -> the LEDs shown just before it
+    last = Leds()
+    for s, leds in shown:
+        if s is not None:
+            before_each[s.header.seq] = last
+        last = leds
     moves = waits = 0
     for s in states:
         if s.estop or s.status == "stopped":
@@ -116,9 +158,11 @@ def check_intentions(unit: str, states: list[UnitState]) -> int:
         if after.step == before.step:
             assert there == here, f"{unit} moved without a step at {before.step}"
             continue
-        if before.direction == "-" or before.estop:
+        lit_before = lit(before_each[after.header.seq])
+        if len(lit_before) != 1 or before.estop:
             assert there == here, f"{unit} moved {here}->{there} without showing a direction"
             continue
+        (showed,) = lit_before
         if after.status in ("stopped", "holding"):
             assert there == here, f"{unit} moved while {after.status}"
             continue
@@ -127,9 +171,9 @@ def check_intentions(unit: str, states: list[UnitState]) -> int:
             # (protocol §4.4 rule 4) and shows the direction again, or another, next.
             waits += 1
             continue
-        expected = here.step(Direction(before.direction))
+        expected = here.step(Direction(showed))
         assert there == expected, (
-            f"{unit} showed {before.direction} at {here} (step {before.step}) "
+            f"{unit} showed {showed} at {here} (step {before.step}) "
             f"but is at {there} ({after.status}: {after.wait_reason})"
         )
         moves += 1
@@ -177,12 +221,12 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
         what="every unit idle",
     )
     assert world.collisions == 0
-    checked = {u: check_intentions(u, op.states(u)) for u in units}
+    checked = {u: check_intentions(u, display(op, u)) for u in units}
     for unit in units:
-        # The device topic carries every change of the state's direction, in order.
-        assert_follows(
-            op.directions(unit), dedup([decode_direction(s.direction) for s in op.states(unit)])
-        )
+        # The device topic carries every change of the state's direction, in order (and an
+        # order's first move between two steps): QoS 0 may lose a few (protocol §3).
+        told = dedup([decode_direction(s.direction) for s in op.states(unit)])
+        assert in_order(told, dedup(op.directions(unit))) >= 0.9 * len(told) - 1, unit
     stopped = {u: sum(s.status == "stopped" for s in op.states(u)) for u in units}
     # Nothing vacuous: (nearly) every move was compared, and every unit was seen stopped.
     assert sum(checked.values()) >= 0.9 * sum(world.moves.values()), (checked, world.moves)
@@ -232,8 +276,8 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         # 1. The device follows unit1 while all four units cross the field.
         goals = {"unit1": Cell(9, 3), "unit2": Cell(0, 3), "unit3": Cell(9, 6), "unit4": Cell(0, 6)}
         before = op.states("unit1")
-        first = len(before)
         assert before and before[-1].leds == Leds()
+        since = time.monotonic()  # what the unit shows from here on
         for unit, target in goals.items():
             await asyncio.to_thread(send_goal, op, unit, target)
         await async_wait_for(
@@ -246,12 +290,11 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
             5,
             what="unit1 and the device at rest",
         )
-        states = op.states("unit1")[first:]
-        check_intentions("unit1", states)
+        check_intentions("unit1", display(op, "unit1", since))
         # From the idle state before the goals (what the device showed since it came online):
         # under load the first state after the mark may already show a move.
-        unit_shows = dedup([s.leds for s in op.states("unit1")[first - 1 :]])
-        # Each state's LEDs were shown by the device, in the same order, nothing else in between.
+        unit_shows = dedup([Leds(), *(leds for _, leds in display(op, "unit1", since))])
+        # What the unit showed, the device showed, in the same order, nothing else in between.
         assert_follows(dedup(shown), unit_shows)
         assert len(unit_shows) >= 4 and {"E", "S"} <= {d for x in unit_shows for d in lit(x)}
 

@@ -117,8 +117,8 @@ def test_a_few_late_units_do_not_hold_back_the_steps_of_the_rest() -> None:
             )
         return orders.holding_back
 
-    assert step(20, 0) and step(20, 17)  # three of twenty late: wait (a while)
-    assert not step(20, 18) and not step(20, 20)  # two late: they get no squares meanwhile
+    assert step(20, 0) and step(20, 13)  # seven of twenty late: wait (a while)
+    assert not step(20, 14) and not step(20, 20)  # six late: they get no squares meanwhile
     assert step(1, 0) and not step(1, 1)  # one unit: it is the fleet
     # A heartbeat (the same squares again, acknowledged) is not awaited.
     orders.expect({"u0": OrderPlan("n-u0", 2, 2, [Cell(0, 0)], [], None, None)})

@@ -170,7 +170,7 @@ def test_a_tick_moves_into_the_released_square_shown_before() -> None:
     order = {"order_id": "o1", "order_update_id": 1}
     assert published(core.tick(lambda: FREE, allow, 0.3), ROOT) == [
         state(
-            3,
+            2,
             step=2,
             position=[1, 1],
             direction="E",
@@ -181,7 +181,7 @@ def test_a_tick_moves_into_the_released_square_shown_before() -> None:
         )
     ]
     assert published(core.tick(lambda: FREE, allow, 0.4), ROOT) == [
-        state(4, step=3, position=[2, 1], status="moving", **order),
+        state(3, step=3, position=[2, 1], status="moving", **order),
         direction("-"),
     ]
 
@@ -228,40 +228,45 @@ def test_a_clean_stop_says_offline() -> None:
 # ---- orders -----------------------------------------------------------------------------------
 
 
-def test_an_accepted_order_shows_its_first_move_at_once() -> None:
+def test_an_accepted_order_shows_its_first_move_at_once_and_the_next_state_acknowledges_it() -> (
+    None
+):
+    # 100 units: a state answering each order made a burst after every coordinator step.
     core = ready()
     outs = core.on_message(
         ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1), Cell(2, 1)]), 0.3
     )
-    assert published(outs, ROOT) == [
+    assert published(outs, ROOT) == [direction("E")]  # the LEDs: at once
+    assert published(core.tick(lambda: FREE, allow, 0.4), ROOT) == [
         state(
             2,
+            step=2,
+            position=[1, 1],
             direction="E",
-            status="waiting",
-            wait_reason="moves at the next step",
+            status="moving",
             leds=LED_E,
             order_id="o1",
             order_update_id=1,
-            released=[[1, 1], [2, 1]],
-        ),
-        direction("E"),
+            released=[[2, 1]],
+        )
     ]
 
 
-def test_a_heartbeat_order_is_told_with_the_next_state_not_at_once() -> None:
-    # 100 units: a state for every heartbeat order was a third of the fleet's traffic.
+def test_orders_are_told_with_the_next_state_not_at_once() -> None:
     core = ready()
     hold = order_bytes("o1", 1, [])
-    assert published(core.on_message(ROOT + "units/u1/order", hold, 0.3), ROOT) == [
-        state(2, order_id="o1", order_update_id=1)  # a new order: news
+    assert core.on_message(ROOT + "units/u1/order", hold, 0.3) == []  # nothing to show yet
+    assert published(core.tick(lambda: FREE, refuse, 0.35), ROOT) == [
+        state(2, step=2, order_id="o1", order_update_id=1)  # a new order: news
     ]
     again = order_bytes("o1", 2, [])
-    assert core.on_message(ROOT + "units/u1/order", again, 0.35) == []  # nothing but its id
+    assert core.on_message(ROOT + "units/u1/order", again, 0.4) == []
     assert core.logic.order_update_id == 2  # taken all the same
+    assert core.tick(lambda: FREE, refuse, 0.45) == []  # a heartbeat: nothing but its id
     moved = order_bytes("o1", 3, [Cell(1, 1)])
-    assert published(core.on_message(ROOT + "units/u1/order", moved, 0.4), ROOT)[0][1][
-        "released"
-    ] == [[1, 1]]  # squares released: at once
+    core.on_message(ROOT + "units/u1/order", moved, 0.5)
+    told = published(core.tick(lambda: FREE, lambda d: False, 0.55), ROOT)[0][1]
+    assert (told["order_update_id"], told["released"]) == (3, [[1, 1]])
 
 
 def test_a_unit_standing_still_is_heard_every_third_step() -> None:
@@ -334,7 +339,7 @@ def test_the_stop_engaged_halts_drops_the_release_and_lights_every_led() -> None
     outs = core.on_message(ROOT + "fleet/estop", b"engaged|dashboard|operator pressed STOP", 0.3)
     assert published(outs, ROOT) == [
         state(
-            3,
+            2,
             status="stopped",
             wait_reason="emergency stop engaged",
             leds=LEDS_ALL,

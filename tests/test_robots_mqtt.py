@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import itertools
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -16,7 +15,9 @@ from gridfleet.protocol import (
     Connection,
     Order,
     Topics,
+    UnitState,
     decode,
+    decode_direction,
     encode,
 )
 from gridfleet.scenario import Scenario, load_scenario
@@ -112,14 +113,25 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
         Cell(2, 2),
         Cell(3, 2),
     ]
-    for before, after in itertools.pairwise(states):
-        if after.position != before.position:
-            made = Cell(*before.position).direction_to(Cell(*after.position))
-            assert made is not None and before.direction == made.value
-            lit = [k for k, v in before.leds.model_dump().items() if v]
-            assert lit == [made.value], f"LEDs {lit} before a move {made.value}"
-        if before.direction == "-" and not before.estop:
-            assert not any(before.leds.model_dump().values())
+    # Each move was shown before it was made: the direction named it before the state that
+    # reports the move (an order's first move is shown at once, between steps; protocol §4.6).
+    seen = [
+        *c.probe.received(topics.unit("state", "u1")),
+        *c.probe.received(topics.unit("direction", "u1")),
+    ]
+    shown: Direction | None = None
+    at = Cell(0, 1)
+    for m in sorted(seen, key=lambda m: m.at):
+        if m.topic.endswith("/direction"):
+            shown = decode_direction(m.payload)
+            continue
+        s = decode(UnitState, m.payload)
+        if s.position != at:
+            made = at.direction_to(s.position)
+            assert made is not None and shown is made, f"{shown} shown before a move {made}"
+            at = s.position
+        lit = [k for k, v in s.leds.model_dump().items() if v]
+        assert lit == ([] if s.direction == "-" else [s.direction])  # the LEDs say the direction
     directions = c.directions("u1")
     assert Direction.E in directions and Direction.S in directions and directions[-1] is None
 
