@@ -433,7 +433,10 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
                 else:
                     broadcast = queue.get_nowait()
                 taken += 1
-                await self._route(broadcast, running)
+                try:
+                    await self._route(broadcast, running)
+                except Exception:  # one message that cannot be routed must not stop the rest
+                    log.exception("broker: could not route a message on %s", broadcast["topic"])
                 self._prune(running)
         finally:
             for task in running:

@@ -122,6 +122,31 @@ def test_a_bigger_packet_disconnects_its_sender_and_reaches_nobody(
     assert late.received(topic) == []
 
 
+def test_a_message_the_broker_cannot_route_is_dropped_and_the_next_ones_still_go(
+    broker: BrokerThread,
+    probe_factory: Callable[..., MqttProbe],
+    root: str,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The broker routes messages one after another in one loop (broker/amqtt_broker.py): a
+    # failure on one (a bug, a plugin raising) must not end the loop, or nobody hears anything.
+    matches = GridfleetBroker._matches
+
+    def failing(self: GridfleetBroker, topic: str, a_filter: str) -> bool:
+        if topic.endswith("/unroutable"):
+            raise RuntimeError("a routing bug")
+        return bool(matches(self, topic, a_filter))
+
+    monkeypatch.setattr(GridfleetBroker, "_matches", failing)
+    live = probe_factory()
+    live.subscribe(f"{root}/#")
+    sender = probe_factory()
+    sender.publish(f"{root}/unroutable", b"lost")
+    sender.publish(f"{root}/after", b"delivered")
+    assert live.wait(f"{root}/after").payload == b"delivered"
+    assert live.received(f"{root}/unroutable") == []
+
+
 def test_a_burst_of_mixed_qos_reaches_a_subscriber_whole_and_in_order_per_qos(
     broker: BrokerThread, probe_factory: Callable[..., MqttProbe], root: str
 ) -> None:
