@@ -74,7 +74,8 @@ def test_up_runs_everything_and_ctrl_c_stops_it_cleanly(
     # Each component left cleanly when asked to (the dashboard on SIGTERM too).
     stops = dict(re.findall(r"^\[(\w+) *\] stopped \(code (-?\d+)\)$", out.text, re.M))
     assert {"coordinator", "robots", "dashboard"} <= set(stops), out.text[-3000:]
-    assert set(stops.values()) == {"0"}, stops  # the operator too, when stopped mid-submission
+    # The operator too, when stopped mid-submission.
+    assert set(stops.values()) == {"0"}, out.text[-3000:]
     wait_for(lambda: not any(alive(p) for p in pids), 10, what="every component to exit")
     # Each unit said "offline" on its way out.
     checker = probe_factory()
