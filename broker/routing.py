@@ -11,9 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-MAX_CACHED_TOPICS = (
-    16384  # topics whose matches are kept; more (a client inventing topics) start afresh
-)
+# Topics whose matches are kept; past that (a client inventing topics) the table starts afresh.
+MAX_CACHED_TOPICS = 16384
 
 Sessions = list[tuple[Any, int]]  # (amqtt session, subscription QoS), in subscription order
 
