@@ -20,7 +20,7 @@ import pytest
 from device.logic import DeviceLogic
 from device.shell import VirtualDevice
 from gridfleet.grid import Cell, Direction
-from gridfleet.protocol import Leds, Topics, UnitState, decode, decode_direction, decode_estop
+from gridfleet.protocol import Leds, Topics, UnitState, decode_direction, decode_estop
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, world_of
 
@@ -101,30 +101,6 @@ def in_order(sub: list[T], seq: list[T]) -> int:
         for j, y in enumerate(seq, 1):
             diagonal, row[j] = row[j], diagonal + 1 if x == y else max(row[j], row[j - 1])
     return row[-1]
-
-
-def display(op: OperatorPeer, unit: str, since: float = 0.0) -> list[tuple[UnitState | None, Leds]]:
-    """What the unit's display showed, in order: each state with its LEDs, and each direction.
-
-    The display follows the `direction` topic (the device's feed), which names an order's first
-    move at once, between two steps, and each state's LEDs (protocol §4.3, §4.6). Messages are
-    ordered by their arrival at the probe (one connection: in the order the unit sent them).
-    """
-    seen = [
-        *op.probe.received(op.topics.unit("state", unit)),
-        *op.probe.received(op.topics.unit("direction", unit)),
-    ]
-    shown: list[tuple[UnitState | None, Leds]] = []
-    for m in sorted(seen, key=lambda m: m.at):
-        if m.at < since:
-            continue
-        if m.topic.endswith("/direction"):
-            d = decode_direction(m.payload)
-            shown.append((None, Leds(**{k.value: k is d for k in Direction})))
-        else:
-            state = decode(UnitState, m.payload)
-            shown.append((state, state.leds))
-    return shown
 
 
 def check_intentions(unit: str, shown: list[tuple[UnitState | None, Leds]]) -> int:
@@ -221,7 +197,7 @@ def test_05_the_unit_shows_its_intended_direction_every_step(
         what="every unit idle",
     )
     assert world.collisions == 0
-    checked = {u: check_intentions(u, display(op, u)) for u in units}
+    checked = {u: check_intentions(u, op.display(u)) for u in units}
     for unit in units:
         # The device topic carries every change of the state's direction, in order (and an
         # order's first move between two steps): QoS 0 may lose a few (protocol §3).
@@ -290,10 +266,10 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
             5,
             what="unit1 and the device at rest",
         )
-        check_intentions("unit1", display(op, "unit1", since))
+        check_intentions("unit1", op.display("unit1", since))
         # From the idle state before the goals (what the device showed since it came online):
         # under load the first state after the mark may already show a move.
-        unit_shows = dedup([Leds(), *(leds for _, leds in display(op, "unit1", since))])
+        unit_shows = dedup([Leds(), *(leds for _, leds in op.display("unit1", since))])
         # What the unit showed, the device showed, in the same order, nothing else in between.
         assert_follows(dedup(shown), unit_shows)
         assert len(unit_shows) >= 4 and {"E", "S"} <= {d for x in unit_shows for d in lit(x)}

@@ -13,11 +13,10 @@ from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
     Connection,
+    Leds,
     Order,
     Topics,
-    UnitState,
     decode,
-    decode_direction,
     encode,
 )
 from gridfleet.scenario import Scenario, load_scenario
@@ -25,6 +24,7 @@ from robots.fleet import Fleet
 from robots.unit import Mode
 from system.broker_thread import BrokerThread
 
+from support.fleet_peer import leds_for
 from support.peers import DispatchPeer
 from support.probe import MqttProbe
 from support.wait import async_wait_for
@@ -115,23 +115,16 @@ async def test_unit_moves_and_its_published_pose_and_leds_follow(
     ]
     # Each move was shown before it was made: the direction named it before the state that
     # reports the move (an order's first move is shown at once, between steps; protocol §4.6).
-    seen = [
-        *c.probe.received(topics.unit("state", "u1")),
-        *c.probe.received(topics.unit("direction", "u1")),
-    ]
-    shown: Direction | None = None
+    shown = Leds()
     at = Cell(0, 1)
-    for m in sorted(seen, key=lambda m: m.at):
-        if m.topic.endswith("/direction"):
-            shown = decode_direction(m.payload)
-            continue
-        s = decode(UnitState, m.payload)
-        if s.position != at:
+    for s, leds in c.display("u1"):
+        if s is not None and s.position != at:
             made = at.direction_to(s.position)
-            assert made is not None and shown is made, f"{shown} shown before a move {made}"
+            assert made is not None and shown == leds_for(made), f"{shown} before a move {made}"
             at = s.position
-        lit = [k for k, v in s.leds.model_dump().items() if v]
-        assert lit == ([] if s.direction == "-" else [s.direction])  # the LEDs say the direction
+        if s is not None:  # the LEDs say the direction
+            assert s.leds == leds_for(None if s.direction == "-" else Direction(s.direction))
+        shown = leds
     directions = c.directions("u1")
     assert Direction.E in directions and Direction.S in directions and directions[-1] is None
 

@@ -15,6 +15,7 @@ from gridfleet.protocol import (
     ErrorReport,
     JobsView,
     JobView,
+    Leds,
     Topics,
     UnitState,
     decode,
@@ -23,6 +24,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 
+from support.fleet_peer import leds_for
 from support.probe import MqttProbe
 
 
@@ -48,6 +50,29 @@ class FleetReader:
         """Every direction `unit` published for its device (None: no move), in order."""
         seen = self.probe.received(self.topics.unit("direction", unit))
         return [decode_direction(m.payload) for m in seen]
+
+    def display(self, unit: str, since: float = 0.0) -> list[tuple[UnitState | None, Leds]]:
+        """What `unit`'s display showed, in order: each state with its LEDs, each direction.
+
+        The display follows the `direction` topic (the device's feed), which names an order's
+        first move at once, between two steps, and each state's LEDs (protocol §4.3, §4.6).
+        Messages are taken in their order of arrival here (one connection: the unit's order),
+        from monotonic time `since` on; a direction message comes as (None, its LEDs).
+        """
+        seen = [
+            *self.probe.received(self.topics.unit("state", unit)),
+            *self.probe.received(self.topics.unit("direction", unit)),
+        ]
+        shown: list[tuple[UnitState | None, Leds]] = []
+        for m in sorted(seen, key=lambda m: m.at):
+            if m.at < since:
+                continue
+            if m.topic.endswith("/direction"):
+                shown.append((None, leds_for(decode_direction(m.payload))))
+            else:
+                state = decode(UnitState, m.payload)
+                shown.append((state, state.leds))
+        return shown
 
     def connections(self, unit: str) -> list[str]:
         """What `unit`'s connection topic said (`online`, `offline`, `broken`: its last will).
