@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from broker.routing import Subscriptions
+from broker.routing import MAX_CACHED_TOPICS, Subscriptions
 
 
 def test_the_broker_subscription_table_survives_a_subscribe_mid_broadcast() -> None:
@@ -58,3 +58,11 @@ def test_a_session_joining_a_known_filter_needs_no_new_match() -> None:
     table["a/+"] = table["a/+"]
     assert table.matching("a/b", counting) == ("a/+",)
     assert calls == [("a/b", "a/+")]  # looked up, not searched again
+
+
+def test_a_client_inventing_topics_cannot_grow_the_table_s_memory_without_bound() -> None:
+    table = Subscriptions({"a/#": [], "b/+": []})
+    for n in range(MAX_CACHED_TOPICS + 10):
+        table.matching(f"a/{n}", _matches)
+    assert len(table._matching) <= MAX_CACHED_TOPICS
+    assert table.matching("a/1", _matches) == ("a/#",)  # still right after starting afresh
