@@ -27,6 +27,7 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.mqtt.publish import PublishPacket
 from amqtt.utils import gen_client_id
 
+from broker.gate import Gate
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.quiet import GONE, quiet_normal_closes
 from broker.routing import Subscriptions
@@ -85,13 +86,16 @@ class Backlog:
 def make_broker(
     config: dict[str, Any],
     *,
+    gate: Gate | None = None,
     max_packet_bytes: int = MAX_PACKET_BYTES,
     max_queued_messages: int = MAX_QUEUED_MESSAGES,
     max_queued_bytes: int = MAX_QUEUED_BYTES,
 ) -> GridfleetBroker:
-    """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits."""
+    """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits; with a
+    `gate`, only its accounts get in (`config` then carries their topic rules, no auth plugin)."""
     quiet_normal_closes()
-    return GridfleetBroker(config, Limits(max_packet_bytes, max_queued_messages, max_queued_bytes))
+    limits = Limits(max_packet_bytes, max_queued_messages, max_queued_bytes)
+    return GridfleetBroker(config, limits, gate)
 
 
 class _GuardedReader:
@@ -248,8 +252,11 @@ def _peer(info: Iterable[Any] | None) -> str:
 class GridfleetBroker(Broker):  # type: ignore[misc]
     """amqtt's Broker with gridfleet's limits, and its client-id takeover behind authentication."""
 
-    def __init__(self, config: dict[str, Any], limits: Limits | None = None) -> None:
+    def __init__(
+        self, config: dict[str, Any], limits: Limits | None = None, gate: Gate | None = None
+    ) -> None:
         super().__init__(config)
+        self.gate = gate  # None: amqtt's auth plugins decide (anonymous on loopback)
         self._subscriptions = Subscriptions()  # empty, as amqtt made it
         self.limits = limits or Limits()
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
@@ -312,8 +319,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             with contextlib.suppress(Exception):
                 await writer.close()
             raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
-        # amqtt's _authenticate ignores its listener argument in 0.12.1.
-        if not await super()._authenticate(incoming, None):
+        refusal = await self._refusal(incoming, remote_address)
+        if refusal is not None:
+            log.warning("broker: refused %s (client id %r): %s", peer, incoming.client_id, refusal)
             # A refused client may hang up first (over TLS a reset surfaced as a traceback).
             with contextlib.suppress(ConnectionError):
                 await ConnackPacket.build(0, NOT_AUTHORIZED).to_stream(writer)
@@ -357,6 +365,28 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         session.attributes["gridfleet.authenticated"] = True  # for _authenticate, next
         self._ended[handler] = asyncio.Event()
         return handler, session
+
+    async def _refusal(self, incoming: Any, address: str) -> str | None:
+        """Why this CONNECT is refused (None: let it in): its account, client id and will."""
+        if self.gate is None:
+            # amqtt's _authenticate ignores its listener argument in 0.12.1.
+            if not await super()._authenticate(incoming, None):
+                return "not authorized"
+            return None
+        refusal = self.gate.refusal(
+            incoming.username, incoming.password, incoming.client_id or "", address
+        )
+        if refusal is not None:
+            return refusal
+        # amqtt 0.12.1 sends and retains a will without asking the topic rules: a device's will
+        # on the stop's latch released an operator's stop. A will goes out only as a publish of
+        # the account's own would; one it could not publish is refused now, not dropped later,
+        # so the client learns at once that its will would never be heard.
+        if incoming.will_flag and not await self._topic_filtering(
+            incoming, topic=incoming.will_topic, action=Action.PUBLISH
+        ):
+            return f"{incoming.username!r} may not publish its will's topic {incoming.will_topic!r}"
+        return None
 
     async def _authenticate(self, session: Any, listener: Any) -> bool:
         """amqtt's check, skipped for the session just authenticated above (Argon2 costs ~30 ms)."""

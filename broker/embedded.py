@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+from broker.gate import Gate
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.tls import amqtt_listener_context
 from gridfleet.accounts import Accounts, rules
@@ -83,8 +82,8 @@ class BrokerSettings:
         """Whether the listeners are mqtts and wss."""
         return self.tls_cert is not None
 
-    def amqtt_config(self, password_file: Path | None = None) -> dict[str, Any]:
-        """The amqtt configuration dictionary (with accounts: their hashed `password_file`)."""
+    def amqtt_config(self) -> dict[str, Any]:
+        """The amqtt configuration dictionary (with accounts: their topic rules)."""
         # Each listener says everything: amqtt fills unset keys from the one named `default`.
         tls: dict[str, Any] = {"ssl": False}
         if self.tls_cert is not None:
@@ -110,31 +109,17 @@ class BrokerSettings:
                 "amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}
             }
         else:
-            # Never beside the anonymous plugin: with both, anonymous clients get in.
-            assert password_file is not None, "accounts need their password file"
+            # No auth plugin: the broker's Gate checks the accounts (broker/gate.py), and amqtt
+            # with no auth plugin refuses anyone who got past it some other way.
             topics = Topics(self.root)
             allowed = {a.name: rules(a, topics) for a in self.accounts.accounts.values()}
             plugins = {
-                "amqtt.plugins.authentication.FileAuthPlugin": {
-                    "password_file": str(password_file)
-                },
                 "amqtt.plugins.topic_checking.TopicAccessControlListPlugin": {
                     "acl": {name: list(r.subscribe) for name, r in allowed.items()},
                     "publish_acl": {name: list(r.publish) for name, r in allowed.items()},
                 },
             }
         return {"listeners": listeners, "plugins": plugins}
-
-
-def password_lines(accounts: Accounts) -> str:
-    """amqtt's password file: `name:<argon2 hash>` per account."""
-    from pwdlib import PasswordHash  # installed with amqtt
-    from pwdlib.hashers.argon2 import Argon2Hasher
-
-    # amqtt checks passwords on its event loop: pwdlib's default cost (~190 ms a check here)
-    # would stall the broker for seconds when a fleet reconnects; this one takes ~30 ms.
-    hasher = PasswordHash((Argon2Hasher(time_cost=2, memory_cost=19456, parallelism=1),))
-    return "".join(f"{a.name}:{hasher.hash(a.password)}\n" for a in accounts.accounts.values())
 
 
 def load_settings(path: str | Path, base: BrokerSettings | None = None) -> BrokerSettings:
@@ -169,7 +154,6 @@ class EmbeddedBroker:
         self.settings = settings or BrokerSettings()
         self._broker: Any = None
         self.abandoned = False  # stopped without amqtt finishing its shutdown (see SHUTDOWN_S)
-        self._secrets: tempfile.TemporaryDirectory[str] | None = None
         self.port: int | None = None
         self.ws_port: int | None = None
 
@@ -187,18 +171,12 @@ class EmbeddedBroker:
 
     async def start(self) -> None:
         """Bind the listeners; raises ConfigError when a port cannot be bound."""
-        password_file = None
-        if self.settings.accounts is not None:
-            self._secrets = tempfile.TemporaryDirectory(prefix="gridfleet-broker-")
-            password_file = Path(self._secrets.name) / "passwords"
-            fd = os.open(password_file, os.O_WRONLY | os.O_CREAT, 0o600)
-            with os.fdopen(fd, "w", encoding="utf-8") as out:
-                out.write(password_lines(self.settings.accounts))
         from broker.amqtt_broker import make_broker  # imported late: amqtt is slow to import
 
         s = self.settings
         self._broker = make_broker(
-            s.amqtt_config(password_file),
+            s.amqtt_config(),
+            gate=None if s.accounts is None else Gate(s.accounts),
             max_packet_bytes=s.max_packet_bytes,
             max_queued_messages=s.max_queued_messages,
             max_queued_bytes=s.max_queued_bytes,
@@ -246,9 +224,6 @@ class EmbeddedBroker:
                     SHUTDOWN_S,
                 )
             self._broker = None
-        if self._secrets is not None:
-            self._secrets.cleanup()
-            self._secrets = None
 
     async def __aenter__(self) -> EmbeddedBroker:
         await self.start()

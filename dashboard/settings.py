@@ -10,7 +10,7 @@ from urllib.parse import urlsplit
 
 from dashboard.login import LOGIN_ROLES
 from gridfleet.accounts import Account, Accounts
-from gridfleet.config import parse_broker_url
+from gridfleet.config import owned_client_id, parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import Topics, validate_id
@@ -112,7 +112,9 @@ def settings_payload(
         "mqtt": None if user is None else {"username": user.name, "password": user.password},
         "root": settings.root,
         "prefix": Topics(settings.root).prefix,
-        "client_prefix": settings.client_prefix,
+        "client_prefix": owned_client_id(
+            None if user is None else user.name, settings.client_prefix
+        ),
         "map": None
         if grid is None
         else {

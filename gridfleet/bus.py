@@ -7,7 +7,7 @@ import ssl
 
 import aiomqtt
 
-from gridfleet.config import BrokerURL, parse_broker_url
+from gridfleet.config import BrokerURL, owned_client_id, parse_broker_url
 from gridfleet.errors import ConfigError
 
 # Without TCP_NODELAY a unit's direction, sent right after its state, waits for the broker's
@@ -44,13 +44,14 @@ def make_client(
 ) -> aiomqtt.Client:
     """An unconnected aiomqtt client for `url` (use it as `async with`).
 
-    `timeout` bounds connecting, and every call that is not given a timeout of its own.
+    `timeout` bounds connecting, and every call that is not given a timeout of its own. Logging
+    in with an account, the client id is one that account owns (`owned_client_id`).
     """
     broker = url if isinstance(url, BrokerURL) else parse_broker_url(url)
     client = aiomqtt.Client(
         hostname=broker.host,
         port=broker.port,
-        identifier=client_id,
+        identifier=owned_client_id(broker.username, client_id),
         transport=broker.transport,  # type: ignore[arg-type]
         websocket_path=broker.path if broker.websocket else None,
         username=broker.username,

@@ -123,6 +123,18 @@ def with_credentials(url: str, username: str, password: str) -> str:
     return parts._replace(netloc=login + host).geturl()
 
 
+def owned_client_id(username: str | None, wanted: str) -> str:
+    """`wanted`, made one that `username`'s account owns when it logs in with one.
+
+    A broker with accounts lets an account use only client ids it owns: its name, or its name
+    followed by '-' or '@' and more (so nobody can take over the coordinator's or a unit's
+    connection); `cli-3fa2c1` logging in as `operator` becomes `operator-cli-3fa2c1`.
+    """
+    if not username or wanted == username or wanted.startswith((f"{username}-", f"{username}@")):
+        return wanted
+    return f"{username}-{wanted}"
+
+
 def redacted(url: str) -> str:
     """`url` with any password replaced by `***`, for messages."""
     parts = urlsplit(url)

@@ -540,7 +540,9 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     )
     expect(system.page.locator("#coord")).to_have_text(
         # After its first few seconds the coordinator also says the step it achieves.
-        re.compile(r"^coordinator: online, step [1-9][0-9]*( · [0-9.]+ m?s a step \(set 250 ms\))?$")
+        re.compile(
+            r"^coordinator: online, step [1-9][0-9]*( · [0-9.]+ m?s a step \(set 250 ms\))?$"
+        )
     )
     assert shot.stat().st_size > 10_000
     if os.environ.get("GRIDFLEET_REFRESH_DOCS"):

@@ -34,9 +34,12 @@ from system.threads import world_of
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.security import (
+    check_a_device_cannot_take_the_coordinators_connection,
     check_a_unit_cannot_forge,
     check_only_operators_write_the_latch,
     check_strangers_are_refused,
+    check_wills_obey_the_publish_rules,
+    forged_wills,
     login,
 )
 from support.wait import wait_for
@@ -184,6 +187,24 @@ def test_a_device_or_unit_cannot_write_the_latch_or_another_press(
     check_only_operators_write_the_latch(secured.url, accounts, T)
 
 
+def test_a_will_outside_the_accounts_rules_is_refused_at_connect(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    # amqtt sent and retained any will: a device's will released an operator's stop.
+    refused = check_wills_obey_the_publish_rules(secured.url, accounts, T)
+    assert refused == [True] * len(refused)
+
+
+def test_an_account_uses_only_client_ids_it_owns(secured: BrokerThread, accounts: Accounts) -> None:
+    assert check_a_device_cannot_take_the_coordinators_connection(secured.url, accounts, T)
+    for owned in ("unit1", "unit1-x", "unit1@hall.b"):
+        with MqttProbe(login(secured.url, accounts, "unit1"), owned):
+            pass
+    for other in ("unit10", "unit2-unit1", "probe-1", "device-unit1"):
+        with pytest.raises(AssertionError, match="Not authorized"):
+            MqttProbe(login(secured.url, accounts, "unit1"), other).connect(timeout=5)
+
+
 async def test_a_component_connects_with_the_credentials_in_its_url(
     secured: BrokerThread, accounts: Accounts
 ) -> None:
@@ -274,6 +295,51 @@ def test_a_device_or_unit_engages_the_stop_but_only_an_operator_releases_it() ->
             wait_for(lambda: late.received(T.fleet("estop")), what="the retained latch")
             assert late.received(T.fleet("estop"))[-1].payload.startswith(b"released|operator|")
             assert late.received(press) == []  # cleared: a restart reads no stop
+    finally:
+        assembly.stop()
+
+
+def test_no_will_releases_the_stop_drops_a_unit_or_drives_one() -> None:
+    # As found: a device's retained will `released|operator|…` on the latch, dropped on purpose,
+    # released the operator's stop and every unit drove; one on unit2's connection dropped unit2.
+    scenario = load_scenario(PLAYFIELD)
+    units = [u.id for u in scenario.units]
+    accounts = default_accounts(units)
+    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
+    assembly = Assembly(spec, "threads")
+    system = assembly.start_threads()
+    try:
+        with MqttProbe(login(system.url, accounts, "operator")) as probe:
+            op = OperatorPeer(probe, T)
+            world = world_of(system.fleet)
+            wait_for(lambda: all(op.last_state(u) for u in units), 15, what="every unit's state")
+            op.engage("operator pressed STOP")
+            wait_for(
+                lambda: all((s := op.last_state(u)) is not None and s.estop for u in units),
+                15,
+                what="every unit stopped",
+            )
+            assert op.set_goal("unit1", Cell(9, 3)).accepted  # where it would drive if released
+            start = dict(world.positions)
+            refused = []
+            for account, topic, payload, retain in forged_wills(T):
+                client = MqttProbe(login(system.url, accounts, account))
+                try:  # its link lost without a goodbye: the will is due
+                    client.will(topic, payload, retain).connect(timeout=5).drop()
+                except AssertionError as exc:
+                    refused.append(str(exc))
+            held_at = op.last_state("unit1")
+            assert held_at is not None
+            wait_for(
+                lambda: (s := op.last_state("unit1")) is not None and s.step >= held_at.step + 10,
+                15,
+                what="ten more steps of unit1",
+            )
+            assert all((s := op.last_state(u)) is not None and s.estop for u in units)
+            assert dict(world.positions) == start
+            assert op.connections("unit2")[-1] == "online"
+            assert op.estop_signals()[-1].engaged
+            assert len(refused) == len(forged_wills(T)), refused  # at CONNECT, with the reason
     finally:
         assembly.stop()
 

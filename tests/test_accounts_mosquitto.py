@@ -19,6 +19,7 @@ from support.security import (
     check_a_unit_cannot_forge,
     check_only_operators_write_the_latch,
     check_strangers_are_refused,
+    check_wills_obey_the_publish_rules,
 )
 
 T = Topics("mosq")
@@ -54,6 +55,13 @@ def test_a_device_or_unit_cannot_write_the_latch_or_another_press(
     mosquitto: str, accounts: Accounts
 ) -> None:
     check_only_operators_write_the_latch(mosquitto, accounts, T)
+
+
+def test_a_will_outside_the_accounts_rules_is_heard_by_nobody(
+    mosquitto: str, accounts: Accounts
+) -> None:
+    # Mosquitto takes the CONNECT and drops the will when it would be sent (its ACL check).
+    check_wills_obey_the_publish_rules(mosquitto, accounts, T)
 
 
 def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:

@@ -15,7 +15,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from gridfleet.config import parse_broker_url
+from gridfleet.config import owned_client_id, parse_broker_url
 
 from support.wait import wait_for
 
@@ -38,7 +38,9 @@ class MqttProbe:
         broker = parse_broker_url(url)
         self.client = mqtt.Client(
             CallbackAPIVersion.VERSION2,
-            client_id=client_id or f"probe-{uuid.uuid4().hex[:8]}",
+            # An explicit id is used as given (tests of who may use which id).
+            client_id=client_id
+            or owned_client_id(broker.username, f"probe-{uuid.uuid4().hex[:8]}"),
             transport=broker.transport,  # type: ignore[arg-type]
         )
         if broker.websocket:
@@ -121,6 +123,18 @@ class MqttProbe:
         found = wait_for(find, timeout, what=f"a matching message on {topic}")
         assert found is not None
         return found
+
+    def will(self, topic: str, payload: bytes, retain: bool = False, qos: int = 1) -> MqttProbe:
+        """Set the last will the next connect() registers; returns self."""
+        self.client.will_set(topic, payload, qos=qos, retain=retain)
+        return self
+
+    def drop(self) -> None:
+        """Lose the link without a DISCONNECT: the broker then sends the will (if it took one)."""
+        self.client.loop_stop()
+        sock = self.client.socket()
+        if sock is not None:
+            sock.close()
 
     def close(self) -> None:
         """Disconnect cleanly."""

@@ -81,3 +81,89 @@ def check_only_operators_write_the_latch(url: str, accounts: Accounts, topics: T
         assert coordinator.received(t.unit("stop", "unit2")) == []
         wait_for(lambda: coordinator.received(own_press), what="the device's own press")
         device.publish(own_press, b"", retain=True)  # tidy: no press left for the next check
+
+
+def forged_wills(topics: Topics) -> list[tuple[str, str, bytes, bool]]:
+    """(account, will topic, payload, retain) for wills outside each account's publish rules."""
+    t = topics
+    return [
+        ("device-unit1", t.fleet("estop"), b"released|operator|a device's will", True),
+        ("device-unit1", t.unit("connection", "unit2"), b"offline-by-device-will", True),
+        ("unit1", t.fleet("estop"), b"released|operator|a unit's will", True),
+        ("unit1", t.unit("connection", "unit2"), b"offline-by-unit1-will", True),
+        ("unit1", t.unit("order", "unit2"), b'{"forged": "order by will"}', False),
+    ]
+
+
+def check_wills_obey_the_publish_rules(url: str, accounts: Accounts, topics: Topics) -> list[bool]:
+    """A will its account could not publish is heard by nobody, live or retained; unit1's will on
+    its own connection is heard. Returns, per forged will, whether the CONNECT was refused."""
+    t = topics
+    forged = forged_wills(t)
+    payloads = {payload for *_, payload, _ in forged}
+    watched = [t.fleet("estop"), t.all_units("connection")]
+    refused = []
+    with (
+        MqttProbe(login(url, accounts, "coordinator")) as coordinator,
+        MqttProbe(login(url, accounts, "unit2")) as unit2,
+    ):
+        for topic in watched:
+            coordinator.subscribe(topic)
+        unit2.subscribe(t.unit("order", "unit2"))
+        for account, topic, payload, retain in forged:
+            client = MqttProbe(login(url, accounts, account)).will(topic, payload, retain)
+            try:
+                client.connect(timeout=5)
+            except AssertionError as exc:
+                assert "Not authorized" in str(exc), exc
+                refused.append(True)
+                continue
+            refused.append(False)
+            client.drop()
+        # The control, last: a will the account may publish is heard (so the others had time).
+        own = t.unit("connection", "unit1")
+        MqttProbe(login(url, accounts, "unit1")).will(own, b"unit1-own-will", True).connect().drop()
+        wait_for(lambda: coordinator.received(own), what="unit1's own will")
+        everything = [*coordinator.messages.values(), *unit2.messages.values()]
+        heard = [m for ms in everything for m in ms if m.payload in payloads]
+        assert heard == [], heard
+    with MqttProbe(login(url, accounts, "operator")) as late:  # nothing forged was retained
+        for topic in watched:
+            late.subscribe(topic)
+        wait_for(lambda: late.received(own), what="the retained own will")
+        kept = [m for ms in late.messages.values() for m in ms if m.payload in payloads]
+        assert kept == [], kept
+    return refused
+
+
+def check_a_device_cannot_take_the_coordinators_connection(
+    url: str, accounts: Accounts, topics: Topics
+) -> bool:
+    """device-unit1 connecting with the coordinator's or unit2's client id does not cut them off.
+
+    Returns whether the broker refused those connections (the embedded broker does)."""
+    t = topics
+    with (
+        MqttProbe(login(url, accounts, "coordinator"), "coordinator") as coordinator,
+        MqttProbe(login(url, accounts, "unit2"), "unit2") as unit2,
+    ):
+        coordinator.subscribe(t.fleet("estop"))
+        unit2.subscribe(t.unit("order", "unit2"))
+        refused = True
+        for taken in ("coordinator", "unit2", "unit2-3fa2c1d0"):
+            thief = MqttProbe(login(url, accounts, "device-unit1"), taken)
+            try:
+                thief.connect(timeout=5)
+            except AssertionError as exc:
+                assert "Not authorized" in str(exc), exc
+                continue
+            refused = False
+            thief.close()
+        # Both still connected and subscribed: each hears what it is sent.
+        with MqttProbe(login(url, accounts, "operator")) as operator:
+            operator.publish(t.fleet("estop"), b"released|operator|still there", retain=False)
+        with MqttProbe(login(url, accounts, "coordinator"), "coordinator-2") as other:
+            other.publish(t.unit("order", "unit2"), b'{"still": "there"}')
+        coordinator.wait(t.fleet("estop"), lambda m: m.payload.endswith(b"still there"))
+        unit2.wait(t.unit("order", "unit2"), lambda m: b"still" in m.payload)
+    return refused

@@ -52,7 +52,10 @@ async function start() {
   }
   const params = new URLSearchParams(location.search);
   const wanted = params.get("client");
-  const clientId = wanted && ID_RE.test(wanted) ? wanted : makeClientId(settings.client_prefix);
+  // With accounts the broker lets a login use only client ids its account owns (its name, then '-').
+  const own = settings.mqtt?.username;
+  const owned = (id) => (!own || id === own || id.startsWith(`${own}-`) ? id : `${own}-${id}`.slice(0, 64));
+  const clientId = owned(wanted && ID_RE.test(wanted) ? wanted : makeClientId(settings.client_prefix));
   dashboard = new Dashboard(mqtt, settings, clientId);
   dashboard.run();
 }

@@ -1,0 +1,82 @@
+"""Who the embedded broker lets in, with accounts: passwords, the client ids each account owns, and
+throttled failures (pure: no I/O, the clock comes in).
+
+The broker reads the accounts file, which holds the passwords themselves (clients read theirs
+from it): a slow hash of them protects nothing here, and amqtt's Argon2 check cost ~30 ms of the
+broker's one event loop per attempt, so a flood of wrong passwords held up every message (STOP
+took seconds to reach the units). A keyed digest compared in constant time costs microseconds.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import hmac
+import secrets
+import time
+from collections.abc import Callable, Iterable
+
+from gridfleet.accounts import Accounts
+from gridfleet.throttle import LoginThrottle
+
+# Compared against when the name is unknown, so an unknown name costs what a known one does.
+_NOBODY = "\0unknown"
+
+
+def owner_of(client_id: str, names: Iterable[str]) -> str | None:
+    """The account that owns `client_id`: the longest name it is, or starts with plus '-' or '@'.
+
+    `unit1-3fa2c1d0` and `coordinator@hall.b` belong to `unit1` and `coordinator`; `unit10-x`
+    belongs to `unit10`, not `unit1`.
+    """
+    best: str | None = None
+    for name in names:
+        owned = client_id == name or client_id.startswith((f"{name}-", f"{name}@"))
+        if owned and (best is None or len(name) > len(best)):
+            best = name
+    return best
+
+
+class Gate:
+    """Checks a CONNECT's credentials and client id; `refusal` says why not, in words."""
+
+    def __init__(
+        self,
+        accounts: Accounts,
+        clock: Callable[[], float] = time.monotonic,
+        throttle: LoginThrottle | None = None,
+    ) -> None:
+        self._key = secrets.token_bytes(32)
+        self._digests = {a.name: self._digest(a.password) for a in accounts.accounts.values()}
+        self._nobody = self._digest(_NOBODY)
+        # An address here is where every component of `gridfleet up` comes from too: a generous
+        # burst, so a misconfigured client retrying does not shut the others out for long.
+        self.throttle = throttle or LoginThrottle(
+            name_burst=10, name_per_s=1.0, address_burst=20, address_per_s=1.0, clock=clock
+        )
+
+    def _digest(self, password: str) -> bytes:
+        return hmac.new(self._key, password.encode(), hashlib.sha256).digest()
+
+    def refusal(
+        self, username: str | None, password: str | None, client_id: str, address: str
+    ) -> str | None:
+        """None to let this CONNECT in; otherwise why it is refused (for the broker's log)."""
+        if not username:
+            return "no user name (this broker has accounts)"
+        wait = self.throttle.wait_s(username, address)
+        if wait > 0:
+            return f"too many failed logins for {username!r} or from {address}: wait {wait:.0f} s"
+        expected = self._digests.get(username, self._nobody)
+        right = hmac.compare_digest(self._digest(password or ""), expected)
+        if not right or username not in self._digests:
+            self.throttle.failed(username, address, known_name=username in self._digests)
+            return f"wrong user name or password for {username!r}"
+        if client_id:  # empty: the broker makes up one, which nobody owns
+            owner = owner_of(client_id, self._digests)
+            if owner != username:
+                whose = f"account {owner!r}" if owner else "no account"
+                return (
+                    f"client id {client_id!r} belongs to {whose}: {username!r} may use "
+                    f"{username!r} or ids starting '{username}-' or '{username}@'"
+                )
+        return None
