@@ -14,6 +14,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "the dashboard in Chromium at fleet scale: frame budget, fleet cost",
     ),
     "soak": ("bench.soak_cli", "a chaos soak: faults injected while jobs flow, safety checked"),
+    "logins": (
+        "bench.logins",
+        "the stop's latency while strangers flood the broker with wrong passwords",
+    ),
 }
 
 

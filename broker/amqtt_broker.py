@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 import weakref
 from collections import deque
 from collections.abc import Callable, Iterable
@@ -27,6 +28,7 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.mqtt.publish import PublishPacket
 from amqtt.utils import gen_client_id
 
+from broker import origins
 from broker.gate import Gate
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
 from broker.quiet import GONE, quiet_normal_closes
@@ -40,6 +42,7 @@ _TAKEOVER_WAIT_S = 5.0  # how long a newcomer waits for the connection it displa
 _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out
 _YIELD_EVERY = 64  # messages routed in a row before other tasks get a turn
 _BROADCAST_STOP_S = 5.0  # at shutdown, how long deliveries still under way may take
+_REFUSAL_LOG_S = 1.0  # refused CONNECTs: at most one log line this often (a flood is one line/s)
 
 
 @dataclass(frozen=True)
@@ -257,6 +260,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
     ) -> None:
         super().__init__(config)
         self.gate = gate  # None: amqtt's auth plugins decide (anonymous on loopback)
+        self.ws_origins: tuple[str, ...] = ()  # web pages let in besides the broker's own host
+        self._refusals_logged_at = -_REFUSAL_LOG_S
+        self._refusals_unlogged = 0
         self._subscriptions = Subscriptions()  # empty, as amqtt made it
         self.limits = limits or Limits()
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
@@ -286,7 +292,14 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         await self._client_connected(listener_name, guard, StreamWriterAdapter(writer))
 
     async def ws_connected(self, websocket: Any, listener_name: str) -> None:
-        """A websocket connection: amqtt's, with the packet size guard on its reader."""
+        """A websocket connection: amqtt's, with the packet size guard on its reader; a page from
+        another site (its Origin) or a DNS-rebinding one (its Host) is closed at once."""
+        headers = websocket.request.headers if websocket.request is not None else {}
+        refused = origins.refusal(headers.get("Host"), headers.get("Origin"), self.ws_origins)
+        if refused is not None:
+            self._log_refusal(f"a websocket from {_peer(websocket.remote_address)}: {refused}")
+            await websocket.close(1008, "origin not allowed")  # 1008: policy violation
+            return
         # The websockets library caps one frame at 1 MiB, but amqtt joins frames into packets.
         guard = _GuardedReader(
             WebSocketsReader(websocket),
@@ -321,7 +334,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
         refusal = await self._refusal(incoming, remote_address)
         if refusal is not None:
-            log.warning("broker: refused %s (client id %r): %s", peer, incoming.client_id, refusal)
+            self._log_refusal(f"{peer} (client id {incoming.client_id!r}): {refusal}")
             # A refused client may hang up first (over TLS a reset surfaced as a traceback).
             with contextlib.suppress(ConnectionError):
                 await ConnackPacket.build(0, NOT_AUTHORIZED).to_stream(writer)
@@ -365,6 +378,17 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         session.attributes["gridfleet.authenticated"] = True  # for _authenticate, next
         self._ended[handler] = asyncio.Event()
         return handler, session
+
+    def _log_refusal(self, what: str) -> None:
+        """Log a refused CONNECT: at most one line a second, saying how many went unlogged."""
+        now = time.monotonic()
+        if now - self._refusals_logged_at < _REFUSAL_LOG_S:
+            self._refusals_unlogged += 1
+            return
+        more = self._refusals_unlogged
+        also = f" ({more} more refused in the last {now - self._refusals_logged_at:.0f} s)"
+        log.warning("broker: refused %s%s", what, also if more else "")
+        self._refusals_logged_at, self._refusals_unlogged = now, 0
 
     async def _refusal(self, incoming: Any, address: str) -> str | None:
         """Why this CONNECT is refused (None: let it in): its account, client id and will."""

@@ -28,6 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-ws", action="store_true", help="do not open the websocket listener")
     parser.add_argument(
+        "--ws-origin",
+        action="append",
+        default=[],
+        metavar="URL",
+        help="a web page's origin (https://name:port) that may use the websocket listener, "
+        "besides pages on the host the browser reaches the broker at (repeatable)",
+    )
+    parser.add_argument(
         "--accounts",
         metavar="FILE",
         help="accounts file ('gridfleet accounts init'): only they may connect, each in its role; "
@@ -62,6 +70,8 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
         )
         if v is not None
     }
+    if args.ws_origin:
+        changes["ws_origins"] = tuple(args.ws_origin)
     if args.accounts is not None:
         changes["accounts"] = load_accounts(args.accounts)
         changes["root"] = args.root

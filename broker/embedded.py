@@ -54,6 +54,9 @@ class BrokerSettings:
     max_packet_bytes: int = MAX_PACKET_BYTES  # a bigger packet disconnects its sender
     max_queued_messages: int = MAX_QUEUED_MESSAGES  # per client; past them, messages are dropped
     max_queued_bytes: int = MAX_QUEUED_BYTES
+    # Web pages (origins, e.g. https://fleet.example:5000) that may use the websocket listener
+    # besides those on the host the browser reached the broker at (broker/origins.py).
+    ws_origins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("port", "ws_port"):
@@ -181,6 +184,7 @@ class EmbeddedBroker:
             max_queued_messages=s.max_queued_messages,
             max_queued_bytes=s.max_queued_bytes,
         )
+        self._broker.ws_origins = s.ws_origins
         # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).
         self._broker._create_ssl_context = amqtt_listener_context
         amqtt_log = logging.getLogger("amqtt.broker")

@@ -16,6 +16,9 @@ GONE: tuple[type[BaseException], ...] = (ConnectionError, ConnectionClosed)
 # amqtt's own words for those, from its protocol handler (no exception attached to the record).
 _NORMAL_CLOSE = re.compile(r"Unhandled exception.*\b100[01] \((OK|going away)\)")
 HANDLER_LOGGER = "amqtt.mqtt.protocol.handler"
+# amqtt's line for a CONNECT gridfleet's broker refused: it has logged why already (rate-limited).
+_REFUSED = re.compile(r"Failed to initialize client session: .* not authorized$")
+BROKER_LOGGER = "amqtt.broker"
 
 
 class NormalCloses(logging.Filter):
@@ -26,8 +29,17 @@ class NormalCloses(logging.Filter):
         return _NORMAL_CLOSE.search(record.getMessage()) is None
 
 
+class RefusedConnects(logging.Filter):
+    """Drops amqtt's record of each refused CONNECT (a flood of them would flood the log)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        """False for a refused CONNECT."""
+        return _REFUSED.search(record.getMessage()) is None
+
+
 def quiet_normal_closes() -> None:
-    """Install the filter on amqtt's protocol handler logger, once."""
-    handler_log = logging.getLogger(HANDLER_LOGGER)
-    if not any(isinstance(f, NormalCloses) for f in handler_log.filters):
-        handler_log.addFilter(NormalCloses())
+    """Install the filters on amqtt's loggers, once."""
+    for name, kind in ((HANDLER_LOGGER, NormalCloses), (BROKER_LOGGER, RefusedConnects)):
+        logger = logging.getLogger(name)
+        if not any(isinstance(f, kind) for f in logger.filters):
+            logger.addFilter(kind())

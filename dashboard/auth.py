@@ -6,9 +6,10 @@ import secrets
 
 from flask import Flask, Response, jsonify, request, session
 
-from dashboard.login import LoginRefused, Throttle, check_login, session_account, session_tag
+from dashboard.login import LoginRefused, check_login, session_account, session_tag
 from dashboard.settings import DashboardSettings
 from gridfleet.accounts import Account
+from gridfleet.throttle import LoginThrottle
 
 NOT_JSON = 'send {"username": …, "password": …} as JSON'
 
@@ -32,7 +33,9 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
         SESSION_COOKIE_SAMESITE="Strict",
         SESSION_COOKIE_SECURE=settings.https,
     )
-    throttle = Throttle()
+    # Per address and per name (a second address gains nothing); a success resets neither, so
+    # one good login cannot clear the failures of guesses beside it. About 5 a minute each.
+    throttle = LoginThrottle(name_burst=5, name_per_s=1 / 12, address_burst=5, address_per_s=1 / 12)
 
     @app.post("/api/login")
     def login() -> tuple[Response, int]:
@@ -44,8 +47,8 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
             isinstance(body.get(k), str) for k in ("username", "password")
         ):
             return jsonify({"error": NOT_JSON}), 400
-        who = request.remote_addr or "?"
-        wait = throttle.wait_s(who)
+        who, name = request.remote_addr or "?", body["username"]
+        wait = throttle.wait_s(name, who)
         if wait > 0:
             text = f"too many failed logins: try again in {wait:.0f} s"
             response = jsonify({"error": text})
@@ -54,10 +57,9 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
         try:
             account = check_login(settings.accounts, body["username"], body["password"])
         except LoginRefused as refused:
-            throttle.failed(who)
+            throttle.failed(name, who, known_name=name in settings.accounts.accounts)
             session.clear()
             return jsonify({"error": str(refused)}), 401
-        throttle.succeeded(who)
         session.clear()
         session["user"] = account.name
         session["tag"] = session_tag(secret, account)

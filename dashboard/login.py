@@ -1,14 +1,10 @@
-"""Who may open the dashboard: the login check, the session's tag and the failed-login throttle,
-without Flask (app.py is their I/O shell)."""
+"""Who may open the dashboard: the login check and the session's tag, without Flask (auth.py is
+their I/O shell; failed logins are throttled by `gridfleet.throttle.LoginThrottle`)."""
 
 from __future__ import annotations
 
 import hashlib
 import hmac
-import threading
-import time
-from collections import OrderedDict, deque
-from collections.abc import Callable
 
 from gridfleet.accounts import Account, Accounts, Role
 
@@ -59,54 +55,3 @@ def session_account(accounts: Accounts, secret: bytes, user: object, tag: object
     if account is None or account.role not in LOGIN_ROLES:
         return None
     return account if hmac.compare_digest(tag, session_tag(secret, account)) else None
-
-
-class Throttle:
-    """Failed logins per client address: after `limit` within `window_s`, that address waits.
-
-    Bounded memory: at most `max_clients` addresses are remembered, the oldest forgotten first.
-    """
-
-    def __init__(
-        self,
-        limit: int = 5,
-        window_s: float = 60.0,
-        clock: Callable[[], float] = time.monotonic,
-        max_clients: int = 10_000,
-    ) -> None:
-        self.limit = limit
-        self.window_s = window_s
-        self.clock = clock
-        self.max_clients = max_clients
-        self._failures: OrderedDict[str, deque[float]] = OrderedDict()
-        self._lock = threading.Lock()  # the server answers each request in its own thread
-
-    def wait_s(self, who: str) -> float:
-        """Seconds `who` must wait before trying again (0: go ahead)."""
-        with self._lock:
-            recent = self._recent(who)
-            if len(recent) < self.limit:
-                return 0.0
-            return max(0.0, recent[0] + self.window_s - self.clock())
-
-    def failed(self, who: str) -> None:
-        """Count one failed login of `who`."""
-        with self._lock:
-            recent = self._recent(who)
-            recent.append(self.clock())
-            self._failures[who] = recent
-            self._failures.move_to_end(who)
-            while len(self._failures) > self.max_clients:
-                self._failures.popitem(last=False)
-
-    def succeeded(self, who: str) -> None:
-        """Forget `who`'s failures."""
-        with self._lock:
-            self._failures.pop(who, None)
-
-    def _recent(self, who: str) -> deque[float]:
-        recent = self._failures.get(who) or deque(maxlen=self.limit)
-        horizon = self.clock() - self.window_s
-        while recent and recent[0] <= horizon:
-            recent.popleft()
-        return recent

@@ -17,7 +17,7 @@ from broker.embedded import BrokerSettings
 from dashboard.settings import DashboardSettings
 from system.broker_thread import BrokerThread
 
-from support.browser import CHROMIUM, CHROMIUM_ARGS
+from support.browser import CHROMIUM, CHROMIUM_ARGS, blank_page_server
 
 pytestmark = pytest.mark.browser
 
@@ -81,7 +81,8 @@ def exchange(browser: Any, url: str) -> str:
     context = browser.new_context()  # certificate errors count
     try:
         page = context.new_page()
-        page.set_content("<html><body></body></html>")
+        with blank_page_server() as port:  # a page of this machine's (the broker checks origins)
+            page.goto(f"http://127.0.0.1:{port}/")
         page.add_script_tag(path=str(bundle))
         return str(page.evaluate(EXCHANGE, url))
     finally:

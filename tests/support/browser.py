@@ -7,9 +7,12 @@ and open it in a fresh page, connected to a broker).
 
 from __future__ import annotations
 
+import contextlib
 import re
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
 
@@ -181,3 +184,34 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
     for context, server in opened:
         context.close()
         server.stop()
+
+
+class _BlankPage(BaseHTTPRequestHandler):
+    def do_GET(self) -> None:
+        body = b"<html><body></body></html>"
+        self.send_response(200)
+        self.send_header("Content-Type", "text/html")
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
+@contextlib.contextmanager
+def blank_page_server() -> Iterator[int]:
+    """An empty HTML page served on 127.0.0.1 at a free port (yields the port).
+
+    A page needs a real local origin: Chromium's Local Network Access checks block a page it
+    cannot place (about:blank, a routed one) from opening a websocket to loopback.
+    """
+    server = ThreadingHTTPServer(("127.0.0.1", 0), _BlankPage)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        yield int(server.server_address[1])
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(5)
