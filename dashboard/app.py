@@ -23,7 +23,22 @@ def create_app(settings: DashboardSettings) -> Flask:
     # The page is small and changes with upgrades: never let a browser run yesterday's code.
     app.config["SEND_FILE_MAX_AGE_DEFAULT"] = 0
     app.extensions["gridfleet_settings"] = settings
-    secret = install_login(app, settings)
+    secret, book = install_login(app, settings)
+
+    @app.after_request
+    def security_headers(response: Response) -> Response:
+        # The page loads only its own files and talks MQTT to the broker (another port, so any
+        # ws/wss); no site may frame it (clickjacking the STOP/release buttons).
+        response.headers["Content-Security-Policy"] = (
+            "default-src 'self'; connect-src 'self' ws: wss:; img-src 'self' data:; "
+            "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
+        )
+        response.headers["X-Frame-Options"] = "DENY"
+        response.headers["X-Content-Type-Options"] = "nosniff"
+        response.headers["Referrer-Policy"] = "no-referrer"
+        if settings.https:
+            response.headers["Strict-Transport-Security"] = "max-age=31536000"
+        return response
 
     @app.get("/")
     def index() -> Response:
@@ -31,7 +46,7 @@ def create_app(settings: DashboardSettings) -> Flask:
 
     @app.get("/api/settings")
     def api_settings() -> tuple[Response, int]:
-        user = current_user(settings, secret)
+        user = current_user(settings, secret, book)
         if settings.accounts is not None and user is None:
             body, status = {"error": LOGIN_FIRST, "login": {"required": True, "user": None}}, 401
         else:

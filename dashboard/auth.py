@@ -3,10 +3,18 @@
 from __future__ import annotations
 
 import secrets
+from datetime import timedelta
 
 from flask import Flask, Response, jsonify, request, session
 
-from dashboard.login import LoginRefused, check_login, session_account, session_tag
+from dashboard.login import (
+    SESSION_S,
+    LoginRefused,
+    SessionBook,
+    check_login,
+    session_account,
+    session_tag,
+)
 from dashboard.settings import DashboardSettings
 from gridfleet.accounts import Account
 from gridfleet.throttle import LoginThrottle
@@ -14,15 +22,33 @@ from gridfleet.throttle import LoginThrottle
 NOT_JSON = 'send {"username": …, "password": …} as JSON'
 
 
-def current_user(settings: DashboardSettings, secret: bytes) -> Account | None:
+def current_user(settings: DashboardSettings, secret: bytes, book: SessionBook) -> Account | None:
     """The account this request's session is logged in as (None: anonymous, or no accounts)."""
     if settings.accounts is None:
         return None
-    return session_account(settings.accounts, secret, session.get("user"), session.get("tag"))
+    user = session.get("user")
+    if user is None or book.user_of(session.get("sid")) != user:
+        return None  # logged out, expired, or from before a restart
+    return session_account(settings.accounts, secret, user, session.get("tag"))
 
 
-def install_login(app: Flask, settings: DashboardSettings) -> bytes:
-    """Configure the session cookie and add the login routes; returns the session secret."""
+def cross_site(method: str, origin: str | None, host_url: str, is_json: bool) -> str | None:
+    """Why a request that changes something is refused as cross-site (None: it is the page's).
+
+    The page sends JSON (another site's form cannot without the browser asking us first), and
+    a browser names the page's origin, which must be this server's.
+    """
+    if method in ("GET", "HEAD", "OPTIONS"):
+        return None
+    if not is_json:
+        return "send JSON: the dashboard's page does, another site's form cannot"
+    if origin is not None and origin.rstrip("/") != host_url.rstrip("/"):
+        return f"a request from {origin} is not the dashboard's page"
+    return None
+
+
+def install_login(app: Flask, settings: DashboardSettings) -> tuple[bytes, SessionBook]:
+    """Configure the session cookie and add the login routes; the session secret and book."""
     # Random per start unless configured: a restart then logs everybody out (README, Dashboard).
     secret = settings.secret_key or secrets.token_bytes(32)
     app.secret_key = secret
@@ -32,7 +58,16 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
         # Sent only with requests from the page itself: another site cannot use the login.
         SESSION_COOKIE_SAMESITE="Strict",
         SESSION_COOKIE_SECURE=settings.https,
+        PERMANENT_SESSION_LIFETIME=timedelta(seconds=SESSION_S),
     )
+    book = SessionBook()
+
+    @app.before_request
+    def refuse_cross_site() -> tuple[Response, int] | None:
+        origin = request.headers.get("Origin")
+        why = cross_site(request.method, origin, request.host_url, request.is_json)
+        return (jsonify({"error": why}), 403) if why else None
+
     # Per address and per name (a second address gains nothing); a success resets neither, so
     # one good login cannot clear the failures of guesses beside it. About 5 a minute each.
     throttle = LoginThrottle(name_burst=5, name_per_s=1 / 12, address_burst=5, address_per_s=1 / 12)
@@ -60,14 +95,18 @@ def install_login(app: Flask, settings: DashboardSettings) -> bytes:
             throttle.failed(name, who, known_name=name in settings.accounts.accounts)
             session.clear()
             return jsonify({"error": str(refused)}), 401
+        book.close(session.get("sid"))
         session.clear()
+        session.permanent = True  # the cookie ends with the session, not the browser
         session["user"] = account.name
         session["tag"] = session_tag(secret, account)
+        session["sid"] = book.open(account.name)
         return jsonify({"user": account.name}), 200
 
     @app.post("/api/logout")
     def logout() -> tuple[Response, int]:
+        book.close(session.get("sid"))  # a copy of the cookie opens nothing any more
         session.clear()
         return jsonify({"ok": True}), 200
 
-    return secret
+    return secret, book

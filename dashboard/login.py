@@ -5,6 +5,11 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import secrets
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
 
 from gridfleet.accounts import Account, Accounts, Role
 
@@ -55,3 +60,55 @@ def session_account(accounts: Accounts, secret: bytes, user: object, tag: object
     if account is None or account.role not in LOGIN_ROLES:
         return None
     return account if hmac.compare_digest(tag, session_tag(secret, account)) else None
+
+
+SESSION_S = 12 * 3600.0  # a login lasts a working day at most, then the person logs in again
+
+
+class SessionBook:
+    """The sessions the server still honours: a login opens one, logout or age closes it.
+
+    A signed cookie alone cannot be taken back: one copied before logout still opened the page.
+    The cookie names a session here instead; what is not here (closed, expired, or from before
+    a restart) is logged out. At most `max_sessions` are kept, the oldest closed first.
+    """
+
+    def __init__(
+        self,
+        lifetime_s: float = SESSION_S,
+        clock: Callable[[], float] = time.monotonic,
+        max_sessions: int = 10_000,
+    ) -> None:
+        self.lifetime_s = lifetime_s
+        self.clock = clock
+        self.max_sessions = max_sessions
+        self._open: OrderedDict[str, tuple[str, float]] = OrderedDict()  # id: (user, ends at)
+        self._lock = threading.Lock()  # the server answers each request in its own thread
+
+    def open(self, user: str) -> str:
+        """A new session for `user`; its id (random, 128 bits)."""
+        sid = secrets.token_urlsafe(16)
+        with self._lock:
+            self._open[sid] = (user, self.clock() + self.lifetime_s)
+            while len(self._open) > self.max_sessions:
+                self._open.popitem(last=False)
+        return sid
+
+    def user_of(self, sid: object) -> str | None:
+        """The user session `sid` is open for, or None (closed, expired, unknown)."""
+        if not isinstance(sid, str):
+            return None
+        with self._lock:
+            entry = self._open.get(sid)
+            if entry is None:
+                return None
+            if self.clock() >= entry[1]:
+                del self._open[sid]
+                return None
+            return entry[0]
+
+    def close(self, sid: object) -> None:
+        """End session `sid` (nothing when it is not open)."""
+        if isinstance(sid, str):
+            with self._lock:
+                self._open.pop(sid, None)

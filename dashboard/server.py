@@ -8,7 +8,18 @@ import threading
 from types import TracebackType
 
 from flask import Flask
-from werkzeug.serving import BaseWSGIServer, make_server
+from werkzeug.serving import BaseWSGIServer, WSGIRequestHandler, make_server
+
+
+class _Quiet(WSGIRequestHandler):
+    """werkzeug's handler without its banner (`Server: Werkzeug/3.1 Python/3.11`): versions
+    tell a visitor which known flaws to try."""
+
+    server_version = "gridfleet"
+    sys_version = ""
+
+    def version_string(self) -> str:
+        return self.server_version
 
 
 class DashboardServer:
@@ -43,7 +54,12 @@ class DashboardServer:
         """Open the listening socket (so `url` is known) without serving yet; returns self."""
         if self._server is None:
             self._server = make_server(
-                self.host, self.requested_port, self.app, threaded=True, ssl_context=self.tls
+                self.host,
+                self.requested_port,
+                self.app,
+                threaded=True,
+                ssl_context=self.tls,
+                request_handler=_Quiet,
             )
         return self
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import urllib.request
 from pathlib import Path
 
 import pytest
@@ -14,10 +15,12 @@ from dashboard.cli import secret_from, settings_from, tls_from
 from dashboard.login import (
     REFUSED,
     LoginRefused,
+    SessionBook,
     check_login,
     session_account,
     session_tag,
 )
+from dashboard.server import DashboardServer
 from dashboard.settings import DashboardSettings, browser_broker_url
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.errors import ConfigError
@@ -157,16 +160,70 @@ def test_login_gives_the_person_their_own_broker_account_until_logout(
     assert body["mqtt"] == {"username": "operator", "password": operator.password}
     assert body["login"] == {"required": True, "user": "operator"}
     assert body["broker_ws"] == "ws://127.0.0.1:9001"
-    assert client.post("/api/logout").status_code == 200
+    assert client.post("/api/logout", json={}).status_code == 200
     res = client.get("/api/settings")
     assert res.status_code == 401 and operator.password.encode() not in res.data
+
+
+def test_logout_revokes_the_session_even_for_a_copy_of_its_cookie(
+    app: Flask, accounts: Accounts
+) -> None:
+    # As found: an old cookie, copied before logout, still got the broker password.
+    person, thief = app.test_client(), app.test_client()
+    assert log_in(person, "operator", accounts.get("operator").password)[0] == 200
+    cookie = person.get_cookie("gridfleet_session")
+    assert cookie is not None and cookie.expires is not None  # it ends, not with the browser
+    thief.set_cookie("gridfleet_session", cookie.value)
+    assert thief.get("/api/settings").status_code == 200
+    assert person.post("/api/logout", json={}).status_code == 200
+    res = thief.get("/api/settings")
+    assert res.status_code == 401 and accounts.get("operator").password.encode() not in res.data
+
+
+def test_a_session_ends_after_its_lifetime() -> None:
+    now = [0.0]
+    book = SessionBook(lifetime_s=60, clock=lambda: now[0], max_sessions=2)
+    sid = book.open("ann")
+    assert book.user_of(sid) == "ann" and book.user_of("forged") is None
+    now[0] = 59.9
+    assert book.user_of(sid) == "ann"
+    now[0] = 60.0
+    assert book.user_of(sid) is None
+    first, *_ = [book.open(u) for u in ("a", "b", "c")]  # at most two are kept
+    assert book.user_of(first) is None
+    book.close("never opened")  # nothing happens
+
+
+def test_requests_from_other_sites_change_nothing(client: FlaskClient, accounts: Accounts) -> None:
+    password = accounts.get("operator").password
+    assert log_in(client, "operator", password)[0] == 200
+    evil = {"Origin": "https://evil.example"}
+    # Logged out by another site's page: refused, the session stays.
+    assert client.post("/api/logout", json={}, headers=evil).status_code == 403
+    assert client.post("/api/logout", data={"x": "1"}).status_code == 403  # a form
+    assert client.get("/api/settings").status_code == 200
+    res = client.post(
+        "/api/login", json={"username": "operator", "password": password}, headers=evil
+    )
+    assert res.status_code == 403 and "not the dashboard's page" in res.get_json()["error"]
+    own = {"Origin": "http://localhost"}  # the test client's own host
+    assert client.post("/api/logout", json={}, headers=own).status_code == 200
+
+
+def test_every_response_carries_the_security_headers(client: FlaskClient) -> None:
+    for path in ("/", "/api/settings", "/static/js/main.js", "/healthz", "/nowhere"):
+        headers = client.get(path).headers
+        assert "frame-ancestors 'none'" in headers["Content-Security-Policy"], path
+        assert headers["X-Content-Type-Options"] == "nosniff", path
+        assert headers["X-Frame-Options"] == "DENY" and headers["Referrer-Policy"] == "no-referrer"
+        assert "Strict-Transport-Security" not in headers  # plain HTTP: HSTS would mean nothing
 
 
 def test_login_takes_json_only(client: FlaskClient, accounts: Accounts) -> None:
     password = accounts.get("operator").password
     # What a form on another site could send: refused, however right the password.
     form = client.post("/api/login", data={"username": "operator", "password": password})
-    assert form.status_code == 400 and "as JSON" in form.get_json()["error"]
+    assert form.status_code == 403 and "send JSON" in form.get_json()["error"]
     assert client.post("/api/login", json=["operator", password]).status_code == 400
     assert client.post("/api/login", json={"username": "operator"}).status_code == 400
     assert client.get("/api/login").status_code == 405
@@ -209,3 +266,13 @@ def test_https_flags_need_both_files(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="no such TLS certificate file"):
         tls_from(missing)
     assert tls_from(parser.parse_args(["dashboard"])) is None
+
+
+def test_the_server_names_no_versions_and_https_asks_for_https_only() -> None:
+    with (
+        DashboardServer(create_app(DashboardSettings()), port=0) as server,
+        urllib.request.urlopen(f"{server.url}/healthz", timeout=10) as res,
+    ):
+        assert res.headers["Server"] == "gridfleet"  # it was "Werkzeug/3.1.9 Python/3.11.2"
+    secure = create_app(DashboardSettings(https=True)).test_client()
+    assert secure.get("/").headers["Strict-Transport-Security"] == "max-age=31536000"

@@ -42,7 +42,12 @@ export async function logIn(fetchFn, username, password) {
 /** Log out: true when the server has forgotten the session. */
 export async function logOut(fetchFn) {
   try {
-    const res = await fetchFn("/api/logout", { method: "POST", credentials: "same-origin" });
+    const res = await fetchFn("/api/logout", {
+      method: "POST",
+      credentials: "same-origin",
+      headers: { "Content-Type": "application/json" }, // the server takes JSON only
+      body: "{}",
+    });
     return res.ok;
   } catch {
     return false;
