@@ -169,6 +169,11 @@ class JobBook:
             job.wait, job.wait_reason = code, words
             self.changed.add(job.id)
 
+    @property
+    def open_count(self) -> int:
+        """Jobs not final (queued or under way)."""
+        return len(self._open)
+
     def queued(self) -> list[Job]:
         """Jobs waiting for a unit, in submission order."""
         return [j for j in self._open.values() if j.state == "queued"]

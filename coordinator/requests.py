@@ -15,6 +15,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import CancelJob, ControlUnit, SetGoal, SubmitJob
+from gridfleet.protocol.constants import MAX_OPEN_JOBS
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,12 @@ def submit(
     cache: DistanceFieldCache,
 ) -> Outcome:
     """Queue a job, or refuse it (nothing changes) with the reason."""
+    if jobs.open_count >= MAX_OPEN_JOBS and (req.job_id is None or jobs.get(req.job_id) is None):
+        return Outcome(
+            False,
+            f"the queue is full: {jobs.open_count} jobs are not finished yet (at most "
+            f"{MAX_OPEN_JOBS}); wait for some to finish, or cancel some",
+        )
     try:
         world.check_square(req.pickup, "pickup")
         world.check_square(req.dropoff, "dropoff")

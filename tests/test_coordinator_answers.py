@@ -212,3 +212,30 @@ def test_status_carries_the_achieved_step_time_once_per_window() -> None:
         (11, 0.5, True),  # 5 s after the first step, 10 steps later
     ]
     assert published([core.status("offline")])[0][1]["achieved_step_s"] == 0.5
+
+
+def test_a_full_queue_refuses_a_new_job_in_words_and_changes_nothing(
+    core: CoordinatorCore, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # As found: nothing bounded the queue, and ~32,000 queued jobs pushed the retained queue
+    # view past the broker's packet limit (a broken view for everybody).
+    monkeypatch.setattr("coordinator.requests.MAX_OPEN_JOBS", 2)
+    for n in (1, 2):
+        request(core, "submit_job", submit(f"r{n}", job_id=f"j{n}"), 0.0)
+    full = request(core, "submit_job", submit("r3", job_id="j3"), 1.0)
+    reason = (
+        "the queue is full: 2 jobs are not finished yet (at most 2); wait for some to finish, "
+        "or cancel some"
+    )
+    answers = [m for m in published(full) if "/fleet/" not in m[0]]  # a view may be due anyway
+    assert [(topic, body.get("accepted"), body.get("reason")) for topic, body, *_ in answers] == [
+        ("gridfleet/v1/errors", None, f"SubmitJob: {reason}"),
+        ("gridfleet/v1/replies/op", False, reason),
+    ]
+    assert list(core.jobs.jobs) == ["j1", "j2"] and full.persist == ()
+    # A retry of a queued job is still answered as before.
+    again = published(request(core, "submit_job", submit("r2", job_id="j2"), 2.0))
+    again = [m for m in again if "/fleet/" not in m[0]]
+    assert [(topic, body.get("accepted")) for topic, body, *_ in again] == [
+        ("gridfleet/v1/replies/op", True)
+    ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from coordinator.jobs import Job, JobBook
 from gridfleet.grid import Cell
 from gridfleet.protocol import encode
+from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_VIEW_BYTES
 from gridfleet.protocol.messages import CHART_MINUTES, FINISHED_LISTED
 
 from support.effects import header
@@ -86,3 +87,19 @@ def test_a_restored_book_knows_which_unit_works_on_what() -> None:
     restored = JobBook([Job.from_dict(j.to_dict()) for j in book.jobs.values()])
     assert restored.of_unit("u9") == book.jobs["job-5"]
     assert [j.id for j in restored.queued()] == ["job-4"]
+
+
+def test_a_full_queue_of_the_longest_jobs_fits_in_the_view() -> None:
+    longest = "j" * 64
+    book = JobBook()
+    for n in range(MAX_OPEN_JOBS):
+        job = Job(f"{n}{longest}"[:64], Cell(4095, 4095), Cell(4095, 4095), 1e9, priority=100)
+        job.submitted_by, job.created_step = "s" * 64, 10**9
+        book.add(job)
+        book.explain(job, ("unit_stuck", "w" * 500))
+        book.set(job, "to_pickup", unit="u" * 64)
+    for n in range(FINISHED_LISTED):
+        done = book.add(Job(f"done-{n}", Cell(0, 0), Cell(1, 1), 1.0))
+        book.set(done, "failed", reason="r" * 500, done_step=10**9)
+    view = book.view(header("coordinator"), step_no=10**9, step_period_s=0.001)
+    assert len(encode(view)) <= MAX_VIEW_BYTES
