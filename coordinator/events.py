@@ -1,12 +1,16 @@
 """The coordinator's recent history in plain words (`fleet/events`, protocol.md §5.7).
 
-Pure: the core tells it what changed and when (a datetime from its stamper's clock); it keeps the
-latest MAX_EVENTS, says which are new (to store), and whether the view is out of date.
+Pure: the core tells it what changed and when (a datetime from its stamper's clock); it keeps at
+most MAX_EVENTS, says which are new (to store), and whether the view is out of date.
+
+What it keeps is not simply the latest: the stop's engagements and units lost are safety history,
+so chatter never pushes them out (only newer ones do, past SAFETY_EVENTS), and a unit's lines
+are at most UNIT_EVENTS per unit, so one flapping unit cannot push out everybody else's (as found:
+120 flaps of one unit left no trace of who engaged the stop).
 """
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Iterable
 from datetime import datetime
 
@@ -14,6 +18,15 @@ from coordinator.jobs import Job
 from gridfleet.protocol import EventEntry, EventsView, Header
 from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import MAX_EVENTS, EventKind
+
+SAFETY_EVENTS = 50  # stop and loss lines kept whatever else happens (the latest this many)
+UNIT_EVENTS = 4  # a unit's latest online/offline/lost lines kept
+_LOST = "lost (its connection broke)"
+
+
+def _is_safety(entry: EventEntry) -> bool:
+    """A stop engaged or released, or a unit lost: what a person asks about afterwards."""
+    return entry.kind == "stop" or (entry.kind == "unit" and entry.text.endswith(_LOST))
 
 
 def _kg(mass: float) -> str:
@@ -28,7 +41,7 @@ class EventLog:
     """The latest events, oldest first; `fresh` holds those not stored yet."""
 
     def __init__(self) -> None:
-        self.events: deque[EventEntry] = deque(maxlen=MAX_EVENTS)
+        self.events: list[EventEntry] = []
         self.fresh: list[EventEntry] = []
         self.dirty = False
         self._jobs: dict[str, tuple[str, str | None]] = {}  # job -> (state, unit) last told
@@ -37,8 +50,22 @@ class EventLog:
 
     def restore(self, events: Iterable[EventEntry]) -> None:
         """The history kept before a restart (oldest first); the view goes out again."""
-        self.events.extend(events)
+        for entry in events:
+            self._keep(entry)
         self.dirty = True
+
+    def _keep(self, entry: EventEntry) -> None:
+        """Append `entry`, then drop what the retention rules above say is least worth keeping."""
+        self.events.append(entry)
+        if entry.kind == "unit" and entry.unit is not None:
+            mine = [e for e in self.events if e.kind == "unit" and e.unit == entry.unit]
+            if len(mine) > UNIT_EVENTS:
+                self.events.remove(mine[0])
+        while len(self.events) > MAX_EVENTS:
+            safety = [e for e in self.events if _is_safety(e)]
+            chatter = [e for e in self.events if not _is_safety(e)]
+            oldest = safety[0] if len(safety) > SAFETY_EVENTS or not chatter else chatter[0]
+            self.events.remove(oldest)
 
     def know(self, jobs: Iterable[Job]) -> None:
         """Jobs as they stand (loaded from the store): only later changes are events."""
@@ -57,7 +84,7 @@ class EventLog:
         """One event, its text cut to one protocol text's length."""
         line = " ".join(text.split())[:MAX_TEXT]
         entry = EventEntry(at=at, kind=kind, text=line, job=job, unit=unit)
-        self.events.append(entry)
+        self._keep(entry)
         self.fresh.append(entry)
         self.dirty = True
 
@@ -108,7 +135,7 @@ class EventLog:
 
     def unit_changed(self, at: datetime, unit: str, connection: str) -> None:
         """A unit came online, went offline, or was lost (its last will)."""
-        words = {"online": "online", "offline": "offline", "broken": "lost (its connection broke)"}
+        words = {"online": "online", "offline": "offline", "broken": _LOST}
         self.add(at, "unit", f"unit {unit} {words.get(connection, connection)}", unit=unit)
 
     def take(self, header: Header) -> EventsView:

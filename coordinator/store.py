@@ -17,6 +17,10 @@ from coordinator.jobs import Job
 from gridfleet.protocol import EventEntry
 from gridfleet.protocol.messages import MAX_EVENTS
 
+# More than the view shows: the view keeps stop and loss lines that chatter would have pushed out
+# (coordinator/events.py), and must find them again after a restart.
+STORED_EVENTS = 10 * MAX_EVENTS
+
 
 def default_db_path() -> Path:
     """`<user data dir>/gridfleet/coordinator.sqlite3`."""
@@ -58,17 +62,17 @@ class JobStore:
                 events.append(EventEntry.model_validate_json(data))
             except ValueError:
                 continue  # written by another version: the history is for people, not kept exact
-        return events[-MAX_EVENTS:]
+        return events[-STORED_EVENTS:]
 
     def save_events(self, events: Iterable[EventEntry]) -> None:
-        """Append `events`, keeping the latest MAX_EVENTS, in one transaction."""
+        """Append `events`, keeping the latest STORED_EVENTS, in one transaction."""
         with self._db:
             self._db.executemany(
                 "INSERT INTO events (data) VALUES (?)", [(e.model_dump_json(),) for e in events]
             )
             self._db.execute(
                 "DELETE FROM events WHERE rowid <= (SELECT MAX(rowid) FROM events) - ?",
-                (MAX_EVENTS,),
+                (STORED_EVENTS,),
             )
 
     def load_controls(self) -> dict[str, str]:

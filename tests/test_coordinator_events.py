@@ -14,7 +14,7 @@ from coordinator.core import CoordinatorCore
 from coordinator.events import EventLog
 from coordinator.jobs import Job
 from coordinator.service import Coordinator
-from coordinator.store import JobStore
+from coordinator.store import STORED_EVENTS, JobStore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
     CancelJob,
@@ -115,6 +115,41 @@ def test_the_history_keeps_the_latest_and_one_line_each() -> None:
     assert log.events[0].text == "event 6"
     assert "\n" not in log.events[-1].text and len(log.events[-1].text) == 500
     assert len(log.take_fresh()) == MAX_EVENTS + 6 and log.take_fresh() == ()
+
+
+def test_a_flapping_unit_or_chatter_never_pushes_the_stops_history_out() -> None:
+    # As found: 120 online/offline flaps of one unit pushed the stop's events out of the view.
+    log = EventLog()
+    log.add(AT, "stop", "emergency stop engaged by operator (checking aisle 3)")
+    log.unit_changed(AT, "unit2", "broken")
+    for n in range(120):
+        log.unit_changed(AT, "unit1", "offline" if n % 2 else "online")
+    for n in range(200):
+        log.add(AT, "job", f"job j{n} queued", job=f"j{n}")
+    texts = [e.text for e in log.events]
+    assert len(texts) == MAX_EVENTS
+    assert texts[0] == "emergency stop engaged by operator (checking aisle 3)"
+    assert "unit unit2 lost (its connection broke)" in texts  # pushed out by jobs, not by unit1
+    assert sum(e.unit == "unit1" for e in log.events) == 0  # its flaps went with the chatter
+    # Stop and loss lines give way only to newer ones, past half the view.
+    for n in range(60):
+        log.add(AT, "stop", f"stop {n}")
+    safety = [e.text for e in log.events if e.kind != "job"]
+    assert safety == [f"stop {n}" for n in range(10, 60)]
+
+
+def test_a_unit_keeps_only_its_latest_connection_lines() -> None:
+    log = EventLog()
+    for n in range(10):
+        log.unit_changed(AT, "unit1", "offline" if n % 2 else "online")
+    log.unit_changed(AT, "unit2", "online")
+    assert [e.text for e in log.events] == [
+        "unit unit1 online",
+        "unit unit1 offline",
+        "unit unit1 online",
+        "unit unit1 offline",
+        "unit unit2 online",
+    ]
 
 
 def test_the_core_tells_units_stops_jobs_and_refusals_in_its_view() -> None:
@@ -261,14 +296,14 @@ def test_a_malformed_message_adds_nothing() -> None:
 def test_the_store_keeps_the_latest_history_across_a_restart(tmp_path: Path) -> None:
     store = JobStore(tmp_path / "jobs.db")
     entries = [
-        EventEntry(at=AT, kind="unit", text=f"e{n}", unit="u1") for n in range(MAX_EVENTS + 3)
+        EventEntry(at=AT, kind="unit", text=f"e{n}", unit=f"u{n}") for n in range(STORED_EVENTS + 3)
     ]
     store.save_events(entries[:50])
     store.save_events(entries[50:])
     store.close()
     again = JobStore(tmp_path / "jobs.db")
     loaded = again.load_events()
-    assert [e.text for e in loaded] == [f"e{n}" for n in range(3, MAX_EVENTS + 3)]
+    assert [e.text for e in loaded] == [f"e{n}" for n in range(3, STORED_EVENTS + 3)]
     core = make_core(GRID)
     core.events.restore(loaded)
     (view,) = [p for p in published(core.on_connect(), events=True) if p[0] == EVENTS]
