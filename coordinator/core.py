@@ -226,7 +226,9 @@ class CoordinatorCore:
         elif isinstance(msg, Factsheet) and unit is not None:
             self.world.on_factsheet(unit, msg)
         elif isinstance(msg, UnitState) and unit is not None:
-            if self.world.on_state(unit, msg, now):
+            # Out of service, a unit may be moved by hand: it comes back wherever it is put.
+            moved_by_hand = self.controls.get(unit) == "out_of_service"
+            if self.world.on_state(unit, msg, now, relocatable=moved_by_hand):
                 self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
                 self.views.map_dirty = True
             forged = self.orders.heard(unit, msg)

@@ -10,7 +10,7 @@ last seen. A unit that comes back with an item of a job that is over puts it bac
 from __future__ import annotations
 
 from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason, reach_reason
-from coordinator.jobs import CARRYING_STATES, JobBook
+from coordinator.jobs import CARRYING_STATES, Job, JobBook
 from coordinator.returns import stray_items
 from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
@@ -36,12 +36,19 @@ class JobProgress:
         self.goals = goals
         self.controls = {} if controls is None else controls  # units paused or out of service
         self.returns: dict[str, Action] = {}  # unit -> putting down an item of a job now over
+        # Re-queued jobs and the unit they were given to: only that unit may say it has the item.
+        self.requeued_from: dict[str, str] = {}
 
     def requeue_on_restart(self) -> None:
         """Jobs not picked up yet go back to the queue; carried ones wait for their unit's state."""
         for job in self.jobs.active():
             if job.state not in CARRYING_STATES:
-                self.jobs.set(job, "queued", unit=None, reason="coordinator restarted; re-queued")
+                self._requeue(job, "coordinator restarted; re-queued")
+
+    def _requeue(self, job: Job, reason: str) -> None:
+        if job.unit is not None:
+            self.requeued_from[job.id] = job.unit
+        self.jobs.set(job, "queued", unit=None, reason=reason)
 
     def advance(self, units: list[UnitRecord], active: set[str], now: float, step_no: int) -> None:
         """Pick-ups, drop-offs, refusals, lost units and goals reached, from the latest states."""
@@ -61,10 +68,16 @@ class JobProgress:
             if st is None or st.job_id is None or u.id not in active:
                 continue
             job = self.jobs.get(st.job_id)
-            # Only a queued one (a restart re-queues them): a job given to a unit is loaded when
-            # its state says so at the pickup (_progress_jobs), never by a claim made elsewhere.
-            if job is not None and job.state == "queued":
-                self.jobs.set(job, "loaded", unit=u.id, reason=None)
+            # Only a queued one (a restart re-queues them) that was given to this very unit, and
+            # that it can carry: a job given to a unit is loaded when its state says so at the
+            # pickup (_progress_jobs), never by a claim made elsewhere. As found: a 2 kg unit
+            # "picked up" any queued 15 kg job by naming it in its state.
+            if job is None or job.state != "queued" or self.requeued_from.get(job.id) != u.id:
+                continue
+            if u.capacity_kg is None or u.capacity_kg < job.mass_kg:
+                continue
+            del self.requeued_from[job.id]
+            self.jobs.set(job, "loaded", unit=u.id, reason=None)
 
     def _progress_jobs(
         self, units: list[UnitRecord], active: set[str], now: float, step_no: int
@@ -91,9 +104,7 @@ class JobProgress:
                             done_step=step_no,
                         )
                 else:
-                    self.jobs.set(
-                        job, "queued", unit=None, reason=f"unit {rec.id} was lost; re-queued"
-                    )
+                    self._requeue(job, f"unit {rec.id} was lost; re-queued")
                 continue
             if job.state in ("assigned", "to_pickup"):
                 # Loaded only where the item is: the unit waits there for its next order, so

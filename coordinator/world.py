@@ -12,6 +12,8 @@ from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitState
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
+REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (a move under way)
+
 
 @dataclass
 class UnitRecord:
@@ -96,20 +98,45 @@ class World:
         """A unit described itself."""
         self.unit(unit_id).factsheet = msg
 
-    def on_state(self, unit_id: str, msg: UnitState, now: float) -> list[Cell]:
-        """A unit's state; returns obstacles new to the fleet. Bad squares raise, change nothing.
+    def on_state(
+        self, unit_id: str, msg: UnitState, now: float, relocatable: bool = False
+    ) -> list[Cell]:
+        """A unit's state; returns the squares whose obstacle changed (new ones, then cleared).
 
-        So does a jump: a unit drives at most one square a step, so a state more squares from the
-        last one it accepted than steps between them (at least one) is refused, unless the unit
-        said it (re)connected since or had been lost (protocol.md §8).
+        The fleet judges a unit by what it can know, not by what the unit claims (protocol.md §8,
+        §10). A state raises ProtocolError, and changes nothing, when
+        - its square is off the map, on a wall or a known obstacle;
+        - another unit still holds that square (its latest state is there, and it did not leave);
+        - it jumps: a unit drives at most one square a step, so it is further from the last
+          state accepted than both the steps between them and the time between them allow (the
+          unit's own step counter alone could be made up);
+        - it rejoins (after a connection message, or lost) further than REJOIN_SQUARES from where
+          it was last seen, unless an operator has it out of service (`relocatable`: moved by hand);
+        - it reports an obstacle that is not next to it (here, or where it was last accepted).
+        A sensor reading `free` towards a known obstacle clears it: what is seen free is free.
         """
         self.check_square(msg.position, "position")
-        self._check_move(self.units.get(unit_id), msg, now)
+        rec = self.units.get(unit_id)
+        self._check_square_is_free_of_others(unit_id, msg)
+        if not relocatable:
+            self._check_move(rec, msg, now)
+        here = msg.position
+        was = None if rec is None else rec.position
+        for c in msg.obstacles:
+            if here.manhattan(c) != 1 and (was is None or was.manhattan(c) != 1):
+                raise ProtocolError(
+                    f"obstacle {list(c)} is not next to the unit (at {list(here)}): a unit "
+                    "reports only what its own sensors see"
+                )
         new = []
         # Besides the obstacles it reports once, every state's sensors show what is next to the
         # unit: a restarted coordinator (or one that missed the report) learns them again there.
-        here = msg.position
         seen = [here.step(d) for d in Direction if getattr(msg.sensors, d.value) == "obstacle"]
+        cleared = [
+            c
+            for d in Direction
+            if getattr(msg.sensors, d.value) == "free" and (c := here.step(d)) in self.obstacles
+        ]
         for c in [*msg.obstacles, *seen]:
             if (
                 self.base.in_bounds(c)
@@ -131,20 +158,53 @@ class World:
         rec.state = msg
         rec.state_at = now
         rec.rejoined = False
-        if new:
+        if new or cleared:
             self.obstacles.update(new)
+            self.obstacles.difference_update(cleared)
             self._grid = self.base.with_blocked(self.obstacles)
-        return new
+        return [*new, *cleared]
+
+    def clear_obstacles(self, squares: list[Cell] | None = None) -> list[Cell]:
+        """An operator's word: these discovered obstacles (None: all) are gone; those cleared."""
+        gone = sorted(self.obstacles if squares is None else self.obstacles & set(squares))
+        if gone:
+            self.obstacles.difference_update(gone)
+            self._grid = self.base.with_blocked(self.obstacles)
+        return gone
+
+    def _check_square_is_free_of_others(self, unit_id: str, msg: UnitState) -> None:
+        for other in self.units.values():
+            if (
+                other.id != unit_id
+                and other.connection != "offline"
+                and other.position == msg.position
+            ):
+                raise ProtocolError(
+                    f"position {list(msg.position)} is held by unit {other.id} (its latest "
+                    "state is there): two units never share a square"
+                )
 
     def _check_move(self, rec: UnitRecord | None, msg: UnitState, now: float) -> None:
-        if rec is None or rec.state is None or rec.rejoined or not self.is_active(rec, now):
-            return
+        if rec is None or rec.state is None or rec.state_at is None:
+            return  # first heard of (or since this coordinator started): anywhere on the map
         last = rec.state
         away = last.position.manhattan(msg.position)
-        if away > max(1, msg.step - last.step):
+        if rec.rejoined or not self.is_active(rec, now):
+            if away > REJOIN_SQUARES:
+                raise ProtocolError(
+                    f"position {list(msg.position)} is {away} squares from {list(last.position)}, "
+                    f"where unit {rec.id} was last seen: a unit rejoins where it left (an "
+                    "operator takes it out of service to move it by hand)"
+                )
+            return
+        # Both the unit's own steps and the time since its last state must allow the distance;
+        # twice the step period's pace, as states may arrive bunched up by the network.
+        by_time = 1 + int(2 * (now - rec.state_at) / self.step_period_s)
+        if away > max(1, min(msg.step - last.step, by_time)):
             raise ProtocolError(
                 f"position {list(msg.position)} at step {msg.step} is {away} squares from "
-                f"{list(last.position)} at step {last.step}, the last state accepted"
+                f"{list(last.position)} at step {last.step}, the last state accepted "
+                f"{now - rec.state_at:.2f} s before"
             )
 
     def stale_after_s(self, rec: UnitRecord) -> float:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import pytest
 
 from coordinator.core import CoordinatorCore
-from gridfleet.grid import Cell, GridMap
+from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CancelJob,
     Connection,
@@ -362,9 +362,12 @@ def _pocket_unit() -> tuple[CoordinatorCore, Yard]:
 
 
 def _obstacle_found(core: CoordinatorCore, yard: Yard, square: Cell, now: float) -> None:
-    """The unit reports `square` as an obstacle it has just sensed."""
-    state = yard.state("u").model_copy(update={"obstacles": [square]})
-    from_unit(core, "state", "u", state, now)
+    """A scout standing next to `square` (a unit reports only what is next to it) reports it as
+    an obstacle it has just sensed."""
+    beside = next(c for c in (square.step(d) for d in Direction) if core.world.grid.is_free(c))
+    update = {"position": beside, "obstacles": [square], "job_id": None, "load_kg": 0.0}
+    state = yard.state("u").model_copy(update=update)
+    from_unit(core, "state", "scout", state, now)
 
 
 def test_a_job_no_unit_could_ever_finish_is_refused_at_submission_with_the_reason() -> None:

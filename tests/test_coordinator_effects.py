@@ -20,6 +20,7 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
     CancelJob,
     Connection,
+    ControlUnit,
     Factsheet,
     Leds,
     Sensors,
@@ -279,8 +280,8 @@ def test_a_state_at_the_dropoff_never_finishes_a_job_not_seen_loaded(
     core: CoordinatorCore,
 ) -> None:
     under_way(core)  # job-1 to_pickup: unit1 on [0, 0], the item on [3, 0]
-    # Five squares in nine steps is a possible drive; the job was never reported loaded.
-    assert drive(core, state(Cell(3, 2), seq=9)) == [[]]
+    # Five squares in nine steps and 5 s is a possible drive; the job was never reported loaded.
+    assert drive(core, state(Cell(3, 2), seq=9), now=5.0) == [[]]
     core.step(2.0)
     job = core.jobs.jobs["job-1"]
     assert (job.state, job.unit) == ("to_pickup", "unit1")
@@ -305,7 +306,7 @@ def test_a_state_jumping_to_the_dropoff_is_refused_and_finishes_nothing(
                 0,
                 "gridfleet/v1/units/unit1/state",
                 "position [3, 2] at step 4 is 2 squares from [3, 0] at step 3, "
-                "the last state accepted",
+                "the last state accepted 0.00 s before",
             )
         ]
     ]
@@ -319,11 +320,81 @@ def test_a_state_jumping_to_the_dropoff_is_refused_and_finishes_nothing(
     assert core.jobs.jobs["job-1"].state == "done"
 
 
-def test_a_unit_that_reconnects_may_report_any_square(core: CoordinatorCore) -> None:
-    # A restarted unit (it may have been carried elsewhere) says it is online first.
+def test_a_unit_that_reconnects_comes_back_where_it_left(core: CoordinatorCore) -> None:
+    # As found: `offline` then `online` let a unit reappear anywhere. A restarted unit says it
+    # is online first; it may be a move further on, not across the map.
+    online = Connection(header=header("unit1"), state="online")
+    from_unit(core, "connection", "unit1", online, 1)
+    assert drive(core, state(Cell(3, 2), seq=0)) == [
+        [
+            error(
+                0,
+                "gridfleet/v1/units/unit1/state",
+                "position [3, 2] is 5 squares from [0, 0], where unit unit1 was last seen: a "
+                "unit rejoins where it left (an operator takes it out of service to move it by "
+                "hand)",
+            )
+        ]
+    ]
+    assert core.world.units["unit1"].position == Cell(0, 0)
+    assert drive(core, state(Cell(1, 0), seq=0)) == [[]]  # one square on: a move under way
+
+
+def test_a_unit_out_of_service_may_be_moved_anywhere_by_hand(core: CoordinatorCore) -> None:
+    take_out = ControlUnit(
+        header=header("op"), request_id="c1", reply_to="op", unit="unit1", command="out_of_service"
+    )
+    request(core, "control_unit", take_out, 1.0)
     from_unit(core, "connection", "unit1", Connection(header=header("unit1"), state="online"), 1)
     assert drive(core, state(Cell(3, 2), seq=0)) == [[]]
     assert core.world.units["unit1"].position == Cell(3, 2)
+
+
+def test_a_state_on_another_units_square_is_refused(core: CoordinatorCore) -> None:
+    other = state(Cell(2, 2), seq=0).model_copy(update={"header": header("unit2")})
+    from_unit(core, "state", "unit2", other, 1.0)
+    assert drive(core, state(Cell(1, 0), seq=1), state(Cell(2, 0), seq=2), now=3.0) == [[], []]
+    assert drive(core, state(Cell(2, 1), seq=3), state(Cell(2, 2), seq=4), now=5.0) == [
+        [],
+        [
+            error(
+                0,
+                "gridfleet/v1/units/unit1/state",
+                "position [2, 2] is held by unit unit2 (its latest state is there): two units "
+                "never share a square",
+            )
+        ],
+    ]
+    assert core.world.units["unit1"].position == Cell(2, 1)
+
+
+def test_a_step_counter_run_ahead_does_not_buy_a_jump(core: CoordinatorCore) -> None:
+    # As found: step + 100 jumped anywhere; the time since the last state bounds the move too.
+    assert drive(core, state(Cell(1, 0), seq=1), now=1.0) == [[]]
+    far = drive(core, state(Cell(3, 2), seq=101), now=1.2)
+    assert far[0][0][1]["reason"] == (
+        "position [3, 2] at step 101 is 4 squares from [1, 0] at step 1, the last state "
+        "accepted 0.20 s before"
+    )
+    assert core.world.units["unit1"].position == Cell(1, 0)
+
+
+def test_an_obstacle_far_from_the_unit_is_refused_and_one_seen_free_is_cleared(
+    core: CoordinatorCore,
+) -> None:
+    # As found: a unit reported a fake row of obstacles across the map, and nothing cleared it.
+    far = state(Cell(0, 0), seq=1, obstacles=[Cell(3, 2)])
+    assert drive(core, far)[0][0][1]["reason"] == (
+        "obstacle [3, 2] is not next to the unit (at [0, 0]): a unit reports only what its own "
+        "sensors see"
+    )
+    assert core.world.obstacles == set()
+    seen = Sensors(N="wall", E="free", S="obstacle", W="wall")
+    assert drive(core, state(Cell(0, 0), seq=2, obstacles=[Cell(0, 1)], sensors=seen)) == [[]]
+    assert core.world.obstacles == {Cell(0, 1)}
+    free = Sensors(N="wall", E="free", S="free", W="wall")
+    assert drive(core, state(Cell(0, 0), seq=3, sensors=free)) == [[]]
+    assert core.world.obstacles == set() and core.world.grid.is_free(Cell(0, 1))
 
 
 def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore) -> None:

@@ -48,7 +48,9 @@ def test_walls_units_and_off_map_readings_are_not_obstacles() -> None:
 
 def test_a_restarted_coordinator_adopts_a_job_a_unit_reports_carrying() -> None:
     # The store still had the job waiting (the unit picked it up just before the restart).
-    job = Job(id="j", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=4.0, state="to_pickup")
+    job = Job(
+        id="j", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=4.0, state="to_pickup", unit="u"
+    )
     core = make_core(GridMap.from_rows(ROWS), jobs=[job])
     assert job.state == "queued"  # re-queued on restart
     assert [j.id for j in core.restored().persist] == ["j"]
@@ -78,3 +80,20 @@ def test_one_long_silence_does_not_stretch_the_timeout() -> None:
         world.on_state("u", here, i * 0.05)
     world.on_state("u", here, 60.0)  # back after a minute away
     assert world.stale_after_s(world.units["u"]) < 1.0
+
+
+def test_a_unit_cannot_claim_a_queued_job_it_was_never_given_or_cannot_carry() -> None:
+    # As found: a 2 kg unit named a queued 15 kg job in its state, "picked it up" across the
+    # map and "delivered" it.
+    heavy = Job(id="heavy", pickup=Cell(3, 2), dropoff=Cell(3, 0), mass_kg=15.0)
+    mine = Job(id="mine", pickup=Cell(0, 0), dropoff=Cell(3, 2), mass_kg=15.0)
+    mine.state, mine.unit = "to_pickup", "u"  # given to u, which then could not carry it
+    core = make_core(GridMap.from_rows(ROWS), jobs=[heavy, mine])
+    big = state(Cell(3, 0), {}, []).model_copy(update={"header": HeaderStamper("big")("state")})
+    meet(core, big, capacity_kg=20.0)  # so the heavy jobs stay queued, not rejected
+    for job_id in ("heavy", "mine"):
+        claim = state(Cell(0, 0), {}, []).model_copy(update={"job_id": job_id, "load_kg": 2.0})
+        meet(core, claim, capacity_kg=2.0)
+        core.step(1.0)
+        job = core.jobs.jobs[job_id]
+        assert job.unit != "u", (job_id, job.state)  # big may have it now, never u
