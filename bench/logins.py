@@ -240,12 +240,9 @@ def _flood(url: str, name: str, per_s: float, done: object, counts: object) -> N
             return
         try:
             writer.write(_connect_packet(name, "not-the-password"))
-            answer = await asyncio.wait_for(reader.read(4), 10)
-            if len(answer) == 4 and answer[3] != 0:
-                tally[1] += 1
-            elif not answer:
-                tally[2] += 1
-        except (TimeoutError, OSError):
+            answer = await asyncio.wait_for(reader.readexactly(4), 10)  # the CONNACK
+            tally[1 if answer[3] != 0 else 2] += 1
+        except (TimeoutError, OSError, asyncio.IncompleteReadError):
             tally[2] += 1
         finally:
             writer.close()

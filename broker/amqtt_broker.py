@@ -412,6 +412,24 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             return f"{incoming.username!r} may not publish its will's topic {incoming.will_topic!r}"
         return None
 
+    async def _handle_message_delivery(
+        self, client_session: Any, handler: Any, wait_deliver: asyncio.Future[Any]
+    ) -> bool:
+        """amqtt's, after the gate's word on what the message claims (its sender, its rate)."""
+        message = wait_deliver.result()
+        if self.gate is not None and message is not None and message.topic:
+            refused = self.gate.refused_publish(
+                client_session.username,
+                client_session.client_id or "",
+                message.topic,
+                bytes(message.data or b""),
+            )
+            if refused is not None:
+                who = f"client {client_session.client_id} ({client_session.username})"
+                self._log_refusal(f"a message of {who} on {message.topic}: {refused}")
+                return True  # dropped; the connection stays
+        return bool(await super()._handle_message_delivery(client_session, handler, wait_deliver))
+
     async def _authenticate(self, session: Any, listener: Any) -> bool:
         """amqtt's check, skipped for the session just authenticated above (Argon2 costs ~30 ms)."""
         if session.attributes.pop("gridfleet.authenticated", False):

@@ -179,7 +179,7 @@ class EmbeddedBroker:
         s = self.settings
         self._broker = make_broker(
             s.amqtt_config(),
-            gate=None if s.accounts is None else Gate(s.accounts),
+            gate=None if s.accounts is None else Gate(s.accounts, root=s.root),
             max_packet_bytes=s.max_packet_bytes,
             max_queued_messages=s.max_queued_messages,
             max_queued_bytes=s.max_queued_bytes,

@@ -11,12 +11,20 @@ from __future__ import annotations
 
 import hashlib
 import hmac
+import json
 import secrets
 import time
 from collections.abc import Callable, Iterable
 
 from gridfleet.accounts import Accounts
-from gridfleet.throttle import LoginThrottle
+from gridfleet.protocol import Topics
+from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
+from gridfleet.throttle import FailureBudget, LoginThrottle
+
+# Error reports a client may send: a burst, then a few a second (a unit stuck in a loop of errors
+# was relayed 1:1 to every page and terminal, 200 a second).
+ERRORS_BURST = 20
+ERRORS_PER_S = 5.0
 
 # Compared against when the name is unknown, so an unknown name costs what a known one does.
 _NOBODY = "\0unknown"
@@ -44,7 +52,14 @@ class Gate:
         accounts: Accounts,
         clock: Callable[[], float] = time.monotonic,
         throttle: LoginThrottle | None = None,
+        root: str = DEFAULT_ROOT,
     ) -> None:
+        topics = Topics(root)
+        # Where a message names who sent it, for people and the fleet to read (protocol.md §10).
+        self._signed = {topics.request(k) for k in ("submit_job", "cancel_job", "set_goal")}
+        self._signed |= {topics.request("control_unit"), topics.fleet("errors")}
+        self._errors_topic = topics.fleet("errors")
+        self.errors = FailureBudget(ERRORS_BURST, ERRORS_PER_S, clock)
         self._key = secrets.token_bytes(32)
         self._digests = {a.name: self._digest(a.password) for a in accounts.accounts.values()}
         self._nobody = self._digest(_NOBODY)
@@ -79,4 +94,33 @@ class Gate:
                     f"client id {client_id!r} belongs to {whose}: {username!r} may use "
                     f"{username!r} or ids starting '{username}-' or '{username}@'"
                 )
+        return None
+
+    def refused_publish(
+        self, username: str | None, client_id: str, topic: str, data: bytes
+    ) -> str | None:
+        """None to pass this PUBLISH on; otherwise why it is dropped (for the broker's log).
+
+        A request or error report names its sender in its header, and people and the coordinator
+        take that as who did it: it must be an id the publishing account owns (as found, a job
+        submitted with sender `coordinator` was listed as the coordinator's). Error reports are
+        also limited per client. What cannot be read passes: the coordinator refuses it in words.
+        """
+        if topic not in self._signed:
+            return None
+        if topic == self._errors_topic:
+            if self.errors.wait_s(client_id) > 0:
+                return f"more than {ERRORS_PER_S:g} error reports a second"
+            self.errors.failed(client_id)  # spends one of its budget
+        if username is None or len(data) > MAX_REQUEST_BYTES:
+            return None
+        try:
+            sender = json.loads(data)["header"]["sender"]
+        except (ValueError, KeyError, TypeError):
+            return None
+        if not isinstance(sender, str):
+            return None
+        owner = owner_of(sender, self._digests)
+        if owner != username:
+            return f"its header names sender {sender!r}, an id account {username!r} does not own"
         return None

@@ -18,6 +18,7 @@ import aiomqtt
 from pydantic import ValidationError
 
 from gridfleet.bus import make_client
+from gridfleet.config import owned_client_id, parse_broker_url
 from gridfleet.endpoint import Outbound, payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.grid import Cell
@@ -268,6 +269,8 @@ async def operator_session(
     url: str, topics: Topics, client_id: str, retry_s: float = RETRY_S
 ) -> AsyncIterator[Operator]:
     """A connected Operator, subscribed and listening in the background until the block ends."""
+    # Logged in with an account, the id (the requests' sender) is one that account owns.
+    client_id = owned_client_id(parse_broker_url(url).username, client_id)
     async with make_client(url, client_id) as client:
         operator = Operator(client, topics, client_id, retry_s)
         await operator.start()

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import aiomqtt
 
 from gridfleet.bus import make_client
-from gridfleet.config import check_step
+from gridfleet.config import check_step, owned_client_id, parse_broker_url
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze
@@ -157,7 +157,8 @@ async def simulate(
         services = list(system.threads.values())
         world = world_of(system.fleet)
         broker_url = system.url
-        client_id = f"simulate-{uuid.uuid4().hex[:6]}"
+        login = parse_broker_url(broker_url).username
+        client_id = owned_client_id(login, f"simulate-{uuid.uuid4().hex[:6]}")
         client = await stack.enter_async_context(make_client(broker_url, client_id))
         monitor_client = await stack.enter_async_context(make_client(broker_url, client_id + "-m"))
         operator = Operator(client, topics, client_id)

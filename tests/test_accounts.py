@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import re
 import stat
 import subprocess
@@ -203,6 +204,40 @@ def test_an_account_uses_only_client_ids_it_owns(secured: BrokerThread, accounts
     for other in ("unit10", "unit2-unit1", "probe-1", "device-unit1"):
         with pytest.raises(AssertionError, match="Not authorized"):
             MqttProbe(login(secured.url, accounts, "unit1"), other).connect(timeout=5)
+
+
+def test_who_sent_a_request_or_an_error_is_the_account_not_the_header(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    # As found: a job submitted with sender `coordinator` was listed `submitted_by: coordinator`,
+    # and a device posted errors the page showed as the coordinator's, 200 a second.
+    def signed(sender: str, n: int = 0) -> bytes:
+        header = {"version": "1.4", "seq": n, "timestamp": "2026-11-26T09:00:00Z"}
+        return json.dumps({"header": {**header, "sender": sender}, "n": n}).encode()
+
+    submit, errors = T.request("submit_job"), T.fleet("errors")
+    with (
+        MqttProbe(login(secured.url, accounts, "coordinator")) as coordinator,
+        MqttProbe(login(secured.url, accounts, "operator"), "operator-cli-1") as operator,
+        MqttProbe(login(secured.url, accounts, "device-unit1")) as device,
+        MqttProbe(login(secured.url, accounts, "dashboard")) as page,
+    ):
+        coordinator.subscribe(submit)
+        page.subscribe(errors)
+        operator.publish(submit, signed("coordinator"))
+        device.publish(errors, signed("coordinator"))
+        for n in range(200):  # a flood of its own reports
+            device.publish(errors, signed("device-unit1", n), qos=0)
+        operator.publish(submit, signed("operator-cli-1"))  # last: the others had their chance
+        coordinator.wait(submit, lambda m: b"operator-cli-1" in m.payload)
+        device.publish(errors, signed("device-unit1", 999))
+        page.wait(errors)
+        assert [
+            json.loads(m.payload)["header"]["sender"] for m in coordinator.received(submit)
+        ] == ["operator-cli-1"]
+        reports = page.received(errors)
+        assert all(b'"sender": "device-unit1"' in m.payload for m in reports)
+        assert 0 < len(reports) <= 40, len(reports)  # a burst of 20, then 5 a second
 
 
 async def test_a_component_connects_with_the_credentials_in_its_url(
