@@ -16,7 +16,7 @@ import secrets
 import time
 from collections.abc import Callable, Iterable
 
-from gridfleet.accounts import Accounts
+from gridfleet.accounts import REQUEST_KINDS, Accounts
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
 from gridfleet.throttle import FailureBudget, LoginThrottle
@@ -56,8 +56,7 @@ class Gate:
     ) -> None:
         topics = Topics(root)
         # Where a message names who sent it, for people and the fleet to read (protocol.md §10).
-        self._signed = {topics.request(k) for k in ("submit_job", "cancel_job", "set_goal")}
-        self._signed |= {topics.request("control_unit"), topics.fleet("errors")}
+        self._signed = {topics.request(k) for k in REQUEST_KINDS} | {topics.fleet("errors")}
         self._errors_topic = topics.fleet("errors")
         self.errors = FailureBudget(ERRORS_BURST, ERRORS_PER_S, clock)
         self._key = secrets.token_bytes(32)

@@ -48,6 +48,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import (
     CancelJob,
+    ClearObstacles,
     Connection,
     ControlUnit,
     EstopSignal,
@@ -238,7 +239,7 @@ class CoordinatorCore:
                 return self._effects([self.say.error(topic, forged, None)])
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
-        elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit):
+        elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
             return self._on_request(topic, msg, now)
         return self._effects([])
 
@@ -294,6 +295,17 @@ class CoordinatorCore:
             outcome = requests.control(req, self.world, self.jobs, self.controls)
             if self.controls.get(req.unit) != before:
                 self._controls_changed.append((req.unit, self.controls.get(req.unit)))
+        elif isinstance(req, ClearObstacles):
+            outcome, cleared = requests.clear_obstacles(req, self.world)
+            if cleared:
+                self.planner.set_grid(self.world.grid)
+                self.views.map_dirty = True
+                squares = ", ".join(str(list(c)) for c in cleared[:20])
+                more = f" and {len(cleared) - 20} more" if len(cleared) > 20 else ""
+                # In the log, not the events view: its kinds (§5.7) have none for the map.
+                self._log.append(
+                    (logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}")
+                )
         else:
             cache = self.planner.cache
             outcome = requests.set_goal(req, self.world, self.jobs, self.goals, cache)

@@ -13,6 +13,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.protocol import (
     TOPICS,
     CancelJob,
+    ClearObstacles,
     Connection,
     ControlUnit,
     Factsheet,
@@ -26,7 +27,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
-Request = SubmitJob | CancelJob | SetGoal | ControlUnit
+Request = SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles
 
 
 @dataclass(frozen=True)
@@ -48,6 +49,7 @@ _REQUESTS: dict[str, type[Request]] = {
     "cancel_job": CancelJob,
     "set_goal": SetGoal,
     "control_unit": ControlUnit,
+    "clear_obstacles": ClearObstacles,
 }
 
 

@@ -14,7 +14,7 @@ from coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
-from gridfleet.protocol import CancelJob, ControlUnit, SetGoal, SubmitJob
+from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
 from gridfleet.protocol.constants import MAX_OPEN_JOBS
 
 
@@ -165,3 +165,20 @@ def control(req: ControlUnit, world: World, jobs: JobBook, controls: dict[str, s
             return Outcome(False, f"unit {unit} is not out of service")
         del controls[unit]
     return Outcome(True)
+
+
+def clear_obstacles(req: ClearObstacles, world: World) -> tuple[Outcome, list[Cell]]:
+    """Forget discovered obstacles an operator says are gone: the outcome and the squares cleared.
+
+    Refused, changing nothing, when a square named is not a discovered obstacle (a typo must not
+    pass for done). A unit that still sees one reports it again at its next state.
+    """
+    if req.squares is not None:
+        unknown = [c for c in req.squares if c not in world.obstacles]
+        if unknown:
+            known = ", ".join(str(list(c)) for c in sorted(world.obstacles)[:10]) or "none"
+            return (
+                Outcome(False, f"{list(unknown[0])} is not a discovered obstacle (known: {known})"),
+                [],
+            )
+    return Outcome(True), world.clear_obstacles(req.squares)

@@ -29,6 +29,7 @@ from gridfleet.textfile import read_text
 Role = Literal["coordinator", "unit", "device", "dashboard", "operator"]
 ROLES: tuple[Role, ...] = get_args(Role)
 _KEYS = {"password", "role", "unit"}
+REQUEST_KINDS = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
 MIN_PASSWORD = 12
 
 
@@ -211,7 +212,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         subscribe = [t.unit("direction", account.unit), t.fleet("estop"), own_press]
     else:  # dashboard, operator: the people's side
         publish = [
-            *(t.request(k) for k in ("submit_job", "cancel_job", "set_goal", "control_unit")),
+            *(t.request(k) for k in REQUEST_KINDS),
             t.all_units("goal"),
             t.fleet("estop"),
         ]

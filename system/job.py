@@ -132,6 +132,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name, command in UNIT_ACTIONS.items():
         control = sub.add_parser(name, help=UNIT_HELP[command])
         control.add_argument("unit", type=identifier("unit id"))
+    clear = sub.add_parser(
+        "clear-obstacles", help="forget discovered obstacles that are gone (X,Y ... or --all)"
+    )
+    which = clear.add_mutually_exclusive_group()  # neither: a worded refusal in `run`
+    which.add_argument("squares", nargs="*", type=square, default=[], metavar="X,Y")
+    which.add_argument("--all", action="store_true", help="every discovered obstacle")
     sub.add_parser("list", help="print the job queue")
     stop = sub.add_parser("stop", help="engage the fleet-wide emergency stop (latched)")
     stop.add_argument("--reason", type=reason, default="operator", help="one line, for everybody")
@@ -303,6 +309,9 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             )
         elif args.action == "cancel":
             reply = await operator.cancel_job(args.job_id, args.timeout)
+        elif args.action == "clear-obstacles":
+            squares = None if args.all else args.squares
+            reply = await operator.clear_obstacles(squares, args.timeout)
         elif args.action in UNIT_ACTIONS:
             command = UNIT_ACTIONS[args.action]
             reply = await operator.control_unit(args.unit, command, args.timeout)
@@ -324,5 +333,9 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "goal" and args.target is None and not args.clear:
         raise ConfigError(
             f"goal {args.unit}: give the square to send it to, X,Y, or --clear to clear its goal"
+        )
+    if args.action == "clear-obstacles" and not args.squares and not args.all:
+        raise ConfigError(
+            "clear-obstacles: name the squares, X,Y ..., or give --all to clear every one"
         )
     return asyncio.run(act(args, sys.stdout))

@@ -25,6 +25,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import (
     TOPICS,
     CancelJob,
+    ClearObstacles,
     ControlUnit,
     CoordinatorStatus,
     EstopSignal,
@@ -215,6 +216,10 @@ class Operator:
     async def control_unit(self, unit: str, command: str, timeout: float = WAIT_S) -> Reply:
         """Pause or resume one unit, or take it out of service or back (protocol.md §6.4)."""
         return await self._request("control_unit", ControlUnit, timeout, unit=unit, command=command)
+
+    async def clear_obstacles(self, squares: list[Cell] | None, timeout: float = WAIT_S) -> Reply:
+        """Forget discovered obstacles that are gone (None: all of them; protocol.md §6.6)."""
+        return await self._request("clear_obstacles", ClearObstacles, timeout, squares=squares)
 
     async def set_estop(self, engaged: bool, reason: str) -> EstopSignal:
         """Engage or release the fleet-wide emergency stop (retained: it latches); returns it."""

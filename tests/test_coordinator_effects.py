@@ -19,6 +19,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
     CancelJob,
+    ClearObstacles,
     Connection,
     ControlUnit,
     Factsheet,
@@ -1025,3 +1026,27 @@ def test_a_unit_of_another_map_left_on_the_broker_is_ignored_and_said_once(
     ours = other.model_copy(update={"map_id": core.world.map_id})
     from_unit(core, "factsheet", "unit9", ours, 2.0)  # a unit of this map under that id
     assert "unit9" in core.world.units
+
+
+def test_an_operator_clears_obstacles_that_are_gone_and_a_typo_changes_nothing(
+    core: CoordinatorCore,
+) -> None:
+    seen = Sensors(N="wall", E="free", S="obstacle", W="wall")
+    drive(core, state(Cell(0, 0), seq=1, obstacles=[Cell(0, 1)], sensors=seen))
+    assert core.world.obstacles == {Cell(0, 1)}
+
+    def clear(rid: str, squares: list[list[int]] | None) -> list[Any]:
+        req = ClearObstacles(header=header("op"), request_id=rid, reply_to="op", squares=squares)
+        return [
+            m
+            for m in published(request(core, "clear_obstacles", req, 2.0))
+            if "/fleet/" not in m[0]
+        ]
+
+    typo = clear("c1", [[3, 2]])
+    assert typo[-1][1]["accepted"] is False
+    assert typo[-1][1]["reason"] == "[3, 2] is not a discovered obstacle (known: [0, 1])"
+    assert core.world.obstacles == {Cell(0, 1)}
+    assert clear("c2", [[0, 1]])[-1][1]["accepted"] is True
+    assert core.world.obstacles == set() and core.world.grid.is_free(Cell(0, 1))
+    assert core.views.map_dirty  # the map view goes out with the next views

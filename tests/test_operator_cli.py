@@ -86,6 +86,10 @@ def test_submit_list_cancel_goal_and_refusal(
     assert wall.returncode == 1 and wall.stdout.startswith("refused: ")
     nobody = job("goal", "nobody", "1,1")
     assert (nobody.returncode, nobody.stdout.strip()) == (1, "refused: unknown unit 'nobody'")
+    typo = job("clear-obstacles", "0,9")  # not an obstacle anybody found
+    assert typo.returncode == 1 and "is not a discovered obstacle" in typo.stdout, typo.stdout
+    everything = job("clear-obstacles", "--all")
+    assert (everything.returncode, everything.stdout.strip()) == (0, "accepted"), everything.stderr
 
 
 def test_units_are_paused_and_taken_out_of_service_and_a_waiting_job_says_why(
@@ -275,6 +279,8 @@ def test_release_names_the_press_that_held_the_fleet_and_the_coordinator_clears_
         (["--timeout", "1", "cancel", "j1"], "the coordinator is not online"),
         (["stop", "--reason", "two\nlines"], "one line"),
         (["--timeout", "0", "list"], "--timeout 0: give a positive number of seconds"),
+        (["clear-obstacles"], "clear-obstacles: name the squares, X,Y ..., or give --all"),
+        (["clear-obstacles", "1,-1"], "'1,-1'"),
     ],
 )
 def test_mistakes_are_one_line(

@@ -22,6 +22,7 @@ from gridfleet.protocol.device import (
 from gridfleet.protocol.messages import (
     Action,
     CancelJob,
+    ClearObstacles,
     Connection,
     ControlUnit,
     CoordinatorStatus,
@@ -52,6 +53,7 @@ __all__ = [
     "TOPICS",
     "Action",
     "CancelJob",
+    "ClearObstacles",
     "Connection",
     "ControlUnit",
     "CoordinatorStatus",

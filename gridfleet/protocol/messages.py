@@ -326,6 +326,12 @@ class ControlUnit(Request):
     command: UnitCommand
 
 
+class ClearObstacles(Request):
+    """`requests/clear_obstacles`: discovered obstacles an operator knows are gone (null: all)."""
+
+    squares: Annotated[list[Square], Field(min_length=1, max_length=1024)] | None
+
+
 class Reply(Message):
     """`replies/<client>`: the answer to one request."""
 

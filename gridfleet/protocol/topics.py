@@ -93,6 +93,15 @@ TOPICS: dict[str, TopicSpec] = {
             "ControlUnit",
             MAX_REQUEST_BYTES,
         ),
+        TopicSpec(
+            "clear_obstacles",
+            "requests/clear_obstacles",
+            1,
+            False,
+            "json",
+            "ClearObstacles",
+            MAX_REQUEST_BYTES,
+        ),
         TopicSpec("reply", "replies/{client}", 1, False, "json", "Reply", MAX_REQUEST_BYTES),
         TopicSpec("errors", "errors", 1, False, "json", "ErrorReport", MAX_REQUEST_BYTES),
         TopicSpec(
@@ -173,7 +182,8 @@ class Topics:
         return f"{self.prefix}/{spec.pattern}"
 
     def request(self, kind: str) -> str:
-        """The request topic of `kind` (submit_job, cancel_job, set_goal, control_unit)."""
+        """The request topic of `kind` (submit_job, cancel_job, set_goal, control_unit,
+        clear_obstacles)."""
         spec = TOPICS.get(kind)
         if spec is None or not spec.pattern.startswith("requests/"):
             raise ProtocolError(f"{kind!r} is not a request kind")

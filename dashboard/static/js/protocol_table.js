@@ -195,6 +195,16 @@ export const TOPICS = freeze({
     "schema": "schemas/ControlUnit.json",
     "max_bytes": 16384
   },
+  "clear_obstacles": {
+    "pattern": "requests/clear_obstacles",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "ClearObstacles",
+    "schema": "schemas/ClearObstacles.json",
+    "max_bytes": 16384
+  },
   "reply": {
     "pattern": "replies/{client}",
     "placeholder": "client",
