@@ -295,7 +295,12 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         """A websocket connection: amqtt's, with the packet size guard on its reader; a page from
         another site (its Origin) or a DNS-rebinding one (its Host) is closed at once."""
         headers = websocket.request.headers if websocket.request is not None else {}
-        refused = origins.refusal(headers.get("Host"), headers.get("Origin"), self.ws_origins)
+        refused = origins.refusal(
+            headers.get("Host"),
+            headers.get("Origin"),
+            self.ws_origins,
+            accounts=self.gate is not None,
+        )
         if refused is not None:
             self._log_refusal(f"a websocket from {_peer(websocket.remote_address)}: {refused}")
             await websocket.close(1008, "origin not allowed")  # 1008: policy violation

@@ -4,8 +4,9 @@ A browser lets any page it shows open a websocket to any address, loopback inclu
 the page's origin with it. Without a check, a page from another site, open in the operator's
 browser, could connect to the no-accounts default on 127.0.0.1 and release the stop. So:
 
-- the Host the browser asked for must name this machine by an IP address or `localhost` (or a
-  name given in `ws_origins`): a DNS-rebinding page asks for its own name and is refused;
+- without accounts, the Host the browser asked for must name this machine by an IP address or
+  `localhost` (or a name given in `ws_origins`): a DNS-rebinding page asks for its own name and
+  is refused;
 - a page's origin must be on that same host (the dashboard, on another port of it), or be one of
   `ws_origins`.
 
@@ -33,9 +34,17 @@ def _is_address(name: str) -> bool:
 
 
 def refusal(
-    host: str | None, origin: str | None, extra_origins: tuple[str, ...] = ()
+    host: str | None,
+    origin: str | None,
+    extra_origins: tuple[str, ...] = (),
+    *,
+    accounts: bool = False,
 ) -> str | None:
-    """None when a websocket with these Host and Origin headers may connect; else why not."""
+    """None when a websocket with these Host and Origin headers may connect; else why not.
+
+    With `accounts`, any host name is let in (people reach a LAN broker by the machine's name,
+    and a rebinding page would still need a password); without, only addresses and `localhost`.
+    """
     if origin is None:
         return None
     allowed = {o.rstrip("/").lower() for o in extra_origins}
@@ -43,7 +52,7 @@ def refusal(
         return None
     asked = _hostname(host or "")
     names = {"localhost", *(_hostname(urlsplit(o).netloc) for o in allowed)}
-    if not (_is_address(asked) or asked in names):
+    if not accounts and not (_is_address(asked) or asked in names):
         return f"Host {host!r} names no address of this machine (a DNS-rebinding page?)"
     page = (urlsplit(origin).hostname or "").lower()
     if page != asked and not (_is_loopback(page) and _is_loopback(asked)):

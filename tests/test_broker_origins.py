@@ -48,6 +48,12 @@ def test_which_pages_may_connect(host: str, origin: str | None, allowed: bool) -
     assert (refusal(host, origin) is None) == allowed
 
 
+def test_with_accounts_a_lan_broker_is_reached_by_the_machines_name() -> None:
+    # People on a LAN use the machine's name; a rebinding page would still need a password.
+    assert refusal("fleet.lab:9001", "http://fleet.lab:5000", accounts=True) is None
+    assert refusal("fleet.lab:9001", "https://evil.example", accounts=True) is not None
+
+
 def test_configured_origins_are_let_in_with_their_names() -> None:
     extra = ("https://fleet.lab:5000",)
     assert refusal("fleet.lab:9001", "https://fleet.lab:5000", extra) is None
