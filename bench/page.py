@@ -256,9 +256,14 @@ def run_page_bench(
                 page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
                 page.add_init_script(PROBE)
                 page.goto(f"http://127.0.0.1:{web_port}/")
-                page.wait_for_function(
-                    "document.querySelectorAll('#units tbody tr').length > 0", timeout=30000
-                )
+                # Polled with evaluate(): wait_for_function() evals in the page, which the
+                # dashboard's Content Security Policy forbids.
+                shown = "document.querySelectorAll('#units tbody tr').length > 0"
+                deadline = time.monotonic() + 30
+                while not page.evaluate(shown):
+                    if time.monotonic() > deadline:
+                        raise TimeoutError("the page showed no unit within 30 s")
+                    time.sleep(0.05)
                 time.sleep(2)  # the retained views arrived; measure the steady page
                 result.open.append(measure_open(page, steps, phase_s))
                 if screenshot is not None:

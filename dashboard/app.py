@@ -28,9 +28,11 @@ def create_app(settings: DashboardSettings) -> Flask:
     @app.after_request
     def security_headers(response: Response) -> Response:
         # The page loads only its own files and talks MQTT to the broker (another port, so any
-        # ws/wss); no site may frame it (clickjacking the STOP/release buttons).
+        # ws/wss); MQTT.js keeps its keep-alive timer in a worker made from a blob; no site may
+        # frame it (clickjacking the STOP/release buttons).
         response.headers["Content-Security-Policy"] = (
             "default-src 'self'; connect-src 'self' ws: wss:; img-src 'self' data:; "
+            "worker-src 'self' blob:; "
             "object-src 'none'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
         )
         response.headers["X-Frame-Options"] = "DENY"

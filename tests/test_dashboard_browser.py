@@ -25,7 +25,7 @@ from gridfleet.protocol.messages import JobState
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 
-from support.browser import OpenDashboard
+from support.browser import OpenDashboard, wait_in_page
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish
 from support.probe import MqttProbe
 
@@ -401,11 +401,12 @@ def test_stop_button_engages_and_hold_releases(
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
     expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
     # The banner changes the layout; the map is redrawn to fit its box again.
-    page.wait_for_function(
+    wait_in_page(
+        page,
         """() => {
             const c = document.querySelector('#map'), box = c.parentElement.getBoundingClientRect();
             return Number(c.dataset.oy) + 10 * Number(c.dataset.cell) <= box.height;
-        }"""
+        }""",
     )
     dash.screenshot("dashboard-stopped")
 

@@ -19,7 +19,7 @@ from gridfleet.protocol import ControlUnit, EventEntry, JobView, RouteView, Topi
 from gridfleet.protocol.messages import JobState
 from gridfleet.scenario import load_scenario
 
-from support.browser import OpenDashboard
+from support.browser import OpenDashboard, wait_in_page
 from support.fleet_peer import CoordinatorPeer, UnitPeer
 from support.probe import MqttProbe
 
@@ -78,9 +78,10 @@ def row(dash: OpenDashboard, unit: str) -> Any:
 
 def until(dash: OpenDashboard, attribute: str, test: str) -> str:
     """Wait until the map's data attribute `attribute`, as `v`, passes the JS test; its value."""
-    dash.page.wait_for_function(
+    wait_in_page(
+        dash.page,
         f"(() => {{ const v = document.querySelector('#map').dataset.{attribute}; "
-        f"return v !== undefined && ({test}); }})()"
+        f"return v !== undefined && ({test}); }})()",
     )
     return str(dash.page.locator("#map").get_attribute(f"data-{attribute}"))
 

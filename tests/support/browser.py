@@ -24,6 +24,8 @@ from dashboard.settings import DashboardSettings
 from gridfleet.grid import GridMap
 from system.broker_thread import BrokerThread
 
+from support.wait import wait_for
+
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_ARGS = [
     "--no-sandbox",
@@ -51,7 +53,7 @@ class OpenDashboard:
         """Click the centre of square (x, y) on the map canvas."""
         canvas = self.page.locator("#map")
         # Once the map is drawn (at most a tenth of a second after it arrives) it has a layout.
-        self.page.wait_for_function("document.querySelector('#map').dataset.cell !== undefined")
+        wait_in_page(self.page, "document.querySelector('#map').dataset.cell !== undefined")
         cell, ox, oy = (
             float(canvas.get_attribute(f"data-{k}") or "nan") for k in ("cell", "ox", "oy")
         )
@@ -174,6 +176,8 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
         page.set_default_timeout(10000)
         errors: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
+        # Whatever the page's Content Security Policy blocks counts as an error of the page.
+        page.on("console", lambda m: "Content Security Policy" in m.text and errors.append(m.text))
         page.goto(f"{server.url}/?client={client_id}")
         handle = OpenDashboard(page, server, client_id, errors)
         if wait_connected:
@@ -215,3 +219,12 @@ def blank_page_server() -> Iterator[int]:
         server.shutdown()
         server.server_close()
         thread.join(5)
+
+
+def wait_in_page(page: Any, expression: str, timeout: float = 10.0) -> None:
+    """Wait until `expression` (or `() => …`) is truthy in `page`.
+
+    Not Playwright's wait_for_function: that evaluates its predicate with eval() inside the page,
+    which the dashboard's Content Security Policy forbids (as it should); evaluate() does not.
+    """
+    wait_for(lambda: page.evaluate(expression), timeout, interval=0.05, what=expression[:80])
