@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import re
 import stat
@@ -10,6 +11,7 @@ import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -49,6 +51,33 @@ REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 ROOT = "acct"
 T = Topics(ROOT)
+
+
+@contextlib.contextmanager
+def running_playfield() -> Iterator[tuple[Any, Accounts, list[str]]]:
+    """The playfield's system in threads, every part on its own account: (system, accounts,
+    unit ids)."""
+    scenario = load_scenario(PLAYFIELD)
+    units = [u.id for u in scenario.units]
+    accounts = default_accounts(units)
+    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
+    assembly = Assembly(spec, "threads")
+    system = assembly.start_threads()
+    try:
+        yield system, accounts, units
+    finally:
+        assembly.stop()
+
+
+def ten_more_steps(op: OperatorPeer, unit: str) -> None:
+    """Wait until `unit` has reported ten more steps (time for it to have moved, if it would)."""
+    held_at = op.last_state(unit)
+    assert held_at is not None
+    wait_for(
+        lambda: (s := op.last_state(unit)) is not None and s.step >= held_at.step + 10,
+        15,
+        what=f"ten more steps of {unit}",
+    )
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -259,31 +288,20 @@ async def test_a_component_connects_with_the_credentials_in_its_url(
 
 
 def test_the_fleet_runs_with_every_part_on_its_own_account(tmp_path: Path) -> None:
-    scenario = load_scenario(PLAYFIELD)
-    accounts = default_accounts([u.id for u in scenario.units])
-    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
-    assembly = Assembly(spec, "threads")
-    system = assembly.start_threads()
-    try:
-        with MqttProbe(login(system.url, accounts, "operator")) as probe:
-            reply = OperatorPeer(probe, T).set_goal("unit1", Cell(9, 3))
-            assert reply.accepted, reply.reason
-            world = world_of(system.fleet)
-            wait_for(lambda: world.positions["unit1"] == Cell(9, 3), 30, what="unit1 at its goal")
-            assert world.collisions == 0
-    finally:
-        assembly.stop()
+    with (
+        running_playfield() as (system, accounts, _),
+        MqttProbe(login(system.url, accounts, "operator")) as probe,
+    ):
+        reply = OperatorPeer(probe, T).set_goal("unit1", Cell(9, 3))
+        assert reply.accepted, reply.reason
+        world = world_of(system.fleet)
+        wait_for(lambda: world.positions["unit1"] == Cell(9, 3), 30, what="unit1 at its goal")
+        assert world.collisions == 0
 
 
 def test_a_device_or_unit_engages_the_stop_but_only_an_operator_releases_it() -> None:
-    scenario = load_scenario(PLAYFIELD)
-    units = [u.id for u in scenario.units]
-    accounts = default_accounts(units)
-    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
-    assembly = Assembly(spec, "threads")
-    system = assembly.start_threads()
     press = T.device("device_stop", "device-unit1")
-    try:
+    with running_playfield() as (system, accounts, units):
         with (
             MqttProbe(login(system.url, accounts, "operator")) as probe,
             MqttProbe(login(system.url, accounts, "device-unit1")) as device,
@@ -312,13 +330,7 @@ def test_a_device_or_unit_engages_the_stop_but_only_an_operator_releases_it() ->
 
             wait_for(lambda: refused_by() >= {"coordinator", *units}, 15, what="sync reports")
             assert op.set_goal("unit1", Cell(9, 3)).accepted
-            held_at = op.last_state("unit1")
-            assert held_at is not None
-            wait_for(
-                lambda: (s := op.last_state("unit1")) is not None and s.step >= held_at.step + 10,
-                15,
-                what="ten more steps of unit1",
-            )
+            ten_more_steps(op, "unit1")
             assert stopped() and world.positions["unit1"] == start
             # The operator releases: the coordinator clears the presses, the unit drives on.
             op.release("area checked")
@@ -330,53 +342,39 @@ def test_a_device_or_unit_engages_the_stop_but_only_an_operator_releases_it() ->
             wait_for(lambda: late.received(T.fleet("estop")), what="the retained latch")
             assert late.received(T.fleet("estop"))[-1].payload.startswith(b"released|operator|")
             assert late.received(press) == []  # cleared: a restart reads no stop
-    finally:
-        assembly.stop()
 
 
 def test_no_will_releases_the_stop_drops_a_unit_or_drives_one() -> None:
     # As found: a device's retained will `released|operator|…` on the latch, dropped on purpose,
     # released the operator's stop and every unit drove; one on unit2's connection dropped unit2.
-    scenario = load_scenario(PLAYFIELD)
-    units = [u.id for u in scenario.units]
-    accounts = default_accounts(units)
-    spec = SystemSpec(scenario, root=ROOT, step_s=0.05, ws_port=None, accounts=accounts)
-    assembly = Assembly(spec, "threads")
-    system = assembly.start_threads()
-    try:
-        with MqttProbe(login(system.url, accounts, "operator")) as probe:
-            op = OperatorPeer(probe, T)
-            world = world_of(system.fleet)
-            wait_for(lambda: all(op.last_state(u) for u in units), 15, what="every unit's state")
-            op.engage("operator pressed STOP")
-            wait_for(
-                lambda: all((s := op.last_state(u)) is not None and s.estop for u in units),
-                15,
-                what="every unit stopped",
-            )
-            assert op.set_goal("unit1", Cell(9, 3)).accepted  # where it would drive if released
-            start = dict(world.positions)
-            refused = []
-            for account, topic, payload, retain in forged_wills(T):
-                client = MqttProbe(login(system.url, accounts, account))
-                try:  # its link lost without a goodbye: the will is due
-                    client.will(topic, payload, retain).connect(timeout=5).drop()
-                except AssertionError as exc:
-                    refused.append(str(exc))
-            held_at = op.last_state("unit1")
-            assert held_at is not None
-            wait_for(
-                lambda: (s := op.last_state("unit1")) is not None and s.step >= held_at.step + 10,
-                15,
-                what="ten more steps of unit1",
-            )
-            assert all((s := op.last_state(u)) is not None and s.estop for u in units)
-            assert dict(world.positions) == start
-            assert op.connections("unit2")[-1] == "online"
-            assert op.estop_signals()[-1].engaged
-            assert len(refused) == len(forged_wills(T)), refused  # at CONNECT, with the reason
-    finally:
-        assembly.stop()
+    with (
+        running_playfield() as (system, accounts, units),
+        MqttProbe(login(system.url, accounts, "operator")) as probe,
+    ):
+        op = OperatorPeer(probe, T)
+        world = world_of(system.fleet)
+        wait_for(lambda: all(op.last_state(u) for u in units), 15, what="every unit's state")
+        op.engage("operator pressed STOP")
+        wait_for(
+            lambda: all((s := op.last_state(u)) is not None and s.estop for u in units),
+            15,
+            what="every unit stopped",
+        )
+        assert op.set_goal("unit1", Cell(9, 3)).accepted  # where it would drive if released
+        start = dict(world.positions)
+        refused = []
+        for account, topic, payload, retain in forged_wills(T):
+            client = MqttProbe(login(system.url, accounts, account))
+            try:  # its link lost without a goodbye: the will is due
+                client.will(topic, payload, retain).connect(timeout=5).drop()
+            except AssertionError as exc:
+                refused.append(str(exc))
+        ten_more_steps(op, "unit1")
+        assert all((s := op.last_state(u)) is not None and s.estop for u in units)
+        assert dict(world.positions) == start
+        assert op.connections("unit2")[-1] == "online"
+        assert op.estop_signals()[-1].engaged
+        assert len(refused) == len(forged_wills(T)), refused  # at CONNECT, with the reason
 
 
 def test_credentials_in_a_broker_url_are_read_and_never_shown() -> None:

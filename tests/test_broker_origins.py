@@ -16,17 +16,8 @@ from broker.origins import refusal
 from dashboard.settings import DashboardSettings
 from system.broker_thread import BrokerThread
 
-from support.browser import CHROMIUM, CHROMIUM_ARGS, blank_page_server
+from support.browser import CHROMIUM, CHROMIUM_ARGS, EXCHANGE, blank_page_server
 from support.probe import MqttProbe
-
-# Subscribe, publish, and resolve with what came back (or with how the connection ended).
-EXCHANGE = """url => new Promise(done => {
-    const client = mqtt.connect(url, {clientId: 'origin-page', reconnectPeriod: 0});
-    client.on('connect', () => client.subscribe('o/page', () => client.publish('o/page', 'hi')));
-    client.on('message', (topic, payload) => { done('got ' + payload); client.end(); });
-    client.on('error', error => done('error ' + error.message));
-    client.on('close', () => done('closed'));
-})"""
 
 
 @pytest.mark.parametrize(

@@ -17,18 +17,9 @@ from broker.embedded import BrokerSettings
 from dashboard.settings import DashboardSettings
 from system.broker_thread import BrokerThread
 
-from support.browser import CHROMIUM, CHROMIUM_ARGS, blank_page_server
+from support.browser import CHROMIUM, CHROMIUM_ARGS, EXCHANGE, blank_page_server
 
 pytestmark = pytest.mark.browser
-
-# Subscribe, publish, and resolve with what came back (or with how the connection ended).
-EXCHANGE = """url => new Promise(done => {
-    const client = mqtt.connect(url, {clientId: 'tls-page', reconnectPeriod: 0});
-    client.on('connect', () => client.subscribe('tls/page', () => client.publish('tls/page', 'hi')));
-    client.on('message', (topic, payload) => { done('got ' + payload); client.end(); });
-    client.on('error', error => done('error ' + error.message));
-    client.on('close', () => done('closed'));
-})"""
 
 
 def tls_dir(out: Path) -> Path:

@@ -190,6 +190,16 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
         server.stop()
 
 
+# Subscribe, publish, and resolve with what came back (or with how the connection ended).
+EXCHANGE = """url => new Promise(done => {
+    const client = mqtt.connect(url, {clientId: 'exchange-page', reconnectPeriod: 0});
+    client.on('connect', () => client.subscribe('exchange/page', () => client.publish('exchange/page', 'hi')));
+    client.on('message', (topic, payload) => { done('got ' + payload); client.end(); });
+    client.on('error', error => done('error ' + error.message));
+    client.on('close', () => done('closed'));
+})"""
+
+
 class _BlankPage(BaseHTTPRequestHandler):
     def do_GET(self) -> None:
         body = b"<html><body></body></html>"
