@@ -276,3 +276,13 @@ def test_the_server_names_no_versions_and_https_asks_for_https_only() -> None:
         assert res.headers["Server"] == "gridfleet"  # it was "Werkzeug/3.1.9 Python/3.11.2"
     secure = create_app(DashboardSettings(https=True)).test_client()
     assert secure.get("/").headers["Strict-Transport-Security"] == "max-age=31536000"
+
+
+def test_without_accounts_a_page_that_rebound_its_name_to_us_gets_nothing() -> None:
+    client = create_app(DashboardSettings()).test_client()
+    assert client.get("/api/settings", headers={"Host": "127.0.0.1:5000"}).status_code == 200
+    assert client.get("/", headers={"Host": "localhost:5000"}).status_code == 200
+    rebound = client.get("/api/settings", headers={"Host": "evil.example:5000"})
+    assert (
+        rebound.status_code == 403 and "not this machine's address" in rebound.get_json()["error"]
+    )
