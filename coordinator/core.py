@@ -43,9 +43,9 @@ from coordinator.progress import JobProgress
 from coordinator.views import Views
 from coordinator.waits import Stuck, explain_waits
 from coordinator.world import World
-from gridfleet.endpoint import Outbound
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     CancelJob,
     ClearObstacles,

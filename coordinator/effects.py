@@ -12,7 +12,7 @@ from coordinator.orders import OrderPlan
 from coordinator.requests import Outcome
 from coordinator.world import World
 from gridfleet import __version__
-from gridfleet.endpoint import Outbound, error_report
+from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     CoordinatorStatus,
     EventEntry,

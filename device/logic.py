@@ -14,9 +14,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from gridfleet.endpoint import Outbound, error_report
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Direction
+from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     TOPICS,
     DeviceConnection,

@@ -9,7 +9,8 @@ import time
 from collections.abc import Callable
 
 from device.logic import DeviceLogic, Refusal
-from gridfleet.endpoint import Backoff, Endpoint, Outbound
+from gridfleet.endpoint import Backoff, Endpoint
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import Leds, Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
 

@@ -20,9 +20,7 @@ import aiomqtt
 
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url
-from gridfleet.protocol import TOPICS, ErrorReport, Header, encode
-from gridfleet.protocol.constants import MAX_TEXT
-from gridfleet.protocol.messages import Message
+from gridfleet.outbound import Outbound
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.endpoint")
@@ -38,34 +36,9 @@ Handler = Callable[[str, bytes], Awaitable[None]]
 Hook = Callable[[], Awaitable[None]]
 
 
-@dataclass(frozen=True)
-class Outbound:
-    """One message to publish: topic, payload bytes, QoS and retain flag."""
-
-    topic: str
-    payload: bytes
-    qos: int
-    retain: bool
-
-    @classmethod
-    def of(cls, kind: str, topic: str, message: Message | bytes) -> Outbound:
-        """A message on a topic of `kind`, with the QoS and retain flag protocol.md gives it."""
-        spec = TOPICS[kind]
-        payload = message if isinstance(message, bytes) else encode(message)
-        return cls(topic, payload, spec.qos, spec.retained)
-
-    def will(self) -> aiomqtt.Will:
-        """This message as an MQTT last will."""
-        return aiomqtt.Will(self.topic, self.payload, qos=self.qos, retain=self.retain)
-
-
-def error_report(header: Header, topic: str, reason: str, request_id: str | None = None) -> bytes:
-    """The payload of an `errors` report about a message refused on `topic`, cut to the limits."""
-    return encode(
-        ErrorReport(
-            header=header, topic=topic[:256], reason=reason[:MAX_TEXT], request_id=request_id
-        )
-    )
+def as_will(out: Outbound) -> aiomqtt.Will:
+    """`out` as an MQTT last will."""
+    return aiomqtt.Will(out.topic, out.payload, qos=out.qos, retain=out.retain)
 
 
 async def _finish(work: Awaitable[Any]) -> Any:
@@ -164,7 +137,7 @@ class Endpoint:
         during: Callable[[asyncio.Event], Awaitable[None]] | None,
         on_stop: Hook | None,
     ) -> None:
-        will = self._will().will() if self._will is not None else None
+        will = as_will(self._will()) if self._will is not None else None
         async with make_client(self.url, self.client_id, will=will, timeout=CONNECT_S) as client:
             for topic, qos in self._subscriptions():
                 await client.subscribe(topic, qos=qos, timeout=ACK_S)

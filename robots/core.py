@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from typing import Literal
 
-from gridfleet.endpoint import Outbound, error_report
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
+from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     TOPICS,
     Connection,

@@ -11,7 +11,8 @@ import asyncio
 import uuid
 from collections.abc import Callable, Sequence
 
-from gridfleet.endpoint import Backoff, Endpoint, Outbound
+from gridfleet.endpoint import Backoff, Endpoint
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import Topics
 from gridfleet.tasks import cancel_and_wait
 from robots.core import UnitCore

@@ -19,7 +19,7 @@ from paho.mqtt.client import topic_matches_sub
 from coordinator.core import CoordinatorCore
 from coordinator.jobs import JobBook
 from coordinator.world import World
-from gridfleet.endpoint import Outbound
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Reply, SetGoal, SubmitJob, Topics, decode, encode
 from gridfleet.scenario import Scenario
 from robots.core import UnitCore

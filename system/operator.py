@@ -19,9 +19,10 @@ from pydantic import ValidationError
 
 from gridfleet.bus import make_client
 from gridfleet.config import owned_client_id, parse_broker_url
-from gridfleet.endpoint import Outbound, payload_of, send
+from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.grid import Cell
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
     CancelJob,

@@ -14,9 +14,9 @@ import pytest
 from coordinator.core import CoordinatorCore
 from coordinator.effects import Effects
 from coordinator.views import VIEWS_BATCH_S
-from gridfleet.endpoint import Outbound
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, GridMap
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     CancelJob,
     ClearObstacles,

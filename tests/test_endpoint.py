@@ -9,7 +9,8 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from gridfleet.endpoint import CONNECT_S, GOODBYE_S, Backoff, Endpoint, Outbound
+from gridfleet.endpoint import CONNECT_S, GOODBYE_S, Backoff, Endpoint
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import Topics
 from system.broker_thread import BrokerThread
 

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -115,3 +118,66 @@ def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
         encoding="utf-8",
     )
     assert crossings(tmp_path) == []
+
+
+# ---- the pure cores ----------------------------------------------------------------------------
+
+# What a pure core must never load, directly or through anything it imports. (socket is not in
+# it: pydantic loads importlib.metadata, whose email.utils imports socket; nothing calls it.)
+IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3"}
+CORES = (
+    "coordinator.core",
+    "coordinator.planner",
+    "coordinator.allocation",
+    "coordinator.world",
+    "robots.unit",
+    "robots.core",
+    "device.logic",
+)
+
+
+def io_chains(module: str, root: Path = REPO) -> list[str]:
+    """Each I/O module that importing `module` loads, with the chain of imports that brought it.
+
+    Python's own import log (-X importtime) nests each import under the one that caused it.
+    """
+    done = subprocess.run(
+        [sys.executable, "-X", "importtime", "-c", f"import {module}"],
+        capture_output=True,
+        text=True,
+        cwd=root,
+        timeout=60,
+        env={**os.environ, "PYTHONPATH": str(root)},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = [line.split("|")[2] for line in done.stderr.splitlines() if line.count("|") == 2]
+    entries = [(len(r) - len(r.lstrip()), r.strip()) for r in rows[1:]]  # (depth, name)
+    found, reported = [], set()
+    for i, (depth, name) in enumerate(entries):
+        package = name.split(".")[0]
+        if package not in IO_MODULES or package in reported:
+            continue
+        reported.add(package)
+        # A module is logged once its own imports are done: its importer is the next one up.
+        chain, want = [name], depth
+        for up_depth, up_name in entries[i + 1 :]:
+            if up_depth < want:
+                chain.append(up_name)
+                want = up_depth
+        while len(chain) > 1 and chain[1].split(".")[0] == package:
+            chain.pop(0)  # from the package itself, not its first submodule
+        found.append(" <- ".join(chain))
+    return found
+
+
+@pytest.mark.parametrize("module", CORES)
+def test_a_pure_core_loads_no_io(module: str) -> None:
+    assert io_chains(module) == []
+
+
+def test_the_purity_check_names_the_chain_that_brought_io_in(tmp_path: Path) -> None:
+    (tmp_path / "fakecore").mkdir()
+    (tmp_path / "fakecore" / "__init__.py").write_text("", encoding="utf-8")
+    (tmp_path / "fakecore" / "helper.py").write_text("import sqlite3\n", encoding="utf-8")
+    (tmp_path / "fakecore" / "core.py").write_text("import fakecore.helper\n", encoding="utf-8")
+    assert io_chains("fakecore.core", tmp_path) == ["sqlite3 <- fakecore.helper <- fakecore.core"]

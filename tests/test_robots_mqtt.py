@@ -9,8 +9,8 @@ from pathlib import Path
 
 import aiomqtt
 
-from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell, Direction
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     Connection,
     Leds,

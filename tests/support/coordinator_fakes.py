@@ -14,8 +14,8 @@ import contextlib
 import random
 from collections.abc import Iterable
 
-from gridfleet.endpoint import Outbound
 from gridfleet.grid import Cell, GridMap
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Topics, UnitState
 from gridfleet.tasks import cancel_and_wait
 from robots.runner import UnitRunner

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Sequence
 from datetime import UTC, datetime
 from typing import Any, Protocol, runtime_checkable
 
-from gridfleet.endpoint import Outbound
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import Header, HeaderStamper
 
 FIXED = datetime(2026, 11, 21, 10, 0, 0, tzinfo=UTC)

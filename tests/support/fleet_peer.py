@@ -15,8 +15,8 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Literal
 
-from gridfleet.endpoint import Outbound, error_report
 from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     Connection,
     CoordinatorStatus,
