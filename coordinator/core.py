@@ -69,8 +69,9 @@ PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order sho
 # After connecting, how long the retained latch may take to arrive before the broker is taken to
 # have lost it (as units wait for it: protocol.md §5.1).
 LATCH_WAIT_S = 1.0
-# Longest a step waits past its period for units to acknowledge the orders of the previous step:
-# half the shortest hold timeout, so units never hold for want of orders while we wait.
+# A step that sent new squares waits for the units' acknowledgements (their states) until a step
+# period after it, or this long when the period is shorter, and only while more than a third of
+# them are missing: half the shortest hold timeout, so units never hold for want of orders.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
 # A unit with a job that has not moved for this long (steps, and at least seconds) is stuck, and
 # its job says so: a person sees a jam that the planner does not resolve (protocol.md §5.3).

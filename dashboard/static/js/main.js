@@ -23,7 +23,7 @@ import { log, PageView, showConnection, showFatal } from "./view.js";
 
 const $ = (sel) => document.querySelector(sel);
 const PANEL_MS = 250; // the tables, chart and badges are filled in at most 4 times a second
-const MAP_MS = 100; // the map is redrawn for the fleet's news at most 20 times a second
+const MAP_MS = 100; // the map is redrawn for the fleet's news at most 10 times a second
 const PANEL_ONLY = new Set(["coordinator", "errors", "events", "reply"]); // nothing on the map
 
 async function start() {
