@@ -28,8 +28,8 @@ import psutil
 from paho.mqtt.enums import CallbackAPIVersion
 
 from bench.busy_scenario import make_busy
-from bench.soak import free_port
 from gridfleet.errors import ConfigError
+from gridfleet.ports import free_port
 from gridfleet.protocol import TOPICS, JobsView, Routes, Topics, decode
 
 CHROMIUM = Path("/usr/bin/chromium")

@@ -15,7 +15,6 @@ import asyncio
 import json
 import random
 import signal
-import socket
 import statistics
 import tempfile
 import time
@@ -45,6 +44,7 @@ from bench.soak_proxy import FaultyProxy
 from bench.soak_scenario import make_soak_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url
+from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
 from system.assembly import SystemSpec, cli, start_broker_process
 from system.supervisor import Child, ChildSpec, Supervisor
@@ -112,13 +112,6 @@ class SoakResult:
             "ok": self.ok,
             "details": v.details + self.unrecovered,
         }
-
-
-def free_port() -> int:
-    """A free loopback port (for a broker that must come back on the same one)."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def read_truth(path: Path) -> Iterator[Truth]:

@@ -30,10 +30,9 @@ from amqtt.utils import gen_client_id
 
 from broker import origins
 from broker.gate import Gate
-from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
+from broker.limits import Limits
 from broker.quiet import GONE, quiet_normal_closes
 from broker.routing import Subscriptions
-from gridfleet.errors import ConfigError
 
 log = logging.getLogger("gridfleet.broker")
 
@@ -43,20 +42,6 @@ _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them o
 _YIELD_EVERY = 64  # messages routed in a row before other tasks get a turn
 _BROADCAST_STOP_S = 5.0  # at shutdown, how long deliveries still under way may take
 _REFUSAL_LOG_S = 1.0  # refused CONNECTs: at most one log line this often (a flood is one line/s)
-
-
-@dataclass(frozen=True)
-class Limits:
-    """What one client may cost the broker."""
-
-    max_packet_bytes: int = MAX_PACKET_BYTES
-    max_queued_messages: int = MAX_QUEUED_MESSAGES
-    max_queued_bytes: int = MAX_QUEUED_BYTES
-
-    def __post_init__(self) -> None:
-        for name in ("max_packet_bytes", "max_queued_messages", "max_queued_bytes"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"broker {name} must be at least 1, not {getattr(self, name)}")
 
 
 @dataclass
@@ -87,18 +72,12 @@ class Backlog:
 
 
 def make_broker(
-    config: dict[str, Any],
-    *,
-    gate: Gate | None = None,
-    max_packet_bytes: int = MAX_PACKET_BYTES,
-    max_queued_messages: int = MAX_QUEUED_MESSAGES,
-    max_queued_bytes: int = MAX_QUEUED_BYTES,
+    config: dict[str, Any], *, gate: Gate | None = None, limits: Limits | None = None
 ) -> GridfleetBroker:
     """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits; with a
     `gate`, only its accounts get in (`config` then carries their topic rules, no auth plugin)."""
     quiet_normal_closes()
-    limits = Limits(max_packet_bytes, max_queued_messages, max_queued_bytes)
-    return GridfleetBroker(config, limits, gate)
+    return GridfleetBroker(config, limits or Limits(), gate)
 
 
 class _GuardedReader:

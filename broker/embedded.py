@@ -11,7 +11,7 @@ from types import TracebackType
 from typing import Any
 
 from broker.gate import Gate
-from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
+from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
 from broker.tls import amqtt_listener_context
 from gridfleet.accounts import Accounts, rules
 from gridfleet.config import is_loopback
@@ -63,9 +63,7 @@ class BrokerSettings:
             value = getattr(self, name)
             if value is not None and not 0 <= value <= 65535:
                 raise ConfigError(f"broker {name} {value} is outside 0..65535")
-        for name in ("max_packet_bytes", "max_queued_messages", "max_queued_bytes"):
-            if getattr(self, name) < 1:
-                raise ConfigError(f"broker {name} {getattr(self, name)} must be at least 1")
+        _ = self.limits  # a limit below 1: ConfigError in one clear line, now
         if self.accounts is None and not is_loopback(self.host):
             raise ConfigError(
                 f"listening on {self.host} lets anyone on that network drive the fleet: give "
@@ -79,6 +77,11 @@ class BrokerSettings:
             )
         if self.tls_cert is not None and self.tls_key is not None:
             server_context(self.tls_cert, self.tls_key)  # a bad file: one clear line, now
+
+    @property
+    def limits(self) -> Limits:
+        """What one client may cost the broker, as one value."""
+        return Limits(self.max_packet_bytes, self.max_queued_messages, self.max_queued_bytes)
 
     @property
     def tls(self) -> bool:
@@ -180,9 +183,7 @@ class EmbeddedBroker:
         self._broker = make_broker(
             s.amqtt_config(),
             gate=None if s.accounts is None else Gate(s.accounts, root=s.root),
-            max_packet_bytes=s.max_packet_bytes,
-            max_queued_messages=s.max_queued_messages,
-            max_queued_bytes=s.max_queued_bytes,
+            limits=s.limits,
         )
         self._broker.ws_origins = s.ws_origins
         # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).

@@ -9,10 +9,11 @@ import os
 import secrets
 from pathlib import Path
 
-from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES
+from broker.limits import Limits
 from gridfleet.accounts import Accounts, rules
 from gridfleet.protocol import Topics
 
+DEFAULT_LIMITS = Limits()
 ITERATIONS = 101  # mosquitto_passwd's default for its $7$ (PBKDF2-SHA512) hashes
 
 
@@ -64,9 +65,7 @@ def mosquitto_conf(
     tls_cert: Path | None = None,
     tls_key: Path | None = None,
     persistence_dir: Path | None = None,
-    max_packet_bytes: int = MAX_PACKET_BYTES,
-    max_queued_messages: int = MAX_QUEUED_MESSAGES,
-    max_queued_bytes: int = MAX_QUEUED_BYTES,
+    limits: Limits = DEFAULT_LIMITS,
 ) -> str:
     """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits."""
     # persistence_dir None: nothing survives a restart of Mosquitto, the latched emergency stop (a
@@ -97,11 +96,11 @@ def mosquitto_conf(
         "# The protocol's largest message is a retained fleet view of 8 MiB (protocol.md). A bigger",
         "# packet disconnects its sender, as on the embedded broker (message_size_limit would drop",
         "# it and keep the connection; one behaviour for both brokers).",
-        f"max_packet_size {max_packet_bytes}",
+        f"max_packet_size {limits.max_packet_bytes}",
         "# A client that does not read: past these its messages are dropped, as on the embedded",
         "# broker.",
-        f"max_queued_messages {max_queued_messages}",
-        f"max_queued_bytes {max_queued_bytes}",
+        f"max_queued_messages {limits.max_queued_messages}",
+        f"max_queued_bytes {limits.max_queued_bytes}",
         "",
     ]
     if persistence_dir is None:

@@ -13,7 +13,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from broker.amqtt_broker import GridfleetBroker, make_broker
 from broker.embedded import BrokerSettings
-from broker.limits import MAX_PACKET_BYTES
+from broker.limits import MAX_PACKET_BYTES, Limits
 from gridfleet.accounts import Accounts, default_accounts
 from gridfleet.config import parse_broker_url
 from gridfleet.protocol import Topics
@@ -197,7 +197,7 @@ class LimitedBroker:
         self.url = f"mqtt://127.0.0.1:{self.broker.bound_port()}"
 
     async def _start(self, config: dict[str, Any], limits: dict[str, int]) -> GridfleetBroker:
-        broker = make_broker(config, **limits)
+        broker = make_broker(config, limits=Limits(**limits))
         await broker.start()
         return broker
 

@@ -17,6 +17,7 @@ from dashboard.cli import settings_from
 from dashboard.server import DashboardServer
 from dashboard.settings import DashboardSettings
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
+from gridfleet.ports import free_port
 from gridfleet.scenario import load_scenario
 from system.cli import build_parser
 
@@ -128,12 +129,6 @@ def test_server_thread_serves_and_stops() -> None:
         server.stop()
     with socket.socket() as s:
         s.bind(("127.0.0.1", port))  # the port is free again
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:

@@ -12,12 +12,13 @@ from typing import Any
 import pytest
 
 from coordinator.service import Coordinator
+from gridfleet.ports import free_port
 from gridfleet.protocol import Routes, Topics, decode
 from gridfleet.scenario import load_scenario
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread
 
-from support.mosquitto import free_port, running_mosquitto
+from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.wait import wait_for
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.grid import Cell, Direction
+from gridfleet.ports import free_port
 from gridfleet.protocol import Factsheet, Topics, decode
 from gridfleet.scenario import Scenario, load_scenario
 from robots.fleet import Fleet
@@ -28,7 +29,6 @@ from robots.webots.world_file import WorldOptions, world_text
 from system.broker_thread import BrokerThread
 from system.threads import ServiceThread, coordinator_thread
 
-from support.mosquitto import free_port
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import wait_for

@@ -14,18 +14,12 @@ import pytest
 
 from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import Accounts
+from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
 
 from support.wait import wait_for
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-
-
-def free_port() -> int:
-    """A loopback port nobody listens on now."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _popen(conf: Path, log: Path) -> subprocess.Popen[bytes]:
