@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -179,10 +178,14 @@ def test_release_when_nothing_was_engaged_says_so_and_changes_nothing(
     assert job("stop").returncode == 0 and job("release").returncode == 0
     again = job("release")  # released is not engaged either
     assert again.stdout == "nothing to release: the emergency stop was not engaged\n"
-    time.sleep(0.3)
-    assert [decode_estop(m.payload).engaged for m in watcher.received(topics.fleet("estop"))] == [
-        True,
-        False,
+    # A marker published after every command has finished arrives after all they sent.
+    probe_factory().publish(topics.fleet("estop"), b"released|sync-marker|x")
+    watcher.wait(topics.fleet("estop"), lambda m: b"sync-marker" in m.payload)
+    signals = [decode_estop(m.payload) for m in watcher.received(topics.fleet("estop"))]
+    assert [(s.engaged, s.by == "sync-marker") for s in signals] == [
+        (True, False),
+        (False, False),
+        (False, True),
     ]
 
 
@@ -223,6 +226,7 @@ def test_release_names_the_press_that_held_the_fleet_and_the_coordinator_clears_
     run_system(playfield)
     bumper = probe_factory()
     bumper.subscribe(topics.fleet("estop"))
+    bumper.subscribe(topics.all_units("stop"))
     bumper.publish(topics.unit("stop", "unit2"), "engaged|unit2|bumper hit", retain=True)
     bumper.wait(topics.fleet("estop"), lambda m: m.payload == b"engaged|unit2|bumper hit")
     stop = job("stop")
@@ -235,10 +239,14 @@ def test_release_names_the_press_that_held_the_fleet_and_the_coordinator_clears_
         "emergency stop released (it was engaged by unit2: bumper hit)\n"
         "the press of unit2 (bumper hit) held it too: releasing the latch clears it\n"
     )
-    presses = probe_factory()
-    presses.subscribe(topics.all_units("stop"))
-    time.sleep(0.5)
-    assert all(not m.payload for m in presses.received(topics.unit("stop", "unit2")))
+    # The coordinator clears the press (an empty retained message), so a restart reads no stop.
+    press = topics.unit("stop", "unit2")
+    bumper.wait(press, lambda m: m.payload == b"")
+    late = probe_factory()
+    late.subscribe(topics.all_units("stop"))
+    late.subscribe(topics.fleet("estop"))  # replayed after the presses: once here, so are they
+    late.wait(topics.fleet("estop"))
+    assert late.received(press) == []
 
 
 @pytest.mark.parametrize(
