@@ -4,16 +4,16 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: run test test-mosquitto check lint typecheck pytest soak firmware-test install schemas clean system-deps
+.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
 DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -e ".[test]"
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"
 	@if [ -f dashboard/package.json ]; then cd dashboard && npm ci --no-audit --no-fund --loglevel=error; fi
 	touch $(STAMP)
 
@@ -46,6 +46,10 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# The edit-test loop: every test but the browser, soak and slow end-to-end ones (no lint).
+test-fast: $(STAMP)
+	$(BIN)/pytest -q -m "not browser and not soak and not slow"
+
 # The one-minute chaos soak alone (it runs in `make test` too).
 soak: $(STAMP)
 	$(BIN)/pytest -m soak
@@ -60,6 +64,12 @@ test-mosquitto: system-deps $(STAMP)
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi
+
+# Pin what `make install` gets to what this venv has now (after changing the dependencies).
+constraints: $(STAMP)
+	$(BIN)/pip install --quiet -e ".[test]"
+	{ sed -n '1,2p' constraints.txt; $(BIN)/pip freeze --exclude-editable | grep -v '^gridfleet'; } > constraints.new
+	mv constraints.new constraints.txt
 
 schemas: $(STAMP)
 	$(BIN)/python -m gridfleet.protocol.schemas
