@@ -40,6 +40,7 @@ from coordinator.orders import OrderPlan, Orders, heartbeat_s
 from coordinator.pace import StepRate
 from coordinator.planner import Planner
 from coordinator.progress import JobProgress
+from coordinator.stop import FleetStop
 from coordinator.views import Views
 from coordinator.waits import Stuck, explain_waits
 from coordinator.world import World
@@ -51,24 +52,17 @@ from gridfleet.protocol import (
     ClearObstacles,
     Connection,
     ControlUnit,
-    EstopSignal,
     Factsheet,
     HeaderStamper,
     RouteView,
     SetGoal,
-    StopView,
     SubmitJob,
     Topics,
     UnitState,
-    encode_estop,
 )
 from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
-from gridfleet.protocol.stop import LATCH
 
 PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
-# After connecting, how long the retained latch may take to arrive before the broker is taken to
-# have lost it (as units wait for it: protocol.md §5.1).
-LATCH_WAIT_S = 1.0
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
 # period after it, or this long when the period is shorter, and only while more than a third of
 # them are missing: half the shortest hold timeout, so units never hold for want of orders.
@@ -106,16 +100,9 @@ class CoordinatorCore:
         self.say = Messages(self.topics, stamp or HeaderStamper("coordinator"))
         self.planner = Planner(world.grid, seed=seed)
         self.step_no = 0
-        self.estop = False  # whether the fleet is stopped: the latch, or a held press
-        self.stop = StopView()
-        # After a (re)connect: when the retained latch can have arrived; None once it did, or
-        # once we re-asserted it (a restarted broker without persistence lost it).
-        self._latch_due: float | None = None
+        self.stop = FleetStop(self.topics)  # the emergency stop, its state and what it says
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
         self._stuck_told: set[str] = set()  # jobs whose stuck unit the events told already
-        # Likewise for the presses we hold: those the broker did not replay by then it lost.
-        self._presses_due: float | None = None
-        self._replayed: set[str] = set()  # press topics replayed since the last (re)connect
         self.goals: dict[str, Cell] = {}
         self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
         self.orders = Orders(nonce)
@@ -126,7 +113,6 @@ class CoordinatorCore:
         self.answers = Answers()  # a retried request gets its first answer (answers.py)
         self.pace = StepRate()
         self.errors_reported = 0
-        self._releasing: set[Outbound] = set()  # the last step's orders that release squares
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
         self._controls_changed: list[tuple[str, str | None]] = []  # for the next Effects
         self.events = EventLog()  # the recent history, in words (fleet/events)
@@ -143,6 +129,11 @@ class CoordinatorCore:
         """Every topic filter to follow, with its QoS."""
         return inbound.subscriptions(self.topics)
 
+    @property
+    def estop(self) -> bool:
+        """Whether the fleet is stopped: the latch, or a held press."""
+        return self.stop.engaged
+
     def status(self, state: Status) -> Outbound:
         """The retained coordinator status: `online`, `offline`, or `broken` (the last will)."""
         period = self.world.step_period_s
@@ -150,9 +141,7 @@ class CoordinatorCore:
 
     def on_connect(self, now: float = 0.0) -> Effects:
         """Connected (and `online` said): every view goes out again."""
-        self._latch_due = now + LATCH_WAIT_S
-        self._presses_due = now + LATCH_WAIT_S
-        self._replayed = set()
+        self.stop.connected(now)
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
         persist = self._persist()
@@ -168,12 +157,8 @@ class CoordinatorCore:
         return self._effects(self._views())
 
     def withdrawn(self, out: Outbound) -> bool:
-        """Whether a message returned by the last step must not go out after all.
-
-        True for its orders that release squares once the stop has been engaged while the step's
-        messages were going out: the holds already went, and the stop wins at once.
-        """
-        return self.estop and out in self._releasing
+        """Whether a message returned by the last step must not go out after all (the stop's)."""
+        return self.stop.withdrawn(out)
 
     # ---- inbound --------------------------------------------------------------------------
 
@@ -186,7 +171,7 @@ class CoordinatorCore:
             return self._on(arrival, topic, now)
         except ProtocolError as exc:
             refused = self._refuse_unreadable(topic, payload, str(exc))
-            return self._effects([*refused, *self._heal_stop(topic)])
+            return self._effects([*refused, *self.stop.heal(topic)])
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
             self._log.append((logging.ERROR, f"failed on a message on {topic}: {exc!r}"))
             return self._effects([self._refuse(topic, f"internal error: {exc!r}", None)])
@@ -198,18 +183,6 @@ class CoordinatorCore:
         if request_id is not None and reply_to is not None:
             refused.append(self.say.reply(reply_to, request_id, requests.Outcome(False, reason)))
         return refused
-
-    def _heal_stop(self, topic: str) -> list[Outbound]:
-        """The retained engaged stop again, when a payload that is no signal replaced it.
-
-        A malformed or empty payload on `estop` is ignored by every receiver, but on the broker
-        it replaces (an empty one deletes) the retained `engaged`: after a restart the stop would
-        be gone. The last valid engaged signal goes out again, unchanged (protocol.md §5.1).
-        """
-        latch = self.stop.latch
-        if topic != self.topics.fleet(LATCH) or latch is None or not latch.engaged:
-            return []
-        return [self._latch_out(latch)]
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
@@ -246,40 +219,16 @@ class CoordinatorCore:
 
     def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
-        was_latched = self.stop.latch_engaged
-        signal = self.stop.apply(kind, source, topic, payload)
-        if kind != LATCH:
-            self._replayed.add(topic)
-        if kind == LATCH:
-            self._latch_due = None  # the broker still has the latch: nothing to re-assert
-        publish: list[Outbound] = []
-        if kind == LATCH and signal is not None and not signal.engaged and was_latched:
-            # An operator's release: the presses are cleared, or a restart would read them again.
-            # Only a latch going from engaged to released is one: the retained `released` a
-            # reconnect replays is no release of a press that came after it (the safe side).
-            for held in self.stop.release_presses():
-                publish.append(Outbound.of(self.topics.parse(held)[0], held, b""))
-        elif kind != LATCH and signal is not None and not self.stop.latch_engaged:
-            # Mirrored into the latch, which only operators release: a source that clears or
-            # overwrites its own press cannot release the fleet.
-            publish.append(self._latch_out(signal))
-        if self.stop.engaged == self.estop:
-            return self._effects(publish)  # engaging (or releasing) is idempotent
-        self.estop = self.stop.engaged
-        cause = self.stop.cause or signal
-        if cause is not None:
-            word = "ENGAGED" if self.estop else "released"
-            line = (logging.WARNING, f"emergency stop {word} by {cause.by}: {cause.reason}")
-        else:
-            # The last press cleared (by us, before a restart) while the latch said released:
-            # its copy on the latch may still be on its way and would engage again.
-            line = (logging.WARNING, f"emergency stop released: {source}'s press was cleared")
-        self.events.add(self.say.stamp.now(), "stop", line[1])
+        news = self.stop.on_payload(kind, source, topic, payload)
+        if news.line is None:
+            return self._effects(news.publish)
+        self.events.add(self.say.stamp.now(), "stop", news.line)
+        publish = list(news.publish)
         # The stop wins at once: every unit gets a hold now, not at the next step.
         if self.estop:
             publish += self._holds()
         publish.append(self.status("online"))
-        return self._effects(publish, log=(line,))
+        return self._effects(publish, log=((logging.WARNING, news.line),))
 
     def _on_request(self, topic: str, req: Request, now: float) -> Effects:
         sender = req.header.sender
@@ -340,7 +289,9 @@ class CoordinatorCore:
 
     def step(self, now: float) -> Effects:
         """One coordinator step: every order (or hold), the routes and the changed views."""
-        publish = self._reassert_latch(now)  # first, and even when the step below fails
+        publish, reasserted = self.stop.reassert(now)  # first, and even when the step fails
+        if reasserted is not None:
+            self._log.append((logging.WARNING, reasserted))
         try:
             result = self._decide(now)
         except Exception as exc:  # a bug must not take the coordinator down: hold everyone
@@ -350,14 +301,15 @@ class CoordinatorCore:
             return self._effects([*publish, *self._holds(), report])
         persist = self._persist()
         self.orders.expect(result.orders)
-        self._releasing = set()
+        releasing = set()
         for unit_id, plan in result.orders.items():
             if not plan.send:
                 continue
             order = self.say.order(unit_id, plan)
             publish.append(order)
             if plan.released:
-                self._releasing.add(order)
+                releasing.add(order)
+        self.stop.releasing(releasing)
         publish.append(self.say.routes(result.step, result.routes))
         publish += self._views()
         if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
@@ -366,32 +318,6 @@ class CoordinatorCore:
         # units acknowledged these orders would only add load; they could not move on it.
         until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None
         return self._effects(publish, persist, acks_until=until)
-
-    def _reassert_latch(self, now: float) -> list[Outbound]:
-        """The engaged latch again, when no retained latch came after connecting.
-
-        A broker restarted without persistence has lost every retained message, the latch among
-        them: a unit connecting now would find no stop (protocol.md §5.1). A latch an operator
-        released while we were away does arrive, and is then not overridden.
-        """
-        if self._presses_due is not None and now >= self._presses_due:
-            self._presses_due = None
-            lost = [topic for topic in self.stop.presses if topic not in self._replayed]
-            if lost and not self.stop.latch_engaged:
-                # A press we hold the broker no longer has (and the latch does not say engaged):
-                # latched below, since only latched can an operator release it (a release is
-                # the latch going from engaged to released).
-                self._latch_due = now
-        if self._latch_due is None or now < self._latch_due:
-            return []
-        self._latch_due = None
-        cause = self.stop.cause
-        if cause is None:
-            return []
-        self._log.append(
-            (logging.WARNING, f"emergency stop re-asserted on the broker ({cause.by})")
-        )
-        return [self._latch_out(cause)]  # the engaged latch, or a held press (engaged too)
 
     def _tell_stuck(self) -> None:
         """An event when a job's unit gets stuck (once, until it moves again)."""
@@ -422,10 +348,6 @@ class CoordinatorCore:
             (u.id for u in self.world.units.values() if u.id != unit_id and u.position == best),
             None,
         )
-
-    def _latch_out(self, signal: EstopSignal) -> Outbound:
-        """`signal` on the latch, retained (restored, re-asserted or copied from a press)."""
-        return Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal))
 
     def _decide(self, now: float) -> StepResult:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""

@@ -127,6 +127,7 @@ def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
 IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3"}
 CORES = (
     "coordinator.core",
+    "coordinator.stop",
     "coordinator.planner",
     "coordinator.allocation",
     "coordinator.world",

@@ -1,0 +1,131 @@
+"""The emergency stop as the coordinator keeps it (protocol.md §5.1), without I/O.
+
+One owner for everything about the stop: the latch and the presses seen (`StopView`), whether
+the fleet is stopped, what must go back on the broker after a reconnect, and which of a step's
+orders the stop withdraws. Each call returns what to publish; the core adds what the whole fleet
+does about it (holds for every unit, its status, the event).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from gridfleet.outbound import Outbound
+from gridfleet.protocol import EstopSignal, Topics, encode_estop
+from gridfleet.protocol.stop import LATCH, StopView
+
+# After connecting, how long the retained latch may take to arrive before the broker is taken to
+# have lost it (as units wait for it: protocol.md §5.1).
+LATCH_WAIT_S = 1.0
+
+
+@dataclass(frozen=True)
+class StopNews:
+    """What one stop payload changed: messages to publish, and in words when the fleet changed."""
+
+    publish: list[Outbound] = field(default_factory=list)
+    line: str | None = None  # None: the fleet was stopped (or running) before and still is
+
+
+class FleetStop:
+    """The fleet's stop: `engaged` when the latch or a held press stops it."""
+
+    def __init__(self, topics: Topics) -> None:
+        self.topics = topics
+        self.view = StopView()
+        self.engaged = False
+        # After a (re)connect: when the retained latch can have arrived; None once it did, or
+        # once we re-asserted it (a restarted broker without persistence lost it).
+        self._latch_due: float | None = None
+        # Likewise for the presses we hold: those the broker did not replay by then it lost.
+        self._presses_due: float | None = None
+        self._replayed: set[str] = set()  # press topics replayed since the last (re)connect
+        self._releasing: set[Outbound] = set()  # the last step's orders that release squares
+
+    def connected(self, now: float) -> None:
+        """(Re)connected: the retained latch and presses are due within LATCH_WAIT_S."""
+        self._latch_due = now + LATCH_WAIT_S
+        self._presses_due = now + LATCH_WAIT_S
+        self._replayed = set()
+
+    def latch_out(self, signal: EstopSignal) -> Outbound:
+        """`signal` on the latch, retained (restored, re-asserted or copied from a press)."""
+        return Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal))
+
+    def on_payload(self, kind: str, source: str | None, topic: str, payload: bytes) -> StopNews:
+        """The latch or a press; a bad payload raises ProtocolError before changing anything."""
+        was_latched = self.view.latch_engaged
+        signal = self.view.apply(kind, source, topic, payload)
+        if kind != LATCH:
+            self._replayed.add(topic)
+        if kind == LATCH:
+            self._latch_due = None  # the broker still has the latch: nothing to re-assert
+        publish: list[Outbound] = []
+        if kind == LATCH and signal is not None and not signal.engaged and was_latched:
+            # An operator's release: the presses are cleared, or a restart would read them again.
+            # Only a latch going from engaged to released is one: the retained `released` a
+            # reconnect replays is no release of a press that came after it (the safe side).
+            for held in self.view.release_presses():
+                publish.append(Outbound.of(self.topics.parse(held)[0], held, b""))
+        elif kind != LATCH and signal is not None and not self.view.latch_engaged:
+            # Mirrored into the latch, which only operators release: a source that clears or
+            # overwrites its own press cannot release the fleet.
+            publish.append(self.latch_out(signal))
+        if self.view.engaged == self.engaged:
+            return StopNews(publish)  # engaging (or releasing) is idempotent
+        self.engaged = self.view.engaged
+        cause = self.view.cause or signal
+        if cause is not None:
+            word = "ENGAGED" if self.engaged else "released"
+            line = f"emergency stop {word} by {cause.by}: {cause.reason}"
+        else:
+            # The last press cleared (by us, before a restart) while the latch said released:
+            # its copy on the latch may still be on its way and would engage again.
+            line = f"emergency stop released: {source}'s press was cleared"
+        return StopNews(publish, line)
+
+    def heal(self, topic: str) -> list[Outbound]:
+        """The retained engaged stop again, when a payload that is no signal replaced it.
+
+        A malformed or empty payload on `estop` is ignored by every receiver, but on the broker
+        it replaces (an empty one deletes) the retained `engaged`: after a restart the stop would
+        be gone. The last valid engaged signal goes out again, unchanged (protocol.md §5.1).
+        """
+        latch = self.view.latch
+        if topic != self.topics.fleet(LATCH) or latch is None or not latch.engaged:
+            return []
+        return [self.latch_out(latch)]
+
+    def reassert(self, now: float) -> tuple[list[Outbound], str | None]:
+        """The engaged latch again, when no retained latch came after connecting; and why.
+
+        A broker restarted without persistence has lost every retained message, the latch among
+        them: a unit connecting now would find no stop (protocol.md §5.1). A latch an operator
+        released while we were away does arrive, and is then not overridden.
+        """
+        if self._presses_due is not None and now >= self._presses_due:
+            self._presses_due = None
+            lost = [topic for topic in self.view.presses if topic not in self._replayed]
+            if lost and not self.view.latch_engaged:
+                # A press we hold the broker no longer has (and the latch does not say engaged):
+                # latched below, since only latched can an operator release it (a release is
+                # the latch going from engaged to released).
+                self._latch_due = now
+        if self._latch_due is None or now < self._latch_due:
+            return [], None
+        self._latch_due = None
+        cause = self.view.cause
+        if cause is None:
+            return [], None
+        # The engaged latch, or a held press (engaged too).
+        return [self.latch_out(cause)], f"emergency stop re-asserted on the broker ({cause.by})"
+
+    def releasing(self, orders: set[Outbound]) -> None:
+        """The orders of the step just made that release squares (the stop may withdraw them)."""
+        self._releasing = orders
+
+    def withdrawn(self, out: Outbound) -> bool:
+        """Whether `out`, of the last step, must not go out after all: an order that releases
+        squares, once the stop was engaged while the step's messages were going out (the holds
+        already went, and the stop wins at once)."""
+        return self.engaged and out in self._releasing
