@@ -42,10 +42,10 @@ from coordinator.planner import Planner
 from coordinator.progress import JobProgress
 from coordinator.stop import FleetStop
 from coordinator.views import Views
-from coordinator.waits import Stuck, explain_waits
+from coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
 from coordinator.world import World
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Cell, Direction
+from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     CancelJob,
@@ -67,9 +67,6 @@ PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order sho
 # period after it, or this long when the period is shorter, and only while more than a third of
 # them are missing: half the shortest hold timeout, so units never hold for want of orders.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
-# A unit with a job that has not moved for this long (steps, and at least seconds) is stuck, and
-# its job says so: a person sees a jam that the planner does not resolve (protocol.md §5.3).
-STUCK_STEPS, STUCK_MIN_S = 30, 10.0
 
 
 @dataclass(frozen=True)
@@ -102,7 +99,7 @@ class CoordinatorCore:
         self.step_no = 0
         self.stop = FleetStop(self.topics)  # the emergency stop, its state and what it says
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
-        self._stuck_told: set[str] = set()  # jobs whose stuck unit the events told already
+        self.stuck_news = StuckNews()  # jobs whose stuck unit the events told already
         self.goals: dict[str, Cell] = {}
         self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
         self.orders = Orders(nonce)
@@ -319,35 +316,10 @@ class CoordinatorCore:
         until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None
         return self._effects(publish, persist, acks_until=until)
 
-    def _tell_stuck(self) -> None:
-        """An event when a job's unit gets stuck (once, until it moves again)."""
-        stuck = {j.id: j for j in self.jobs.active() if j.wait == "unit_stuck"}
-        for job in stuck.values():
-            if job.id not in self._stuck_told:
-                at = self.say.stamp.now()
-                self.events.add(at, "job", f"job {job.id}: {job.wait_reason}", job.id, job.unit)
-        self._stuck_told = set(stuck)
-
-    def _stuck_after_s(self) -> float:
-        """How long a unit with a job may stand still before its job says it is stuck."""
-        return max(STUCK_MIN_S, STUCK_STEPS * self.world.step_period_s)
-
-    def _blocker(self, unit_id: str) -> str | None:
-        """The unit standing on the square that brings `unit_id` nearest to its target."""
-        rec = self.world.units.get(unit_id)
+    def _in_way_of(self, unit_id: str) -> str | None:
+        """The unit standing where `unit_id` would go next (waits.blocker)."""
         target = self.progress.target(unit_id)
-        if rec is None or rec.position is None or target is None or target == rec.position:
-            return None
-        cache, here = self.planner.cache, rec.position
-        grid = self.world.grid
-        ahead = [c for c in (here.step(d) for d in Direction) if grid.is_free(c)]
-        if not ahead:
-            return None
-        best = min(ahead, key=lambda c: cache.distance(c, target))
-        return next(
-            (u.id for u in self.world.units.values() if u.id != unit_id and u.position == best),
-            None,
-        )
+        return blocker(unit_id, self.world, target, self.planner.cache.distance)
 
     def _decide(self, now: float) -> StepResult:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""
@@ -361,11 +333,14 @@ class CoordinatorCore:
             self.progress.dispatch(units, active)
         if self.estop:
             self._free_since = now  # a unit held by the stop is not stuck: count from the release
-        stuck = Stuck(now, self._stuck_after_s(), self._blocker, self._free_since)
+        after_s = stuck_after_s(self.world.step_period_s)
+        stuck = Stuck(now, after_s, self._in_way_of, self._free_since)
         explain_waits(
             self.jobs, self.world.units, active, self.estop, self.goals, self.controls, stuck
         )
-        self._tell_stuck()
+        for job in self.stuck_news.newly_stuck(self.jobs):
+            at = self.say.stamp.now()
+            self.events.add(at, "job", f"job {job.id}: {job.wait_reason}", job.id, job.unit)
         targets = {u.id: self.progress.target(u.id) for u in units}
         moves: dict[str, Cell] = {}
         if not self.estop:

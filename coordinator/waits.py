@@ -11,7 +11,8 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 
 from coordinator.jobs import Job, JobBook
-from coordinator.world import UnitRecord
+from coordinator.world import UnitRecord, World
+from gridfleet.grid import Cell, Direction
 from gridfleet.protocol.constants import MAX_TEXT
 
 Wait = tuple[str, str]  # (WaitCode, words)
@@ -24,6 +25,50 @@ def _named(items: list[str]) -> str:
     if len(items) <= NAMED:
         return ", ".join(items)
     return f"{', '.join(items[:NAMED])} and {len(items) - NAMED} more"
+
+
+# A unit with a job that has not moved for this long (steps, and at least seconds) is stuck, and
+# its job says so and names the unit in its way.
+STUCK_STEPS, STUCK_MIN_S = 30, 10.0
+
+
+def stuck_after_s(step_period_s: float) -> float:
+    """How long a unit with a job may stand still before its job says it is stuck."""
+    return max(STUCK_MIN_S, STUCK_STEPS * step_period_s)
+
+
+def blocker(
+    unit_id: str,
+    world: World,
+    target: Cell | None,
+    distance: Callable[[Cell, Cell], float],
+) -> str | None:
+    """The unit standing on the square that brings `unit_id` nearest to `target`."""
+    rec = world.units.get(unit_id)
+    if rec is None or rec.position is None or target is None or target == rec.position:
+        return None
+    here, grid = rec.position, world.grid
+    ahead = [c for c in (here.step(d) for d in Direction) if grid.is_free(c)]
+    if not ahead:
+        return None
+    best = min(ahead, key=lambda c: distance(c, target))
+    return next(
+        (u.id for u in world.units.values() if u.id != unit_id and u.position == best), None
+    )
+
+
+class StuckNews:
+    """Which jobs' units got stuck since the last look (told once, until they move again)."""
+
+    def __init__(self) -> None:
+        self._told: set[str] = set()
+
+    def newly_stuck(self, jobs: JobBook) -> list[Job]:
+        """The jobs waiting `unit_stuck` now that were not last time."""
+        stuck = [j for j in jobs.active() if j.wait == "unit_stuck"]
+        new = [j for j in stuck if j.id not in self._told]
+        self._told = {j.id for j in stuck}
+        return new
 
 
 @dataclass(frozen=True)
