@@ -32,7 +32,7 @@ def test_a_150_unit_fleet_keeps_the_page_in_its_frame_budget_and_the_fleet_at_pa
     # it failed CI on a busy machine. Here: the page keeps drawing and answering with 150 units
     # (before issue 19 it froze for seconds at a time), and the fleet keeps stepping.
     result = run_page_bench(
-        150, 450, step=0.2, phase_s=10, phases=1, viewport=(1280, 800), warmup_s=20
+        150, 450, step=0.2, phase_s=5, phases=1, viewport=(1280, 800), warmup_s=10
     )
     page = result.open[0]
     summary = result.summary()
