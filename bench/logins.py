@@ -26,6 +26,8 @@ import time
 import uuid
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
+from multiprocessing.queues import Queue
+from multiprocessing.synchronize import Event
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
@@ -174,7 +176,7 @@ def _phase(
     flood: float,
     args: argparse.Namespace,
 ) -> Phase:
-    counts = multiprocessing.Queue()  # type: ignore[var-annotated]
+    counts: Queue[tuple[int, int, int]] = multiprocessing.Queue()
     done = multiprocessing.Event()
     flooder = None
     if flood:
@@ -226,7 +228,9 @@ def _connect_packet(name: str, password: str) -> bytes:
     return bytes([0x10, len(body)]) + body  # every field is short: one length byte
 
 
-def _flood(url: str, name: str, per_s: float, done: object, counts: object) -> None:
+def _flood(
+    url: str, name: str, per_s: float, done: Event, counts: Queue[tuple[int, int, int]]
+) -> None:
     """Send `per_s` wrong-password CONNECTs a second until `done`; put (sent, refused, silent)."""
     broker = parse_broker_url(with_credentials(url, name, "not-the-password"))
     tally = [0, 0, 0]
@@ -251,7 +255,7 @@ def _flood(url: str, name: str, per_s: float, done: object, counts: object) -> N
         tasks: set[asyncio.Task[None]] = set()
         began = time.monotonic()
         n = 0
-        while not done.is_set():  # type: ignore[attr-defined]
+        while not done.is_set():
             n += 1
             task = asyncio.create_task(attempt())
             tasks.add(task)
@@ -261,4 +265,4 @@ def _flood(url: str, name: str, per_s: float, done: object, counts: object) -> N
             await asyncio.wait(tasks, timeout=15)
 
     asyncio.run(main())
-    counts.put(tuple(tally))  # type: ignore[attr-defined]
+    counts.put((tally[0], tally[1], tally[2]))

@@ -61,6 +61,7 @@ from gridfleet.protocol import (
     UnitState,
 )
 from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
+from gridfleet.protocol.messages import UnitControlState
 
 PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
@@ -101,7 +102,7 @@ class CoordinatorCore:
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
         self.stuck_news = StuckNews()  # jobs whose stuck unit the events told already
         self.goals: dict[str, Cell] = {}
-        self.controls: dict[str, str] = {}  # unit -> an operator's hold: paused, out_of_service
+        self.controls: dict[str, UnitControlState] = {}  # unit -> an operator's hold
         self.orders = Orders(nonce)
         self._heartbeat_s = heartbeat_s(world.step_period_s)
         self.moves = Moves(self.planner)
@@ -111,7 +112,9 @@ class CoordinatorCore:
         self.pace = StepRate()
         self.errors_reported = 0
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
-        self._controls_changed: list[tuple[str, str | None]] = []  # for the next Effects
+        self._controls_changed: list[
+            tuple[str, UnitControlState | None]
+        ] = []  # for the next Effects
         self.events = EventLog()  # the recent history, in words (fleet/events)
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
@@ -389,7 +392,7 @@ class CoordinatorCore:
                 released=order.released,
                 planned=order.planned,
                 target=order.target,
-                control=self.controls.get(u.id),  # type: ignore[arg-type]
+                control=self.controls.get(u.id),
             )
         return StepResult(self.step_no, orders, routes)
 

@@ -5,6 +5,7 @@ messages they carry, stamped and addressed, with the QoS and retain flag protoco
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from coordinator.answers import Answer
 from coordinator.jobs import Job, JobBook
@@ -24,7 +25,7 @@ from gridfleet.protocol import (
     Topics,
 )
 
-Status = str  # online, offline or broken
+Status = Literal["online", "offline", "broken"]  # the coordinator's, as on the wire
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ class Messages:
         """The coordinator's retained status."""
         status = CoordinatorStatus(
             header=self.stamp("coordinator"),
-            state=state,  # type: ignore[arg-type]
+            state=state,
             step=step,
             step_period_s=step_period_s,
             estop=estop,

@@ -13,7 +13,13 @@ from typing import Any
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Header, JobsView, JobView
-from gridfleet.protocol.messages import CHART_MINUTES, FINAL_JOB_STATES, FINISHED_LISTED
+from gridfleet.protocol.messages import (
+    CHART_MINUTES,
+    FINAL_JOB_STATES,
+    FINISHED_LISTED,
+    JobState,
+    WaitCode,
+)
 
 ACTIVE_STATES = frozenset({"assigned", "to_pickup", "loaded", "to_dropoff"})
 CARRYING_STATES = frozenset({"loaded", "to_dropoff"})
@@ -28,14 +34,14 @@ class Job:
     dropoff: Cell
     mass_kg: float
     priority: int = 0
-    state: str = "queued"
+    state: JobState = "queued"
     unit: str | None = None
     reason: str | None = None
     submitted_by: str | None = None
     created_step: int = 0
     done_step: int | None = None
     order: int = 0  # submission order, so views and allocation are stable
-    wait: str | None = None  # why it waits (a WaitCode), while it is not final
+    wait: WaitCode | None = None  # why it waits, while it is not final
     wait_reason: str | None = None  # the same in words
 
     @property
@@ -51,13 +57,13 @@ class Job:
             dropoff=self.dropoff,
             mass_kg=self.mass_kg,
             priority=self.priority,
-            state=self.state,  # type: ignore[arg-type]
+            state=self.state,
             unit=self.unit,
             reason=self.reason,
             submitted_by=self.submitted_by,
             created_step=self.created_step,
             done_step=self.done_step,
-            wait=None if self.final else self.wait,  # type: ignore[arg-type]
+            wait=None if self.final else self.wait,
             wait_reason=None if self.final else self.wait_reason,
         )
 
@@ -84,7 +90,7 @@ class JobBook:
         self.jobs: dict[str, Job] = {}
         self.changed: set[str] = set()
         self._next = 1
-        self._counts: Counter[str] = Counter()
+        self._counts: Counter[JobState] = Counter()
         self._finished: deque[str] = deque(maxlen=FINISHED_LISTED)  # ids, the newest last
         self._done_steps: deque[int] = deque()  # when jobs were done, oldest first
         # Indexes, so a step costs the jobs open, not every job ever finished (it grows all day).
@@ -147,7 +153,7 @@ class JobBook:
         """The job with `job_id`, if any."""
         return self.jobs.get(job_id)
 
-    def set(self, job: Job, state: str, **fields: Any) -> None:
+    def set(self, job: Job, state: JobState, **fields: Any) -> None:
         """Move `job` to `state` (and set other fields); final jobs never change."""
         if job.final:
             raise ValueError(f"job {job.id} is already {job.state}")
@@ -162,7 +168,7 @@ class JobBook:
             self._ended(job)
         self.changed.add(job.id)
 
-    def explain(self, job: Job, wait: tuple[str, str] | None) -> None:
+    def explain(self, job: Job, wait: tuple[WaitCode, str] | None) -> None:
         """Say why `job` waits (code, words), or that it does not; listed as changed if new."""
         code, words = wait or (None, None)
         if (job.wait, job.wait_reason) != (code, words):
@@ -193,7 +199,7 @@ class JobBook:
             header=header,
             jobs=[j.view() for j in self._open.values()],
             finished=[j.view() for j in finished],
-            counts={k: n for k, n in self._counts.items() if n > 0},  # type: ignore[misc]
+            counts={k: n for k, n in self._counts.items() if n > 0},
             done_per_minute=self.done_per_minute(step_no, step_period_s),
         )
 

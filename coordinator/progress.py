@@ -16,6 +16,7 @@ from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Action
+from gridfleet.protocol.messages import UnitControlState
 
 LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
 LOST_CARRYING_MIN_S = 10.0
@@ -29,7 +30,7 @@ class JobProgress:
         world: World,
         jobs: JobBook,
         goals: dict[str, Cell],
-        controls: dict[str, str] | None = None,
+        controls: dict[str, UnitControlState] | None = None,
     ) -> None:
         self.world = world
         self.jobs = jobs

@@ -16,6 +16,7 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
 from gridfleet.protocol.constants import MAX_OPEN_JOBS
+from gridfleet.protocol.messages import UnitControlState
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,9 @@ def set_goal(
     return Outcome(True)
 
 
-def control(req: ControlUnit, world: World, jobs: JobBook, controls: dict[str, str]) -> Outcome:
+def control(
+    req: ControlUnit, world: World, jobs: JobBook, controls: dict[str, UnitControlState]
+) -> Outcome:
     """Pause or resume a unit, take it out of service or back (protocol.md §6.4)."""
     unit = req.unit
     if world.units.get(unit) is None:

@@ -9,13 +9,14 @@ import json
 import sqlite3
 from collections.abc import Iterable
 from pathlib import Path
+from typing import get_args
 
 import platformdirs
 
 from coordinator.answers import ANSWERS_KEPT, Answer
 from coordinator.jobs import Job
 from gridfleet.protocol import EventEntry
-from gridfleet.protocol.messages import MAX_EVENTS
+from gridfleet.protocol.messages import MAX_EVENTS, UnitControlState
 
 # More than the view shows: the view keeps stop and loss lines that chatter would have pushed out
 # (coordinator/events.py), and must find them again after a restart.
@@ -75,9 +76,10 @@ class JobStore:
                 (STORED_EVENTS,),
             )
 
-    def load_controls(self) -> dict[str, str]:
-        """Unit -> its hold (paused, out_of_service)."""
-        return dict(self._db.execute("SELECT unit, state FROM controls").fetchall())
+    def load_controls(self) -> dict[str, UnitControlState]:
+        """Unit -> its hold (paused, out_of_service); a row of another version's is skipped."""
+        rows = self._db.execute("SELECT unit, state FROM controls").fetchall()
+        return {unit: state for unit, state in rows if state in get_args(UnitControlState)}
 
     def save_controls(self, changes: Iterable[tuple[str, str | None]]) -> None:
         """Set or (None) lift units' holds, in one transaction."""

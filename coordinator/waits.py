@@ -14,9 +14,14 @@ from coordinator.jobs import Job, JobBook
 from coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol.constants import MAX_TEXT
+from gridfleet.protocol.messages import WaitCode
 
-Wait = tuple[str, str]  # (WaitCode, words)
+Wait = tuple[WaitCode, str]  # (code, words)
 _HOLD_WORDS = {"paused": "paused", "out_of_service": "out of service"}
+_HOLD_CODES: dict[str, WaitCode] = {
+    "paused": "unit_paused",
+    "out_of_service": "unit_out_of_service",
+}
 NAMED = 8  # units a reason names before "and N more": a hall of 500 must fit in MAX_TEXT
 
 
@@ -130,7 +135,7 @@ def why_waiting(
         return _why_queued(job, jobs, units, active, goals, controls)
     held = controls.get(job.unit or "")
     if held is not None:
-        return (f"unit_{held}", f"its unit {job.unit} is {_HOLD_WORDS[held]}")
+        return (_HOLD_CODES[held], f"its unit {job.unit} is {_HOLD_WORDS[held]}")
     rec = units.get(job.unit or "")
     if rec is None or rec.state is None:
         return None
