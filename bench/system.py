@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from bench.system_broker import check_broker
 from bench.system_monitor import BenchMonitor
@@ -46,6 +46,9 @@ from system.feed import random_job
 from system.operator import Operator, operator_session
 from system.supervisor import Supervisor
 from system.threads import ServiceThread, world_of
+
+if TYPE_CHECKING:
+    from robots.fleet import Fleet
 
 Deploy = Literal["processes", "threads"]
 TRUTH_TAIL = 1 << 20  # bytes read from the truth file's end: its last lines, whatever the fleet
@@ -96,7 +99,7 @@ class WorldCounts:
     prevented: int
 
 
-def _thread_counts(fleet: ServiceThread) -> Counts:
+def _thread_counts(fleet: ServiceThread[Fleet]) -> Counts:
     """Read from the units' thread (the bench in one process)."""
     world = world_of(fleet)
     return lambda: fleet.call(

@@ -14,7 +14,7 @@ import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, TextIO
+from typing import TYPE_CHECKING, Any, Literal, TextIO
 
 from broker.embedded import BrokerSettings
 from coordinator.store import default_db_path
@@ -26,6 +26,10 @@ from gridfleet.scenario import Scenario, with_units
 from system.broker_thread import BrokerThread
 from system.supervisor import Child, ChildSpec, Supervisor
 from system.threads import ServiceThread, coordinator_thread, fleet_thread
+
+if TYPE_CHECKING:
+    from coordinator.service import Coordinator
+    from robots.fleet import Fleet
 
 Mode = Literal["threads", "processes"]
 
@@ -81,18 +85,18 @@ class System:
     url: str = ""
     ws_url: str | None = None
     dashboard_url: str | None = None
-    threads: dict[str, ServiceThread] = field(default_factory=dict)
+    threads: dict[str, ServiceThread[Any]] = field(default_factory=dict)
     children: dict[str, Child] = field(default_factory=dict)
     supervisor: Supervisor | None = None
     broker_thread: BrokerThread | None = None
 
     @property
-    def coordinator(self) -> ServiceThread:
+    def coordinator(self) -> ServiceThread[Coordinator]:
         """The coordinator's thread (threads mode)."""
         return self.threads["coordinator"]
 
     @property
-    def fleet(self) -> ServiceThread:
+    def fleet(self) -> ServiceThread[Fleet]:
         """The units' thread (threads mode)."""
         return self.threads["robots"]
 

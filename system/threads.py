@@ -8,7 +8,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Protocol, Self, TypeVar
+from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 
 from gridfleet.scenario import Scenario
 
@@ -29,13 +29,16 @@ class Service(Protocol):
         """Run until `stop` is set."""
 
 
-class ServiceThread:
+S = TypeVar("S", bound=Service)
+
+
+class ServiceThread(Generic[S]):
     """One service in its own thread and event loop; `with` starts it and waits until it is ready."""
 
-    def __init__(self, make: Callable[[], Service], name: str) -> None:
+    def __init__(self, make: Callable[[], S], name: str) -> None:
         self.name = name
         self._make = make
-        self._service: Service | None = None
+        self._service: S | None = None
         self._loop = asyncio.new_event_loop()
         self._stop: asyncio.Event | None = None
         self._ready: Future[None] = Future()
@@ -54,7 +57,7 @@ class ServiceThread:
             self._loop.close()
 
     @property
-    def service(self) -> Service:
+    def service(self) -> S:
         """The running service object (made in its own thread: sqlite and loops are per thread)."""
         assert self._service is not None, f"{self.name} not started"
         return self._service
@@ -124,7 +127,7 @@ class ServiceThread:
 
 def coordinator_thread(
     scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
-) -> ServiceThread:
+) -> ServiceThread[Coordinator]:
     """The real coordinator for a scenario's map, with its job store at `db_path`."""
     from coordinator.service import Coordinator
 
@@ -144,7 +147,7 @@ def fleet_thread(
     step_s: float,
     units: Sequence[str] | None = None,
     **kw: Any,
-) -> ServiceThread:
+) -> ServiceThread[Fleet]:
     """The scenario's simulated units (all, or a subset) over the real broker."""
     from robots.fleet import Fleet
 
@@ -154,10 +157,10 @@ def fleet_thread(
     return ServiceThread(make, "gridfleet-units")
 
 
-def world_of(fleet: ServiceThread) -> WorldSim:
+def world_of(fleet: ServiceThread[Fleet]) -> WorldSim:
     """The ground-truth world simulation of a running fleet."""
     from robots.world import WorldSim  # the robots layer, loaded when used (as above)
 
-    service: Fleet = fleet.service  # type: ignore[assignment]
+    service = fleet.service
     assert isinstance(service.world, WorldSim)  # a fleet in a thread is never sharded
     return service.world

@@ -50,7 +50,7 @@ def system(run_system: RunSystem, playfield: Path) -> System:
 
     def start(step_s: float = STEP) -> tuple[ServiceThread, ServiceThread]:
         coordinator, fleet = run_system(playfield, step_s=step_s)
-        world = coordinator.service.world  # type: ignore[attr-defined]
+        world = coordinator.service.world
 
         def known() -> bool:
             return sorted(world.capacities()) == sorted(CAPACITY.values()) and all(
@@ -104,7 +104,7 @@ def test_cancel_a_queued_and_an_active_job_releases_the_unit(
     # Slow steps: unit4 needs 17 of them to its pickup, which must not come before the cancel
     # below, five operator round trips later, however busy the machine.
     _, fleet = system(step_s=0.15)
-    units = fleet.service.logic  # type: ignore[attr-defined]
+    units = fleet.service.logic
     # Only unit4 can carry 15 kg: the first job makes it busy, so the second stays queued.
     assert operator.submit_job(Cell(1, 0), Cell(9, 1), 15.0, job_id="active").accepted
     wait_for(lambda: operator.job_state("active") == "to_pickup", timeout=10, what="under way")
@@ -147,7 +147,7 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
 ) -> None:
     coordinator, fleet = system()
     world = world_of(fleet)
-    units = fleet.service.logic  # type: ignore[attr-defined]
+    units = fleet.service.logic
     ids = [f"e{n}" for n in range(4)]
     for job_id, (pickup, dropoff, mass) in zip(ids, PLAYFIELD_JOBS[: len(ids)], strict=True):
         assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
@@ -166,7 +166,7 @@ def test_emergency_stop_halts_all_motion_and_release_resumes(
         what="four more steps of every unit",
     )
     assert world.moves == frozen[0]  # no unit moved once it had the stop
-    core = coordinator.service.core  # type: ignore[attr-defined]
+    core = coordinator.service.core
     assert coordinator.call(lambda: core.estop)
     # Each unit stopped within one of its steps: its first state with the stop shows it
     # stopped with nothing left to drive, and no later state of it moved.
@@ -240,9 +240,9 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     # is lost with it and no other unit can finish the job (protocol §8).
     coordinator, fleet = system(step_s=0.15)
     world = world_of(fleet)
-    runners = fleet.service.runners  # type: ignore[attr-defined]
-    units = fleet.service.logic  # type: ignore[attr-defined]
-    core = coordinator.service.core  # type: ignore[attr-defined]
+    runners = fleet.service.runners
+    units = fleet.service.logic
+    core = coordinator.service.core
     # 4 kg: unit2, unit3 and unit4 can carry it (unit2, the nearest, if it is free first).
     assert operator.submit_job(Cell(5, 1), Cell(8, 6), 4.0, job_id="k").accepted
     victim = wait_for(

@@ -146,7 +146,7 @@ def test_two_fleets_on_one_broker_keep_their_coordinators_connected(
         with coordinator(0) as first, coordinator(1) as second:
             # 40 steps each (2 s) side by side: a takeover reconnects within 0.1 s.
             wait_for(lambda: min(steps(r) for r in roots) >= 40, timeout=30, what="40 steps each")
-            connects = [s.service.endpoint.connects for s in (first, second)]  # type: ignore[attr-defined]
+            connects = [s.service.endpoint.connects for s in (first, second)]
     finally:
         probe.close()
     assert connects == [1, 1]

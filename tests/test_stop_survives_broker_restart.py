@@ -80,7 +80,7 @@ def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
     try:
         with MqttProbe(url) as operator:
             operator.publish(T.fleet("estop"), b"engaged|operator|soak", qos=1, retain=True)
-            core = coordinator.service.core  # type: ignore[attr-defined]
+            core = coordinator.service.core
             wait_for(lambda: coordinator.call(lambda: core.estop), what="the coordinator stopped")
         restart()
         assert latch_on(url) in (None, b"engaged|operator|soak")  # the broker may be empty now

@@ -112,7 +112,7 @@ def test_the_webots_unit_finishes_a_job_beside_headless_units_without_collisions
     coordinator, units = running
     _scenario, scene = playfield_scene
     robot = scene.robot(WEBOTS_UNIT)
-    world = coordinator.service.world  # type: ignore[attr-defined]
+    world = coordinator.service.world
     wait_for(
         lambda: coordinator.call(
             lambda: len(world.units) == 4 and all(u.state is not None for u in world.units.values())
