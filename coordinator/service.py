@@ -84,11 +84,11 @@ class Coordinator:
         """Error reports made so far (tests watch it)."""
         return self.core.errors_reported
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Serve until `stop` is set; reconnects with back-off when the broker goes away."""
         try:
             await self.endpoint.run(
-                stop,
+                shutdown,
                 self.handle,
                 on_connect=self._on_connect,
                 on_disconnect=lambda _: self.ready.clear(),
@@ -107,22 +107,22 @@ class Coordinator:
         """One inbound message, to the core; then whatever it says to do."""
         await self._apply(self.core.on_message(topic, payload, self.clock()))
 
-    async def _steps(self, stop: asyncio.Event) -> None:
+    async def _steps(self, shutdown: asyncio.Event) -> None:
         """The step loop, for as long as a session lasts."""
         next_at = self.clock()
         try:
-            while not stop.is_set():
+            while not shutdown.is_set():
                 effects = self.core.step(self.clock())
                 await self._apply(effects)
                 next_at += self.step_s
                 delay = max(0.0, next_at - self.clock())
                 if delay == 0.0:
                     next_at = self.clock()  # late: no burst of steps to catch up
-                await _wait(delay, stop)
+                await _wait(delay, shutdown)
                 until = effects.acks_until
                 if until is not None and self.core.orders.holding_back and self.clock() < until:
                     self._acked.clear()
-                    await _wait(until - self.clock(), stop, self._acked)
+                    await _wait(until - self.clock(), shutdown, self._acked)
                     next_at = max(next_at, self.clock())
         finally:
             if self._views_later is not None:

@@ -74,11 +74,11 @@ class VirtualDevice:
         if self._wake is not None:
             self._wake.set()  # a press, or our own stop come back: the send loop looks again
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Run until `stop` is set, reconnecting with back-off; says `offline` on the way out."""
         self._wake = asyncio.Event()
         await self.endpoint.run(
-            stop,
+            shutdown,
             self._receive,
             on_connect=self._connected,
             on_disconnect=self._disconnected,
@@ -102,9 +102,9 @@ class VirtualDevice:
         self._changed()
         await self._send(out)
 
-    async def _send_loop(self, stop: asyncio.Event) -> None:
+    async def _send_loop(self, shutdown: asyncio.Event) -> None:
         assert self._wake is not None
-        while not stop.is_set():
+        while not shutdown.is_set():
             self._wake.clear()
             # The screen shows the stop; a log line would be drawn across it.
             await self._send(self.logic.due(self.clock()))

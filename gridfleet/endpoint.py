@@ -98,7 +98,7 @@ class Endpoint:
 
     async def run(
         self,
-        stop: asyncio.Event,
+        shutdown: asyncio.Event,
         handle: Handler,
         *,
         on_connect: Hook | None = None,
@@ -113,9 +113,9 @@ class Endpoint:
         stop just before `offline`.
         """
         delay = self.backoff.first
-        while not stop.is_set() and not self.killed:
+        while not shutdown.is_set() and not self.killed:
             try:
-                await self._session(stop, handle, on_connect, during, on_stop)
+                await self._session(shutdown, handle, on_connect, during, on_stop)
                 delay = self.backoff.first
             except aiomqtt.MqttError as exc:
                 if self.killed:
@@ -126,12 +126,12 @@ class Endpoint:
                 if on_disconnect is not None:
                     on_disconnect(str(exc))
                 with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(stop.wait(), delay)
+                    await asyncio.wait_for(shutdown.wait(), delay)
                 delay = min(delay * 2, self.backoff.most)
 
     async def _session(
         self,
-        stop: asyncio.Event,
+        shutdown: asyncio.Event,
         handle: Handler,
         on_connect: Hook | None,
         during: Callable[[asyncio.Event], Awaitable[None]] | None,
@@ -149,13 +149,13 @@ class Endpoint:
             if on_connect is not None:
                 await on_connect()
             self.online.set()
-            work = during(stop) if during is not None else stop.wait()
+            work = during(shutdown) if during is not None else shutdown.wait()
             waits: set[asyncio.Task[Any]] = {
                 asyncio.create_task(self._receive(client, handle)),
                 asyncio.create_task(self._broken.wait()),
                 asyncio.create_task(_finish(work)),
             }
-            stopper = asyncio.create_task(stop.wait())
+            stopper = asyncio.create_task(shutdown.wait())
             try:
                 done, _ = await asyncio.wait({*waits, stopper}, return_when=asyncio.FIRST_COMPLETED)
             finally:
@@ -165,7 +165,7 @@ class Endpoint:
                 error = None if task.cancelled() else task.exception()
                 if error is not None:
                     raise error
-            if self._broken.is_set() or not stop.is_set():
+            if self._broken.is_set() or not shutdown.is_set():
                 raise aiomqtt.MqttError("the session ended")
             # Bounded: a broker stopping at the same moment never acknowledges the goodbye, and
             # each QoS 1 publish would wait out aiomqtt's 10 s timeout (seen with SIGTERM to

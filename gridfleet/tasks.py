@@ -38,10 +38,10 @@ def stop_on_signals() -> asyncio.Event:
     return stop
 
 
-async def until_stopped(work: Awaitable[T], stop: asyncio.Event) -> T | None:
+async def until_stopped(work: Awaitable[T], shutdown: asyncio.Event) -> T | None:
     """Run `work` until it ends (its result) or `stop` is set (cancelled; None)."""
     task = asyncio.ensure_future(work)
-    stopper = asyncio.create_task(stop.wait())
+    stopper = asyncio.create_task(shutdown.wait())
     try:
         await asyncio.wait({task, stopper}, return_when=asyncio.FIRST_COMPLETED)
     finally:

@@ -118,10 +118,10 @@ class Fleet:
         """The pure core of every local unit."""
         return {uid: r.logic for uid, r in self.runners.items()}
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Run every local unit until `stop` is set; each says "offline" before it returns."""
-        tasks = [asyncio.create_task(r.run(stop), name=uid) for uid, r in self.runners.items()]
-        watcher = asyncio.create_task(self._watch_ready(stop))
+        tasks = [asyncio.create_task(r.run(shutdown), name=uid) for uid, r in self.runners.items()]
+        watcher = asyncio.create_task(self._watch_ready(shutdown))
         try:
             await asyncio.gather(*tasks)
         finally:
@@ -133,8 +133,8 @@ class Fleet:
             if self.saved is not None:
                 self.saved.close()
 
-    async def _watch_ready(self, stop: asyncio.Event) -> None:
-        while not stop.is_set():
+    async def _watch_ready(self, shutdown: asyncio.Event) -> None:
+        while not shutdown.is_set():
             await asyncio.gather(*(r.online.wait() for r in self.runners.values()))
             self.ready.set()
             return

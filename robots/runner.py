@@ -79,13 +79,13 @@ class UnitRunner:
     def _now(self) -> float:
         return asyncio.get_running_loop().time()
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Step and stay connected until `stop` is set; then say "offline" and disconnect."""
         self.core.start(self._now())
-        ticker = asyncio.create_task(self._ticks(stop), name=f"{self.id}-ticks")
+        ticker = asyncio.create_task(self._ticks(shutdown), name=f"{self.id}-ticks")
         try:
             await self.endpoint.run(
-                stop,
+                shutdown,
                 self._handle,
                 on_connect=self._connected,
                 on_disconnect=lambda why: self.core.on_disconnect(self._now()),
@@ -103,17 +103,17 @@ class UnitRunner:
             return
         await self._send(self.core.on_message(topic, payload, self._now()))
 
-    async def _ticks(self, stop: asyncio.Event) -> None:
+    async def _ticks(self, shutdown: asyncio.Event) -> None:
         step_s = self.logic.step_s
         due = self._now() + self.phase_s
-        while not stop.is_set() and not self.killed:
+        while not shutdown.is_set() and not self.killed:
             due += step_s
             delay = due - self._now()
             if delay < -step_s:  # fell far behind (e.g. a long pause): do not catch up in a burst
                 due = self._now()
             elif delay > 0:
                 await asyncio.sleep(delay)
-            if stop.is_set() or self.killed:
+            if shutdown.is_set() or self.killed:
                 return
             await self._send(self.tick())
 

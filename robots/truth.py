@@ -28,7 +28,7 @@ def truth_line(world: SimulatedWorld) -> str:
 
 
 async def write_truth(
-    world: SimulatedWorld, path: Path, period_s: float, stop: asyncio.Event
+    world: SimulatedWorld, path: Path, period_s: float, shutdown: asyncio.Event
 ) -> None:
     """Append a truth line every `period_s` until `stop`, and one last line then."""
     # Appended and flushed line by line: a process killed with SIGKILL leaves whole lines only,
@@ -37,7 +37,7 @@ async def write_truth(
         while True:
             out.write(truth_line(world) + "\n")
             out.flush()
-            if stop.is_set():
+            if shutdown.is_set():
                 return
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), period_s)
+                await asyncio.wait_for(shutdown.wait(), period_s)

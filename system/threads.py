@@ -25,7 +25,7 @@ class Service(Protocol):
 
     ready: asyncio.Event
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Run until `stop` is set."""
 
 

@@ -342,10 +342,10 @@ class DeviceService:
         self._loop: asyncio.AbstractEventLoop | None = None
         device.on_change = lambda logic: self.ready.set() if logic.online else None
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Run the device until `stop` is set."""
         self._loop = asyncio.get_running_loop()
-        await self.device.run(stop)
+        await self.device.run(shutdown)
 
     def press(self) -> None:
         """Press the stop key (the device's loop does the work)."""

@@ -128,7 +128,7 @@ async def test_during_runs_per_session_and_its_error_ends_the_run(
 ) -> None:
     endpoint = make(broker.url, topics)
 
-    async def during(stop: asyncio.Event) -> None:
+    async def during(shutdown: asyncio.Event) -> None:
         raise ValueError("a bug in the session's work")
 
     async def handle(topic: str, payload: bytes) -> None:

@@ -37,7 +37,7 @@ class _Broken:
     def __init__(self) -> None:
         self.ready = asyncio.Event()
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         raise ValueError("no such broker")
 
 

@@ -51,7 +51,7 @@ class WebotsBesideHeadless:
         self.webots = WebotsUnit(robot, read_settings(robot, environ={}))
         self.ready = asyncio.Event()
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         async def watch() -> None:
             await self.fleet.ready.wait()
             await self.webots.ready.wait()
@@ -59,7 +59,7 @@ class WebotsBesideHeadless:
 
         watcher = asyncio.create_task(watch())
         try:
-            await asyncio.gather(self.fleet.run(stop), self.webots.run(stop))
+            await asyncio.gather(self.fleet.run(shutdown), self.webots.run(shutdown))
         finally:
             watcher.cancel()
 

@@ -51,7 +51,7 @@ async def keep_stepping(
     webots: WebotsThread,
     world: WebotsWorld,
     leds: Callable[[], Leds],
-    stop: asyncio.Event,
+    shutdown: asyncio.Event,
     name: str,
 ) -> None:
     """Advance Webots step by step showing `leds()`, at most as fast as the wall clock.
@@ -62,10 +62,10 @@ async def keep_stepping(
     loop = asyncio.get_running_loop()
     period = world.timestep_ms / 1000
     due = loop.time()
-    while not stop.is_set():
+    while not shutdown.is_set():
         if not await webots.run(functools.partial(world.advance, leds())):
             log.info("%s: Webots ends the controller", name)
-            stop.set()
+            shutdown.set()
             return
         due += period
         delay = due - loop.time()

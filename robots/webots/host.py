@@ -70,15 +70,15 @@ class WebotsUnit:
         """The unit's MQTT session."""
         return self.runner.endpoint
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Run until `stop` is set or Webots ends the controller; the unit says "offline"."""
         name = self.settings.unit_id
         stepping = asyncio.create_task(
-            keep_stepping(self.webots, self.world, self.logic.leds, stop, name),
+            keep_stepping(self.webots, self.world, self.logic.leds, shutdown, name),
             name="webots-steps",
         )
         try:
-            await self.runner.run(stop)
+            await self.runner.run(shutdown)
         finally:
             await cancel_and_wait(stepping)
             self.webots.close()

@@ -55,14 +55,14 @@ class MirrorUnit:
         """Set while subscribed to the unit's state."""
         return self.endpoint.online
 
-    async def run(self, stop: asyncio.Event) -> None:
+    async def run(self, shutdown: asyncio.Event) -> None:
         """Follow the unit's state until `stop` is set or Webots ends the controller."""
         name = f"mirror of {self.settings.unit_id}"
         stepping = asyncio.create_task(
-            keep_stepping(self.webots, self.world, self._leds, stop, name), name="webots-steps"
+            keep_stepping(self.webots, self.world, self._leds, shutdown, name), name="webots-steps"
         )
         try:
-            await self.endpoint.run(stop, self._follow)
+            await self.endpoint.run(shutdown, self._follow)
         finally:
             await cancel_and_wait(stepping)
             self.webots.close()

@@ -179,12 +179,12 @@ class FakeFleet:
             self._sending = [s for s in self._sending if not s.done()]
             self._sending += [asyncio.ensure_future(runner.endpoint.publish(out)) for out in outs]
 
-    async def run(self, stop: asyncio.Event, step_s: float) -> None:
+    async def run(self, shutdown: asyncio.Event, step_s: float) -> None:
         """Step until `stop` is set."""
-        while not stop.is_set():
+        while not shutdown.is_set():
             await self.step_once()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), step_s)
+                await asyncio.wait_for(shutdown.wait(), step_s)
 
     async def close(self) -> None:
         """End every unit's session (as a kill: these are test units, gone with the test)."""
