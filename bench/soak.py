@@ -31,11 +31,11 @@ from bench.soak_check import (
     FINAL,
     Disturbed,
     Event,
-    Limits,
     Released,
+    SoakLimits,
+    SoakVerdict,
     Stop,
     Truth,
-    Verdict,
     check,
 )
 from bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
@@ -77,7 +77,7 @@ class SoakResult:
     minutes: float
     units: int
     faults: Counter[str]
-    verdict: Verdict
+    verdict: SoakVerdict
     recoveries_s: list[float] = field(default_factory=list)  # after each broker restart
     unrecovered: list[str] = field(default_factory=list)  # faults the system did not recover from
     release_repeats: int = 0  # operator releases that had to be given again (not a failure)
@@ -451,7 +451,7 @@ class Soak:
             file=self.log,
         )
         events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
-        limits = Limits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
+        limits = SoakLimits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)
         return SoakResult(
             self.cfg.minutes,

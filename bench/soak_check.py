@@ -72,7 +72,7 @@ Event = Truth | Stop | Released | JobSeen | StateSeen | Disturbed
 
 
 @dataclass(frozen=True)
-class Limits:
+class SoakLimits:
     """How long is too long."""
 
     step_s: float
@@ -81,7 +81,7 @@ class Limits:
 
 
 @dataclass
-class Verdict:
+class SoakVerdict:
     """What the checks found; `ok` when nothing."""
 
     collisions: int = 0
@@ -105,10 +105,10 @@ class Verdict:
         )
 
 
-def check(events: Iterable[Event], limits: Limits) -> Verdict:
+def check(events: Iterable[Event], limits: SoakLimits) -> SoakVerdict:
     """Run every check over the recorded events (any order: they are sorted by time)."""
     ordered = sorted(events, key=_time)
-    verdict = Verdict()
+    verdict = SoakVerdict()
     truths = [e for e in ordered if isinstance(e, Truth)]
     verdict.collisions = _collisions(truths, verdict.details)
     releases = [e.t for e in ordered if isinstance(e, Released)]
@@ -160,7 +160,7 @@ def _stop_windows(stops: Sequence[Stop], releases: Sequence[float]) -> list[tupl
 def _moved_while_stopped(
     truths: Sequence[Truth],
     stops: Sequence[tuple[float, float]],
-    limits: Limits,
+    limits: SoakLimits,
     details: list[str],
 ) -> int:
     """Units whose square changed between two truth samples both well inside a stop window."""
@@ -181,7 +181,7 @@ def _moved_while_stopped(
     return len(moved)
 
 
-def _jobs(seen: Sequence[JobSeen], verdict: Verdict) -> None:
+def _jobs(seen: Sequence[JobSeen], verdict: SoakVerdict) -> None:
     """Every job seen must end, and end once: its states after a final one never change."""
     history: dict[str, list[str]] = defaultdict(list)
     for event in seen:
@@ -203,7 +203,7 @@ def _jobs(seen: Sequence[JobSeen], verdict: Verdict) -> None:
 def _stranded(
     states: Sequence[StateSeen],
     quiet: Sequence[tuple[float, float]],
-    limits: Limits,
+    limits: SoakLimits,
     details: list[str],
 ) -> int:
     """Busy units that stood on one square for `stranded_s` of undisturbed time."""

@@ -21,7 +21,7 @@ def check_route(grid: GridMap, here: Cell, released: list[Cell]) -> str | None:
     return None
 
 
-class Orders:
+class OrderFollower:
     """The order a coordinated unit follows: its ids, the released squares not yet driven, its action."""
 
     def __init__(self, grid: GridMap) -> None:

@@ -41,7 +41,7 @@ from gridfleet.protocol.messages import (
     UnitState,
     UnitStatus,
 )
-from robots.coordinated import Orders
+from robots.coordinated import OrderFollower
 from robots.decisions import Intent, Readings, Verdict, sq
 from robots.navigation import Navigator
 
@@ -89,7 +89,7 @@ class UnitLogic:
         self.known_obstacles: set[Cell] = set()
         self.new_obstacles: list[Cell] = []
         self.errors: list[UnitError] = []
-        self.orders = Orders(grid)
+        self.orders = OrderFollower(grid)
         self.navigator = Navigator(unit_id, grid, self.known_obstacles, goal)
         self._started = 0.0
         self._last_order: float | None = None

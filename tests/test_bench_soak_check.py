@@ -6,15 +6,15 @@ from bench.soak_check import (
     Disturbed,
     Event,
     JobSeen,
-    Limits,
     Released,
+    SoakLimits,
     StateSeen,
     Stop,
     Truth,
     check,
 )
 
-LIMITS = Limits(step_s=0.1, stranded_s=5.0)
+LIMITS = SoakLimits(step_s=0.1, stranded_s=5.0)
 HOME = {"u1": (0, 0), "u2": (5, 5)}
 
 
