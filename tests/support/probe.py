@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import ssl
 import threading
 import time
 import uuid
 from collections import defaultdict
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any
@@ -50,14 +51,17 @@ class MqttProbe:
         if broker.username is not None:
             self.client.username_pw_set(broker.username, broker.password)
         self.refused: object | None = None  # the CONNACK's reason when the broker said no
+        self._batch: list[mqtt.MQTTMessageInfo] | None = None  # publishes not waited for yet
         self._broker = broker
         self._lock = threading.Lock()
         self.messages: defaultdict[str, list[Seen]] = defaultdict(list)
         self._connected = threading.Event()
-        self._answered = threading.Event()  # a CONNACK came, yes or no
+        self._answered = threading.Event()  # a CONNACK came, yes or no, or the link closed
         self._subacks: set[int] = set()
         self.client.on_message = self._on_message
         self.client.on_connect = self._on_connect
+        # Closed before any CONNACK (a websocket refused for its origin): no answer will come.
+        self.client.on_disconnect = lambda c, u, flags, rc, p: self._answered.set()
         self.client.on_subscribe = lambda c, u, mid, rcs, p: self._subacks.add(mid)
 
     def _on_connect(
@@ -103,9 +107,23 @@ class MqttProbe:
         retain: bool = False,
         timeout: float = 10.0,
     ) -> None:
-        """Publish and wait until paho has handed it to the broker."""
+        """Publish and wait until paho has handed it to the broker (in a `batch`: at its end)."""
         info = self.client.publish(topic, payload, qos=qos, retain=retain)
+        if self._batch is not None:
+            self._batch.append(info)
+            return
         info.wait_for_publish(timeout)
+
+    @contextlib.contextmanager
+    def batch(self, timeout: float = 60.0) -> Iterator[None]:
+        """Publishes inside go out back to back; all of them are waited for when the block ends."""
+        self._batch = []
+        try:
+            yield
+        finally:
+            pending, self._batch = self._batch, None
+            for info in pending:
+                info.wait_for_publish(timeout)
 
     def received(self, topic: str) -> list[Seen]:
         """Messages seen so far on `topic`."""
