@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from gridfleet.accounts import REQUEST_KINDS, Accounts
+from gridfleet.config import names_owned_id
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
 from gridfleet.throttle import FailureBudget, LoginThrottle
@@ -36,12 +37,8 @@ def owner_of(client_id: str, names: Iterable[str]) -> str | None:
     `unit1-3fa2c1d0` and `coordinator@hall.b` belong to `unit1` and `coordinator`; `unit10-x`
     belongs to `unit10`, not `unit1`.
     """
-    best: str | None = None
-    for name in names:
-        owned = client_id == name or client_id.startswith((f"{name}-", f"{name}@"))
-        if owned and (best is None or len(name) > len(best)):
-            best = name
-    return best
+    owners = [name for name in names if names_owned_id(name, client_id)]
+    return max(owners, key=len, default=None)
 
 
 class Gate:

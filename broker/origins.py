@@ -16,21 +16,9 @@ listener anyway).
 
 from __future__ import annotations
 
-import ipaddress
 from urllib.parse import urlsplit
 
-
-def _hostname(authority: str) -> str:
-    """`127.0.0.1` of `127.0.0.1:9001`, `::1` of `[::1]:9001`, lowercased."""
-    return (urlsplit(f"//{authority}").hostname or "").lower()
-
-
-def _is_address(name: str) -> bool:
-    try:
-        ipaddress.ip_address(name)
-    except ValueError:
-        return False
-    return True
+from gridfleet.config import host_of, is_loopback, names_this_machine
 
 
 def refusal(
@@ -50,16 +38,11 @@ def refusal(
     allowed = {o.rstrip("/").lower() for o in extra_origins}
     if origin.rstrip("/").lower() in allowed:
         return None
-    asked = _hostname(host or "")
-    names = {"localhost", *(_hostname(urlsplit(o).netloc) for o in allowed)}
-    if not accounts and not (_is_address(asked) or asked in names):
+    asked = host_of(host or "")
+    named = {host_of(urlsplit(o).netloc) for o in allowed}  # configured pages' host names
+    if not accounts and not (names_this_machine(host or "") or asked in named):
         return f"Host {host!r} names no address of this machine (a DNS-rebinding page?)"
-    page = (urlsplit(origin).hostname or "").lower()
-    if page != asked and not (_is_loopback(page) and _is_loopback(asked)):
+    page = host_of(urlsplit(origin).netloc)
+    if page != asked and not (is_loopback(page) and is_loopback(asked)):
         return f"a page from {origin} is not the dashboard's (on {asked})"
     return None
-
-
-def _is_loopback(name: str) -> bool:
-    """Whether `name` is this machine by its loopback name or address."""
-    return name == "localhost" or (_is_address(name) and ipaddress.ip_address(name).is_loopback)

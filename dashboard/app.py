@@ -3,9 +3,6 @@ the login."""
 
 from __future__ import annotations
 
-import ipaddress
-from urllib.parse import urlsplit
-
 from flask import Flask, Response, jsonify, request, send_from_directory
 
 from dashboard.auth import current_user, install_login
@@ -16,6 +13,7 @@ from dashboard.settings import (
     DashboardSettings,
     settings_payload,
 )
+from gridfleet.config import names_this_machine
 
 STATIC = PACKAGE_DIR / "static"
 
@@ -32,7 +30,7 @@ def create_app(settings: DashboardSettings) -> Flask:
     def refuse_rebound_hosts() -> tuple[Response, int] | None:
         # Without accounts the dashboard serves loopback only, so a browser names it by an
         # address or `localhost`; any other name is a page that rebound its own name to us.
-        if settings.accounts is not None or host_is_this_machine(request.host):
+        if settings.accounts is not None or names_this_machine(request.host):
             return None
         why = f"Host {request.host!r} is not this machine's address: open the page at 127.0.0.1"
         return jsonify({"error": why}), 403
@@ -84,15 +82,3 @@ def create_app(settings: DashboardSettings) -> Flask:
         return jsonify({"ok": True})
 
     return app
-
-
-def host_is_this_machine(host: str) -> bool:
-    """Whether a Host header names this machine by an IP address or `localhost`."""
-    name = (urlsplit(f"//{host}").hostname or "").lower()
-    if name == "localhost":
-        return True
-    try:
-        ipaddress.ip_address(name)
-    except ValueError:
-        return False
-    return True

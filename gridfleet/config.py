@@ -123,16 +123,41 @@ def with_credentials(url: str, username: str, password: str) -> str:
     return parts._replace(netloc=login + host).geturl()
 
 
+def names_owned_id(name: str, client_id: str) -> bool:
+    """Whether `client_id` is one account `name` may use: `name`, or `name` followed by '-' or '@'
+    and more (protocol.md §10). Where several account names fit, the longest owns it."""
+    return client_id == name or client_id.startswith((f"{name}-", f"{name}@"))
+
+
 def owned_client_id(username: str | None, wanted: str) -> str:
     """`wanted`, made one that `username`'s account owns when it logs in with one.
 
-    A broker with accounts lets an account use only client ids it owns: its name, or its name
-    followed by '-' or '@' and more (so nobody can take over the coordinator's or a unit's
-    connection); `cli-3fa2c1` logging in as `operator` becomes `operator-cli-3fa2c1`.
+    A broker with accounts lets an account use only client ids it owns (`names_owned_id`: so
+    nobody can take over the coordinator's or a unit's connection); `cli-3fa2c1` logging in as
+    `operator` becomes `operator-cli-3fa2c1`.
     """
-    if not username or wanted == username or wanted.startswith((f"{username}-", f"{username}@")):
+    if not username or names_owned_id(username, wanted):
         return wanted
     return f"{username}-{wanted}"
+
+
+def names_this_machine(authority: str) -> bool:
+    """Whether a Host header (`127.0.0.1:9001`, `[::1]:5000`, `localhost:5000`) names this machine
+    by an IP address or `localhost`, as a browser does that was not led there by another name
+    (DNS rebinding)."""
+    name = host_of(authority)
+    if name == "localhost":
+        return True
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
+
+
+def host_of(authority: str) -> str:
+    """The host of `host:port` (`::1` of `[::1]:9001`), lowercased; "" when there is none."""
+    return (urlsplit(f"//{authority}").hostname or "").lower()
 
 
 def redacted(url: str) -> str:
