@@ -72,12 +72,17 @@ class Backlog:
 
 
 def make_broker(
-    config: dict[str, Any], *, gate: Gate | None = None, limits: Limits | None = None
+    config: dict[str, Any],
+    *,
+    gate: Gate | None = None,
+    limits: Limits | None = None,
+    ws_origins: tuple[str, ...] = (),
 ) -> GridfleetBroker:
     """An amqtt broker for `config` (amqtt's configuration dictionary) with these limits; with a
-    `gate`, only its accounts get in (`config` then carries their topic rules, no auth plugin)."""
+    `gate`, only its accounts get in (`config` then carries their topic rules, no auth plugin);
+    `ws_origins`: web pages let in besides those on the broker's own host."""
     quiet_normal_closes()
-    return GridfleetBroker(config, limits or Limits(), gate)
+    return GridfleetBroker(config, limits or Limits(), gate, ws_origins)
 
 
 class _GuardedReader:
@@ -235,11 +240,15 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
     """amqtt's Broker with gridfleet's limits, and its client-id takeover behind authentication."""
 
     def __init__(
-        self, config: dict[str, Any], limits: Limits | None = None, gate: Gate | None = None
+        self,
+        config: dict[str, Any],
+        limits: Limits | None = None,
+        gate: Gate | None = None,
+        ws_origins: tuple[str, ...] = (),
     ) -> None:
         super().__init__(config)
         self.gate = gate  # None: amqtt's auth plugins decide (anonymous on loopback)
-        self.ws_origins: tuple[str, ...] = ()  # web pages let in besides the broker's own host
+        self.ws_origins = ws_origins  # web pages let in besides the broker's own host
         self._refusals_logged_at = -_REFUSAL_LOG_S
         self._refusals_unlogged = 0
         self._subscriptions = Subscriptions()  # empty, as amqtt made it
@@ -364,7 +373,8 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         return handler, session
 
     def _log_refusal(self, what: str) -> None:
-        """Log a refused CONNECT: at most one line a second, saying how many went unlogged."""
+        """Log a refusal (a CONNECT, a websocket, a message dropped): at most one line a second,
+        saying how many went unlogged, so a flood is not a flood of the log too."""
         now = time.monotonic()
         if now - self._refusals_logged_at < _REFUSAL_LOG_S:
             self._refusals_unlogged += 1

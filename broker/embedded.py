@@ -184,8 +184,8 @@ class EmbeddedBroker:
             s.amqtt_config(),
             gate=None if s.accounts is None else Gate(s.accounts, root=s.root),
             limits=s.limits,
+            ws_origins=s.ws_origins,
         )
-        self._broker.ws_origins = s.ws_origins
         # amqtt's own context asks clients for certificates, which breaks browsers (broker/tls.py).
         self._broker._create_ssl_context = amqtt_listener_context
         amqtt_log = logging.getLogger("amqtt.broker")

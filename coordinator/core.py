@@ -112,9 +112,8 @@ class CoordinatorCore:
         self.pace = StepRate()
         self.errors_reported = 0
         self._log: list[tuple[int, str]] = []  # lines for the next Effects
-        self._controls_changed: list[
-            tuple[str, UnitControlState | None]
-        ] = []  # for the next Effects
+        # Holds set or lifted since the last Effects (to persist).
+        self._controls_changed: list[tuple[str, UnitControlState | None]] = []
         self.events = EventLog()  # the recent history, in words (fleet/events)
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
