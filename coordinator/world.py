@@ -53,6 +53,8 @@ class World:
         self._grid = self.base.with_blocked(self.obstacles)
         self.map_id = self.base.map_id()
         self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
+        # Square -> the units whose latest state is there (each state is checked against them).
+        self._holders: dict[Cell, set[str]] = {}
 
     def on_foreign(self, unit_id: str, msg: Factsheet) -> bool:
         """Whether `msg` shows a unit of another map (it is then forgotten, and ignored until a
@@ -60,7 +62,9 @@ class World:
         if msg.map_id is None or msg.map_id == self.map_id:
             self.foreign.discard(unit_id)
             return False
-        self.units.pop(unit_id, None)
+        gone = self.units.pop(unit_id, None)
+        if gone is not None and gone.position is not None:
+            self._holders.get(gone.position, set()).discard(unit_id)
         first = unit_id not in self.foreign
         self.foreign.add(unit_id)
         return first
@@ -142,7 +146,7 @@ class World:
                 self.base.in_bounds(c)
                 and not self.base.blocked[c.y, c.x]
                 and c not in self.obstacles
-                and not any(u.position == c for u in self.units.values())
+                and not self._holders.get(c)
                 and c != msg.position
                 and c not in new
             ):
@@ -155,6 +159,9 @@ class World:
             rec.interval_s = gap if rec.interval_s is None else 0.8 * rec.interval_s + 0.2 * gap
         if rec.state is None or rec.state.position != msg.position:
             rec.moved_at = now
+            if rec.position is not None:
+                self._holders.get(rec.position, set()).discard(unit_id)
+            self._holders.setdefault(msg.position, set()).add(unit_id)
         rec.state = msg
         rec.state_at = now
         rec.rejoined = False
@@ -173,12 +180,9 @@ class World:
         return gone
 
     def _check_square_is_free_of_others(self, unit_id: str, msg: UnitState) -> None:
-        for other in self.units.values():
-            if (
-                other.id != unit_id
-                and other.connection != "offline"
-                and other.position == msg.position
-            ):
+        for holder in self._holders.get(msg.position, ()):
+            other = self.units[holder]
+            if holder != unit_id and other.connection != "offline":
                 raise ProtocolError(
                     f"position {list(msg.position)} is held by unit {other.id} (its latest "
                     "state is there): two units never share a square"
