@@ -64,6 +64,10 @@ class JobProgress:
     def _adopt_carried(self, units: list[UnitRecord], active: set[str]) -> None:
         # A unit that reports carrying a job we think is not picked up yet (it picked the item up
         # just before a coordinator restart, whose store still had the job waiting) has it.
+        # A finished job is never queued again: forgotten here, so the map stays as small as the
+        # queue (it grew with every job a lost unit ever left behind).
+        for job_id in [j for j in self.requeued_from if self._over(j)]:
+            del self.requeued_from[job_id]
         for u in units:
             st = u.state
             if st is None or st.job_id is None or u.id not in active:
@@ -79,6 +83,10 @@ class JobProgress:
                 continue
             del self.requeued_from[job.id]
             self.jobs.set(job, "loaded", unit=u.id, reason=None)
+
+    def _over(self, job_id: str) -> bool:
+        job = self.jobs.get(job_id)
+        return job is None or job.final
 
     def _progress_jobs(
         self, units: list[UnitRecord], active: set[str], now: float, step_no: int
