@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
 from typing import Any
+from urllib.parse import urlsplit
 
 from broker.gate import Gate
 from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
@@ -64,6 +65,13 @@ class BrokerSettings:
             if value is not None and not 0 <= value <= 65535:
                 raise ConfigError(f"broker {name} {value} is outside 0..65535")
         _ = self.limits  # a limit below 1: ConfigError in one clear line, now
+        for origin in self.ws_origins:
+            parts = urlsplit(origin)
+            if parts.scheme not in ("http", "https") or not parts.hostname or parts.path.strip("/"):
+                raise ConfigError(
+                    f"--ws-origin {origin!r} is not a web page's origin: give scheme://host[:port], "
+                    "e.g. https://fleet.example:5000"
+                )
         if self.accounts is None and not is_loopback(self.host):
             raise ConfigError(
                 f"listening on {self.host} lets anyone on that network drive the fleet: give "

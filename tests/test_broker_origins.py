@@ -14,6 +14,7 @@ import pytest
 from broker.embedded import BrokerSettings
 from broker.origins import refusal
 from dashboard.settings import DashboardSettings
+from gridfleet.errors import ConfigError
 from system.broker_thread import BrokerThread
 
 from support.browser import CHROMIUM, CHROMIUM_ARGS, EXCHANGE, blank_page_server
@@ -117,3 +118,10 @@ def test_chromium_pages_from_other_sites_are_refused(
         assert from_page(browser, f"http://evil.test:{port}/", url) == "closed"  # another site
         rebound = f"ws://evil.test:{ws_port}"  # DNS rebinding: evil.test now names 127.0.0.1
         assert from_page(browser, f"http://evil.test:{port}/", rebound) == "closed"
+
+
+@pytest.mark.parametrize("bad", ["fleet.lab:5000", "ftp://fleet.lab", "https://", "https://a/b"])
+def test_a_ws_origin_that_is_no_origin_is_refused_in_one_line(bad: str) -> None:
+    with pytest.raises(ConfigError, match="is not a web page's origin: give scheme://host"):
+        BrokerSettings(ws_origins=(bad,))
+    BrokerSettings(ws_origins=("https://fleet.lab:5000", "http://10.0.0.5"))  # origins are fine
