@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from broker.gate import Gate, owner_of
@@ -102,3 +104,30 @@ def test_the_longest_account_name_owns_a_client_id() -> None:
     assert owner_of("device-unit1", names) == "device-unit1"
     assert owner_of("device-unit2", names) == "device"
     assert owner_of("unit1x", names) is None
+
+
+def test_a_request_or_report_must_name_a_sender_its_account_owns() -> None:
+    gate, submit = Gate(ACCOUNTS), "gridfleet/v1/requests/clear_obstacles"
+
+    def signed(sender: object) -> bytes:
+        return json.dumps({"header": {"sender": sender}, "squares": None}).encode()
+
+    assert gate.refused_publish("operator", "operator-cli", submit, signed("operator-cli")) is None
+    refused = gate.refused_publish("operator", "operator-cli", submit, signed("coordinator"))
+    assert refused is not None and "'coordinator', an id account 'operator' does not own" in refused
+    # What cannot be read passes: the coordinator refuses it in words.
+    for unreadable in (b"{not json", b"[]", signed(7)):
+        assert gate.refused_publish("operator", "operator-cli", submit, unreadable) is None
+    assert gate.refused_publish("unit1", "unit1", "gridfleet/v1/units/unit1/state", b"x") is None
+
+
+def test_error_reports_are_a_burst_of_20_then_5_a_second_per_client() -> None:
+    clock = Clock()
+    gate, errors = Gate(ACCOUNTS, clock=clock), "gridfleet/v1/errors"
+    report = json.dumps({"header": {"sender": "unit1"}}).encode()
+    passed = [gate.refused_publish("unit1", "unit1", errors, report) is None for _ in range(30)]
+    assert passed == [True] * 20 + [False] * 10
+    assert gate.refused_publish("unit10", "unit10", errors, report.replace(b"1", b"10")) is None
+    clock.now += 1.0
+    passed = [gate.refused_publish("unit1", "unit1", errors, report) is None for _ in range(10)]
+    assert passed == [True] * 5 + [False] * 5

@@ -6,6 +6,7 @@ time) and compares the whole list of (topic, payload as parsed JSON, QoS, retain
 
 from __future__ import annotations
 
+import json
 import logging
 from typing import Any
 
@@ -1050,3 +1051,27 @@ def test_an_operator_clears_obstacles_that_are_gone_and_a_typo_changes_nothing(
     assert clear("c2", [[0, 1]])[-1][1]["accepted"] is True
     assert core.world.obstacles == set() and core.world.grid.is_free(Cell(0, 1))
     assert core.views.map_dirty  # the map view goes out with the next views
+
+
+@pytest.mark.parametrize(
+    ("squares", "words"),
+    [
+        ("[]", "field 'squares': List should have at least 1 item"),
+        ('"all"', "field 'squares'"),
+        ("[[-1, 0]]", "field 'squares"),
+    ],
+)
+def test_a_malformed_clear_obstacles_is_refused_in_words_and_clears_nothing(
+    core: CoordinatorCore, squares: str, words: str
+) -> None:
+    seen = Sensors(N="wall", E="free", S="obstacle", W="wall")
+    drive(core, state(Cell(0, 0), seq=1, obstacles=[Cell(0, 1)], sensors=seen))
+    head = json.dumps(
+        {"version": "1.4", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "op"}
+    )
+    raw = f'{{"header": {head}, "request_id": "c9", "reply_to": "op", "squares": {squares}}}'
+    out = published(core.on_message(TOPICS.request("clear_obstacles"), raw.encode(), 2.0))
+    replies = [body for topic, body, *_ in out if topic.endswith("/replies/op")]
+    assert len(replies) == 1 and replies[0]["accepted"] is False, out
+    assert replies[0]["reason"].startswith("ClearObstacles: ") and words in replies[0]["reason"]
+    assert core.world.obstacles == {Cell(0, 1)}

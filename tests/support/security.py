@@ -28,9 +28,9 @@ def check_strangers_are_refused(url: str, accounts: Accounts, name: str) -> None
 
 
 def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> None:
-    """unit1's forged state (retained) and order for unit2 reach nobody, nor does a ghost unit
-    without an account of its own (with accounts on, a unit exists only if its account does);
-    unit1's own state does."""
+    """unit1's forged state (retained) and order for unit2, and a request only people may send,
+    reach nobody, nor does a ghost unit without an account of its own (with accounts on, a unit
+    exists only if its account does); unit1's own state does."""
     t = topics
     with (
         MqttProbe(login(url, accounts, "coordinator")) as coordinator,
@@ -39,12 +39,14 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
     ):
         coordinator.subscribe(t.all_units("state"))
         coordinator.subscribe(t.all_units("factsheet"))
+        coordinator.subscribe(t.all_requests)
         unit2.subscribe(t.unit("order", "unit2"))
         ghost = b'{"forged": "a ghost unit"}'
         unit1.publish(t.unit("factsheet", "ghost"), ghost, retain=True)
         unit1.publish(t.unit("state", "ghost"), ghost, retain=True)
         unit1.publish(t.unit("state", "unit2"), b'{"forged": true}', retain=True)
         unit1.publish(t.unit("order", "unit2"), b'{"forged": true}')
+        unit1.publish(t.request("clear_obstacles"), b'{"forged": "a cleared map"}')  # people only
         unit1.publish(t.unit("state", "unit1"), b'{"own": true}', retain=True)
         # Its own state arrives; published after the forgeries, so they had their chance.
         wait_for(lambda: coordinator.received(t.unit("state", "unit1")), what="unit1's own state")
@@ -52,6 +54,7 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         assert coordinator.received(t.unit("state", "ghost")) == []
         assert coordinator.received(t.unit("factsheet", "ghost")) == []
         assert unit2.received(t.unit("order", "unit2")) == []
+        assert coordinator.received(t.request("clear_obstacles")) == []
     with MqttProbe(login(url, accounts, "coordinator")) as late:
         late.subscribe(t.all_units("state"))
         wait_for(lambda: late.received(t.unit("state", "unit1")), what="the retained own state")

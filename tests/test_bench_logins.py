@@ -1,0 +1,38 @@
+"""`gridfleet bench logins`: its mistakes are one line, and a small run reports every figure."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def bench(*args: str) -> subprocess.CompletedProcess[str]:
+    command = [sys.executable, "-m", "system", "bench", "logins", *args]
+    return subprocess.run(command, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize(
+    ("args", "words"),
+    [
+        (["--flood", "0"], "--units, --stops, --phases and --flood must be positive"),
+        (["--units", "-1"], "must be positive"),
+        (["--broker", "mqtt://127.0.0.1:1"], "--broker and --accounts go together"),
+    ],
+)
+def test_mistakes_are_one_line(args: list[str], words: str) -> None:
+    done = bench(*args)
+    assert done.returncode == 2 and done.stderr.strip() == done.stderr.strip().splitlines()[0]
+    assert words in done.stderr
+
+
+def test_a_small_run_reports_a_quiet_and_a_flood_phase() -> None:
+    done = bench("--units", "3", "--stops", "2", "--phases", "1", "--flood", "20", "--json")
+    assert done.returncode == 0, done.stderr[-2000:]
+    quiet, flood = json.loads(done.stdout)
+    assert quiet["flood_per_s"] == 0 and flood["flood_per_s"] > 0
+    assert flood["refused"] > 0  # every wrong login is refused, at once or after its budget
+    for phase in (quiet, flood):  # the stop reached every unit (60 s stands for never)
+        assert phase["stop_max_ms"] < 60_000, phase
