@@ -38,6 +38,7 @@ log = logging.getLogger("gridfleet.broker")
 
 
 _TAKEOVER_WAIT_S = 5.0  # how long a newcomer waits for the connection it displaces to end
+_HANDLER_STOP_S = 1.0  # how long a connection's handler may take to stop before it is hung up on
 _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out
 _YIELD_EVERY = 64  # messages routed in a row before other tasks get a turn
 _BROADCAST_STOP_S = 5.0  # at shutdown, how long deliveries still under way may take
@@ -446,6 +447,20 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         if ended is not None:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(ended.wait(), _TAKEOVER_WAIT_S)
+
+    async def _stop_handler(self, handler: Any) -> None:
+        """amqtt's, made sure to end: a handler that has not stopped after _HANDLER_STOP_S has its
+        connection hung up on, which ends its reader."""
+        # On Python 3.11 asyncio.wait_for loses a cancellation that arrives in the same turn as the
+        # data it waits for; amqtt's reader loop (a wait_for per packet) then reads on and its
+        # handler.stop() waits for that loop for good: the broker's shutdown hung, holding its
+        # ports, on a connection busy at that moment (seen about once in ten restarts under load).
+        stopping = asyncio.ensure_future(super()._stop_handler(handler))
+        done, _ = await asyncio.wait({stopping}, timeout=_HANDLER_STOP_S)
+        if not done and isinstance(handler.reader, _GuardedReader):
+            log.debug("broker: a connection's handler did not stop: hanging up on it")
+            handler.reader.hang_up()
+        await stopping
 
     async def _handle_client_session(
         self,

@@ -225,18 +225,28 @@ class EmbeddedBroker:
 
     async def stop(self) -> None:
         """Close every connection and the listeners."""
-        if self._broker is not None:
-            try:
-                await asyncio.wait_for(self._broker.shutdown(), SHUTDOWN_S)
-                log.info("broker stopped")
-            except TimeoutError:
-                self.abandoned = True
-                log.warning(
-                    "broker stopped without draining: its shutdown was not done after %g s "
-                    "(messages still queued for clients are dropped)",
-                    SHUTDOWN_S,
-                )
-            self._broker = None
+        if self._broker is None:
+            return
+        broker, self._broker = self._broker, None
+        # asyncio.wait, not wait_for: wait_for would wait on for a shutdown that ignores its cancel.
+        shutdown = asyncio.ensure_future(broker.shutdown())
+        done, _ = await asyncio.wait({shutdown}, timeout=SHUTDOWN_S)
+        if done and shutdown.exception() is None:
+            log.info("broker stopped")
+            return
+        self.abandoned = True
+        shutdown.cancel()
+        for server in broker._servers.values():  # the ports at least are let go
+            if server.instance is not None:
+                server.instance.close()
+        why = (
+            f"not done after {SHUTDOWN_S:g} s" if not done else f"failed: {shutdown.exception()!r}"
+        )
+        log.warning(
+            "broker stopped without draining: its shutdown was %s "
+            "(messages still queued for clients are dropped)",
+            why,
+        )
 
     async def __aenter__(self) -> EmbeddedBroker:
         await self.start()

@@ -11,6 +11,15 @@ from types import TracebackType
 from broker.embedded import BrokerSettings, EmbeddedBroker
 
 
+async def _end_leftovers() -> None:
+    """Cancel every other task of this loop and let them end."""
+    others = asyncio.all_tasks() - {asyncio.current_task()}
+    for task in others:
+        task.cancel()
+    if others:
+        await asyncio.wait(others, timeout=2.0)
+
+
 class BrokerThread:
     """Runs EmbeddedBroker in its own thread and event loop; `with` starts and stops it."""
 
@@ -71,6 +80,8 @@ class BrokerThread:
             return
         fut = asyncio.run_coroutine_threadsafe(self._broker.stop(), self._loop)
         fut.result(timeout)
+        # What amqtt left running would be collected after the loop is closed, each complaining.
+        asyncio.run_coroutine_threadsafe(_end_leftovers(), self._loop).result(timeout)
         self._loop.call_soon_threadsafe(self._loop.stop)
         if self._thread is not None:
             self._thread.join(timeout)

@@ -3,9 +3,10 @@ per test."""
 
 from __future__ import annotations
 
+import gc
 import os
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from pathlib import Path
 
 import pytest
@@ -50,6 +51,24 @@ def fresh_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BrokerThr
     """A broker of this test's own, for tests that stop or restart it."""
     with _start_broker(tmp_path_factory) as running:
         yield running  # type: ignore[misc]
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(
+    item: pytest.Item, call: pytest.CallInfo[None]
+) -> Generator[None, pytest.TestReport, pytest.TestReport]:
+    """A failure's report is written with the garbage collector paused."""
+    # On CPython 3.11 (gh-106905) an ast.parse run by a finaliser inside pytest's own ast.parse of
+    # the failing source (a coroutine of a closed loop, collected then, formats its traceback)
+    # raised "AST constructor recursion depth mismatch": an INTERNALERROR ended the whole run and
+    # hid the failure it was reporting.
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        return (yield)
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import re
 import shutil
@@ -231,6 +232,55 @@ async def test_a_broker_whose_shutdown_hangs_still_stops_within_its_bound(
         assert "stopped without draining" in caplog.text
     finally:
         await real_shutdown()
+
+
+async def test_a_shutdown_that_ignores_its_cancel_still_lets_the_ports_go(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # asyncio.wait_for waits for the cancelled shutdown to end: one that never ends held the stop
+    # (and its ports) for good, so a restart on the same port failed.
+    monkeypatch.setattr(embedded, "SHUTDOWN_S", 0.2)
+    broker = embedded.EmbeddedBroker(BrokerSettings(port=0, ws_port=None))
+    await broker.start()
+    port = broker.port
+    release = asyncio.Event()
+
+    async def deaf_to_cancel() -> None:
+        while not release.is_set():
+            with contextlib.suppress(asyncio.CancelledError):
+                await release.wait()
+
+    inner, broker._broker.shutdown = broker._broker, deaf_to_cancel
+    try:
+        await asyncio.wait_for(broker.stop(), 5)
+        assert broker.abandoned and "not done after 0.2 s" in caplog.text
+        again = embedded.EmbeddedBroker(BrokerSettings(port=port or 0, ws_port=None))
+        await again.start()  # the port was let go
+        await again.stop()
+    finally:
+        release.set()
+        del inner.shutdown
+        await inner.shutdown()
+
+
+async def test_a_connection_whose_reader_lost_its_cancel_does_not_hold_up_the_shutdown() -> None:
+    # Python 3.11's wait_for can lose a cancel that comes as a packet does; amqtt's handler.stop()
+    # then waited for its reader loop for good. Here the cancel is lost every time.
+    broker = embedded.EmbeddedBroker(BrokerSettings(port=0, ws_port=None))
+    await broker.start()
+    reader, writer = await asyncio.open_connection("127.0.0.1", broker.port)
+    connect = b"\x00\x04MQTT\x04\x02\x00\x3c" + b"\x00\x04deaf"  # clean session, keep-alive 60
+    writer.write(_mqtt_packet(0x10, connect))
+    assert (await asyncio.wait_for(reader.readexactly(4), 5))[:2] == b"\x20\x02"  # CONNACK
+    amqtt = broker._broker
+    ((_, handler),) = amqtt._sessions.values()
+    handler._reader_task.cancel = lambda *_: False
+    try:
+        await asyncio.wait_for(broker.stop(), 4)
+        assert not broker.abandoned  # amqtt's own shutdown ended, within its bound
+        assert await asyncio.wait_for(reader.read(), 5) == b""  # and the client was let go
+    finally:
+        writer.close()
 
 
 def _mqtt_packet(kind: int, body: bytes) -> bytes:
