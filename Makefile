@@ -46,21 +46,26 @@ lint: $(STAMP)
 typecheck: $(STAMP)
 	$(BIN)/mypy
 
+# Tests run in parallel, each on its own ports, folders and topic root (most of their time is spent
+# waiting on brokers, units and steps, so more workers than cores pay off). TEST_WORKERS=0: one lane.
+TEST_WORKERS ?= 4
+XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist worksteal)
+
 # The edit-test loop: every test but the browser, soak and slow end-to-end ones (no lint).
 test-fast: $(STAMP)
-	$(BIN)/pytest -q -m "not browser and not soak and not slow"
+	$(BIN)/pytest -q $(XDIST) -m "not browser and not soak and not slow"
 
 # The one-minute chaos soak alone (it runs in `make test` too).
 soak: $(STAMP)
 	$(BIN)/pytest -m soak
 
 pytest: $(STAMP)
-	$(BIN)/pytest
+	$(BIN)/pytest $(XDIST)
 
 # Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
 # (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
 test-mosquitto: system-deps $(STAMP)
-	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest
+	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi

@@ -387,6 +387,7 @@ def test_stop_button_engages_and_hold_releases(
     page = dash.page
     estop_topic = topics.fleet("estop")
     expect(page.locator("#release")).to_be_hidden()
+    stop_box = page.locator("#stop").bounding_box()
     page.locator("#stop").click()
     seen = probe.wait(estop_topic, lambda m: decode_estop(m.payload).engaged)
     signal = decode_estop(seen.payload)
@@ -409,9 +410,17 @@ def test_stop_button_engages_and_hold_releases(
         }""",
     )
     dash.screenshot("dashboard-stopped")
+    # STOP stays under the finger that pressed it, and neither button moves as the status beside
+    # them grows: a held release was cancelled when "hold to release" slid from under the pointer.
+    release = page.locator("#release")
+    release_box = release.bounding_box()
+    assert page.locator("#stop").bounding_box() == stop_box
+    page.evaluate(
+        "document.querySelector('#coord').textContent += ' · 250 ms a step (set 100 ms) · more'"
+    )
+    assert (page.locator("#stop").bounding_box(), release.bounding_box()) == (stop_box, release_box)
 
     # A short press does not release; holding for 1.5 s does.
-    release = page.locator("#release")
     release.hover()
     page.mouse.down()
     page.mouse.up()
