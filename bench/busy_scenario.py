@@ -1,6 +1,6 @@
 """A busy scenario for `gridfleet simulate`: the system bench's map and units, plus random jobs.
 
-`python -m bench.busy_scenario DIR [--units 16] [--jobs 40] [--seed 1]` writes `DIR/bench.toml`
+`python -m gridfleet.bench.busy_scenario DIR [--units 16] [--jobs 40] [--seed 1]` writes `DIR/bench.toml`
 (and its map) for the overload run of bench/README.md (requests under a loaded broker).
 """
 
@@ -10,7 +10,7 @@ import argparse
 import random
 from pathlib import Path
 
-from bench.system_scenario import CAPACITY_KG, make_scenario
+from gridfleet.bench.system_scenario import CAPACITY_KG, make_scenario
 from gridfleet.scenario import Scenario, load_scenario
 
 

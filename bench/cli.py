@@ -7,15 +7,24 @@ import importlib
 
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
 BENCHES: dict[str, tuple[str, str]] = {
-    "planner": ("bench.planner_cli", "the planner alone on public MAPF instances (no broker)"),
-    "system": ("bench.system_cli", "the whole system over a real broker: throughput, stop latency"),
+    "planner": (
+        "gridfleet.bench.planner_cli",
+        "the planner alone on public MAPF instances (no broker)",
+    ),
+    "system": (
+        "gridfleet.bench.system_cli",
+        "the whole system over a real broker: throughput, stop latency",
+    ),
     "page": (
-        "bench.page_cli",
+        "gridfleet.bench.page_cli",
         "the dashboard in Chromium at fleet scale: frame budget, fleet cost",
     ),
-    "soak": ("bench.soak_cli", "a chaos soak: faults injected while jobs flow, safety checked"),
+    "soak": (
+        "gridfleet.bench.soak_cli",
+        "a chaos soak: faults injected while jobs flow, safety checked",
+    ),
     "logins": (
-        "bench.logins",
+        "gridfleet.bench.logins",
         "the stop's latency while strangers flood the broker with wrong passwords",
     ),
 }

@@ -106,7 +106,7 @@ def _broker(args: argparse.Namespace) -> Iterator[tuple[str, Accounts]]:
     with tempfile.TemporaryDirectory(prefix="gridfleet-bench-logins-") as tmp:
         path = Path(tmp) / "accounts.toml"
         write_accounts(accounts, path)
-        command = [sys.executable, "-m", "system", "broker", "--port", "0", "--no-ws"]
+        command = [sys.executable, "-m", "gridfleet", "broker", "--port", "0", "--no-ws"]
         command += ["--accounts", str(path), "--root", args.root]
         errors = (Path(tmp) / "broker.log").open("w+")
         proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=errors, text=True)

@@ -27,7 +27,7 @@ import paho.mqtt.client as mqtt
 import psutil
 from paho.mqtt.enums import CallbackAPIVersion
 
-from bench.busy_scenario import make_busy
+from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.errors import ConfigError
 from gridfleet.ports import free_port
 from gridfleet.protocol import TOPICS, JobsView, Routes, Topics, decode
@@ -156,7 +156,7 @@ def running_fleet(units: int, jobs: int, step: float, seed: int) -> Iterator[tup
     with tempfile.TemporaryDirectory(prefix="gridfleet-bench-page-") as tmp:
         scenario = make_busy(units, jobs, seed, Path(tmp))
         mqtt_port, ws_port, web_port = free_port(), free_port(), free_port()
-        cmd = [sys.executable, "-m", "system.cli", "up", "--demo", "--scenario"]
+        cmd = [sys.executable, "-m", "gridfleet", "up", "--demo", "--scenario"]
         cmd += [str(scenario.path), "--step", str(step), "--mqtt-port", str(mqtt_port)]
         cmd += ["--ws-port", str(ws_port), "--port", str(web_port), "--db", f"{tmp}/jobs.db"]
         log = open(f"{tmp}/up.log", "wb")  # noqa: SIM115 - closed below, after the process

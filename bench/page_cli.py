@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from bench.page import report, run_page_bench
+from gridfleet.bench.page import report, run_page_bench
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
 

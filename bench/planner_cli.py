@@ -11,16 +11,16 @@ from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
-from bench.anchors import find_anchors, lifelong_instances, load_instance, load_scen
-from bench.plot import plot_report
-from bench.runs import (
+from gridfleet.bench.anchors import find_anchors, lifelong_instances, load_instance, load_scen
+from gridfleet.bench.plot import plot_report
+from gridfleet.bench.runs import (
     LifelongResult,
     OneShotResult,
     Timing,
     run_lifelong,
     run_one_shot,
 )
-from bench.scale import run_scale
+from gridfleet.bench.scale import run_scale
 from gridfleet.errors import ConfigError
 from gridfleet.maps import load_map
 

@@ -16,10 +16,10 @@ from typing import Protocol
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 
-from bench.anchors import LifelongInstance, ScenAgent
-from coordinator.allocation import JobRequest, UnitSlot, allocate
-from coordinator.planner import AgentSpec, Planner
-from coordinator.validate import validate_step
+from gridfleet.bench.anchors import LifelongInstance, ScenAgent
+from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
+from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.validate import validate_step
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency
 

@@ -15,9 +15,9 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from bench.runs import CheckedPlanner, Clock, Timing, largest_region
-from coordinator.allocation import JobRequest, UnitSlot, allocate
-from coordinator.planner import AgentSpec, Planner
+from gridfleet.bench.runs import CheckedPlanner, Clock, Timing, largest_region
+from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
+from gridfleet.coordinator.planner import AgentSpec, Planner
 from gridfleet.grid import Cell, GridMap
 
 ALLOCATE_AT_MOST = 256  # idle units given jobs in one tick (the assignment is cubic in this)

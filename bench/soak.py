@@ -27,7 +27,7 @@ from typing import Any, TextIO
 
 import aiomqtt
 
-from bench.soak_check import (
+from gridfleet.bench.soak_check import (
     FINAL,
     Disturbed,
     Event,
@@ -38,16 +38,16 @@ from bench.soak_check import (
     Truth,
     check,
 )
-from bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
-from bench.soak_listen import SoakListener
-from bench.soak_proxy import FaultyProxy
-from bench.soak_scenario import make_soak_scenario
+from gridfleet.bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
+from gridfleet.bench.soak_listen import SoakListener
+from gridfleet.bench.soak_proxy import FaultyProxy
+from gridfleet.bench.soak_scenario import make_soak_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
-from system.assembly import SystemSpec, cli, start_broker_process
-from system.supervisor import Child, ChildSpec, Supervisor
+from gridfleet.system.assembly import SystemSpec, cli, start_broker_process
+from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 
 RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
 DEVICE = "soak-dev"

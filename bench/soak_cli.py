@@ -10,8 +10,8 @@ import os
 import sys
 from pathlib import Path
 
-from bench.soak import SoakConfig, SoakResult, run_soak
-from bench.soak_faults import FAMILIES, parse_families
+from gridfleet.bench.soak import SoakConfig, SoakResult, run_soak
+from gridfleet.bench.soak_faults import FAMILIES, parse_families
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 

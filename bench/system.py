@@ -26,11 +26,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from bench.system_broker import check_broker
-from bench.system_monitor import BenchMonitor
-from bench.system_procs import ProcessWatch
-from bench.system_result import SystemResult
-from bench.system_scenario import make_scenario
+from gridfleet.bench.system_broker import check_broker
+from gridfleet.bench.system_monitor import BenchMonitor
+from gridfleet.bench.system_procs import ProcessWatch
+from gridfleet.bench.system_result import SystemResult
+from gridfleet.bench.system_scenario import make_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
@@ -38,17 +38,17 @@ from gridfleet.grid import Cell
 from gridfleet.heap import freeze_after_start
 from gridfleet.paths import DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
+from gridfleet.robots.shards import workers_for
 from gridfleet.scenario import Scenario
+from gridfleet.system.assembly import Assembly, SystemSpec
+from gridfleet.system.feed import random_job
+from gridfleet.system.operator import Operator, operator_session
+from gridfleet.system.supervisor import Supervisor
+from gridfleet.system.threads import ServiceThread, world_of
 from gridfleet.tasks import cancel_and_wait
-from robots.shards import workers_for
-from system.assembly import Assembly, SystemSpec
-from system.feed import random_job
-from system.operator import Operator, operator_session
-from system.supervisor import Supervisor
-from system.threads import ServiceThread, world_of
 
 if TYPE_CHECKING:
-    from robots.fleet import Fleet
+    from gridfleet.robots.fleet import Fleet
 
 Deploy = Literal["processes", "threads"]
 TRUTH_TAIL = 1 << 20  # bytes read from the truth file's end: its last lines, whatever the fleet

@@ -10,8 +10,8 @@ import logging
 import sys
 from typing import Any, TextIO
 
-from bench.system import run_system
-from bench.system_result import SystemResult, summarise
+from gridfleet.bench.system import run_system
+from gridfleet.bench.system_result import SystemResult, summarise
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.tasks import stop_on_signals

@@ -12,7 +12,7 @@ import aiomqtt
 
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import TOPICS, Topics, UnitState
-from system.monitor import FleetMonitor
+from gridfleet.system.monitor import FleetMonitor
 
 
 @dataclass(frozen=True)

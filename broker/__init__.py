@@ -1,5 +1,5 @@
 """The embedded MQTT broker (amqtt) that carries every gridfleet message by default."""
 
-from broker.embedded import BrokerSettings, EmbeddedBroker
+from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker
 
 __all__ = ["BrokerSettings", "EmbeddedBroker"]

@@ -28,11 +28,11 @@ from amqtt.mqtt.protocol.broker_handler import BrokerProtocolHandler
 from amqtt.mqtt.publish import PublishPacket
 from amqtt.utils import gen_client_id
 
-from broker import origins
-from broker.gate import Gate
-from broker.limits import Limits
-from broker.quiet import GONE, quiet_normal_closes
-from broker.routing import Subscriptions
+from gridfleet.broker import origins
+from gridfleet.broker.gate import Gate
+from gridfleet.broker.limits import Limits
+from gridfleet.broker.quiet import GONE, quiet_normal_closes
+from gridfleet.broker.routing import Subscriptions
 
 log = logging.getLogger("gridfleet.broker")
 

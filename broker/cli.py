@@ -9,8 +9,8 @@ import os
 import sys
 from pathlib import Path
 
-from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.accounts import load_accounts
+from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.heap import freeze_after_start
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.tasks import stop_on_signals

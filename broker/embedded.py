@@ -11,10 +11,10 @@ from types import TracebackType
 from typing import Any
 from urllib.parse import urlsplit
 
-from broker.gate import Gate
-from broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
-from broker.tls import amqtt_listener_context
 from gridfleet.accounts import Accounts, rules
+from gridfleet.broker.gate import Gate
+from gridfleet.broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
+from gridfleet.broker.tls import amqtt_listener_context
 from gridfleet.config import is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
@@ -185,7 +185,9 @@ class EmbeddedBroker:
 
     async def start(self) -> None:
         """Bind the listeners; raises ConfigError when a port cannot be bound."""
-        from broker.amqtt_broker import make_broker  # imported late: amqtt is slow to import
+        from gridfleet.broker.amqtt_broker import (
+            make_broker,  # imported late: amqtt is slow to import
+        )
 
         s = self.settings
         self._broker = make_broker(

@@ -9,8 +9,8 @@ import os
 import secrets
 from pathlib import Path
 
-from broker.limits import Limits
 from gridfleet.accounts import Accounts, rules
+from gridfleet.broker.limits import Limits
 from gridfleet.protocol import Topics
 
 DEFAULT_LIMITS = Limits()

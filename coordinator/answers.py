@@ -15,7 +15,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from coordinator.requests import Outcome
+from gridfleet.coordinator.requests import Outcome
 from gridfleet.protocol.messages import Request
 
 ANSWERS_KEPT = 10_000  # several minutes of requests at the rates a busy fleet sees

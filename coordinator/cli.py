@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import asyncio
 
-from coordinator.service import Coordinator
-from coordinator.store import default_db_path
 from gridfleet.config import check_step
+from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.store import default_db_path
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.options import add_common, broker_url

@@ -29,21 +29,21 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
-from coordinator import inbound, requests
-from coordinator.answers import Answers
-from coordinator.effects import Effects, Messages, Status
-from coordinator.events import EventLog
-from coordinator.inbound import Arrival, Request, StopPayload
-from coordinator.jobs import Job, JobBook
-from coordinator.moves import Moves
-from coordinator.orders import OrderPlan, Orders, heartbeat_s
-from coordinator.pace import StepRate
-from coordinator.planner import Planner
-from coordinator.progress import JobProgress
-from coordinator.stop import FleetStop
-from coordinator.views import Views
-from coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
-from coordinator.world import World
+from gridfleet.coordinator import inbound, requests
+from gridfleet.coordinator.answers import Answers
+from gridfleet.coordinator.effects import Effects, Messages, Status
+from gridfleet.coordinator.events import EventLog
+from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
+from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.moves import Moves
+from gridfleet.coordinator.orders import OrderPlan, Orders, heartbeat_s
+from gridfleet.coordinator.pace import StepRate
+from gridfleet.coordinator.planner import Planner
+from gridfleet.coordinator.progress import JobProgress
+from gridfleet.coordinator.stop import FleetStop
+from gridfleet.coordinator.views import Views
+from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
+from gridfleet.coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound

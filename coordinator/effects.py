@@ -7,12 +7,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from coordinator.answers import Answer
-from coordinator.jobs import Job, JobBook
-from coordinator.orders import OrderPlan
-from coordinator.requests import Outcome
-from coordinator.world import World
 from gridfleet import __version__
+from gridfleet.coordinator.answers import Answer
+from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.orders import OrderPlan
+from gridfleet.coordinator.requests import Outcome
+from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     CoordinatorStatus,

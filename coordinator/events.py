@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from datetime import datetime
 
-from coordinator.jobs import Job
+from gridfleet.coordinator.jobs import Job
 from gridfleet.protocol import EventEntry, EventsView, Header
 from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import MAX_EVENTS, EventKind

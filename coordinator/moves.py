@@ -12,8 +12,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from coordinator.planner import AgentSpec, Planner
-from coordinator.world import UnitRecord
+from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import Cell
 
 FOLLOW_PATIENCE = 3  # coordinator steps a follower waits for its leader to leave before re-planning

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from coordinator.world import UnitRecord, World
+from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Action, UnitState
 from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS

@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from operator import itemgetter
 
-from coordinator.pibt_swap import swap_partner
+from gridfleet.coordinator.pibt_swap import swap_partner
 from gridfleet.grid import GridMap
 
 Index = int  # a square as a flat index: y * width + x

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from coordinator.pibt import PIBT, Index
+    from gridfleet.coordinator.pibt import PIBT, Index
 
 
 def swap_partner(s: PIBT, i: int, best: Index) -> int | None:

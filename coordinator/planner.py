@@ -22,10 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coordinator.guidance import MAX_SQUARES, Guidance
-from coordinator.parking import parking_square
-from coordinator.pibt import NONE, PIBT, neighbour_table
-from coordinator.unjam import Unjam
+from gridfleet.coordinator.guidance import MAX_SQUARES, Guidance
+from gridfleet.coordinator.parking import parking_square
+from gridfleet.coordinator.pibt import NONE, PIBT, neighbour_table
+from gridfleet.coordinator.unjam import Unjam
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance
 

@@ -9,10 +9,16 @@ last seen. A unit that comes back with an item of a job that is over puts it bac
 
 from __future__ import annotations
 
-from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason, reach_reason
-from coordinator.jobs import CARRYING_STATES, Job, JobBook
-from coordinator.returns import stray_items
-from coordinator.world import UnitRecord, World
+from gridfleet.coordinator.allocation import (
+    JobRequest,
+    UnitSlot,
+    allocate,
+    capacity_reason,
+    reach_reason,
+)
+from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
+from gridfleet.coordinator.returns import stray_items
+from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Action

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from coordinator.allocation import capacity_reason, reach_reason
-from coordinator.jobs import CARRYING_STATES, Job, JobBook
-from coordinator.world import World
+from gridfleet.coordinator.allocation import capacity_reason, reach_reason
+from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
+from gridfleet.coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache

@@ -9,8 +9,8 @@ stands; then it is free.
 
 from __future__ import annotations
 
-from coordinator.jobs import JobBook
-from coordinator.world import UnitRecord
+from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import GridMap
 from gridfleet.protocol import Action
 

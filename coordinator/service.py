@@ -15,11 +15,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from coordinator.core import CoordinatorCore
-from coordinator.effects import Effects
-from coordinator.jobs import JobBook
-from coordinator.store import JobStore, default_db_path
-from coordinator.world import World
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.effects import Effects
+from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.store import JobStore, default_db_path
+from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
 from gridfleet.protocol import HeaderStamper, Topics

@@ -13,8 +13,8 @@ from typing import get_args
 
 import platformdirs
 
-from coordinator.answers import ANSWERS_KEPT, Answer
-from coordinator.jobs import Job
+from gridfleet.coordinator.answers import ANSWERS_KEPT, Answer
+from gridfleet.coordinator.jobs import Job
 from gridfleet.protocol import EventEntry
 from gridfleet.protocol.messages import MAX_EVENTS, UnitControlState
 

@@ -18,8 +18,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from coordinator.lacam import Config, LaCAM, NoSolution
-from coordinator.pibt import NONE, Index
+from gridfleet.coordinator.lacam import Config, LaCAM, NoSolution
+from gridfleet.coordinator.pibt import NONE, Index
 
 REVISITS = 2  # a configuration entered this many times again means a livelock
 STALL = 64  # ...and so do this many steps in a row without getting nearer the targets

@@ -10,8 +10,8 @@ from __future__ import annotations
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 
-from coordinator.jobs import Job, JobBook
-from coordinator.world import UnitRecord, World
+from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import WaitCode

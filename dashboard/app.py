@@ -5,15 +5,15 @@ from __future__ import annotations
 
 from flask import Flask, Response, jsonify, request, send_from_directory
 
-from dashboard.auth import current_user, install_login
-from dashboard.settings import (
+from gridfleet.config import names_this_machine
+from gridfleet.dashboard.auth import current_user, install_login
+from gridfleet.dashboard.settings import (
     INSTALL_HINT,
     LOGIN_FIRST,
     PACKAGE_DIR,
     DashboardSettings,
     settings_payload,
 )
-from gridfleet.config import names_this_machine
 
 STATIC = PACKAGE_DIR / "static"
 

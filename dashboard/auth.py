@@ -7,7 +7,8 @@ from datetime import timedelta
 
 from flask import Flask, Response, jsonify, request, session
 
-from dashboard.login import (
+from gridfleet.accounts import Account
+from gridfleet.dashboard.login import (
     SESSION_S,
     LoginRefused,
     SessionBook,
@@ -15,8 +16,7 @@ from dashboard.login import (
     session_account,
     session_tag,
 )
-from dashboard.settings import DashboardSettings
-from gridfleet.accounts import Account
+from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.throttle import LoginThrottle
 
 NOT_JSON = 'send {"username": …, "password": …} as JSON'

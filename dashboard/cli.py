@@ -10,11 +10,11 @@ import ssl
 from collections.abc import Mapping
 from pathlib import Path
 
-from dashboard.app import create_app
-from dashboard.server import DashboardServer
-from dashboard.settings import INSTALL_HINT, DashboardSettings
 from gridfleet.accounts import load_accounts
 from gridfleet.config import DEFAULT_WS_URL, is_loopback
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.server import DashboardServer
+from gridfleet.dashboard.settings import INSTALL_HINT, DashboardSettings
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.maps import load_map

@@ -8,9 +8,9 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
 
-from dashboard.login import LOGIN_ROLES
 from gridfleet.accounts import Account, Accounts
 from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.dashboard.login import LOGIN_ROLES
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.protocol import Topics, validate_id

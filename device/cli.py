@@ -6,8 +6,8 @@ import argparse
 import asyncio
 import sys
 
-from device.shell import VirtualDevice
-from device.terminal import Terminal
+from gridfleet.device.shell import VirtualDevice
+from gridfleet.device.terminal import Terminal
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.options import add_common, broker_url
 from gridfleet.tasks import stop_on_signals

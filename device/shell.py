@@ -8,7 +8,7 @@ import logging
 import time
 from collections.abc import Callable
 
-from device.logic import DeviceLogic, Refusal
+from gridfleet.device.logic import DeviceLogic, Refusal
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import Leds, Topics

@@ -12,7 +12,7 @@ import tty
 from collections.abc import Callable
 from typing import TextIO
 
-from device.logic import DeviceLogic
+from gridfleet.device.logic import DeviceLogic
 
 log = logging.getLogger("gridfleet.device")
 

@@ -12,11 +12,11 @@ from gridfleet.errors import ConfigError
 from gridfleet.heap import freeze_after_start
 from gridfleet.options import accounts_of, add_common
 from gridfleet.protocol.constants import DEFAULT_STEP_S
+from gridfleet.robots.fleet import Fleet
+from gridfleet.robots.shards import run_sharded
+from gridfleet.robots.truth import write_truth
 from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
-from robots.fleet import Fleet
-from robots.shards import run_sharded
-from robots.truth import write_truth
 
 log = logging.getLogger("robots")
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol.messages import Action, Order
-from robots.decisions import THING, Intent, Readings, Verdict, sq
+from gridfleet.robots.decisions import THING, Intent, Readings, Verdict, sq
 
 
 def check_route(grid: GridMap, here: Cell, released: list[Cell]) -> str | None:

@@ -31,7 +31,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
-from robots.unit import Move, Sense, UnitLogic
+from gridfleet.robots.unit import Move, Sense, UnitLogic
 
 
 class UnitCore:

@@ -13,11 +13,11 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
+from gridfleet.robots.runner import UnitRunner
+from gridfleet.robots.saved import Saved, SavedUnits
+from gridfleet.robots.unit import Mode, UnitLogic
+from gridfleet.robots.world import SimulatedWorld, WorldSim
 from gridfleet.scenario import Scenario, with_units
-from robots.runner import UnitRunner
-from robots.saved import Saved, SavedUnits
-from robots.unit import Mode, UnitLogic
-from robots.world import SimulatedWorld, WorldSim
 
 # A process's units step in groups of at most this many, spread over the step period: each unit
 # keeps a clock of its own, as a real one does, so a process's states do not all leave in one

@@ -13,7 +13,7 @@ import zlib
 
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, distance_field, route
-from robots.decisions import THING, Intent, Readings, sq
+from gridfleet.robots.decisions import THING, Intent, Readings, sq
 
 AVOID_STEPS = 4  # how long a standalone unit keeps out of a square where a unit blocked it
 PAUSE_STEPS = 3  # how long a unit that stepped aside stays there to let the other pass

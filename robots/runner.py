@@ -14,10 +14,10 @@ from collections.abc import Callable, Sequence
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import Topics
+from gridfleet.robots.core import UnitCore
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.world import SimulatedWorld
 from gridfleet.tasks import cancel_and_wait
-from robots.core import UnitCore
-from robots.unit import UnitLogic
-from robots.world import SimulatedWorld
 
 
 class UnitRunner:

@@ -22,10 +22,10 @@ from pathlib import Path
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.heap import freeze_after_start
 from gridfleet.lifeline import PARENT_ENV, die_with_parent
+from gridfleet.robots.shared_world import SharedHandle, SharedWorld
+from gridfleet.robots.truth import write_truth
 from gridfleet.scenario import load_scenario, with_units
 from gridfleet.tasks import stop_on_signals
-from robots.shared_world import SharedHandle, SharedWorld
-from robots.truth import write_truth
 
 log = logging.getLogger("robots")
 STOP_S = 15.0  # a worker still running this long after SIGTERM is killed
@@ -67,7 +67,7 @@ def _worker(spec: WorkerSpec) -> None:
         level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
     from gridfleet.accounts import load_accounts
-    from robots.fleet import Fleet
+    from gridfleet.robots.fleet import Fleet
 
     scenario = load_scenario(spec.scenario)
     world = SharedWorld.attach(scenario, spec.world)

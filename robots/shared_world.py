@@ -19,8 +19,8 @@ import numpy as np
 
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.robots.world import Sensing
 from gridfleet.scenario import Scenario, with_units
-from robots.world import Sensing
 
 _NOBODY = -1  # a position not set yet
 

@@ -9,7 +9,7 @@ import os
 import time
 from pathlib import Path
 
-from robots.world import SimulatedWorld
+from gridfleet.robots.world import SimulatedWorld
 
 
 def truth_line(world: SimulatedWorld) -> str:

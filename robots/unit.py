@@ -41,9 +41,9 @@ from gridfleet.protocol.messages import (
     UnitState,
     UnitStatus,
 )
-from robots.coordinated import OrderFollower
-from robots.decisions import Intent, Readings, Verdict, sq
-from robots.navigation import Navigator
+from gridfleet.robots.coordinated import OrderFollower
+from gridfleet.robots.decisions import Intent, Readings, Verdict, sq
+from gridfleet.robots.navigation import Navigator
 
 Mode = Literal["coordinated", "standalone"]
 MAX_ERRORS = 16

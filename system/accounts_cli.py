@@ -7,8 +7,6 @@ import argparse
 from pathlib import Path
 from typing import get_args
 
-from broker.certs import DEFAULT_HOSTS, make_tls, write_tls
-from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import (
     Account,
     Role,
@@ -17,6 +15,8 @@ from gridfleet.accounts import (
     new_password,
     write_accounts,
 )
+from gridfleet.broker.certs import DEFAULT_HOSTS, make_tls, write_tls
+from gridfleet.broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT

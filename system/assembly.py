@@ -16,20 +16,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, TextIO
 
-from broker.embedded import BrokerSettings
-from coordinator.store import default_db_path
 from gridfleet.accounts import Accounts, load_accounts
+from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.config import with_ca_file, with_credentials
+from gridfleet.coordinator.store import default_db_path
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import Scenario, with_units
-from system.broker_thread import BrokerThread
-from system.supervisor import Child, ChildSpec, Supervisor
-from system.threads import ServiceThread, coordinator_thread, fleet_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
+from gridfleet.system.threads import ServiceThread, coordinator_thread, fleet_thread
 
 if TYPE_CHECKING:
-    from coordinator.service import Coordinator
-    from robots.fleet import Fleet
+    from gridfleet.coordinator.service import Coordinator
+    from gridfleet.robots.fleet import Fleet
 
 Mode = Literal["threads", "processes"]
 
@@ -75,7 +75,7 @@ class SystemSpec:
 
 def cli(*args: str) -> list[str]:
     """The command line of a `gridfleet` subcommand run by this interpreter."""
-    return [sys.executable, "-m", "system.cli", *args]
+    return [sys.executable, "-m", "gridfleet", *args]
 
 
 @dataclass

@@ -8,7 +8,7 @@ from concurrent.futures import Future
 from dataclasses import replace
 from types import TracebackType
 
-from broker.embedded import BrokerSettings, EmbeddedBroker
+from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker
 
 
 async def _end_leftovers() -> None:

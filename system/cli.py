@@ -22,20 +22,32 @@ from gridfleet.errors import GridfleetError
 from gridfleet.lifeline import die_with_parent
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "up": ("system.up", "start everything: broker, coordinator, units and dashboard"),
-    "broker": ("broker.cli", "run the embedded MQTT broker (amqtt)"),
-    "coordinator": ("coordinator.cli", "run the coordinator: world model, jobs, planning"),
-    "robots": ("robots.cli", "run the simulated units of a scenario"),
-    "dashboard": ("dashboard.cli", "serve the browser dashboard"),
-    "device": ("device.cli", "a virtual ESP32: direction LEDs and an emergency-stop key"),
-    "job": ("system.job", "submit, cancel and list jobs; set goals; emergency stop"),
-    "feed": ("system.feed", "submit a scenario's jobs and goals; --demo keeps jobs coming"),
-    "simulate": ("system.simulate", "run a scenario to the end in accelerated time"),
-    "accounts": ("system.accounts_cli", "make the broker accounts file; add accounts to it"),
-    "clean": ("system.clean", "clear a topic root's retained messages on a broker"),
-    "status": ("system.status", "the fleet at a glance: the stop, the coordinator, units, jobs"),
-    "bench": ("bench.cli", "benchmark the planner and the whole system"),
-    "webots-world": ("robots.webots.cli", "write a Webots world (.wbt) for a scenario"),
+    "up": ("gridfleet.system.up", "start everything: broker, coordinator, units and dashboard"),
+    "broker": ("gridfleet.broker.cli", "run the embedded MQTT broker (amqtt)"),
+    "coordinator": (
+        "gridfleet.coordinator.cli",
+        "run the coordinator: world model, jobs, planning",
+    ),
+    "robots": ("gridfleet.robots.cli", "run the simulated units of a scenario"),
+    "dashboard": ("gridfleet.dashboard.cli", "serve the browser dashboard"),
+    "device": ("gridfleet.device.cli", "a virtual ESP32: direction LEDs and an emergency-stop key"),
+    "job": ("gridfleet.system.job", "submit, cancel and list jobs; set goals; emergency stop"),
+    "feed": (
+        "gridfleet.system.feed",
+        "submit a scenario's jobs and goals; --demo keeps jobs coming",
+    ),
+    "simulate": ("gridfleet.system.simulate", "run a scenario to the end in accelerated time"),
+    "accounts": (
+        "gridfleet.system.accounts_cli",
+        "make the broker accounts file; add accounts to it",
+    ),
+    "clean": ("gridfleet.system.clean", "clear a topic root's retained messages on a broker"),
+    "status": (
+        "gridfleet.system.status",
+        "the fleet at a glance: the stop, the coordinator, units, jobs",
+    ),
+    "bench": ("gridfleet.bench.cli", "benchmark the planner and the whole system"),
+    "webots-world": ("gridfleet.robots.webots.cli", "write a Webots world (.wbt) for a scenario"),
 }
 
 

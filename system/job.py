@@ -18,7 +18,7 @@ from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.protocol.topics import Topics
-from system.operator import Operator, operator_session
+from gridfleet.system.operator import Operator, operator_session
 
 WAIT_S = 10.0
 

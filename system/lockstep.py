@@ -16,17 +16,17 @@ from functools import partial
 
 from paho.mqtt.client import topic_matches_sub
 
-from coordinator.core import CoordinatorCore
-from coordinator.jobs import JobBook
-from coordinator.world import World
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Reply, SetGoal, SubmitJob, Topics, decode, encode
+from gridfleet.robots.core import UnitCore
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import Scenario
-from robots.core import UnitCore
-from robots.unit import UnitLogic
-from robots.world import WorldSim
-from system.feed import scenario_job_id
-from system.simulate import SimulationResult, job_json, units_json
+from gridfleet.system.feed import scenario_job_id
+from gridfleet.system.simulate import SimulationResult, job_json, units_json
 
 Handler = Callable[[str, bytes], list[Outbound]]
 OPERATOR = "lockstep"

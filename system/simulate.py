@@ -26,15 +26,15 @@ from gridfleet.protocol import JobView, Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario, with_units
-from system.assembly import Assembly, SystemSpec
-from system.clean import clean_root
-from system.feed import scenario_job_id, submit_scenario
-from system.monitor import FleetMonitor
-from system.operator import Operator
-from system.threads import world_of
+from gridfleet.system.assembly import Assembly, SystemSpec
+from gridfleet.system.clean import clean_root
+from gridfleet.system.feed import scenario_job_id, submit_scenario
+from gridfleet.system.monitor import FleetMonitor
+from gridfleet.system.operator import Operator
+from gridfleet.system.threads import world_of
 
 if TYPE_CHECKING:
-    from robots.world import WorldSim
+    from gridfleet.robots.world import WorldSim
 
 log = logging.getLogger("gridfleet.simulate")
 STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 50 steps) ends
@@ -298,7 +298,9 @@ def run(args: argparse.Namespace) -> int:
     if args.deterministic:
         if args.broker is not None:
             raise ConfigError("--deterministic runs without a broker: leave --broker out")
-        from system.lockstep import run_lockstep  # it imports this module's SimulationResult
+        from gridfleet.system.lockstep import (
+            run_lockstep,  # it imports this module's SimulationResult
+        )
 
         started = time.monotonic()
         outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed)

@@ -13,9 +13,9 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 from gridfleet.scenario import Scenario
 
 if TYPE_CHECKING:
-    from coordinator.service import Coordinator
-    from robots.fleet import Fleet
-    from robots.world import WorldSim
+    from gridfleet.coordinator.service import Coordinator
+    from gridfleet.robots.fleet import Fleet
+    from gridfleet.robots.world import WorldSim
 
 T = TypeVar("T")
 
@@ -129,7 +129,7 @@ def coordinator_thread(
     scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
 ) -> ServiceThread[Coordinator]:
     """The real coordinator for a scenario's map, with its job store at `db_path`."""
-    from coordinator.service import Coordinator
+    from gridfleet.coordinator.service import Coordinator
 
     def make() -> Coordinator:
         return Coordinator(
@@ -149,7 +149,7 @@ def fleet_thread(
     **kw: Any,
 ) -> ServiceThread[Fleet]:
     """The scenario's simulated units (all, or a subset) over the real broker."""
-    from robots.fleet import Fleet
+    from gridfleet.robots.fleet import Fleet
 
     def make() -> Fleet:
         return Fleet(scenario, broker_url, root=root, step=step_s, units=units, **kw)
@@ -159,7 +159,7 @@ def fleet_thread(
 
 def world_of(fleet: ServiceThread[Fleet]) -> WorldSim:
     """The ground-truth world simulation of a running fleet."""
-    from robots.world import WorldSim  # the robots layer, loaded when used (as above)
+    from gridfleet.robots.world import WorldSim  # the robots layer, loaded when used (as above)
 
     service = fleet.service
     assert isinstance(service.world, WorldSim)  # a fleet in a thread is never sharded

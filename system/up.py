@@ -10,12 +10,12 @@ from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import check_step, is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
+from gridfleet.robots.shards import workers_for
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from gridfleet.system.assembly import LOOPBACK_OF, Assembly, SystemSpec
+from gridfleet.system.supervisor import Supervisor, run_until_signal
 from gridfleet.tasks import stop_on_signals
 from gridfleet.tls import server_context
-from robots.shards import workers_for
-from system.assembly import LOOPBACK_OF, Assembly, SystemSpec
-from system.supervisor import Supervisor, run_until_signal
 
 DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
 MAKE_ACCOUNTS = "gridfleet accounts init --scenario FILE --out FILE"

@@ -13,9 +13,9 @@ import pytest
 
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
-from system.assembly import Assembly, SystemSpec
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread
+from gridfleet.system.assembly import Assembly, SystemSpec
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
 
 from support.mosquitto import MosquittoBroker
 from support.probe import MqttProbe

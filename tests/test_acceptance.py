@@ -18,9 +18,9 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
-from system.broker_thread import BrokerThread
-from system.monitor import FleetMonitor
-from system.simulate import SimulationResult, simulate
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.monitor import FleetMonitor
+from gridfleet.system.simulate import SimulationResult, simulate
 
 from support.probe import MqttProbe
 from support.wait import wait_for

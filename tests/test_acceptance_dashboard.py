@@ -24,9 +24,9 @@ from playwright.sync_api import expect
 from gridfleet.grid import Cell
 from gridfleet.protocol import TOPICS, FleetMap, JobsView, Routes, Topics, UnitState, decode
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
+from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import load_scenario
-from robots.world import WorldSim
-from system.threads import ServiceThread, world_of
+from gridfleet.system.threads import ServiceThread, world_of
 
 from support.browser import OpenDashboard
 from support.probe import MqttProbe

@@ -17,12 +17,12 @@ from typing import Any, TypeVar
 
 import pytest
 
-from device.logic import DeviceLogic
-from device.shell import VirtualDevice
+from gridfleet.device.logic import DeviceLogic
+from gridfleet.device.shell import VirtualDevice
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import Leds, Topics, UnitState, decode_direction, decode_estop
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, world_of
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, world_of
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe

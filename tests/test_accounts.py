@@ -16,7 +16,6 @@ from typing import Any
 
 import pytest
 
-from broker.embedded import BrokerSettings
 from gridfleet.accounts import (
     Account,
     Accounts,
@@ -25,15 +24,16 @@ from gridfleet.accounts import (
     rules,
     write_accounts,
 )
+from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.config import parse_broker_url, redacted, with_credentials
 from gridfleet.endpoint import Endpoint
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.scenario import load_scenario
-from system.assembly import Assembly, SystemSpec
-from system.broker_thread import BrokerThread
-from system.threads import world_of
+from gridfleet.system.assembly import Assembly, SystemSpec
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import world_of
 
 from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
@@ -93,7 +93,7 @@ def ten_more_steps(op: OperatorPeer, unit: str) -> None:
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system", *args], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
     )
 
 

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from broker.mosquitto import password_hash
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.broker.mosquitto import password_hash
 from gridfleet.protocol import Topics
 
 from support.mosquitto import mosquitto_with_accounts
@@ -72,7 +72,7 @@ def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "system",
+            "gridfleet",
             "accounts",
             "mosquitto",
             "--file",

@@ -9,9 +9,9 @@ import pytest
 from gridfleet.accounts import default_accounts
 from gridfleet.errors import ConfigError
 from gridfleet.scenario import load_scenario
-from system.assembly import Assembly, SystemSpec
-from system.broker_thread import BrokerThread
-from system.threads import world_of
+from gridfleet.system.assembly import Assembly, SystemSpec
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import world_of
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 

@@ -10,7 +10,7 @@ import pytest
 
 
 def bench(*args: str) -> subprocess.CompletedProcess[str]:
-    command = [sys.executable, "-m", "system", "bench", "logins", *args]
+    command = [sys.executable, "-m", "gridfleet", "bench", "logins", *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=120)
 
 

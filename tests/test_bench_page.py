@@ -22,7 +22,7 @@ import pytest
 )
 def test_bad_arguments_are_one_line_and_exit_2(args: list[str], problem: str) -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "system.cli", "bench", "page", *args],
+        [sys.executable, "-m", "gridfleet", "bench", "page", *args],
         capture_output=True,
         text=True,
         timeout=60,

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from bench import anchors as bench_anchors
-from bench.anchors import (
+from gridfleet.bench import anchors as bench_anchors
+from gridfleet.bench.anchors import (
     ANCHORS_ENV,
     LifelongInstance,
     ScenAgent,
@@ -22,9 +22,9 @@ from bench.anchors import (
     load_instance,
     load_scen,
 )
-from bench.runs import random_instance, run_lifelong, run_one_shot
-from bench.scale import run_scale
-from coordinator.planner import AgentSpec
+from gridfleet.bench.runs import random_instance, run_lifelong, run_one_shot
+from gridfleet.bench.scale import run_scale
+from gridfleet.coordinator.planner import AgentSpec
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 
@@ -250,7 +250,7 @@ def test_random_instances_stay_in_the_largest_region() -> None:
 
 
 def bench(*args: str) -> subprocess.CompletedProcess[str]:
-    cmd = [sys.executable, "-m", "system", "bench", "planner", *args]
+    cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
 
 
@@ -311,7 +311,7 @@ def test_a_reader_that_went_away_ends_the_command_quietly(tmp_path: Path) -> Non
     read_end, write_end = os.pipe()
     os.close(read_end)
     try:
-        cmd = [sys.executable, "-m", "system", "bench", "planner", "--suite", "lifelong"]
+        cmd = [sys.executable, "-m", "gridfleet", "bench", "planner", "--suite", "lifelong"]
         out = subprocess.run(
             [*cmd, "--anchors", str(write_anchors(tmp_path))],
             stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120, check=False,

@@ -14,23 +14,23 @@ from typing import Any
 
 import pytest
 
-from bench import soak_listen
-from bench.soak import Soak, SoakConfig
-from bench.soak_check import Stop
-from bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
-from bench.soak_proxy import FaultyProxy
+from gridfleet.bench import soak_listen
+from gridfleet.bench.soak import Soak, SoakConfig
+from gridfleet.bench.soak_check import Stop
+from gridfleet.bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
+from gridfleet.bench.soak_proxy import FaultyProxy
 from gridfleet.protocol import Topics
+from gridfleet.robots.truth import write_truth
+from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import load_scenario
-from robots.truth import write_truth
-from robots.world import WorldSim
 
 REPO = Path(__file__).resolve().parent.parent
 
 
 def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
-    """Run `python -m system bench soak ARGS` and capture its output."""
+    """Run `python -m gridfleet bench soak ARGS` and capture its output."""
     return subprocess.run(
-        [sys.executable, "-m", "system", "bench", "soak", *args],
+        [sys.executable, "-m", "gridfleet", "bench", "soak", *args],
         capture_output=True,
         text=True,
         timeout=timeout,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from bench.soak_check import (
+from gridfleet.bench.soak_check import (
     Disturbed,
     Event,
     JobSeen,

@@ -11,15 +11,15 @@ from typing import Any
 
 import pytest
 
-from bench.system_scenario import FILL, bench_grid, make_scenario
+from gridfleet.bench.system_scenario import FILL, bench_grid, make_scenario
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 
 def bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    """Run `python -m system bench system ARGS` and capture its output."""
+    """Run `python -m gridfleet bench system ARGS` and capture its output."""
     return subprocess.run(
-        [sys.executable, "-m", "system", "bench", "system", *args],
+        [sys.executable, "-m", "gridfleet", "bench", "system", *args],
         capture_output=True,
         text=True,
         timeout=timeout,
@@ -137,7 +137,7 @@ def test_generated_map_fits_the_fleet(units: int, tmp_path: Any) -> None:
 
 def test_ctrl_c_stops_cleanly_and_reports_the_finished_runs() -> None:
     with subprocess.Popen(
-        [sys.executable, "-m", "system", "bench", "system", "--units", "4", "--step", "0.05",
+        [sys.executable, "-m", "gridfleet", "bench", "system", "--units", "4", "--step", "0.05",
          "--duration", "1", "--warmup", "0.3", "--repeat", "3", "--estops", "1"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     ) as proc:  # fmt: skip

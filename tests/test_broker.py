@@ -17,10 +17,10 @@ import paho.mqtt.client as mqtt
 import pytest
 import websockets
 
-from broker import embedded
-from broker.embedded import BrokerSettings, load_settings
+from gridfleet.broker import embedded
+from gridfleet.broker.embedded import BrokerSettings, load_settings
 from gridfleet.errors import ConfigError
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -128,7 +128,7 @@ def test_broker_restarts_on_the_same_ports(fresh_broker: BrokerThread) -> None:
 
 def test_cli_broker_starts_prints_its_urls_and_stops_cleanly(tmp_path: Path) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "system.cli", "broker", "--port", "0", "--ws-port", "0"],
+        [sys.executable, "-m", "gridfleet", "broker", "--port", "0", "--ws-port", "0"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -201,7 +201,7 @@ def test_a_new_client_gets_only_the_retained_messages_it_subscribed_to(
 def test_a_busy_port_is_one_line_and_exit_2(broker: BrokerThread) -> None:
     # The session broker holds its port: a second broker on it must say so, not dump a traceback.
     out = subprocess.run(
-        [sys.executable, "-m", "system", "broker", "--port", str(broker.port), "--no-ws"],
+        [sys.executable, "-m", "gridfleet", "broker", "--port", str(broker.port), "--no-ws"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from broker.gate import Gate, owner_of
 from gridfleet.accounts import default_accounts
+from gridfleet.broker.gate import Gate, owner_of
 from gridfleet.throttle import FailureBudget, LoginThrottle
 
 ACCOUNTS = default_accounts(["unit1", "unit10"])

@@ -11,14 +11,14 @@ import paho.mqtt.client as mqtt
 import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
-from broker.amqtt_broker import GridfleetBroker, make_broker
-from broker.embedded import BrokerSettings
-from broker.limits import MAX_PACKET_BYTES, Limits
 from gridfleet.accounts import Accounts, default_accounts
+from gridfleet.broker.amqtt_broker import GridfleetBroker, make_broker
+from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.broker.limits import MAX_PACKET_BYTES, Limits
 from gridfleet.config import parse_broker_url
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.mosquitto import mosquitto_with_accounts
 from support.probe import MqttProbe

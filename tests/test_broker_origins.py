@@ -11,11 +11,11 @@ from typing import Any
 
 import pytest
 
-from broker.embedded import BrokerSettings
-from broker.origins import refusal
-from dashboard.settings import DashboardSettings
+from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.broker.origins import refusal
+from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.errors import ConfigError
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import CHROMIUM, CHROMIUM_ARGS, EXCHANGE, blank_page_server
 from support.probe import MqttProbe

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from broker.routing import MAX_CACHED_TOPICS, Subscriptions
+from gridfleet.broker.routing import MAX_CACHED_TOPICS, Subscriptions
 
 
 def test_the_broker_subscription_table_survives_a_subscribe_mid_broadcast() -> None:

@@ -13,12 +13,12 @@ import pytest
 from gridfleet.config import DEFAULT_MQTT_URL, parse_broker_url, with_ca_file
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
-from system.cli import COMMANDS, build_parser, main
+from gridfleet.system.cli import COMMANDS, build_parser, main
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system.cli", *args], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
     )
 
 

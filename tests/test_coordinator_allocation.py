@@ -5,7 +5,13 @@ from __future__ import annotations
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from coordinator.allocation import JobRequest, UnitSlot, allocate, capacity_reason, feasible
+from gridfleet.coordinator.allocation import (
+    JobRequest,
+    UnitSlot,
+    allocate,
+    capacity_reason,
+    feasible,
+)
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 

@@ -11,10 +11,10 @@ from typing import Any
 
 import pytest
 
-from coordinator.answers import Answers
-from coordinator.core import CoordinatorCore
-from coordinator.jobs import JobBook
-from coordinator.store import JobStore
+from gridfleet.coordinator.answers import Answers
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.store import JobStore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import CancelJob, Leds, Sensors, SetGoal, SubmitJob, UnitState
 
@@ -219,7 +219,7 @@ def test_a_full_queue_refuses_a_new_job_in_words_and_changes_nothing(
 ) -> None:
     # As found: nothing bounded the queue, and ~32,000 queued jobs pushed the retained queue
     # view past the broker's packet limit (a broken view for everybody).
-    monkeypatch.setattr("coordinator.requests.MAX_OPEN_JOBS", 2)
+    monkeypatch.setattr("gridfleet.coordinator.requests.MAX_OPEN_JOBS", 2)
     for n in (1, 2):
         request(core, "submit_job", submit(f"r{n}", job_id=f"j{n}"), 0.0)
     full = request(core, "submit_job", submit("r3", job_id="j3"), 1.0)

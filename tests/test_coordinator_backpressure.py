@@ -7,14 +7,14 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from coordinator.orders import OrderPlan, Orders
+from gridfleet.coordinator.orders import OrderPlan, Orders
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Order, Routes, Sensors, Topics, decode
 from gridfleet.protocol.constants import MAX_VIEW_BYTES
+from gridfleet.robots.unit import UnitLogic
 from gridfleet.scenario import load_scenario
-from robots.unit import UnitLogic
-from system.broker_thread import BrokerThread
-from system.threads import coordinator_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import coordinator_thread
 
 from support.effects import header
 from support.fleet_peer import UnitPeer

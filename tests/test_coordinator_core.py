@@ -12,7 +12,7 @@ from collections.abc import Callable
 
 import pytest
 
-from coordinator.core import CoordinatorCore
+from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CancelJob,
@@ -23,7 +23,7 @@ from gridfleet.protocol import (
     SetGoal,
     SubmitJob,
 )
-from robots.unit import UnitLogic
+from gridfleet.robots.unit import UnitLogic
 
 from support.coordinator_drive import (
     TOPICS,

@@ -12,9 +12,9 @@ from typing import Any
 
 import pytest
 
-from coordinator.core import CoordinatorCore
-from coordinator.effects import Effects
-from coordinator.views import VIEWS_BATCH_S
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.effects import Effects
+from gridfleet.coordinator.views import VIEWS_BATCH_S
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound

@@ -10,11 +10,11 @@ from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
-from coordinator.core import CoordinatorCore
-from coordinator.events import EventLog
-from coordinator.jobs import Job
-from coordinator.service import Coordinator
-from coordinator.store import STORED_EVENTS, JobStore
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.events import EventLog
+from gridfleet.coordinator.jobs import Job
+from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.store import STORED_EVENTS, JobStore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
     CancelJob,
@@ -27,9 +27,9 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import MAX_EVENTS
-from robots.unit import UnitLogic
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
 
 from support.coordinator_drive import TOPICS, from_unit, make_core, meet, orders_in, request
 from support.coordinator_fakes import ROOM_ROWS, Yard

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import CoordinatorStatus, Order, Topics, decode
-from system.threads import ServiceThread
+from gridfleet.system.threads import ServiceThread
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe

@@ -12,10 +12,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from coordinator.service import Coordinator
+from gridfleet.coordinator.service import Coordinator
 from gridfleet.grid import GridMap
 from gridfleet.protocol import ErrorReport, Reply, Topics, decode
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.wait import async_wait_for
 
@@ -244,8 +244,11 @@ async def test_service_keeps_running_and_answers_after_garbage(
         }
         probe.publish(topics.request("submit_job"), json.dumps(req).encode())
         await async_wait_for(lambda: c.core.jobs.jobs, what="job accepted")
-        msg = probe.wait(topics.reply("hostile"))
-        assert decode(Reply, msg.payload).accepted
+        # Awaited, not probe.wait(): that would hold up this loop, the coordinator's, and its reply.
+        replies = await async_wait_for(
+            lambda: probe.received(topics.reply("hostile")), what="reply"
+        )
+        assert decode(Reply, replies[0].payload).accepted
         assert not task.done()
     finally:
         probe.close()

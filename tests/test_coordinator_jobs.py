@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.grid import Cell
 from gridfleet.protocol import encode
 from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_VIEW_BYTES

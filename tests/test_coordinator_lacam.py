@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import connected_components
 
-from bench.anchors import ScenAgent
-from bench.runs import run_one_shot
-from coordinator import unjam as unjam_module
-from coordinator.lacam import LaCAM, NoSolution, is_valid_move
-from coordinator.pibt import neighbour_table
-from coordinator.planner import Planner
-from coordinator.unjam import PATIENCE, Unjam
-from coordinator.validate import validate_plan
+from gridfleet.bench.anchors import ScenAgent
+from gridfleet.bench.runs import run_one_shot
+from gridfleet.coordinator import unjam as unjam_module
+from gridfleet.coordinator.lacam import LaCAM, NoSolution, is_valid_move
+from gridfleet.coordinator.pibt import neighbour_table
+from gridfleet.coordinator.planner import Planner
+from gridfleet.coordinator.unjam import PATIENCE, Unjam
+from gridfleet.coordinator.validate import validate_plan
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache, adjacency
 

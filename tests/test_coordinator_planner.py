@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from coordinator.pibt import PIBT, neighbour_table
-from coordinator.pibt_swap import swap_partner
-from coordinator.planner import AgentSpec, Planner, plan_step
-from coordinator.validate import validate_plan, validate_step
+from gridfleet.coordinator.pibt import PIBT, neighbour_table
+from gridfleet.coordinator.pibt_swap import swap_partner
+from gridfleet.coordinator.planner import AgentSpec, Planner, plan_step
+from gridfleet.coordinator.validate import validate_plan, validate_step
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 

@@ -12,13 +12,13 @@ from typing import Any
 
 import pytest
 
-from coordinator.service import Coordinator
-from coordinator.views import VIEWS_BATCH_S
+from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol import Routes, Topics, decode, encode
-from robots.unit import UnitLogic
-from system.broker_thread import BrokerThread
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.coordinator_fakes import PLAYFIELD_JOBS, FakeFleet
 from support.operator_peer import OperatorPeer

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from coordinator.validate import validate_plan, validate_step
+from gridfleet.coordinator.validate import validate_plan, validate_step
 from gridfleet.grid import Cell, GridMap
 
 GRID = GridMap.from_rows(["....", ".@..", "....", "...."])

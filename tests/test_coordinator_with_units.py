@@ -17,8 +17,8 @@ import pytest
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, UnitState
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, coordinator_thread, world_of
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, coordinator_thread, world_of
 
 from support.coordinator_fakes import PLAYFIELD_JOBS
 from support.operator_peer import OperatorPeer

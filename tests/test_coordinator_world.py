@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from coordinator.jobs import Job
-from coordinator.world import World
+from gridfleet.coordinator.jobs import Job
+from gridfleet.coordinator.world import World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
 

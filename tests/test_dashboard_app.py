@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-from dashboard.app import create_app
-from dashboard.cli import settings_from
-from dashboard.server import DashboardServer
-from dashboard.settings import DashboardSettings
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.cli import settings_from
+from gridfleet.dashboard.server import DashboardServer
+from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.ports import free_port
 from gridfleet.scenario import load_scenario
-from system.cli import build_parser
+from gridfleet.system.cli import build_parser
 
 from support.wait import wait_for
 
@@ -133,7 +133,7 @@ def test_server_thread_serves_and_stops() -> None:
 
 def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:
     port = free_port()
-    cmd = [sys.executable, "-m", "system.cli", "dashboard", "--port", str(port)]
+    cmd = [sys.executable, "-m", "gridfleet", "dashboard", "--port", str(port)]
     proc = subprocess.Popen([*cmd, "--scenario", str(playfield)], cwd=REPO, stderr=subprocess.PIPE)
     try:
 
@@ -153,7 +153,7 @@ def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:
 
 def test_serving_beyond_loopback_without_accounts_is_refused_in_one_line() -> None:
     # Like the broker: a page anyone on the network can open must ask who they are.
-    cmd = [sys.executable, "-m", "system.cli", "dashboard", "--host", "0.0.0.0", "--port", "0"]
+    cmd = [sys.executable, "-m", "gridfleet", "dashboard", "--host", "0.0.0.0", "--port", "0"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=60, check=False)
     assert done.returncode == 2, done.stderr
     assert "without --accounts lets anyone on that network drive the fleet" in done.stderr

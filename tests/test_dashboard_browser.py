@@ -23,7 +23,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import JobState
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import OpenDashboard, wait_in_page
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish

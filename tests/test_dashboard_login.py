@@ -10,9 +10,10 @@ import pytest
 from flask import Flask
 from flask.testing import FlaskClient
 
-from dashboard.app import create_app
-from dashboard.cli import secret_from, settings_from, tls_from
-from dashboard.login import (
+from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.cli import secret_from, settings_from, tls_from
+from gridfleet.dashboard.login import (
     REFUSED,
     LoginRefused,
     SessionBook,
@@ -20,11 +21,10 @@ from dashboard.login import (
     session_account,
     session_tag,
 )
-from dashboard.server import DashboardServer
-from dashboard.settings import DashboardSettings, browser_broker_url
-from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.dashboard.server import DashboardServer
+from gridfleet.dashboard.settings import DashboardSettings, browser_broker_url
 from gridfleet.errors import ConfigError
-from system.cli import build_parser
+from gridfleet.system.cli import build_parser
 
 
 @pytest.fixture

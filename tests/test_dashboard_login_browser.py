@@ -10,16 +10,16 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
-from broker.embedded import BrokerSettings
-from dashboard.app import create_app
-from dashboard.server import DashboardServer
-from dashboard.settings import DashboardSettings
 from gridfleet.accounts import Accounts, default_accounts
+from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.config import with_credentials
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.server import DashboardServer
+from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import VIEWPORT, OpenDashboard
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish

@@ -11,8 +11,8 @@ from collections.abc import Callable, Iterator
 import pytest
 from playwright.sync_api import expect
 
-from bench.page import PROBE, READ_PROBE, run_page_bench
-from bench.system_scenario import bench_grid
+from gridfleet.bench.page import PROBE, READ_PROBE, run_page_bench
+from gridfleet.bench.system_scenario import bench_grid
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import Topics
 

@@ -13,9 +13,9 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from device.shell import VirtualDevice
+from gridfleet.device.shell import VirtualDevice
 from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop, decode_press
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
@@ -161,7 +161,7 @@ class Proc:
     def __init__(self, *args: str, stdin: int = subprocess.PIPE) -> None:
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         self.p = subprocess.Popen(
-            [sys.executable, "-m", "system.cli", "device", *args],
+            [sys.executable, "-m", "gridfleet", "device", *args],
             stdin=stdin,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -271,7 +271,7 @@ def test_device_command_killed_leaves_its_last_will(
 
 def test_device_command_refuses_bad_ids() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "system.cli", "device", "--unit", "bad/id"],
+        [sys.executable, "-m", "gridfleet", "device", "--unit", "bad/id"],
         capture_output=True,
         text=True,
         timeout=30,
@@ -291,7 +291,7 @@ def test_device_command_on_a_terminal_highlights_the_lit_arrow_and_quits_on_q(
         [
             sys.executable,
             "-m",
-            "system.cli",
+            "gridfleet.system.cli",
             "device",
             "--broker",
             broker.url,

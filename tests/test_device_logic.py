@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from device.logic import DeviceLogic
-from device.terminal import render_plain
+from gridfleet.device.logic import DeviceLogic
+from gridfleet.device.terminal import render_plain
 from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
 
 from support.effects import header_json, published, stamper

@@ -12,7 +12,7 @@ import pytest
 from gridfleet.endpoint import CONNECT_S, GOODBYE_S, Backoff, Endpoint
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import Topics
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
 from support.wait import async_wait_for

@@ -12,9 +12,9 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import FleetMap, Topics, encode
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
-from system.feed import demo_queue, random_job
-from system.operator import operator_session
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.feed import demo_queue, random_job
+from gridfleet.system.operator import operator_session
 
 from support.effects import header
 from support.fleet_peer import CoordinatorPeer

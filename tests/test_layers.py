@@ -15,8 +15,11 @@ REPO = Path(__file__).resolve().parent.parent
 
 BASE = "gridfleet"
 COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device")
-COMPOSITION = ("system", "bench")
-PRODUCT = (BASE, *COMPONENTS, *COMPOSITION)
+COMPOSITION = ("system", "bench")  # bench stands on system: system never imports bench
+PARTS = (*COMPONENTS, *COMPOSITION)  # folders at the top of the checkout, installed as gridfleet.*
+PRODUCT = (BASE, *PARTS)
+# `python -m gridfleet` is the command line: the base's one file that starts the composition.
+ENTRY = Path(BASE) / "__main__.py"
 TESTS = Path(__file__).resolve().parent
 # Test tools, and every module of tests/ (support and its helpers, conftest, the test modules).
 TEST_ONLY = ("pytest", "tests", "playwright", "hypothesis", *(p.stem for p in TESTS.glob("*.py")))
@@ -26,28 +29,38 @@ EXTRAS = {"bench": {"playwright"}}
 
 
 def allowed(importer: str) -> set[str]:
-    """The first-party packages a module of package `importer` may import."""
+    """The layers a module of layer `importer` may import."""
     if importer == BASE:
         return {BASE}
     if importer in COMPONENTS:
         return {BASE, importer}
+    if importer == "system":
+        return {BASE, *COMPONENTS, "system"}
     return set(PRODUCT)
 
 
+def layer_of(module: str) -> str:
+    """The layer an imported module belongs to (`gridfleet.robots.x` -> robots), or its package."""
+    parts = module.split(".")
+    if parts[0] == BASE and len(parts) > 1 and parts[1] in PARTS:
+        return parts[1]
+    return parts[0]
+
+
 def imports_of(path: Path) -> list[tuple[int, str]]:
-    """(line, top-level package) of every import in `path`, including those inside functions."""
+    """(line, module) of every import in `path`, including those inside functions."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
     found: list[tuple[int, str]] = []
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            found += [(node.lineno, alias.name.split(".")[0]) for alias in node.names]
+            found += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            found.append((node.lineno, node.module.split(".")[0]))
+            found.append((node.lineno, node.module))
         elif isinstance(node, ast.Call) and _dynamic_import(node.func) and node.args:
             # importlib.import_module("x.y") / __import__("x"): an import all the same.
             name = node.args[0]
             if isinstance(name, ast.Constant) and isinstance(name.value, str):
-                found.append((node.lineno, name.value.split(".")[0]))
+                found.append((node.lineno, name.value))
     return found
 
 
@@ -64,10 +77,16 @@ def crossings(root: Path = REPO) -> list[str]:
         for path in sorted((root / package).rglob("*.py")):
             if "node_modules" in path.parts:
                 continue
-            for line, target in imports_of(path):
-                first_party = target in PRODUCT and target not in allowed(package)
-                if first_party or (target in TEST_ONLY and target not in EXTRAS.get(package, ())):
-                    bad.append(f"{path.relative_to(root)}:{line}: {package} -> {target}")
+            for line, module in imports_of(path):
+                target = layer_of(module)
+                where = f"{path.relative_to(root)}:{line}: {package} -> "
+                if target in PARTS and module.split(".")[0] == target:
+                    bad.append(where + f"{target} (not as gridfleet.{target})")
+                elif target in PRODUCT and target not in allowed(package):
+                    if not (path.relative_to(root) == ENTRY and target == "system"):
+                        bad.append(where + target)
+                elif target in TEST_ONLY and target not in EXTRAS.get(package, ()):
+                    bad.append(where + target)
     return bad
 
 
@@ -78,24 +97,34 @@ def test_no_import_crosses_the_layers() -> None:
 def test_every_shipped_package_has_a_layer() -> None:
     # A package the layers do not name would never be checked.
     config = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
-    shipped = config["tool"]["setuptools"]["packages"]["find"]["include"]
-    assert sorted(p.rstrip("*") for p in shipped) == sorted(PRODUCT)
+    shipped = config["tool"]["setuptools"]["package-dir"]
+    assert shipped == {BASE: BASE} | {f"{BASE}.{part}": part for part in PARTS}
 
 
 @pytest.mark.parametrize(
     ("package", "source", "expected"),
     [
-        ("gridfleet", "from coordinator.core import CoordinatorCore\n", "gridfleet -> coordinator"),
-        ("robots", "def f():\n    import coordinator.service\n", "robots -> coordinator"),
-        ("coordinator", "from system.cli import main\n", "coordinator -> system"),
+        (
+            "gridfleet",
+            "from gridfleet.coordinator.core import CoordinatorCore\n",
+            "gridfleet -> coordinator",
+        ),
+        ("robots", "def f():\n    import gridfleet.coordinator.service\n", "robots -> coordinator"),
+        ("coordinator", "from gridfleet.system.cli import main\n", "coordinator -> system"),
+        ("system", "from gridfleet.bench.cli import run\n", "system -> bench"),
+        (
+            "robots",
+            "from robots.world import WorldSim\n",
+            "robots -> robots (not as gridfleet.robots)",
+        ),
         ("dashboard", "import pytest\n", "dashboard -> pytest"),
         ("bench", "from support.probe import MqttProbe\n", "bench -> support"),
         (
             "robots",
-            "import importlib\nimportlib.import_module('coordinator.core')\n",
+            "import importlib\nimportlib.import_module('gridfleet.coordinator.core')\n",
             "robots -> coordinator",
         ),
-        ("device", "__import__('dashboard')\n", "device -> dashboard"),
+        ("device", "__import__('gridfleet.dashboard')\n", "device -> dashboard"),
         (
             "coordinator",
             "from test_peers import Wire\n",
@@ -114,7 +143,7 @@ def test_the_check_catches_each_kind_of_crossing(
 def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
     (tmp_path / "robots").mkdir()
     (tmp_path / "robots" / "ok.py").write_text(
-        "from gridfleet.grid import Cell\nfrom robots.world import WorldSim\nimport numpy\n",
+        "from gridfleet.grid import Cell\nfrom gridfleet.robots.world import WorldSim\nimport numpy\n",
         encoding="utf-8",
     )
     assert crossings(tmp_path) == []
@@ -126,14 +155,14 @@ def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
 # it: pydantic loads importlib.metadata, whose email.utils imports socket; nothing calls it.)
 IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3"}
 CORES = (
-    "coordinator.core",
-    "coordinator.stop",
-    "coordinator.planner",
-    "coordinator.allocation",
-    "coordinator.world",
-    "robots.unit",
-    "robots.core",
-    "device.logic",
+    "gridfleet.coordinator.core",
+    "gridfleet.coordinator.stop",
+    "gridfleet.coordinator.planner",
+    "gridfleet.coordinator.allocation",
+    "gridfleet.coordinator.world",
+    "gridfleet.robots.unit",
+    "gridfleet.robots.core",
+    "gridfleet.device.logic",
 )
 
 

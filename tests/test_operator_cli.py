@@ -11,8 +11,8 @@ import pytest
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, decode_estop
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, world_of
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, world_of
 
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -21,7 +21,7 @@ from support.wait import wait_for
 def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
     """Run `gridfleet ARGS` in a process of its own."""
     return subprocess.run(
-        [sys.executable, "-m", "system", *args],
+        [sys.executable, "-m", "gridfleet", *args],
         capture_output=True,
         text=True,
         timeout=60,
@@ -313,7 +313,7 @@ def test_flags_after_the_action_are_used(broker: BrokerThread, root: str) -> Non
 
 def test_unreachable_broker_is_one_line() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "system", "job", "--broker", "mqtt://127.0.0.1:1", "list"],
+        [sys.executable, "-m", "gridfleet", "job", "--broker", "mqtt://127.0.0.1:1", "list"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -12,8 +12,8 @@ import pytest
 from gridfleet.errors import GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Reply, Topics, encode
-from system.broker_thread import BrokerThread
-from system.operator import operator_session
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.operator import operator_session
 
 from support.effects import header
 from support.probe import MqttProbe

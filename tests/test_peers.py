@@ -36,7 +36,7 @@ from gridfleet.protocol import (
     decode_direction,
     decode_estop,
 )
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.fleet_peer import CoordinatorPeer, UnitPeer
 from support.operator_peer import OperatorPeer

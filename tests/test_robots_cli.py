@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import Connection, Topics, decode
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -18,7 +18,7 @@ from support.wait import wait_for
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system.cli", "robots", *args],
+        [sys.executable, "-m", "gridfleet", "robots", *args],
         capture_output=True,
         text=True,
         timeout=60,
@@ -65,7 +65,7 @@ def test_sigterm_stops_every_unit_with_offline(
             [
                 sys.executable,
                 "-m",
-                "system.cli",
+                "gridfleet.system.cli",
                 "robots",
                 "--broker",
                 broker.url,

@@ -19,8 +19,8 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import SensorReading
-from robots.core import UnitCore
-from robots.unit import Mode, UnitLogic
+from gridfleet.robots.core import UnitCore
+from gridfleet.robots.unit import Mode, UnitLogic
 
 from support.effects import Published, header_json, published, stamper
 

@@ -19,10 +19,10 @@ from gridfleet.protocol import (
     decode,
     encode,
 )
+from gridfleet.robots.fleet import Fleet
+from gridfleet.robots.unit import Mode
 from gridfleet.scenario import Scenario, load_scenario
-from robots.fleet import Fleet
-from robots.unit import Mode
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.fleet_peer import leds_for
 from support.peers import DispatchPeer

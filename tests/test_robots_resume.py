@@ -12,15 +12,15 @@ from pathlib import Path
 
 import pytest
 
-from bench.system_scenario import make_scenario
+from gridfleet.bench.system_scenario import make_scenario
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
+from gridfleet.robots.fleet import Fleet
+from gridfleet.robots.saved import Saved, SavedUnits
 from gridfleet.scenario import load_scenario
-from robots.fleet import Fleet
-from robots.saved import Saved, SavedUnits
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, coordinator_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -34,7 +34,7 @@ def robots(url: str, root: str, state: Path) -> subprocess.Popen[bytes]:
     """`gridfleet robots` for the playfield, saving to `state`."""
     argv = ["robots", "--broker", url, "--root", root, "--scenario", str(PLAYFIELD)]
     argv += ["--step", str(STEP_S), "--state", str(state)]
-    return subprocess.Popen([sys.executable, "-m", "system", *argv], stderr=subprocess.PIPE)
+    return subprocess.Popen([sys.executable, "-m", "gridfleet", *argv], stderr=subprocess.PIPE)
 
 
 @pytest.fixture

@@ -22,11 +22,11 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.maps import format_map
 from gridfleet.protocol import Topics
+from gridfleet.robots.shards import shares, workers_for
+from gridfleet.robots.shared_world import SharedHandle, SharedWorld
 from gridfleet.scenario import Scenario, load_scenario
-from robots.shards import shares, workers_for
-from robots.shared_world import SharedHandle, SharedWorld
-from system.broker_thread import BrokerThread
-from system.threads import coordinator_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import coordinator_thread
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -118,7 +118,7 @@ def _workers(pid: int) -> list[psutil.Process] | None:
 def _robots(url: str, root: str, truth: Path, *extra: str) -> subprocess.Popen[bytes]:
     argv = ["robots", "--broker", url, "--root", root, "--scenario", str(PLAYFIELD)]
     argv += ["--step", str(STEP_S), "--truth", str(truth), *extra]
-    return subprocess.Popen([sys.executable, "-m", "system", *argv], stderr=subprocess.PIPE)
+    return subprocess.Popen([sys.executable, "-m", "gridfleet", *argv], stderr=subprocess.PIPE)
 
 
 @pytest.mark.timeout(120)

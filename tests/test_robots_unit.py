@@ -6,8 +6,8 @@ from datetime import UTC, datetime
 
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import Action, Header, Order
-from robots.unit import UnitLogic
-from robots.world import WorldSim
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.world import WorldSim
 
 E, S = Direction.E, Direction.S
 START = Cell(0, 1)

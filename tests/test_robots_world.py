@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol.messages import SensorReading
-from robots.world import WorldSim
+from gridfleet.robots.world import WorldSim
 
 N, E, S, W = Direction.N, Direction.E, Direction.S, Direction.W
 

@@ -11,12 +11,12 @@ from typing import Any
 
 import pytest
 
-from coordinator.service import Coordinator
+from gridfleet.coordinator.service import Coordinator
 from gridfleet.ports import free_port
 from gridfleet.protocol import Routes, Topics, decode
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
 
 from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
@@ -27,7 +27,7 @@ MAPS = Path(__file__).resolve().parent.parent / "maps"
 
 def gridfleet(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system", *args],
+        [sys.executable, "-m", "gridfleet", *args],
         capture_output=True,
         text=True,
         timeout=timeout,

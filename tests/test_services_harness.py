@@ -10,7 +10,7 @@ import pytest
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
-from system.threads import ServiceThread, world_of
+from gridfleet.system.threads import ServiceThread, world_of
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe

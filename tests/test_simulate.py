@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from bench.busy_scenario import make_busy
+from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.scenario import load_scenario
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
@@ -19,7 +19,7 @@ SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 def simulate(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system", "simulate", *args],
+        [sys.executable, "-m", "gridfleet", "simulate", *args],
         capture_output=True,
         text=True,
         timeout=timeout,

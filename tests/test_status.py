@@ -27,9 +27,9 @@ from gridfleet.protocol import (
     encode,
 )
 from gridfleet.protocol.messages import JobState, Message
-from system.broker_thread import BrokerThread
-from system.status import CLEAR, FleetStatus, render
-from system.threads import ServiceThread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.status import CLEAR, FleetStatus, render
+from gridfleet.system.threads import ServiceThread
 
 from support.effects import header
 from support.output import Output
@@ -182,7 +182,7 @@ def test_a_unit_known_only_by_its_connection_and_a_long_queue() -> None:
 
 def status(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system", "status", *args],
+        [sys.executable, "-m", "gridfleet", "status", *args],
         capture_output=True,
         text=True,
         timeout=60,
@@ -235,7 +235,7 @@ def test_status_once_without_a_coordinator_is_one_line(broker: BrokerThread, roo
 
 def test_status_redraws_until_ctrl_c(broker: BrokerThread, root: str) -> None:
     watching = subprocess.Popen(
-        [sys.executable, "-m", "system", "status", "--broker", broker.url, "--root", root],
+        [sys.executable, "-m", "gridfleet", "status", "--broker", broker.url, "--root", root],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -13,8 +13,8 @@ import pytest
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, coordinator_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from gridfleet.errors import ComponentError
-from system.supervisor import ChildSpec, Supervisor
+from gridfleet.system.supervisor import ChildSpec, Supervisor
 
 from support.wait import async_wait_for
 

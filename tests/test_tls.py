@@ -18,13 +18,13 @@ import pytest
 from cryptography import x509
 from cryptography.hazmat.primitives import serialization
 
-from broker.certs import make_tls, subject_names, write_tls
-from broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.accounts import default_accounts
+from gridfleet.broker.certs import make_tls, subject_names, write_tls
+from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url, redacted, with_ca_file, with_credentials
 from gridfleet.errors import ConfigError
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
 from support.security import check_strangers_are_refused
@@ -35,7 +35,7 @@ PLAIN_CONNECT = b"\x10\x0d\x00\x04MQTT\x04\x02\x00\x3c\x00\x01x"
 
 def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
     """Run a `gridfleet` command to its end."""
-    cmd = [sys.executable, "-m", "system", *args]
+    cmd = [sys.executable, "-m", "gridfleet", *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
 
 
@@ -221,7 +221,7 @@ def test_a_config_file_names_the_certificate_next_to_it(tls: Path) -> None:
 def test_the_broker_command_serves_mqtts_and_wss(tls: Path) -> None:
     files = ["--tls-cert", str(tls / "server.pem"), "--tls-key", str(tls / "server.key")]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "system", "broker", "--port", "0", "--ws-port", "0", *files],
+        [sys.executable, "-m", "gridfleet", "broker", "--port", "0", "--ws-port", "0", *files],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -282,7 +282,7 @@ def test_tls_mistakes_are_one_clear_line(tls: Path, args: list[str], problem: st
     ],
 )
 def test_every_client_command_takes_the_ca_file(tls: Path, command: list[str]) -> None:
-    from system.cli import build_parser
+    from gridfleet.system.cli import build_parser
 
     ca = str(tls / "ca.pem")
     name, *rest = command

@@ -12,10 +12,10 @@ from typing import Any
 
 import pytest
 
-from broker.certs import make_tls, write_tls
-from broker.embedded import BrokerSettings
-from dashboard.settings import DashboardSettings
-from system.broker_thread import BrokerThread
+from gridfleet.broker.certs import make_tls, write_tls
+from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.dashboard.settings import DashboardSettings
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import CHROMIUM, CHROMIUM_ARGS, EXCHANGE, blank_page_server
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from broker.certs import make_tls, write_tls
+from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.config import with_ca_file
 
 from support.mosquitto import running_mosquitto
@@ -44,7 +44,7 @@ def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
     mosquitto_tls: str, tls: Path
 ) -> None:
     ca = str(tls / "ca.pem")
-    cmd = [sys.executable, "-m", "system", "job", "--broker", mosquitto_tls, "--ca-file", ca]
+    cmd = [sys.executable, "-m", "gridfleet", "job", "--broker", mosquitto_tls, "--ca-file", ca]
     done = subprocess.run(
         [*cmd, "--root", "tlsq", "stop", "--reason", "over tls"],
         capture_output=True,
@@ -60,7 +60,7 @@ def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
 
 def test_without_the_ca_file_the_command_is_refused(mosquitto_tls: str) -> None:
     done = subprocess.run(
-        [sys.executable, "-m", "system", "job", "--broker", mosquitto_tls, "stop"],
+        [sys.executable, "-m", "gridfleet", "job", "--broker", mosquitto_tls, "stop"],
         capture_output=True,
         text=True,
         timeout=60,

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.protocol import Connection, Topics, decode
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.output import Output, alive
 from support.probe import MqttProbe
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow
 def started_up(*args: str) -> tuple[subprocess.Popen[str], Output]:
     """`gridfleet up ARGS`, once it says it is running (its output read as it comes)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "system.cli", "up", *args],
+        [sys.executable, "-m", "gridfleet", "up", *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -90,7 +90,7 @@ def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
 ) -> None:
     out = subprocess.run(
         [
-            sys.executable, "-m", "system", "up", "--mqtt-port", str(broker.port),
+            sys.executable, "-m", "gridfleet", "up", "--mqtt-port", str(broker.port),
             "--ws-port", "0", "--port", "0",
         ],
         capture_output=True, text=True, timeout=60, check=False,
@@ -104,7 +104,7 @@ def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
 
 def test_up_refuses_a_bad_step_before_starting_anything() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "system", "up", "--step", "-1", "--mqtt-port", "0"],
+        [sys.executable, "-m", "gridfleet", "up", "--step", "-1", "--mqtt-port", "0"],
         capture_output=True, text=True, timeout=60, check=False,
     )  # fmt: skip
     assert out.returncode == 2 and "started" not in out.stdout
@@ -115,7 +115,7 @@ def test_up_refuses_a_bad_step_before_starting_anything() -> None:
 
 def test_up_refuses_a_bad_unit_process_count_before_starting_anything() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "system", "up", "--workers", "0", "--mqtt-port", "0"],
+        [sys.executable, "-m", "gridfleet", "up", "--workers", "0", "--mqtt-port", "0"],
         capture_output=True, text=True, timeout=60, check=False,
     )  # fmt: skip
     assert out.returncode == 2 and "started" not in out.stdout
@@ -126,7 +126,7 @@ def _up(broker: BrokerThread, root: str, tmp_path: Path, playfield: Path) -> sub
     """`gridfleet up` on the test's broker, its output on a pipe."""
     return subprocess.Popen(
         [
-            sys.executable, "-m", "system.cli", "up", "--broker", broker.url,
+            sys.executable, "-m", "gridfleet", "up", "--broker", broker.url,
             "--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.05",
             "--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield),
         ],

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import pytest
 
-from broker.certs import make_tls, write_tls
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.config import with_ca_file
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import JobsView, Topics, decode
 from gridfleet.scenario import load_scenario
-from system.cli import build_parser
-from system.up import spec_from, where_to_open
+from gridfleet.system.cli import build_parser
+from gridfleet.system.up import spec_from, where_to_open
 
 from support.output import Output, alive
 from support.probe import MqttProbe
@@ -31,7 +31,7 @@ from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
-UP = [sys.executable, "-m", "system", "up"]
+UP = [sys.executable, "-m", "gridfleet", "up"]
 
 
 @pytest.fixture

@@ -10,10 +10,10 @@ import pytest
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol.messages import Leds
+from gridfleet.robots.webots.adapter import WebotsWorld
+from gridfleet.robots.webots.settings import BROKER_ENV, read_settings
+from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
-from robots.webots.adapter import WebotsWorld
-from robots.webots.settings import BROKER_ENV, read_settings
-from robots.webots.world_file import WorldOptions, world_text
 
 from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble
 

@@ -20,14 +20,14 @@ import pytest
 from gridfleet.grid import Cell, Direction
 from gridfleet.ports import free_port
 from gridfleet.protocol import Factsheet, Topics, decode
+from gridfleet.robots.fleet import Fleet
+from gridfleet.robots.webots.host import MODEL, WebotsUnit
+from gridfleet.robots.webots.main import run_controller
+from gridfleet.robots.webots.settings import read_settings
+from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
-from robots.fleet import Fleet
-from robots.webots.host import MODEL, WebotsUnit
-from robots.webots.main import run_controller
-from robots.webots.settings import read_settings
-from robots.webots.world_file import WorldOptions, world_text
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread, coordinator_thread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -196,4 +196,19 @@ def test_the_controller_script_outside_webots_says_so_in_one_line() -> None:
     assert done.stderr.strip().splitlines() == [
         "gridfleet_unit: error: no Webots controller module; Webots runs this controller "
         "(robots/webots/README.md)"
+    ]
+
+
+def test_the_controller_in_a_python_without_gridfleet_names_that_python(tmp_path: Path) -> None:
+    # Webots runs the Python set in its preferences: one without gridfleet installed is said so.
+    bare = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(bare)], check=True)
+    python = bare / "bin" / "python"
+    done = subprocess.run(
+        [str(python), str(CONTROLLER)], capture_output=True, text=True, timeout=60, cwd="/"
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        f"gridfleet_unit: error: gridfleet is not installed in the Python Webots runs ({python}); "
+        "set Webots' Python command to gridfleet's virtual environment (robots/webots/README.md)"
     ]

@@ -10,8 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.scenario import DEFAULT_COLORS
-from robots.webots.geometry import (
+from gridfleet.robots.webots.geometry import (
     BLOCK_HEIGHT_M,
     LED_NAMES,
     OBSTACLE_SIDE_M,
@@ -30,6 +29,7 @@ from robots.webots.geometry import (
     sf_color,
     square_at,
 )
+from gridfleet.scenario import DEFAULT_COLORS
 
 from support.vrml import Node, read_proto
 from support.webots_double import PROTOS

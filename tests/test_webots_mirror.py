@@ -9,13 +9,13 @@ import pytest
 
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import HeaderStamper, Topics, encode
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.webots.mirror import MirrorUnit
+from gridfleet.robots.webots.settings import read_settings
+from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import load_scenario
-from robots.unit import UnitLogic
-from robots.webots.mirror import MirrorUnit
-from robots.webots.settings import read_settings
-from robots.webots.world_file import WorldOptions, world_text
-from system.broker_thread import BrokerThread
-from system.threads import ServiceThread
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
 
 from support.probe import MqttProbe
 from support.wait import wait_for

@@ -11,9 +11,8 @@ import pytest
 
 from gridfleet.accounts import default_accounts, write_accounts
 from gridfleet.grid import Cell
-from gridfleet.scenario import Scenario, load_scenario
-from robots.webots.cli import protos_from
-from robots.webots.geometry import (
+from gridfleet.robots.webots.cli import protos_from
+from gridfleet.robots.webots.geometry import (
     BLOCK_HEIGHT_M,
     OBSTACLE_SIDE_M,
     SQUARE_M,
@@ -21,7 +20,8 @@ from robots.webots.geometry import (
     metres,
     sf_color,
 )
-from robots.webots.world_file import WorldOptions, world_text
+from gridfleet.robots.webots.world_file import WorldOptions, world_text
+from gridfleet.scenario import Scenario, load_scenario
 
 from support.vrml import Node, VrmlError, World, read_world
 
@@ -53,7 +53,7 @@ def world_of(scenario: Scenario, **options: object) -> World:
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "system.cli", "webots-world", *args],
+        [sys.executable, "-m", "gridfleet", "webots-world", *args],
         capture_output=True,
         text=True,
         timeout=60,

@@ -22,9 +22,9 @@ from typing import Protocol, TypeVar, cast
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol.messages import Leds, SensorReading
-from robots.webots.api import LED, DistanceSensor, Field, Node, Supervisor
-from robots.webots.geometry import LED_NAMES, SENSOR_NAMES, metres, reading, square_at
-from robots.world import Collision
+from gridfleet.robots.webots.api import LED, DistanceSensor, Field, Node, Supervisor
+from gridfleet.robots.webots.geometry import LED_NAMES, SENSOR_NAMES, metres, reading, square_at
+from gridfleet.robots.world import Collision
 
 T = TypeVar("T")
 UNIT_PROTO = "GridUnit"

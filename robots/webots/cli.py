@@ -11,8 +11,8 @@ from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_broker_url, wit
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
 from gridfleet.protocol.topics import Topics
+from gridfleet.robots.webots.world_file import WEBOTS_VERSION, WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
-from robots.webots.world_file import WEBOTS_VERSION, WorldOptions, world_text
 
 PROTOS = Path(__file__).resolve().parent / "protos"
 

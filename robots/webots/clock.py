@@ -22,9 +22,9 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
 from gridfleet.protocol.messages import Leds
-from robots.webots.adapter import WebotsWorld
+from gridfleet.robots.webots.adapter import WebotsWorld
 
-log = logging.getLogger("robots.webots")
+log = logging.getLogger("gridfleet.robots.webots")
 T = TypeVar("T")
 
 

@@ -12,13 +12,13 @@ import asyncio
 
 from gridfleet.endpoint import Endpoint
 from gridfleet.protocol import Topics
+from gridfleet.robots.runner import UnitRunner
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.webots.adapter import WebotsWorld
+from gridfleet.robots.webots.api import Supervisor
+from gridfleet.robots.webots.clock import WebotsThread, keep_stepping
+from gridfleet.robots.webots.settings import UnitSettings
 from gridfleet.tasks import cancel_and_wait
-from robots.runner import UnitRunner
-from robots.unit import UnitLogic
-from robots.webots.adapter import WebotsWorld
-from robots.webots.api import Supervisor
-from robots.webots.clock import WebotsThread, keep_stepping
-from robots.webots.settings import UnitSettings
 
 MODEL = "gridfleet-webots"  # the factsheet's `model` of a unit in Webots
 

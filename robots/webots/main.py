@@ -8,13 +8,13 @@ import logging
 import sys
 
 from gridfleet.errors import GridfleetError
+from gridfleet.robots.webots.api import Supervisor
+from gridfleet.robots.webots.host import WebotsUnit
+from gridfleet.robots.webots.mirror import MirrorUnit
+from gridfleet.robots.webots.settings import UnitSettings, read_settings
 from gridfleet.tasks import stop_on_signals
-from robots.webots.api import Supervisor
-from robots.webots.host import WebotsUnit
-from robots.webots.mirror import MirrorUnit
-from robots.webots.settings import UnitSettings, read_settings
 
-log = logging.getLogger("robots.webots")
+log = logging.getLogger("gridfleet.robots.webots")
 
 
 def run_controller(robot: Supervisor) -> int:

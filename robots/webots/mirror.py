@@ -15,13 +15,13 @@ from gridfleet.endpoint import Endpoint
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import Topics, UnitState, decode
 from gridfleet.protocol.messages import Leds
+from gridfleet.robots.webots.adapter import WebotsWorld
+from gridfleet.robots.webots.api import Supervisor
+from gridfleet.robots.webots.clock import WebotsThread, keep_stepping
+from gridfleet.robots.webots.settings import UnitSettings
 from gridfleet.tasks import cancel_and_wait
-from robots.webots.adapter import WebotsWorld
-from robots.webots.api import Supervisor
-from robots.webots.clock import WebotsThread, keep_stepping
-from robots.webots.settings import UnitSettings
 
-log = logging.getLogger("robots.webots")
+log = logging.getLogger("gridfleet.robots.webots")
 
 
 class MirrorUnit:

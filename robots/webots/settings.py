@@ -12,8 +12,8 @@ from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import FREE_CHARS, Cell, GridMap
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.protocol.topics import Topics, validate_id
-from robots.webots.api import Field, Supervisor
-from robots.webots.geometry import hex_color, square_at
+from gridfleet.robots.webots.api import Field, Supervisor
+from gridfleet.robots.webots.geometry import hex_color, square_at
 
 BROKER_ENV = "GRIDFLEET_BROKER"  # the broker of every unit whose `broker` field is empty
 T = TypeVar("T")

@@ -20,8 +20,7 @@ from dataclasses import dataclass, field
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
-from gridfleet.scenario import Scenario
-from robots.webots.geometry import (
+from gridfleet.robots.webots.geometry import (
     BLOCK_HEIGHT_M,
     OBSTACLE_SIDE_M,
     SQUARE_M,
@@ -30,6 +29,7 @@ from robots.webots.geometry import (
     metres,
     sf_color,
 )
+from gridfleet.scenario import Scenario
 
 WEBOTS_VERSION = "R2023b"
 WEBOTS_OBJECTS = (

@@ -18,11 +18,11 @@ from typing import Any
 
 import pytest
 
-from dashboard.app import create_app
-from dashboard.server import DashboardServer
-from dashboard.settings import DashboardSettings
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.server import DashboardServer
+from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.grid import GridMap
-from system.broker_thread import BrokerThread
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.wait import wait_for
 

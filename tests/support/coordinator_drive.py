@@ -6,10 +6,10 @@ so a test can pin exact payloads with `support.effects.published`.
 
 from __future__ import annotations
 
-from coordinator.core import CoordinatorCore
-from coordinator.effects import Effects
-from coordinator.jobs import Job, JobBook
-from coordinator.world import World
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.effects import Effects
+from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.world import World
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
     Connection,

@@ -17,10 +17,10 @@ from collections.abc import Iterable
 from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Topics, UnitState
+from gridfleet.robots.runner import UnitRunner
+from gridfleet.robots.unit import UnitLogic
+from gridfleet.robots.world import WorldSim
 from gridfleet.tasks import cancel_and_wait
-from robots.runner import UnitRunner
-from robots.unit import UnitLogic
-from robots.world import WorldSim
 
 # A 10 x 10 room with a few walls: the pure-core tests' shared playground.
 ROOM_ROWS = [

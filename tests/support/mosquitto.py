@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.accounts import Accounts
+from gridfleet.broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from gridfleet.grid import Cell, Direction, GridMap
-from robots.world import WorldSim
+from gridfleet.robots.world import WorldSim
 
 from support.vrml import Is, Node, Scalar, Value, read_proto, read_world
 from support.webots_rays import Ray, hit, numbers, to_wall, unit_geometry

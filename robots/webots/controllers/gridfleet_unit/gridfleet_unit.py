@@ -9,20 +9,29 @@ from __future__ import annotations
 
 import importlib.util
 import sys
-from pathlib import Path
-
-CHECKOUT = Path(__file__).resolve().parents[4]  # .../robots/webots/controllers/gridfleet_unit
 
 
-def find_gridfleet(path: list[str]) -> None:
-    """Put the checkout this file is in on `path` when gridfleet is not installed already."""
-    if importlib.util.find_spec("robots") is None:
-        path.insert(0, str(CHECKOUT))
+def missing_gridfleet() -> str | None:
+    """Why this Python cannot run the unit (None: gridfleet is installed in it)."""
+    if importlib.util.find_spec("gridfleet") is not None:
+        try:
+            if importlib.util.find_spec("gridfleet.robots") is not None:
+                return None
+        except ImportError:
+            pass
+    return (
+        f"gridfleet_unit: error: gridfleet is not installed in the Python Webots runs "
+        f"({sys.executable}); set Webots' Python command to gridfleet's virtual environment "
+        "(robots/webots/README.md)"
+    )
 
 
 def main() -> int:
     """Run the unit until Webots ends the controller."""
-    find_gridfleet(sys.path)
+    missing = missing_gridfleet()
+    if missing is not None:
+        print(missing, file=sys.stderr)
+        return 2
     try:
         from controller import Supervisor  # Webots' own module: it exists only inside Webots
     except ImportError:
@@ -32,7 +41,7 @@ def main() -> int:
             file=sys.stderr,
         )
         return 2
-    from robots.webots.main import run_controller
+    from gridfleet.robots.webots.main import run_controller
 
     return run_controller(Supervisor())
 
