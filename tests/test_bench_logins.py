@@ -8,6 +8,9 @@ import sys
 
 import pytest
 
+# The benchmark's own runs: in make test, not in make test-fast.
+pytestmark = pytest.mark.slow
+
 
 def bench(*args: str) -> subprocess.CompletedProcess[str]:
     command = [sys.executable, "-m", "gridfleet", "bench", "logins", *args]

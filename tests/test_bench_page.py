@@ -7,6 +7,9 @@ import sys
 
 import pytest
 
+# The benchmark's own runs: in make test, not in make test-fast.
+pytestmark = pytest.mark.slow
+
 
 @pytest.mark.parametrize(
     ("args", "problem"),

@@ -15,6 +15,9 @@ from gridfleet.bench.system_scenario import FILL, bench_grid, make_scenario
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.system.broker_thread import BrokerThread
 
+# The benchmark's own runs: in make test, not in make test-fast.
+pytestmark = pytest.mark.slow
+
 
 def bench(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     """Run `python -m gridfleet bench system ARGS` and capture its output."""

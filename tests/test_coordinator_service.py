@@ -75,7 +75,7 @@ class Rig:
         self.coordinator = Coordinator(broker, grid, root=self.topics.root, step_s=STEP, db_path=db)
         self.stop_coord = asyncio.Event()
         self.coord_task = asyncio.create_task(self.coordinator.run(self.stop_coord))
-        await asyncio.wait_for(self.coordinator.ready.wait(), 10)
+        await asyncio.wait_for(self.coordinator.ready.wait(), 30)  # a loaded machine
 
 
 @contextlib.asynccontextmanager

@@ -35,6 +35,7 @@ def have_toolchain() -> bool:
 @pytest.mark.skipif(
     not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
 )
+@pytest.mark.slow  # make test-fast: `make firmware-test` builds and runs the same host tests
 @pytest.mark.timeout(240)  # a cold g++ build of the host tests, with its own 180 s limit
 def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
     files = tracked("firmware")
