@@ -10,7 +10,7 @@ STAMP := $(VENV)/.installed
 # dashboard, doctest and g++ for the firmware's host tests.
 DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
-$(STAMP): pyproject.toml constraints.txt
+$(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"
@@ -42,10 +42,11 @@ check: lint typecheck
 lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	cd dashboard && npx --no-install eslint .
 
 # mypy cannot follow the editable install's mapping of the checkout's folders into gridfleet.*, so
 # it checks a tree of links laid out as the installed package is.
-PARTS := broker coordinator robots dashboard device system bench
+PARTS := broker coordinator robots dashboard device console system bench
 typecheck: $(STAMP)
 	rm -rf build/typecheck && mkdir -p build/typecheck/gridfleet
 	cd build/typecheck/gridfleet && ln -s ../../../gridfleet/*.py ../../../gridfleet/protocol . && \
@@ -83,7 +84,7 @@ constraints: $(STAMP)
 	mv constraints.new constraints.txt
 
 schemas: $(STAMP)
-	$(BIN)/python -m gridfleet.protocol.schemas
+	$(BIN)/python -m gridfleet.system.schemas
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules

@@ -54,7 +54,7 @@ export class FleetView {
     }
     if (kind === "stop" || kind === "device_stop") {
       let press;
-      try { press = decodePress(text, id); } catch (e) { return `ignored an invalid stop press of ${id}`; }
+      try { press = decodePress(text, id); } catch { return `ignored an invalid stop press of ${id}`; }
       if (press) this.presses.set(`${kind}/${id}`, press); else this.presses.delete(`${kind}/${id}`);
       return null;
     }
@@ -68,7 +68,7 @@ export class FleetView {
     let msg;
     try {
       msg = JSON.parse(text);
-    } catch (e) {
+    } catch {
       return `ignored malformed JSON on ${kind}${id ? " of " + id : ""}`;
     }
     if (typeof msg !== "object" || msg === null) return `ignored a non-object on ${kind}`;
