@@ -33,6 +33,8 @@ from gridfleet.bench.system_result import SystemResult
 from gridfleet.bench.system_scenario import make_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
+from gridfleet.console.feed import random_job
+from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze_after_start
@@ -41,8 +43,6 @@ from gridfleet.protocol import Reply, Topics
 from gridfleet.robots.shards import workers_for
 from gridfleet.scenario import Scenario
 from gridfleet.system.assembly import Assembly, SystemSpec
-from gridfleet.system.feed import random_job
-from gridfleet.system.operator import Operator, operator_session
 from gridfleet.system.supervisor import Supervisor
 from gridfleet.system.threads import ServiceThread, world_of
 from gridfleet.tasks import cancel_and_wait

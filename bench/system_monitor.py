@@ -10,9 +10,9 @@ from datetime import UTC, datetime
 
 import aiomqtt
 
+from gridfleet.console.monitor import FleetMonitor
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import TOPICS, Topics, UnitState
-from gridfleet.system.monitor import FleetMonitor
 
 
 @dataclass(frozen=True)

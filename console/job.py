@@ -11,6 +11,7 @@ from collections.abc import Callable
 from typing import TextIO
 
 from gridfleet.config import redacted
+from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.options import add_actions, add_common, broker_url
@@ -18,7 +19,6 @@ from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.protocol.topics import Topics
-from gridfleet.system.operator import Operator, operator_session
 
 WAIT_S = 10.0
 

@@ -31,9 +31,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "robots": ("gridfleet.robots.cli", "run the simulated units of a scenario"),
     "dashboard": ("gridfleet.dashboard.cli", "serve the browser dashboard"),
     "device": ("gridfleet.device.cli", "a virtual ESP32: direction LEDs and an emergency-stop key"),
-    "job": ("gridfleet.system.job", "submit, cancel and list jobs; set goals; emergency stop"),
+    "job": ("gridfleet.console.job", "submit, cancel and list jobs; set goals; emergency stop"),
     "feed": (
-        "gridfleet.system.feed",
+        "gridfleet.console.feed",
         "submit a scenario's jobs and goals; --demo keeps jobs coming",
     ),
     "simulate": ("gridfleet.system.simulate", "run a scenario to the end in accelerated time"),
@@ -41,9 +41,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "gridfleet.system.accounts_cli",
         "make the broker accounts file; add accounts to it",
     ),
-    "clean": ("gridfleet.system.clean", "clear a topic root's retained messages on a broker"),
+    "clean": ("gridfleet.console.clean", "clear a topic root's retained messages on a broker"),
     "status": (
-        "gridfleet.system.status",
+        "gridfleet.console.status",
         "the fleet at a glance: the stop, the coordinator, units, jobs",
     ),
     "bench": ("gridfleet.bench.cli", "benchmark the planner and the whole system"),

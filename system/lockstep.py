@@ -16,6 +16,7 @@ from functools import partial
 
 from paho.mqtt.client import topic_matches_sub
 
+from gridfleet.console.feed import scenario_job_id
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.jobs import JobBook
 from gridfleet.coordinator.world import World
@@ -25,7 +26,6 @@ from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import Scenario
-from gridfleet.system.feed import scenario_job_id
 from gridfleet.system.simulate import SimulationResult, job_json, units_json
 
 Handler = Callable[[str, bytes], list[Outbound]]

@@ -1,11 +1,11 @@
 """Generated protocol files: the JSON Schema of every JSON message, and the protocol table.
 
-`make schemas` (`python -m gridfleet.protocol.schemas [ROOT]`) writes, under the repository (or
+`make schemas` (`python -m gridfleet.system.schemas [ROOT]`) writes, under the repository (or
 ROOT):
 
 - `protocol/schemas/<Model>.json`: one JSON Schema per message model used on a topic;
 - `protocol/protocol.json`, `dashboard/static/js/protocol_table.js` and
-  `firmware/esp32_unit/src/protocol_table.h`: the topic table and constants (see table.py).
+  `firmware/esp32_unit/src/protocol_table.h`: the topic table and constants (see system/protocol_table.py).
 
 A test fails when a committed file differs from a fresh generation.
 """
@@ -17,10 +17,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from gridfleet.protocol import messages, table
+from gridfleet.protocol import messages
 from gridfleet.protocol.topics import TOPICS
+from gridfleet.system import protocol_table as table
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]  # the checkout (this is system/schemas.py)
 SCHEMA_DIR = REPO / "protocol" / "schemas"
 
 

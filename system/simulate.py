@@ -18,6 +18,10 @@ import aiomqtt
 
 from gridfleet.bus import make_client
 from gridfleet.config import check_step, owned_client_id, parse_broker_url
+from gridfleet.console.clean import clean_root
+from gridfleet.console.feed import scenario_job_id, submit_scenario
+from gridfleet.console.monitor import FleetMonitor
+from gridfleet.console.operator import Operator
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze
@@ -27,10 +31,6 @@ from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.scenario import Scenario, load_scenario, with_units
 from gridfleet.system.assembly import Assembly, SystemSpec
-from gridfleet.system.clean import clean_root
-from gridfleet.system.feed import scenario_job_id, submit_scenario
-from gridfleet.system.monitor import FleetMonitor
-from gridfleet.system.operator import Operator
 from gridfleet.system.threads import world_of
 
 if TYPE_CHECKING:

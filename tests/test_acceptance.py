@@ -14,12 +14,12 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.console.monitor import FleetMonitor
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Topics
 from gridfleet.scenario import Scenario, load_scenario
 from gridfleet.system.broker_thread import BrokerThread
-from gridfleet.system.monitor import FleetMonitor
 from gridfleet.system.simulate import SimulationResult, simulate
 
 from support.probe import MqttProbe

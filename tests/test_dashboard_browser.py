@@ -95,21 +95,29 @@ def playfield_fleet(
         units[unit.id].state(unit.start)
 
 
+@pytest.fixture
+def dash(
+    open_dashboard: Callable[..., OpenDashboard],
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
+    grid: GridMap,
+    root: str,
+) -> OpenDashboard:
+    """The page open on the playfield, its coordinator and four units played by peers."""
+    playfield_fleet(coordinator, units, grid)
+    return open_dashboard(root)
+
+
 def row(dash: OpenDashboard, unit: str) -> Any:
     return dash.page.locator(f"#units tr[data-unit='{unit}']")
 
 
 def test_units_appear_at_their_positions_and_move(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
     units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     page = dash.page
     expect(page.locator("#map-name")).to_have_text("playfield 10 x 10")
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[0, 0]")
@@ -217,16 +225,11 @@ def test_live_playfield_screenshot(
 
 
 def test_submit_job_through_the_form(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
     coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     dash.submit_job((1, 1), (8, 8), 1.5)
 
     seen = probe.wait(topics.request("submit_job"))
@@ -249,16 +252,10 @@ def test_submit_job_through_the_form(
 
 
 def test_queue_job_by_clicking_two_squares(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     dash.page.locator("input[name=clickmode][value=job]").check()
     dash.click_square(5, 0)
     dash.click_square(5, 9)
@@ -269,16 +266,10 @@ def test_queue_job_by_clicking_two_squares(
 
 
 def test_form_refuses_a_square_off_the_map_without_sending(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     form = dash.page.locator("#job-form")
     for name, value in (("px", "12"), ("py", "1"), ("dx", "8"), ("dy", "8")):
         form.locator(f"input[name={name}]").fill(value)
@@ -296,16 +287,11 @@ def test_form_refuses_a_square_off_the_map_without_sending(
 
 
 def test_rejection_is_shown_in_words(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
     coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     form = dash.page.locator("#job-form")
     for name, value in (("px", "0"), ("py", "5"), ("dx", "9"), ("dy", "5"), ("mass", "50")):
         form.locator(f"input[name={name}]").fill(value)
@@ -349,16 +335,11 @@ def test_delete_publishes_cancel_job(
 
 
 def test_set_goal_by_clicking_the_map(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
     units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     dash.page.locator("input[name=clickmode][value=goal]").check()
     dash.click_square(9, 0)  # clicking a unit chooses it
     expect(dash.page.locator("#units tr.selected")).to_have_attribute("data-unit", "unit2")
@@ -373,17 +354,11 @@ def test_set_goal_by_clicking_the_map(
 
 
 def test_stop_button_engages_and_hold_releases(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     broker: BrokerThread,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     page = dash.page
     estop_topic = topics.fleet("estop")
     expect(page.locator("#release")).to_be_hidden()
@@ -433,16 +408,10 @@ def test_stop_button_engages_and_hold_releases(
 
 
 def test_estop_engaged_elsewhere_is_shown(
-    open_dashboard: Callable[..., OpenDashboard],
+    dash: OpenDashboard,
     probe: MqttProbe,
-    coordinator: CoordinatorPeer,
-    units: dict[str, UnitPeer],
-    grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    playfield_fleet(coordinator, units, grid)
-    dash = open_dashboard(root)
     publish(probe, "estop", topics.fleet("estop"), b"engaged|device1|button pressed")
     expect(dash.page.locator("body")).to_have_attribute("data-estop", "engaged")
     expect(dash.page.locator("#estop-banner")).to_have_text(

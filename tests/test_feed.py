@@ -8,13 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.console.feed import demo_queue, random_job
+from gridfleet.console.operator import operator_session
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import FleetMap, Topics, encode
 from gridfleet.scenario import load_scenario
 from gridfleet.system.broker_thread import BrokerThread
-from gridfleet.system.feed import demo_queue, random_job
-from gridfleet.system.operator import operator_session
 
 from support.effects import header
 from support.fleet_peer import CoordinatorPeer

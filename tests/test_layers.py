@@ -14,7 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 BASE = "gridfleet"
-COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device")
+COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console")
 COMPOSITION = ("system", "bench")  # bench stands on system: system never imports bench
 PARTS = (*COMPONENTS, *COMPOSITION)  # folders at the top of the checkout, installed as gridfleet.*
 PRODUCT = (BASE, *PARTS)

@@ -9,11 +9,11 @@ from collections.abc import Callable
 
 import pytest
 
+from gridfleet.console.operator import operator_session
 from gridfleet.errors import GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Reply, Topics, encode
 from gridfleet.system.broker_thread import BrokerThread
-from gridfleet.system.operator import operator_session
 
 from support.effects import header
 from support.probe import MqttProbe

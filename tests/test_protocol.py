@@ -57,8 +57,8 @@ from gridfleet.protocol.constants import (
 )
 from gridfleet.protocol.device import DEVICE_STATES, DEVICE_WILL
 from gridfleet.protocol.messages import FINAL_JOB_STATES, DirectionLetter, Message
-from gridfleet.protocol.schemas import REPO
-from gridfleet.protocol.table import TABLE_PATH, protocol_table
+from gridfleet.system.protocol_table import TABLE_PATH, protocol_table
+from gridfleet.system.schemas import REPO
 
 TABLE_FILE = REPO / TABLE_PATH
 

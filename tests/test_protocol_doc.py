@@ -20,7 +20,7 @@ from gridfleet.protocol import (
     decode_press,
     messages,
 )
-from gridfleet.protocol.schemas import REPO, SCHEMA_DIR, generated, render, schemas
+from gridfleet.system.schemas import REPO, SCHEMA_DIR, generated, render, schemas
 
 DOC = Path(__file__).resolve().parent.parent / "protocol.md"
 BLOCK_RE = re.compile(r"^```(json|text) (\w+)\n(.*?)^```", re.S | re.M)

@@ -12,6 +12,7 @@ from typing import Any
 
 import pytest
 
+from gridfleet.console.status import CLEAR, FleetStatus, render
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
@@ -28,7 +29,6 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.messages import JobState, Message
 from gridfleet.system.broker_thread import BrokerThread
-from gridfleet.system.status import CLEAR, FleetStatus, render
 from gridfleet.system.threads import ServiceThread
 
 from support.effects import header
