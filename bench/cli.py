@@ -5,6 +5,11 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from gridfleet.errors import ConfigError
+
+# What pyproject's `bench` extra brings; a bench that needs one missing says how to install it.
+BENCH_EXTRA = {"psutil", "playwright", "matplotlib"}
+
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
 BENCHES: dict[str, tuple[str, str]] = {
     "planner": (
@@ -34,12 +39,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add one subcommand per benchmark."""
     sub = parser.add_subparsers(dest="bench", metavar="<bench>", required=True)
     for name, (module_name, help_text) in BENCHES.items():
-        module = importlib.import_module(module_name)
-        cmd = sub.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:])
+        description = help_text[0].upper() + help_text[1:]
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name not in BENCH_EXTRA:
+                raise
+            # Still listed; run with any flags, it says what to install (no flag is parsed: the
+            # parser's prefix character never occurs).
+            cmd = sub.add_parser(
+                name, help=help_text, description=description, prefix_chars="\0", add_help=False
+            )
+            cmd.set_defaults(bench_missing=exc.name)
+            cmd.add_argument("flags", nargs="*")
+            continue
+        cmd = sub.add_parser(name, help=help_text, description=description)
         module.add_arguments(cmd)
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the chosen benchmark."""
+    missing = getattr(args, "bench_missing", None)
+    if missing is not None:
+        raise ConfigError(
+            f"bench {args.bench} needs {missing}, of the bench extra: pip install 'gridfleet[bench]' "
+            "(in a checkout, make install has it)"
+        )
     module = importlib.import_module(BENCHES[args.bench][0])
     return int(module.run(args) or 0)

@@ -156,3 +156,26 @@ def test_negative_squares_reach_the_square_type() -> None:
         with pytest.raises(SystemExit), contextlib.redirect_stderr(io.StringIO()) as err:
             parser.parse_args(argv)
         assert "squares start at 0,0" in err.getvalue().splitlines()[-1]
+
+
+def test_a_bench_whose_extra_is_missing_says_what_to_install() -> None:
+    # psutil is in the bench extra, not the base install: without it the other benches still run.
+    code = (
+        "import sys; sys.modules['psutil'] = None\n"
+        "from gridfleet.system.cli import main\n"
+        "sys.exit(main(['bench', 'system', '--units', '4']))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False
+    )
+    assert done.returncode == 2
+    assert done.stderr.strip().splitlines() == [
+        "gridfleet bench: error: bench system needs psutil, of the bench extra: "
+        "pip install 'gridfleet[bench]' (in a checkout, make install has it)"
+    ]
+    planner = subprocess.run(
+        [sys.executable, "-c", "import sys; sys.modules['psutil'] = None\n"
+         "from gridfleet.system.cli import main\nsys.exit(main(['bench', 'planner', '--help']))"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert planner.returncode == 0 and "--suite" in planner.stdout, planner.stderr
