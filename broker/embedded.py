@@ -11,6 +11,8 @@ from types import TracebackType
 from typing import Any
 from urllib.parse import urlsplit
 
+from pydantic import BaseModel, ConfigDict, ValidationError
+
 from gridfleet.accounts import Accounts, rules
 from gridfleet.broker.gate import Gate
 from gridfleet.broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
@@ -27,17 +29,21 @@ log = logging.getLogger("gridfleet.broker")
 # than the 15 s a supervisor waits after SIGTERM (measured in the chaos soak). Bounded here.
 SHUTDOWN_S = 5.0
 
-_SETTING_TYPES = {
-    "host": str,
-    "port": int,
-    "ws_port": int,
-    "max_connections": int,
-    "tls_cert": str,
-    "tls_key": str,
-    "max_packet_bytes": int,
-    "max_queued_messages": int,
-    "max_queued_bytes": int,
-}
+
+class _BrokerTable(BaseModel):
+    """The [broker] table of a config file: TOML's own types, no key it does not know."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    host: str | None = None
+    port: int | None = None
+    ws_port: int | None = None
+    max_connections: int | None = None
+    tls_cert: str | None = None
+    tls_key: str | None = None
+    max_packet_bytes: int | None = None
+    max_queued_messages: int | None = None
+    max_queued_bytes: int | None = None
 
 
 @dataclass(frozen=True)
@@ -147,17 +153,20 @@ def load_settings(path: str | Path, base: BrokerSettings | None = None) -> Broke
     table = data.get("broker", {})
     if not isinstance(table, dict):
         raise ConfigError(f"{p}: [broker] must be a table")
-    changes: dict[str, Any] = {}
-    for key, value in table.items():
-        expected = _SETTING_TYPES.get(key)
-        if expected is None:
-            raise ConfigError(
-                f"{p}: unknown broker setting {key!r} (known: {', '.join(sorted(_SETTING_TYPES))})"
-            )
-        if not isinstance(value, expected) or isinstance(value, bool):
-            raise ConfigError(f"{p}: broker setting {key!r} must be {expected.__name__}")
-        # Certificate files are found next to the config file, wherever the broker is started.
-        changes[key] = p.parent / str(value) if key.startswith("tls_") else value
+    try:
+        settings = _BrokerTable.model_validate(table)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        key = str(error["loc"][0])
+        if error["type"] == "extra_forbidden":
+            known = ", ".join(sorted(_BrokerTable.model_fields))
+            raise ConfigError(f"{p}: unknown broker setting {key!r} (known: {known})") from None
+        kind = "str" if key in ("host", "tls_cert", "tls_key") else "int"
+        raise ConfigError(f"{p}: broker setting {key!r} must be {kind}") from None
+    changes: dict[str, Any] = settings.model_dump(exclude_unset=True)
+    for key in ("tls_cert", "tls_key"):
+        if key in changes:  # next to the config file, wherever the broker is started
+            changes[key] = p.parent / changes[key]
     return replace(base or BrokerSettings(), **changes)
 
 

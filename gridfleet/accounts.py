@@ -22,13 +22,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
 
+from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic_core import ErrorDetails
+
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.protocol import Topics, validate_id
 from gridfleet.textfile import read_text
 
 Role = Literal["coordinator", "unit", "device", "dashboard", "operator"]
 ROLES: tuple[Role, ...] = get_args(Role)
-_KEYS = {"password", "role", "unit"}
 REQUEST_KINDS = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
 MIN_PASSWORD = 12
 
@@ -104,6 +106,39 @@ def default_accounts(units: list[str]) -> Accounts:
     return Accounts({a.name: a for a in made})
 
 
+class _AccountTable(BaseModel):
+    """One [accounts.NAME] table: strings only (checked by Account), no other key."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    password: str | None = None
+    role: Role | None = None
+    unit: str | None = None
+
+
+class _AccountsFile(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    accounts: dict[str, _AccountTable] = {}
+
+
+def _shape_problem(error: ErrorDetails) -> str:
+    """The first thing wrong with the file's shape, in one line."""
+    loc = error["loc"]
+    if len(loc) == 1:
+        if error["type"] == "extra_forbidden":
+            return f"unknown table {loc[0]!r} (only [accounts.NAME])"
+        return "no [accounts.NAME] tables"
+    name = loc[1]
+    if len(loc) == 2:
+        return f"accounts.{name} must be a table"
+    if error["type"] == "extra_forbidden":
+        return f"accounts.{name}: unknown key {loc[2]!r}"
+    if error["type"] == "literal_error":
+        return f"account {name}: role {error['input']!r} is not one of {ROLES}"
+    return f"accounts.{name}: password, role and unit are strings"
+
+
 def load_accounts(path: str | Path) -> Accounts:
     """Read an accounts file; ConfigError naming the file and the problem."""
     p = Path(path)
@@ -114,26 +149,18 @@ def load_accounts(path: str | Path) -> Accounts:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: cannot read the accounts file: {exc}") from None
-    unknown = set(data) - {"accounts"}
-    if unknown:
-        raise ConfigError(f"{p}: unknown table {sorted(unknown)[0]!r} (only [accounts.NAME])")
-    table = data.get("accounts", {})
-    if not isinstance(table, dict) or not table:
+    try:
+        shape = _AccountsFile.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(f"{p}: {_shape_problem(exc.errors()[0])}") from None
+    if not shape.accounts:
         raise ConfigError(f"{p}: no [accounts.NAME] tables")
     accounts: dict[str, Account] = {}
-    for name, entry in table.items():
-        if not isinstance(entry, dict):
-            raise ConfigError(f"{p}: accounts.{name} must be a table")
-        extra = set(entry) - _KEYS
-        if extra:
-            raise ConfigError(f"{p}: accounts.{name}: unknown key {sorted(extra)[0]!r}")
-        values = {k: entry.get(k) for k in _KEYS}
-        if not all(isinstance(v, str) for v in values.values() if v is not None):
-            raise ConfigError(f"{p}: accounts.{name}: password, role and unit are strings")
-        if values["password"] is None or values["role"] is None:
+    for name, entry in shape.accounts.items():
+        if entry.password is None or entry.role is None:
             raise ConfigError(f"{p}: accounts.{name}: needs a password and a role")
         try:
-            accounts[name] = Account(name, values["password"], values["role"], values["unit"])
+            accounts[name] = Account(name, entry.password, entry.role, entry.unit)
         except (ConfigError, ProtocolError) as exc:
             raise ConfigError(f"{p}: {exc}") from None
     return Accounts(accounts)

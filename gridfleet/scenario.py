@@ -6,7 +6,10 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
+from pydantic_core import ErrorDetails
 
 from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
@@ -14,8 +17,6 @@ from gridfleet.maps import load_map
 from gridfleet.protocol.constants import ID_PATTERN
 from gridfleet.textfile import read_text
 
-_ID_RE = re.compile(ID_PATTERN)
-_COLOR_RE = re.compile(r"^#[0-9a-fA-F]{6}$")
 DEFAULT_COLORS = (
     "#d32f2f",
     "#1976d2",
@@ -80,10 +81,53 @@ class Scenario:
         raise KeyError(unit_id)
 
 
-_TOP_KEYS = {"map", "name", "description", "hidden_obstacles", "units", "jobs", "goals"}
-_UNIT_KEYS = {"id", "start", "capacity", "color"}
-_JOB_KEYS = {"pickup", "dropoff", "mass", "priority", "id"}
-_GOAL_KEYS = {"unit", "target"}
+Square = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
+Id = Annotated[str, Field(pattern=ID_PATTERN)]
+Kg = Annotated[StrictFloat | StrictInt, Field(gt=0, allow_inf_nan=False)]
+
+
+class _Table(BaseModel):
+    """A table of the file: exact types (TOML's, no coercion), no key it does not know."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class _UnitTable(_Table):
+    id: Id
+    start: Square
+    capacity: Kg
+    color: Annotated[str, Field(pattern=r"^#[0-9a-fA-F]{6}$")] | None = None
+
+
+class _JobTable(_Table):
+    pickup: Square
+    dropoff: Square
+    mass: Kg
+    priority: Annotated[StrictInt, Field(ge=0, le=100)] = 0
+    id: Id | None = None
+
+
+class _GoalTable(_Table):
+    unit: str
+    target: Square
+
+
+class _ScenarioFile(_Table):
+    map: str
+    name: str | None = None
+    description: str = ""
+    hidden_obstacles: list[Square] = []
+    units: list[_UnitTable] = []
+    jobs: list[_JobTable] = []
+    goals: list[_GoalTable] = []
+
+
+_TABLES: dict[str, tuple[str, type[_Table]]] = {
+    "units": ("unit", _UnitTable),
+    "jobs": ("job", _JobTable),
+    "goals": ("goal", _GoalTable),
+}
+_SQUARES = {"start", "pickup", "dropoff", "target"}
 
 
 class _Where:
@@ -120,28 +164,76 @@ def load_scenario(path: str | Path) -> Scenario:
     return _build(p, data, _Where(p, text))
 
 
-def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
-    unknown = set(data) - _TOP_KEYS
-    if unknown:
-        key = sorted(unknown)[0]
-        raise where.error(
-            where.key(key), f"unknown key {key!r} (known: {', '.join(sorted(_TOP_KEYS))})"
+def _words(field: str, kind: str, value: Any) -> str:
+    """What is wrong with a table's `field`, in the words of the file's author."""
+    if field in _SQUARES:
+        return f"{field} must be [x, y] with whole numbers, got {value!r}"
+    if field in ("capacity", "mass"):
+        if kind in ("greater_than", "finite_number"):
+            return f"'{field}' must be greater than 0, got {value!r}"
+        return f"'{field}' must be a number of kg, got {value!r}"
+    if field == "id":
+        return f"id {value!r} is not a valid id (letters, digits, '_', '.', '-'; no '/ + # $')"
+    if field == "color":
+        return f"color {value!r} is not #rrggbb"
+    if field == "priority":
+        return f"priority must be a whole number 0..100, got {value!r}"
+    return f"unknown unit {value!r}"  # a goal's unit
+
+
+def _shape_error(error: ErrorDetails, data: dict[str, Any], where: _Where) -> ScenarioError:
+    """One line for the first thing pydantic found wrong with the file's shape."""
+    loc, kind = error["loc"], error["type"]
+    top = str(loc[0])
+    if kind == "extra_forbidden" and len(loc) == 1:
+        known = ", ".join(sorted(_ScenarioFile.model_fields))
+        return where.error(where.key(top), f"unknown key {top!r} (known: {known})")
+    if top in _TABLES:
+        noun, model = _TABLES[top]
+        tables = data[top]
+        if len(loc) < 3 or not isinstance(tables[loc[1]], dict):
+            return where.error(where.key(top), f"'{top}' must be a list of tables ([[{top}]])")
+        index = int(loc[1])
+        table, field = tables[index], str(loc[2])
+        uid = table.get("id")
+        what = (
+            f"unit {uid!r}" if noun == "unit" and isinstance(uid, str) else f"{noun} #{index + 1}"
         )
-    if not isinstance(data.get("map"), str):
-        raise where.error(where.key("map"), "'map' must name a .map file relative to this scenario")
-    map_path = (path.parent / data["map"]).resolve()
+        if kind == "extra_forbidden":
+            known = ", ".join(sorted(model.model_fields))
+            problem = f"unknown key {field!r} (known: {known})"
+        else:
+            problem = _words(field, kind, table.get(field))
+        return where.error(where.table(top, index), f"{what}: {problem}")
+    if top == "hidden_obstacles":
+        if len(loc) == 1:
+            return where.error(
+                where.key(top), "'hidden_obstacles' must be a list of [x, y] squares"
+            )
+        value = data[top][loc[1]]
+        return where.error(
+            where.key(top), f"hidden obstacle must be [x, y] with whole numbers, got {value!r}"
+        )
+    if top == "map":
+        return where.error(where.key(top), "'map' must name a .map file relative to this scenario")
+    return where.error(where.key(top), "'name' and 'description' must be strings")
+
+
+def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
+    try:
+        shape = _ScenarioFile.model_validate(data)
+    except ValidationError as exc:
+        errors = exc.errors()
+        # An unknown key first (a misspelt one explains the rest), then the map, then in order.
+        first = min(errors, key=lambda e: (e["type"] != "extra_forbidden", e["loc"][0] != "map"))
+        raise _shape_error(first, data, where) from None
+    map_path = (path.parent / shape.map).resolve()
     try:
         grid = load_map(map_path)
     except MapError as exc:
-        raise where.error(where.key("map"), f"map {data['map']!r}: {exc}") from None
+        raise where.error(where.key("map"), f"map {shape.map!r}: {exc}") from None
 
-    def square(value: Any, line: int, what: str) -> Cell:
-        if (
-            not isinstance(value, list)
-            or len(value) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in value)
-        ):
-            raise where.error(line, f"{what} must be [x, y] with whole numbers, got {value!r}")
+    def square(value: list[int], line: int, what: str) -> Cell:
         cell = Cell(value[0], value[1])
         if not grid.in_bounds(cell):
             raise where.error(
@@ -151,113 +243,61 @@ def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
             raise where.error(line, f"{what} {list(cell)} is on a wall or fixed obstacle")
         return cell
 
-    def table_list(name: str) -> list[dict[str, Any]]:
-        value = data.get(name, [])
-        if not isinstance(value, list) or not all(isinstance(t, dict) for t in value):
-            raise where.error(where.key(name), f"'{name}' must be a list of tables ([[{name}]])")
-        return value
-
-    def check_keys(table: dict[str, Any], known: set[str], line: int, what: str) -> None:
-        extra = set(table) - known
-        if extra:
-            raise where.error(
-                line,
-                f"{what}: unknown key {sorted(extra)[0]!r} (known: {', '.join(sorted(known))})",
-            )
-
-    def number(table: dict[str, Any], key: str, line: int, what: str) -> float:
-        value = table.get(key)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise where.error(line, f"{what}: '{key}' must be a number of kg, got {value!r}")
-        if not value > 0 or value != value or value == float("inf"):
-            raise where.error(line, f"{what}: '{key}' must be greater than 0, got {value!r}")
-        return float(value)
-
     hidden_line = where.key("hidden_obstacles")
-    raw_hidden = data.get("hidden_obstacles", [])
-    if not isinstance(raw_hidden, list):
-        raise where.error(hidden_line, "'hidden_obstacles' must be a list of [x, y] squares")
-    hidden = tuple(square(v, hidden_line, "hidden obstacle") for v in raw_hidden)
+    hidden = tuple(square(v, hidden_line, "hidden obstacle") for v in shape.hidden_obstacles)
 
     units: list[UnitSpec] = []
     taken: dict[Cell, str] = {}
-    for i, t in enumerate(table_list("units")):
+    for i, u in enumerate(shape.units):
         line = where.table("units", i)
-        check_keys(t, _UNIT_KEYS, line, f"unit #{i + 1}")
-        uid = t.get("id")
-        if not isinstance(uid, str) or not _ID_RE.match(uid):
-            raise where.error(
-                line,
-                f"unit #{i + 1}: id {uid!r} is not a valid id (letters, digits,"
-                " '_', '.', '-'; no '/ + # $')",
-            )
-        if any(u.id == uid for u in units):
-            raise where.error(line, f"unit {uid!r}: id used twice")
-        start = square(t.get("start"), line, f"unit {uid!r}: start")
+        if any(known.id == u.id for known in units):
+            raise where.error(line, f"unit {u.id!r}: id used twice")
+        start = square(u.start, line, f"unit {u.id!r}: start")
         if start in taken:
             raise where.error(
-                line, f"unit {uid!r}: start {list(start)} is taken by unit {taken[start]!r}"
+                line, f"unit {u.id!r}: start {list(start)} is taken by unit {taken[start]!r}"
             )
         if start in hidden:
-            raise where.error(line, f"unit {uid!r}: start {list(start)} is a hidden obstacle")
-        taken[start] = uid
-        capacity = number(t, "capacity", line, f"unit {uid!r}")
-        color = t.get("color", DEFAULT_COLORS[i % len(DEFAULT_COLORS)])
-        if not isinstance(color, str) or not _COLOR_RE.match(color):
-            raise where.error(line, f"unit {uid!r}: color {color!r} is not #rrggbb")
-        units.append(UnitSpec(uid, start, capacity, color))
+            raise where.error(line, f"unit {u.id!r}: start {list(start)} is a hidden obstacle")
+        taken[start] = u.id
+        color = u.color or DEFAULT_COLORS[i % len(DEFAULT_COLORS)]
+        units.append(UnitSpec(u.id, start, float(u.capacity), color))
 
     jobs: list[JobSpec] = []
-    for i, t in enumerate(table_list("jobs")):
+    for i, j in enumerate(shape.jobs):
         line = where.table("jobs", i)
         what = f"job #{i + 1}"
-        check_keys(t, _JOB_KEYS, line, what)
-        pickup = square(t.get("pickup"), line, f"{what}: pickup")
-        dropoff = square(t.get("dropoff"), line, f"{what}: dropoff")
+        pickup = square(j.pickup, line, f"{what}: pickup")
+        dropoff = square(j.dropoff, line, f"{what}: dropoff")
         for name, cell in (("pickup", pickup), ("dropoff", dropoff)):
             if cell in hidden:
                 raise where.error(line, f"{what}: {name} {list(cell)} is a hidden obstacle")
-        mass = number(t, "mass", line, what)
-        priority = t.get("priority", 0)
-        if isinstance(priority, bool) or not isinstance(priority, int) or not 0 <= priority <= 100:
-            raise where.error(
-                line, f"{what}: priority must be a whole number 0..100, got {priority!r}"
-            )
-        job_id = t.get("id")
-        if job_id is not None and (not isinstance(job_id, str) or not _ID_RE.match(job_id)):
-            raise where.error(line, f"{what}: id {job_id!r} is not a valid id")
-        if job_id is not None and any(j.id == job_id for j in jobs):
-            raise where.error(line, f"{what}: id {job_id!r} used twice")
-        jobs.append(JobSpec(pickup, dropoff, mass, priority, job_id))
+        if j.id is not None and any(known.id == j.id for known in jobs):
+            raise where.error(line, f"{what}: id {j.id!r} used twice")
+        jobs.append(JobSpec(pickup, dropoff, float(j.mass), j.priority, j.id))
 
     goals: list[GoalSpec] = []
-    for i, t in enumerate(table_list("goals")):
+    for i, g in enumerate(shape.goals):
         line = where.table("goals", i)
-        check_keys(t, _GOAL_KEYS, line, f"goal #{i + 1}")
-        uid = t.get("unit")
-        if not any(u.id == uid for u in units):
-            raise where.error(line, f"goal #{i + 1}: unknown unit {uid!r}")
-        if any(g.unit == uid for g in goals):
-            raise where.error(line, f"goal #{i + 1}: unit {uid!r} already has a goal")
-        target = square(t.get("target"), line, f"goal #{i + 1}: target")
+        if not any(u.id == g.unit for u in units):
+            raise where.error(line, f"goal #{i + 1}: unknown unit {g.unit!r}")
+        if any(known.unit == g.unit for known in goals):
+            raise where.error(line, f"goal #{i + 1}: unit {g.unit!r} already has a goal")
+        target = square(g.target, line, f"goal #{i + 1}: target")
         if target in hidden:
             raise where.error(line, f"goal #{i + 1}: target {list(target)} is a hidden obstacle")
-        goals.append(GoalSpec(str(uid), target))
+        goals.append(GoalSpec(g.unit, target))
 
-    name = data.get("name", path.stem)
-    description = data.get("description", "")
-    if not isinstance(name, str) or not isinstance(description, str):
-        raise where.error(where.key("name"), "'name' and 'description' must be strings")
     return Scenario(
         path=path,
         map_path=map_path,
         grid=grid,
-        name=name,
+        name=shape.name if shape.name is not None else path.stem,
         hidden_obstacles=hidden,
         units=tuple(units),
         jobs=tuple(jobs),
         goals=tuple(goals),
-        description=description,
+        description=shape.description,
     )
 
 

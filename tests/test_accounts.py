@@ -142,6 +142,10 @@ def test_add_puts_one_more_unit_in_the_file(tmp_path: Path) -> None:
         ("[people.a]\n", "unknown table 'people'"),
         ("", "no [accounts.NAME]"),
         ("[accounts.a\n", "cannot read"),
+        ("accounts = 3\n", "no [accounts.NAME] tables"),
+        ("[accounts]\na = 3\n", "accounts.a must be a table"),
+        ("[accounts.a]\npassword = 'long enough pw'\nrole = 'unit'\nunit = 5\n", "are strings"),
+        ("[accounts.a]\npassword = 'long enough pw'\nrole = true\n", "role True is not one"),
     ],
 )
 def test_a_bad_accounts_file_is_refused_naming_the_problem(

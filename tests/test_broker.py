@@ -161,7 +161,10 @@ def test_settings_come_from_a_config_file(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     ("text", "problem"),
     [
-        ("[broker]\nport = 'x'\n", "must be int"),
+        ("[broker]\nport = 'x'\n", "broker setting 'port' must be int"),
+        ("[broker]\nport = true\n", "broker setting 'port' must be int"),
+        ("[broker]\nhost = 127\n", "broker setting 'host' must be str"),
+        ("broker = 3\n", r"\[broker\] must be a table"),
         ("[broker]\nprot = 1\n", "unknown broker setting 'prot'"),
         ("[broker]\nport = 70000\n", "outside 0..65535"),
         ("[broker]\nmax_queued_messages = 0\n", "max_queued_messages 0 must be at least 1"),

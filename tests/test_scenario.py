@@ -109,6 +109,37 @@ UNIT = '[[units]]\nid = "u1"\nstart = [0, 0]\ncapacity = 5.0\n'
         ('map = "nope.map"\n', 1, "no such map file"),
         ('map = "m.map"\nunits = [\n', 2, "not valid TOML"),
         ("units = []\n", 1, "'map' must name a .map file"),
+        ("map = 3\n", 1, "'map' must name a .map file"),
+        ('map = "m.map"\n' + UNIT.replace("5.0", "true"), 2, "'capacity' must be a number of kg"),
+        ('map = "m.map"\n' + UNIT.replace("5.0", "nan"), 2, "'capacity' must be greater than 0"),
+        ('map = "m.map"\n' + UNIT.replace("5.0", '"5"'), 2, "unit 'u1': 'capacity' must be a"),
+        ('map = "m.map"\n' + UNIT.replace("[0, 0]", "[0, 1.5]"), 2, "start must be [x, y]"),
+        ('map = "m.map"\n' + UNIT.replace("start = [0, 0]\n", ""), 2, "start must be [x, y]"),
+        ('map = "m.map"\n' + UNIT + 'color = "red"\n', 2, "color 'red' is not #rrggbb"),
+        ('map = "m.map"\n' + UNIT.replace('"u1"', "7"), 2, "unit #1: id 7 is not a valid id"),
+        ('map = "m.map"\nunits = [1, 2]\n', 2, "'units' must be a list of tables"),
+        ('map = "m.map"\nunits = "u1"\n', 2, "'units' must be a list of tables"),
+        ('map = "m.map"\nhidden_obstacles = 3\n', 2, "must be a list of [x, y] squares"),
+        ('map = "m.map"\nhidden_obstacles = [[0]]\n', 2, "hidden obstacle must be [x, y]"),
+        ('map = "m.map"\nname = 5\n', 2, "'name' and 'description' must be strings"),
+        ('map = "m.map"\n[[goals]]\nunit = 5\ntarget = [0, 0]\n', 2, "unknown unit 5"),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [3, 2]\nmass = 1\npriority = 101\n',
+            2,
+            "job #1: priority must be a whole number 0..100, got 101",
+        ),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [3, 2]\nmass = 1\nid = "a/b"\n',
+            2,
+            "job #1: id 'a/b' is not a valid id",
+        ),
+        (
+            'map = "m.map"\n[[jobs]]\npickup = [0, 0]\ndropoff = [3, 2]\nmass = 1\nkg = 1\n',
+            2,
+            "job #1: unknown key 'kg' (known: dropoff, id, mass, pickup, priority)",
+        ),
+        # A misspelt key is named first, whatever else is wrong.
+        ('mapp = "m.map"\n' + UNIT.replace("5.0", "0"), 1, "unknown key 'mapp'"),
     ],
 )
 def test_bad_scenarios_fail_with_one_clear_line(
