@@ -59,7 +59,7 @@ class FleetStatus:
     coordinator: CoordinatorStatus | None = None
     connections: dict[str, str] = field(default_factory=dict)  # unit -> online/offline/broken
     states: dict[str, UnitState] = field(default_factory=dict)
-    controls: dict[str, str] = field(default_factory=dict)  # unit -> an operator's hold on it
+    controls: dict[str, str] = field(default_factory=dict)  # unit -> an operator's control of it
     jobs: JobsView | None = None
 
     def apply(self, kind: str, source: str | None, topic: str, payload: bytes) -> None:

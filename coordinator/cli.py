@@ -6,7 +6,7 @@ import argparse
 import asyncio
 
 from gridfleet.config import check_step
-from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import default_db_path
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     """Run until interrupted (SIGINT/SIGTERM)."""
     check_step(args.step)
     grid = load_map(args.map)
-    coordinator = Coordinator(
+    coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),
         grid,
         root=args.root,

@@ -11,7 +11,7 @@ batched views. Safety rules (protocol.md §4.4, §8), each in the module named:
   produces a swap, a vertex conflict or a rotation, so releasing a square that a unit is being
   released out of in the same step (following) is the only way into an occupied square, and that
   square is released only once the leader's state shows it gone (moves.py).
-- A unit in motion gets its remaining squares again (heartbeat), or a hold when it has waited too
+- A unit in motion gets its remaining squares again (heartbeat), or a halt order when it has waited too
   long or its way is blocked by a newly known obstacle (orders.py).
 - With the emergency stop engaged every unit gets holds at once and nothing is planned or
   allocated; orders of a step that release squares and have not gone out when the stop arrives
@@ -102,7 +102,7 @@ class CoordinatorCore:
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
         self.stuck_news = StuckNews()  # jobs whose stuck unit the events told already
         self.goals: dict[str, Cell] = {}
-        self.controls: dict[str, UnitControlState] = {}  # unit -> an operator's hold
+        self.controls: dict[str, UnitControlState] = {}  # unit -> an operator's control
         self.orders = Orders(nonce)
         self._heartbeat_s = heartbeat_s(world.step_period_s)
         self.moves = Moves(self.planner)
@@ -147,7 +147,7 @@ class CoordinatorCore:
         return self._effects(self._views(), persist)
 
     def holds(self) -> Effects:
-        """A hold for every unit now (a clean stop; the emergency stop does the same)."""
+        """A halt order for every unit now (a clean stop; the emergency stop does the same)."""
         return self._effects(self._holds())
 
     def views_due(self, now: float) -> Effects:
@@ -223,7 +223,7 @@ class CoordinatorCore:
             return self._effects(news.publish)
         self.events.add(self.say.stamp.now(), "stop", news.line)
         publish = list(news.publish)
-        # The stop wins at once: every unit gets a hold now, not at the next step.
+        # The stop wins at once: every unit gets a halt order now, not at the next step.
         if self.estop:
             publish += self._holds()
         publish.append(self.status("online"))
@@ -287,13 +287,13 @@ class CoordinatorCore:
     # ---- the step ------------------------------------------------------------------------
 
     def step(self, now: float) -> Effects:
-        """One coordinator step: every order (or hold), the routes and the changed views."""
+        """One coordinator step: every order (or halt order), the routes and the changed views."""
         publish, reasserted = self.stop.reassert(now)  # first, and even when the step fails
         if reasserted is not None:
             self._log.append((logging.WARNING, reasserted))
         try:
             result = self._decide(now)
-        except Exception as exc:  # a bug must not take the coordinator down: hold everyone
+        except Exception as exc:  # a bug must not take the coordinator down: halt everyone
             self._log.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
             status = self.topics.fleet("coordinator")
             report = self._refuse(status, f"internal error in step {self.step_no}: {exc!r}", None)

@@ -51,7 +51,7 @@ class Messages:
         self.stamp = stamp
 
     def order(self, unit_id: str, plan: OrderPlan) -> Outbound:
-        """An order (or hold) for one unit."""
+        """An order (or halt order) for one unit."""
         order = Order(
             header=self.stamp("order"),
             order_id=plan.order_id,

@@ -52,7 +52,7 @@ class Moves:
             assert u.state is not None
             pos = u.state.position
             if pos in seen or not self.planner.grid.is_free(pos):
-                return {}  # inconsistent snapshot (states in flight): hold everyone this step
+                return {}  # inconsistent snapshot (states in flight): halt everyone this step
             seen.add(pos)
             held = reserved(u) - {pos}
             blocked |= held

@@ -5,7 +5,7 @@ Pure. A square stays reserved for a unit until its state shows it left: its repo
 squares it still may drive (`state.released`) and, until it has acknowledged our latest change,
 every square we sent it since its last acknowledgement. Only *settled* units (acknowledged,
 nothing left to drive) get new moves; a unit in motion gets its remaining squares again
-(heartbeat), or a hold when it has waited too long or its way is blocked by a newly known obstacle.
+(heartbeat), or a halt order when it has waited too long or its way is blocked by a newly known obstacle.
 """
 
 from __future__ import annotations
@@ -61,7 +61,7 @@ class Track:
     unacked: set[Cell] = field(default_factory=set)  # every square sent since the last ack
     target: Cell | None = None
     waiting: int = 0
-    forged: bool = False  # the unit follows an update we never sent: hold it, then a new order
+    forged: bool = False  # the unit follows an update we never sent: halt it, then a new order
     sent_at: float = float("-inf")  # when the latest update went out
     action: Action | None = None  # the action of the latest update
 
@@ -137,7 +137,7 @@ class Orders:
         now: float,
         heartbeat_s: float,
     ) -> OrderPlan:
-        """This step's order for an active unit: a new move, its remaining squares, or a hold.
+        """This step's order for an active unit: a new move, its remaining squares, or a halt order.
 
         Sent when it changes anything, else only once `heartbeat_s` have passed since the last
         (a repeat costs the broker, the unit and us a round trip, and tells the unit nothing).
@@ -233,7 +233,7 @@ class Orders:
 
         Returns a problem when the state follows an update of our order that we never sent: a
         forged order (same order id, a jumped update id), which would make every later real
-        update look stale to the unit. The unit then gets a hold under a new order id, which it
+        update look stale to the unit. The unit then gets a halt order under a new order id, which it
         takes at once.
         """
         t = self.tracks.get(unit_id)
@@ -241,7 +241,7 @@ class Orders:
             problem = (
                 f"unit {unit_id} follows update {state.order_update_id} of order {t.order_id}, "
                 f"which was never sent (the latest is {t.update_id}): a forged order; it gets a "
-                "hold under a new order"
+                "halt order under a new order"
             )
             t.order_id, t.forged = None, True
             self.awaiting.pop(unit_id, None)

@@ -46,7 +46,7 @@ class JobStore:
             "CREATE TABLE IF NOT EXISTS answers (sender TEXT, request_id TEXT, data TEXT NOT NULL, "
             "PRIMARY KEY (sender, request_id))"
         )
-        # An operator's hold on a unit (paused, out of service) outlives a restart too.
+        # An operator's control of a unit (paused, out of service) outlives a restart too.
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS controls (unit TEXT PRIMARY KEY, state TEXT NOT NULL)"
         )
@@ -77,7 +77,7 @@ class JobStore:
             )
 
     def load_controls(self) -> dict[str, UnitControlState]:
-        """Unit -> its hold (paused, out_of_service); a row of another version's is skipped."""
+        """Unit -> its control (paused, out_of_service); a row of another version's is skipped."""
         rows = self._db.execute("SELECT unit, state FROM controls").fetchall()
         return {unit: state for unit, state in rows if state in get_args(UnitControlState)}
 

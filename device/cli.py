@@ -6,7 +6,7 @@ import argparse
 import asyncio
 import sys
 
-from gridfleet.device.shell import VirtualDevice
+from gridfleet.device.shell import DeviceShell
 from gridfleet.device.terminal import Terminal
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.options import add_common, broker_url
@@ -36,7 +36,7 @@ async def _main(args: argparse.Namespace) -> int:
     stop = stop_on_signals()
     term = Terminal(sys.stdout, sys.stdin)
     try:
-        device = VirtualDevice(
+        device = DeviceShell(
             broker_url(args, args.device_id or f"device-{args.unit}"),
             args.unit,
             args.root,

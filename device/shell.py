@@ -1,4 +1,4 @@
-"""The virtual device's MQTT shell: pumps messages between the broker and DeviceLogic."""
+"""The virtual device's MQTT shell: pumps messages between the broker and DeviceCore."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import logging
 import time
 from collections.abc import Callable
 
-from gridfleet.device.logic import DeviceLogic, Refusal
+from gridfleet.device.core import DeviceCore, Refusal
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import Leds, Topics
@@ -19,8 +19,8 @@ log = logging.getLogger("gridfleet.device")
 BACKOFF = Backoff(first=0.5, most=10.0)
 
 
-class VirtualDevice:
-    """Connects as the device (last will `broken`), feeds DeviceLogic and sends what it says."""
+class DeviceShell:
+    """Connects as the device (last will `broken`), feeds DeviceCore and sends what it says."""
 
     def __init__(
         self,
@@ -29,10 +29,10 @@ class VirtualDevice:
         root: str = DEFAULT_ROOT,
         device_id: str | None = None,
         retry_s: float = 1.0,
-        on_change: Callable[[DeviceLogic], None] | None = None,
+        on_change: Callable[[DeviceCore], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        logic = DeviceLogic(Topics(root), unit, device_id or f"device-{unit}", retry_s)
+        logic = DeviceCore(Topics(root), unit, device_id or f"device-{unit}", retry_s)
         self.logic = logic
         self.endpoint = Endpoint(
             url,

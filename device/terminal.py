@@ -12,7 +12,7 @@ import tty
 from collections.abc import Callable
 from typing import TextIO
 
-from gridfleet.device.logic import DeviceLogic
+from gridfleet.device.core import DeviceCore
 
 log = logging.getLogger("gridfleet.device")
 
@@ -32,7 +32,7 @@ class Terminal:
         self._saved: list[object] | None = None
         self._buffer = b""
 
-    def draw(self, logic: DeviceLogic) -> None:
+    def draw(self, logic: DeviceCore) -> None:
         """Show the current state (plain mode prints only changes)."""
         if self.tty_out:
             blink_on = int(time.monotonic() * 4) % 2 == 0
@@ -98,7 +98,7 @@ class Terminal:
             self.out.flush()
 
 
-def render_plain(logic: DeviceLogic) -> str:
+def render_plain(logic: DeviceCore) -> str:
     """One line for logs and pipes: `leds=.#.. direction=E estop=released link=online`."""
     leds = logic.leds
     lit = "".join("#" if getattr(leds, side) else "." for side in "NESW")
@@ -110,7 +110,7 @@ def render_plain(logic: DeviceLogic) -> str:
     return f"leds={lit} direction={direction} estop={estop} link={link}{pending}"
 
 
-def render_tty(logic: DeviceLogic, blink_on: bool) -> str:
+def render_tty(logic: DeviceCore, blink_on: bool) -> str:
     """The live terminal line: the four arrows, the lit one highlighted; stop blinks all in red."""
     leds = logic.leds
     cells = []

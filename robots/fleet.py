@@ -13,8 +13,8 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
-from gridfleet.robots.runner import UnitRunner
 from gridfleet.robots.saved import Saved, SavedUnits
+from gridfleet.robots.shell import UnitShell
 from gridfleet.robots.unit import Mode, UnitLogic
 from gridfleet.robots.world import SimulatedWorld, WorldSim
 from gridfleet.scenario import Scenario, with_units
@@ -74,7 +74,7 @@ class Fleet:
                 self.world.place(spec.id, spec.start)  # best guess until its state arrives
         wanted = {g.unit: g.target for g in scenario.goals} if mode == "standalone" else {}
         wanted.update(goals or {})
-        self.runners: dict[str, UnitRunner] = {}
+        self.runners: dict[str, UnitShell] = {}
         groups = -(-len(local) // STEP_GROUP)
         for spec in scenario.units:
             if spec.id not in local:
@@ -94,7 +94,7 @@ class Fleet:
             if accounts is not None:  # each unit logs in as itself
                 account = accounts.get(spec.id)
                 url = with_credentials(broker_url, account.name, account.password)
-            self.runners[spec.id] = UnitRunner(
+            self.runners[spec.id] = UnitShell(
                 logic,
                 self.world,
                 url,

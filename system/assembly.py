@@ -28,7 +28,7 @@ from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 from gridfleet.system.threads import ServiceThread, coordinator_thread, fleet_thread
 
 if TYPE_CHECKING:
-    from gridfleet.coordinator.service import Coordinator
+    from gridfleet.coordinator.shell import CoordinatorShell
     from gridfleet.robots.fleet import Fleet
 
 Mode = Literal["threads", "processes"]
@@ -91,7 +91,7 @@ class System:
     broker_thread: BrokerThread | None = None
 
     @property
-    def coordinator(self) -> ServiceThread[Coordinator]:
+    def coordinator(self) -> ServiceThread[CoordinatorShell]:
         """The coordinator's thread (threads mode)."""
         return self.threads["coordinator"]
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Generic, Protocol, Self, TypeVar
 from gridfleet.scenario import Scenario
 
 if TYPE_CHECKING:
-    from gridfleet.coordinator.service import Coordinator
+    from gridfleet.coordinator.shell import CoordinatorShell
     from gridfleet.robots.fleet import Fleet
     from gridfleet.robots.world import WorldSim
 
@@ -127,12 +127,12 @@ class ServiceThread(Generic[S]):
 
 def coordinator_thread(
     scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
-) -> ServiceThread[Coordinator]:
+) -> ServiceThread[CoordinatorShell]:
     """The real coordinator for a scenario's map, with its job store at `db_path`."""
-    from gridfleet.coordinator.service import Coordinator
+    from gridfleet.coordinator.shell import CoordinatorShell
 
-    def make() -> Coordinator:
-        return Coordinator(
+    def make() -> CoordinatorShell:
+        return CoordinatorShell(
             broker_url, scenario.grid, root=root, step_s=step_s, db_path=db_path, **kw
         )
 

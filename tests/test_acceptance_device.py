@@ -17,8 +17,8 @@ from typing import Any, TypeVar
 
 import pytest
 
-from gridfleet.device.logic import DeviceLogic
-from gridfleet.device.shell import VirtualDevice
+from gridfleet.device.core import DeviceCore
+from gridfleet.device.shell import DeviceShell
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import Leds, Topics, UnitState, decode_direction, decode_estop
 from gridfleet.system.broker_thread import BrokerThread
@@ -234,11 +234,11 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
 
     shown: list[Leds] = []  # every LED state the device showed, in order
 
-    def record(logic: DeviceLogic) -> None:
+    def record(logic: DeviceCore) -> None:
         if logic.online:
             shown.append(logic.leds)
 
-    device = VirtualDevice(broker.url, "unit1", root, device_id="dev-accept", on_change=record)
+    device = DeviceShell(broker.url, "unit1", root, device_id="dev-accept", on_change=record)
     stop = asyncio.Event()
     task = asyncio.create_task(device.run(stop))
     try:
@@ -336,7 +336,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
 class DeviceService:
     """The virtual device as a ServiceThread service: ready once online; press from any thread."""
 
-    def __init__(self, device: VirtualDevice) -> None:
+    def __init__(self, device: DeviceShell) -> None:
         self.device = device
         self.ready = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -370,7 +370,7 @@ def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_f
     op = OperatorPeer(probe_factory(), topics, OPERATOR)
     _, fleet = run_system(scenario, step_s=STEP_S)
     world = world_of(fleet)
-    virtual = VirtualDevice(broker.url, "unit2", root, device_id="dev-dash")
+    virtual = DeviceShell(broker.url, "unit2", root, device_id="dev-dash")
     service = DeviceService(virtual)
     with ServiceThread(lambda: service, "virtual-device"):
         dash = open_dashboard(root, grid=scenario.grid)

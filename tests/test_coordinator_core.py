@@ -589,7 +589,7 @@ def test_an_order_that_changes_nothing_goes_out_again_after_a_quarter_of_the_hol
     yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 10.0, 0.1)])
     meet(core, yard.state("u"), 10.0, step_s=0.1)
     sent = [k for k in range(1, 8) if step_one(core, yard, k * 0.1)]
-    # Idle: a hold at once, then the same again every other step (a unit holds after 0.5 s
+    # Idle: a halt order at once, then the same again every other step (a unit holds after 0.5 s
     # without orders; a quarter of that is 0.125 s).
     assert sent == [1, 3, 5, 7]
     assert yard.units["u"].status == "idle"

@@ -506,7 +506,7 @@ def test_a_jumped_update_id_is_reported_and_replaced_by_a_hold_under_a_new_order
     effects = from_unit(core, "state", "unit1", forged, 1.2)
     reason = (
         "unit unit1 follows update 2000000000 of order n-unit1-1, which was never sent (the latest"
-        " is 1): a forged order; it gets a hold under a new order"
+        " is 1): a forged order; it gets a halt order under a new order"
     )
     assert published(effects) == [error(0, "gridfleet/v1/units/unit1/state", reason)]
     assert effects.awaiting == frozenset()

@@ -13,7 +13,7 @@ from pathlib import Path
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.events import EventLog
 from gridfleet.coordinator.jobs import Job
-from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import STORED_EVENTS, JobStore
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import (
@@ -356,8 +356,8 @@ async def test_a_restarted_coordinator_publishes_the_history_it_kept(
         return [e.text for e in decode(EventsView, got[-1].payload).events] if got else []
 
     @contextlib.asynccontextmanager
-    async def running() -> AsyncIterator[Coordinator]:
-        coordinator = Coordinator(broker.url, grid, root=topics.root, step_s=0.05, db_path=db)
+    async def running() -> AsyncIterator[CoordinatorShell]:
+        coordinator = CoordinatorShell(broker.url, grid, root=topics.root, step_s=0.05, db_path=db)
         stop = asyncio.Event()
         task = asyncio.create_task(coordinator.run(stop))
         try:

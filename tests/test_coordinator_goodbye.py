@@ -1,4 +1,4 @@
-"""A clean stop of the coordinator: every unit it was ordering gets a hold, then it says offline."""
+"""A clean stop of the coordinator: every unit it was ordering gets a halt order, then it says offline."""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.grid import GridMap
 from gridfleet.protocol import ErrorReport, Reply, Topics, decode
 from gridfleet.system.broker_thread import BrokerThread
@@ -47,11 +47,11 @@ def state_payload(**over: Any) -> bytes:
     return json.dumps(msg).encode()
 
 
-def coordinator(db: Path) -> Coordinator:
-    return Coordinator("mqtt://127.0.0.1:1", GRID, root="fuzz", step_s=0.05, db_path=db)
+def coordinator(db: Path) -> CoordinatorShell:
+    return CoordinatorShell("mqtt://127.0.0.1:1", GRID, root="fuzz", step_s=0.05, db_path=db)
 
 
-def snapshot(c: Coordinator) -> Any:
+def snapshot(c: CoordinatorShell) -> Any:
     units = {u.id: (u.connection, u.factsheet, u.state) for u in c.world.units.values()}
     return (
         {k: v.to_dict() for k, v in c.core.jobs.jobs.items()},
@@ -62,7 +62,7 @@ def snapshot(c: Coordinator) -> Any:
     )
 
 
-async def seeded(db: Path) -> Coordinator:
+async def seeded(db: Path) -> CoordinatorShell:
     """A coordinator that knows one unit and one job."""
     c = coordinator(db)
     conn = {"header": HDR, "state": "online"}
@@ -207,7 +207,7 @@ async def test_service_keeps_running_and_answers_after_garbage(
     from support.probe import MqttProbe
 
     topics = Topics(root)
-    c = Coordinator(broker.url, GRID, root=root, step_s=0.02, db_path=tmp_path / "db")
+    c = CoordinatorShell(broker.url, GRID, root=root, step_s=0.02, db_path=tmp_path / "db")
     stop = asyncio.Event()
     task = asyncio.create_task(c.run(stop))
     await asyncio.wait_for(c.ready.wait(), 10)

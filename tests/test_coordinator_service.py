@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.views import VIEWS_BATCH_S
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
@@ -47,7 +47,7 @@ class Rig:
     waiting (`send_submit_job`), and the test awaits the replies.
     """
 
-    coordinator: Coordinator
+    coordinator: CoordinatorShell
     fleet: FakeFleet
     op: OperatorPeer
     stop_coord: asyncio.Event
@@ -72,7 +72,9 @@ class Rig:
     async def restart_coordinator(self, broker: str, db: Path, grid: GridMap) -> None:
         self.stop_coord.set()
         await self.coord_task
-        self.coordinator = Coordinator(broker, grid, root=self.topics.root, step_s=STEP, db_path=db)
+        self.coordinator = CoordinatorShell(
+            broker, grid, root=self.topics.root, step_s=STEP, db_path=db
+        )
         self.stop_coord = asyncio.Event()
         self.coord_task = asyncio.create_task(self.coordinator.run(self.stop_coord))
         await asyncio.wait_for(self.coordinator.ready.wait(), 30)  # a loaded machine
@@ -100,7 +102,7 @@ async def rig(
         hidden=hidden,
     )
     await fleet.start_all()
-    coordinator = Coordinator(
+    coordinator = CoordinatorShell(
         broker.url, grid, root=root, step_s=STEP, db_path=tmp_path / "jobs.db"
     )
     stop_coord = asyncio.Event()
@@ -290,7 +292,7 @@ async def test_malformed_requests_are_refused_and_change_nothing(
 @contextlib.asynccontextmanager
 async def slow_stepping(broker: BrokerThread, root: str, tmp_path: Path) -> AsyncIterator[None]:
     """A coordinator with a 60 s step: every view after its first comes from requests."""
-    coordinator = Coordinator(
+    coordinator = CoordinatorShell(
         broker.url, playfield_grid(), root=root, step_s=60.0, db_path=tmp_path / "jobs.db"
     )
     stop = asyncio.Event()

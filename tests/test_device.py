@@ -13,7 +13,7 @@ from contextlib import asynccontextmanager
 
 import pytest
 
-from gridfleet.device.shell import VirtualDevice
+from gridfleet.device.shell import DeviceShell
 from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop, decode_press
 from gridfleet.system.broker_thread import BrokerThread
 
@@ -24,7 +24,7 @@ ALL = Leds(N=True, E=True, S=True, W=True)
 
 
 @asynccontextmanager
-async def running(device: VirtualDevice) -> AsyncIterator[VirtualDevice]:
+async def running(device: DeviceShell) -> AsyncIterator[DeviceShell]:
     """Run `device` in the test's loop until the block ends; it must end cleanly."""
     stop = asyncio.Event()
     task = asyncio.create_task(device.run(stop))
@@ -41,7 +41,7 @@ async def test_leds_follow_the_units_direction(
     broker: BrokerThread, topics: Topics, root: str, probe_factory: Callable[..., MqttProbe]
 ) -> None:
     unit = probe_factory()  # plays unit1, publishing its direction as a unit does
-    async with running(VirtualDevice(broker.url, "unit1", root)) as device:
+    async with running(DeviceShell(broker.url, "unit1", root)) as device:
         assert device.leds == Leds()
         for side in ["N", "E", "S", "W", "-", "E"]:
             unit.publish(topics.unit("direction", "unit1"), side, qos=0, retain=True)
@@ -57,7 +57,7 @@ async def test_retained_direction_is_shown_on_connect(
     broker: BrokerThread, topics: Topics, root: str, probe_factory: Callable[..., MqttProbe]
 ) -> None:
     probe_factory().publish(topics.unit("direction", "unit3"), "W", qos=0, retain=True)
-    async with running(VirtualDevice(broker.url, "unit3", root)) as device:
+    async with running(DeviceShell(broker.url, "unit3", root)) as device:
         await async_wait_for(lambda: device.leds == Leds(W=True), what="retained direction")
 
 
@@ -68,7 +68,7 @@ async def test_stop_key_engages_a_retained_valid_estop_everyone_sees(
     watcher = probe_factory()
     watcher.subscribe(press, qos=1)
     watcher.subscribe(topics.device("device_connection", "dev-a"), qos=1)
-    async with running(VirtualDevice(broker.url, "unit1", root, device_id="dev-a")) as device:
+    async with running(DeviceShell(broker.url, "unit1", root, device_id="dev-a")) as device:
         await async_wait_for(
             lambda: watcher.received(topics.device("device_connection", "dev-a")),
             what="online",
@@ -105,7 +105,7 @@ async def test_bad_payloads_change_nothing_and_are_reported(
 ) -> None:
     probe = probe_factory()
     probe.subscribe(topics.fleet("errors"), qos=1)
-    async with running(VirtualDevice(broker.url, "unit1", root, device_id="dev-b")) as device:
+    async with running(DeviceShell(broker.url, "unit1", root, device_id="dev-b")) as device:
         probe.publish(topics.unit("direction", "unit1"), "E", qos=0, retain=True)
         probe.publish(topics.fleet("estop"), "released|dashboard|ok", qos=1, retain=True)
         await async_wait_for(lambda: device.leds == Leds(E=True) and device.logic.estop is not None)
@@ -136,7 +136,7 @@ async def test_press_while_broker_is_down_is_sent_after_reconnect(
     fresh_broker: BrokerThread, root: str
 ) -> None:
     topics = Topics(root)
-    async with running(VirtualDevice(fresh_broker.url, "unit1", root, device_id="dev-c")) as dev:
+    async with running(DeviceShell(fresh_broker.url, "unit1", root, device_id="dev-c")) as dev:
         await asyncio.to_thread(fresh_broker.stop)
         await async_wait_for(lambda: not dev.online, what="device notices the broker is gone")
         dev.press()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.device.logic import DeviceLogic
+from gridfleet.device.core import DeviceCore
 from gridfleet.device.terminal import render_plain
 from gridfleet.protocol import EstopSignal, Leds, Topics, encode_estop
 
@@ -16,8 +16,8 @@ ESTOP = T.fleet("estop")
 PRESS = T.device("device_stop", "dev1")
 
 
-def online_logic() -> DeviceLogic:
-    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0)
+def online_logic() -> DeviceCore:
+    logic = DeviceCore(T, "unit1", "dev1", retry_s=1.0)
     logic.connected()
     return logic
 
@@ -143,17 +143,17 @@ def test_plain_rendering() -> None:
 
 def test_bad_ids_are_refused() -> None:
     with pytest.raises(Exception, match="unit id"):
-        DeviceLogic(T, "unit/1", "dev1")
+        DeviceCore(T, "unit/1", "dev1")
     with pytest.raises(Exception, match="device id"):
-        DeviceLogic(T, "unit1", "")
+        DeviceCore(T, "unit1", "")
 
 
 # ---- exactly what the core publishes for each input (no broker) ------------------------------
 
 
-def stamped_logic() -> DeviceLogic:
+def stamped_logic() -> DeviceCore:
     """An online device whose headers carry a fixed time, so payloads can be compared whole."""
-    logic = DeviceLogic(T, "unit1", "dev1", retry_s=1.0, stamp=stamper("dev1"))
+    logic = DeviceCore(T, "unit1", "dev1", retry_s=1.0, stamp=stamper("dev1"))
     logic.connected()
     return logic
 

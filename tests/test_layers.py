@@ -109,7 +109,7 @@ def test_every_shipped_package_has_a_layer() -> None:
             "from gridfleet.coordinator.core import CoordinatorCore\n",
             "gridfleet -> coordinator",
         ),
-        ("robots", "def f():\n    import gridfleet.coordinator.service\n", "robots -> coordinator"),
+        ("robots", "def f():\n    import gridfleet.coordinator.shell\n", "robots -> coordinator"),
         ("coordinator", "from gridfleet.system.cli import main\n", "coordinator -> system"),
         ("system", "from gridfleet.bench.cli import run\n", "system -> bench"),
         (
@@ -162,7 +162,7 @@ CORES = (
     "gridfleet.coordinator.world",
     "gridfleet.robots.unit",
     "gridfleet.robots.core",
-    "gridfleet.device.logic",
+    "gridfleet.device.core",
 )
 
 

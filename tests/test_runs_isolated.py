@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from gridfleet.coordinator.service import Coordinator
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.ports import free_port
 from gridfleet.protocol import Routes, Topics, decode
 from gridfleet.scenario import load_scenario
@@ -134,7 +134,7 @@ def test_two_fleets_on_one_broker_keep_their_coordinators_connected(
     def coordinator(n: int) -> ServiceThread:
         db = tmp_path / f"{n}.db"
         return ServiceThread(
-            lambda: Coordinator(broker.url, grid, root=roots[n], step_s=0.05, db_path=db),
+            lambda: CoordinatorShell(broker.url, grid, root=roots[n], step_s=0.05, db_path=db),
             f"coordinator-{n}",
         )
 

@@ -27,7 +27,7 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   v.apply("state", "unit2", JSON.stringify({ position: [4, 4], status: "waiting", wait_reason: "released square [4, 5] is blocked", load_kg: 0 }), 0);
   assert.deepEqual(text(unitCells(v.units.get("unit2"))),
     ["unit2", "?", "[4, 4]", "waiting: released square [4, 5] is blocked", "—", "0 kg"]);
-  // Before pickup the queue names the unit's job; an operator's hold comes first in its status.
+  // Before pickup the queue names the unit's job; an operator's control comes first in its status.
   const [, , , status, job] = text(unitCells(v.units.get("unit2"), "job-7", "out_of_service"));
   assert.deepEqual([status, job], ["out of service · waiting: released square [4, 5] is blocked", "job-7"]);
   // A unit between orders says "idle" while its job is stuck: the job's words say what holds it.

@@ -73,7 +73,7 @@ WaitCode = Literal[
     "unit_paused",
     "unit_out_of_service",
 ]
-# An operator's hold on one unit (protocol.md §6.4): paused keeps its job, out of service gives
+# An operator's control of one unit (protocol.md §6.4): paused keeps its job, out of service gives
 # up a job not picked up yet and takes no new one.
 UnitControlState = Literal["paused", "out_of_service"]
 UnitCommand = Literal["pause", "resume", "out_of_service", "in_service"]
@@ -259,7 +259,7 @@ class RouteView(Model):
     released: list[Square] = Field(default_factory=list)
     planned: list[Square] = Field(default_factory=list)
     target: Square | None = None
-    control: UnitControlState | None = None  # an operator's hold on the unit, if any
+    control: UnitControlState | None = None  # an operator's control of the unit, if any
 
 
 class Routes(Message):

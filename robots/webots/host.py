@@ -1,7 +1,7 @@
 """A grid unit in Webots on the fleet's broker: its world and the same runner as a headless unit.
 
 The unit is the same as a headless one: `UnitLogic` decides, `UnitCore` speaks the protocol,
-`UnitRunner` and its `Endpoint` keep the MQTT session and step the unit on the wall clock, as
+`UnitShell` and its `Endpoint` keep the MQTT session and step the unit on the wall clock, as
 the coordinator and every other unit do. Only its world differs (`WebotsWorld`), and Webots'
 clock runs beside (`robots.webots.clock`).
 """
@@ -12,7 +12,7 @@ import asyncio
 
 from gridfleet.endpoint import Endpoint
 from gridfleet.protocol import Topics
-from gridfleet.robots.runner import UnitRunner
+from gridfleet.robots.shell import UnitShell
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.webots.adapter import WebotsWorld
 from gridfleet.robots.webots.api import Supervisor
@@ -45,7 +45,7 @@ class WebotsUnit:
         except BaseException:
             self.webots.close()
             raise
-        self.runner = UnitRunner(
+        self.runner = UnitShell(
             logic,
             self.world,
             settings.broker,

@@ -1,6 +1,6 @@
 """Real units for coordinator tests, stepped by the test: `Yard` without a broker, `FakeFleet` over MQTT.
 
-Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT a `robots.runner.UnitRunner`
+Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT a `robots.runner.UnitShell`
 each, with its `UnitCore` and `Endpoint`, last will included) on a ground-truth world
 (`robots.world.WorldSim`: walls, hidden obstacles, refused and counted bad moves). Only the stepping
 is the test's own: every unit steps once per fleet step, in a random order, so units act
@@ -17,7 +17,7 @@ from collections.abc import Iterable
 from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Topics, UnitState
-from gridfleet.robots.runner import UnitRunner
+from gridfleet.robots.shell import UnitShell
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.world import WorldSim
 from gridfleet.tasks import cancel_and_wait
@@ -88,8 +88,8 @@ class Yard:
 class FakeFleet:
     """Units over MQTT, stepped by `step_once`/`run` in a random order instead of by their clocks.
 
-    Each unit is a `robots.runner.UnitRunner`: its core, its endpoint (client id, last will,
-    offline, back-off) and its `tick` are the product's. Only `UnitRunner.run` is not used, since
+    Each unit is a `robots.runner.UnitShell`: its core, its endpoint (client id, last will,
+    offline, back-off) and its `tick` are the product's. Only `UnitShell.run` is not used, since
     it also starts the unit's own step loop; the session it runs is wired here the same way, with
     sends that are never awaited (see `_send`).
     """
@@ -110,7 +110,7 @@ class FakeFleet:
         self.world = self.yard.world
         self.rng = random.Random(seed)
         self.steps = 0
-        self.runners: dict[str, UnitRunner] = {}  # the running units
+        self.runners: dict[str, UnitShell] = {}  # the running units
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._sending: list[asyncio.Future[bool]] = []
 
@@ -124,7 +124,7 @@ class FakeFleet:
 
     def start(self, unit_id: str) -> None:
         """Start the MQTT session of one unit (a new runner: a restart after `kill`)."""
-        runner = UnitRunner(
+        runner = UnitShell(
             self.units[unit_id],
             self.world,
             self.broker,
@@ -172,7 +172,7 @@ class FakeFleet:
             self._send(uid, outs)
 
     def _send(self, unit_id: str, outs: list[Outbound]) -> None:
-        # In order, one task a message, as UnitRunner._send; but not awaited, so a send stuck on
+        # In order, one task a message, as UnitShell._send; but not awaited, so a send stuck on
         # a cut connection never holds back the step of the other units.
         runner = self.runners.get(unit_id)
         if runner is not None:

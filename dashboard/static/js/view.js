@@ -21,7 +21,7 @@ const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
 
 /**
  * The units table's cells for unit `u` (a FleetView unit): [text, className] each. `job`: the job
- * it works on (its own, or the queue's before pickup); `control`: an operator's hold on it;
+ * it works on (its own, or the queue's before pickup); `control`: an operator's control of it (paused, out of service);
  * `jobWait`: why that job waits, in the coordinator's words (a unit between orders says "idle"
  * while its job is stuck: the job's words say what holds it).
  */

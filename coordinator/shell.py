@@ -28,8 +28,8 @@ from gridfleet.tasks import cancel_and_wait
 log = logging.getLogger("gridfleet.coordinator")
 
 
-class Coordinator:
-    """The coordinator service: `await Coordinator(...).run(stop)`; `ready` is set once online."""
+class CoordinatorShell:
+    """The coordinator's I/O shell: `await CoordinatorShell(...).run(shutdown)`; `ready` once online."""
 
     def __init__(
         self,

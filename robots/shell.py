@@ -20,7 +20,7 @@ from gridfleet.robots.world import SimulatedWorld
 from gridfleet.tasks import cancel_and_wait
 
 
-class UnitRunner:
+class UnitShell:
     """Runs one simulated unit: its MQTT endpoint, its core, and its steps in the world."""
 
     def __init__(

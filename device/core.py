@@ -43,7 +43,7 @@ class Refusal:
     reason: str
 
 
-class DeviceLogic:
+class DeviceCore:
     """What the device shows and sends, driven by MQTT messages, key presses and time."""
 
     def __init__(
