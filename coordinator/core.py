@@ -25,12 +25,13 @@ picked up becomes `failed` (progress.py).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
 from gridfleet.coordinator import inbound, requests
 from gridfleet.coordinator.answers import Answers
+from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.effects import Effects, Messages, Status
 from gridfleet.coordinator.events import EventLog
 from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
@@ -69,6 +70,8 @@ PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order sho
 # them are missing: half the shortest hold timeout, so units never hold for want of orders.
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
+Note = tuple[int, str]  # a line for the shell's log: (logging level, text)
+
 
 @dataclass(frozen=True)
 class StepResult:
@@ -91,6 +94,7 @@ class CoordinatorCore:
         *,
         topics: Topics | None = None,
         stamp: HeaderStamper | None = None,
+        controls: Mapping[str, UnitControlState] | None = None,
     ) -> None:
         self.world = world
         self.jobs = jobs
@@ -101,19 +105,16 @@ class CoordinatorCore:
         self.stop = FleetStop(self.topics)  # the emergency stop, its state and what it says
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
         self.stuck_news = StuckNews()  # jobs whose stuck unit the events told already
-        self.goals: dict[str, Cell] = {}
-        self.controls: dict[str, UnitControlState] = {}  # unit -> an operator's control
+        # Operators' goals and controls (paused, out of service; kept across restarts).
+        self.directives = Directives(controls)
         self.orders = Orders(nonce)
         self._heartbeat_s = heartbeat_s(world.step_period_s)
         self.moves = Moves(self.planner)
-        self.progress = JobProgress(world, jobs, self.goals, self.controls)
+        self.progress = JobProgress(world, jobs, self.directives)
         self.views = Views()
         self.answers = Answers()  # a retried request gets its first answer (answers.py)
         self.pace = StepRate()
         self.errors_reported = 0
-        self._log: list[tuple[int, str]] = []  # lines for the next Effects
-        # Holds set or lifted since the last Effects (to persist).
-        self._controls_changed: list[tuple[str, UnitControlState | None]] = []
         self.events = EventLog()  # the recent history, in words (fleet/events)
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
@@ -144,7 +145,8 @@ class CoordinatorCore:
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
         persist = self._persist()
-        return self._effects(self._views(), persist)
+        notes: list[Note] = []
+        return self._effects(self._views(notes), persist, log=notes)
 
     def holds(self) -> Effects:
         """A halt order for every unit now (a clean stop; the emergency stop does the same)."""
@@ -153,7 +155,8 @@ class CoordinatorCore:
     def views_due(self, now: float) -> Effects:
         """The batch period `views_at` named is over: the views changed since go out."""
         self.views.batch_over(now)
-        return self._effects(self._views())
+        notes: list[Note] = []
+        return self._effects(self._views(notes), log=notes)
 
     def withdrawn(self, out: Outbound) -> bool:
         """Whether a message returned by the last step must not go out after all (the stop's)."""
@@ -169,16 +172,20 @@ class CoordinatorCore:
                 return self._effects([])
             return self._on(arrival, topic, now)
         except ProtocolError as exc:
-            refused = self._refuse_unreadable(topic, payload, str(exc))
-            return self._effects([*refused, *self.stop.heal(topic)])
+            notes: list[Note] = []
+            refused = self._refuse_unreadable(topic, payload, str(exc), notes)
+            return self._effects([*refused, *self.stop.heal(topic)], log=notes)
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
-            self._log.append((logging.ERROR, f"failed on a message on {topic}: {exc!r}"))
-            return self._effects([self._refuse(topic, f"internal error: {exc!r}", None)])
+            notes = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}")]
+            report = self._refuse(topic, f"internal error: {exc!r}", None, notes)
+            return self._effects([report], log=notes)
 
-    def _refuse_unreadable(self, topic: str, payload: bytes, reason: str) -> list[Outbound]:
+    def _refuse_unreadable(
+        self, topic: str, payload: bytes, reason: str, notes: list[Note]
+    ) -> list[Outbound]:
         """A refused message; a request whose reply address can still be read gets its reply."""
         request_id, reply_to = inbound.reply_address(self.topics, topic, payload)
-        refused = [self._refuse(topic, reason, request_id)]
+        refused = [self._refuse(topic, reason, request_id, notes)]
         if request_id is not None and reply_to is not None:
             refused.append(self.say.reply(reply_to, request_id, requests.Outcome(False, reason)))
         return refused
@@ -201,15 +208,15 @@ class CoordinatorCore:
             self.world.on_factsheet(unit, msg)
         elif isinstance(msg, UnitState) and unit is not None:
             # Out of service, a unit may be moved by hand: it comes back wherever it is put.
-            moved_by_hand = self.controls.get(unit) == "out_of_service"
+            moved_by_hand = self.directives.controls.get(unit) == "out_of_service"
             if self.world.on_state(unit, msg, now, relocatable=moved_by_hand):
                 self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
                 self.views.map_dirty = True
             forged = self.orders.heard(unit, msg)
             if forged is not None:  # the state is the unit's own; the order it follows is not
                 self.errors_reported += 1
-                self._log.append((logging.WARNING, forged))
-                return self._effects([self.say.error(topic, forged, None)])
+                error = self.say.error(topic, forged, None)
+                return self._effects([error], log=((logging.WARNING, forged),))
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
@@ -232,6 +239,8 @@ class CoordinatorCore:
     def _on_request(self, topic: str, req: Request, now: float) -> Effects:
         sender = req.header.sender
         known = self.answers.recall(req)  # a retry gets its first answer and changes nothing
+        notes: list[Note] = []
+        controls: tuple[tuple[str, UnitControlState | None], ...] = ()  # to persist
         if known is not None:
             outcome = known
         elif isinstance(req, SubmitJob):
@@ -240,10 +249,11 @@ class CoordinatorCore:
         elif isinstance(req, CancelJob):
             outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
         elif isinstance(req, ControlUnit):
-            before = self.controls.get(req.unit)
-            outcome = requests.control(req, self.world, self.jobs, self.controls)
-            if self.controls.get(req.unit) != before:
-                self._controls_changed.append((req.unit, self.controls.get(req.unit)))
+            before = self.directives.controls.get(req.unit)
+            outcome = requests.control(req, self.world, self.jobs, self.directives)
+            after = self.directives.controls.get(req.unit)
+            if after != before:
+                controls = ((req.unit, after),)
         elif isinstance(req, ClearObstacles):
             outcome, cleared = requests.clear_obstacles(req, self.world)
             if cleared:
@@ -252,19 +262,17 @@ class CoordinatorCore:
                 squares = ", ".join(str(list(c)) for c in cleared[:20])
                 more = f" and {len(cleared) - 20} more" if len(cleared) > 20 else ""
                 # In the log, not the events view: its kinds (§5.7) have none for the map.
-                self._log.append(
-                    (logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}")
-                )
+                notes.append((logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}"))
         else:
             cache = self.planner.cache
-            outcome = requests.set_goal(req, self.world, self.jobs, self.goals, cache)
+            outcome = requests.set_goal(req, self.world, self.jobs, self.directives, cache)
         publish = []
         if not outcome.accepted:
             what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"
             about = (outcome.job_id, getattr(req, "unit", None))  # the job, the unit it concerns
             self.events.add(self.say.stamp.now(), "refusal", what, *about)
             reason = f"{type(req).__name__}: {outcome.reason}"
-            publish.append(self._refuse(topic, reason, req.request_id))
+            publish.append(self._refuse(topic, reason, req.request_id, notes))
         if req.reply_to is not None:
             publish.append(self.say.reply(req.reply_to, req.request_id, outcome))
         persist = self._persist()
@@ -273,15 +281,18 @@ class CoordinatorCore:
             # The queue view follows a request at once, or at the end of the batch period.
             now_due, views_at = self.views.after_request(now)
             if now_due:
-                publish += self._views()
-        effects = self._effects(publish, persist, views_at=views_at)
+                publish += self._views(notes)
+        effects = self._effects(publish, persist, views_at=views_at, log=notes, controls=controls)
         if known is None:  # a new request: its answer is kept
             effects = replace(effects, answered=(self.answers.remember(req, outcome),))
         return effects
 
-    def _refuse(self, topic: str, reason: str, request_id: str | None) -> Outbound:
+    def _refuse(
+        self, topic: str, reason: str, request_id: str | None, notes: list[Note]
+    ) -> Outbound:
+        """The error report for a refused message (and its line in `notes`, for the log)."""
         self.errors_reported += 1
-        self._log.append((logging.INFO, f"refused a message on {topic}: {reason}"))
+        notes.append((logging.INFO, f"refused a message on {topic}: {reason}"))
         return self.say.error(topic, reason, request_id)
 
     # ---- the step ------------------------------------------------------------------------
@@ -289,15 +300,15 @@ class CoordinatorCore:
     def step(self, now: float) -> Effects:
         """One coordinator step: every order (or halt order), the routes and the changed views."""
         publish, reasserted = self.stop.reassert(now)  # first, and even when the step fails
-        if reasserted is not None:
-            self._log.append((logging.WARNING, reasserted))
+        notes: list[Note] = [] if reasserted is None else [(logging.WARNING, reasserted)]
         try:
             result = self._decide(now)
         except Exception as exc:  # a bug must not take the coordinator down: halt everyone
-            self._log.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
+            notes.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
             status = self.topics.fleet("coordinator")
-            report = self._refuse(status, f"internal error in step {self.step_no}: {exc!r}", None)
-            return self._effects([*publish, *self._holds(), report])
+            why = f"internal error in step {self.step_no}: {exc!r}"
+            report = self._refuse(status, why, None, notes)
+            return self._effects([*publish, *self._holds(), report], log=notes)
         persist = self._persist()
         self.orders.expect(result.orders)
         releasing = set()
@@ -310,13 +321,13 @@ class CoordinatorCore:
                 releasing.add(order)
         self.stop.releasing(releasing)
         publish.append(self.say.routes(result.step, result.routes))
-        publish += self._views()
+        publish += self._views(notes)
         if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
             publish.append(self.status("online"))
         # Back-pressure: when states come back late (an overloaded broker), a step before the
         # units acknowledged these orders would only add load; they could not move on it.
         until = now + max(self.world.step_period_s, ACK_WAIT_S) if result.orders else None
-        return self._effects(publish, persist, acks_until=until)
+        return self._effects(publish, persist, acks_until=until, log=notes)
 
     def _in_way_of(self, unit_id: str) -> str | None:
         """The unit standing where `unit_id` would go next (waits.blocker)."""
@@ -338,7 +349,13 @@ class CoordinatorCore:
         after_s = stuck_after_s(self.world.step_period_s)
         stuck = Stuck(now, after_s, self._in_way_of, self._free_since)
         explain_waits(
-            self.jobs, self.world.units, active, self.estop, self.goals, self.controls, stuck
+            self.jobs,
+            self.world.units,
+            active,
+            self.estop,
+            self.directives.goals,
+            self.directives.controls,
+            stuck,
         )
         for job in self.stuck_news.newly_stuck(self.jobs):
             at = self.say.stamp.now()
@@ -350,7 +367,7 @@ class CoordinatorCore:
                 u.id
                 for u in units
                 if u.id in settled
-                and u.id not in self.controls  # paused or out of service: holds
+                and u.id not in self.directives.controls  # paused or out of service: holds
                 and u.state is not None
                 and not u.state.estop
                 and u.state.mode == "coordinated"
@@ -391,7 +408,7 @@ class CoordinatorCore:
                 released=order.released,
                 planned=order.planned,
                 target=order.target,
-                control=self.controls.get(u.id),
+                control=self.directives.controls.get(u.id),
             )
         return StepResult(self.step_no, orders, routes)
 
@@ -410,7 +427,7 @@ class CoordinatorCore:
         plans = self.orders.holds(heard, self.step_no)
         return [self.say.order(unit_id, plan) for unit_id, plan in plans.items()]
 
-    def _views(self) -> list[Outbound]:
+    def _views(self, notes: list[Note]) -> list[Outbound]:
         send_map, send_jobs = self.views.take()
         out = []
         try:
@@ -422,9 +439,9 @@ class CoordinatorCore:
                 view = self.events.take(self.say.stamp("events"))
                 out.append(Outbound.of("events", self.topics.fleet("events"), view))
         except Exception as exc:  # a view that cannot be built must not stop the orders
-            self._log.append((logging.ERROR, f"views of step {self.step_no} failed: {exc!r}"))
+            notes.append((logging.ERROR, f"views of step {self.step_no} failed: {exc!r}"))
             status = self.topics.fleet("coordinator")
-            out.append(self._refuse(status, f"internal error in the views: {exc!r}", None))
+            out.append(self._refuse(status, f"internal error in the views: {exc!r}", None, notes))
         return out
 
     def _persist(self) -> tuple[Job, ...]:
@@ -443,10 +460,10 @@ class CoordinatorCore:
         *,
         acks_until: float | None = None,
         views_at: float | None = None,
-        log: tuple[tuple[int, str], ...] = (),
+        log: Sequence[Note] = (),
+        controls: tuple[tuple[str, UnitControlState | None], ...] = (),
     ) -> Effects:
-        notes, self._log = (*self._log, *log), []
-        controls, self._controls_changed = tuple(self._controls_changed), []
+        """Everything one call of the core decided: each part handed in by the call itself."""
         return Effects(
             publish=tuple(publish),
             persist=persist,
@@ -455,5 +472,5 @@ class CoordinatorCore:
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,
             views_at=views_at,
-            log=notes,
+            log=tuple(log),
         )

@@ -16,13 +16,13 @@ from gridfleet.coordinator.allocation import (
     capacity_reason,
     reach_reason,
 )
+from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
 from gridfleet.coordinator.returns import stray_items
 from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Action
-from gridfleet.protocol.messages import UnitControlState
 
 LOST_CARRYING_STEPS = 20  # stale periods a carrying unit may be silent before its job fails
 LOST_CARRYING_MIN_S = 10.0
@@ -35,13 +35,11 @@ class JobProgress:
         self,
         world: World,
         jobs: JobBook,
-        goals: dict[str, Cell],
-        controls: dict[str, UnitControlState] | None = None,
+        directives: Directives,
     ) -> None:
         self.world = world
         self.jobs = jobs
-        self.goals = goals
-        self.controls = {} if controls is None else controls  # units paused or out of service
+        self.directives = directives  # goals and controls: read here, a goal reached forgotten
         self.returns: dict[str, Action] = {}  # unit -> putting down an item of a job now over
         # Re-queued jobs and the unit they were given to: only that unit may say it has the item.
         self.requeued_from: dict[str, str] = {}
@@ -62,10 +60,7 @@ class JobProgress:
         self._adopt_carried(units, active)
         self._progress_jobs(units, active, now, step_no)
         self.returns = stray_items(units, active, self.jobs, self.world.grid)
-        for unit_id, goal in list(self.goals.items()):
-            rec = self.world.units.get(unit_id)
-            if rec is not None and rec.position == goal:
-                del self.goals[unit_id]
+        self.directives.goals_reached({u.id: u.position for u in self.world.units.values()})
 
     def _adopt_carried(self, units: list[UnitRecord], active: set[str]) -> None:
         # A unit that reports carrying a job we think is not picked up yet (it picked the item up
@@ -173,8 +168,8 @@ class JobProgress:
                 u.id in active
                 and u.id in settled
                 and u.id not in busy
-                and u.id not in self.goals
-                and u.id not in self.controls
+                and u.id not in self.directives.goals
+                and u.id not in self.directives.controls
                 and u.factsheet is not None
                 and u.state is not None
                 and u.state.job_id is None
@@ -211,13 +206,13 @@ class JobProgress:
         """An assigned job whose unit hears from us this step is under way (`to_pickup`)."""
         for u in units:
             job = self.jobs.of_unit(u.id)
-            goal = u.id in self.goals
+            goal = u.id in self.directives.goals
             if u.id in active and not goal and job is not None and job.state == "assigned":
                 self.jobs.set(job, "to_pickup")
 
     def target(self, unit_id: str) -> Cell | None:
         """Where a unit is headed: its goal, else its job's pickup or (carrying) dropoff."""
-        goal = self.goals.get(unit_id)
+        goal = self.directives.goals.get(unit_id)
         if goal is not None:
             return goal
         stray = self.returns.get(unit_id)
@@ -230,7 +225,7 @@ class JobProgress:
 
     def action(self, unit_id: str) -> Action | None:
         """What a unit does at the end of its route: pick its job's item up, or drop it."""
-        if unit_id in self.goals:
+        if unit_id in self.directives.goals:
             return None
         stray = self.returns.get(unit_id)
         if stray is not None:

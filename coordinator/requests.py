@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
+from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
 from gridfleet.coordinator.world import World
 from gridfleet.errors import ProtocolError
@@ -16,7 +17,6 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
 from gridfleet.protocol.constants import MAX_OPEN_JOBS
-from gridfleet.protocol.messages import UnitControlState
 
 
 @dataclass(frozen=True)
@@ -117,14 +117,14 @@ def cancel(
 
 
 def set_goal(
-    req: SetGoal, world: World, jobs: JobBook, goals: dict[str, Cell], cache: DistanceFieldCache
+    req: SetGoal, world: World, jobs: JobBook, directives: Directives, cache: DistanceFieldCache
 ) -> Outcome:
     """Pin a unit to a square (or clear its goal); refuse unknown units and bad squares."""
     rec = world.units.get(req.unit)
     if rec is None or rec.state is None:
         return Outcome(False, f"unknown unit {req.unit!r}")
     if req.target is None:
-        goals.pop(req.unit, None)
+        directives.set_goal(req.unit, None)
         return Outcome(True)
     try:
         world.check_square(req.target, "target")
@@ -132,7 +132,7 @@ def set_goal(
         return Outcome(False, str(exc))
     if rec.position is not None and cache.distance(rec.position, req.target) == UNREACHABLE:
         return Outcome(False, f"unit {req.unit} cannot reach {list(req.target)}")
-    goals[req.unit] = req.target
+    directives.set_goal(req.unit, req.target)
     job = jobs.of_unit(req.unit)
     if job is not None and job.state not in CARRYING_STATES:
         # The goal pins the unit: its job goes back to the queue for another unit.
@@ -140,33 +140,31 @@ def set_goal(
     return Outcome(True)
 
 
-def control(
-    req: ControlUnit, world: World, jobs: JobBook, controls: dict[str, UnitControlState]
-) -> Outcome:
+def control(req: ControlUnit, world: World, jobs: JobBook, directives: Directives) -> Outcome:
     """Pause or resume a unit, take it out of service or back (protocol.md §6.4)."""
     unit = req.unit
     if world.units.get(unit) is None:
         return Outcome(False, f"unknown unit {unit!r}")
-    held = controls.get(unit)
+    held = directives.controls.get(unit)
     if req.command == "pause":
         if held == "out_of_service":
             return Outcome(False, f"unit {unit} is out of service: put it back in service first")
-        controls[unit] = "paused"
+        directives.set_control(unit, "paused")
     elif req.command == "resume":
         if held != "paused":
             return Outcome(
                 False, f"unit {unit} is not paused" + (" (out of service)" if held else "")
             )
-        del controls[unit]
+        directives.set_control(unit, None)
     elif req.command == "out_of_service":
-        controls[unit] = "out_of_service"
+        directives.set_control(unit, "out_of_service")
         job = jobs.of_unit(unit)
         if job is not None and job.state not in CARRYING_STATES:
             jobs.set(job, "queued", unit=None, reason=f"unit {unit} out of service; re-queued")
     else:
         if held != "out_of_service":
             return Outcome(False, f"unit {unit} is not out of service")
-        del controls[unit]
+        directives.set_control(unit, None)
     return Outcome(True)
 
 

@@ -59,9 +59,9 @@ class CoordinatorShell:
             seed=seed,
             topics=self.topics,
             stamp=HeaderStamper(sender),
+            controls=self.store.load_controls(),
         )
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
-        self.core.controls.update(self.store.load_controls())
         self.core.events.restore(self.store.load_events())
         self.world = self.core.world
         self.endpoint = Endpoint(

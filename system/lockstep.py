@@ -161,7 +161,7 @@ class Lockstep:
     def finished(self) -> bool:
         """Every job final and every goal reached (or cleared)."""
         jobs_done = all(j.final for j in self.core.jobs.jobs.values())
-        return jobs_done and not self.core.goals
+        return jobs_done and not self.core.directives.goals
 
 
 def run_lockstep(scenario: Scenario, step_s: float, max_steps: int, seed: int) -> SimulationResult:

@@ -105,7 +105,7 @@ def test_a_retried_goal_changes_nothing_after_the_goal_was_cleared(core: Coordin
     clear = goal.model_copy(update={"request_id": "g2", "target": None})
     request(core, "set_goal", clear, 1.0)
     assert published(request(core, "set_goal", goal, 2.0)) == [reply(2, "g1", True, None, None)]
-    assert core.goals == {}, "the late copy of g1 did not pin the unit again"
+    assert core.directives.goals == {}, "the late copy of g1 did not pin the unit again"
 
 
 def test_a_retried_refusal_is_refused_again_with_the_same_reason(core: CoordinatorCore) -> None:

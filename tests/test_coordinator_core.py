@@ -180,7 +180,7 @@ def test_goal_pins_a_unit_until_reached() -> None:
             break
     assert yard.units["u"].position == Cell(9, 3)
     core.step(100.0)
-    assert core.goals == {}
+    assert core.directives.goals == {}
 
 
 def _carrying_unit() -> tuple[CoordinatorCore, Yard, float]:

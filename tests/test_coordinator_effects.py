@@ -791,7 +791,7 @@ def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
         header=header("op"), request_id="g1", reply_to="op", unit="unit1", target=Cell(3, 2)
     )
     assert published(request(core, "set_goal", goal, 0.0)) == [reply(0, "g1", True, None, None)]
-    assert core.goals == {"unit1": (3, 2)}
+    assert core.directives.goals == {"unit1": (3, 2)}
     wall = goal.model_copy(update={"request_id": "g2", "target": (1, 1)})
     reason = "target [1, 1] is on a wall"
     assert published(request(core, "set_goal", wall, 0.0)) == [
@@ -876,7 +876,7 @@ def test_a_bad_cancel_or_goal_is_reported_without_a_reply(
     topic = TOPICS.request(kind)
     request_id = "c1" if b'"request_id": "c1"' in payload else None  # named where readable
     assert published(effects) == [error(0, topic, codec_reason(model, payload), request_id)]
-    assert core.jobs.jobs["job-1"].state == "queued" and core.goals == {}
+    assert core.jobs.jobs["job-1"].state == "queued" and core.directives.goals == {}
 
 
 def codec_reason(model: type[Message], payload: bytes) -> str:

@@ -55,7 +55,7 @@ def snapshot(c: CoordinatorShell) -> Any:
     units = {u.id: (u.connection, u.factsheet, u.state) for u in c.world.units.values()}
     return (
         {k: v.to_dict() for k, v in c.core.jobs.jobs.items()},
-        dict(c.core.goals),
+        dict(c.core.directives.goals),
         units,
         set(c.world.obstacles),
         c.core.estop,

@@ -286,7 +286,7 @@ async def test_malformed_requests_are_refused_and_change_nothing(
             r.op.raw_request(kind, payload)
         await async_wait_for(lambda: r.coordinator.errors_sent >= len(bad), what="all refused")
         assert r.coordinator.core.jobs.jobs == {}
-        assert r.coordinator.core.goals == {}
+        assert r.coordinator.core.directives.goals == {}
 
 
 @contextlib.asynccontextmanager
@@ -380,7 +380,7 @@ async def test_a_unit_taken_out_of_service_stays_out_across_a_coordinator_restar
         sent = r.op.send_control_unit("unit2", "out_of_service")
         await async_wait_for(lambda: r.op.find_reply(sent.request_id) is not None, what="reply")
         await r.restart_coordinator(broker.url, tmp_path / "jobs.db", playfield_grid())
-        assert r.coordinator.core.controls == {"unit2": "out_of_service"}
+        assert r.coordinator.core.directives.controls == {"unit2": "out_of_service"}
 
         def shown() -> bool:
             seen = r.probe.received(r.topics.fleet("routes"))
