@@ -26,7 +26,13 @@ from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import Scenario
-from gridfleet.system.simulate import SimulationResult, job_json, units_json
+from gridfleet.system.simulate import (
+    GoalProgress,
+    SimulationResult,
+    goal_json,
+    job_json,
+    units_json,
+)
 
 Handler = Callable[[str, bytes], list[Outbound]]
 OPERATOR = "lockstep"
@@ -169,14 +175,16 @@ def run_lockstep(scenario: Scenario, step_s: float, max_steps: int, seed: int) -
     sim = Lockstep(scenario, step_s, seed)
     sim.start()
     replies = sim.submit_scenario()
-    goals = list(zip(scenario.goals, replies[len(scenario.jobs) :], strict=True))
-    reached: dict[str, int] = {}
+    goals = [
+        GoalProgress(g.unit, g.target, refused=None if r.accepted else (r.reason or "refused"))
+        for g, r in zip(scenario.goals, replies[len(scenario.jobs) :], strict=True)
+    ]
     while sim.core.step_no < max_steps and not sim.finished():
         sim.step()
-        for goal, reply in goals:
+        for goal in goals:
             here = sim.world.position(goal.unit) == goal.target
-            if reply.accepted and here and goal.unit not in reached:
-                reached[goal.unit] = sim.core.step_no
+            if goal.refused is None and here and goal.step is None:
+                goal.step = sim.core.step_no
     outcome = SimulationResult(
         steps=sim.core.step_no,
         finished=sim.finished(),
@@ -186,14 +194,5 @@ def run_lockstep(scenario: Scenario, step_s: float, max_steps: int, seed: int) -
     )
     outcome.units = units_json(scenario, sim.world)
     outcome.jobs = [job_json(j.view()) for j in sim.core.jobs.jobs.values()]
-    outcome.goals = [
-        {
-            "unit": goal.unit,
-            "target": list(goal.target),
-            "reached": goal.unit in reached,
-            "step": reached.get(goal.unit),
-            **({} if reply.accepted else {"reason": reply.reason or "refused"}),
-        }
-        for goal, reply in goals
-    ]
+    outcome.goals = [goal_json(g) for g in goals]
     return outcome

@@ -222,18 +222,20 @@ async def simulate(
     in_view = {j.id for j in jobs if j.state == "rejected"}
     jobs += [j for j in refused_jobs if j.id not in in_view]
     outcome.jobs = [job_json(j) for j in jobs]
-    outcome.goals = [
-        {
-            "unit": g.unit,
-            "target": list(g.target),
-            "reached": g.step is not None,
-            "step": g.step,
-            **({"reason": g.refused} if g.refused else {}),
-        }
-        for g in goals
-    ]
+    outcome.goals = [goal_json(g) for g in goals]
     outcome.wall_time_s = round(time.monotonic() - started, 3)
     return outcome
+
+
+def goal_json(g: GoalProgress) -> dict[str, Any]:
+    """One goal as the result lists it."""
+    return {
+        "unit": g.unit,
+        "target": list(g.target),
+        "reached": g.step is not None,
+        "step": g.step,
+        **({"reason": g.refused} if g.refused else {}),
+    }
 
 
 def job_json(j: JobView) -> dict[str, Any]:
