@@ -163,6 +163,7 @@ CORES = (
     "gridfleet.robots.unit",
     "gridfleet.robots.core",
     "gridfleet.device.core",
+    "gridfleet.robots.vda5050.orders",
 )
 
 
