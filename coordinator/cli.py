@@ -1,4 +1,4 @@
-"""`gridfleet coordinator`: run the coordinator service on a map."""
+"""`gridfleet coordinator`: run the coordinator (its shell, `CoordinatorShell`) on a map."""
 
 from __future__ import annotations
 

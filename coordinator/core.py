@@ -11,9 +11,9 @@ batched views. Safety rules (protocol.md §4.4, §8), each in the module named:
   produces a swap, a vertex conflict or a rotation, so releasing a square that a unit is being
   released out of in the same step (following) is the only way into an occupied square, and that
   square is released only once the leader's state shows it gone (moves.py).
-- A unit in motion gets its remaining squares again (heartbeat), or a halt order when it has waited too
-  long or its way is blocked by a newly known obstacle (orders.py).
-- With the emergency stop engaged every unit gets holds at once and nothing is planned or
+- A unit in motion gets its remaining squares again (heartbeat), or a halt order when it has
+  waited too long or its way is blocked by a newly known obstacle (orders.py).
+- With the emergency stop engaged every unit gets a halt order at once and nothing is planned or
   allocated; orders of a step that release squares and have not gone out when the stop arrives
   are withdrawn (`withdrawn`).
 
@@ -148,9 +148,9 @@ class CoordinatorCore:
         notes: list[Note] = []
         return self._effects(self._views(notes), persist, log=notes)
 
-    def holds(self) -> Effects:
+    def halt_orders(self) -> Effects:
         """A halt order for every unit now (a clean stop; the emergency stop does the same)."""
-        return self._effects(self._holds())
+        return self._effects(self._halt_orders())
 
     def views_due(self, now: float) -> Effects:
         """The batch period `views_at` named is over: the views changed since go out."""
@@ -232,7 +232,7 @@ class CoordinatorCore:
         publish = list(news.publish)
         # The stop wins at once: every unit gets a halt order now, not at the next step.
         if self.estop:
-            publish += self._holds()
+            publish += self._halt_orders()
         publish.append(self.status("online"))
         return self._effects(publish, log=((logging.WARNING, news.line),))
 
@@ -308,7 +308,7 @@ class CoordinatorCore:
             status = self.topics.fleet("coordinator")
             why = f"internal error in step {self.step_no}: {exc!r}"
             report = self._refuse(status, why, None, notes)
-            return self._effects([*publish, *self._holds(), report], log=notes)
+            return self._effects([*publish, *self._halt_orders(), report], log=notes)
         persist = self._persist()
         self.orders.expect(result.orders)
         releasing = set()
@@ -418,13 +418,13 @@ class CoordinatorCore:
 
     # ---- what every Effects carries ---------------------------------------------------------
 
-    def _holds(self) -> list[Outbound]:
+    def _halt_orders(self) -> list[Outbound]:
         heard = [
             u.id
             for u in self.world.units.values()
             if u.state is not None and u.connection not in ("offline", "broken")
         ]
-        plans = self.orders.holds(heard, self.step_no)
+        plans = self.orders.halt_orders(heard, self.step_no)
         return [self.say.order(unit_id, plan) for unit_id, plan in plans.items()]
 
     def _views(self, notes: list[Note]) -> list[Outbound]:

@@ -36,7 +36,7 @@ class Effects:
     persist: tuple[Job, ...] = ()  # jobs changed: store them before publishing
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
-    controls: tuple[tuple[str, str | None], ...] = ()  # unit holds changed (None: lifted)
+    controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
     acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then
     views_at: float | None = None  # call `views_due` at this time (end of a batch period)

@@ -5,7 +5,8 @@ Pure. A square stays reserved for a unit until its state shows it left: its repo
 squares it still may drive (`state.released`) and, until it has acknowledged our latest change,
 every square we sent it since its last acknowledgement. Only *settled* units (acknowledged,
 nothing left to drive) get new moves; a unit in motion gets its remaining squares again
-(heartbeat), or a halt order when it has waited too long or its way is blocked by a newly known obstacle.
+(heartbeat), or a halt order when it has waited too long or its way is blocked by a newly known
+obstacle.
 """
 
 from __future__ import annotations
@@ -233,8 +234,8 @@ class Orders:
 
         Returns a problem when the state follows an update of our order that we never sent: a
         forged order (same order id, a jumped update id), which would make every later real
-        update look stale to the unit. The unit then gets a halt order under a new order id, which it
-        takes at once.
+        update look stale to the unit. The unit then gets a halt order under a new order id, which
+        it takes at once.
         """
         t = self.tracks.get(unit_id)
         if t is not None and follows_unsent(state, t):
@@ -253,7 +254,7 @@ class Orders:
             del self.awaiting[unit_id]
         return None
 
-    def holds(self, unit_ids: list[str], step_no: int) -> dict[str, OrderPlan]:
+    def halt_orders(self, unit_ids: list[str], step_no: int) -> dict[str, OrderPlan]:
         """An update releasing nothing for each unit that has had an order; nothing is awaited."""
         self.awaiting.clear()  # holds need no acknowledgement before the next step
         out = {}

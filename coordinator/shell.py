@@ -93,7 +93,7 @@ class CoordinatorShell:
                 on_connect=self._on_connect,
                 on_disconnect=lambda _: self.ready.clear(),
                 during=self._steps,
-                on_stop=lambda: self._apply(self.core.holds()),
+                on_stop=lambda: self._apply(self.core.halt_orders()),
             )
         finally:
             self.store.close()

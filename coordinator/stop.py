@@ -3,7 +3,7 @@
 One owner for everything about the stop: the latch and the presses seen (`StopView`), whether
 the fleet is stopped, what must go back on the broker after a reconnect, and which of a step's
 orders the stop withdraws. Each call returns what to publish; the core adds what the whole fleet
-does about it (holds for every unit, its status, the event).
+does about it (a halt order for every unit, its status, the event).
 """
 
 from __future__ import annotations
@@ -126,6 +126,6 @@ class FleetStop:
 
     def withdrawn(self, out: Outbound) -> bool:
         """Whether `out`, of the last step, must not go out after all: an order that releases
-        squares, once the stop was engaged while the step's messages were going out (the holds
-        already went, and the stop wins at once)."""
+        squares, once the stop was engaged while the step's messages were going out (the halt
+        orders already went, and the stop wins at once)."""
         return self.engaged and out in self._releasing

@@ -82,7 +82,7 @@ class JobStore:
         return {unit: state for unit, state in rows if state in get_args(UnitControlState)}
 
     def save_controls(self, changes: Iterable[tuple[str, str | None]]) -> None:
-        """Set or (None) lift units' holds, in one transaction."""
+        """Set or (None) lift units' controls, in one transaction."""
         with self._db:
             for unit, state in changes:
                 if state is None:

@@ -17,8 +17,8 @@ from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import WaitCode
 
 Wait = tuple[WaitCode, str]  # (code, words)
-_HOLD_WORDS = {"paused": "paused", "out_of_service": "out of service"}
-_HOLD_CODES: dict[str, WaitCode] = {
+_CONTROL_WORDS = {"paused": "paused", "out_of_service": "out of service"}
+_CONTROL_CODES: dict[str, WaitCode] = {
     "paused": "unit_paused",
     "out_of_service": "unit_out_of_service",
 }
@@ -135,7 +135,7 @@ def why_waiting(
         return _why_queued(job, jobs, units, active, goals, controls)
     held = controls.get(job.unit or "")
     if held is not None:
-        return (_HOLD_CODES[held], f"its unit {job.unit} is {_HOLD_WORDS[held]}")
+        return (_CONTROL_CODES[held], f"its unit {job.unit} is {_CONTROL_WORDS[held]}")
     rec = units.get(job.unit or "")
     if rec is None or rec.state is None:
         return None
@@ -178,7 +178,7 @@ def _why_queued(
     why_not = {}
     for u in online:
         if u in controls:
-            why_not[u] = _HOLD_WORDS[controls[u]]
+            why_not[u] = _CONTROL_WORDS[controls[u]]
         elif u in goals:
             why_not[u] = "sent to a goal"
         elif u in busy or not _takes_jobs(units[u]):

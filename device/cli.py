@@ -47,14 +47,14 @@ async def _main(args: argparse.Namespace) -> int:
     except ProtocolError as exc:
         raise ConfigError(str(exc)) from None
     term.start_keys(loop, device.press, stop.set)
-    term.draw(device.logic)
+    term.draw(device.core)
     blinker: asyncio.Task[None] | None = None
     if term.tty_out:
 
         async def blink() -> None:
             while True:
                 await asyncio.sleep(0.125)
-                term.draw(device.logic)
+                term.draw(device.core)
 
         blinker = asyncio.create_task(blink())
     try:

@@ -32,16 +32,16 @@ class DeviceShell:
         on_change: Callable[[DeviceCore], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        logic = DeviceCore(Topics(root), unit, device_id or f"device-{unit}", retry_s)
-        self.logic = logic
+        core = DeviceCore(Topics(root), unit, device_id or f"device-{unit}", retry_s)
+        self.core = core
         self.endpoint = Endpoint(
             url,
-            Topics(root).client_id(logic.device),  # per root: fleets may share a broker
-            name=f"device {logic.device}",
-            subscriptions=logic.subscriptions,
-            will=lambda: logic.connection("broken"),
-            online=lambda: logic.connection("online"),
-            offline=lambda: logic.connection("offline"),
+            Topics(root).client_id(core.device),  # per root: fleets may share a broker
+            name=f"device {core.device}",
+            subscriptions=core.subscriptions,
+            will=lambda: core.connection("broken"),
+            online=lambda: core.connection("online"),
+            offline=lambda: core.connection("offline"),
             backoff=BACKOFF,
         )
         self.on_change = on_change
@@ -51,26 +51,26 @@ class DeviceShell:
     @property
     def leds(self) -> Leds:
         """What the four LEDs show now."""
-        return self.logic.leds
+        return self.core.leds
 
     @property
     def online(self) -> bool:
         """Whether it has a broker session."""
-        return self.logic.online
+        return self.core.online
 
     @property
     def refused(self) -> list[Refusal]:
         """Messages it ignored, with the reason each was reported under."""
-        return self.logic.refused
+        return self.core.refused
 
     def press(self) -> None:
         """Press the stop key (call from the device's event loop)."""
-        self.logic.press()
+        self.core.press()
         self._changed()
 
     def _changed(self) -> None:
         if self.on_change is not None:
-            self.on_change(self.logic)
+            self.on_change(self.core)
         if self._wake is not None:
             self._wake.set()  # a press, or our own stop come back: the send loop looks again
 
@@ -84,19 +84,19 @@ class DeviceShell:
             on_disconnect=self._disconnected,
             during=self._send_loop,
         )
-        self.logic.disconnected()
+        self.core.disconnected()
         self._changed()
 
     async def _connected(self) -> None:
-        self.logic.connected()
+        self.core.connected()
         self._changed()
 
     def _disconnected(self, why: str) -> None:
-        self.logic.disconnected()
+        self.core.disconnected()
         self._changed()
 
     async def _receive(self, topic: str, payload: bytes) -> None:
-        out = self.logic.receive(topic, payload)
+        out = self.core.receive(topic, payload)
         if out:
             log.warning("ignored a message on %s (reported on errors)", topic)
         self._changed()
@@ -107,9 +107,9 @@ class DeviceShell:
         while not shutdown.is_set():
             self._wake.clear()
             # The screen shows the stop; a log line would be drawn across it.
-            await self._send(self.logic.due(self.clock()))
+            await self._send(self.core.due(self.clock()))
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), self.logic.next_stop_in(self.clock()))
+                await asyncio.wait_for(self._wake.wait(), self.core.next_stop_in(self.clock()))
 
     async def _send(self, messages: list[Outbound]) -> None:
         for message in messages:

@@ -32,14 +32,14 @@ class Terminal:
         self._saved: list[object] | None = None
         self._buffer = b""
 
-    def draw(self, logic: DeviceCore) -> None:
+    def draw(self, core: DeviceCore) -> None:
         """Show the current state (plain mode prints only changes)."""
         if self.tty_out:
             blink_on = int(time.monotonic() * 4) % 2 == 0
-            self.out.write("\r\x1b[2K" + render_tty(logic, blink_on))
+            self.out.write("\r\x1b[2K" + render_tty(core, blink_on))
             self.out.flush()
             return
-        line = render_plain(logic)
+        line = render_plain(core)
         if line != self._last:
             self._last = line
             self.out.write(line + "\n")
@@ -98,33 +98,33 @@ class Terminal:
             self.out.flush()
 
 
-def render_plain(logic: DeviceCore) -> str:
+def render_plain(core: DeviceCore) -> str:
     """One line for logs and pipes: `leds=.#.. direction=E estop=released link=online`."""
-    leds = logic.leds
+    leds = core.leds
     lit = "".join("#" if getattr(leds, side) else "." for side in "NESW")
-    direction = "-" if logic.direction is None else logic.direction.value
-    engaged = logic.estop_engaged or logic.pressed  # the fleet is stopped by either
-    estop = "engaged" if engaged else "released" if logic.estop else "unknown"
-    pending = " stop=pending" if logic.pending_stop else ""
-    link = "online" if logic.online else "offline"
+    direction = "-" if core.direction is None else core.direction.value
+    engaged = core.estop_engaged or core.pressed  # the fleet is stopped by either
+    estop = "engaged" if engaged else "released" if core.estop else "unknown"
+    pending = " stop=pending" if core.pending_stop else ""
+    link = "online" if core.online else "offline"
     return f"leds={lit} direction={direction} estop={estop} link={link}{pending}"
 
 
-def render_tty(logic: DeviceCore, blink_on: bool) -> str:
+def render_tty(core: DeviceCore, blink_on: bool) -> str:
     """The live terminal line: the four arrows, the lit one highlighted; stop blinks all in red."""
-    leds = logic.leds
+    leds = core.leds
     cells = []
     for side in "NESW":
         arrow = ARROWS[side]
-        if logic.pattern == "stop":
+        if core.pattern == "stop":
             cells.append(f"\x1b[1;41;97m {arrow} \x1b[0m" if blink_on else f" {arrow} ")
         elif getattr(leds, side):
             cells.append(f"\x1b[1;42;30m {arrow} \x1b[0m")
         else:
             cells.append(f"\x1b[2m {arrow} \x1b[0m")
     status = {
-        "stop": "EMERGENCY STOP" + (" (sending)" if logic.pending_stop else ""),
+        "stop": "EMERGENCY STOP" + (" (sending)" if core.pending_stop else ""),
         "offline": "offline: connecting",
-        "direction": f"unit {logic.unit}",
-    }[logic.pattern]
+        "direction": f"unit {core.unit}",
+    }[core.pattern]
     return "".join(cells) + f"  {status}  [space/s: stop, q: quit]"

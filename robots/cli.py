@@ -124,9 +124,9 @@ async def _main(fleet: Fleet, truth: Path | None = None, step: float = DEFAULT_S
         writer = asyncio.create_task(write_truth(fleet.world, truth, step, stop))
     log.info(
         "running %s on %s (%s)",
-        ", ".join(fleet.runners),
-        fleet.runners[next(iter(fleet.runners))].endpoint.where,
-        fleet.logic[next(iter(fleet.runners))].mode,
+        ", ".join(fleet.shells),
+        fleet.shells[next(iter(fleet.shells))].endpoint.where,
+        fleet.logic[next(iter(fleet.shells))].mode,
     )
     await fleet.run(stop)
     if truth is not None:

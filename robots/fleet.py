@@ -74,7 +74,7 @@ class Fleet:
                 self.world.place(spec.id, spec.start)  # best guess until its state arrives
         wanted = {g.unit: g.target for g in scenario.goals} if mode == "standalone" else {}
         wanted.update(goals or {})
-        self.runners: dict[str, UnitShell] = {}
+        self.shells: dict[str, UnitShell] = {}
         groups = -(-len(local) // STEP_GROUP)
         for spec in scenario.units:
             if spec.id not in local:
@@ -94,16 +94,16 @@ class Fleet:
             if accounts is not None:  # each unit logs in as itself
                 account = accounts.get(spec.id)
                 url = with_credentials(broker_url, account.name, account.password)
-            self.runners[spec.id] = UnitShell(
+            self.shells[spec.id] = UnitShell(
                 logic,
                 self.world,
                 url,
                 self.topics,
                 color=spec.color,
-                watch_remote=not shared and not self.runners and len(local) < len(known),
+                watch_remote=not shared and not self.shells and len(local) < len(known),
                 reconnect_s=reconnect_s,
                 on_step=None if self.saved is None else self._save,
-                phase_s=step * (len(self.runners) % groups) / groups,
+                phase_s=step * (len(self.shells) % groups) / groups,
             )
             if self.saved is not None:
                 self._save(logic)
@@ -116,11 +116,11 @@ class Fleet:
     @property
     def logic(self) -> dict[str, UnitLogic]:
         """The pure core of every local unit."""
-        return {uid: r.logic for uid, r in self.runners.items()}
+        return {uid: r.logic for uid, r in self.shells.items()}
 
     async def run(self, shutdown: asyncio.Event) -> None:
         """Run every local unit until `stop` is set; each says "offline" before it returns."""
-        tasks = [asyncio.create_task(r.run(shutdown), name=uid) for uid, r in self.runners.items()]
+        tasks = [asyncio.create_task(r.run(shutdown), name=uid) for uid, r in self.shells.items()]
         watcher = asyncio.create_task(self._watch_ready(shutdown))
         try:
             await asyncio.gather(*tasks)
@@ -135,7 +135,7 @@ class Fleet:
 
     async def _watch_ready(self, shutdown: asyncio.Event) -> None:
         while not shutdown.is_set():
-            await asyncio.gather(*(r.online.wait() for r in self.runners.values()))
+            await asyncio.gather(*(r.online.wait() for r in self.shells.values()))
             self.ready.set()
             return
 

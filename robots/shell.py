@@ -45,7 +45,7 @@ class UnitShell:
         self.on_step = on_step  # after each step, e.g. to save where the unit stands
         self.world = world
         self.id = logic.unit_id
-        # One client id per runner: two processes started with the same unit never kick each other.
+        # One client id per shell: two processes started with the same unit never kick each other.
         self.endpoint = Endpoint(
             broker_url,
             f"{self.id}-{uuid.uuid4().hex[:8]}",

@@ -1,1 +1,1 @@
-"""The composition: the gridfleet command, how the system is assembled, run and fed."""
+"""The composition: the gridfleet command, how the system is assembled and run."""

@@ -5,7 +5,8 @@ ROOT):
 
 - `protocol/schemas/<Model>.json`: one JSON Schema per message model used on a topic;
 - `protocol/protocol.json`, `dashboard/static/js/protocol_table.js` and
-  `firmware/esp32_unit/src/protocol_table.h`: the topic table and constants (see system/protocol_table.py).
+  `firmware/esp32_unit/src/protocol_table.h`: the topic table and constants (see
+  system/protocol_table.py).
 
 A test fails when a committed file differs from a fresh generation.
 """

@@ -309,7 +309,7 @@ async def test_06_direction_on_the_device_and_its_emergency_stop_works(
         await asyncio.to_thread(late.subscribe, topics.fleet("estop"), 1)
         seen = await async_wait_for(lambda: late.received(topics.fleet("estop")), what="retained")
         assert seen[0].retain and decode_estop(seen[0].payload) == engaged
-        await async_wait_for(lambda: not device.logic.pending_stop, what="stop confirmed")
+        await async_wait_for(lambda: not device.core.pending_stop, what="stop confirmed")
         assert device.leds == ALL
         assert sum(s.engaged for s in op.estop_signals()) == 1  # one press, one stop
 
@@ -389,7 +389,7 @@ def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_f
         expect(dash.page.locator("body")).to_have_attribute("data-estop", "released")
         released = op.estop_signals()[-1]
         assert not released.engaged and dash.client_id in released.reason
-        wait_for(lambda: not virtual.logic.estop_engaged, 5, what="device sees the release")
+        wait_for(lambda: not virtual.core.estop_engaged, 5, what="device sees the release")
         wait_for(lambda: world.positions["unit2"] == Cell(0, 9), 30, what="unit2 at its goal")
         assert world.collisions == 0
         assert dash.errors == []

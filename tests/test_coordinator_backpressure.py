@@ -44,7 +44,7 @@ def test_steps_wait_for_acknowledgements_of_moves(
     frozen = threading.Event()
 
     def heartbeat() -> None:
-        # A unit whose states keep coming; it acknowledges holds at once, but once a move has
+        # A unit whose states keep coming; it acknowledges halt orders at once, but once a move has
         # come it acknowledges only what `acked` says (a unit whose acks are late).
         nonlocal acked
         while not stop.is_set():

@@ -210,9 +210,9 @@ def test_connecting_publishes_the_map_and_the_queue_view() -> None:
 
 
 def test_a_clean_stop_holds_every_unit_that_had_an_order(core: CoordinatorCore) -> None:
-    assert published(core.holds()) == []  # no order yet: nothing to hold
+    assert published(core.halt_orders()) == []  # no order yet: nothing to hold
     under_way(core)
-    effects = core.holds()
+    effects = core.halt_orders()
     assert published(effects) == [(ORDER, hold(1, update_id=2), 1, False)]
     assert effects.awaiting == frozenset()
 

@@ -1,4 +1,4 @@
-"""The coordinator service over a real broker, with real unit cores stepped by the test (FakeFleet)."""
+"""The coordinator's shell (CoordinatorShell) over a real broker, with real unit cores stepped by the test (FakeFleet)."""
 
 from __future__ import annotations
 
@@ -192,7 +192,7 @@ async def test_estop_halts_releases_and_release_resumes(
         await async_wait_for(lambda: r.op.job_state("long") == "to_pickup", what="under way")
         r.op.engage("test")
         await async_wait_for(lambda: r.coordinator.core.estop, what="estop seen")
-        # Every order made from now on holds. Judged by the step each order carries, not by when
+        # Every order made from now on is a halt order. Judged by the step each order carries, not by when
         # it reached the probe: an order made just before may still be on its way.
         stop_step = r.coordinator.core.step_no
         topic = r.topics.unit("order", "unit4")

@@ -240,7 +240,7 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     # is lost with it and no other unit can finish the job (protocol §8).
     coordinator, fleet = system(step_s=0.15)
     world = world_of(fleet)
-    runners = fleet.service.runners
+    runners = fleet.service.shells
     units = fleet.service.logic
     core = coordinator.service.core
     # 4 kg: unit2, unit3 and unit4 can carry it (unit2, the nearest, if it is free first).

@@ -81,8 +81,8 @@ async def test_stop_key_engages_a_retained_valid_estop_everyone_sees(
         seen = await async_wait_for(lambda: watcher.received(press), what="the press")
         signal_ = decode_press(seen[0].payload, "dev-a")
         assert signal_ is not None and signal_.reason == "button"
-        await async_wait_for(lambda: not device.logic.pending_stop, what="stop confirmed")
-        assert device.logic.pressed and device.leds == ALL
+        await async_wait_for(lambda: not device.core.pending_stop, what="stop confirmed")
+        assert device.core.pressed and device.leds == ALL
         # A client arriving later gets it as the retained value.
         late = probe_factory()
         late.subscribe(press, qos=1)
@@ -108,7 +108,7 @@ async def test_bad_payloads_change_nothing_and_are_reported(
     async with running(DeviceShell(broker.url, "unit1", root, device_id="dev-b")) as device:
         probe.publish(topics.unit("direction", "unit1"), "E", qos=0, retain=True)
         probe.publish(topics.fleet("estop"), "released|dashboard|ok", qos=1, retain=True)
-        await async_wait_for(lambda: device.leds == Leds(E=True) and device.logic.estop is not None)
+        await async_wait_for(lambda: device.leds == Leds(E=True) and device.core.estop is not None)
         bad = [
             (topics.unit("direction", "unit1"), b"north"),
             (topics.unit("direction", "unit1"), b"N" * 70_000),
@@ -128,7 +128,7 @@ async def test_bad_payloads_change_nothing_and_are_reported(
             decoded = decode(ErrorReport, report.payload)
             assert decoded.header.sender == "dev-b" and decoded.reason
         assert device.leds == Leds(E=True)
-        assert not device.logic.estop_engaged and not device.logic.pending_stop
+        assert not device.core.estop_engaged and not device.core.pending_stop
         assert len(device.refused) == len(bad)
 
 
@@ -149,7 +149,7 @@ async def test_press_while_broker_is_down_is_sent_after_reconnect(
                 lambda: probe.received(press), timeout=20, what="stop after restart"
             )
             assert decode_press(seen[0].payload, "dev-c") == decode_estop(b"engaged|dev-c|button")
-            await async_wait_for(lambda: not dev.logic.pending_stop, what="confirmed")
+            await async_wait_for(lambda: not dev.core.pending_stop, what="confirmed")
 
 
 # -- the `gridfleet device` command ----------------------------------------------------------------
@@ -291,7 +291,7 @@ def test_device_command_on_a_terminal_highlights_the_lit_arrow_and_quits_on_q(
         [
             sys.executable,
             "-m",
-            "gridfleet.system.cli",
+            "gridfleet",
             "device",
             "--broker",
             broker.url,

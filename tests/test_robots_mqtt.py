@@ -178,7 +178,7 @@ async def test_unit_refuses_unreleased_and_occupied_squares(
         assert s.wait_reason is not None and "another unit" in s.wait_reason
         await steps(fleet, "u1", 5)
         assert fleet.world.positions == {"u1": Cell(1, 1), "u2": Cell(2, 1)}
-        # A hold releases nothing: the unit stays.
+        # A halt order releases nothing: the unit stays.
         c.order("u1", "o2", 1, [])
         await c.until_state("u1", lambda s: s.order_id == "o2" and s.released == [])
         await steps(fleet, "u1", 5)
@@ -287,7 +287,7 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
     # No announced step: the unit's own hold timeout (0.5 s) has passed when it reconnects.
     c = DispatchPeer(probe_factory(), topics, step_period_s=None)
     async with running(sc, broker.url, root, step=0.05, reconnect_s=1.0) as fleet:
-        runner = fleet.runners["u1"]
+        runner = fleet.shells["u1"]
         c.order("u1", "o1", 1, [(x, 0) for x in range(1, 20)])
         await async_wait_for(lambda: fleet.world.moves["u1"] >= 1)
         runner.drop_connection()
@@ -315,7 +315,7 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
     sc = scenario(tmp_path, ["." * 20], {"u1": (0, 0)})
     c = DispatchPeer(probe_factory(), topics)
     async with running(sc, broker.url, root, coordinator=c, step=0.05, reconnect_s=0.2) as fleet:
-        runner = fleet.runners["u1"]
+        runner = fleet.shells["u1"]
         old = runner.endpoint._client  # the live connection, to make one send on it hang
         assert old is not None
         timed_out = asyncio.Event()
@@ -341,7 +341,7 @@ async def test_units_reconnect_after_a_broker_restart(
 ) -> None:
     sc = scenario(tmp_path, OPEN, {"u1": (0, 1)})
     async with running(sc, fresh_broker.url, root, reconnect_s=0.05) as fleet:
-        runner = fleet.runners["u1"]
+        runner = fleet.shells["u1"]
         fresh_broker.stop()
         await async_wait_for(lambda: fleet.logic["u1"].status == "holding", what="holding")
         fresh_broker.start()
@@ -382,7 +382,7 @@ async def test_units_in_another_process_are_seen_through_their_state(
         running(sc, broker.url, root, coordinator=c, units=["u1"]) as here,
         running(sc, broker.url, root, coordinator=c, units=["u2"]) as there,
     ):
-        assert set(here.runners) == {"u1"} and set(there.runners) == {"u2"}
+        assert set(here.shells) == {"u1"} and set(there.shells) == {"u2"}
         c.order("u2", "o1", 1, [(2, 2), (3, 2)])
         await async_wait_for(lambda: here.world.positions["u2"] == Cell(3, 2), what="u2 seen moved")
         c.order("u2", "o1", 2, [(3, 1)])

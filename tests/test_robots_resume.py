@@ -142,8 +142,8 @@ def test_a_process_s_units_step_in_groups_of_at_most_twelve_spread_over_the_step
     # last of them waited for all the others (bench/README.md, issue 15).
     scenario = make_scenario(50, 0, tmp_path)
     fleet = Fleet(scenario, "mqtt://127.0.0.1:1", step=0.2)
-    phases = [round(r.phase_s, 6) for r in fleet.runners.values()]
+    phases = [round(r.phase_s, 6) for r in fleet.shells.values()]
     assert sorted(set(phases)) == [0.0, 0.04, 0.08, 0.12, 0.16]
     assert all(phases.count(p) == 10 for p in set(phases))
     few = Fleet(scenario, "mqtt://127.0.0.1:1", step=0.2, units=[u.id for u in scenario.units[:12]])
-    assert {r.phase_s for r in few.runners.values()} == {0.0}  # a dozen step together
+    assert {r.phase_s for r in few.shells.values()} == {0.0}  # a dozen step together

@@ -39,7 +39,7 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, stuck))[3], "moving", "under way: nothing to add");
 });
 
-test("a unit row's buttons follow its hold", () => {
+test("a unit row's buttons follow its control", () => {
   const commands = (control) => controlButtons(control).map(([, c]) => c);
   assert.deepEqual(commands(null), ["pause", "out_of_service"]);
   assert.deepEqual(commands("paused"), ["resume", "out_of_service"]);

@@ -1,7 +1,7 @@
-"""`WebotsWorld`: one grid unit in Webots, as the world its runner senses and moves in.
+"""`WebotsWorld`: one grid unit in Webots, as the world its shell senses and moves in.
 
-The runner of a simulated unit asks its world for the unit's four sensor readings and to move
-it one square (`robots.world.SimulatedWorld`); here Webots answers. Readings are the unit's
+The shell of a simulated unit (`UnitShell`) asks its world for the unit's four sensor readings
+and to move it one square (`robots.world.SimulatedWorld`); here Webots answers. Readings are the unit's
 four DistanceSensors (`geometry.reading`), a move sets the unit's translation through the
 Supervisor and advances the simulation one basic time step so that the move takes effect and the
 sensors measure from the new square, and the LEDs show the unit's intended move whenever a
@@ -53,7 +53,7 @@ class WebotsWorld:
     sensor saw the square taken (`prevented`), and collisions it finds in this Webots world after
     a move: onto the square of another grid unit run in this world (vertex), of an obstacle
     (obstacle), or off the map (wall). Units run elsewhere are here as mirrors at most, which
-    are not counted; a runner that watches other units' states tells it through `observe`.
+    are not counted; a shell that watches other units' states tells it through `observe`.
     """
 
     def __init__(
@@ -180,7 +180,7 @@ class WebotsWorld:
                 other = _field(node, "name", UNIT_PROTO).getSFString()
                 self.log.append(Collision("vertex", tuple(sorted((self.unit_id, other))), here))
 
-    # ---- the world the runner sees (`robots.world.SimulatedWorld`) -----------------------------
+    # ---- the world the shell sees (`robots.world.SimulatedWorld`) -----------------------------
 
     @property
     def positions(self) -> Mapping[str, Cell]:

@@ -1,4 +1,4 @@
-"""A grid unit in Webots on the fleet's broker: its world and the same runner as a headless unit.
+"""A grid unit in Webots on the fleet's broker: its world and the same shell as a headless unit.
 
 The unit is the same as a headless one: `UnitLogic` decides, `UnitCore` speaks the protocol,
 `UnitShell` and its `Endpoint` keep the MQTT session and step the unit on the wall clock, as
@@ -24,7 +24,7 @@ MODEL = "gridfleet-webots"  # the factsheet's `model` of a unit in Webots
 
 
 class WebotsUnit:
-    """One grid unit: its Webots world and the same runner as a headless unit's, on one broker."""
+    """One grid unit: its Webots world and the same shell as a headless unit's, on one broker."""
 
     def __init__(
         self, robot: Supervisor, settings: UnitSettings, *, reconnect_s: float = 0.1

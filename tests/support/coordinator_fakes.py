@@ -1,6 +1,6 @@
 """Real units for coordinator tests, stepped by the test: `Yard` without a broker, `FakeFleet` over MQTT.
 
-Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT a `robots.runner.UnitShell`
+Each unit is the real unit core (`robots.unit.UnitLogic`; over MQTT a `gridfleet.robots.shell.UnitShell`
 each, with its `UnitCore` and `Endpoint`, last will included) on a ground-truth world
 (`robots.world.WorldSim`: walls, hidden obstacles, refused and counted bad moves). Only the stepping
 is the test's own: every unit steps once per fleet step, in a random order, so units act
@@ -88,7 +88,7 @@ class Yard:
 class FakeFleet:
     """Units over MQTT, stepped by `step_once`/`run` in a random order instead of by their clocks.
 
-    Each unit is a `robots.runner.UnitShell`: its core, its endpoint (client id, last will,
+    Each unit is a `gridfleet.robots.shell.UnitShell`: its core, its endpoint (client id, last will,
     offline, back-off) and its `tick` are the product's. Only `UnitShell.run` is not used, since
     it also starts the unit's own step loop; the session it runs is wired here the same way, with
     sends that are never awaited (see `_send`).
@@ -110,7 +110,7 @@ class FakeFleet:
         self.world = self.yard.world
         self.rng = random.Random(seed)
         self.steps = 0
-        self.runners: dict[str, UnitShell] = {}  # the running units
+        self.shells: dict[str, UnitShell] = {}  # the running units
         self._tasks: dict[str, asyncio.Task[None]] = {}
         self._sending: list[asyncio.Future[bool]] = []
 
@@ -132,7 +132,7 @@ class FakeFleet:
             reconnect_s=0.05,
             max_reconnect_s=0.5,
         )
-        self.runners[unit_id] = runner
+        self.shells[unit_id] = runner
         core = runner.core
         core.start(self._now())
 
@@ -155,18 +155,18 @@ class FakeFleet:
         """Start every unit and wait until all are connected."""
         for uid in self.units:
             self.start(uid)
-        await asyncio.gather(*(r.online.wait() for r in self.runners.values()))
+        await asyncio.gather(*(r.online.wait() for r in self.shells.values()))
 
     async def kill(self, unit_id: str) -> None:
         """The unit dies where it stands: no `offline`, no more steps; the broker has its will."""
-        self.runners.pop(unit_id).kill()
+        self.shells.pop(unit_id).kill()
         await cancel_and_wait(self._tasks.pop(unit_id))
 
     async def step_once(self) -> None:
         """Every running unit takes one step, in random order, then publishes what it says."""
-        alive = list(self.runners)
+        alive = list(self.shells)
         self.rng.shuffle(alive)
-        said = [(uid, self.runners[uid].tick()) for uid in alive]
+        said = [(uid, self.shells[uid].tick()) for uid in alive]
         self.steps += 1
         for uid, outs in said:
             self._send(uid, outs)
@@ -174,7 +174,7 @@ class FakeFleet:
     def _send(self, unit_id: str, outs: list[Outbound]) -> None:
         # In order, one task a message, as UnitShell._send; but not awaited, so a send stuck on
         # a cut connection never holds back the step of the other units.
-        runner = self.runners.get(unit_id)
+        runner = self.shells.get(unit_id)
         if runner is not None:
             self._sending = [s for s in self._sending if not s.done()]
             self._sending += [asyncio.ensure_future(runner.endpoint.publish(out)) for out in outs]

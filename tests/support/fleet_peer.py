@@ -4,7 +4,7 @@ A `UnitPeer` publishes what one unit does (connection, factsheet, state, directi
 orders it is sent, a `CoordinatorPeer` publishes what the coordinator does (map, jobs view,
 routes, status, replies, error reports). Each message is built from the protocol's own models
 (`gridfleet.protocol`), stamped with a header of its sender and published through an `MqttProbe`
-with the QoS and retain flag protocol.md gives its topic (`gridfleet.endpoint.Outbound.of`).
+with the QoS and retain flag protocol.md gives its topic (`gridfleet.outbound.Outbound.of`).
 Every method that publishes returns the message it published, so a test can compare what
 arrives with what was sent.
 """
@@ -258,7 +258,7 @@ class CoordinatorPeer:
     def error(self, topic: str, reason: str, request_id: str | None = None) -> ErrorReport:
         """`errors`: a message on `topic` refused, and why (with its request id when known).
 
-        Built as every component builds it (`gridfleet.endpoint.error_report`, cut to its limits);
+        Built as every component builds it (`gridfleet.outbound.error_report`, cut to its limits);
         returns the report as it went out.
         """
         payload = error_report(self.stamp("errors"), topic, reason, request_id)

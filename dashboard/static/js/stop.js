@@ -6,7 +6,7 @@ import { encodeEstop } from "./protocol.js";
 export const HOLD_MS = 1500; // release needs a deliberate press-and-hold
 export const ESTOP_BY = "dashboard";
 
-/** The retained fleet/estop payload for STOP pressed (engaged) or the hold released on page `clientId`. */
+/** The retained fleet/estop payload for STOP pressed (engaged) or the stop released on page `clientId`. */
 export function estopPayload(engaged, clientId) {
   const reason = engaged ? `operator pressed STOP on ${clientId}` : `released by operator on ${clientId}`;
   return encodeEstop(engaged, ESTOP_BY, reason);

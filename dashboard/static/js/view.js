@@ -240,7 +240,7 @@ export class PageView {
     this.seen(now);
   }
 
-  /** A unit's pause / out-of-service buttons, rebuilt only when its hold changes. */
+  /** A unit's pause / out-of-service buttons, rebuilt only when its control changes. */
   controls(td, id) {
     const control = this.view.routes[id]?.control ?? "";
     if (td.dataset.control === control && td.children.length) return;
