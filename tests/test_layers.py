@@ -164,6 +164,7 @@ CORES = (
     "gridfleet.robots.core",
     "gridfleet.device.core",
     "gridfleet.robots.vda5050.orders",
+    "gridfleet.robots.vda5050.states",
 )
 
 
