@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -15,7 +13,7 @@ from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol.constants import ID_PATTERN
-from gridfleet.textfile import read_text
+from gridfleet.textfile import TomlFile
 
 DEFAULT_COLORS = (
     "#d32f2f",
@@ -130,38 +128,11 @@ _TABLES: dict[str, tuple[str, type[_Table]]] = {
 _SQUARES = {"start", "pickup", "dropoff", "target"}
 
 
-class _Where:
-    """Finds the line of a key or of the n-th `[[table]]` in the TOML text, for error messages."""
-
-    def __init__(self, path: Path, text: str) -> None:
-        self.path = path
-        self.lines = text.splitlines()
-
-    def key(self, key: str) -> int:
-        pattern = re.compile(rf"^\s*{re.escape(key)}\s*=")
-        return next((i for i, line in enumerate(self.lines, 1) if pattern.match(line)), 1)
-
-    def table(self, name: str, index: int) -> int:
-        pattern = re.compile(rf"^\s*\[\[\s*{re.escape(name)}\s*\]\]")
-        hits = [i for i, line in enumerate(self.lines, 1) if pattern.match(line)]
-        return hits[index] if index < len(hits) else self.key(name)
-
-    def error(self, line: int, problem: str) -> ScenarioError:
-        return ScenarioError(f"{self.path}:{line}: {problem}")
-
-
 def load_scenario(path: str | Path) -> Scenario:
     """Load and validate a scenario; every problem raises ScenarioError naming file and line."""
     p = Path(path)
-    text = read_text(p, "scenario", ScenarioError)
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        match = re.search(r"line (\d+)", str(exc))
-        end = str(max(1, len(text.splitlines())))
-        line = match.group(1) if match else (end if "end of document" in str(exc) else "1")
-        raise ScenarioError(f"{p}:{line}: not valid TOML: {exc}") from None
-    return _build(p, data, _Where(p, text))
+    where = TomlFile(p, "scenario", ScenarioError)
+    return _build(p, where.data, where)
 
 
 def _words(field: str, kind: str, value: Any) -> str:
@@ -181,7 +152,9 @@ def _words(field: str, kind: str, value: Any) -> str:
     return f"unknown unit {value!r}"  # a goal's unit
 
 
-def _shape_error(error: ErrorDetails, data: dict[str, Any], where: _Where) -> ScenarioError:
+def _shape_error(
+    error: ErrorDetails, data: dict[str, Any], where: TomlFile[ScenarioError]
+) -> ScenarioError:
     """One line for the first thing pydantic found wrong with the file's shape."""
     loc, kind = error["loc"], error["type"]
     top = str(loc[0])
@@ -219,7 +192,7 @@ def _shape_error(error: ErrorDetails, data: dict[str, Any], where: _Where) -> Sc
     return where.error(where.key(top), "'name' and 'description' must be strings")
 
 
-def _build(path: Path, data: dict[str, Any], where: _Where) -> Scenario:
+def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> Scenario:
     try:
         shape = _ScenarioFile.model_validate(data)
     except ValidationError as exc:

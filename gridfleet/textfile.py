@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import re
+import tomllib
 from pathlib import Path
+from typing import Any, Generic, TypeVar
 
 from gridfleet.errors import GridfleetError
 
@@ -15,3 +18,39 @@ def read_text(path: Path, what: str, error: type[GridfleetError]) -> str:
         raise error(f"{path}: no such {what} file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise error(f"{path}: cannot read {what}: {exc}") from None
+
+
+E = TypeVar("E", bound=GridfleetError)
+
+
+class TomlFile(Generic[E]):
+    """A TOML file read for a person: its data, and the line of a key or of the n-th `[[table]]`
+    for errors in one line (`file:line: problem`)."""
+
+    def __init__(self, path: Path, what: str, error: type[E]) -> None:
+        self.path = path
+        self._error = error
+        text = read_text(path, what, error)
+        self.lines = text.splitlines()
+        try:
+            self.data: dict[str, Any] = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            match = re.search(r"line (\d+)", str(exc))
+            end = str(max(1, len(self.lines)))
+            line = match.group(1) if match else (end if "end of document" in str(exc) else "1")
+            raise error(f"{path}:{line}: not valid TOML: {exc}") from None
+
+    def key(self, key: str) -> int:
+        """The line of `key = …` (the first; 1 when there is none)."""
+        pattern = re.compile(rf"^\s*{re.escape(key)}\s*=")
+        return next((i for i, line in enumerate(self.lines, 1) if pattern.match(line)), 1)
+
+    def table(self, name: str, index: int) -> int:
+        """The line of the `index`-th `[[name]]` (else of `name = …`)."""
+        pattern = re.compile(rf"^\s*\[\[\s*{re.escape(name)}\s*\]\]")
+        hits = [i for i, line in enumerate(self.lines, 1) if pattern.match(line)]
+        return hits[index] if index < len(hits) else self.key(name)
+
+    def error(self, line: int, problem: str) -> E:
+        """The error to raise for `problem` at `line`."""
+        return self._error(f"{self.path}:{line}: {problem}")

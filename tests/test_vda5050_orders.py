@@ -16,6 +16,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Action
 from gridfleet.robots.vda5050.frame import Frame
+from gridfleet.robots.vda5050.instant import instant_action
 from gridfleet.robots.vda5050.orders import OrderStitcher, node_id
 from gridfleet.robots.vda5050.wire import Headers, Vehicle, timestamp
 
@@ -140,3 +141,32 @@ def test_a_vehicles_topics_and_its_refusals() -> None:
         Vehicle("agv1", "acme/x", "sn-7")
     with pytest.raises(ConfigError, match=r"version '1\.1\.0'"):
         Vehicle("agv1", "acme", "sn-7", "1.1.0")  # type: ignore[arg-type]
+
+
+@needs_schemas
+@pytest.mark.parametrize("version", ["2.0.0", "2.1.0"])
+@pytest.mark.parametrize("legacy", [False, True])
+def test_instant_actions_are_valid_with_or_without_the_legacy_key(
+    version: str, legacy: bool
+) -> None:
+    check = validator(version, "instantActions")
+    vehicle = Vehicle("agv1", "acme", "sn-7", version)  # type: ignore[arg-type]
+    headers = Headers(vehicle)
+    kinds = ["startPause", "stopPause", "cancelOrder"] + (
+        ["factsheetRequest"] if version == "2.1.0" else []
+    )
+    for n, kind in enumerate(kinds):
+        message = instant_action(headers, kind, f"a-{n}", T0, legacy_actions_key=legacy)  # type: ignore[arg-type]
+        errors = list(check.iter_errors(message))
+        assert errors == [], errors[0].message
+        assert message["actions"][0]["actionType"] == kind and message["headerId"] == n
+        # vda-5050-lib 1.4.0 reads the 1.1 key: the same list there too, only when asked.
+        assert ("instantActions" in message) == legacy
+        if legacy:
+            assert message["instantActions"] == message["actions"]
+
+
+def test_a_2_0_vehicle_gets_no_factsheet_request() -> None:
+    headers = Headers(Vehicle("agv1", "acme", "sn-7", "2.0.0"))
+    with pytest.raises(ConfigError, match=r"2\.0\.0 has no factsheetRequest"):
+        instant_action(headers, "factsheetRequest", "f-1", T0)
