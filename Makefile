@@ -66,8 +66,12 @@ test-fast: $(STAMP)
 soak: $(STAMP)
 	$(BIN)/pytest -m soak
 
+# The chaos soak runs alone, after the rest: its verdict (every job ends within its drain) is about
+# the fleet under injected faults, not about a machine shared with three other workers (a job
+# still under way at the end of the drain failed a CI run that way).
 pytest: $(STAMP)
-	$(BIN)/pytest $(XDIST)
+	$(BIN)/pytest $(XDIST) -m "not soak"
+	$(BIN)/pytest -m soak
 
 # Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
 # (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
