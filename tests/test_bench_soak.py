@@ -48,8 +48,11 @@ def test_one_minute_soak_is_green_and_reports_every_figure(tmp_path: Path) -> No
     args = ["--minutes", "1", "--units", "6", "--seed", "1", "--drain", "120", "--json"]
     done = soak(*args, "--log", str(log), timeout=400)
     out: dict[str, Any] = json.loads(done.stdout)
-    # On a failure, the components' last words and (after a stall) where every task waited.
-    assert done.returncode == 0, (out["details"], log.read_text()[-20000:])
+    # On a failure: the whole verdict and its figures (a string: pytest would cut a tuple's repr),
+    # then the components' last words and (after a stall) where every task waited.
+    verdict = "\n".join(out["details"])
+    figures = {k: v for k, v in out.items() if k != "details"}
+    assert done.returncode == 0, f"{verdict}\n{figures}\n{log.read_text()[-20000:]}"
     assert out["minutes"] == 1
     for family in ("units", "coordinator", "broker", "pause", "cut", "delay"):
         assert any(family in kind for kind in out["faults"]), (family, out["faults"])
