@@ -90,7 +90,8 @@ async def rig(
 ) -> AsyncIterator[Rig]:
     grid = playfield_grid()
     topics = Topics(root)
-    probe = MqttProbe(broker.url, "tester").connect()
+    # A client id of this test's own: the suite's broker outlives the test before it.
+    probe = MqttProbe(broker.url, f"tester-{root.rsplit('-', 1)[-1]}").connect()
     op = OperatorPeer(probe, topics, "tester")
     probe.subscribe(topics.fleet("map"), qos=1)
     probe.subscribe(topics.all_units("order"), qos=1)
