@@ -13,27 +13,13 @@ from typing import TextIO
 from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
-from gridfleet.grid import Cell
-from gridfleet.options import add_actions, add_common, broker_url
+from gridfleet.options import add_actions, add_common, broker_url, square
 from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
-from gridfleet.protocol.constants import MAX_COORD, MAX_ESTOP_REASON
+from gridfleet.protocol.constants import MAX_ESTOP_REASON
 from gridfleet.protocol.messages import FINAL_JOB_STATES
 from gridfleet.protocol.topics import Topics
 
 WAIT_S = 10.0
-
-
-def square(text: str) -> Cell:
-    """`x,y` → Cell; argparse turns the ValueError into a one-line usage error."""
-    try:
-        x, y = (int(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a square 'x,y'") from None
-    if x < 0 or y < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: squares start at 0,0 (top left)")
-    if x > MAX_COORD or y > MAX_COORD:
-        raise argparse.ArgumentTypeError(f"{text!r} is off every map: x and y go up to {MAX_COORD}")
-    return Cell(x, y)
 
 
 def kilograms(text: str) -> float:

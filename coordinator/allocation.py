@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
@@ -77,6 +76,9 @@ def allocate(
         to_pickup = cache.get(job.pickup).reshape(-1)[at]
         ok = (to_pickup != UNREACHABLE) & (capacity >= job.mass_kg)
         cost[r, ok] = to_pickup[ok] + carry - weight * job.priority
+    # Imported here, as scipy is in gridfleet.paths (which says why).
+    from scipy.optimize import linear_sum_assignment
+
     rows, cols = linear_sum_assignment(cost)
     return {
         jobs[r].id: units[c].id

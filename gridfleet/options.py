@@ -4,85 +4,101 @@ from __future__ import annotations
 
 import argparse
 import re
-from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+import sys
+from collections.abc import Iterable
+from typing import Any, TypeVar, overload
 
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import DEFAULT_MQTT_URL, with_ca_file, with_credentials
-from gridfleet.protocol.constants import DEFAULT_ROOT
+from gridfleet.grid import Cell
+from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_COORD
+
+_N = TypeVar("_N")
 
 
-class _BrokerWithCA(argparse.Action):
-    """Stores --broker or --ca-file and keeps the CA folded into the broker URL (`?cafile=`).
-
-    Folding while parsing means `args.broker` is complete whichever order the flags come in, so
-    every command that reads it (not only through `broker_url`) trusts the CA. A command with
-    actions folds once more after an action's flags are in (`add_actions`).
-    """
-
-    def __call__(
-        self,
-        parser: argparse.ArgumentParser,
-        namespace: argparse.Namespace,
-        values: str | Sequence[Any] | None,
-        option_string: str | None = None,
-    ) -> None:
-        setattr(namespace, self.dest, values)
-        _fold_ca(namespace)
-
-
-def _fold_ca(namespace: argparse.Namespace) -> None:
-    url, ca_file = getattr(namespace, "broker", None), getattr(namespace, "ca_file", None)
-    if url is not None and ca_file is not None:
-        namespace.broker = with_ca_file(url, ca_file)
-
-
-class ActionParser(argparse.ArgumentParser):
-    """The parser of one action (`gridfleet job submit`): `-1,3` or `-2` is a value, not a flag.
+class GridfleetParser(argparse.ArgumentParser):
+    """gridfleet's parser: `--pickup -1,3` passes a value, and --ca-file is folded into --broker.
 
     argparse takes a word that starts with `-` for an option unless it looks like a negative
-    number, so `--pickup -1,3` would be "expected one argument"; here a negative square counts
-    as a number too, and reaches its type, which refuses it in words.
+    number, so `--pickup -1,3` would be "expected one argument": a negative square after an
+    option is passed as `--pickup=-1,3`, and reaches its type, which refuses it in words.
+    Folding the CA into the broker URL (`?cafile=`) once all flags are in, the command's and its
+    action's, means `args.broker` is complete whichever order they came in.
     """
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._negative_number_matcher = re.compile(r"^-\d+(,-?\d+)*$|^-\d*\.\d+$")
+    @overload
+    def parse_known_args(
+        self, args: Iterable[str] | None = None, namespace: None = None
+    ) -> tuple[argparse.Namespace, list[str]]: ...
+    @overload
+    def parse_known_args(
+        self, args: Iterable[str] | None, namespace: _N
+    ) -> tuple[_N, list[str]]: ...
+    @overload
+    def parse_known_args(self, *, namespace: _N) -> tuple[_N, list[str]]: ...
+
+    def parse_known_args(
+        self, args: Iterable[str] | None = None, namespace: Any = None
+    ) -> tuple[Any, list[str]]:
+        """argparse's, with negative squares glued to their option and the CA folded in."""
+        words = list(sys.argv[1:] if args is None else args)
+        for i, word in enumerate(words):
+            if (
+                _NEGATIVE.fullmatch(word)
+                and "," in word
+                and not (i and _takes_negative(words[i - 1], [word]))
+            ):
+                # A square given alone (`job goal u1 -1,2`): refused by the square type, in words.
+                try:
+                    square(word)
+                except argparse.ArgumentTypeError as refused:
+                    self.error(str(refused))
+        glued = [
+            f"{word}={words[i + 1]}" if _takes_negative(word, words[i + 1 : i + 2]) else word
+            for i, word in enumerate(words)
+            if not (i and _takes_negative(words[i - 1], [word]))
+        ]
+        parsed, rest = super().parse_known_args(glued, namespace)
+        url, ca_file = getattr(parsed, "broker", None), getattr(parsed, "ca_file", None)
+        if url is not None and ca_file is not None:
+            parsed.broker = with_ca_file(url, ca_file)
+        return parsed, rest
 
 
-if TYPE_CHECKING:
-    _SubParsers = argparse._SubParsersAction[argparse.ArgumentParser]
-else:
-    _SubParsers = argparse._SubParsersAction
+_NEGATIVE = re.compile(r"-\d+(,-?\d+)*|-\d*\.\d+")
 
 
-class _Actions(_SubParsers):
-    """The actions of a command; folds --ca-file into --broker once the action's flags are in.
-
-    argparse parses an action's flags into a namespace of its own and then copies them over the
-    command's, so `--ca-file` before the action and `--broker` after it never meet in one
-    `_BrokerWithCA` call: they are folded here, after the copy.
-    """
-
-    def __call__(
-        self,
-        parser: argparse.ArgumentParser,
-        namespace: argparse.Namespace,
-        values: str | Sequence[Any] | None,
-        option_string: str | None = None,
-    ) -> None:
-        super().__call__(parser, namespace, values, option_string)
-        _fold_ca(namespace)
+def _takes_negative(word: str, following: list[str]) -> bool:
+    """Whether `word` is a long option given apart from a value that is a negative number."""
+    return (
+        word.startswith("--")
+        and "=" not in word
+        and bool(following)
+        and _NEGATIVE.fullmatch(following[0]) is not None
+    )
 
 
-def add_actions(parser: argparse.ArgumentParser, **kwargs: Any) -> _SubParsers:
+def square(text: str) -> Cell:
+    """`x,y` → Cell; argparse turns the ValueError into a one-line usage error."""
+    try:
+        x, y = (int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a square 'x,y'") from None
+    if x < 0 or y < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: squares start at 0,0 (top left)")
+    if x > MAX_COORD or y > MAX_COORD:
+        raise argparse.ArgumentTypeError(f"{text!r} is off every map: x and y go up to {MAX_COORD}")
+    return Cell(x, y)
+
+
+def add_actions(parser: argparse.ArgumentParser, **kwargs: Any) -> Any:
     """`parser.add_subparsers(**kwargs)` for a command with actions (`gridfleet job submit`).
 
     Give each action the command's own flags again with `add_common(action, everywhere=True)`
     (argparse.SUPPRESS defaults), so they are accepted before the action and after it alike: one
     given after the action wins, one left out there keeps what came before it (or the default).
     """
-    return parser.add_subparsers(action=_Actions, parser_class=ActionParser, **kwargs)
+    return parser.add_subparsers(parser_class=GridfleetParser, **kwargs)
 
 
 def add_common(
@@ -107,7 +123,6 @@ def add_common(
             "--broker",
             default=default(None if own_broker else DEFAULT_MQTT_URL),
             metavar="URL",
-            action=_BrokerWithCA,
             help=f"MQTT broker URL, mqtt://[user:pass@]host:port, or mqtts:// (TLS, port 8883) "
             f"(default {own_broker or DEFAULT_MQTT_URL})",
         )
@@ -115,7 +130,6 @@ def add_common(
             "--ca-file",
             metavar="FILE",
             default=default(None),
-            action=_BrokerWithCA,
             help="with an mqtts:// or wss:// broker: the CA that signed its certificate "
             "(ca.pem from 'gridfleet accounts tls'; default: the system's trusted CAs)",
         )

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 from collections import OrderedDict
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import breadth_first_order
 
 from gridfleet.grid import Cell, GridMap
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_matrix
+
+# scipy is imported where it is used: it loads numpy.testing, whose importlib.metadata brings in
+# the standard library's email and socket modules, and importing a pure core loads no network
+# module (tests/test_layers.py). Once loaded, an import inside a function is a dict lookup.
 
 UNREACHABLE = np.iinfo(np.int32).max
 DistanceField = npt.NDArray[np.int32]  # indexed [y, x]; UNREACHABLE where no path exists
@@ -17,6 +23,8 @@ DistanceField = npt.NDArray[np.int32]  # indexed [y, x]; UNREACHABLE where no pa
 
 def adjacency(grid: GridMap) -> csr_matrix:
     """The 4-connected adjacency matrix of the free squares, indexed by y * width + x."""
+    from scipy.sparse import csr_matrix
+
     free = ~grid.blocked
     h, w = grid.height, grid.width
     idx = np.arange(h * w).reshape(h, w)
@@ -39,6 +47,8 @@ def distance_field(grid: GridMap, target: Cell, graph: csr_matrix | None = None)
     n = grid.height * grid.width
     field = np.full(n, UNREACHABLE, dtype=np.int32)
     if grid.is_free(target):
+        from scipy.sparse.csgraph import breadth_first_order
+
         g = adjacency(grid) if graph is None else graph
         root = target.y * grid.width + target.x
         # A plain BFS is 2-3x faster than scipy's shortest_path on large maps; it returns the

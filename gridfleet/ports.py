@@ -2,11 +2,44 @@
 
 from __future__ import annotations
 
+import itertools
+import os
+import random
+import re
 import socket
+from collections.abc import Iterator
+
+# Under pytest-xdist each worker takes ports from a band of its own, below the kernel's ephemeral
+# range (32768 and up, where port 0 binds and outgoing connections land), walking it with a
+# counter: no two workers, and no two calls in one, are handed the same port. The OS's pick of
+# port 0 may hand one worker the port another was given a moment earlier and has not bound yet
+# (a CI run lost a dashboard's port that way).
+_BANDS_START, _BAND_SIZE, _BANDS = 20000, 1000, 12
+_band: Iterator[int] | None = None
 
 
 def free_port() -> int:
-    """A loopback port nobody listens on now (the OS's pick; free until somebody binds it)."""
+    """A loopback port nobody listens on now (free until somebody binds it)."""
+    global _band
+    worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
+    if worker is None:
+        return _bind_test(0)
+    if _band is None:
+        first = _BANDS_START + int(worker[1]) % _BANDS * _BAND_SIZE
+        # A random start: a subprocess of the worker (same band) walks elsewhere in it.
+        start = random.randrange(_BAND_SIZE)
+        _band = itertools.cycle([first + (start + i) % _BAND_SIZE for i in range(_BAND_SIZE)])
+    for port in itertools.islice(_band, _BAND_SIZE):
+        if _bind_test(port):
+            return port
+    return _bind_test(0)  # the whole band in use: the OS's pick, as outside the tests
+
+
+def _bind_test(port: int) -> int:
+    """`port` (or the OS's pick for 0) if it can be bound now, else 0."""
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return 0
         return int(s.getsockname()[1])

@@ -20,6 +20,7 @@ from gridfleet import __version__
 from gridfleet.config import redacted
 from gridfleet.errors import GridfleetError
 from gridfleet.lifeline import die_with_parent
+from gridfleet.options import GridfleetParser
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "up": ("gridfleet.system.up", "start everything: broker, coordinator, units and dashboard"),
@@ -63,7 +64,7 @@ def _load(command: str) -> ModuleType | None:
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The argument parser; with `only`, just that subcommand's module is imported."""
-    parser = argparse.ArgumentParser(
+    parser = GridfleetParser(
         prog="gridfleet",
         description="gridfleet: a connected robot fleet on a grid playfield, over MQTT.",
         epilog="Run 'gridfleet <command> --help' for a command's options.",
@@ -75,7 +76,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         choices=["DEBUG", "INFO", "WARNING", "ERROR"],
         help="default INFO",
     )
-    sub = parser.add_subparsers(dest="command", metavar="<command>")
+    sub = parser.add_subparsers(dest="command", metavar="<command>", parser_class=GridfleetParser)
     for name, (_, help_text) in COMMANDS.items():
         cmd = sub.add_parser(name, help=help_text, description=help_text[0].upper() + help_text[1:])
         if name == only:

@@ -151,9 +151,8 @@ def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
 
 # ---- the pure cores ----------------------------------------------------------------------------
 
-# What a pure core must never load, directly or through anything it imports. (socket is not in
-# it: pydantic loads importlib.metadata, whose email.utils imports socket; nothing calls it.)
-IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3"}
+# What a pure core must never load, directly or through anything it imports.
+IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3", "socket"}
 CORES = (
     "gridfleet.coordinator.core",
     "gridfleet.coordinator.stop",
@@ -213,3 +212,49 @@ def test_the_purity_check_names_the_chain_that_brought_io_in(tmp_path: Path) -> 
     (tmp_path / "fakecore" / "helper.py").write_text("import sqlite3\n", encoding="utf-8")
     (tmp_path / "fakecore" / "core.py").write_text("import fakecore.helper\n", encoding="utf-8")
     assert io_chains("fakecore.core", tmp_path) == ["sqlite3 <- fakecore.helper <- fakecore.core"]
+
+
+# Run by test_the_cores_drive_a_whole_scenario_without_touching_the_network: Python's audit hooks
+# see every socket, database and process a program opens, however it was imported.
+_NO_IO_RUN = """
+import sys
+
+def refuse(event, args):
+    if event.split(".")[0] in {"socket", "sqlite3", "subprocess"} or event == "os.system":
+        raise SystemExit(f"I/O from a pure core: {event} {args!r}")
+
+from gridfleet.scenario import load_scenario
+from gridfleet.system.lockstep import run_lockstep
+
+scenario = load_scenario(sys.argv[1])
+sys.addaudithook(refuse)
+result = run_lockstep(scenario, 0.1, 2000, 0)
+assert result.finished and result.collisions == 0, result
+print("jobs done:", sum(j["state"] == "done" for j in result.jobs))
+"""
+
+
+def test_the_cores_drive_a_whole_scenario_without_touching_the_network() -> None:
+    # The import check above sees modules; this sees deeds. scipy, loaded on first use, brings in
+    # the socket module through importlib.metadata: no socket may ever be made with it.
+    done = subprocess.run(
+        [sys.executable, "-c", _NO_IO_RUN, str(REPO / "maps" / "warehouse.toml")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.startswith("jobs done: ") and int(done.stdout.split()[-1]) > 0
+
+
+def test_the_audit_hook_run_catches_a_socket(tmp_path: Path) -> None:
+    script = _NO_IO_RUN.replace(
+        "result = run_lockstep", "import socket; socket.socket()\nresult = run_lockstep"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(REPO / "maps" / "corridor.toml")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert done.returncode == 1 and "I/O from a pure core: socket.__new__" in done.stderr

@@ -89,7 +89,7 @@ def _all_sides() -> list[Side]:
 class Model(BaseModel):
     """Base of every message: immutable, strict about unknown fields."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True, defer_build=True)
 
 
 class Header(Model):

@@ -94,8 +94,11 @@ class MqttProbe:
             raise AssertionError(f"probe could not connect to {self._broker}{why}")
         return self
 
-    def subscribe(self, topic: str, qos: int = 1, timeout: float = 10.0) -> None:
+    def subscribe(self, topic: str, qos: int = 1, timeout: float = 30.0) -> None:
         """Subscribe and wait for the broker's SUBACK."""
+        # Generous: amqtt answers a SUBSCRIBE only after replaying the retained messages it
+        # matches, each waiting up to 5 s for its PUBACK; on a machine shared with other test
+        # workers two such waits ran past a 10 s bound (a CI run).
         _, mid = self.client.subscribe(topic, qos)
         wait_for(lambda: mid in self._subacks, timeout, what=f"SUBACK for {topic}")
 

@@ -1,0 +1,40 @@
+"""free_port: under pytest-xdist, each worker's ports come from a band of its own."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from gridfleet import ports
+
+
+@pytest.fixture
+def worker(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw3")
+    monkeypatch.setattr(ports, "_band", None)
+
+
+@pytest.mark.usefixtures("worker")
+def test_a_worker_is_handed_distinct_ports_of_its_own_band() -> None:
+    handed = [ports.free_port() for _ in range(50)]
+    assert len(set(handed)) == 50
+    assert all(23000 <= p < 24000 for p in handed)
+
+
+@pytest.mark.usefixtures("worker")
+def test_a_port_somebody_holds_is_passed_over() -> None:
+    first = ports.free_port()
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", first + 1 if first + 1 < 24000 else 23000))
+        taken = held.getsockname()[1]
+        handed = [ports.free_port() for _ in range(999)]
+    assert taken not in handed
+    assert len(set(handed)) == len(handed)
+
+
+def test_outside_xdist_the_os_picks(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    port = ports.free_port()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", port))  # free, as promised
