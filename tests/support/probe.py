@@ -96,9 +96,9 @@ class MqttProbe:
 
     def subscribe(self, topic: str, qos: int = 1, timeout: float = 30.0) -> None:
         """Subscribe and wait for the broker's SUBACK."""
-        # Generous: amqtt answers a SUBSCRIBE only after replaying the retained messages it
-        # matches, each waiting up to 5 s for its PUBACK; on a machine shared with other test
-        # workers two such waits ran past a 10 s bound (a CI run).
+        # Generous: amqtt reads a client's next SUBSCRIBE only once it has replayed the retained
+        # messages of the one before, each replay waiting up to 5 s for its PUBACK; on a machine
+        # shared with other test workers a SUBACK came later than a 10 s bound (a CI run).
         _, mid = self.client.subscribe(topic, qos)
         wait_for(lambda: mid in self._subacks, timeout, what=f"SUBACK for {topic}")
 
