@@ -158,7 +158,6 @@ def live(
     open_dashboard: Callable[..., OpenDashboard],
     probe_factory: Callable[..., MqttProbe],
     topics: Topics,
-    root: str,
 ) -> Iterator[Callable[..., Live]]:
     """Factory: the playfield's coordinator and units running, the page open and showing them."""
 
@@ -169,7 +168,7 @@ def live(
         probe.subscribe(topics.fleet("map"))
         probe.subscribe(topics.fleet("routes"), qos=0)
         _, fleet = run_system(PLAYFIELD, step_s=step_s)
-        dash = open_dashboard(root)
+        dash = open_dashboard()
         # The page knows the real fleet: the coordinator's map and every unit where it stands.
         expect(dash.page.locator("#map-name")).to_have_text("playfield 10 x 10")
         expect(dash.page.locator("#coord")).to_contain_text("coordinator: online")

@@ -373,7 +373,7 @@ def test_06_the_device_stop_shows_on_the_dashboard_and_its_release_resumes_the_f
     virtual = DeviceShell(broker.url, "unit2", root, device_id="dev-dash")
     service = DeviceService(virtual)
     with ServiceThread(lambda: service, "virtual-device"):
-        dash = open_dashboard(root, grid=scenario.grid)
+        dash = open_dashboard(grid=scenario.grid)
         send_goal(op, "unit2", Cell(0, 9))
         wait_for(lambda: world.moves["unit2"] >= 2, 15, what="unit2 under way")
         service.press()

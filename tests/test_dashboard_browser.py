@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -105,7 +106,11 @@ def dash(
 ) -> OpenDashboard:
     """The page open on the playfield, its coordinator and four units played by peers."""
     playfield_fleet(coordinator, units, grid)
-    return open_dashboard(root)
+    dash = open_dashboard()
+    # Shown before the test acts: what arrives after would change the page under its clicks.
+    expect(dash.page.locator("#map-name")).to_have_text("playfield 10 x 10")
+    expect(dash.page.locator("#units-count")).to_have_text("(4)")
+    return dash
 
 
 def row(dash: OpenDashboard, unit: str) -> Any:
@@ -170,7 +175,6 @@ def test_live_playfield_screenshot(
     coordinator: CoordinatorPeer,
     units: dict[str, UnitPeer],
     grid: GridMap,
-    root: str,
 ) -> None:
     coordinator.map(grid, obstacles=[Cell(4, 5)])
     for unit in load_scenario(PLAYFIELD).units:
@@ -211,7 +215,7 @@ def test_live_playfield_screenshot(
         ]
     )
     coordinator.status("online", step=42, step_period_s=1.0)
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     expect(dash.page.locator("#map")).to_have_attribute(
         "data-units", "unit1@3,1 unit2@8,2 unit3@1,8 unit4@4,4"
     )
@@ -249,6 +253,22 @@ def test_submit_job_through_the_form(
     expect(dash.page.locator("#finished tr[data-job='job-1'] .state")).to_have_text("done")
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(0)
     expect(dash.page.locator("#finished-counts")).to_have_text("done 1")
+
+
+def test_the_click_modes_stay_put_whatever_the_maps_name(
+    open_dashboard: Callable[..., OpenDashboard], coordinator: CoordinatorPeer, grid: GridMap
+) -> None:
+    # A click on "click picks job squares" as the map's name arrived beside it missed (a CI run).
+    dash = open_dashboard()
+    choice = dash.page.locator("input[name=clickmode][value=job]")
+    before = choice.bounding_box()
+    coordinator.map(grid)
+    expect(dash.page.locator("#map-name")).to_have_text("playfield 10 x 10")
+    assert choice.bounding_box() == before
+    long_name = "the north hall, bays 1 to 40, with the loading docks " * 2
+    coordinator.map(GridMap.from_rows(["...", "..."], name=long_name))
+    expect(dash.page.locator("#map-name")).to_have_attribute("title", re.compile("north hall"))
+    assert choice.bounding_box() == before
 
 
 def test_queue_job_by_clicking_two_squares(
@@ -316,12 +336,11 @@ def test_delete_publishes_cancel_job(
     coordinator: CoordinatorPeer,
     units: dict[str, UnitPeer],
     grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
     playfield_fleet(coordinator, units, grid)
     coordinator.jobs([job("job-3", "queued"), job("job-4", "to_pickup", "unit2")])
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     dash.cancel_job("job-4")
     request = decode(CancelJob, probe.wait(topics.request("cancel_job")).payload)
     assert request.job_id == "job-4" and request.reply_to == dash.client_id
@@ -428,13 +447,12 @@ def test_reconnects_after_broker_restart(
     open_dashboard: Callable[..., OpenDashboard],
     fresh_broker: BrokerThread,
     grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
     with MqttProbe(fresh_broker.url) as probe:
         CoordinatorPeer(probe, topics).map(grid)
         UnitPeer(probe, topics, "unit1").state(Cell(0, 0))
-    dash = open_dashboard(root, broker_ws=fresh_broker.ws_url)
+    dash = open_dashboard(broker_ws=fresh_broker.ws_url)
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[0, 0]")
     fresh_broker.restart()
     with MqttProbe(fresh_broker.url) as probe:
@@ -448,9 +466,9 @@ def test_reconnects_after_broker_restart(
 
 
 def test_missing_mqtt_js_says_how_to_install(
-    open_dashboard: Callable[..., OpenDashboard], root: str, tmp_path: Path
+    open_dashboard: Callable[..., OpenDashboard], tmp_path: Path
 ) -> None:
-    dash = open_dashboard(root, wait_connected=False, node_modules=tmp_path)
+    dash = open_dashboard(wait_connected=False, node_modules=tmp_path)
     expect(dash.page.locator("#fatal")).to_contain_text("run 'npm ci' in the dashboard/ folder")
     expect(dash.page.locator("#conn")).to_have_attribute("data-state", "failed")
 
@@ -459,10 +477,9 @@ def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
     open_dashboard: Callable[..., OpenDashboard],
     fresh_broker: BrokerThread,
     grid: GridMap,
-    root: str,
     topics: Topics,
 ) -> None:
-    dash = open_dashboard(root, broker_ws=fresh_broker.ws_url, grid=grid)
+    dash = open_dashboard(broker_ws=fresh_broker.ws_url, grid=grid)
     fresh_broker.stop()
     expect(dash.page.locator("#conn")).not_to_have_attribute("data-state", "connected")
     dash.page.locator("#stop").click()
@@ -482,13 +499,12 @@ def test_rows_survive_renders_so_clicks_are_not_lost(
     coordinator: CoordinatorPeer,
     units: dict[str, UnitPeer],
     grid: GridMap,
-    root: str,
 ) -> None:
     # Found against the real fleet: rows were rebuilt on every message (units report every
     # step), so the "delete" button under the pointer was replaced and the click was lost.
     playfield_fleet(coordinator, units, grid)
     coordinator.jobs([job("job-3", "queued")])
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     button = dash.page.locator("#jobs button[data-cancel='job-3']")
     expect(button).to_be_visible()
     kept_button = button.element_handle()

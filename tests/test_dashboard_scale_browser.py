@@ -69,10 +69,9 @@ def big_fleet(probe: MqttProbe, topics: Topics) -> Iterator[dict[str, tuple[Unit
 
 def test_500_units_at_1920_the_page_finds_selects_and_reveals_any_unit(
     open_dashboard: Callable[..., OpenDashboard],
-    root: str,
     big_fleet: dict[str, tuple[UnitPeer, Cell]],
 ) -> None:
-    dash = open_dashboard(root, viewport={"width": 1920, "height": 1080})
+    dash = open_dashboard(viewport={"width": 1920, "height": 1080})
     page = dash.page
     expect(page.locator("#units-count")).to_have_text("(500)", timeout=20000)
     # Only the rows in view are in the page, and the map colours units by state.

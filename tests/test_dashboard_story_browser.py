@@ -57,19 +57,24 @@ def coordinator(probe: MqttProbe, topics: Topics) -> CoordinatorPeer:
     return CoordinatorPeer(probe, topics)
 
 
+@pytest.fixture
 def fleet_of(
-    scenario: Path, probe: MqttProbe, topics: Topics, coordinator: CoordinatorPeer
-) -> dict[str, UnitPeer]:
-    """The scenario's map and units at their starts, online."""
-    loaded = load_scenario(scenario)
-    coordinator.map(loaded.grid)
-    units = {}
-    for unit in loaded.units:
-        peer = units[unit.id] = UnitPeer(probe, topics, unit.id)
-        peer.connection("online")
-        peer.factsheet(unit.capacity, unit.color)
-        peer.state(unit.start)
-    return units
+    probe: MqttProbe, topics: Topics, coordinator: CoordinatorPeer
+) -> Callable[[Path], dict[str, UnitPeer]]:
+    """Factory: a scenario's map, and its units online at their starts, played by peers."""
+
+    def publish(scenario: Path) -> dict[str, UnitPeer]:
+        loaded = load_scenario(scenario)
+        coordinator.map(loaded.grid)
+        units = {}
+        for unit in loaded.units:
+            peer = units[unit.id] = UnitPeer(probe, topics, unit.id)
+            peer.connection("online")
+            peer.factsheet(unit.capacity, unit.color)
+            peer.state(unit.start)
+        return units
+
+    return publish
 
 
 def row(dash: OpenDashboard, unit: str) -> Any:
@@ -88,12 +93,10 @@ def until(dash: OpenDashboard, attribute: str, test: str) -> str:
 
 def test_each_unit_shows_its_job_before_pickup_and_what_it_carries(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    units = fleet_of(PLAYFIELD, probe, topics, coordinator)
+    units = fleet_of(PLAYFIELD)
     units["unit1"].state(Cell(3, 1), Direction.E, "moving", job_id="job-1", load_kg=1.5)
     coordinator.jobs(
         [
@@ -102,7 +105,7 @@ def test_each_unit_shows_its_job_before_pickup_and_what_it_carries(
             job("job-3", "queued", None, pickup=Cell(5, 0), dropoff=Cell(9, 5)),
         ]
     )
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     # Before pickup the unit's own state names no job; the queue does.
     expect(row(dash, "unit2").locator(".job")).to_have_text("job-2")
     expect(row(dash, "unit1").locator(".job")).to_have_text("job-1")
@@ -131,19 +134,17 @@ def test_each_unit_shows_its_job_before_pickup_and_what_it_carries(
 
 def test_finished_jobs_newest_first_bounded_with_how_long_they_took(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    fleet_of(PLAYFIELD, probe, topics, coordinator)
+    fleet_of(PLAYFIELD)
     coordinator.status("online", step=1000, step_period_s=0.1)
     done = [
         job(f"j{i:02d}", "done", "unit1", created_step=10 * i, done_step=10 * i + 125)
         for i in range(25)
     ]
     coordinator.jobs(done)
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     rows = dash.page.locator("#finished tbody tr")
     expect(rows).to_have_count(20)
     expect(rows.first).to_have_attribute("data-job", "j24")
@@ -153,12 +154,10 @@ def test_finished_jobs_newest_first_bounded_with_how_long_they_took(
 
 def test_the_event_log_is_the_coordinators_and_survives_a_reload(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    fleet_of(PLAYFIELD, probe, topics, coordinator)
+    fleet_of(PLAYFIELD)
     at = datetime(2026, 11, 24, 9, 5, 7, tzinfo=UTC)
     coordinator.events(
         [
@@ -167,7 +166,7 @@ def test_the_event_log_is_the_coordinators_and_survives_a_reload(
             EventEntry(at=at, kind="job", text="job crate done by unit2 in 14.2 s", job="crate"),
         ]
     )
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     lines = dash.page.locator("#events li")
     expect(lines).to_have_count(3)
     expect(lines.first).to_contain_text("job crate done by unit2 in 14.2 s")
@@ -181,14 +180,12 @@ def test_the_event_log_is_the_coordinators_and_survives_a_reload(
 
 def test_only_obstacles_found_since_the_page_loaded_are_new(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    units = fleet_of(PLAYFIELD, probe, topics, coordinator)
+    units = fleet_of(PLAYFIELD)
     coordinator.map(load_scenario(PLAYFIELD).grid, obstacles=[Cell(4, 5)])
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     canvas = dash.page.locator("#map")
     expect(canvas).to_have_attribute("data-obstacles", "4,5")
     units["unit2"].state(Cell(9, 1), Direction.S, "waiting", obstacles=[Cell(7, 2)])
@@ -197,13 +194,10 @@ def test_only_obstacles_found_since_the_page_loaded_are_new(
 
 def test_an_answer_goes_when_the_form_is_edited_again(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
-    coordinator: CoordinatorPeer,
-    root: str,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
 ) -> None:
-    fleet_of(PLAYFIELD, probe, topics, coordinator)
-    dash = open_dashboard(root)
+    fleet_of(PLAYFIELD)
+    dash = open_dashboard()
     dash.submit_job((1, 1), (99, 99), 1.0)
     feedback = dash.page.locator("#job-feedback")
     expect(feedback).to_contain_text("is not a square of the map")
@@ -219,14 +213,11 @@ def _overlaps(a: list[int], b: list[int]) -> bool:
 
 def test_unit_names_never_overlap_at_1280_by_720(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
-    coordinator: CoordinatorPeer,
-    root: str,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
 ) -> None:
     # The warehouse's twelve units start side by side in one row: the names used to run together.
-    fleet_of(WAREHOUSE, probe, topics, coordinator)
-    dash = open_dashboard(root)
+    fleet_of(WAREHOUSE)
+    dash = open_dashboard()
     dash.page.set_viewport_size({"width": 1280, "height": 720})
     until(dash, "units", "v.split(' ').length === 12")
     labels = json.loads(until(dash, "labels", "JSON.parse(v).length > 0"))
@@ -244,13 +235,10 @@ def _big_map(width: int = 500, height: int = 140) -> GridMap:
 
 def test_a_map_larger_than_the_view_zooms_and_pans(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
     coordinator.map(_big_map())
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     canvas = dash.page.locator("#map")
     whole = float(until(dash, "cell", "+v > 0 && +v < 2"))
     box = canvas.bounding_box()
@@ -272,12 +260,10 @@ def test_a_map_larger_than_the_view_zooms_and_pans(
 
 def test_the_chart_counts_jobs_done_a_minute_and_how_busy_units_are(
     open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    units = fleet_of(PLAYFIELD, probe, topics, coordinator)
+    units = fleet_of(PLAYFIELD)
     units["unit1"].state(Cell(3, 1), Direction.E, "moving", job_id="job-9", load_kg=1.5)
     coordinator.status("online", step=6000, step_period_s=0.1)
     coordinator.jobs(
@@ -289,7 +275,7 @@ def test_the_chart_counts_jobs_done_a_minute_and_how_busy_units_are(
         ],
         done_per_minute=[0, 0, 0, 0, 0, 0, 0, 0, 1, 2],  # the coordinator counts them
     )
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     chart = dash.page.locator("#chart")
     expect(chart).to_have_attribute("data-per-minute", "0 0 0 0 0 0 0 0 1 2")
     expect(chart).to_have_attribute("data-utilisation", "0.25")  # 1 of 4 units online has work
@@ -302,15 +288,15 @@ def test_the_chart_counts_jobs_done_a_minute_and_how_busy_units_are(
 
 def test_unit_rows_pause_and_take_out_of_service_and_jobs_say_why_they_wait(
     open_dashboard: Callable[..., OpenDashboard],
+    fleet_of: Callable[[Path], dict[str, UnitPeer]],
     probe: MqttProbe,
     topics: Topics,
     coordinator: CoordinatorPeer,
-    root: str,
 ) -> None:
-    fleet_of(PLAYFIELD, probe, topics, coordinator)
+    fleet_of(PLAYFIELD)
     reason = "every unit that can carry 1.5 kg is busy (unit1, unit3)"
     coordinator.jobs([job("job-5", "queued", None, wait="no_unit_free", wait_reason=reason)])
-    dash = open_dashboard(root)
+    dash = open_dashboard()
     queued = dash.page.locator("#jobs tr[data-job='job-5']")
     expect(queued.locator(".state")).to_have_text("queued")
     expect(queued.locator(".waits")).to_have_text(reason)

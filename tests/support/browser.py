@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from playwright.sync_api import expect
 
 from gridfleet.dashboard.app import create_app
 from gridfleet.dashboard.server import DashboardServer
@@ -38,6 +39,11 @@ CHROMIUM_ARGS = [
 ]
 ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"  # the repository's, as before
 VIEWPORT = {"width": 1440, "height": 900}
+# Every wait on the page is bounded, generously: a page on a machine shared with other test
+# workers may take seconds to show what a quiet one shows at once (Playwright's `expect` would
+# give up after 5 s).
+WAIT_MS = 20_000
+expect.set_options(timeout=WAIT_MS)
 
 
 @dataclass
@@ -147,12 +153,15 @@ def chromium() -> Iterator[Any]:
 
 
 @pytest.fixture
-def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[..., OpenDashboard]]:
-    """Factory: serve the dashboard for a topic root and open it connected to a broker."""
+def open_dashboard(
+    chromium: Any, broker: BrokerThread, root: str
+) -> Iterator[Callable[..., OpenDashboard]]:
+    """Factory: serve the dashboard for the test's topic root, open it connected to a broker."""
     opened: list[tuple[Any, DashboardServer]] = []
+    test_root = root
 
     def open_(
-        root: str,
+        root: str = test_root,
         *,
         broker_ws: str | None = None,
         grid: GridMap | None = None,
@@ -173,7 +182,7 @@ def open_dashboard(chromium: Any, broker: BrokerThread) -> Iterator[Callable[...
         context = chromium.new_context(viewport=viewport or VIEWPORT)
         opened.append((context, server))
         page = context.new_page()
-        page.set_default_timeout(10000)
+        page.set_default_timeout(WAIT_MS)
         errors: list[str] = []
         page.on("pageerror", lambda exc: errors.append(str(exc)))
         # Whatever the page's Content Security Policy blocks counts as an error of the page.

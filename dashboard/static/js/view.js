@@ -121,7 +121,8 @@ export class PageView {
 
   /** Fill in the tables, the badges, the events and the chart. */
   renderPanel(now, ui) {
-    $("#map-name").textContent = mapTitle(this.view.map);
+    const name = $("#map-name");
+    name.textContent = name.title = mapTitle(this.view.map);
     this.units(now, ui);
     this.jobs(ui);
     this.coordinator();
