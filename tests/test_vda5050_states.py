@@ -4,8 +4,6 @@ two, its own stop, its errors and mode; the fixtures are valid against the offic
 from __future__ import annotations
 
 import json
-from pathlib import Path
-from typing import Any
 
 import pytest
 from jsonschema import Draft202012Validator
@@ -14,40 +12,9 @@ from gridfleet.grid import Cell
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.states import read_state, reported_square
 
-SCHEMAS = Path(__file__).resolve().parents[2] / "shared" / "vda5050"
+from support.vda import SCHEMAS, state
+
 FRAME = Frame("hall")  # 0.1 m squares, square (0, 0) at the origin, y up
-
-
-def state(version: str = "2.0.0", **changes: Any) -> dict[str, Any]:
-    """A VDA 5050 state of a vehicle at the centre of square (0, 0), idle, all well."""
-    base: dict[str, Any] = {
-        "headerId": 7,
-        "timestamp": "2026-11-26T12:00:00.000Z",
-        "version": version,
-        "manufacturer": "acme",
-        "serialNumber": "sn-7",
-        "orderId": "gf-ab12-1",
-        "orderUpdateId": 0,
-        "lastNodeId": "sq-0-0",
-        "lastNodeSequenceId": 0,
-        "nodeStates": [],
-        "edgeStates": [],
-        "agvPosition": {
-            "x": 0.0,
-            "y": 0.0,
-            "theta": 0.0,
-            "mapId": "hall",
-            "positionInitialized": True,
-        },
-        "driving": False,
-        "paused": False,
-        "actionStates": [],
-        "batteryState": {"batteryCharge": 81.5, "charging": False},
-        "operatingMode": "AUTOMATIC",
-        "errors": [],
-        "safetyState": {"eStop": "NONE", "fieldViolation": False},
-    }
-    return {**base, **changes}
 
 
 @pytest.mark.skipif(not SCHEMAS.exists(), reason="../shared/vda5050 not beside the checkout")

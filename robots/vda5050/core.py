@@ -1,0 +1,453 @@
+"""One VDA 5050 vehicle as a gridfleet unit, pure: both protocols' messages in, `Outbound`s out.
+
+To the fleet the vehicle is a unit like any other (protocol.md §4): its `connection`, `factsheet`,
+`state` and `direction`, and a press on its `stop` when its own emergency stop is pressed. To the
+vehicle the fleet is a master control (VDA 5050): `order`s whose base is what gridfleet released,
+and `instantActions` to pause, resume and cancel.
+
+- **Where it stands** (states.py): the square it is leaving for as long as any part of it may be
+  on it; the squares of its base ahead are reported as `released` until it has driven them, so the
+  coordinator keeps them reserved. Squares sent to the vehicle count as released from the moment
+  they are sent: the vehicle may drive them before its next state says so.
+- **Orders** (orders.py): gridfleet's released squares become base nodes once, in order; planned
+  ones the horizon. A gridfleet order is acknowledged (its id and update in the unit's state) once
+  the vehicle's order is sent. A vehicle that finished its base gets a new order from its square.
+- **The stop**: the fleet's stop pauses the vehicle (`startPause`) and the release resumes it
+  (`stopPause`); the squares left on its base stay reserved meanwhile. Its own emergency stop is a
+  press. A `FATAL` error or a mode other than AUTOMATIC makes the unit `broken` to the fleet, as a
+  lost unit, until it is well again: its job goes back to the queue.
+- **Heartbeat**: a vehicle may stay silent for 30 s; the fleet hears the unit every
+  `STATE_HEARTBEAT_STEPS` steps anyway, from what the vehicle said last (`tick`).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Callable
+from typing import Any, Literal
+
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Cell, Direction, GridMap
+from gridfleet.outbound import Outbound, error_report
+from gridfleet.protocol import (
+    TOPICS,
+    Action,
+    Connection,
+    Factsheet,
+    HeaderStamper,
+    Leds,
+    Order,
+    Sensors,
+    Topics,
+    UnitState,
+    decode,
+    encode_direction,
+)
+from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
+from gridfleet.protocol.device import EstopSignal, encode_estop
+from gridfleet.protocol.messages import SensorReading, UnitError, UnitStatus
+from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+from gridfleet.robots.vda5050.config import VehicleConfig
+from gridfleet.robots.vda5050.inbound import VdaConnection, VdaFactsheet, VdaState, read_vda
+from gridfleet.robots.vda5050.instant import InstantKind, instant_action
+from gridfleet.robots.vda5050.orders import OrderStitcher
+from gridfleet.robots.vda5050.states import VehicleView, read_state, reported_square
+from gridfleet.robots.vda5050.wire import Headers, VdaTopic
+
+Link = Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]
+# Checks a message about to go to the vehicle (the official schema, when the shell has it).
+Check = Callable[[VdaTopic, dict[str, Any]], None]
+VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order costs a stop
+MODEL = "vda5050"
+
+
+class VehicleCore:
+    """One vehicle's two sides: VDA 5050 messages and the fleet's, in; what to publish, out."""
+
+    def __init__(
+        self,
+        config: VehicleConfig,
+        grid: GridMap,
+        topics: Topics,
+        *,
+        run_id: str,
+        step_s: float = 0.5,
+        color: str = "#795548",
+        stamp: HeaderStamper | None = None,
+        check: Check | None = None,
+    ) -> None:
+        self.config = config
+        self.vehicle = config.vehicle
+        self.id = config.vehicle.unit
+        self.grid = grid
+        self.topics = topics
+        self.step_s = step_s
+        self.color = color
+        self.stamp = stamp or HeaderStamper(self.id)
+        self.check = check
+        self.headers = Headers(config.vehicle)
+        self.orders = OrderStitcher(self.headers, config.frame, f"gf-{run_id}-{self.id}")
+        self.capacity_kg = config.capacity_kg  # a 2.1 vehicle's factsheet may tell it
+        self.link: Link | None = None  # the vehicle's own `connection`
+        self.view: VehicleView | None = None
+        self.vda_order: tuple[str, int] | None = None  # what its last state says it follows
+        self.nodes_left = 0  # nodes of its order still ahead, by its last state
+        self.square: Cell | None = None
+        self.stop = StopView()
+        self.pause_sent = False
+        self.pressed = False  # its own emergency stop pressed on the fleet's behalf
+        self.announced = False  # the fleet was told `online` (and not `broken` since)
+        self.order_id: str | None = None  # gridfleet's order, as acknowledged
+        self.update_id = 0
+        self.actions: dict[str, Action] = {}  # VDA action id -> the gridfleet action it does
+        self.job_id: str | None = None
+        self.load_kg = 0.0
+        self.errors: list[UnitError] = []
+        self.step = 0
+        self._quiet = 0
+        self._told: tuple[object, ...] | None = None
+        self._sent_direction: bytes | None = None
+        self._ids = itertools.count(1)
+
+    # ---- subscriptions ------------------------------------------------------------------------
+
+    def vehicle_subscriptions(self) -> list[tuple[str, int]]:
+        """The vehicle's topics to follow (QoS 0 as the spec's; its connection at 1)."""
+        v = self.vehicle
+        return [(v.topic("state"), 0), (v.topic("connection"), 1), (v.topic("factsheet"), 0)]
+
+    def fleet_subscriptions(self) -> list[tuple[str, int]]:
+        """The fleet's topics this unit follows: the stop and its orders."""
+        order = self.topics.unit("order", self.id)
+        return [*stop_filters(self.topics), (order, TOPICS["order"].qos)]
+
+    # ---- the vehicle --------------------------------------------------------------------------
+
+    def on_vehicle(self, name: VdaTopic, payload: bytes, now: float) -> list[Outbound]:
+        """One message on one of the vehicle's topics; what to publish because of it."""
+        topic = self.vehicle.topic(name)
+        try:
+            if name == "connection":
+                return self._on_link(read_vda(VdaConnection, payload, self.vehicle), now)
+            if name == "factsheet":
+                return self._on_factsheet(read_vda(VdaFactsheet, payload, self.vehicle), now)
+            if name == "state":
+                return self._on_state(read_vda(VdaState, payload, self.vehicle), now)
+        except ProtocolError as exc:
+            return [self._report(topic, f"vehicle {self.id}: refused: {exc}")]
+        return []
+
+    def _on_link(self, message: VdaConnection, now: float) -> list[Outbound]:
+        self.link = message.connectionState
+        if self.link != "ONLINE":
+            # Whatever it was driving, the fleet hears it as lost (or gone): its job is handled
+            # as a lost unit's, and its squares stay reserved as long as the coordinator keeps a
+            # lost unit's.
+            self.pause_sent = False
+            return self._goodbye("offline" if self.link == "OFFLINE" else "broken")
+        outs: list[Outbound] = []
+        if self.vehicle.version != "2.0.0" and self.capacity_kg is None:
+            outs += self._instant("factsheetRequest", now)
+        return outs + self._announce(now)
+
+    def _on_factsheet(self, message: VdaFactsheet, now: float) -> list[Outbound]:
+        capacity = message.capacity_kg
+        if capacity is None:
+            raise ProtocolError("loadSpecification.loadSets: no maxWeight: no capacity to go by")
+        changed = capacity != self.capacity_kg
+        self.capacity_kg = capacity
+        if self.announced and changed:
+            return [self._factsheet()]
+        return self._announce(now)
+
+    def _on_state(self, message: VdaState, now: float) -> list[Outbound]:
+        view = read_state(message.model_dump(mode="json"), self.config.frame, self.config.margin_m)
+        self.view = view
+        self.vda_order = (message.orderId, message.orderUpdateId)
+        self.nodes_left = sum(1 for n in message.nodeStates if n.released)
+        outs: list[Outbound] = []
+        square = reported_square(self.square, view.under, self.orders.base)
+        if square is None:
+            self.errors.append(UnitError(code="off_route", message=self._off_route(view)))
+            outs += self._pause(now)  # it is where the fleet did not send it: hold it
+        else:
+            self.square = square
+        self._actions_done(view)
+        if view.estop and not self.pressed:
+            self.pressed = True
+            press = EstopSignal(True, self.id, "the vehicle's own emergency stop")
+            outs.append(Outbound.of("stop", self.topics.unit("stop", self.id), encode_estop(press)))
+        elif not view.estop:
+            self.pressed = False
+        if not view.can_drive:
+            why = "; ".join(view.fatal) or ("its emergency stop" if view.estop else "not AUTOMATIC")
+            if self.announced and not view.estop:
+                self.errors.append(UnitError(code="vehicle_down", message=why[:200]))
+                return outs + self._goodbye("broken")
+        return outs + (self._announce(now) or self.state())
+
+    def _off_route(self, view: VehicleView) -> str:
+        under = sorted(list(c) for c in view.under)
+        return f"the vehicle is on {under[:4]}, off the squares the fleet sent it"[:200]
+
+    def _actions_done(self, view: VehicleView) -> None:
+        """Picks and drops the vehicle reports finished: what it carries now."""
+        for action_id in list(self.actions):
+            if action_id in view.finished:
+                action = self.actions.pop(action_id)
+                if action.kind == "pick":
+                    self.job_id, self.load_kg = action.job_id, self.load_kg + action.mass_kg
+                else:
+                    self.job_id, self.load_kg = None, max(0.0, self.load_kg - action.mass_kg)
+            elif action_id in view.failed:
+                action = self.actions.pop(action_id)
+                self.errors.append(
+                    UnitError(code="action_failed", message=f"{action.kind} of {action.job_id}")
+                )
+
+    # ---- the fleet ----------------------------------------------------------------------------
+
+    def on_fleet(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        """One message on one of the fleet's topics this unit follows."""
+        try:
+            kind, who = self.topics.parse(topic)
+        except ProtocolError:
+            return []
+        if kind in STOP_KINDS:
+            try:
+                self.stop.apply(kind, who, topic, payload)
+            except ProtocolError as exc:
+                return [self._report(topic, str(exc))]  # never a release
+            return self._follow_stop(now) + self.state()
+        if kind == "order" and who == self.id:
+            return self._on_order(topic, payload, now)
+        return []
+
+    def _follow_stop(self, now: float) -> list[Outbound]:
+        if self.stop.engaged:
+            return self._pause(now)
+        if self.pause_sent:
+            self.pause_sent = False
+            return self._instant("stopPause", now)
+        return []
+
+    def _pause(self, now: float) -> list[Outbound]:
+        if self.pause_sent or self.link != "ONLINE":
+            return []
+        self.pause_sent = True
+        return self._instant("startPause", now)
+
+    def _on_order(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
+        try:
+            order = decode(Order, payload, TOPICS["order"].max_bytes)
+        except ProtocolError as exc:
+            return self._refuse(topic, str(exc))
+        if order.order_id == self.order_id and order.update_id <= self.update_id:
+            return []  # stale or repeated (rule 1)
+        if self.square is None or not self.announced:
+            return []  # not a unit of the fleet yet: the coordinator sends again
+        released = [Cell(*c) for c in order.released]
+        if released and released[0] == self.square:
+            released = released[1:]  # planned from an older state (rule 3)
+        planned = [Cell(*c) for c in order.planned]
+        problem = self._bad_release(released)
+        if problem is not None:
+            return self._refuse(topic, problem)
+        if released and self._finished_base():
+            self.orders.end()  # it stands at the end of its order: the next one is new
+        try:
+            message = self.orders.order(self.square, released, planned, order.action, now)
+        except ValueError as exc:
+            return self._refuse(topic, str(exc))
+        self.order_id, self.update_id = order.order_id, order.update_id
+        outs: list[Outbound] = []
+        if message is not None:
+            if order.action is not None:
+                self.actions[f"{order.action.kind}-{order.action.job_id}"] = order.action
+            outs.append(self._to_vehicle("order", message))
+        return outs + self.state()
+
+    def _bad_release(self, released: list[Cell]) -> str | None:
+        """Why gridfleet's release cannot be driven (rule 3), or None."""
+        previous = self.square
+        for cell in released:
+            if not self.grid.is_free(cell):
+                return f"released square {list(cell)} is off the map or a wall"
+            if previous is None or previous.manhattan(cell) != 1:
+                return f"released squares are not contiguous at {list(cell)}"
+            previous = cell
+        return None
+
+    def _finished_base(self) -> bool:
+        """Whether the vehicle has driven its whole order and done its actions."""
+        base = self.orders.base
+        return bool(base) and self.square == base[-1] and self.nodes_left == 0 and not self.actions
+
+    def _refuse(self, topic: str, reason: str) -> list[Outbound]:
+        self.errors.append(UnitError(code="bad_order", message=reason[:200]))
+        return [self._report(topic, reason), *self.state()]
+
+    # ---- what goes out ------------------------------------------------------------------------
+
+    def _instant(self, kind: InstantKind, now: float) -> list[Outbound]:
+        message = instant_action(
+            self.headers,
+            kind,
+            f"{kind}-{next(self._ids)}",
+            now,
+            legacy_actions_key=self.config.legacy_actions_key,
+        )
+        return [self._to_vehicle("instantActions", message)]
+
+    def _to_vehicle(
+        self, name: Literal["order", "instantActions"], message: dict[str, Any]
+    ) -> Outbound:
+        if self.check is not None:
+            self.check(name, message)
+        payload = json.dumps(message, separators=(",", ":")).encode()
+        return Outbound(self.vehicle.topic(name), payload, VDA_QOS[name], False)
+
+    def _announce(self, now: float) -> list[Outbound]:
+        """`online`, the factsheet and the state, once everything they need is known."""
+        if self.announced or self.link != "ONLINE" or self.capacity_kg is None:
+            return []
+        if self.square is None or self.view is None or not self.view.can_drive:
+            return []
+        self.announced = True
+        self._sent_direction = None
+        outs = [self._connection("online"), self._factsheet(), *self.state()]
+        if self.stop.engaged:
+            outs = self._pause(now) + outs
+        return outs
+
+    def _goodbye(self, state: Literal["offline", "broken"]) -> list[Outbound]:
+        if not self.announced:
+            return []
+        self.announced = False
+        return [self._connection(state)]
+
+    def _connection(self, state: Literal["online", "offline", "broken"]) -> Outbound:
+        message = Connection(header=self.stamp("connection"), state=state)
+        return Outbound.of("connection", self.topics.unit("connection", self.id), message)
+
+    def _factsheet(self) -> Outbound:
+        assert self.capacity_kg is not None
+        factsheet = Factsheet(
+            header=self.stamp("factsheet"),
+            capacity_kg=self.capacity_kg,
+            step_period_s=self.step_s,
+            sensors=[],
+            color=self.color,
+            model=f"{MODEL}-{self.vehicle.version}",
+            map_id=self.grid.map_id(),
+        )
+        return Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet)
+
+    def offline(self) -> list[Outbound]:
+        """The goodbye of a clean stop: the unit is offline."""
+        return self._goodbye("offline")
+
+    def tick(self, now: float) -> list[Outbound]:
+        """One step of the adapter's clock: the state when it changed or is due again."""
+        self.step += 1
+        self._quiet += 1
+        if self._quiet < STATE_HEARTBEAT_STEPS and self._condition() == self._told:
+            return []
+        return self.state()
+
+    def released(self) -> list[Cell]:
+        """The squares of its base it has not driven yet: the coordinator keeps them reserved."""
+        base = list(self.orders.base)
+        if self.square is None or self.square not in base:
+            return []
+        return base[len(base) - 1 - base[::-1].index(self.square) + 1 :]
+
+    def direction(self) -> Direction | None:
+        """Its next move, when it has one and may make it."""
+        ahead = self.released()
+        if self.square is None or not ahead or self.stop.engaged:
+            return None
+        return Direction.between(self.square, ahead[0])
+
+    def status(self) -> tuple[UnitStatus, str | None]:
+        """Its gridfleet status and why it waits."""
+        view = self.view
+        if self.stop.engaged or (view is not None and view.estop):
+            return "stopped", None
+        if view is not None and view.paused:
+            return "holding", "the vehicle is paused"
+        if view is not None and view.driving:
+            return "moving", None
+        if self.released() or self.actions:
+            return "waiting", "the vehicle has not reported driving on"
+        return "idle", None
+
+    def _condition(self) -> tuple[object, ...] | None:
+        if self.errors:
+            return None
+        return (
+            self.square,
+            self.direction(),
+            self.status(),
+            self.job_id,
+            self.load_kg,
+            self.order_id,
+            tuple(self.released()),
+            self.stop.engaged,
+        )
+
+    def state(self) -> list[Outbound]:
+        """The unit's state now (and its direction when that changed); nothing before `online`."""
+        if not self.announced or self.square is None:
+            return []
+        self._told, self._quiet = self._condition(), 0
+        direction = self.direction()
+        status, why = self.status()
+        stopped = status == "stopped"
+        leds = (
+            Leds(N=True, E=True, S=True, W=True)
+            if stopped
+            else Leds(**({direction.value: True} if direction is not None else {}))
+        )
+        state = UnitState(
+            header=self.stamp("state"),
+            step=self.step,
+            position=self.square,
+            direction=direction.value if direction is not None else "-",
+            status=status,
+            wait_reason=why,
+            job_id=self.job_id,
+            load_kg=round(self.load_kg, 6),
+            leds=leds,
+            sensors=self._sensors(),
+            order_id=self.order_id,
+            order_update_id=self.update_id,
+            released=self.released(),
+            estop=stopped,
+            errors=self.errors[:16],
+        )
+        self.errors = []
+        outs = [Outbound.of("state", self.topics.unit("state", self.id), state)]
+        sent = encode_direction(direction)
+        if sent != self._sent_direction:
+            self._sent_direction = sent
+            outs.append(Outbound.of("direction", self.topics.unit("direction", self.id), sent))
+        return outs
+
+    def _sensors(self) -> Sensors:
+        """What the map says lies beside its square (a vehicle has no gridfleet sensors)."""
+        assert self.square is not None
+        seen: dict[str, SensorReading] = {}
+        for d in Direction:
+            cell = self.square.step(d)
+            seen[d.value] = (
+                "wall"
+                if not self.grid.in_bounds(cell)
+                else ("free" if self.grid.is_free(cell) else "obstacle")
+            )
+        return Sensors(**seen)
+
+    def _report(self, topic: str, reason: str) -> Outbound:
+        payload = error_report(self.stamp("errors"), topic, reason)
+        return Outbound.of("errors", self.topics.fleet("errors"), payload)

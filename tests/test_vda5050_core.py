@@ -1,0 +1,275 @@
+"""One VDA 5050 vehicle as a gridfleet unit (robots/vda5050/core.py): messages in, exactly what
+is published out, on both sides; everything sent to the vehicle valid against its official schema."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+from typing import Any
+
+import pytest
+
+from gridfleet.grid import Cell, GridMap
+from gridfleet.outbound import Outbound
+from gridfleet.protocol import (
+    Action,
+    Connection,
+    ErrorReport,
+    Factsheet,
+    HeaderStamper,
+    Order,
+    Topics,
+    UnitState,
+    decode,
+    encode,
+)
+from gridfleet.protocol.device import EstopSignal, encode_estop
+from gridfleet.robots.vda5050.config import VehicleConfig
+from gridfleet.robots.vda5050.core import VehicleCore
+from gridfleet.robots.vda5050.frame import Frame
+from gridfleet.robots.vda5050.wire import Vehicle, Version
+
+from support.vda import SCHEMAS, needs_schemas, official, state
+
+T0 = 1_795_000_000.0
+TOPICS = Topics("t")
+GRID = GridMap.from_rows(["....", "....", "...."], name="bay")
+STAMP_AT = datetime(2026, 11, 26, 12, 0, tzinfo=UTC)
+VDA = "uagv/v2/acme/sn-7/"
+
+
+def core(version: Version = "2.0.0", capacity: float | None = 20.0) -> VehicleCore:
+    config = VehicleConfig(
+        Vehicle("agv1", "acme", "sn-7", version), Frame("hall"), capacity, 0.0, False
+    )
+    checker = official() if SCHEMAS.exists() else None
+    return VehicleCore(
+        config,
+        GRID,
+        TOPICS,
+        run_id="r1",
+        step_s=0.5,
+        stamp=HeaderStamper("agv1", lambda: STAMP_AT),
+        check=None if checker is None else lambda topic, m: checker.check(version, topic, m),
+    )
+
+
+def at(x: int, y: int) -> dict[str, Any]:
+    """A VDA position at the centre of square (x, y) (y up on the vehicle's map)."""
+    return {"x": x / 10, "y": -y / 10, "theta": 0.0, "mapId": "hall", "positionInitialized": True}
+
+
+def vda(message: dict[str, Any]) -> bytes:
+    return json.dumps(message).encode()
+
+
+def connection(status: str = "ONLINE", version: str = "2.0.0") -> bytes:
+    return vda(
+        {
+            "headerId": 0,
+            "timestamp": "2026-11-26T12:00:00.000Z",
+            "version": version,
+            "manufacturer": "acme",
+            "serialNumber": "sn-7",
+            "connectionState": status,
+        }
+    )
+
+
+def kinds(outs: list[Outbound]) -> list[str]:
+    """Each message's topic, without the roots."""
+    return [o.topic.removeprefix("t/v1/").removeprefix(VDA) for o in outs]
+
+
+def unit_state(outs: list[Outbound]) -> UnitState:
+    (found,) = [o for o in outs if o.topic == TOPICS.unit("state", "agv1")]
+    return decode(UnitState, found.payload)
+
+
+def online(c: VehicleCore) -> list[Outbound]:
+    outs = c.on_vehicle("connection", connection(), T0)
+    return outs + c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0)
+
+
+def order(update: int, released: list[Cell], planned: tuple[Cell, ...] = (), **more: Any) -> bytes:
+    stamp = HeaderStamper("coordinator", lambda: STAMP_AT)
+    return encode(
+        Order(
+            header=stamp("order"),
+            order_id="c-agv1-1",
+            update_id=update,
+            released=released,
+            planned=list(planned),
+            **more,
+        )
+    )
+
+
+def test_the_unit_comes_online_once_the_vehicle_is_and_says_where_it_stands() -> None:
+    c = core()
+    assert c.on_vehicle("connection", connection(), T0) == []  # not yet: where is it?
+    outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0)
+    assert kinds(outs) == [
+        "units/agv1/connection",
+        "units/agv1/factsheet",
+        "units/agv1/state",
+        "units/agv1/direction",
+    ]
+    assert decode(Connection, outs[0].payload).state == "online"
+    factsheet = decode(Factsheet, outs[1].payload)
+    assert (factsheet.capacity_kg, factsheet.sensors, factsheet.model) == (
+        20.0,
+        [],
+        "vda5050-2.0.0",
+    )
+    assert factsheet.map_id == GRID.map_id()
+    st = unit_state(outs)
+    assert (st.position, st.status, st.direction, st.released, st.estop) == (
+        (0, 0),
+        "idle",
+        "-",
+        [],
+        False,
+    )
+    assert outs[3].payload == b"-"
+
+
+@needs_schemas
+def test_a_2_1_vehicle_is_asked_its_factsheet_and_its_capacity_is_the_units() -> None:
+    c = core("2.1.0", capacity=None)
+    outs = c.on_vehicle("connection", connection(version="2.1.0"), T0)
+    assert kinds(outs) == ["instantActions"]
+    asked = json.loads(outs[0].payload)
+    assert [a["actionType"] for a in asked["actions"]] == ["factsheetRequest"]
+    assert c.on_vehicle("state", vda(state("2.1.0", agvPosition=at(0, 0))), T0) == []
+    sheet = {
+        "headerId": 0,
+        "timestamp": "2026-11-26T12:00:00.000Z",
+        "version": "2.1.0",
+        "manufacturer": "acme",
+        "serialNumber": "sn-7",
+        "physicalParameters": {"speedMax": 1.0},
+        "loadSpecification": {"loadSets": [{"maxWeight": 7.5}]},
+    }
+    outs = c.on_vehicle("factsheet", vda(sheet), T0)
+    assert kinds(outs)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
+    assert decode(Factsheet, outs[1].payload).capacity_kg == 7.5
+
+
+@needs_schemas
+def test_released_squares_become_the_base_and_the_square_behind_is_held_until_left() -> None:
+    c = core()
+    online(c)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], [Cell(2, 0)]), T0)
+    assert kinds(outs) == ["order", "units/agv1/state", "units/agv1/direction"]
+    sent = json.loads(outs[0].payload)
+    assert [(n["nodeId"], n["released"]) for n in sent["nodes"]] == [
+        ("sq-0-0", True),
+        ("sq-1-0", True),
+        ("sq-2-0", False),
+    ]
+    acked = unit_state(outs)
+    assert (acked.order_id, acked.order_update_id, acked.released) == ("c-agv1-1", 1, [(1, 0)])
+    assert outs[2].payload == b"E"
+    # Half way: it holds (0, 0) as its square and (1, 0) as released.
+    between = state(agvPosition={**at(0, 0), "x": 0.05}, driving=True, orderId=sent["orderId"])
+    st = unit_state(c.on_vehicle("state", vda(between), T0 + 1))
+    assert (st.position, st.released, st.status) == ((0, 0), [(1, 0)], "moving")
+    arrived = state(
+        agvPosition=at(1, 0), orderId=sent["orderId"], lastNodeId="sq-1-0", lastNodeSequenceId=2
+    )
+    st = unit_state(c.on_vehicle("state", vda(arrived), T0 + 2))
+    assert (st.position, st.released, st.status) == ((1, 0), [], "idle")
+    # The same release again (a heartbeat) adds nothing for the vehicle: only the acknowledgement.
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(2, [], [Cell(2, 0)]), T0 + 3)
+    assert kinds(outs) == ["units/agv1/state"] and unit_state(outs).order_update_id == 2
+
+
+def test_a_pick_the_vehicle_finished_loads_the_unit() -> None:
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
+    c.on_fleet(
+        TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], target=Cell(1, 0), action=pick), T0
+    )
+    done = state(
+        agvPosition=at(1, 0),
+        actionStates=[{"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "FINISHED"}],
+    )
+    st = unit_state(c.on_vehicle("state", vda(done), T0 + 1))
+    assert (st.position, st.job_id, st.load_kg) == ((1, 0), "job-1", 2.5)
+
+
+@needs_schemas
+def test_the_fleet_stop_pauses_the_vehicle_and_the_release_resumes_it() -> None:
+    c = core()
+    online(c)
+    latch = TOPICS.fleet("estop")
+    outs = c.on_fleet(latch, encode_estop(EstopSignal(True, "dashboard", "")), T0)
+    assert kinds(outs) == ["instantActions", "units/agv1/state"]
+    assert [a["actionType"] for a in json.loads(outs[0].payload)["actions"]] == ["startPause"]
+    assert (unit_state(outs).status, unit_state(outs).estop) == ("stopped", True)
+    # Said once: the stop said again pauses nothing more.
+    again = c.on_fleet(latch, encode_estop(EstopSignal(True, "dashboard", "again")), T0)
+    assert kinds(again) == ["units/agv1/state"]
+    outs = c.on_fleet(latch, encode_estop(EstopSignal(False, "dashboard", "")), T0 + 1)
+    assert [a["actionType"] for a in json.loads(outs[0].payload)["actions"]] == ["stopPause"]
+    assert unit_state(outs).status == "idle"
+
+
+def test_the_vehicles_own_emergency_stop_is_a_press_and_a_fatal_error_makes_it_lost() -> None:
+    c = core()
+    online(c)
+    pressed = state(agvPosition=at(0, 0), safetyState={"eStop": "MANUAL", "fieldViolation": False})
+    outs = c.on_vehicle("state", vda(pressed), T0)
+    assert kinds(outs)[0] == "units/agv1/stop"
+    assert outs[0].payload.startswith(b"engaged|agv1|")
+    assert kinds(c.on_vehicle("state", vda(pressed), T0 + 1)) == ["units/agv1/state"]  # once
+    fatal = state(
+        agvPosition=at(0, 0),
+        errors=[{"errorType": "motorFault", "errorLevel": "FATAL", "errorReferences": []}],
+    )
+    outs = c.on_vehicle("state", vda(fatal), T0 + 2)
+    assert kinds(outs) == ["units/agv1/connection"]
+    assert decode(Connection, outs[0].payload).state == "broken"
+    # Well again: the fleet hears it back.
+    outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0 + 3)
+    assert kinds(outs)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
+
+
+@pytest.mark.parametrize(
+    ("payload", "says"),
+    [
+        (b"{not json", "not JSON"),
+        (vda({**state(), "driving": "yes"}), "driving"),
+        (vda({k: v for k, v in state().items() if k != "safetyState"}), "safetyState"),
+        (vda({**state(), "serialNumber": "sn-8"}), "acme/sn-8"),
+        (vda({**state(), "version": "1.1.0"}), "version '1.1.0'"),
+        (b"x" * 300_000, "bytes"),
+    ],
+)
+def test_a_bad_vehicle_message_is_reported_and_changes_nothing(payload: bytes, says: str) -> None:
+    c = core()
+    online(c)
+    before = (c.square, c.view)
+    outs = c.on_vehicle("state", payload, T0)
+    assert kinds(outs) == ["errors"]
+    report = decode(ErrorReport, outs[0].payload)
+    assert report.topic == VDA + "state" and says in report.reason
+    assert (c.square, c.view) == before
+
+
+def test_a_release_that_cannot_be_driven_is_refused_and_sends_the_vehicle_nothing() -> None:
+    c = core()
+    online(c)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(2, 0)]), T0)
+    assert kinds(outs) == ["errors", "units/agv1/state"]
+    st = unit_state(outs)
+    assert [e.code for e in st.errors] == ["bad_order"] and st.order_update_id == 0
+
+
+def test_a_silent_vehicle_is_still_heard_every_few_steps() -> None:
+    c = core()
+    online(c)
+    heard = [kinds(c.tick(T0 + i)) for i in range(1, 7)]
+    assert heard == [[], [], ["units/agv1/state"], [], [], ["units/agv1/state"]]
