@@ -344,6 +344,12 @@ class VehicleCore:
         )
         return Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet)
 
+    def on_broker_lost(self) -> None:
+        """The adapter lost the broker: all is heard afresh (the retained messages come again)."""
+        self.announced = False  # the next word from the vehicle announces the unit again
+        self.stop = StopView()  # a press cleared meanwhile is not replayed
+        self._sent_direction = None
+
     def offline(self) -> list[Outbound]:
         """The goodbye of a clean stop: the unit is offline."""
         return self._goodbye("offline")

@@ -39,7 +39,9 @@ class Schemas:
                 try:
                     schema = json.loads(path.read_text(encoding="utf-8"))
                 except FileNotFoundError:
-                    raise ConfigError(f"{path}: no such schema (the folder holds 2.0.0/ and 2.1.0/ as VDA publishes them)") from None
+                    raise ConfigError(
+                        f"{path}: no such schema (the folder holds 2.0.0/ and 2.1.0/ as VDA publishes them)"
+                    ) from None
                 except (OSError, ValueError) as exc:
                     raise ConfigError(f"{path}: cannot read the schema: {exc}") from None
                 self._validators[(version, topic)] = Draft202012Validator(schema)
