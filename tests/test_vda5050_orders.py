@@ -108,6 +108,8 @@ def test_squares_are_placed_on_the_vehicles_map_by_its_transform() -> None:
     assert frame.position(Cell(2, 3)) == (3.0, 3.5)
     assert frame.heading(Cell(0, 0), Cell(1, 0)) == 0.0
     assert frame.heading(Cell(0, 0), Cell(0, 1)) == pytest.approx(-1.570796, abs=1e-6)
+    # A move along -x is pi, within the schemas' bound of 3.14159265359 (rounded, it was not).
+    assert 3.14159 < frame.heading(Cell(1, 0), Cell(0, 0)) <= 3.14159265359
     # At a square's centre a vehicle stands on it; on a boundary it holds both; with a body or
     # doubt about its position beyond the point, every square that reaches.
     assert frame.squares_under(3.0, 3.5) == {Cell(2, 3)}

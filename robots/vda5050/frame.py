@@ -45,7 +45,9 @@ class Frame:
     def heading(self, frm: Cell, to: Cell) -> float:
         """The map angle (radians, VDA 5050's theta) of a move from `frm` to the next square `to`."""
         (x0, y0), (x1, y1) = self.position(frm), self.position(to)
-        return round(math.atan2(y1 - y0, x1 - x0), 6)
+        # Cut to micro-radians toward zero: rounded, a move along -x would be 3.141593, beyond
+        # the schemas' bound of pi (3.14159265359).
+        return math.trunc(math.atan2(y1 - y0, x1 - x0) * 1e6) / 1e6
 
     def squares_under(self, x: float, y: float, margin_m: float = 0.0) -> frozenset[Cell]:
         """Every square a vehicle whose reference point is at (x, y) may stand on: one at a
