@@ -49,6 +49,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "bench": ("gridfleet.bench.cli", "benchmark the planner and the whole system"),
     "webots-world": ("gridfleet.robots.webots.cli", "write a Webots world (.wbt) for a scenario"),
+    "vda5050": (
+        "gridfleet.robots.vda5050.cli",
+        "run VDA 5050 vehicles (a vehicles file) as units of the fleet",
+    ),
 }
 
 

@@ -164,6 +164,8 @@ CORES = (
     "gridfleet.device.core",
     "gridfleet.robots.vda5050.orders",
     "gridfleet.robots.vda5050.states",
+    "gridfleet.robots.vda5050.core",
+    "gridfleet.robots.vda5050.virtual",
 )
 
 

@@ -27,6 +27,7 @@ from gridfleet.protocol.device import EstopSignal, encode_estop
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.core import VehicleCore
 from gridfleet.robots.vda5050.frame import Frame
+from gridfleet.robots.vda5050.virtual import VirtualSpec, VirtualVehicle
 from gridfleet.robots.vda5050.wire import Vehicle, Version
 
 from support.vda import SCHEMAS, needs_schemas, official, state
@@ -142,15 +143,11 @@ def test_a_2_1_vehicle_is_asked_its_factsheet_and_its_capacity_is_the_units() ->
     asked = json.loads(outs[0].payload)
     assert [a["actionType"] for a in asked["actions"]] == ["factsheetRequest"]
     assert c.on_vehicle("state", vda(state("2.1.0", agvPosition=at(0, 0))), T0) == []
-    sheet = {
-        "headerId": 0,
-        "timestamp": "2026-11-26T12:00:00.000Z",
-        "version": "2.1.0",
-        "manufacturer": "acme",
-        "serialNumber": "sn-7",
-        "physicalParameters": {"speedMax": 1.0},
-        "loadSpecification": {"loadSets": [{"maxWeight": 7.5}]},
-    }
+    virtual = VirtualVehicle(
+        Vehicle("agv1", "acme", "sn-7", "2.1.0"), VirtualSpec((0.0, 0.0), "hall", capacity_kg=7.5)
+    )
+    sheet = virtual.factsheet(T0)
+    assert official().problems("2.1.0", "factsheet", sheet) == []
     outs = c.on_vehicle("factsheet", vda(sheet), T0)
     assert kinds(outs)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
     assert decode(Factsheet, outs[1].payload).capacity_kg == 7.5

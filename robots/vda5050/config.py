@@ -40,7 +40,7 @@ Axis = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
 
 
 class _Table(BaseModel):
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, defer_build=True)
 
 
 class _MapTable(_Table):

@@ -154,7 +154,7 @@ class VehicleCore:
     def _on_factsheet(self, message: VdaFactsheet, now: float) -> list[Outbound]:
         capacity = message.capacity_kg
         if capacity is None:
-            raise ProtocolError("loadSpecification.loadSets: no maxWeight: no capacity to go by")
+            raise ProtocolError("no maxLoadMass nor maxWeight: no capacity to go by")
         changed = capacity != self.capacity_kg
         self.capacity_kg = capacity
         if self.announced and changed:

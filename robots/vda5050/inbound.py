@@ -112,15 +112,22 @@ class _PhysicalParameters(_Part):
     speedMax: Annotated[Number, Field(gt=0)]
 
 
+class _TypeSpecification(_Part):
+    maxLoadMass: Annotated[Number, Field(ge=0)]
+
+
 class VdaFactsheet(_Header):
     """`factsheet` (2.1): what the vehicle carries and how fast it drives."""
 
+    typeSpecification: _TypeSpecification
     physicalParameters: _PhysicalParameters
     loadSpecification: _LoadSpecification
 
     @property
     def capacity_kg(self) -> float | None:
-        """The heaviest load it takes (its load sets' largest `maxWeight`), if it says."""
+        """The heaviest load it takes: `maxLoadMass`, else its load sets' largest `maxWeight`."""
+        if self.typeSpecification.maxLoadMass > 0:
+            return self.typeSpecification.maxLoadMass
         weights = [s.maxWeight for s in self.loadSpecification.loadSets if s.maxWeight is not None]
         return max(weights) if weights else None
 

@@ -1,0 +1,150 @@
+"""The VDA 5050 adapter's I/O shell: one MQTT endpoint for all its vehicles, a clock, nothing else.
+
+Every decision is a vehicle core's (core.py). Here: one session on the broker (the adapter's own
+account), following each vehicle's VDA 5050 topics and each unit's fleet topics, handing every
+message to the core it concerns, and stepping the cores' clock for their heartbeats.
+
+One endpoint has one last will, and a unit's is `connection: broken`: the adapter cannot leave one
+per vehicle. If the adapter dies, its units' states stop and the coordinator counts them lost
+after its silence timeout (protocol.md §8), as it does any unit that vanishes without a will.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import uuid
+from collections.abc import Sequence
+
+from gridfleet.endpoint import Backoff, Endpoint
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import GridMap
+from gridfleet.outbound import Outbound
+from gridfleet.protocol import Topics
+from gridfleet.protocol.stop import STOP_KINDS
+from gridfleet.robots.vda5050.config import VehicleConfig
+from gridfleet.robots.vda5050.core import Check, VehicleCore
+from gridfleet.robots.vda5050.schemas import Schemas
+from gridfleet.robots.vda5050.wire import VdaTopic
+from gridfleet.tasks import cancel_and_wait
+
+log = logging.getLogger("gridfleet.vda5050")
+VEHICLE_TOPICS: tuple[VdaTopic, ...] = ("state", "connection", "factsheet")
+
+
+class AdapterShell:
+    """Runs the vehicles of a vehicles file as gridfleet units on one broker."""
+
+    def __init__(
+        self,
+        vehicles: Sequence[VehicleConfig],
+        grid: GridMap,
+        broker_url: str,
+        topics: Topics,
+        *,
+        step_s: float = 0.5,
+        schemas: Schemas | None = None,
+        reconnect_s: float = 0.1,
+        max_reconnect_s: float = 5.0,
+    ) -> None:
+        run_id = uuid.uuid4().hex[:6]  # order ids are new in every run of the adapter
+        self.topics = topics
+        self.step_s = step_s
+        self.cores = [
+            VehicleCore(
+                config,
+                grid,
+                topics,
+                run_id=run_id,
+                step_s=step_s,
+                check=_checker(schemas, config) if schemas is not None else None,
+            )
+            for config in vehicles
+        ]
+        self._by_vda = {
+            core.vehicle.topic(name): (core, name) for core in self.cores for name in VEHICLE_TOPICS
+        }
+        self._by_unit = {core.id: core for core in self.cores}
+        self.endpoint = Endpoint(
+            broker_url,
+            f"vda5050-{run_id}",
+            name="vda5050",
+            subscriptions=self.subscriptions,
+            backoff=Backoff(reconnect_s, max_reconnect_s),
+        )
+
+    @property
+    def ready(self) -> asyncio.Event:
+        """Set while connected and subscribed."""
+        return self.endpoint.online
+
+    def subscriptions(self) -> list[tuple[str, int]]:
+        """Every vehicle's topics and every unit's, once each."""
+        seen: dict[str, int] = {}
+        for core in self.cores:
+            for topic, qos in (*core.vehicle_subscriptions(), *core.fleet_subscriptions()):
+                seen[topic] = max(qos, seen.get(topic, 0))
+        return list(seen.items())
+
+    def _now(self) -> float:
+        return asyncio.get_running_loop().time()
+
+    async def run(self, shutdown: asyncio.Event) -> None:
+        """Carry the vehicles until `shutdown` is set; then their units say `offline`."""
+        ticker = asyncio.create_task(self._ticks(shutdown), name="vda5050-ticks")
+        try:
+            await self.endpoint.run(
+                shutdown,
+                self._handle,
+                on_disconnect=lambda why: self._lost_broker(),
+                on_stop=self._goodbye,
+            )
+        finally:
+            await cancel_and_wait(ticker)
+
+    def _lost_broker(self) -> None:
+        for core in self.cores:
+            core.on_broker_lost()
+
+    async def _goodbye(self) -> None:
+        await self._send([out for core in self.cores for out in core.offline()])
+
+    async def _handle(self, topic: str, payload: bytes) -> None:
+        now = self._now()
+        found = self._by_vda.get(topic)
+        if found is not None:
+            core, name = found
+            await self._send(core.on_vehicle(name, payload, now))
+            return
+        try:
+            kind, who = self.topics.parse(topic)
+        except ProtocolError:
+            return
+        if kind in STOP_KINDS:
+            await self._send([o for core in self.cores for o in core.on_fleet(topic, payload, now)])
+        elif who in self._by_unit:
+            await self._send(self._by_unit[who].on_fleet(topic, payload, now))
+
+    async def _ticks(self, shutdown: asyncio.Event) -> None:
+        due = self._now()
+        while not shutdown.is_set():
+            due += self.step_s
+            delay = due - self._now()
+            if delay < -self.step_s:
+                due = self._now()  # fell far behind: no burst of catching up
+            elif delay > 0:
+                await asyncio.sleep(delay)
+            now = self._now()
+            await self._send([out for core in self.cores for out in core.tick(now)])
+
+    async def _send(self, outs: Sequence[Outbound]) -> None:
+        """Publish in the cores' order (each send is queued before the next is made)."""
+        sends = [asyncio.ensure_future(self.endpoint.publish(out)) for out in outs]
+        if sends:
+            await asyncio.gather(*sends)
+
+
+def _checker(schemas: Schemas, config: VehicleConfig) -> Check:
+    """Hold what goes to this vehicle to its version's official schema."""
+    version = config.vehicle.version
+    return lambda topic, message: schemas.check(version, topic, message)

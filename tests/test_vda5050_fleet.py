@@ -1,0 +1,181 @@
+"""VDA 5050 vehicles in a real fleet: the coordinator and simulated units of gridfleet, the adapter,
+and a vehicle of our own (VDA 5050 2.1.0) on one broker, every message of the vehicle's, both
+ways, held to the official schema; safety judged from every state seen on the bus."""
+
+from __future__ import annotations
+
+import shutil
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics, UnitState, decode
+from gridfleet.robots.vda5050.config import VehicleConfig
+from gridfleet.robots.vda5050.frame import Frame
+from gridfleet.robots.vda5050.shell import AdapterShell
+from gridfleet.robots.vda5050.virtual import VirtualSpec
+from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
+from gridfleet.robots.vda5050.wire import Vehicle
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
+
+from support.operator_peer import OperatorPeer
+from support.probe import MqttProbe
+from support.vda import needs_schemas, official
+from support.wait import wait_for
+
+pytestmark = [pytest.mark.slow, needs_schemas]
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+FRAME = Frame("hall")  # square (0, 0) at the origin, 0.1 m squares, y up
+STEP = 0.1
+
+
+def scenario(tmp_path: Path) -> Path:
+    """The playfield with two of gridfleet's units (no hidden obstacles: a vehicle has no sensor
+    of gridfleet's to find one)."""
+    shutil.copy(MAPS / "playfield.map", tmp_path / "playfield.map")
+    path = tmp_path / "mixed.toml"
+    path.write_text(
+        'name = "mixed"\nmap = "playfield.map"\n'
+        '[[units]]\nid = "unit1"\nstart = [0, 0]\ncapacity = 2.0\n'
+        '[[units]]\nid = "unit2"\nstart = [9, 0]\ncapacity = 5.0\n',
+        encoding="utf-8",
+    )
+    return path
+
+
+class Vehicles:
+    """The adapter and its virtual vehicles, each in a thread of its own."""
+
+    def __init__(self, broker: BrokerThread, root: str, grid: Any) -> None:
+        self.virtual: dict[str, VirtualVehicleShell] = {}
+        self.configs: list[VehicleConfig] = []
+        self.threads: list[ServiceThread[Any]] = []
+        self.broker, self.root, self.grid = broker, root, grid
+
+    def add(self, unit: str, serial: str, at: Cell, capacity_kg: float, **spec: Any) -> None:
+        vehicle = Vehicle(unit, "gridfleet", serial, "2.1.0")
+        self.configs.append(VehicleConfig(vehicle, FRAME, None, 0.0, False))
+        start = FRAME.position(at)
+        self.virtual[unit] = VirtualVehicleShell(
+            vehicle,
+            VirtualSpec(
+                start, FRAME.map_id, speed=1.0, capacity_kg=capacity_kg, action_s=0.2, **spec
+            ),
+            self.broker.url,
+        )
+
+    def start(self) -> None:
+        for unit, shell in self.virtual.items():
+            self.threads.append(ServiceThread(lambda s=shell: s, f"vehicle-{unit}").start())
+        schemas = official()
+        adapter = ServiceThread(
+            lambda: AdapterShell(
+                self.configs,
+                self.grid,
+                self.broker.url,
+                Topics(self.root),
+                step_s=STEP,
+                schemas=schemas,
+            ),
+            "vda5050",
+        )
+        self.threads.append(adapter.start())
+
+    def stop(self) -> None:
+        for thread in reversed(self.threads):
+            thread.stop()
+
+
+@pytest.fixture
+def vehicles(broker: BrokerThread, root: str, tmp_path: Path) -> Iterator[Callable[[], Vehicles]]:
+    made: list[Vehicles] = []
+
+    def make() -> Vehicles:
+        from gridfleet.scenario import load_scenario
+
+        made.append(Vehicles(broker, root, load_scenario(scenario(tmp_path)).grid))
+        return made[-1]
+
+    yield make
+    for v in made:
+        v.stop()
+
+
+class Judge:
+    """Every unit state seen on the bus, in order: no two units ever on one square.
+
+    A unit reports a square only once it is on it, so a swap (A to B as the other goes B to A)
+    shows as two units on one square whichever state comes first.
+    """
+
+    def __init__(self) -> None:
+        self.where: dict[str, Cell] = {}
+        self.faults: list[str] = []
+        self.seen = 0
+        self.lock = threading.Lock()
+
+    def see(self, unit: str, state: UnitState) -> None:
+        with self.lock:
+            self.seen += 1
+            square = Cell(*state.position)
+            self.where[unit] = square
+            for other, there in self.where.items():
+                if other != unit and there == square:
+                    self.faults.append(f"{unit} and {other} both on {list(square)}")
+
+
+@pytest.mark.timeout(180)
+def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_its_factsheet(
+    run_system: Callable[..., Any],
+    vehicles: Callable[[], Vehicles],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+    tmp_path: Path,
+) -> None:
+    judge = Judge()
+    probe = probe_factory()
+    probe.client.message_callback_add(
+        topics.all_units("state"),
+        lambda c, u, m: judge.see(m.topic.split("/")[-2], decode(UnitState, m.payload)),
+    )
+    probe.subscribe(topics.all_units("state"), qos=0)
+    operator = OperatorPeer(probe_factory(), topics, "tester")
+    coordinator, _ = run_system(scenario(tmp_path), step_s=STEP)
+    fleet = vehicles()
+    fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0)
+    fleet.start()
+    world = coordinator.service.world
+    wait_for(
+        lambda: coordinator.call(lambda: sorted(world.capacities())) == [2.0, 3.0, 5.0],
+        timeout=20,
+        what="the coordinator knows both units and the vehicle, its capacity by its factsheet",
+    )
+    jobs = {
+        "light-1": (Cell(1, 8), Cell(8, 8), 1.0),
+        "light-2": (Cell(5, 9), Cell(9, 5), 2.5),  # over unit1's 2 kg: the vehicle or unit2
+        "heavy": (Cell(1, 5), Cell(8, 3), 4.0),  # over the vehicle's 3 kg: only unit2
+        "light-3": (Cell(0, 6), Cell(5, 0), 1.5),
+    }
+    for job_id, (pickup, dropoff, mass) in jobs.items():
+        assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
+    wait_for(lambda: operator.all_final(list(jobs)), timeout=120, what="every job final")
+    listed = operator.listed_jobs()
+    assert {j: listed[j].state for j in jobs} == dict.fromkeys(jobs, "done")
+    assert listed["heavy"].unit == "unit2"
+    vda_jobs = {j for j in jobs if listed[j].unit == "agv1"}
+    assert vda_jobs, {j: listed[j].unit for j in jobs}  # the vehicle did its share
+    carried = {s.job_id for s in operator.states("agv1") if s.job_id is not None}
+    assert vda_jobs <= carried
+    assert judge.faults == [] and judge.seen > 50
+    # Both ways, every message of the vehicle's is valid against the official 2.1.0 schemas.
+    schemas = official()
+    virtual = fleet.virtual["agv1"]
+    for name, message in [*virtual.received, *virtual.sent]:
+        assert schemas.problems("2.1.0", name, message) == [], (name, message)  # type: ignore[arg-type]
+    assert {name for name, _ in virtual.received} >= {"order", "instantActions"}
