@@ -179,3 +179,23 @@ def test_a_bench_whose_extra_is_missing_says_what_to_install() -> None:
         capture_output=True, text=True, timeout=60, check=False,
     )  # fmt: skip
     assert planner.returncode == 0 and "--suite" in planner.stdout, planner.stderr
+
+
+@pytest.mark.parametrize(
+    ("vehicles", "says"),
+    [
+        (None, "no such vehicles file"),
+        ("[[vehicles]]\nunit = 'agv1'\n", "vehicles #1: manufacturer: missing"),
+        ("", "no [[vehicles]]: nothing to carry"),
+    ],
+)
+def test_a_vda5050_adapter_with_a_bad_vehicles_file_says_what_in_one_line(
+    tmp_path: Path, vehicles: str | None, says: str
+) -> None:
+    path = tmp_path / "vehicles.toml"
+    if vehicles is not None:
+        path.write_text(vehicles, encoding="utf-8")
+    out = run_cli("vda5050", "--vehicles", str(path), "--map", "maps/playfield.map")
+    assert out.returncode == 2
+    (line,) = out.stderr.strip().splitlines()
+    assert line.startswith("gridfleet vda5050: error: ") and says in line, line

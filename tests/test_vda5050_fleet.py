@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import shutil
 import threading
+import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -130,14 +132,30 @@ class Judge:
                     self.faults.append(f"{unit} and {other} both on {list(square)}")
 
 
-@pytest.mark.timeout(180)
-def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_its_factsheet(
+@dataclass
+class Mixed:
+    """The running mixed fleet, what the test sees of it, and the vehicle."""
+
+    operator: OperatorPeer
+    judge: Judge
+    coordinator: ServiceThread[Any]
+    vehicles: Vehicles
+
+    @property
+    def agv1(self) -> VirtualVehicleShell:
+        return self.vehicles.virtual["agv1"]
+
+
+@pytest.fixture
+def mixed(
     run_system: Callable[..., Any],
     vehicles: Callable[[], Vehicles],
     probe_factory: Callable[..., MqttProbe],
     topics: Topics,
     tmp_path: Path,
-) -> None:
+) -> Iterator[Mixed]:
+    """unit1 (2 kg) and unit2 (5 kg) of gridfleet's and a 2.1.0 vehicle agv1 (3 kg by its
+    factsheet) at (0, 9) on the playfield, known to the coordinator; the stop released after."""
     judge = Judge()
     probe = probe_factory()
     probe.client.message_callback_add(
@@ -156,6 +174,15 @@ def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_i
         timeout=20,
         what="the coordinator knows both units and the vehicle, its capacity by its factsheet",
     )
+    yield Mixed(operator, judge, coordinator, fleet)
+    operator.raw_estop(b"")
+
+
+@pytest.mark.timeout(180)
+def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_its_factsheet(
+    mixed: Mixed,
+) -> None:
+    operator = mixed.operator
     jobs = {
         "light-1": (Cell(1, 8), Cell(8, 8), 1.0),
         "light-2": (Cell(5, 9), Cell(9, 5), 2.5),  # over unit1's 2 kg: the vehicle or unit2
@@ -172,10 +199,61 @@ def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_i
     assert vda_jobs, {j: listed[j].unit for j in jobs}  # the vehicle did its share
     carried = {s.job_id for s in operator.states("agv1") if s.job_id is not None}
     assert vda_jobs <= carried
-    assert judge.faults == [] and judge.seen > 50
+    assert mixed.judge.faults == [] and mixed.judge.seen > 50
     # Both ways, every message of the vehicle's is valid against the official 2.1.0 schemas.
     schemas = official()
-    virtual = fleet.virtual["agv1"]
+    virtual = mixed.agv1
     for name, message in [*virtual.received, *virtual.sent]:
-        assert schemas.problems("2.1.0", name, message) == [], (name, message)  # type: ignore[arg-type]
+        assert schemas.problems("2.1.0", name, message) == [], (name, message)
     assert {name for name, _ in virtual.received} >= {"order", "instantActions"}
+
+
+def _agv1_job(operator: OperatorPeer) -> str:
+    """A 2.5 kg job from beside agv1 across the map: too heavy for unit1, far from unit2."""
+    assert operator.submit_job(Cell(0, 6), Cell(9, 9), 2.5, job_id="crate").accepted
+    wait_for(
+        lambda: (s := operator.last_state("agv1")) is not None and s.status == "moving",
+        timeout=20,
+        what="agv1 on its way",
+    )
+    assert operator.listed_jobs()["crate"].unit == "agv1"
+    return "crate"
+
+
+@pytest.mark.timeout(120)
+def test_the_fleet_stop_pauses_the_vehicle_where_it_is_and_the_release_resumes_it(
+    mixed: Mixed,
+) -> None:
+    operator, virtual = mixed.operator, mixed.agv1
+    job = _agv1_job(operator)
+    operator.engage("test")
+    wait_for(lambda: virtual.core.paused, timeout=10, what="the vehicle paused")
+    paused = [m for n, m in virtual.received if n == "instantActions"]
+    assert [a["actionType"] for a in paused[-1]["actions"]] == ["startPause"]
+    where = (virtual.core.x, virtual.core.y)
+    # Measuring over a span of time: it stays where the pause found it (the stopping distance
+    # of this vehicle is nothing), and the unit says it is stopped.
+    deadline = time.monotonic() + 1.0
+    while time.monotonic() < deadline:
+        assert (virtual.core.x, virtual.core.y) == where
+        time.sleep(0.05)
+    wait_for(
+        lambda: (s := operator.last_state("agv1")) is not None and s.status == "stopped",
+        timeout=10,
+        what="agv1 stopped",
+    )
+    operator.release("checked")
+    wait_for(lambda: not virtual.core.paused, timeout=10, what="the vehicle resumed")
+    wait_for(lambda: operator.job_state(job) == "done", timeout=60, what="the job done")
+    assert mixed.judge.faults == []
+
+
+@pytest.mark.timeout(120)
+def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(mixed: Mixed) -> None:
+    operator = mixed.operator
+    job = _agv1_job(operator)
+    mixed.agv1.kill()  # its last will: CONNECTIONBROKEN
+    wait_for(lambda: operator.connections("agv1")[-1:] == ["broken"], timeout=20, what="agv1 lost")
+    wait_for(lambda: operator.job_state(job) == "done", timeout=90, what="the job done")
+    assert operator.listed_jobs()[job].unit == "unit2"
+    assert mixed.judge.faults == []

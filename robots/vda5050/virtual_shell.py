@@ -28,7 +28,7 @@ class VirtualVehicleShell:
         self.core = VirtualVehicle(vehicle, spec)
         self.vehicle = vehicle
         self.tick_s = tick_s
-        self.received: list[tuple[str, dict[str, Any]]] = []  # every order and instant action
+        self.received: list[Message] = []  # every order and instant action
         self.sent: list[Message] = []  # every message it published, as sent
         self.endpoint = Endpoint(
             broker_url,
@@ -70,12 +70,12 @@ class VirtualVehicleShell:
         except (UnicodeDecodeError, json.JSONDecodeError):
             log.warning("%s: not JSON on %s", self.endpoint.name, topic)
             return
-        name = topic.rsplit("/", 1)[-1]
-        self.received.append((name, message))
         now = time.time()
-        if name == "order":
+        if topic == self.vehicle.topic("order"):
+            self.received.append(("order", message))
             await self._send(self.core.on_order(message, now))
-        elif name == "instantActions":
+        elif topic == self.vehicle.topic("instantActions"):
+            self.received.append(("instantActions", message))
             await self._send(self.core.on_instant_actions(message, now))
 
     async def _ticks(self, shutdown: asyncio.Event) -> None:
