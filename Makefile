@@ -10,11 +10,13 @@ STAMP := $(VENV)/.installed
 # dashboard, doctest and g++ for the firmware's host tests.
 DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
-$(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json
+# npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles.
+$(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"
-	@if [ -f dashboard/package.json ]; then cd dashboard && npm ci --no-audit --no-fund --loglevel=error; fi
+	cd dashboard && npm ci --no-audit --no-fund --loglevel=error
+	cd tests/vda5050_lib && npm ci --no-audit --no-fund --loglevel=error
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -96,4 +98,4 @@ schemas: $(STAMP)
 	$(BIN)/python -m gridfleet.system.schemas
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules tests/vda5050_lib/node_modules

@@ -108,7 +108,9 @@ def order(update: int, released: list[Cell], planned: tuple[Cell, ...] = (), **m
 
 def test_the_unit_comes_online_once_the_vehicle_is_and_says_where_it_stands() -> None:
     c = core()
-    assert c.on_vehicle("connection", connection(), T0) == []  # not yet: where is it?
+    asked = c.on_vehicle("connection", connection(), T0)  # not yet: where is it? it is asked
+    assert kinds(asked) == ["instantActions"]
+    assert [a["actionType"] for a in json.loads(asked[0].payload)["actions"]] == ["stateRequest"]
     outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0)
     assert kinds(outs) == [
         "units/agv1/connection",
@@ -139,9 +141,9 @@ def test_the_unit_comes_online_once_the_vehicle_is_and_says_where_it_stands() ->
 def test_a_2_1_vehicle_is_asked_its_factsheet_and_its_capacity_is_the_units() -> None:
     c = core("2.1.0", capacity=None)
     outs = c.on_vehicle("connection", connection(version="2.1.0"), T0)
-    assert kinds(outs) == ["instantActions"]
-    asked = json.loads(outs[0].payload)
-    assert [a["actionType"] for a in asked["actions"]] == ["factsheetRequest"]
+    assert kinds(outs) == ["instantActions", "instantActions"]
+    asked = [json.loads(o.payload)["actions"][0]["actionType"] for o in outs]
+    assert asked == ["stateRequest", "factsheetRequest"]
     assert c.on_vehicle("state", vda(state("2.1.0", agvPosition=at(0, 0))), T0) == []
     virtual = VirtualVehicle(
         Vehicle("agv1", "acme", "sn-7", "2.1.0"), VirtualSpec((0.0, 0.0), "hall", capacity_kg=7.5)

@@ -16,6 +16,7 @@ map = "hall"
 capacity_kg = 20.0        # 2.0 vehicles; a 2.1 vehicle's factsheet says it
 margin_m = 0.04           # its body beyond its reference point (states.py: it holds every square that reaches)
 legacy_actions_key = true # vda-5050-lib 1.4.0: the instant actions under `instantActions` too
+action_parameters = {stationType = "floor", loadType = "EPAL"}  # added to every pick and drop
 ```
 
 Every problem is refused in one line naming the file, the line and the key.
@@ -23,11 +24,21 @@ Every problem is refused in one line naming the file, the line and the key.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
 
-from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    StrictInt,
+    StrictStr,
+    ValidationError,
+)
 from pydantic_core import ErrorDetails
 
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
@@ -60,6 +71,8 @@ class _VehicleTable(_Table):
     capacity_kg: Annotated[StrictFloat | StrictInt, Field(gt=0, allow_inf_nan=False)] | None = None
     margin_m: Annotated[StrictFloat | StrictInt, Field(ge=0, allow_inf_nan=False)] = 0.0
     legacy_actions_key: bool = False
+    # Extra parameters of every pick and drop (the vehicle's station and load types, say).
+    action_parameters: dict[str, StrictStr | StrictFloat | StrictInt | StrictBool] = {}
 
 
 class _VehiclesFile(_Table):
@@ -76,6 +89,7 @@ class VehicleConfig:
     capacity_kg: float | None
     margin_m: float
     legacy_actions_key: bool
+    action_parameters: Mapping[str, str | float | bool] = field(default_factory=dict)
 
 
 def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
@@ -121,8 +135,20 @@ def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
                 f"vehicle {v.unit!r}: a 2.0.0 vehicle needs capacity_kg (2.0 has no factsheet request)",
             )
         capacity = None if v.capacity_kg is None else float(v.capacity_kg)
+        ours = sorted({"loadId", "weight"} & set(v.action_parameters))
+        if ours:
+            raise where.error(
+                line, f"vehicle {v.unit!r}: action_parameters: {ours[0]} is the adapter's to set"
+            )
         configs.append(
-            VehicleConfig(vehicle, frames[v.map], capacity, float(v.margin_m), v.legacy_actions_key)
+            VehicleConfig(
+                vehicle,
+                frames[v.map],
+                capacity,
+                float(v.margin_m),
+                v.legacy_actions_key,
+                dict(v.action_parameters),
+            )
         )
     return tuple(configs)
 

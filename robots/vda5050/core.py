@@ -87,7 +87,9 @@ class VehicleCore:
         self.stamp = stamp or HeaderStamper(self.id)
         self.check = check
         self.headers = Headers(config.vehicle)
-        self.orders = OrderStitcher(self.headers, config.frame, f"gf-{run_id}-{self.id}")
+        self.orders = OrderStitcher(
+            self.headers, config.frame, f"gf-{run_id}-{self.id}", config.action_parameters
+        )
         self.capacity_kg = config.capacity_kg  # a 2.1 vehicle's factsheet may tell it
         self.link: Link | None = None  # the vehicle's own `connection`
         self.view: VehicleView | None = None
@@ -147,6 +149,9 @@ class VehicleCore:
             self.pause_sent = False
             return self._goodbye("offline" if self.link == "OFFLINE" else "broken")
         outs: list[Outbound] = []
+        if self.view is None:
+            # It may say nothing more for 30 s (its state is not retained): ask.
+            outs += self._instant("stateRequest", now)
         if self.vehicle.version != "2.0.0" and self.capacity_kg is None:
             outs += self._instant("factsheetRequest", now)
         return outs + self._announce(now)

@@ -1,8 +1,10 @@
-"""VDA 5050 instant actions the fleet sends a vehicle: pause, resume, cancel, factsheet request.
+"""VDA 5050 instant actions the fleet sends a vehicle: pause, resume, cancel, factsheet request,
+state request.
 
 The fleet's emergency stop (any source), and an operator's pause or out-of-service of the unit,
 pause the vehicle (`startPause`) until the release (`stopPause`); a cancelled job cancels the
-order (`cancelOrder`). `factsheetRequest` exists from 2.1 on; a 2.0 vehicle's capacity and speed
+order (`cancelOrder`). A vehicle heard on line before any state of its is asked for one
+(`stateRequest`: it may otherwise stay silent for 30 s). `factsheetRequest` exists from 2.1 on; a 2.0 vehicle's capacity and speed
 are configured by hand.
 
 vda-5050-lib 1.4.0 in 2.0 mode reads the actions under 1.1's key `instantActions` instead of the
@@ -19,7 +21,7 @@ from typing import Any, Literal
 from gridfleet.errors import ConfigError
 from gridfleet.robots.vda5050.wire import Headers
 
-InstantKind = Literal["startPause", "stopPause", "cancelOrder", "factsheetRequest"]
+InstantKind = Literal["startPause", "stopPause", "cancelOrder", "factsheetRequest", "stateRequest"]
 
 
 def instant_action(

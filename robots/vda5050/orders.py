@@ -15,6 +15,7 @@ order (a new id, update 0) starts at the square the vehicle stands on.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,6 +23,8 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import Action
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.wire import Headers
+
+ANY_THETA = 3.141592  # allowedDeviationTheta: pi, cut within the schemas' bound
 
 
 def node_id(cell: Cell) -> str:
@@ -43,9 +46,16 @@ class _Base:
 class OrderStitcher:
     """One vehicle's orders: a new one, or the next update of the current one."""
 
-    def __init__(self, headers: Headers, frame: Frame, prefix: str) -> None:
+    def __init__(
+        self,
+        headers: Headers,
+        frame: Frame,
+        prefix: str,
+        action_parameters: Mapping[str, str | float | bool] | None = None,
+    ) -> None:
         self.headers = headers
         self.frame = frame
+        self.action_parameters = dict(action_parameters or {})
         self.prefix = prefix  # order ids are `<prefix>-<n>`: unique per adapter run
         self._orders = 0
         self._base: _Base | None = None
@@ -121,18 +131,30 @@ class OrderStitcher:
     ) -> dict[str, Any]:
         assert self._base is not None
         nodes, edges = [], []
+        route = self._base.cells[: stitch + 1] + cells[1:]  # the whole order, from its start
         for i, cell in enumerate(cells):
             sequence = 2 * (stitch + i)
             x, y = self.frame.position(cell)
+            # The official 2.0.0 state schema requires a theta in nodeStates' positions, which a
+            # vehicle copies from the order: the heading it arrives with (0 at the start), any
+            # orientation allowed (a vehicle turns as it must).
+            g = stitch + i
+            theta = self.frame.heading(route[g - 1], cell) if g > 0 else 0.0
             node: dict[str, Any] = {
                 "nodeId": node_id(cell),
                 "sequenceId": sequence,
                 "released": i < released_count,
-                "nodePosition": {"x": x, "y": y, "mapId": self.frame.map_id},
+                "nodePosition": {
+                    "x": x,
+                    "y": y,
+                    "theta": theta,
+                    "allowedDeviationTheta": ANY_THETA,
+                    "mapId": self.frame.map_id,
+                },
                 "actions": [],
             }
             if action is not None and cell == action.square and i == len(cells) - 1:
-                node["actions"] = [_vda_action(action)]
+                node["actions"] = [_vda_action(action, self.action_parameters)]
             nodes.append(node)
             if i > 0:
                 prev = cells[i - 1]
@@ -156,8 +178,9 @@ class OrderStitcher:
         }
 
 
-def _vda_action(action: Action) -> dict[str, Any]:
-    """gridfleet's pick or drop as VDA 5050's predefined `pick`/`drop` action (blocking: HARD)."""
+def _vda_action(action: Action, extra: Mapping[str, str | float | bool]) -> dict[str, Any]:
+    """gridfleet's pick or drop as VDA 5050's predefined `pick`/`drop` action (blocking: HARD),
+    with the vehicle's own parameters (its station and load types) beside gridfleet's."""
     return {
         "actionId": f"{action.kind}-{action.job_id}",
         "actionType": action.kind,
@@ -165,5 +188,6 @@ def _vda_action(action: Action) -> dict[str, Any]:
         "actionParameters": [
             {"key": "loadId", "value": action.job_id},
             {"key": "weight", "value": action.mass_kg},
+            *({"key": key, "value": value} for key, value in extra.items()),
         ],
     }
