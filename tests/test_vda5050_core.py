@@ -272,3 +272,56 @@ def test_a_silent_vehicle_is_still_heard_every_few_steps() -> None:
     online(c)
     heard = [kinds(c.tick(T0 + i)) for i in range(1, 7)]
     assert heard == [[], [], ["units/agv1/state"], [], [], ["units/agv1/state"]]
+
+
+def refusal(kind: str, order_id: str, update: int) -> dict[str, Any]:
+    return {
+        "errorType": kind,
+        "errorLevel": "WARNING",
+        "errorReferences": [
+            {"referenceKey": "orderId", "referenceValue": order_id},
+            {"referenceKey": "orderUpdateId", "referenceValue": str(update)},
+        ],
+    }
+
+
+def test_a_refused_update_ends_the_order_once_the_vehicle_stops_and_the_next_is_new() -> None:
+    c = core()
+    online(c)
+    first = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)]), T0)
+    vda_id = json.loads(first[0].payload)["orderId"]
+    update = c.on_fleet(TOPICS.unit("order", "agv1"), order(2, [Cell(1, 0), Cell(2, 0)]), T0)
+    assert json.loads(update[0].payload)["orderUpdateId"] == 1
+    # It drove what it had, and refused the update: (2, 0) is not released any more.
+    stopped = state(
+        agvPosition=at(1, 0),
+        orderId=vda_id,
+        errors=[refusal("orderUpdateError", vda_id, 1)],
+    )
+    st = unit_state(c.on_vehicle("state", vda(stopped), T0 + 1))
+    assert (st.position, st.released) == ((1, 0), [])
+    assert [e.code for e in st.errors] == ["order_refused"]
+    again = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, [Cell(2, 0)]), T0 + 2)
+    sent = json.loads(again[0].payload)
+    assert (sent["orderUpdateId"], sent["nodes"][0]["nodeId"]) == (0, "sq-1-0")  # a new order
+    assert sent["orderId"] != vda_id
+
+
+def test_a_vehicle_refusing_every_route_is_lost_to_the_fleet() -> None:
+    c = core()
+    online(c)
+    outs: list[Outbound] = []
+    for n in range(1, 4):
+        sent = c.on_fleet(TOPICS.unit("order", "agv1"), order(n, [Cell(1, 0)]), T0 + n)
+        vda_id = json.loads(sent[0].payload)["orderId"]
+        refused = state(agvPosition=at(0, 0), errors=[refusal("noRouteError", vda_id, 0)])
+        outs = c.on_vehicle("state", vda(refused), T0 + n)
+    assert kinds(outs) == ["units/agv1/connection"]
+    assert decode(Connection, outs[0].payload).state == "broken"
+    # An error about an order gone by changes nothing.
+    c2 = core()
+    online(c2)
+    c2.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)]), T0)
+    old = state(agvPosition=at(0, 0), errors=[refusal("noRouteError", "gf-old-1", 0)])
+    st = unit_state(c2.on_vehicle("state", vda(old), T0))
+    assert st.released == [(1, 0)] and st.errors == []

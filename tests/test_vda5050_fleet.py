@@ -19,7 +19,7 @@ from gridfleet.protocol import Topics, UnitState, decode
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.shell import AdapterShell
-from gridfleet.robots.vda5050.virtual import VirtualSpec
+from gridfleet.robots.vda5050.virtual import Quirk, VirtualSpec
 from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
 from gridfleet.robots.vda5050.wire import Vehicle
 from gridfleet.system.broker_thread import BrokerThread
@@ -147,35 +147,48 @@ class Mixed:
 
 
 @pytest.fixture
-def mixed(
+def mixed_fleet(
     run_system: Callable[..., Any],
     vehicles: Callable[[], Vehicles],
     probe_factory: Callable[..., MqttProbe],
     topics: Topics,
     tmp_path: Path,
-) -> Iterator[Mixed]:
-    """unit1 (2 kg) and unit2 (5 kg) of gridfleet's and a 2.1.0 vehicle agv1 (3 kg by its
-    factsheet) at (0, 9) on the playfield, known to the coordinator; the stop released after."""
-    judge = Judge()
-    probe = probe_factory()
-    probe.client.message_callback_add(
-        topics.all_units("state"),
-        lambda c, u, m: judge.see(m.topic.split("/")[-2], decode(UnitState, m.payload)),
-    )
-    probe.subscribe(topics.all_units("state"), qos=0)
-    operator = OperatorPeer(probe_factory(), topics, "tester")
-    coordinator, _ = run_system(scenario(tmp_path), step_s=STEP)
-    fleet = vehicles()
-    fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0)
-    fleet.start()
-    world = coordinator.service.world
-    wait_for(
-        lambda: coordinator.call(lambda: sorted(world.capacities())) == [2.0, 3.0, 5.0],
-        timeout=20,
-        what="the coordinator knows both units and the vehicle, its capacity by its factsheet",
-    )
-    yield Mixed(operator, judge, coordinator, fleet)
-    operator.raw_estop(b"")
+) -> Iterator[Callable[..., Mixed]]:
+    """Factory: unit1 (2 kg) and unit2 (5 kg) of gridfleet's and a 2.1.0 vehicle agv1 (3 kg by
+    its factsheet, with `quirks`) at (0, 9) on the playfield, known to the coordinator."""
+    made: list[Mixed] = []
+
+    def start(quirks: frozenset[Quirk] = frozenset()) -> Mixed:
+        judge = Judge()
+        probe = probe_factory()
+        probe.client.message_callback_add(
+            topics.all_units("state"),
+            lambda c, u, m: judge.see(m.topic.split("/")[-2], decode(UnitState, m.payload)),
+        )
+        probe.subscribe(topics.all_units("state"), qos=0)
+        operator = OperatorPeer(probe_factory(), topics, "tester")
+        coordinator, _ = run_system(scenario(tmp_path), step_s=STEP)
+        fleet = vehicles()
+        fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0, quirks=quirks)
+        fleet.start()
+        world = coordinator.service.world
+        wait_for(
+            lambda: coordinator.call(lambda: sorted(world.capacities())) == [2.0, 3.0, 5.0],
+            timeout=20,
+            what="the coordinator knows both units and the vehicle, its capacity by its factsheet",
+        )
+        made.append(Mixed(operator, judge, coordinator, fleet))
+        return made[-1]
+
+    yield start
+    for m in made:
+        m.operator.raw_estop(b"")
+
+
+@pytest.fixture
+def mixed(mixed_fleet: Callable[..., Mixed]) -> Mixed:
+    """The mixed fleet with a vehicle that does as it is told."""
+    return mixed_fleet()
 
 
 @pytest.mark.timeout(180)
@@ -257,3 +270,35 @@ def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(mixed: Mix
     wait_for(lambda: operator.job_state(job) == "done", timeout=90, what="the job done")
     assert operator.listed_jobs()[job].unit == "unit2"
     assert mixed.judge.faults == []
+
+
+JOBS = {
+    "light-1": (Cell(1, 8), Cell(8, 8), 1.0),
+    "light-2": (Cell(5, 9), Cell(9, 5), 2.5),
+    "light-3": (Cell(0, 6), Cell(5, 0), 1.5),
+}
+
+
+@pytest.mark.timeout(180)
+@pytest.mark.parametrize("quirk", ["reject_updates", "no_route"])
+def test_a_vehicle_refusing_what_the_spec_lets_it_refuse_strands_no_job(
+    mixed_fleet: Callable[..., Mixed], quirk: Quirk
+) -> None:
+    # Refusing every update, it drives each order's first release and stops: its orders end
+    # there and start anew. Refusing every route, it never moves: it is lost to the fleet.
+    mixed = mixed_fleet(frozenset({quirk}))
+    operator = mixed.operator
+    for job_id, (pickup, dropoff, mass) in JOBS.items():
+        assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
+    wait_for(lambda: operator.all_final(list(JOBS)), timeout=150, what="every job final")
+    listed = operator.listed_jobs()
+    assert {j: listed[j].state for j in JOBS} == dict.fromkeys(JOBS, "done"), listed
+    assert mixed.judge.faults == []
+    refusals = [e["errorType"] for n, m in mixed.agv1.sent if n == "state" for e in m["errors"]]
+    if quirk == "no_route":
+        assert "noRouteError" in refusals
+        assert operator.connections("agv1")[-1] == "broken"
+        assert all(listed[j].unit != "agv1" for j in JOBS)
+    else:
+        assert "orderUpdateError" in refusals
+        assert any(listed[j].unit == "agv1" for j in JOBS)  # it still did its share

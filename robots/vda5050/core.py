@@ -60,6 +60,8 @@ Link = Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]
 Check = Callable[[VdaTopic, dict[str, Any]], None]
 VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order costs a stop
 MODEL = "vda5050"
+REFUSALS = {"orderUpdateError", "noRouteError"}
+REFUSALS_TO_GIVE_UP = 3
 
 
 class VehicleCore:
@@ -106,6 +108,8 @@ class VehicleCore:
         self.job_id: str | None = None
         self.load_kg = 0.0
         self.errors: list[UnitError] = []
+        self.refused_orders = 0  # new orders refused in a row (noRouteError, orderUpdateError)
+        self.unroutable = False
         self.step = 0
         self._quiet = 0
         self._told: tuple[object, ...] | None = None
@@ -179,18 +183,63 @@ class VehicleCore:
         else:
             self.square = square
         self._actions_done(view)
+        self._refusals(message)
         if view.estop and not self.pressed:
             self.pressed = True
             press = EstopSignal(True, self.id, "the vehicle's own emergency stop")
             outs.append(Outbound.of("stop", self.topics.unit("stop", self.id), encode_estop(press)))
         elif not view.estop:
             self.pressed = False
-        if not view.can_drive:
-            why = "; ".join(view.fatal) or ("its emergency stop" if view.estop else "not AUTOMATIC")
+        if not self._can_drive():
+            why = "; ".join(view.fatal) or (
+                "its emergency stop"
+                if view.estop
+                else "it refuses every route"
+                if self.unroutable
+                else "not AUTOMATIC"
+            )
             if self.announced and not view.estop:
                 self.errors.append(UnitError(code="vehicle_down", message=why[:200]))
                 return outs + self._goodbye("broken")
         return outs + (self._announce(now) or self.state())
+
+    def _refusals(self, message: VdaState) -> None:
+        """An order or update the vehicle refused: what it will not drive is not released.
+
+        The spec lets a vehicle refuse an update (`orderUpdateError`) or a route
+        (`noRouteError`); it then finishes what it had accepted and stops. Once it has, the
+        order ends here too: the squares it refused are no longer reported as released (the
+        coordinator plans the unit afresh from its square), and actions it never took are
+        dropped. A vehicle that refuses REFUSALS_TO_GIVE_UP new orders in a row, and says so
+        still, counts as unable to drive: its unit is lost to the fleet and its job goes to
+        another.
+        """
+        ours = self.orders.order_id
+        # An error naming another order is about one gone by (a state older than our order).
+        refused = {
+            e.errorType
+            for e in message.errors
+            if e.errorType in REFUSALS and e.about("orderId") in (None, ours)
+        }
+        if not refused:
+            if not any(e.errorType in REFUSALS for e in message.errors):
+                self.refused_orders = 0
+                self.unroutable = False
+            return
+        if ours is None or message.driving or self.nodes_left:
+            return  # still on what it accepted
+        if message.orderId != ours:
+            self.refused_orders += 1  # it never took the current order
+        self.unroutable = self.refused_orders >= REFUSALS_TO_GIVE_UP
+        taken = {a.actionId for a in message.actionStates}
+        self.actions = {k: a for k, a in self.actions.items() if k in taken}
+        self.errors.append(
+            UnitError(code="order_refused", message=f"the vehicle refused: {sorted(refused)}")
+        )
+        self.orders.end()
+
+    def _can_drive(self) -> bool:
+        return self.view is not None and self.view.can_drive and not self.unroutable
 
     def _off_route(self, view: VehicleView) -> str:
         under = sorted(list(c) for c in view.under)
@@ -317,7 +366,7 @@ class VehicleCore:
         """`online`, the factsheet and the state, once everything they need is known."""
         if self.announced or self.link != "ONLINE" or self.capacity_kg is None:
             return []
-        if self.square is None or self.view is None or not self.view.can_drive:
+        if self.square is None or not self._can_drive():
             return []
         self.announced = True
         self._sent_direction = None

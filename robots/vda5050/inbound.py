@@ -49,10 +49,20 @@ class _Position(_Part):
     deviationRange: Annotated[Number, Field(ge=0)] = 0.0
 
 
+class _Reference(_Part):
+    referenceKey: str
+    referenceValue: str
+
+
 class _Error(_Part):
     errorType: str
     errorLevel: Literal["WARNING", "FATAL"]
     errorDescription: str | None = None
+    errorReferences: list[_Reference] = Field(default_factory=list)
+
+    def about(self, key: str) -> str | None:
+        """The value of its reference `key` (e.g. the `orderId` it is about), if it has one."""
+        return next((r.referenceValue for r in self.errorReferences if r.referenceKey == key), None)
 
 
 class _ActionState(_Part):
