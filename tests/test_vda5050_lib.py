@@ -9,7 +9,9 @@ import os
 import signal
 import subprocess
 import threading
+import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -107,9 +109,26 @@ class VdaWire:
             if not payload:
                 continue  # a retained message cleared
             name = topic.rsplit("/", 1)[-1]
-            for problem in schemas.problems("2.0.0", name, json.loads(payload)):  # type: ignore[arg-type]
+            for problem in schemas.problems("2.0.0", name, json.loads(payload)):
                 found.append(f"{topic}: {problem}")
         return found
+
+
+@dataclass
+class LibFleet:
+    """The running fleet with vda-5050-lib's vehicles, and what the test sees of it."""
+
+    operator: OperatorPeer
+    judge: Judge
+    wire: VdaWire
+    agvs: LibAgvs
+    serials: dict[str, str]  # unit -> the vehicle's serial number
+
+    def vehicle_states(self, unit: str) -> list[dict[str, Any]]:
+        """Every state the vehicle of `unit` published, in order."""
+        topic = f"uagv/v2/vdalib/{self.serials[unit]}/state"
+        with self.wire.lock:
+            return [json.loads(p) for t, p in self.wire.seen if t == topic]
 
 
 @pytest.fixture
@@ -120,7 +139,7 @@ def lib_fleet(
     probe_factory: Callable[..., MqttProbe],
     topics: Topics,
     tmp_path: Path,
-) -> Iterator[tuple[OperatorPeer, Judge, VdaWire, ServiceThread[Any]]]:
+) -> Iterator[LibFleet]:
     """unit1 (2 kg) and unit2 (5 kg) of gridfleet's, vda-5050-lib's vl-1 (3 kg) at (0, 9) and
     vl-2 (4 kg) at (9, 9) as agv1 and agv2, all known to the coordinator."""
     judge = Judge()
@@ -134,16 +153,17 @@ def lib_fleet(
     operator = OperatorPeer(probe_factory(), topics, "tester")
     path = scenario(tmp_path)
     coordinator, _ = run_system(path, step_s=STEP)
-    agvs = LibAgvs(
-        broker.url,
-        {f"{root.replace('/', '-')}-1": Cell(0, 9), f"{root.replace('/', '-')}-2": Cell(9, 9)},
-    )
-    serials = [a["serialNumber"] for a in json.loads(agvs.process.args[2])["agvs"]]  # type: ignore[index]
+    name = root.replace("/", "-")
+    serials = {"agv1": f"{name}-1", "agv2": f"{name}-2"}
+    agvs = LibAgvs(broker.url, {serials["agv1"]: Cell(0, 9), serials["agv2"]: Cell(9, 9)})
     configs = [
         VehicleConfig(
             Vehicle(unit, "vdalib", serial, "2.0.0"), FRAME, capacity, 0.0, True, LIB_ACTIONS
         )
-        for unit, serial, capacity in (("agv1", serials[0], 3.0), ("agv2", serials[1], 4.0))
+        for unit, serial, capacity in (
+            ("agv1", serials["agv1"], 3.0),
+            ("agv2", serials["agv2"], 4.0),
+        )
     ]
     from gridfleet.scenario import load_scenario
 
@@ -159,7 +179,7 @@ def lib_fleet(
             timeout=30,
             what="the coordinator knows both units and both vehicles",
         )
-        yield operator, judge, wire, coordinator
+        yield LibFleet(operator, judge, wire, agvs, serials)
     finally:
         operator.raw_estop(b"")
         adapter.stop()
@@ -168,9 +188,9 @@ def lib_fleet(
 
 @pytest.mark.timeout(240)
 def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
-    lib_fleet: tuple[OperatorPeer, Judge, VdaWire, ServiceThread[Any]],
+    lib_fleet: LibFleet,
 ) -> None:
-    operator, judge, wire, _ = lib_fleet
+    operator, judge, wire = lib_fleet.operator, lib_fleet.judge, lib_fleet.wire
     jobs = {
         "j1": (Cell(1, 8), Cell(8, 8), 1.0),
         "j2": (Cell(8, 6), Cell(1, 1), 3.5),  # over 3 kg: agv2 (4 kg) or unit2
@@ -188,6 +208,68 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
     assert wire.problems() == []
     topics = {t.rsplit("/", 1)[-1] for t, _ in wire.seen}
     assert topics >= {"order", "state", "connection"}
+
+
+def _agv1_job(fleet: LibFleet) -> str:
+    """A 2.5 kg job from beside agv1 (too heavy for unit1; agv2 and unit2 are far)."""
+    assert fleet.operator.submit_job(Cell(0, 6), Cell(9, 8), 2.5, job_id="crate").accepted
+    wait_for(
+        lambda: any(s["driving"] for s in fleet.vehicle_states("agv1")),
+        timeout=30,
+        what="agv1 driving",
+    )
+    assert fleet.operator.listed_jobs()["crate"].unit == "agv1"
+    return "crate"
+
+
+STOPPING_M = 0.05  # how far a vehicle may still move once it says it is paused: half a square
+
+
+@pytest.mark.timeout(180)
+def test_the_fleet_stop_pauses_vda_5050_lib_agvs_and_the_release_resumes_them(
+    lib_fleet: LibFleet,
+) -> None:
+    job = _agv1_job(lib_fleet)
+    lib_fleet.operator.engage("test")
+    for unit in ("agv1", "agv2"):
+        wait_for(
+            lambda u=unit: any(s.get("paused") for s in lib_fleet.vehicle_states(u)),
+            timeout=10,
+            what=f"{unit} paused",
+        )
+    # Measuring over a span of time: once it says it is paused, it stays (within a stopping
+    # distance of the first paused position).
+    time.sleep(1.5)
+    states = lib_fleet.vehicle_states("agv1")
+    first = next(i for i, s in enumerate(states) if s.get("paused"))
+    x0, y0 = states[first]["agvPosition"]["x"], states[first]["agvPosition"]["y"]
+    for later in states[first:]:
+        assert later["paused"], "resumed before the release"
+        moved = (
+            (later["agvPosition"]["x"] - x0) ** 2 + (later["agvPosition"]["y"] - y0) ** 2
+        ) ** 0.5
+        assert moved <= STOPPING_M, later
+    lib_fleet.operator.release("checked")
+    wait_for(lambda: lib_fleet.operator.job_state(job) == "done", timeout=90, what="job done")
+    assert lib_fleet.judge.faults == []
+
+
+@pytest.mark.timeout(180)
+def test_killed_vda_5050_lib_agvs_are_lost_and_their_job_goes_to_a_unit(
+    lib_fleet: LibFleet,
+) -> None:
+    job = _agv1_job(lib_fleet)
+    lib_fleet.agvs.process.kill()  # no goodbye: the broker sends their last wills
+    lib_fleet.agvs.process.wait(10)
+    for unit in ("agv1", "agv2"):
+        wait_for(
+            lambda u=unit: lib_fleet.operator.connections(u)[-1:] == ["broken"],
+            timeout=20,
+            what=f"{unit} lost",
+        )
+    wait_for(lambda: lib_fleet.operator.job_state(job) == "done", timeout=120, what="job done")
+    assert lib_fleet.operator.listed_jobs()[job].unit == "unit2"
+    assert lib_fleet.judge.faults == []
 
 
 def test_the_node_runner_is_installed() -> None:

@@ -46,9 +46,11 @@ class Schemas:
                     raise ConfigError(f"{path}: cannot read the schema: {exc}") from None
                 self._validators[(version, topic)] = Draft202012Validator(schema)
 
-    def problems(self, version: Version, topic: VdaTopic, message: Any) -> list[str]:
+    def problems(self, version: Version, topic: VdaTopic | str, message: Any) -> list[str]:
         """What is wrong with `message` on `topic` of `version` (empty: valid)."""
-        validator = self._validators[(version, topic)]
+        validator = self._validators.get((version, topic))
+        if validator is None:
+            return [f"{topic!r} is not a VDA 5050 topic"]
         return sorted(
             f"{'.'.join(str(p) for p in e.absolute_path) or 'message'}: {e.message}"
             for e in validator.iter_errors(message)
