@@ -325,3 +325,96 @@ def test_a_vehicle_refusing_every_route_is_lost_to_the_fleet() -> None:
     old = state(agvPosition=at(0, 0), errors=[refusal("noRouteError", "gf-old-1", 0)])
     st = unit_state(c2.on_vehicle("state", vda(old), T0))
     assert st.released == [(1, 0)] and st.errors == []
+
+
+def test_a_job_dropped_after_its_action_was_sent_cancels_the_order_and_ends_on_one_square() -> None:
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=1.0)
+    sent = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], action=pick), T0)
+    first_id = json.loads(sent[0].payload)["orderId"]
+    # The job is cancelled: the coordinator's next order has no action. The vehicle's order goes.
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(2, []), T0 + 1)
+    assert kinds(outs) == ["instantActions", "units/agv1/state"]
+    cancel = json.loads(outs[0].payload)["actions"][0]
+    assert cancel["actionType"] == "cancelOrder"
+    st = unit_state(outs)
+    assert (st.order_update_id, st.released) == (2, [(1, 0)])  # still reserved meanwhile
+    # Until the vehicle says it is done, gridfleet's releases go nowhere.
+    held = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, [Cell(1, 0)]), T0 + 1)
+    assert kinds(held) == ["units/agv1/state"]
+    # It stopped half way: a new order from its square takes it on to the next, still released.
+    done = state(
+        agvPosition={**at(0, 0), "x": 0.05},
+        orderId=first_id,
+        actionStates=[
+            {
+                "actionId": cancel["actionId"],
+                "actionType": "cancelOrder",
+                "actionStatus": "FINISHED",
+            },
+            {"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "FAILED"},
+        ],
+    )
+    outs = c.on_vehicle("state", vda(done), T0 + 2)
+    assert kinds(outs)[0] == "order"
+    again = json.loads(outs[0].payload)
+    assert again["orderId"] != first_id and again["orderUpdateId"] == 0
+    assert [(n["nodeId"], n["released"]) for n in again["nodes"]] == [
+        ("sq-0-0", True),
+        ("sq-1-0", True),
+    ]
+    assert all(a == [] for a in (n["actions"] for n in again["nodes"]))
+    st = unit_state(outs)
+    assert (st.position, st.released, st.job_id) == ((0, 0), [(1, 0)], None)
+
+
+def test_no_order_to_cancel_from_a_vehicle_that_stopped_ends_the_order_too() -> None:
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=1.0)
+    c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], action=pick), T0)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(2, []), T0 + 1)
+    cancel = json.loads(outs[0].payload)["actions"][0]["actionId"]
+    # Still driving when it says so: its squares stay released.
+    refused = {"actionId": cancel, "actionType": "cancelOrder", "actionStatus": "FAILED"}
+    moving = state(
+        agvPosition={**at(0, 0), "x": 0.05},
+        driving=True,
+        nodeStates=[{"nodeId": "sq-1-0", "sequenceId": 2, "released": True}],
+        actionStates=[refused],
+    )
+    assert unit_state(c.on_vehicle("state", vda(moving), T0 + 2)).released == [(1, 0)]
+    # Stopped on (1, 0) with nothing left, it answers the next cancel the same: the order ends.
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, []), T0 + 3)
+    cancel = json.loads(outs[0].payload)["actions"][0]["actionId"]
+    refused = {"actionId": cancel, "actionType": "cancelOrder", "actionStatus": "FAILED"}
+    stopped = state(agvPosition=at(1, 0), actionStates=[refused])
+    st = unit_state(c.on_vehicle("state", vda(stopped), T0 + 4))
+    assert (st.position, st.released, st.status) == ((1, 0), [], "idle")
+
+
+def test_under_the_stop_a_vehicle_that_let_go_of_its_pause_is_paused_again() -> None:
+    c = core()
+    online(c)
+    latch = TOPICS.fleet("estop")
+    c.on_fleet(latch, encode_estop(EstopSignal(True, "dashboard", "")), T0)
+    paused = c.on_vehicle("state", vda(state(agvPosition=at(0, 0), paused=True)), T0 + 1)
+    assert "instantActions" not in kinds(paused)
+    # A cancel ended its pause (vda-5050-lib's does): paused again at once.
+    outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0), paused=False)), T0 + 2)
+    assert kinds(outs)[0] == "instantActions"
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "startPause"
+
+
+def test_under_the_stop_a_dropped_action_cancels_nothing_until_the_release() -> None:
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=1.0)
+    c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], action=pick), T0)
+    c.on_fleet(TOPICS.fleet("estop"), encode_estop(EstopSignal(True, "dashboard", "")), T0)
+    halted = c.on_fleet(TOPICS.unit("order", "agv1"), order(2, []), T0 + 1)
+    assert kinds(halted) == ["units/agv1/state"]  # no cancelOrder under the stop
+    c.on_fleet(TOPICS.fleet("estop"), encode_estop(EstopSignal(False, "dashboard", "")), T0 + 2)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, []), T0 + 3)
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "cancelOrder"

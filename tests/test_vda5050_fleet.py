@@ -9,6 +9,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -219,6 +220,10 @@ def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_i
     for name, message in [*virtual.received, *virtual.sent]:
         assert schemas.problems("2.1.0", name, message) == [], (name, message)
     assert {name for name, _ in virtual.received} >= {"order", "instantActions"}
+    # Stamped with the time of day (the adapter once wrote its monotonic clock: 1970).
+    for _, message in virtual.received:
+        sent_at = datetime.fromisoformat(message["timestamp"].replace("Z", "+00:00"))
+        assert abs(sent_at.timestamp() - time.time()) < 600, message["timestamp"]
 
 
 def _agv1_job(operator: OperatorPeer) -> str:
@@ -302,3 +307,36 @@ def test_a_vehicle_refusing_what_the_spec_lets_it_refuse_strands_no_job(
     else:
         assert "orderUpdateError" in refusals
         assert any(listed[j].unit == "agv1" for j in JOBS)  # it still did its share
+
+
+@pytest.mark.timeout(120)
+def test_a_cancelled_job_cancels_the_vehicles_order_and_it_ends_idle(mixed: Mixed) -> None:
+    operator, virtual = mixed.operator, mixed.agv1
+    job = _agv1_job(operator)
+    assert operator.cancel_job(job).accepted
+    wait_for(
+        lambda: any(
+            a["actionType"] == "cancelOrder"
+            for n, m in virtual.received
+            if n == "instantActions"
+            for a in m["actions"]
+        ),
+        timeout=10,
+        what="cancelOrder sent",
+    )
+    wait_for(
+        lambda: (
+            (s := operator.last_state("agv1")) is not None
+            and s.status == "idle"
+            and not s.released
+            and s.job_id is None
+        ),
+        timeout=20,
+        what="agv1 idle, nothing released, carrying nothing",
+    )
+    assert operator.job_state(job) == "cancelled"
+    assert not virtual.core.nodes and not virtual.core.driving
+    # And it takes the next job as before.
+    assert operator.submit_job(Cell(0, 6), Cell(9, 8), 2.5, job_id="next").accepted
+    wait_for(lambda: operator.job_state("next") == "done", timeout=60, what="the next job done")
+    assert mixed.judge.faults == []

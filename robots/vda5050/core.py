@@ -108,6 +108,8 @@ class VehicleCore:
         self.job_id: str | None = None
         self.load_kg = 0.0
         self.errors: list[UnitError] = []
+        self.cancelling: str | None = None  # the cancelOrder in flight, by its action id
+        self.cancel_ended = False  # a cancel done under the stop, its order to end on the release
         self.refused_orders = 0  # new orders refused in a row (noRouteError, orderUpdateError)
         self.unroutable = False
         self.step = 0
@@ -182,7 +184,19 @@ class VehicleCore:
             outs += self._pause(now)  # it is where the fleet did not send it: hold it
         else:
             self.square = square
+        if self.stop.engaged and not view.paused:
+            # The stop always wins: a vehicle that let go of its pause (a cancel ends a pause
+            # on some; a restart forgets it) is paused again.
+            self.pause_sent = False
+            outs += self._pause(now)
         self._actions_done(view)
+        if self.cancelling is not None and self.cancelling in view.finished | view.failed:
+            self.cancelling = None
+            if not view.driving and self.nodes_left == 0:
+                # Done, or there was nothing to cancel (noOrderToCancel): it has stopped.
+                outs += self._after_cancel(view, now)
+            # Else it drives on what it was released (reserved still): the next order that
+            # finds the dropped action cancels again.
         self._refusals(message)
         if view.estop and not self.pressed:
             self.pressed = True
@@ -281,10 +295,13 @@ class VehicleCore:
     def _follow_stop(self, now: float) -> list[Outbound]:
         if self.stop.engaged:
             return self._pause(now)
+        outs: list[Outbound] = []
         if self.pause_sent:
             self.pause_sent = False
-            return self._instant("stopPause", now)
-        return []
+            outs += self._instant("stopPause", now)
+        if self.cancel_ended and self.view is not None:
+            outs += self._after_cancel(self.view, now)
+        return outs
 
     def _pause(self, now: float) -> list[Outbound]:
         if self.pause_sent or self.link != "ONLINE":
@@ -308,6 +325,17 @@ class VehicleCore:
         problem = self._bad_release(released)
         if problem is not None:
             return self._refuse(topic, problem)
+        dropped = self._dropped_actions(order.action)
+        if dropped or self.cancelling is not None:
+            # The job of an action already sent was cancelled or went elsewhere: what the
+            # vehicle was released cannot be taken back, so its whole order is cancelled (not
+            # under the stop: on some vehicles a cancel ends their pause). Until that is done,
+            # gridfleet's orders are acknowledged and go nowhere.
+            self.order_id, self.update_id = order.order_id, order.update_id
+            if dropped and self.cancelling is None and not self.stop.engaged:
+                self.cancelling = f"cancelOrder-{next(self._ids)}"
+                return self._instant("cancelOrder", now, self.cancelling) + self.state()
+            return self.state()
         if released and self._finished_base():
             self.orders.end()  # it stands at the end of its order: the next one is new
         try:
@@ -321,6 +349,29 @@ class VehicleCore:
                 self.actions[f"{order.action.kind}-{order.action.job_id}"] = order.action
             outs.append(self._to_vehicle("order", message))
         return outs + self.state()
+
+    def _dropped_actions(self, wanted: Action | None) -> bool:
+        """Whether an action sent to the vehicle, not done yet, is no longer gridfleet's."""
+        return any(
+            wanted is None or (a.kind, a.job_id) != (wanted.kind, wanted.job_id)
+            for a in self.actions.values()
+        )
+
+    def _after_cancel(self, view: VehicleView, now: float) -> list[Outbound]:
+        """The vehicle's order is cancelled: it ends here, where it stopped."""
+        if self.stop.engaged:
+            self.cancel_ended = True  # under the stop nothing new goes out: on the release
+            return []
+        self.cancel_ended = False
+        ahead = self.released()[:1]
+        self.actions = {}
+        self.orders.end()
+        if self.square is None or view.under == {self.square} or not ahead:
+            return []
+        # It stopped between its square and the next (a vehicle may stop at once): the next
+        # stays released to it, and a new order from its square takes it on to that one.
+        message = self.orders.order(self.square, ahead, [], None, now)
+        return [] if message is None else [self._to_vehicle("order", message)]
 
     def _bad_release(self, released: list[Cell]) -> str | None:
         """Why gridfleet's release cannot be driven (rule 3), or None."""
@@ -344,11 +395,13 @@ class VehicleCore:
 
     # ---- what goes out ------------------------------------------------------------------------
 
-    def _instant(self, kind: InstantKind, now: float) -> list[Outbound]:
+    def _instant(
+        self, kind: InstantKind, now: float, action_id: str | None = None
+    ) -> list[Outbound]:
         message = instant_action(
             self.headers,
             kind,
-            f"{kind}-{next(self._ids)}",
+            action_id or f"{kind}-{next(self._ids)}",
             now,
             legacy_actions_key=self.config.legacy_actions_key,
         )
@@ -419,8 +472,10 @@ class VehicleCore:
     def released(self) -> list[Cell]:
         """The squares of its base it has not driven yet: the coordinator keeps them reserved."""
         base = list(self.orders.base)
-        if self.square is None or self.square not in base:
+        if self.square is None:
             return []
+        if self.square not in base:
+            return base  # an order from the square it is entering (after a cancel)
         return base[len(base) - 1 - base[::-1].index(self.square) + 1 :]
 
     def direction(self) -> Direction | None:

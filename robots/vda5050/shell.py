@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 import uuid
 from collections.abc import Sequence
 
@@ -87,7 +88,7 @@ class AdapterShell:
         return list(seen.items())
 
     def _now(self) -> float:
-        return asyncio.get_running_loop().time()
+        return time.time()  # VDA 5050's headers carry the time of day
 
     async def run(self, shutdown: asyncio.Event) -> None:
         """Carry the vehicles until `shutdown` is set; then their units say `offline`."""
@@ -126,12 +127,12 @@ class AdapterShell:
             await self._send(self._by_unit[who].on_fleet(topic, payload, now))
 
     async def _ticks(self, shutdown: asyncio.Event) -> None:
-        due = self._now()
+        due = time.monotonic()
         while not shutdown.is_set():
             due += self.step_s
-            delay = due - self._now()
+            delay = due - time.monotonic()
             if delay < -self.step_s:
-                due = self._now()  # fell far behind: no burst of catching up
+                due = time.monotonic()  # fell far behind: no burst of catching up
             elif delay > 0:
                 await asyncio.sleep(delay)
             now = self._now()

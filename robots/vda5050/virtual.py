@@ -3,7 +3,8 @@
 For trying the adapter without hardware and for the tests' 2.1.0 parts (the factsheet) and the
 behaviours the specification allows a vehicle and `vda-5050-lib` does not show: states only on
 events and every `state_every_s` (up to 30 s), QoS 0, refusing an order update
-(`orderUpdateError`), a route it cannot drive (`noRouteError`), `noOrderToCancel`.
+(`orderUpdateError`), a route it cannot drive (`noRouteError`), `noOrderToCancel` when it has
+no order.
 
 It drives its released nodes in order at `speed` (m/s) along straight edges, stops at once when
 paused (a stopping distance of 0), does a node's `pick`/`drop` standing still for `action_s`, and
@@ -19,8 +20,9 @@ from typing import Any, Literal
 
 from gridfleet.robots.vda5050.wire import Headers, VdaTopic, Vehicle
 
+REACH_M = 0.11  # how far from an order's first node it may stand and take the order
 Message = tuple[VdaTopic, dict[str, Any]]  # (topic, message) to publish
-Quirk = Literal["reject_updates", "no_route", "no_order_to_cancel"]
+Quirk = Literal["reject_updates", "no_route"]
 
 
 @dataclass
@@ -109,7 +111,10 @@ class VirtualVehicle:
             if any(n.released for n in self.nodes):
                 return self._refuse("orderUpdateError", "an order is still under way", order, now)
             at = first["nodePosition"]
-            if math.dist((at["x"], at["y"]), (self.x, self.y)) > 0.05:
+            # Within a square of it: stopped between two nodes, it may start at the next.
+            if math.dist((at["x"], at["y"]), (self.x, self.y)) > max(
+                REACH_M, at.get("allowedDeviationXY", 0.0)
+            ):
                 why = "the first node is not where it stands"
                 return self._refuse("noRouteError", why, order, now)
             self.last_node = (first["nodeId"], first["sequenceId"])
@@ -173,8 +178,7 @@ class VirtualVehicle:
             elif kind == "stopPause":
                 self.paused = False
             elif kind == "cancelOrder":
-                idle = not self.nodes and not self._running()
-                if idle or "no_order_to_cancel" in self.spec.quirks:
+                if not self.nodes and not self._running():
                     done.status = "FAILED"
                     self.errors.append(
                         {
