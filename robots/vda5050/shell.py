@@ -73,11 +73,7 @@ class AdapterShell:
             subscriptions=self.subscriptions,
             backoff=Backoff(reconnect_s, max_reconnect_s),
         )
-
-    @property
-    def ready(self) -> asyncio.Event:
-        """Set while connected and subscribed."""
-        return self.endpoint.online
+        self.ready = self.endpoint.online  # set while connected and subscribed
 
     def subscriptions(self) -> list[tuple[str, int]]:
         """Every vehicle's topics and every unit's, once each."""

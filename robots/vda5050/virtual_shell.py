@@ -42,11 +42,7 @@ class VirtualVehicleShell:
             online=lambda: self._connection("ONLINE"),
             offline=lambda: self._connection("OFFLINE"),
         )
-
-    @property
-    def ready(self) -> asyncio.Event:
-        """Set while connected and subscribed."""
-        return self.endpoint.online
+        self.ready = self.endpoint.online  # set while connected and subscribed
 
     def _connection(self, state: Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]) -> Outbound:
         message = self.core.connection(state, time.time())
