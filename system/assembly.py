@@ -71,6 +71,7 @@ class SystemSpec:
     robots: bool = (
         True  # processes only: run the scenario's simulated units (not: they join from elsewhere)
     )
+    vehicles: Path | None = None  # processes only: VDA 5050 vehicles, their adapter's file
 
 
 def cli(*args: str) -> list[str]:
@@ -254,6 +255,10 @@ class Assembly:
         )
         if spec.robots:
             system.children["robots"] = await sup.start(self._robots(common, step))
+        if spec.vehicles is not None:
+            adapter = cli("vda5050", *common, "--vehicles", str(spec.vehicles))
+            adapter += ["--scenario", scenario, *step]
+            system.children["vda5050"] = await sup.start(ChildSpec("vda5050", adapter))
         if spec.dashboard_port is not None:
             assert system.ws_url is not None
             dashboard = cli(

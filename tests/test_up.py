@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.grid import Cell
 from gridfleet.protocol import Connection, Topics, decode
 from gridfleet.system.broker_thread import BrokerThread
 
@@ -203,3 +204,78 @@ def test_up_without_robots_runs_the_rest_for_units_that_join_from_elsewhere(
         proc.wait(timeout=60)
     assert proc.returncode == 0, out.text[-3000:]
     assert "[robots" not in out.text
+
+
+VEHICLES = """
+[maps.hall]
+[[vehicles]]
+unit = "agv1"
+manufacturer = "gridfleet"
+serial_number = "{serial}"
+version = "2.1.0"
+map = "hall"
+"""
+
+
+@pytest.mark.timeout(180)
+def test_up_with_vehicles_runs_the_vda5050_adapter_and_a_vehicle_joins_as_a_unit(
+    broker: BrokerThread,
+    root: str,
+    tmp_path: Path,
+    probe_factory: Callable[..., MqttProbe],
+    playfield: Path,
+) -> None:
+    from gridfleet.robots.vda5050.frame import Frame
+    from gridfleet.robots.vda5050.virtual import VirtualSpec
+    from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
+    from gridfleet.robots.vda5050.wire import Vehicle
+    from gridfleet.system.threads import ServiceThread
+
+    topics = Topics(root)
+    serial = root.replace("/", "-")
+    vehicles = tmp_path / "vehicles.toml"
+    vehicles.write_text(VEHICLES.format(serial=serial), encoding="utf-8")
+    frame = Frame("hall")
+    shell = VirtualVehicleShell(
+        Vehicle("agv1", "gridfleet", serial, "2.1.0"),
+        VirtualSpec(frame.position(Cell(5, 0)), "hall", capacity_kg=3.0),
+        broker.url,
+    )
+    probe = probe_factory()
+    probe.subscribe(topics.unit("connection", "agv1"))
+    with ServiceThread(lambda: shell, "vehicle"):
+        proc, out = started_up(
+            "--no-robots", "--vehicles", str(vehicles), "--broker", broker.url,
+            "--broker-ws", broker.ws_url, "--root", root, "--port", "0", "--step", "0.2",
+            "--db", str(tmp_path / "jobs.db"), "--scenario", str(playfield),
+        )  # fmt: skip
+        try:
+            assert re.search(r"^\[vda5050 *\] started", out.text, re.M), out.text
+            wait_for(
+                lambda: [decode(Connection, m.payload).state for m in
+                         probe.received(topics.unit("connection", "agv1"))][-1:] == ["online"],
+                timeout=30, what="agv1 online through the adapter",
+            )  # fmt: skip
+        finally:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text[-3000:]
+    states = [
+        decode(Connection, m.payload).state
+        for m in probe.received(topics.unit("connection", "agv1"))
+    ]
+    assert states[-1] == "offline"  # the adapter said goodbye for it
+
+
+def test_up_refuses_vehicles_with_accounts_until_their_accounts_exist(tmp_path: Path) -> None:
+    vehicles = tmp_path / "vehicles.toml"
+    vehicles.write_text(VEHICLES.format(serial="s1"), encoding="utf-8")
+    accounts = tmp_path / "accounts.toml"
+    accounts.write_text("", encoding="utf-8")
+    out = subprocess.run(
+        [sys.executable, "-m", "gridfleet", "up", "--vehicles", str(vehicles),
+         "--accounts", str(accounts), "--mqtt-port", "0"],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+    assert out.returncode == 2 and "started" not in out.stdout
+    assert "--vehicles with --accounts" in out.stderr.strip().splitlines()[-1]
