@@ -32,6 +32,7 @@ from gridfleet.protocol import (
     Connection,
     CoordinatorStatus,
     EstopSignal,
+    Factsheet,
     JobsView,
     Routes,
     StopView,
@@ -60,6 +61,7 @@ class FleetStatus:
     connections: dict[str, str] = field(default_factory=dict)  # unit -> online/offline/broken
     states: dict[str, UnitState] = field(default_factory=dict)
     controls: dict[str, str] = field(default_factory=dict)  # unit -> an operator's control of it
+    models: dict[str, str] = field(default_factory=dict)  # unit -> its factsheet's model
     jobs: JobsView | None = None
 
     def apply(self, kind: str, source: str | None, topic: str, payload: bytes) -> None:
@@ -87,6 +89,11 @@ class FleetStatus:
                 self.states.pop(source, None)
             else:
                 self.states[source] = decode(UnitState, payload)
+        elif kind == "factsheet" and source is not None:
+            if cleared:
+                self.models.pop(source, None)
+            else:
+                self.models[source] = decode(Factsheet, payload).model
 
 
 def _signal(signal: EstopSignal) -> str:
@@ -147,10 +154,14 @@ def unit_lines(fleet: FleetStatus) -> list[str]:
         status: str = "-" if state is None else state.status
         if control is not None:
             status += f", {control.replace('_', ' ')}"
+        link = fleet.connections.get(unit, "-")
+        vda = fleet.models.get(unit, "").removeprefix("vda5050-")
+        if vda != fleet.models.get(unit, ""):
+            link += f" (VDA 5050 {vda})"  # a vehicle the adapter carries
         rows.append(
             (
                 unit,
-                fleet.connections.get(unit, "-"),
+                link,
                 "-" if state is None else f"{state.position.x},{state.position.y}",
                 status,
                 "-" if state is None or state.job_id is None else state.job_id,
@@ -211,6 +222,7 @@ class StatusReader:
             *stop_filters(t),
             (t.all_units("connection"), TOPICS["connection"].qos),
             (t.all_units("state"), TOPICS["state"].qos),
+            (t.all_units("factsheet"), TOPICS["factsheet"].qos),
             (t.fleet("jobs"), TOPICS["jobs"].qos),
             (t.fleet("routes"), TOPICS["routes"].qos),
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),

@@ -12,7 +12,7 @@ from typing import Any
 
 import pytest
 
-from gridfleet.console.status import CLEAR, FleetStatus, render
+from gridfleet.console.status import CLEAR, FleetStatus, render, unit_lines
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     Connection,
@@ -267,3 +267,21 @@ def test_a_bad_timeout_is_one_line(timeout: str) -> None:
     assert out.stderr.splitlines() == [
         f"gridfleet status: error: --timeout {float(timeout):g}: give a positive number of seconds"
     ]
+
+
+def test_a_vda_5050_vehicle_says_so_beside_its_connection() -> None:
+    from gridfleet.protocol import Factsheet
+
+    sheet = Factsheet(
+        header=header("agv1"), capacity_kg=3.0, step_period_s=0.5, sensors=[], model="vda5050-2.1.0"
+    )
+    fleet = fed(
+        (T.unit("connection", "agv1"), Connection(header=header("agv1"), state="online")),
+        (T.unit("factsheet", "agv1"), sheet),
+        (T.unit("state", "agv1"), state("agv1", 0, 9)),
+    )
+    lines = unit_lines(fleet)
+    assert lines[0] == "units: 1, 1 online"
+    assert "online (VDA 5050 2.1.0)" in lines[2]
+    fleet.apply("factsheet", "agv1", T.unit("factsheet", "agv1"), b"")  # cleared
+    assert "VDA" not in unit_lines(fleet)[2]

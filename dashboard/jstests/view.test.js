@@ -13,6 +13,15 @@ test("the map's title", () => {
   assert.equal(mapTitle({ name: "playfield", width: 10, height: 10 }), "playfield 10 x 10");
 });
 
+test("a VDA 5050 vehicle's row says so beside its link", () => {
+  const v = new FleetView();
+  v.apply("connection", "agv1", JSON.stringify({ state: "online" }), 0);
+  v.apply("factsheet", "agv1", JSON.stringify({ capacity_kg: 3, step_period_s: 0.5, model: "vda5050-2.0.0" }), 0);
+  assert.deepEqual(unitCells(v.units.get("agv1"))[1], ["online · VDA 5050 2.0.0", "link vda"]);
+  v.apply("factsheet", "unit1", JSON.stringify({ capacity_kg: 3, step_period_s: 0.5, model: "gridfleet-sim" }), 0);
+  assert.deepEqual(unitCells(v.units.get("unit1"))[1], ["?", "link"]);
+});
+
 test("a unit's row: link, square, status with its reason, job and load of capacity", () => {
   const v = new FleetView();
   v.apply("connection", "unit1", JSON.stringify({ state: "online" }), 0);
