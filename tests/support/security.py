@@ -41,6 +41,7 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         coordinator.subscribe(t.all_units("factsheet"))
         coordinator.subscribe(t.all_requests)
         unit2.subscribe(t.unit("order", "unit2"))
+        unit2.subscribe(t.unit("state", "unit1"))  # its marker, below
         ghost = b'{"forged": "a ghost unit"}'
         unit1.publish(t.unit("factsheet", "ghost"), ghost, retain=True)
         unit1.publish(t.unit("state", "ghost"), ghost, retain=True)
@@ -48,8 +49,11 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         unit1.publish(t.unit("order", "unit2"), b'{"forged": true}')
         unit1.publish(t.request("clear_obstacles"), b'{"forged": "a cleared map"}')  # people only
         unit1.publish(t.unit("state", "unit1"), b'{"own": true}', retain=True)
-        # Its own state arrives; published after the forgeries, so they had their chance.
+        # Its own state arrives, at each listener; published after the forgeries on the same
+        # connection, and a broker keeps one client's messages in order for each subscriber, so
+        # the forgeries had their chance at each of them.
         wait_for(lambda: coordinator.received(t.unit("state", "unit1")), what="unit1's own state")
+        wait_for(lambda: unit2.received(t.unit("state", "unit1")), what="unit1's state at unit2")
         assert coordinator.received(t.unit("state", "unit2")) == []
         assert coordinator.received(t.unit("state", "ghost")) == []
         assert coordinator.received(t.unit("factsheet", "ghost")) == []
