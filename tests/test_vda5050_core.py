@@ -418,3 +418,21 @@ def test_under_the_stop_a_dropped_action_cancels_nothing_until_the_release() -> 
     c.on_fleet(TOPICS.fleet("estop"), encode_estop(EstopSignal(False, "dashboard", "")), T0 + 2)
     outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, []), T0 + 3)
     assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "cancelOrder"
+
+
+@needs_schemas
+def test_an_operators_pause_or_out_of_service_pauses_the_vehicle_until_lifted() -> None:
+    c = core()
+    online(c)
+    outs = c.on_control("paused", T0)
+    assert kinds(outs) == ["instantActions", "units/agv1/state"]
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "startPause"
+    assert c.on_control("paused", T0) == []  # said again: nothing
+    assert kinds(c.on_control("out_of_service", T0)) == []  # still held: nothing more to say
+    # Lifted while the fleet's stop holds: it stays paused until that is released too.
+    c.on_fleet(TOPICS.fleet("estop"), encode_estop(EstopSignal(True, "dashboard", "")), T0)
+    assert "instantActions" not in kinds(c.on_control(None, T0 + 1))
+    outs = c.on_fleet(
+        TOPICS.fleet("estop"), encode_estop(EstopSignal(False, "dashboard", "")), T0 + 2
+    )
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stopPause"

@@ -367,3 +367,19 @@ def test_bad_messages_on_a_vehicles_topics_are_reported_and_the_fleet_runs_on(
     assert operator.submit_job(Cell(0, 6), Cell(9, 8), 2.5, job_id="after").accepted
     wait_for(lambda: operator.job_state("after") == "done", timeout=60, what="the job done")
     assert operator.listed_jobs()["after"].unit == "agv1"
+
+
+@pytest.mark.timeout(120)
+def test_an_operators_pause_of_the_vehicles_unit_pauses_the_vehicle_and_resume_resumes_it(
+    mixed: Mixed,
+) -> None:
+    operator, virtual = mixed.operator, mixed.agv1
+    job = _agv1_job(operator)
+    sent = operator.send_control_unit("agv1", "pause")
+    assert operator.reply_to(sent.request_id).accepted
+    wait_for(lambda: virtual.core.paused, timeout=10, what="the vehicle paused")
+    sent = operator.send_control_unit("agv1", "resume")
+    assert operator.reply_to(sent.request_id).accepted
+    wait_for(lambda: not virtual.core.paused, timeout=10, what="the vehicle resumed")
+    wait_for(lambda: operator.job_state(job) == "done", timeout=60, what="the job done")
+    assert mixed.judge.faults == []

@@ -100,6 +100,7 @@ class VehicleCore:
         self.square: Cell | None = None
         self.stop = StopView()
         self.pause_sent = False
+        self.controlled = False  # an operator paused it or took it out of service
         self.pressed = False  # its own emergency stop pressed on the fleet's behalf
         self.announced = False  # the fleet was told `online` (and not `broken` since)
         self.order_id: str | None = None  # gridfleet's order, as acknowledged
@@ -184,7 +185,7 @@ class VehicleCore:
             outs += self._pause(now)  # it is where the fleet did not send it: hold it
         else:
             self.square = square
-        if self.stop.engaged and not view.paused:
+        if self._held() and not view.paused:
             # The stop always wins: a vehicle that let go of its pause (a cancel ends a pause
             # on some; a restart forgets it) is paused again.
             self.pause_sent = False
@@ -292,8 +293,22 @@ class VehicleCore:
             return self._on_order(topic, payload, now)
         return []
 
+    def _held(self) -> bool:
+        """Whether the vehicle must stay paused: the fleet's stop, or an operator's control."""
+        return self.stop.engaged or self.controlled
+
+    def on_control(self, control: str | None, now: float) -> list[Outbound]:
+        """An operator's control of the unit (fleet/routes): paused or out of service pauses
+        the vehicle where it is (a vehicle cannot be told to stop at the end of its base); its
+        squares stay released meanwhile."""
+        controlled = control in ("paused", "out_of_service")
+        if controlled == self.controlled:
+            return []
+        self.controlled = controlled
+        return self._follow_stop(now) + self.state()
+
     def _follow_stop(self, now: float) -> list[Outbound]:
-        if self.stop.engaged:
+        if self._held():
             return self._pause(now)
         outs: list[Outbound] = []
         if self.pause_sent:
@@ -332,7 +347,7 @@ class VehicleCore:
             # under the stop: on some vehicles a cancel ends their pause). Until that is done,
             # gridfleet's orders are acknowledged and go nowhere.
             self.order_id, self.update_id = order.order_id, order.update_id
-            if dropped and self.cancelling is None and not self.stop.engaged:
+            if dropped and self.cancelling is None and not self._held():
                 self.cancelling = f"cancelOrder-{next(self._ids)}"
                 return self._instant("cancelOrder", now, self.cancelling) + self.state()
             return self.state()
@@ -359,7 +374,7 @@ class VehicleCore:
 
     def _after_cancel(self, view: VehicleView, now: float) -> list[Outbound]:
         """The vehicle's order is cancelled: it ends here, where it stopped."""
-        if self.stop.engaged:
+        if self._held():
             self.cancel_ended = True  # under the stop nothing new goes out: on the release
             return []
         self.cancel_ended = False
@@ -424,7 +439,7 @@ class VehicleCore:
         self.announced = True
         self._sent_direction = None
         outs = [self._connection("online"), self._factsheet(), *self.state()]
-        if self.stop.engaged:
+        if self._held():
             outs = self._pause(now) + outs
         return outs
 

@@ -21,7 +21,7 @@ from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import Topics
+from gridfleet.protocol import TOPICS, Routes, Topics, decode
 from gridfleet.protocol.stop import STOP_KINDS
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.core import Check, VehicleCore
@@ -76,8 +76,8 @@ class AdapterShell:
         self.ready = self.endpoint.online  # set while connected and subscribed
 
     def subscriptions(self) -> list[tuple[str, int]]:
-        """Every vehicle's topics and every unit's, once each."""
-        seen: dict[str, int] = {}
+        """Every vehicle's topics and every unit's, once each, and the operators' controls."""
+        seen: dict[str, int] = {self.topics.fleet("routes"): 0}  # high rate: QoS 0
         for core in self.cores:
             for topic, qos in (*core.vehicle_subscriptions(), *core.fleet_subscriptions()):
                 seen[topic] = max(qos, seen.get(topic, 0))
@@ -119,8 +119,25 @@ class AdapterShell:
             return
         if kind in STOP_KINDS:
             await self._send([o for core in self.cores for o in core.on_fleet(topic, payload, now)])
+        elif kind == "routes":
+            await self._send(self._controls(payload, now))
         elif who in self._by_unit:
             await self._send(self._by_unit[who].on_fleet(topic, payload, now))
+
+    def _controls(self, payload: bytes, now: float) -> list[Outbound]:
+        """Operators' controls of the units, from the coordinator's routes (read once for all)."""
+        if not payload:
+            return []  # cleared
+        try:
+            routes = decode(Routes, payload, TOPICS["routes"].max_bytes).routes
+        except ProtocolError as exc:
+            log.warning("vda5050: ignored a bad routes message: %s", exc)
+            return []
+        outs: list[Outbound] = []
+        for core in self.cores:
+            route = routes.get(core.id)
+            outs += core.on_control(None if route is None else route.control, now)
+        return outs
 
     async def _ticks(self, shutdown: asyncio.Event) -> None:
         due = time.monotonic()
