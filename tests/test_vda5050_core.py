@@ -436,3 +436,29 @@ def test_an_operators_pause_or_out_of_service_pauses_the_vehicle_until_lifted() 
         TOPICS.fleet("estop"), encode_estop(EstopSignal(False, "dashboard", "")), T0 + 2
     )
     assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stopPause"
+
+
+def test_an_order_or_a_resume_the_vehicle_does_not_show_is_sent_again() -> None:
+    # A vehicle takes its messages at QoS 0: one may be lost on the way.
+    c = core()
+    online(c)
+    sent = json.loads(
+        c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)]), T0)[0].payload
+    )
+    assert [k for k in kinds(c.tick(T0 + 0.5)) if k == "order"] == []  # not yet
+    again = [o for o in c.tick(T0 + 1.5) if kinds([o]) == ["order"]]
+    assert len(again) == 1
+    resent = json.loads(again[0].payload)
+    assert (resent["orderId"], resent["orderUpdateId"]) == (sent["orderId"], sent["orderUpdateId"])
+    assert resent["headerId"] == sent["headerId"] + 1
+    # Its state shows it: no more.
+    c.on_vehicle("state", vda(state(agvPosition=at(0, 0), orderId=sent["orderId"])), T0 + 2)
+    assert "order" not in kinds(c.tick(T0 + 4))
+    # A resume that does not take: sent again after a second.
+    latch = TOPICS.fleet("estop")
+    c.on_fleet(latch, encode_estop(EstopSignal(True, "dashboard", "")), T0 + 5)
+    c.on_fleet(latch, encode_estop(EstopSignal(False, "dashboard", "")), T0 + 6)
+    still = state(agvPosition=at(0, 0), orderId=sent["orderId"], paused=True)
+    assert "instantActions" not in kinds(c.on_vehicle("state", vda(still), T0 + 6.5))
+    outs = c.on_vehicle("state", vda(still), T0 + 7.5)
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stopPause"

@@ -37,6 +37,10 @@ pytestmark = pytest.mark.slow
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 FRAME = Frame("hall")  # square (0, 0) at the origin, 0.1 m squares, y up
 STEP = 0.1
+# The adapter's clock (and the step period its units' factsheets give, which sets how long the
+# coordinator waits on their silence): longer than the fleet's, so that a machine shared with
+# other test workers does not make a vehicle's unit look lost between two heartbeats.
+ADAPTER_STEP = 0.2
 
 
 def scenario(tmp_path: Path) -> Path:
@@ -84,7 +88,7 @@ class Vehicles:
                 self.grid,
                 self.broker.url,
                 Topics(self.root),
-                step_s=STEP,
+                step_s=ADAPTER_STEP,
                 schemas=schemas,
             ),
             "vda5050",
@@ -235,7 +239,9 @@ def _agv1_job(operator: OperatorPeer) -> str:
         timeout=20,
         what="agv1 on its way",
     )
-    assert operator.listed_jobs()["crate"].unit == "agv1"
+    wait_for(
+        lambda: operator.listed_jobs()["crate"].unit == "agv1", timeout=20, what="crate to agv1"
+    )
     return "crate"
 
 
@@ -364,9 +370,8 @@ def test_bad_messages_on_a_vehicles_topics_are_reported_and_the_fleet_runs_on(
         what="every bad message reported",
     )
     assert operator.connections("agv1")[-1] == "online"  # none of it changed anything
-    assert operator.submit_job(Cell(0, 6), Cell(9, 8), 2.5, job_id="after").accepted
-    wait_for(lambda: operator.job_state("after") == "done", timeout=60, what="the job done")
-    assert operator.listed_jobs()["after"].unit == "agv1"
+    job = _agv1_job(operator)  # and it still drives
+    wait_for(lambda: operator.job_state(job) == "done", timeout=60, what="the job done")
 
 
 @pytest.mark.timeout(120)

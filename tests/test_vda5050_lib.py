@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_vda5050_fleet import STEP, Judge, scenario
+from test_vda5050_fleet import ADAPTER_STEP, STEP, Judge, scenario
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, UnitState, decode
@@ -173,7 +173,7 @@ def lib_fleet(
     grid = load_scenario(path).grid
     adapter = ServiceThread(
         lambda: AdapterShell(
-            configs, grid, broker.url, topics, step_s=STEP, schemas=official_if_here()
+            configs, grid, broker.url, topics, step_s=ADAPTER_STEP, schemas=official_if_here()
         ),
         "vda5050",
     ).start()
@@ -206,7 +206,8 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
         assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
     wait_for(lambda: operator.all_final(list(jobs)), timeout=180, what="every job final")
     listed = operator.listed_jobs()
-    assert {j: listed[j].state for j in jobs} == dict.fromkeys(jobs, "done"), listed
+    outcome = {j: (listed[j].state, listed[j].unit, listed[j].reason) for j in jobs}
+    assert {j: listed[j].state for j in jobs} == dict.fromkeys(jobs, "done"), outcome
     by_vehicles = {j for j in jobs if listed[j].unit in ("agv1", "agv2")}
     assert by_vehicles, {j: listed[j].unit for j in jobs}
     assert judge.faults == []
@@ -223,7 +224,11 @@ def _agv1_job(fleet: LibFleet) -> str:
         timeout=30,
         what="agv1 driving",
     )
-    assert fleet.operator.listed_jobs()["crate"].unit == "agv1"
+    wait_for(
+        lambda: fleet.operator.listed_jobs()["crate"].unit == "agv1",
+        timeout=20,
+        what="crate to agv1",
+    )
     return "crate"
 
 
@@ -255,7 +260,14 @@ def test_the_fleet_stop_pauses_vda_5050_lib_agvs_and_the_release_resumes_them(
         ) ** 0.5
         assert moved <= STOPPING_M, later
     lib_fleet.operator.release("checked")
-    wait_for(lambda: lib_fleet.operator.job_state(job) == "done", timeout=90, what="job done")
+    try:
+        wait_for(lambda: lib_fleet.operator.job_state(job) == "done", timeout=90, what="job done")
+    except AssertionError:
+        last = lib_fleet.vehicle_states("agv1")[-3:]
+        raise AssertionError(
+            f"{lib_fleet.operator.listed_jobs()[job]}\n{lib_fleet.operator.last_state('agv1')}\n"
+            f"{json.dumps(last)[-3000:]}"
+        ) from None
     assert lib_fleet.judge.faults == []
 
 

@@ -62,6 +62,7 @@ VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order c
 MODEL = "vda5050"
 REFUSALS = {"orderUpdateError", "noRouteError"}
 REFUSALS_TO_GIVE_UP = 3
+RESEND_S = 1.0  # an order or a resume not seen taking effect by then is sent again
 
 
 class VehicleCore:
@@ -100,6 +101,8 @@ class VehicleCore:
         self.square: Cell | None = None
         self.stop = StopView()
         self.pause_sent = False
+        self.resume_sent_at: float | None = None  # our stopPause, until it shows unpaused
+        self.unacked_order: tuple[dict[str, Any], float] | None = None  # sent, not yet seen
         self.controlled = False  # an operator paused it or took it out of service
         self.pressed = False  # its own emergency stop pressed on the fleet's behalf
         self.announced = False  # the fleet was told `online` (and not `broken` since)
@@ -177,6 +180,11 @@ class VehicleCore:
         view = read_state(message.model_dump(mode="json"), self.config.frame, self.config.margin_m)
         self.view = view
         self.vda_order = (message.orderId, message.orderUpdateId)
+        if self.unacked_order is not None:
+            sent = self.unacked_order[0]
+            refused = any(e.errorType in REFUSALS for e in message.errors)
+            if refused or self.vda_order == (sent["orderId"], sent["orderUpdateId"]):
+                self.unacked_order = None
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
         outs: list[Outbound] = []
         square = reported_square(self.square, view.under, self.orders.base)
@@ -185,6 +193,12 @@ class VehicleCore:
             outs += self._pause(now)  # it is where the fleet did not send it: hold it
         else:
             self.square = square
+        if not self._held() and view.paused and self.resume_sent_at is not None:
+            if now - self.resume_sent_at >= RESEND_S:
+                outs += self._instant("stopPause", now)  # the last one may have been lost
+                self.resume_sent_at = now
+        elif not view.paused:
+            self.resume_sent_at = None
         if self._held() and not view.paused:
             # The stop always wins: a vehicle that let go of its pause (a cancel ends a pause
             # on some; a restart forgets it) is paused again.
@@ -313,6 +327,7 @@ class VehicleCore:
         outs: list[Outbound] = []
         if self.pause_sent:
             self.pause_sent = False
+            self.resume_sent_at = now
             outs += self._instant("stopPause", now)
         if self.cancel_ended and self.view is not None:
             outs += self._after_cancel(self.view, now)
@@ -362,7 +377,7 @@ class VehicleCore:
         if message is not None:
             if order.action is not None:
                 self.actions[f"{order.action.kind}-{order.action.job_id}"] = order.action
-            outs.append(self._to_vehicle("order", message))
+            outs.append(self._to_vehicle("order", message, now))
         return outs + self.state()
 
     def _dropped_actions(self, wanted: Action | None) -> bool:
@@ -386,7 +401,7 @@ class VehicleCore:
         # It stopped between its square and the next (a vehicle may stop at once): the next
         # stays released to it, and a new order from its square takes it on to that one.
         message = self.orders.order(self.square, ahead, [], None, now)
-        return [] if message is None else [self._to_vehicle("order", message)]
+        return [] if message is None else [self._to_vehicle("order", message, now)]
 
     def _bad_release(self, released: list[Cell]) -> str | None:
         """Why gridfleet's release cannot be driven (rule 3), or None."""
@@ -420,13 +435,15 @@ class VehicleCore:
             now,
             legacy_actions_key=self.config.legacy_actions_key,
         )
-        return [self._to_vehicle("instantActions", message)]
+        return [self._to_vehicle("instantActions", message, now)]
 
     def _to_vehicle(
-        self, name: Literal["order", "instantActions"], message: dict[str, Any]
+        self, name: Literal["order", "instantActions"], message: dict[str, Any], now: float
     ) -> Outbound:
         if self.check is not None:
             self.check(name, message)
+        if name == "order":
+            self.unacked_order = (message, now)
         payload = json.dumps(message, separators=(",", ":")).encode()
         return Outbound(self.vehicle.topic(name), payload, VDA_QOS[name], False)
 
@@ -477,12 +494,25 @@ class VehicleCore:
         return self._goodbye("offline")
 
     def tick(self, now: float) -> list[Outbound]:
-        """One step of the adapter's clock: the state when it changed or is due again."""
+        """One step of the adapter's clock: the state when it changed or is due again, and an
+        order the vehicle has not shown it has, sent again."""
         self.step += 1
         self._quiet += 1
+        outs = self._order_again(now)
         if self._quiet < STATE_HEARTBEAT_STEPS and self._condition() == self._told:
+            return outs
+        return outs + self.state()
+
+    def _order_again(self, now: float) -> list[Outbound]:
+        """The latest order again when no state has shown it for RESEND_S (a vehicle takes its
+        orders at QoS 0: one can be lost; the same order again is discarded by the spec)."""
+        if self.unacked_order is None or self.link != "ONLINE" or self.cancelling is not None:
             return []
-        return self.state()
+        message, sent_at = self.unacked_order
+        if now - sent_at < RESEND_S:
+            return []
+        again = {**message, **self.headers("order", now)}
+        return [self._to_vehicle("order", again, now)]
 
     def released(self) -> list[Cell]:
         """The squares of its base it has not driven yet: the coordinator keeps them reserved."""
