@@ -32,7 +32,9 @@ from support.probe import MqttProbe
 from support.vda import official_if_here
 from support.wait import wait_for
 
-pytestmark = pytest.mark.slow
+# Once, on the embedded broker: these are about the adapter and the vehicle; the vehicles nobody
+# here wrote (test_vda5050_lib.py) run on Mosquitto too.
+pytestmark = [pytest.mark.slow, pytest.mark.amqtt_only]
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 FRAME = Frame("hall")  # square (0, 0) at the origin, 0.1 m squares, y up
