@@ -462,3 +462,14 @@ def test_an_order_or_a_resume_the_vehicle_does_not_show_is_sent_again() -> None:
     assert "instantActions" not in kinds(c.on_vehicle("state", vda(still), T0 + 6.5))
     outs = c.on_vehicle("state", vda(still), T0 + 7.5)
     assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stopPause"
+
+
+def test_after_the_adapter_lost_the_broker_the_unit_is_back_at_once_and_the_vehicle_asked() -> None:
+    # A vehicle may say nothing for 30 s: its unit must not wait for that to be heard again.
+    c = core()
+    online(c)
+    c.on_broker_lost()
+    outs = c.on_vehicle("connection", connection(), T0 + 1)  # retained: it comes again
+    assert kinds(outs)[:3] == ["instantActions", "units/agv1/connection", "units/agv1/factsheet"]
+    assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stateRequest"
+    assert decode(Connection, outs[1].payload).state == "online"

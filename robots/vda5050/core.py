@@ -159,8 +159,9 @@ class VehicleCore:
             self.pause_sent = False
             return self._goodbye("offline" if self.link == "OFFLINE" else "broken")
         outs: list[Outbound] = []
-        if self.view is None:
-            # It may say nothing more for 30 s (its state is not retained): ask.
+        if self.view is None or not self.announced:
+            # It may say nothing more for 30 s (its state is not retained): ask. (After the
+            # adapter lost the broker too: its unit is announced again from what it said last.)
             outs += self._instant("stateRequest", now)
         if self.vehicle.version != "2.0.0" and self.capacity_kg is None:
             outs += self._instant("factsheetRequest", now)
