@@ -95,15 +95,15 @@ async def _drive(
     async with operator_session(url, topics, "bench-vda") as op:
         ids = [u.id for u in scenario.units] + [f"agv{n}" for n in range(1, args.vehicles + 1)]
         await op.wait_for_units(ids, timeout=60)
-        submitted: list[str] = []
+        submitted = 0
         end = time.monotonic() + 60 * args.minutes
         while time.monotonic() < end:
             queued = sum(1 for j in (op.jobs.jobs if op.jobs else []) if j.state == "queued")
             if queued < len(ids):
                 pickup, dropoff, mass = random_job(scenario, rng, fields)
-                job_id = f"b{len(submitted) + 1}"
+                job_id = f"b{submitted + 1}"
                 if (await op.submit_job(pickup, dropoff, min(mass, 3.0), job_id)).accepted:
-                    submitted.append(job_id)
+                    submitted += 1
             else:
                 await asyncio.sleep(0.1)
         view = op.jobs

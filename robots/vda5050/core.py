@@ -96,7 +96,6 @@ class VehicleCore:
         self.capacity_kg = config.capacity_kg  # a 2.1 vehicle's factsheet may tell it
         self.link: Link | None = None  # the vehicle's own `connection`
         self.view: VehicleView | None = None
-        self.vda_order: tuple[str, int] | None = None  # what its last state says it follows
         self.nodes_left = 0  # nodes of its order still ahead, by its last state
         self.square: Cell | None = None
         self.stop = StopView()
@@ -180,11 +179,11 @@ class VehicleCore:
     def _on_state(self, message: VdaState, now: float) -> list[Outbound]:
         view = read_state(message.model_dump(mode="json"), self.config.frame, self.config.margin_m)
         self.view = view
-        self.vda_order = (message.orderId, message.orderUpdateId)
         if self.unacked_order is not None:
             sent = self.unacked_order[0]
             refused = any(e.errorType in REFUSALS for e in message.errors)
-            if refused or self.vda_order == (sent["orderId"], sent["orderUpdateId"]):
+            follows = (message.orderId, message.orderUpdateId)
+            if refused or follows == (sent["orderId"], sent["orderUpdateId"]):
                 self.unacked_order = None
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
         outs: list[Outbound] = []
