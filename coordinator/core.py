@@ -265,7 +265,9 @@ class CoordinatorCore:
                 notes.append((logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}"))
         else:
             cache = self.planner.cache
-            outcome = requests.set_goal(req, self.world, self.jobs, self.directives, cache)
+            outcome = requests.set_goal(
+                req, self.world, self.jobs, self.directives, cache, self.progress.requeue
+            )
         publish = []
         if not outcome.accepted:
             what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"

@@ -48,9 +48,10 @@ class JobProgress:
         """Jobs not picked up yet go back to the queue; carried ones wait for their unit's state."""
         for job in self.jobs.active():
             if job.state not in CARRYING_STATES:
-                self._requeue(job, "coordinator restarted; re-queued")
+                self.requeue(job, "coordinator restarted; re-queued")
 
-    def _requeue(self, job: Job, reason: str) -> None:
+    def requeue(self, job: Job, reason: str) -> None:
+        """Put a job not picked up yet back in the queue, remembering the unit it was given to."""
         if job.unit is not None:
             self.requeued_from[job.id] = job.unit
         self.jobs.set(job, "queued", unit=None, reason=reason)
@@ -74,11 +75,16 @@ class JobProgress:
             if st is None or st.job_id is None or u.id not in active:
                 continue
             job = self.jobs.get(st.job_id)
-            # Only a queued one (a restart re-queues them) that was given to this very unit, and
-            # that it can carry: a job given to a unit is loaded when its state says so at the
-            # pickup (_progress_jobs), never by a claim made elsewhere. As found: a 2 kg unit
-            # "picked up" any queued 15 kg job by naming it in its state.
-            if job is None or job.state != "queued" or self.requeued_from.get(job.id) != u.id:
+            # Only one re-queued from this very unit (by a restart, or by a goal sent while the
+            # unit was picking the item up: its state saying so was still on the way) and not
+            # carried by another since, and that it can carry: a job given to a unit is loaded
+            # when its state says so at the pickup (_progress_jobs), never by a claim made
+            # elsewhere. As found: a 2 kg unit "picked up" any queued 15 kg job by naming it in its
+            # state. A unit the job went to meanwhile has not got the item (this one has): it is
+            # released, and the next allocation gives it other work.
+            if job is None or job.state not in ("queued", "assigned", "to_pickup"):
+                continue
+            if self.requeued_from.get(job.id) != u.id:
                 continue
             if u.capacity_kg is None or u.capacity_kg < job.mass_kg:
                 continue
@@ -114,7 +120,7 @@ class JobProgress:
                             done_step=step_no,
                         )
                 else:
-                    self._requeue(job, f"unit {rec.id} was lost; re-queued")
+                    self.requeue(job, f"unit {rec.id} was lost; re-queued")
                 continue
             if job.state in ("assigned", "to_pickup"):
                 # Loaded only where the item is: the unit waits there for its next order, so

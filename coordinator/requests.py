@@ -6,6 +6,7 @@ a refused request changes nothing.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
@@ -117,7 +118,12 @@ def cancel(
 
 
 def set_goal(
-    req: SetGoal, world: World, jobs: JobBook, directives: Directives, cache: DistanceFieldCache
+    req: SetGoal,
+    world: World,
+    jobs: JobBook,
+    directives: Directives,
+    cache: DistanceFieldCache,
+    requeue: Callable[[Job, str], None],
 ) -> Outcome:
     """Pin a unit to a square (or clear its goal); refuse unknown units and bad squares."""
     rec = world.units.get(req.unit)
@@ -135,8 +141,9 @@ def set_goal(
     directives.set_goal(req.unit, req.target)
     job = jobs.of_unit(req.unit)
     if job is not None and job.state not in CARRYING_STATES:
-        # The goal pins the unit: its job goes back to the queue for another unit.
-        jobs.set(job, "queued", unit=None, reason=f"unit {req.unit} sent to a goal")
+        # The goal pins the unit: its job goes back to the queue for another unit (unless the
+        # unit's next state shows it had picked the item up already: progress.py adopts it).
+        requeue(job, f"unit {req.unit} sent to a goal")
     return Outcome(True)
 
 

@@ -597,3 +597,59 @@ def test_an_order_that_changes_nothing_goes_out_again_after_a_quarter_of_the_hol
     _submit(core, "r1", Cell(5, 0), Cell(9, 0))
     assert step_one(core, yard, 0.8)
     assert yard.units["u"].position != Cell(0, 0)
+
+
+def test_a_goal_sent_as_the_unit_picks_up_leaves_the_job_with_the_item() -> None:
+    # Found by a playfield run: the goal re-queued the job while the state saying "picked up"
+    # was on its way; another unit was sent for the same item and the first put it back.
+    core, yard = one_unit(5.0)
+    other = UnitLogic("v", core.world.grid, Cell(9, 9), 5.0, 1.0)
+    yard = Yard(core.world.grid, [yard.units["u"], other])
+    meet(core, yard.state("v"), 5.0)
+    _submit(core, "r", Cell(0, 1), Cell(9, 1))
+    job = next(iter(core.jobs.jobs.values()))
+    unit = yard.units["u"]
+    now = 0.0
+
+    def step_heard(tick: tuple[str, ...]) -> dict[str, Order]:
+        orders = orders_in(core.step(now))
+        for uid in tick:
+            if uid in orders:
+                yard.units[uid].on_order(orders[uid], now)
+            yard.tick(uid, now)
+        for uid in ("u", "v"):
+            from_unit(core, "state", uid, yard.state(uid), now)
+        return orders
+
+    order = None
+    while order is None or order.action is None:
+        now += 1.0
+        assert now < 10, "never sent to the pickup"
+        order = step_heard(("v",)).get("u", order)
+    assert order.action.kind == "pick" and job.unit == "u"
+    # u has its order to the pickup; the goal comes before it moves, and while its states
+    # are on the way the core steps on: the job goes to v.
+    goal = SetGoal(header=header("t"), request_id="g", reply_to="t", unit="u", target=Cell(5, 0))
+    assert reply_in(request(core, "set_goal", goal, now)).accepted
+    assert job.state == "queued"
+    while job.unit != "v":
+        now += 1.0
+        assert now < 20, "never given to v"
+        step_heard(("v",))
+    unit.on_order(order, now)  # late: u acts on its order to pick up
+    while unit.job_id is None:
+        now += 1.0
+        assert now < 30, "never picked up"
+        yard.tick("u", now)
+    from_unit(core, "state", "u", yard.state("u"), now)  # u has the item, not v
+    now += 1.0
+    core.step(now)
+    assert (job.state, job.unit) == ("loaded", "u")
+    assert core.jobs.of_unit("v") is None
+    for _ in range(80):
+        now += 1.0
+        step_heard(("u", "v"))
+        if job.final:
+            break
+    assert (job.state, job.unit) == ("done", "u")
+    assert other.job_id is None and other.load_kg == 0.0  # v never picked anything up

@@ -128,7 +128,11 @@ def test_server_thread_serves_and_stops() -> None:
     finally:
         server.stop()
     with socket.socket() as s:
-        s.bind(("127.0.0.1", port))  # the port is free again
+        # As a server binds (werkzeug too): the connection the server closed may linger in
+        # TIME_WAIT on that port, which only a listener still there should make fail.
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        s.bind(("127.0.0.1", port))
+        s.listen()  # nobody listens there any more
 
 
 def test_gridfleet_dashboard_command_serves_the_page(playfield: Path) -> None:
