@@ -59,6 +59,8 @@ class Gate:
         self._key = secrets.token_bytes(32)
         self._digests = {a.name: self._digest(a.password) for a in accounts.accounts.values()}
         self._nobody = self._digest(_NOBODY)
+        # A VDA 5050 vehicle's client id is its vendor's to choose: any id no account owns.
+        self._vehicles = {a.name for a in accounts.accounts.values() if a.role == "vehicle"}
         # An address here is where every component of `gridfleet up` comes from too: a generous
         # burst, so a misconfigured client retrying does not shut the others out for long.
         self.throttle = throttle or LoginThrottle(
@@ -84,7 +86,7 @@ class Gate:
             return f"wrong user name or password for {username!r}"
         if client_id:  # empty: the broker makes up one, which nobody owns
             owner = owner_of(client_id, self._digests)
-            if owner != username:
+            if owner != username and not (owner is None and username in self._vehicles):
                 whose = f"account {owner!r}" if owner else "no account"
                 return (
                     f"client id {client_id!r} belongs to {whose}: {username!r} may use "

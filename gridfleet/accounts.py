@@ -7,6 +7,17 @@ An accounts file is TOML, readable by its owner only, one table per account:
     role = "unit"
     unit = "unit1"
 
+    [accounts.agv1]             # a VDA 5050 vehicle: its own topics only (docs/vda5050.md)
+    password = "…"
+    role = "vehicle"
+    unit = "agv1"
+    vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7" }]
+
+    [accounts.vda5050]          # the adapter: the vehicles' orders, and their units' topics
+    password = "…"
+    role = "vda5050"
+    vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7" }]
+
 The broker hashes the passwords it checks; clients read theirs from this file (`--accounts FILE
 --account NAME`). `rules()` derives each account's topic rules from the protocol's topic table, so
 an ACL never drifts from protocol.md.
@@ -14,10 +25,13 @@ an ACL never drifts from protocol.md.
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import secrets
 import stat
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, get_args
@@ -29,10 +43,32 @@ from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.protocol import Topics, validate_id
 from gridfleet.textfile import read_text
 
-Role = Literal["coordinator", "unit", "device", "dashboard", "operator"]
+Role = Literal["coordinator", "unit", "device", "dashboard", "operator", "vehicle", "vda5050"]
 ROLES: tuple[Role, ...] = get_args(Role)
 REQUEST_KINDS = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
 MIN_PASSWORD = 12
+# A VDA 5050 vehicle's topics: interfaceName/majorVersion/manufacturer/serialNumber/<topic>.
+# Each level one of MQTT's, printable, without spaces (a Mosquitto ACL line ends at the topic).
+_LEVEL = r"[^/+#\s\x00-\x1f\x7f]+"
+VDA_TOPIC = re.compile(rf"(?!\$){_LEVEL}/v[0-9]+/{_LEVEL}/{_LEVEL}")
+VDA_FROM_VEHICLE = ("state", "connection", "factsheet", "visualization")
+VDA_TO_VEHICLE = ("order", "instantActions")
+
+
+@dataclass(frozen=True)
+class VehicleLink:
+    """A VDA 5050 vehicle an account speaks for: its gridfleet unit and its topics' prefix."""
+
+    unit: str
+    topic: str  # interfaceName/majorVersion/manufacturer/serialNumber
+
+    def __post_init__(self) -> None:
+        validate_id(self.unit, "vehicle unit")
+        if not VDA_TOPIC.fullmatch(self.topic):
+            raise ConfigError(
+                f"vehicle {self.unit}: topic {self.topic!r} is not "
+                "interfaceName/vN/manufacturer/serialNumber"
+            )
 
 
 @dataclass(frozen=True)
@@ -44,6 +80,7 @@ class Account:
     password: str
     role: Role
     unit: str | None = None
+    vehicles: tuple[VehicleLink, ...] = ()
 
     def __post_init__(self) -> None:
         validate_id(self.name, "account name")
@@ -53,13 +90,30 @@ class Account:
             raise ConfigError(
                 f"account {self.name}: the password must have at least {MIN_PASSWORD} characters"
             )
-        needs_unit = self.role in ("unit", "device")
+        needs_unit = self.role in ("unit", "device", "vehicle")
         if needs_unit and self.unit is None:
             raise ConfigError(f"account {self.name}: a {self.role} account names its unit")
         if not needs_unit and self.unit is not None:
             raise ConfigError(f"account {self.name}: a {self.role} account has no unit")
         if self.unit is not None:
             validate_id(self.unit, f"account {self.name}: unit")
+        self._check_vehicles()
+
+    def _check_vehicles(self) -> None:
+        links = self.vehicles
+        if self.role == "vehicle" and [v.unit for v in links] != [self.unit]:
+            raise ConfigError(
+                f"account {self.name}: a vehicle account names one vehicle, of its unit {self.unit}"
+            )
+        if self.role == "vda5050" and not links:
+            raise ConfigError(f"account {self.name}: a vda5050 account names its vehicles")
+        if self.role not in ("vehicle", "vda5050") and links:
+            raise ConfigError(f"account {self.name}: a {self.role} account has no vehicles")
+        for what in ("unit", "topic"):
+            values = [getattr(v, what) for v in links]
+            twice = sorted({x for x in values if values.count(x) > 1})
+            if twice:
+                raise ConfigError(f"account {self.name}: vehicle {what} {twice[0]!r} twice")
 
 
 @dataclass(frozen=True)
@@ -92,9 +146,10 @@ def new_password() -> str:
     return secrets.token_urlsafe(18)
 
 
-def default_accounts(units: list[str]) -> Accounts:
+def default_accounts(units: list[str], vehicles: Sequence[VehicleLink] = ()) -> Accounts:
     """The accounts a fleet of `units` needs: coordinator, dashboard, operator, and a unit and a
-    device account per unit (`<unit>` and `device-<unit>`), each with a random password."""
+    device account per unit (`<unit>` and `device-<unit>`), each with a random password; with
+    VDA 5050 `vehicles`, the adapter's account (`vda5050`) and one per vehicle (`<unit>`)."""
     made = [
         Account("coordinator", new_password(), "coordinator"),
         Account("dashboard", new_password(), "dashboard"),
@@ -103,17 +158,33 @@ def default_accounts(units: list[str]) -> Accounts:
     for unit in units:
         made.append(Account(unit, new_password(), "unit", unit))
         made.append(Account(f"device-{unit}", new_password(), "device", unit))
+    if vehicles:
+        made.append(Account("vda5050", new_password(), "vda5050", vehicles=tuple(vehicles)))
+    for v in vehicles:
+        made.append(Account(v.unit, new_password(), "vehicle", v.unit, (v,)))
+    names = [a.name for a in made]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError(f"account {twice[0]!r} twice: a unit and a vehicle share the id")
     return Accounts({a.name: a for a in made})
 
 
+class _VehicleTable(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    unit: str
+    topic: str
+
+
 class _AccountTable(BaseModel):
-    """One [accounts.NAME] table: strings only (checked by Account), no other key."""
+    """One [accounts.NAME] table: strings (checked by Account) and vehicles, no other key."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
 
     password: str | None = None
     role: Role | None = None
     unit: str | None = None
+    vehicles: list[_VehicleTable] = []
 
 
 class _AccountsFile(BaseModel):
@@ -136,6 +207,8 @@ def _shape_problem(error: ErrorDetails) -> str:
         return f"accounts.{name}: unknown key {loc[2]!r}"
     if error["type"] == "literal_error":
         return f"account {name}: role {error['input']!r} is not one of {ROLES}"
+    if loc[2] == "vehicles":
+        return f'accounts.{name}: vehicles is a list of {{ unit = "…", topic = "…" }}'
     return f"accounts.{name}: password, role and unit are strings"
 
 
@@ -160,7 +233,8 @@ def load_accounts(path: str | Path) -> Accounts:
         if entry.password is None or entry.role is None:
             raise ConfigError(f"{p}: accounts.{name}: needs a password and a role")
         try:
-            accounts[name] = Account(name, entry.password, entry.role, entry.unit)
+            links = tuple(VehicleLink(v.unit, v.topic) for v in entry.vehicles)
+            accounts[name] = Account(name, entry.password, entry.role, entry.unit, links)
         except (ConfigError, ProtocolError) as exc:
             raise ConfigError(f"{p}: {exc}") from None
     return Accounts(accounts)
@@ -171,12 +245,22 @@ def dump_accounts(accounts: Accounts) -> str:
     lines = ["# gridfleet broker accounts: keep this file private (mode 600).", ""]
     for a in sorted(accounts.accounts.values(), key=lambda a: (ROLES.index(a.role), a.name)):
         lines.append(f"[accounts.{a.name}]")
-        lines.append(f'password = "{a.password}"')
-        lines.append(f'role = "{a.role}"')
+        lines.append(f"password = {_string(a.password)}")
+        lines.append(f"role = {_string(a.role)}")
         if a.unit is not None:
-            lines.append(f'unit = "{a.unit}"')
+            lines.append(f"unit = {_string(a.unit)}")
+        if a.vehicles:
+            lines.append("vehicles = [")
+            for v in a.vehicles:
+                lines.append(f"    {{ unit = {_string(v.unit)}, topic = {_string(v.topic)} }},")
+            lines.append("]")
         lines.append("")
     return "\n".join(lines)
+
+
+def _string(value: str) -> str:
+    """`value` as a TOML basic string (JSON's escapes are TOML's)."""
+    return json.dumps(value, ensure_ascii=False)
 
 
 def write_accounts(accounts: Accounts, path: str | Path) -> None:
@@ -237,6 +321,27 @@ def rules(account: Account, topics: Topics) -> Rules:
         own_press = t.device("device_stop", account.name)
         publish = [t.device("device_connection", account.name), own_press, t.fleet("errors")]
         subscribe = [t.unit("direction", account.unit), t.fleet("estop"), own_press]
+    elif account.role == "vehicle":
+        (vehicle,) = account.vehicles
+        publish = [f"{vehicle.topic}/{k}" for k in VDA_FROM_VEHICLE]
+        subscribe = [f"{vehicle.topic}/{k}" for k in VDA_TO_VEHICLE]
+    elif account.role == "vda5050":
+        # Each vehicle's unit, as a unit's account would (it may press the stop for a vehicle
+        # whose own e-stop is pressed), and the vehicles' orders and instant actions.
+        own_kinds = ("connection", "factsheet", "state", "direction", "stop")
+        links = account.vehicles
+        publish = [
+            *(t.unit(k, v.unit) for v in links for k in own_kinds),
+            t.fleet("errors"),
+            *(f"{v.topic}/{k}" for v in links for k in VDA_TO_VEHICLE),
+        ]
+        subscribe = [
+            *(t.unit("order", v.unit) for v in links),
+            t.fleet("estop"),
+            *presses,
+            t.fleet("routes"),  # operators' pauses
+            *(f"{v.topic}/{k}" for v in links for k in VDA_FROM_VEHICLE),
+        ]
     else:  # dashboard, operator: the people's side
         publish = [
             *(t.request(k) for k in REQUEST_KINDS),

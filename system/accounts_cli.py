@@ -10,6 +10,7 @@ from typing import get_args
 from gridfleet.accounts import (
     Account,
     Role,
+    VehicleLink,
     default_accounts,
     load_accounts,
     new_password,
@@ -20,6 +21,7 @@ from gridfleet.broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
+from gridfleet.robots.vda5050.config import load_vehicles
 from gridfleet.scenario import load_scenario, with_units
 
 
@@ -30,11 +32,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     init.add_argument("--scenario", type=Path, required=True, help="scenario file (TOML)")
     init.add_argument("--out", type=Path, required=True, help="accounts file to write (mode 600)")
     init.add_argument("--force", action="store_true", help="replace an existing file")
+    init.add_argument(
+        "--vehicles",
+        type=Path,
+        metavar="FILE",
+        help="also the VDA 5050 adapter's account and one per vehicle of this vehicles file",
+    )
     add = sub.add_parser("add", help="add one account (a new unit, its device, a person)")
     add.add_argument("name", help="account name: the MQTT username (and, for a unit, its id)")
     add.add_argument("--role", required=True, choices=get_args(Role))
     add.add_argument("--unit", help="the unit a unit or device account belongs to")
     add.add_argument("--file", type=Path, required=True, help="accounts file to add to")
+    add.add_argument(
+        "--vehicles",
+        type=Path,
+        metavar="FILE",
+        help="vehicle and vda5050 roles: the vehicles file naming the vehicles' topics",
+    )
     mosq = sub.add_parser(
         "mosquitto", help="write Mosquitto's password, ACL and config files from them"
     )
@@ -75,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
         if args.out.exists() and not args.force:
             raise ConfigError(f"{args.out} exists; --force replaces it (and every password)")
         scenario = with_units(load_scenario(args.scenario))
-        accounts = default_accounts([u.id for u in scenario.units])
+        links = _links(args.vehicles) if args.vehicles is not None else ()
+        accounts = default_accounts([u.id for u in scenario.units], links)
         write_accounts(accounts, args.out)
         print(f"wrote {len(accounts.accounts)} accounts to {args.out} (keep it private)")
         return 0
@@ -90,13 +105,38 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.action == "mosquitto":
         return _mosquitto(args)
-    # A unit account is named after its unit unless --unit says otherwise.
-    unit = args.unit if args.unit is not None else (args.name if args.role == "unit" else None)
+    # A unit's or a vehicle's account is named after its unit unless --unit says otherwise.
+    named = args.name if args.role in ("unit", "vehicle") else None
+    unit = args.unit if args.unit is not None else named
     accounts = load_accounts(args.file)
-    accounts = accounts.with_account(Account(args.name, new_password(), args.role, unit))
+    links = _vehicles_of(args.role, unit, args.vehicles)
+    account = Account(args.name, new_password(), args.role, unit, links)
+    accounts = accounts.with_account(account)
     write_accounts(accounts, args.file)
     print(f"added {args.role} account {args.name} to {args.file}")
     return 0
+
+
+def _links(path: Path) -> tuple[VehicleLink, ...]:
+    """Every vehicle of a vehicles file, as accounts name them."""
+    return tuple(VehicleLink(c.vehicle.unit, c.vehicle.prefix) for c in load_vehicles(path))
+
+
+def _vehicles_of(role: str, unit: str | None, path: Path | None) -> tuple[VehicleLink, ...]:
+    """The vehicles a new account of `role` speaks for: all of the file's, or `unit`'s."""
+    if role not in ("vehicle", "vda5050"):
+        if path is not None:
+            raise ConfigError(f"--vehicles is for the vehicle and vda5050 roles, not {role}")
+        return ()
+    if path is None:
+        raise ConfigError(f"a {role} account needs --vehicles FILE (the vehicles' topics)")
+    links = _links(path)
+    if role == "vda5050":
+        return links
+    mine = tuple(v for v in links if v.unit == unit)
+    if not mine:
+        raise ConfigError(f"{path}: no vehicle of unit {unit!r}")
+    return mine
 
 
 def _mosquitto(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+from collections.abc import Sequence
 from pathlib import Path
 
 from gridfleet.accounts import Accounts, load_accounts
@@ -11,7 +12,7 @@ from gridfleet.config import check_step, is_loopback
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common
 from gridfleet.robots.shards import workers_for
-from gridfleet.robots.vda5050.config import load_vehicles
+from gridfleet.robots.vda5050.config import VehicleConfig, load_vehicles
 from gridfleet.scenario import Scenario, load_scenario, with_units
 from gridfleet.system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from gridfleet.system.supervisor import Supervisor, run_until_signal
@@ -125,6 +126,24 @@ def check_accounts(path: Path, scenario: Scenario) -> Accounts:
     return accounts
 
 
+def check_adapter_account(
+    accounts: Accounts, path: Path, vehicles_file: Path, vehicles: Sequence[VehicleConfig]
+) -> None:
+    """The VDA 5050 adapter's account speaks for every vehicle of the file; else ConfigError."""
+    made = f"gridfleet accounts add vda5050 --role vda5050 --vehicles {vehicles_file} --file {path}"
+    adapter = accounts.accounts.get("vda5050")
+    if adapter is None or adapter.role != "vda5050":
+        raise ConfigError(f"{path}: no vda5050 account, which --vehicles needs: {made}")
+    links = {(v.unit, v.topic) for v in adapter.vehicles}
+    for config in vehicles:
+        v = config.vehicle
+        if (v.unit, v.prefix) not in links:
+            raise ConfigError(
+                f"{path}: account vda5050 does not speak for vehicle {v.unit} of {vehicles_file}:"
+                f' add {{ unit = "{v.unit}", topic = "{v.prefix}" }} to its vehicles'
+            )
+
+
 def check_tls(args: argparse.Namespace) -> None:
     """--tls-cert, --tls-key and --ca-file go together, for the embedded broker; else ConfigError."""
     if args.tls_cert is None and args.tls_key is None:
@@ -157,17 +176,14 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         raise ConfigError(f"--workers {args.workers}: give at least 1")
     vehicles = None
     if args.vehicles is not None:
-        if args.accounts is not None:
-            raise ConfigError(
-                "--vehicles with --accounts: the VDA 5050 adapter's and the vehicles' accounts "
-                "are not built yet (docs/vda5050.md); run them on a private network without "
-                "--accounts for now"
-            )
-        load_vehicles(args.vehicles)  # a mistake in it: one line now, not from a child later
+        # A mistake in it: one line now, not from a child later.
+        configs = load_vehicles(args.vehicles)
         vehicles = args.vehicles.resolve()
     accounts_file = None
     if args.accounts is not None:
-        check_accounts(args.accounts, scenario)
+        accounts = check_accounts(args.accounts, scenario)
+        if args.vehicles is not None:
+            check_adapter_account(accounts, args.accounts, args.vehicles, configs)
         accounts_file = args.accounts.resolve()  # the children may run elsewhere
     return SystemSpec(
         scenario=scenario,

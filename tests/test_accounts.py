@@ -19,6 +19,7 @@ import pytest
 from gridfleet.accounts import (
     Account,
     Accounts,
+    VehicleLink,
     default_accounts,
     load_accounts,
     rules,
@@ -39,8 +40,10 @@ from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.security import (
+    VEHICLES,
     check_a_device_cannot_take_the_coordinators_connection,
     check_a_unit_cannot_forge,
+    check_a_vehicle_cannot_forge,
     check_only_operators_write_the_latch,
     check_strangers_are_refused,
     check_wills_obey_the_publish_rules,
@@ -129,6 +132,9 @@ def test_add_puts_one_more_unit_in_the_file(tmp_path: Path) -> None:
     assert taken.returncode == 2 and "exists already" in taken.stderr
 
 
+PW = "[accounts.a]\npassword = 'long enough pw'\n"
+
+
 @pytest.mark.parametrize(
     ("text", "problem"),
     [
@@ -146,6 +152,31 @@ def test_add_puts_one_more_unit_in_the_file(tmp_path: Path) -> None:
         ("[accounts]\na = 3\n", "accounts.a must be a table"),
         ("[accounts.a]\npassword = 'long enough pw'\nrole = 'unit'\nunit = 5\n", "are strings"),
         ("[accounts.a]\npassword = 'long enough pw'\nrole = true\n", "role True is not one"),
+        (
+            PW + "role = 'vehicle'\nunit = 'a'\n",
+            "a vehicle account names one vehicle, of its unit a",
+        ),
+        (
+            PW
+            + "role = 'vehicle'\nunit = 'b'\nvehicles = [{ unit = 'a', topic = 'uagv/v2/acme/sn-1' }]\n",
+            "names one vehicle, of its unit b",
+        ),
+        (PW + "role = 'vda5050'\n", "a vda5050 account names its vehicles"),
+        (
+            PW + "role = 'operator'\nvehicles = [{ unit = 'a', topic = 'uagv/v2/acme/sn-1' }]\n",
+            "a operator account has no vehicles",
+        ),
+        (PW + "role = 'vda5050'\nvehicles = [{ unit = 'a' }]\n", "vehicles is a list of"),
+        (PW + "role = 'vda5050'\nvehicles = 'a'\n", "vehicles is a list of"),
+        (
+            PW + "role = 'vda5050'\nvehicles = [{ unit = 'a', topic = 'uagv/v2/+/b' }]\n",
+            "topic 'uagv/v2/+/b' is not interfaceName/vN/manufacturer/serialNumber",
+        ),
+        (
+            PW + "role = 'vda5050'\nvehicles = [{ unit = 'a', topic = 'x/v2/m/1' }, "
+            "{ unit = 'b', topic = 'x/v2/m/1' }]\n",
+            "vehicle topic 'x/v2/m/1' twice",
+        ),
     ],
 )
 def test_a_bad_accounts_file_is_refused_naming_the_problem(
@@ -156,6 +187,62 @@ def test_a_bad_accounts_file_is_refused_naming_the_problem(
     path.chmod(0o600)
     with pytest.raises(ConfigError, match=re.escape(problem)):
         load_accounts(path)
+
+
+def test_vehicle_accounts_are_written_and_read_back_the_same(tmp_path: Path) -> None:
+    made = default_accounts(["unit1"], VEHICLES)
+    path = tmp_path / "accounts.toml"
+    write_accounts(made, path)
+    assert load_accounts(path) == made
+    assert made.get("agv1").vehicles == (VEHICLES[0],) and made.get("agv1").role == "vehicle"
+    assert made.get("vda5050").vehicles == VEHICLES
+    with pytest.raises(ConfigError, match="account 'unit1' twice: a unit and a vehicle share"):
+        default_accounts(["unit1"], [VehicleLink("unit1", "uagv/v2/acme/sn-9")])
+
+
+def test_init_and_add_make_the_vda5050_accounts_from_a_vehicles_file(tmp_path: Path) -> None:
+    vehicles = tmp_path / "vehicles.toml"
+    vehicles.write_text(
+        "[maps.hall]\n"
+        + "".join(
+            f'[[vehicles]]\nunit = "agv{n}"\nmanufacturer = "acme"\nserial_number = "sn-{n}"\n'
+            f'version = "2.1.0"\nmap = "hall"\n'
+            for n in (1, 2)
+        ),
+        encoding="utf-8",
+    )
+    out = tmp_path / "accounts.toml"
+    done = cli("accounts", "init", "--scenario", str(PLAYFIELD), "--out", str(out),
+               "--vehicles", str(vehicles))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    made = load_accounts(out)
+    assert made.get("vda5050").vehicles == VEHICLES
+    assert made.get("agv2").vehicles == (VEHICLES[1],)
+    mosquitto = cli("accounts", "mosquitto", "--file", str(out), "--out", str(tmp_path / "m"))
+    assert mosquitto.returncode == 0, mosquitto.stderr
+    acl = (tmp_path / "m" / "acl").read_text()
+    assert "user agv1\ntopic write uagv/v2/acme/sn-1/state\n" in acl
+    assert "topic read uagv/v2/acme/sn-1/order\n" in acl
+    # One more: a third vehicle's account, and a second adapter named by --unit's absence.
+    vehicles.write_text(
+        vehicles.read_text()
+        + '[[vehicles]]\nunit = "agv3"\nmanufacturer = "acme"\nserial_number = "sn-3"\n'
+        'version = "2.0.0"\ncapacity_kg = 5.0\nmap = "hall"\n',
+        encoding="utf-8",
+    )
+    add = ["accounts", "add", "--file", str(out)]
+    assert cli(*add, "agv3", "--role", "vehicle", "--vehicles", str(vehicles)).returncode == 0
+    assert load_accounts(out).get("agv3").vehicles == (VehicleLink("agv3", "uagv/v2/acme/sn-3"),)
+    made = cli(*add, "vda5050-b", "--role", "vda5050", "--vehicles", str(vehicles))
+    assert made.returncode == 0, made.stderr
+    assert len(load_accounts(out).get("vda5050-b").vehicles) == 3
+    for argv, says in [
+        ([*add, "agv9", "--role", "vehicle", "--vehicles", str(vehicles)], "no vehicle of unit"),
+        ([*add, "agv4", "--role", "vehicle"], "a vehicle account needs --vehicles FILE"),
+        ([*add, "op2", "--role", "operator", "--vehicles", str(vehicles)], "--vehicles is for"),
+    ]:
+        bad = cli(*argv)
+        assert bad.returncode == 2 and says in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_an_accounts_file_others_can_read_is_refused(tmp_path: Path) -> None:
@@ -195,6 +282,28 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
 # ---- the broker enforces them --------------------------------------------------------------------
 
 
+def test_a_vehicle_and_the_adapter_may_use_only_their_vda_5050_topics() -> None:
+    accounts = default_accounts(["unit1"], VEHICLES)
+    agv1, agv2 = VEHICLES
+    vehicle = rules(accounts.get("agv1"), T)
+    assert vehicle.publish == tuple(
+        f"{agv1.topic}/{k}" for k in ("state", "connection", "factsheet", "visualization")
+    )
+    assert vehicle.subscribe == (f"{agv1.topic}/order", f"{agv1.topic}/instantActions")
+    adapter = rules(accounts.get("vda5050"), T)
+    assert {f"{v.topic}/{k}" for v in VEHICLES for k in ("order", "instantActions")} <= set(
+        adapter.publish
+    )
+    assert T.unit("state", "agv2") in adapter.publish and T.unit("stop", "agv1") in adapter.publish
+    assert not any("unit1" in topic or "+" in topic for topic in adapter.publish)
+    assert (
+        T.fleet("estop") not in adapter.publish and T.unit("order", "agv1") not in adapter.publish
+    )
+    assert (
+        f"{agv2.topic}/state" in adapter.subscribe and T.unit("order", "agv2") in adapter.subscribe
+    )
+
+
 def test_listening_beyond_loopback_needs_accounts() -> None:
     with pytest.raises(ConfigError, match="--accounts FILE"):
         BrokerSettings(host="0.0.0.0")
@@ -205,7 +314,7 @@ def test_listening_beyond_loopback_needs_accounts() -> None:
 
 @pytest.fixture(scope="module")
 def accounts() -> Accounts:
-    return default_accounts(["unit1", "unit2"])
+    return default_accounts(["unit1", "unit2"], VEHICLES)
 
 
 @pytest.fixture(scope="module")
@@ -413,3 +522,9 @@ def test_credentials_in_a_broker_url_are_read_and_never_shown() -> None:
     assert "topsecret" not in str(refused.value)
     again = parse_broker_url(with_credentials("mqtt://old:pw@h:1883", "op", "p@ss word"))
     assert (again.username, again.password, again.host) == ("op", "p@ss word", "h")
+
+
+def test_a_vehicle_cannot_forge_orders_states_or_the_latch(
+    secured: BrokerThread, accounts: Accounts
+) -> None:
+    check_a_vehicle_cannot_forge(secured.url, accounts, T)

@@ -16,7 +16,9 @@ from gridfleet.protocol import Topics
 
 from support.mosquitto import mosquitto_with_accounts
 from support.security import (
+    VEHICLES,
     check_a_unit_cannot_forge,
+    check_a_vehicle_cannot_forge,
     check_only_operators_write_the_latch,
     check_strangers_are_refused,
     check_wills_obey_the_publish_rules,
@@ -33,7 +35,7 @@ def test_password_hashes_are_mosquittos_own_format() -> None:
 
 @pytest.fixture(scope="module")
 def accounts() -> Accounts:
-    return default_accounts(["unit1", "unit2"])
+    return default_accounts(["unit1", "unit2"], VEHICLES)
 
 
 @pytest.fixture(scope="module")
@@ -97,3 +99,9 @@ def test_the_command_writes_private_files_for_mosquitto(tmp_path: Path) -> None:
     acl = (out / "acl").read_text()
     assert "user unit1\ntopic write lab/v1/units/unit1/connection" in acl
     assert (out / "passwd").read_text().startswith("coordinator:$7$101$")
+
+
+def test_a_vehicle_cannot_forge_orders_states_or_the_latch(
+    mosquitto: str, accounts: Accounts
+) -> None:
+    check_a_vehicle_cannot_forge(mosquitto, accounts, T)

@@ -6,11 +6,11 @@ import json
 
 import pytest
 
-from gridfleet.accounts import default_accounts
+from gridfleet.accounts import VehicleLink, default_accounts
 from gridfleet.broker.gate import Gate, owner_of
 from gridfleet.throttle import FailureBudget, LoginThrottle
 
-ACCOUNTS = default_accounts(["unit1", "unit10"])
+ACCOUNTS = default_accounts(["unit1", "unit10"], [VehicleLink("agv1", "uagv/v2/acme/sn-1")])
 PASSWORD = {name: a.password for name, a in ACCOUNTS.accounts.items()}
 
 
@@ -61,6 +61,17 @@ def test_the_gate_lets_in_the_right_password_with_an_owned_client_id() -> None:
     gate = Gate(ACCOUNTS)
     for client_id in ("unit1", "unit1-3fa2c1d0", "unit1@hall.b", ""):
         assert gate.refusal("unit1", PASSWORD["unit1"], client_id, "10.0.0.1") is None
+
+
+def test_a_vehicle_uses_the_client_id_its_vendor_chose_if_no_account_owns_it() -> None:
+    # vda-5050-lib and vendors' vehicles pick their own client ids; gridfleet's own clients
+    # take one their account owns (bus.py).
+    gate = Gate(ACCOUNTS)
+    for client_id in ("agv1", "acme_sn-1", "AGV-sn-1-4f2a"):
+        assert gate.refusal("agv1", PASSWORD["agv1"], client_id, "10.0.0.1") is None
+    for owned in ("coordinator", "unit1-x", "vda5050"):  # never one an account owns
+        refusal = gate.refusal("agv1", PASSWORD["agv1"], owned, "10.0.0.1")
+        assert refusal is not None and "belongs to account" in refusal
 
 
 @pytest.mark.parametrize(

@@ -267,15 +267,32 @@ def test_up_with_vehicles_runs_the_vda5050_adapter_and_a_vehicle_joins_as_a_unit
     assert states[-1] == "offline"  # the adapter said goodbye for it
 
 
-def test_up_refuses_vehicles_with_accounts_until_their_accounts_exist(tmp_path: Path) -> None:
+def test_up_refuses_vehicles_with_accounts_without_the_adapters_account(
+    tmp_path: Path, playfield: Path
+) -> None:
+    from gridfleet.accounts import VehicleLink, default_accounts, write_accounts
+    from gridfleet.scenario import load_scenario
+
     vehicles = tmp_path / "vehicles.toml"
     vehicles.write_text(VEHICLES.format(serial="s1"), encoding="utf-8")
+    units = [u.id for u in load_scenario(playfield).units]
     accounts = tmp_path / "accounts.toml"
-    accounts.write_text("", encoding="utf-8")
-    out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "up", "--vehicles", str(vehicles),
-         "--accounts", str(accounts), "--mqtt-port", "0"],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
-    assert out.returncode == 2 and "started" not in out.stdout
-    assert "--vehicles with --accounts" in out.stderr.strip().splitlines()[-1]
+
+    def up_says(links: list[VehicleLink]) -> str:
+        write_accounts(default_accounts(units, links), accounts)
+        out = subprocess.run(
+            [sys.executable, "-m", "gridfleet", "up", "--vehicles", str(vehicles),
+             "--accounts", str(accounts), "--scenario", str(playfield), "--mqtt-port", "0"],
+            capture_output=True, text=True, timeout=60, check=False,
+        )  # fmt: skip
+        assert out.returncode == 2 and "started" not in out.stdout
+        assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+        return out.stderr
+
+    assert (
+        f"no vda5050 account, which --vehicles needs: gridfleet accounts add vda5050 --role "
+        f"vda5050 --vehicles {vehicles} --file {accounts}"
+    ) in up_says([])
+    other = up_says([VehicleLink("agv1", "uagv/v2/gridfleet/another")])
+    assert "account vda5050 does not speak for vehicle agv1" in other
+    assert '{ unit = "agv1", topic = "uagv/v2/gridfleet/s1" }' in other

@@ -19,6 +19,7 @@ from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.config import with_ca_file
 from gridfleet.errors import ConfigError
+from gridfleet.grid import Cell
 from gridfleet.protocol import JobsView, Topics, decode
 from gridfleet.scenario import load_scenario
 from gridfleet.system.cli import build_parser
@@ -180,3 +181,65 @@ def test_a_person_is_told_where_to_open_the_dashboard() -> None:
     assert where_to_open("http://0.0.0.0:5000", "0.0.0.0", True) == (
         "http://127.0.0.1:5000 (from other machines: http://THIS-MACHINE:5000), log in as operator"
     )
+
+
+@pytest.mark.timeout(180)
+def test_up_with_accounts_and_vehicles_a_vehicle_on_its_own_account_does_a_job(
+    tmp_path: Path,
+) -> None:
+    from gridfleet.accounts import VehicleLink
+    from gridfleet.robots.vda5050.frame import Frame
+    from gridfleet.robots.vda5050.virtual import VirtualSpec
+    from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
+    from gridfleet.robots.vda5050.wire import Vehicle
+    from gridfleet.system.threads import ServiceThread
+
+    from support.operator_peer import OperatorPeer
+
+    vehicle = Vehicle("agv1", "gridfleet", "sn-1", "2.1.0")
+    vehicles = tmp_path / "vehicles.toml"
+    vehicles.write_text(
+        '[maps.hall]\n[[vehicles]]\nunit = "agv1"\nmanufacturer = "gridfleet"\n'
+        'serial_number = "sn-1"\nversion = "2.1.0"\nmap = "hall"\n',
+        encoding="utf-8",
+    )
+    units = [u.id for u in load_scenario(PLAYFIELD).units]
+    accounts = default_accounts(units, [VehicleLink("agv1", vehicle.prefix)])
+    accounts_file = tmp_path / "accounts.toml"
+    write_accounts(accounts, accounts_file)
+    argv = ["--accounts", str(accounts_file), "--vehicles", str(vehicles), "--no-robots"]
+    argv += ["--scenario", str(PLAYFIELD), "--step", "0.2", "--db", str(tmp_path / "j.db")]
+    argv += ["--mqtt-port", "0", "--ws-port", "0", "--port", "0"]
+    proc = subprocess.Popen(
+        [*UP, *argv], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=REPO
+    )
+    out = Output(proc)
+    try:
+        url = out.wait(r"listening on (mqtts?://\S+) and", timeout=60).group(1)
+        out.wait(r"coordinator online", 60)  # requests before it listens reach nobody
+        # The vehicle logs in with its own account and a client id of its vendor's choosing.
+        shell = VirtualVehicleShell(
+            vehicle,
+            VirtualSpec(Frame("hall").position(Cell(5, 0)), "hall", capacity_kg=3.0),
+            login(url, accounts, "agv1"),
+        )
+        with (
+            ServiceThread(lambda: shell, "vehicle"),
+            MqttProbe(login(url, accounts, "operator"), "operator-vda") as probe,
+        ):
+            operator = OperatorPeer(probe, Topics("gridfleet"))
+            wait_for(
+                lambda: (s := operator.last_state("agv1")) is not None and s.status == "idle",
+                timeout=30,
+                what="agv1 idle as a unit, through the adapter's account",
+            )
+            job = operator.submit_job(Cell(6, 0), Cell(8, 2), 1.0)
+            assert job.accepted, job.reason
+            wait_for(lambda: operator.all_final([job.job_id or ""]), 60, what="the job final")
+            assert operator.listed_jobs()[job.job_id or ""].state == "done"
+            assert any(topic == "order" for topic, _ in shell.received)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    assert proc.returncode == 0, out.text[-3000:]
+    assert "Traceback" not in out.text and "DIED" not in out.text, out.text[-6000:]

@@ -73,9 +73,7 @@ def run(args: argparse.Namespace) -> int:
         stop = stop_on_signals()
         log.info(
             "carrying %s on %s",
-            ", ".join(
-                f"{c.id} ({c.vehicle.topic('state').rsplit('/', 1)[0]})" for c in adapter.cores
-            ),
+            ", ".join(f"{c.id} ({c.vehicle.prefix})" for c in adapter.cores),
             adapter.endpoint.where,
         )
         await adapter.run(stop)

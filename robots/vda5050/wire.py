@@ -41,10 +41,15 @@ class Vehicle:
                 f"vehicle {self.unit}: version {self.version!r} is not one of {VERSIONS}"
             )
 
+    @property
+    def prefix(self) -> str:
+        """What its topics start with: interfaceName/majorVersion/manufacturer/serialNumber."""
+        major = "v" + self.version.split(".")[0]
+        return f"{self.interface_name}/{major}/{self.manufacturer}/{self.serial_number}"
+
     def topic(self, name: VdaTopic) -> str:
         """The vehicle's topic `name`."""
-        major = "v" + self.version.split(".")[0]
-        return f"{self.interface_name}/{major}/{self.manufacturer}/{self.serial_number}/{name}"
+        return f"{self.prefix}/{name}"
 
 
 def timestamp(now: float) -> str:

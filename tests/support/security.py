@@ -4,12 +4,15 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.accounts import Accounts
+from gridfleet.accounts import Accounts, VehicleLink
 from gridfleet.config import with_credentials
 from gridfleet.protocol import Topics
 
 from support.probe import MqttProbe
 from support.wait import wait_for
+
+# Two VDA 5050 vehicles, as the accounts of these checks name them.
+VEHICLES = (VehicleLink("agv1", "uagv/v2/acme/sn-1"), VehicleLink("agv2", "uagv/v2/acme/sn-2"))
 
 
 def login(url: str, accounts: Accounts, name: str, password: str | None = None) -> str:
@@ -178,3 +181,51 @@ def check_a_device_cannot_take_the_coordinators_connection(
         coordinator.wait(t.fleet("estop"), lambda m: m.payload.endswith(b"still there"))
         unit2.wait(t.unit("order", "unit2"), lambda m: b"still" in m.payload)
     return refused
+
+
+def check_a_vehicle_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> None:
+    """A vehicle's account reaches only its own VDA 5050 topics: an order or instant action for
+    another vehicle (or for itself: only the adapter orders), another vehicle's state, a
+    gridfleet unit's state or the latch reach nobody; its own state does. The adapter's account
+    orders its vehicles but cannot speak for a unit that is not one of them."""
+    t = topics
+    agv1, agv2 = VEHICLES
+    with (
+        MqttProbe(login(url, accounts, "vda5050")) as adapter,
+        MqttProbe(login(url, accounts, "agv2")) as vehicle2,
+        MqttProbe(login(url, accounts, "agv1")) as vehicle1,
+        MqttProbe(login(url, accounts, "coordinator")) as coordinator,
+    ):
+        adapter.subscribe(f"{agv2.topic}/state")
+        adapter.subscribe(f"{agv1.topic}/state")  # its marker, below
+        vehicle2.subscribe(f"{agv2.topic}/order")
+        vehicle2.subscribe(f"{agv2.topic}/instantActions")
+        vehicle1.subscribe(f"{agv1.topic}/order")
+        coordinator.subscribe(t.all_units("state"))
+        coordinator.subscribe(t.fleet("estop"))
+        forged = b'{"forged": true}'
+        vehicle1.publish(f"{agv2.topic}/order", forged)
+        vehicle1.publish(f"{agv2.topic}/instantActions", forged)
+        vehicle1.publish(f"{agv1.topic}/order", forged)
+        vehicle1.publish(f"{agv2.topic}/state", forged, retain=True)
+        vehicle1.publish(t.unit("state", "agv1"), forged, retain=True)
+        vehicle1.publish(t.fleet("estop"), b"released|agv1|forged", retain=True)
+        by_adapter = b'{"forged by": "vda5050"}'
+        adapter.publish(t.unit("state", "unit1"), by_adapter, retain=True)  # not one of its units
+        adapter.publish(t.unit("state", "agv2"), b'{"adapter": true}')  # one of them
+        vehicle1.publish(f"{agv1.topic}/state", b'{"own": true}')
+        # The marker, published after the forgeries on the same connection: a broker keeps one
+        # client's messages in order for each subscriber, so the forgeries had their chance.
+        wait_for(lambda: adapter.received(f"{agv1.topic}/state"), what="agv1's own state")
+        wait_for(lambda: coordinator.received(t.unit("state", "agv2")), what="the adapter's")
+        assert adapter.received(f"{agv2.topic}/state") == []
+        assert vehicle2.received(f"{agv2.topic}/order") == []
+        assert vehicle2.received(f"{agv2.topic}/instantActions") == []
+        assert vehicle1.received(f"{agv1.topic}/order") == []
+        assert coordinator.received(t.unit("state", "agv1")) == []
+        # (unit1's own state may be retained there by another check on this broker)
+        assert by_adapter not in [m.payload for m in coordinator.received(t.unit("state", "unit1"))]
+        latch = [m.payload for m in coordinator.received(t.fleet("estop"))]
+        assert b"released|agv1|forged" not in latch  # (a latch retained before may be there)
+        adapter.publish(f"{agv2.topic}/order", b'{"adapter order": true}')
+        wait_for(lambda: vehicle2.received(f"{agv2.topic}/order"), what="the adapter's order")
