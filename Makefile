@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test install schemas clean system-deps
+.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
@@ -24,10 +24,10 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/gridfleet up
 
-# The chaos soak runs beside the static checks and the firmware's build (each a core's work), then
-# every other test runs four at a time.
+# The chaos soak runs beside the static checks and the firmware's host tests built from a clean
+# checkout (each about a core's work), then every other test runs four at a time.
 test: system-deps $(STAMP)
-	$(MAKE) --no-print-directory -j2 --output-sync=target soak check firmware-test
+	$(MAKE) --no-print-directory -j2 --output-sync=target soak check firmware-checkout
 	$(MAKE) --no-print-directory pytest
 
 # Installs the missing Debian packages as root (or with password-less sudo); otherwise says the
@@ -76,14 +76,21 @@ test-fast: $(STAMP)
 soak: $(STAMP)
 	$(BIN)/pytest -q -m soak
 
-# Every test but the soak.
+# The firmware's host tests, built with g++ from the files git tracks alone (tests/test_firmware.py).
+firmware-checkout: $(STAMP)
+	$(BIN)/pytest -q -m firmware
+
+# Every test but the soak and the firmware's build (make test runs those beside the checks).
 pytest: $(STAMP)
-	$(BIN)/pytest $(XDIST) -m "not soak"
+	$(BIN)/pytest $(XDIST) -m "not soak and not firmware"
 
 # Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
 # (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
+# Six at a time: these mostly wait on the broker (four kept 2 cores two-thirds busy).
+MOSQUITTO_WORKERS ?= 6
 test-mosquitto: system-deps $(STAMP)
-	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
+	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest \
+		$(if $(filter 0,$(TEST_WORKERS)),,-n $(MOSQUITTO_WORKERS) --dist worksteal)
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi

@@ -190,20 +190,41 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
 ) -> None:
     _, fleet = system()
     world = world_of(fleet)
-    assert operator.submit_job(*PLAYFIELD_JOBS[0], job_id="f1").accepted
+    jobs: list[str] = []
+
+    def submit_next() -> None:
+        job_id = f"f{len(jobs) + 1}"
+        assert operator.submit_job(*PLAYFIELD_JOBS[len(jobs)], job_id=job_id).accepted
+        jobs.append(job_id)
+
+    submit_next()
+    forger = probe_factory()  # connected first: a forgery must land while its order is current
 
     def moving() -> UnitState | None:
-        """The newest state of a unit driving an order (its order id is the current one)."""
+        """The newest state of a unit driving an order (its order id is the current one).
+
+        Moving, not "with released squares": a unit that moves every step has driven the one
+        square it was released by the time it reports, so its states seldom show one.
+        """
         return next(
-            (s for u in CAPACITY if (s := operator.last_state(u)) and s.order_id and s.released),
+            (
+                s
+                for u in CAPACITY
+                if (s := operator.last_state(u)) and s.order_id and s.status == "moving"
+            ),
             None,
         )
 
     def reported() -> bool:
         return any("never sent" in e.reason for e in operator.errors())
 
+    def under_way() -> UnitState | None:
+        if operator.all_final(jobs):  # done before a forgery landed (a busy machine): one more
+            submit_next()
+        return moving()
+
     for _ in range(5):  # the order may change under us (a new route): forge the new one then
-        now = wait_for(moving, timeout=10, what="an order under way")
+        now = wait_for(under_way, timeout=20, what="an order under way")
         assert now.order_id is not None
         unit = now.order_id.split("-")[-2]  # <nonce>-<unit>-<route>
         # The coordinator's current order id, an update id it will not reach: every later real
@@ -223,12 +244,12 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
             "target": None,
             "action": None,
         }
-        probe_factory().publish(topics.unit("order", unit), json.dumps(forged), qos=1)
+        forger.publish(topics.unit("order", unit), json.dumps(forged), qos=1)
         with contextlib.suppress(WaitTimeout):
             wait_for(reported, timeout=3, what="the forged order reported")
             break
-    wait_for(lambda: operator.all_final(["f1"]), timeout=30, what="the job done all the same")
-    assert operator.listed_jobs()["f1"].state == "done"
+    wait_for(lambda: operator.all_final(jobs), timeout=30, what="the jobs done all the same")
+    assert {operator.listed_jobs()[j].state for j in jobs} == {"done"}
     assert reported()  # and it was reported
     assert world.collisions == 0, world.log
 

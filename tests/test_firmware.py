@@ -36,6 +36,7 @@ def have_toolchain() -> bool:
     not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
 )
 @pytest.mark.slow  # make test-fast: `make firmware-test` builds and runs the same host tests
+@pytest.mark.firmware  # make test runs it beside the soak and the static checks
 @pytest.mark.timeout(240)  # a cold g++ build of the host tests, with its own 180 s limit
 def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
     files = tracked("firmware")
@@ -62,7 +63,9 @@ def test_make_test_runs_the_host_tests_and_installs_their_compiler() -> None:
         ["make", "-n", "test"], cwd=REPO, capture_output=True, text=True, timeout=60
     )
     assert out.returncode == 0, out.stderr
-    assert "build/unit_tests" in out.stdout and "build/sketch_test" in out.stdout
+    # make test builds and runs them from a clean checkout (the test above), once.
+    assert re.search(r"pytest -q -m firmware$", out.stdout, re.M), out.stdout
+    assert '-m "not soak and not firmware"' in out.stdout
     # `make test` installs its own Debian packages (system-deps), and CI runs just that.
     makefile = (REPO / "Makefile").read_text()
     packages = re.search(r"^DEBIAN_PACKAGES := (.*)$", makefile, re.MULTILINE)
