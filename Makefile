@@ -86,11 +86,8 @@ pytest: $(STAMP)
 
 # Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
 # (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
-# Six at a time: these mostly wait on the broker (four kept 2 cores two-thirds busy).
-MOSQUITTO_WORKERS ?= 6
 test-mosquitto: system-deps $(STAMP)
-	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest \
-		$(if $(filter 0,$(TEST_WORKERS)),,-n $(MOSQUITTO_WORKERS) --dist worksteal)
+	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi

@@ -38,6 +38,7 @@ from gridfleet.protocol import (
     StopView,
     Topics,
     UnitState,
+    VehicleCondition,
     decode,
 )
 from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
@@ -62,6 +63,8 @@ class FleetStatus:
     states: dict[str, UnitState] = field(default_factory=dict)
     controls: dict[str, str] = field(default_factory=dict)  # unit -> an operator's control of it
     models: dict[str, str] = field(default_factory=dict)  # unit -> its factsheet's model
+    # unit -> a VDA 5050 vehicle's own battery and errors (protocol.md §4.7)
+    vehicles: dict[str, VehicleCondition] = field(default_factory=dict)
     jobs: JobsView | None = None
 
     def apply(self, kind: str, source: str | None, topic: str, payload: bytes) -> None:
@@ -94,6 +97,11 @@ class FleetStatus:
                 self.models.pop(source, None)
             else:
                 self.models[source] = decode(Factsheet, payload).model
+        elif kind == "vehicle" and source is not None:
+            if cleared:
+                self.vehicles.pop(source, None)
+            else:
+                self.vehicles[source] = decode(VehicleCondition, payload)
 
 
 def _signal(signal: EstopSignal) -> str:
@@ -143,7 +151,7 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "
 
 def unit_lines(fleet: FleetStatus) -> list[str]:
     """One line per unit: connection, position, status, job, load, why it waits."""
-    units = sorted(set(fleet.connections) | set(fleet.states))
+    units = sorted(set(fleet.connections) | set(fleet.states) | set(fleet.vehicles))
     if not units:
         return ["units: none on the broker"]
     online = sum(1 for u in units if fleet.connections.get(u) == "online")
@@ -158,6 +166,15 @@ def unit_lines(fleet: FleetStatus) -> list[str]:
         vda = fleet.models.get(unit, "").removeprefix("vda5050-")
         if vda != fleet.models.get(unit, ""):
             link += f" (VDA 5050 {vda})"  # a vehicle the adapter carries
+        waits = "" if state is None or state.wait_reason is None else state.wait_reason
+        own = fleet.vehicles.get(unit)
+        if own is not None:
+            if own.battery_pct is not None:
+                charging = " charging" if own.charging else ""
+                link += f", battery {own.battery_pct:.0f} %{charging}"
+            if own.errors:  # what the vehicle itself says is wrong, after why it waits
+                says = "vehicle: " + "; ".join(own.errors)
+                waits = f"{waits}; {says}" if waits else says
         rows.append(
             (
                 unit,
@@ -166,7 +183,7 @@ def unit_lines(fleet: FleetStatus) -> list[str]:
                 status,
                 "-" if state is None or state.job_id is None else state.job_id,
                 "-" if state is None else f"{state.load_kg:g}",
-                "" if state is None or state.wait_reason is None else state.wait_reason,
+                waits,
             )
         )
     header = ("unit", "connection", "square", "status", "job", "load kg", "waiting for")
@@ -223,6 +240,7 @@ class StatusReader:
             (t.all_units("connection"), TOPICS["connection"].qos),
             (t.all_units("state"), TOPICS["state"].qos),
             (t.all_units("factsheet"), TOPICS["factsheet"].qos),
+            (t.all_units("vehicle"), TOPICS["vehicle"].qos),
             (t.fleet("jobs"), TOPICS["jobs"].qos),
             (t.fleet("routes"), TOPICS["routes"].qos),
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),

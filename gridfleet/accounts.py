@@ -51,6 +51,8 @@ MIN_PASSWORD = 12
 # Each level one of MQTT's, printable, without spaces (a Mosquitto ACL line ends at the topic).
 _LEVEL = r"[^/+#\s\x00-\x1f\x7f]+"
 VDA_TOPIC = re.compile(rf"(?!\$){_LEVEL}/v[0-9]+/{_LEVEL}/{_LEVEL}")
+# What a unit publishes of itself (the adapter, for a vehicle's unit, its `vehicle` too).
+UNIT_OWN_KINDS = ("connection", "factsheet", "state", "direction", "stop")
 VDA_FROM_VEHICLE = ("state", "connection", "factsheet", "visualization")
 VDA_TO_VEHICLE = ("order", "instantActions")
 
@@ -306,8 +308,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         ]
     elif account.role == "unit":
         assert account.unit is not None
-        own_kinds = ("connection", "factsheet", "state", "direction", "stop")
-        publish = [*(t.unit(k, account.unit) for k in own_kinds), t.fleet("errors")]
+        publish = [*(t.unit(k, account.unit) for k in UNIT_OWN_KINDS), t.fleet("errors")]
         subscribe = [
             t.unit("order", account.unit),
             t.unit("goal", account.unit),
@@ -328,10 +329,9 @@ def rules(account: Account, topics: Topics) -> Rules:
     elif account.role == "vda5050":
         # Each vehicle's unit, as a unit's account would (it may press the stop for a vehicle
         # whose own e-stop is pressed), and the vehicles' orders and instant actions.
-        own_kinds = ("connection", "factsheet", "state", "direction", "stop")
         links = account.vehicles
         publish = [
-            *(t.unit(k, v.unit) for v in links for k in own_kinds),
+            *(t.unit(k, v.unit) for v in links for k in (*UNIT_OWN_KINDS, "vehicle")),
             t.fleet("errors"),
             *(f"{v.topic}/{k}" for v in links for k in VDA_TO_VEHICLE),
         ]

@@ -285,3 +285,23 @@ def test_a_vda_5050_vehicle_says_so_beside_its_connection() -> None:
     assert "online (VDA 5050 2.1.0)" in lines[2]
     fleet.apply("factsheet", "agv1", T.unit("factsheet", "agv1"), b"")  # cleared
     assert "VDA" not in unit_lines(fleet)[2]
+
+
+def test_a_vda_5050_vehicle_shows_its_battery_and_its_own_errors() -> None:
+    from gridfleet.protocol import VehicleCondition
+
+    condition = VehicleCondition(
+        header=header("agv1"),
+        battery_pct=41.6,
+        charging=True,
+        errors=["FATAL motorFault: left wheel", "WARNING lowBattery"],
+    )
+    fleet = fed(
+        (T.unit("connection", "agv1"), Connection(header=header("agv1"), state="broken")),
+        (T.unit("vehicle", "agv1"), condition),
+    )
+    (row,) = unit_lines(fleet)[2:]
+    assert "broken, battery 42 % charging" in row
+    assert row.endswith("vehicle: FATAL motorFault: left wheel; WARNING lowBattery")
+    fleet.apply("vehicle", "agv1", T.unit("vehicle", "agv1"), b"")  # cleared
+    assert "battery" not in unit_lines(fleet)[2]

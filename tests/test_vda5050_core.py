@@ -20,6 +20,7 @@ from gridfleet.protocol import (
     Order,
     Topics,
     UnitState,
+    VehicleCondition,
     decode,
     encode,
 )
@@ -117,7 +118,11 @@ def test_the_unit_comes_online_once_the_vehicle_is_and_says_where_it_stands() ->
         "units/agv1/factsheet",
         "units/agv1/state",
         "units/agv1/direction",
+        "units/agv1/vehicle",
     ]
+    told = decode(VehicleCondition, outs[4].payload)
+    assert (told.battery_pct, told.charging, told.errors) == (81.5, False, [])
+    assert (outs[4].qos, outs[4].retain) == (1, True)
     assert decode(Connection, outs[0].payload).state == "online"
     factsheet = decode(Factsheet, outs[1].payload)
     assert (factsheet.capacity_kg, factsheet.sensors, factsheet.model) == (
@@ -144,7 +149,9 @@ def test_a_2_1_vehicle_is_asked_its_factsheet_and_its_capacity_is_the_units() ->
     assert kinds(outs) == ["instantActions", "instantActions"]
     asked = [json.loads(o.payload)["actions"][0]["actionType"] for o in outs]
     assert asked == ["stateRequest", "factsheetRequest"]
-    assert c.on_vehicle("state", vda(state("2.1.0", agvPosition=at(0, 0))), T0) == []
+    # Not a unit before its capacity is known; its own condition is told all the same.
+    early = c.on_vehicle("state", vda(state("2.1.0", agvPosition=at(0, 0))), T0)
+    assert kinds(early) == ["units/agv1/vehicle"]
     virtual = VirtualVehicle(
         Vehicle("agv1", "acme", "sn-7", "2.1.0"), VirtualSpec((0.0, 0.0), "hall", capacity_kg=7.5)
     )
@@ -229,11 +236,31 @@ def test_the_vehicles_own_emergency_stop_is_a_press_and_a_fatal_error_makes_it_l
         errors=[{"errorType": "motorFault", "errorLevel": "FATAL", "errorReferences": []}],
     )
     outs = c.on_vehicle("state", vda(fatal), T0 + 2)
-    assert kinds(outs) == ["units/agv1/connection"]
+    assert kinds(outs) == ["units/agv1/connection", "units/agv1/vehicle"]
     assert decode(Connection, outs[0].payload).state == "broken"
+    assert decode(VehicleCondition, outs[1].payload).errors == ["FATAL motorFault"]  # why
     # Well again: the fleet hears it back.
     outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0 + 3)
     assert kinds(outs)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
+    assert decode(VehicleCondition, outs[-1].payload).errors == []
+
+
+def test_the_vehicles_battery_and_own_errors_are_told_when_they_change() -> None:
+    c = core()
+    online(c)
+
+    def told(**fields: Any) -> list[VehicleCondition]:
+        outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0), **fields)), T0)
+        return [decode(VehicleCondition, o.payload) for o in outs if o.topic.endswith("/vehicle")]
+
+    assert told(batteryState={"batteryCharge": 81.9, "charging": False}) == []  # same percent
+    (low,) = told(batteryState={"batteryCharge": 80.9, "charging": True})
+    assert (low.battery_pct, low.charging) == (80.9, True)
+    warning = {"errorType": "lowBattery", "errorLevel": "WARNING", "errorReferences": []}
+    many = [{**warning, "errorDescription": f"cell {n}"} for n in range(10)]
+    (worn,) = told(batteryState={"batteryCharge": 130.0, "charging": True}, errors=many)
+    assert worn.battery_pct == 100.0  # what a vehicle cannot mean, bounded
+    assert worn.errors == [f"WARNING lowBattery: cell {n}" for n in range(8)]  # the first 8
 
 
 @pytest.mark.parametrize(

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from gridfleet.grid import Cell
-from gridfleet.protocol import Topics, UnitState, decode
+from gridfleet.protocol import Topics, UnitState, VehicleCondition, decode
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.shell import AdapterShell
@@ -221,6 +221,11 @@ def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_i
     carried = {s.job_id for s in operator.states("agv1") if s.job_id is not None}
     assert vda_jobs <= carried
     assert mixed.judge.faults == [] and mixed.judge.seen > 50
+    # Its own condition, retained for whoever looks (the dashboard, gridfleet status).
+    told_on = operator.topics.unit("vehicle", "agv1")
+    operator.probe.subscribe(told_on)
+    told = decode(VehicleCondition, operator.probe.wait(told_on).payload)
+    assert (told.battery_pct, told.charging, told.errors) == (90.0, False, [])
     # Both ways, every message of the vehicle's is valid against the official 2.1.0 schemas.
     schemas = official_if_here()
     virtual = mixed.agv1

@@ -112,7 +112,7 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  assert.equal(Object.keys(subs).length, 13); // 11, and every unit's and device's stop press
+  assert.equal(Object.keys(subs).length, 14); // 12, and every unit's and device's stop press
   assert.throws(() => T.allUnits("estop"), /not a per-unit topic kind/);
   assert.throws(() => T.request("jobs"), /not a request kind/);
   const e = TABLE.estop;

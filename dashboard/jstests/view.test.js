@@ -22,6 +22,22 @@ test("a VDA 5050 vehicle's row says so beside its link", () => {
   assert.deepEqual(unitCells(v.units.get("unit1"))[1], ["?", "link"]);
 });
 
+test("a VDA 5050 vehicle's row shows its battery and its own errors", () => {
+  const v = new FleetView();
+  v.apply("connection", "agv1", JSON.stringify({ state: "broken" }), 0);
+  v.apply("factsheet", "agv1", JSON.stringify({ capacity_kg: 3, step_period_s: 0.5, model: "vda5050-2.1.0" }), 0);
+  const condition = { battery_pct: 41.6, charging: true, errors: ["FATAL motorFault: left wheel", "WARNING lowBattery"] };
+  v.apply("vehicle", "agv1", JSON.stringify(condition), 0);
+  const [, link, , status] = unitCells(v.units.get("agv1"));
+  assert.deepEqual(link, ["broken · VDA 5050 2.1.0 · battery 42 % charging", "link vda"]);
+  assert.equal(status[0], "— · vehicle: FATAL motorFault: left wheel; WARNING lowBattery");
+  v.apply("vehicle", "agv1", JSON.stringify({ battery_pct: null, charging: false, errors: [] }), 0);
+  assert.deepEqual(text(unitCells(v.units.get("agv1"))).slice(1, 4), ["broken · VDA 5050 2.1.0", "—", "—"]);
+  // Cleared with the rest of the unit's retained topics: the row goes once all are.
+  for (const kind of ["connection", "factsheet", "vehicle"]) v.apply(kind, "agv1", "", 0);
+  assert.equal(v.units.has("agv1"), false);
+});
+
 test("a unit's row: link, square, status with its reason, job and load of capacity", () => {
   const v = new FleetView();
   v.apply("connection", "unit1", JSON.stringify({ state: "online" }), 0);

@@ -44,6 +44,7 @@ from gridfleet.protocol.messages import (
     SetGoal,
     SubmitJob,
     UnitState,
+    VehicleCondition,
 )
 from gridfleet.protocol.stop import StopView
 from gridfleet.protocol.topics import TOPICS, Topics, TopicSpec, validate_id
@@ -81,6 +82,7 @@ __all__ = [
     "TopicSpec",
     "Topics",
     "UnitState",
+    "VehicleCondition",
     "decode",
     "decode_device_connection",
     "decode_direction",

@@ -128,6 +128,14 @@ class Factsheet(Message):
     map_id: Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{12}$")] | None = None
 
 
+class VehicleCondition(Message):
+    """`units/<id>/vehicle`: what a VDA 5050 vehicle says of itself (its battery, its own errors)."""
+
+    battery_pct: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)] | None = None
+    charging: bool = False
+    errors: Annotated[list[Text], Field(max_length=8)] = Field(default_factory=list)
+
+
 class Leds(Model):
     """The four direction LEDs; exactly one is lit before a move, all when emergency-stopped."""
 

@@ -66,6 +66,15 @@ TOPICS: dict[str, TopicSpec] = {
             "factsheet", "units/{unit}/factsheet", 1, True, "json", "Factsheet", MAX_REQUEST_BYTES
         ),
         TopicSpec("state", "units/{unit}/state", 0, True, "json", "UnitState", MAX_REQUEST_BYTES),
+        TopicSpec(
+            "vehicle",
+            "units/{unit}/vehicle",
+            1,
+            True,
+            "json",
+            "VehicleCondition",
+            MAX_REQUEST_BYTES,
+        ),
         TopicSpec("order", "units/{unit}/order", 1, False, "json", "Order", MAX_REQUEST_BYTES),
         TopicSpec("goal", "units/{unit}/goal", 1, False, "json", "Goal", MAX_REQUEST_BYTES),
         TopicSpec(

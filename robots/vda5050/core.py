@@ -41,10 +41,11 @@ from gridfleet.protocol import (
     Sensors,
     Topics,
     UnitState,
+    VehicleCondition,
     decode,
     encode_direction,
 )
-from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
+from gridfleet.protocol.constants import MAX_TEXT, STATE_HEARTBEAT_STEPS
 from gridfleet.protocol.device import EstopSignal, encode_estop
 from gridfleet.protocol.messages import SensorReading, UnitError, UnitStatus
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
@@ -119,6 +120,7 @@ class VehicleCore:
         self._quiet = 0
         self._told: tuple[object, ...] | None = None
         self._sent_direction: bytes | None = None
+        self._condition_sent: tuple[object, ...] | None = None
         self._ids = itertools.count(1)
 
     # ---- subscriptions ------------------------------------------------------------------------
@@ -229,8 +231,26 @@ class VehicleCore:
             )
             if self.announced and not view.estop:
                 self.errors.append(UnitError(code="vehicle_down", message=why[:200]))
-                return outs + self._goodbye("broken")
-        return outs + (self._announce(now) or self.state())
+                return outs + self._goodbye("broken") + self._vehicle_condition(view)
+        # Its condition even while it is not a unit of the fleet: a vehicle down from the start
+        # shows why on the dashboard.
+        return outs + (self._announce(now) or self.state()) + self._vehicle_condition(view)
+
+    def _vehicle_condition(self, view: VehicleView) -> list[Outbound]:
+        """The vehicle's battery and own errors (protocol.md §4.7), when they changed."""
+        battery = min(100.0, max(0.0, view.battery_pct))
+        errors = [e[:MAX_TEXT] for e in view.errors[:8]]
+        seen = (int(battery), view.charging, tuple(errors))
+        if seen == self._condition_sent:
+            return []
+        self._condition_sent = seen
+        message = VehicleCondition(
+            header=self.stamp("vehicle"),
+            battery_pct=round(battery, 1),
+            charging=view.charging,
+            errors=errors,
+        )
+        return [Outbound.of("vehicle", self.topics.unit("vehicle", self.id), message)]
 
     def _refusals(self, message: VdaState) -> None:
         """An order or update the vehicle refused: what it will not drive is not released.
@@ -488,6 +508,7 @@ class VehicleCore:
         self.announced = False  # the next word from the vehicle announces the unit again
         self.stop = StopView()  # a press cleared meanwhile is not replayed
         self._sent_direction = None
+        self._condition_sent = None
 
     def offline(self) -> list[Outbound]:
         """The goodbye of a clean stop: the unit is offline."""

@@ -77,6 +77,7 @@ class _Load(_Part):
 
 class _Battery(_Part):
     batteryCharge: Number
+    charging: bool = False
 
 
 class _Safety(_Part):

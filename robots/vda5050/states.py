@@ -57,6 +57,8 @@ class VehicleView:
     warnings: tuple[str, ...]
     load_kg: float
     battery_pct: float
+    charging: bool
+    errors: tuple[str, ...]  # every error it reports, as `LEVEL errorType: errorDescription`
     last_node: tuple[str, int]  # lastNodeId, lastNodeSequenceId
     finished: frozenset[str]  # action ids FINISHED
     failed: frozenset[str]  # action ids FAILED
@@ -95,6 +97,8 @@ def read_state(state: dict[str, Any], frame: Frame, margin_m: float) -> VehicleV
         warnings=tuple(described(e) for e in errors if e["errorLevel"] == "WARNING"),
         load_kg=sum(float(load.get("weight", 0.0)) for load in state.get("loads", [])),
         battery_pct=float(state["batteryState"]["batteryCharge"]),
+        charging=bool(state["batteryState"].get("charging", False)),
+        errors=tuple(f"{e['errorLevel']} {described(e)}" for e in errors),
         last_node=(state["lastNodeId"], state["lastNodeSequenceId"]),
         finished=frozenset(a["actionId"] for a in actions if a["actionStatus"] == "FINISHED"),
         failed=frozenset(a["actionId"] for a in actions if a["actionStatus"] == "FAILED"),

@@ -4,6 +4,9 @@
 import { decodeEstop, decodePress, FINAL_JOB_STATES } from "./protocol.js";
 import { JobNumbers, Utilisation } from "./story.js";
 
+// What the page keeps of a unit, each from its retained topic; a unit with none of them is gone.
+const UNIT_PARTS = ["state", "connection", "factsheet", "vehicle"];
+
 export const HIGHLIGHT_MS = 4000; // how long a newly discovered obstacle stays highlighted
 const key = (sq) => `${sq[0]},${sq[1]}`;
 
@@ -11,7 +14,7 @@ export class FleetView {
   constructor(initialMap = null, colors = {}) {
     this.map = initialMap; // {name, width, height, rows, obstacles}
     this.colors = colors; // fallback unit colours, e.g. from the scenario
-    this.units = new Map(); // id -> {id, connection, factsheet, state, lastSeen}
+    this.units = new Map(); // id -> {id, connection, factsheet, state, vehicle, lastSeen}
     this.jobs = []; // JobView objects of the jobs not finished (fleet/jobs `jobs`)
     this.finished = []; // the latest finished jobs, newest first (fleet/jobs `finished`)
     this.jobById = new Map(); // id -> a job not finished
@@ -33,7 +36,7 @@ export class FleetView {
   unit(id) {
     let u = this.units.get(id);
     if (!u) {
-      u = { id, connection: null, factsheet: null, state: null, lastSeen: null };
+      u = { id, connection: null, factsheet: null, state: null, vehicle: null, lastSeen: null };
       this.units.set(id, u);
     }
     return u;
@@ -59,9 +62,9 @@ export class FleetView {
       return null;
     }
     if (text === "") { // a cleared retained message
-      if (id && (kind === "state" || kind === "connection" || kind === "factsheet")) {
+      if (id && UNIT_PARTS.includes(kind)) {
         const u = this.units.get(id);
-        if (u) { u[kind] = null; if (!u.state && !u.connection && !u.factsheet) this.units.delete(id); }
+        if (u) { u[kind] = null; if (UNIT_PARTS.every((part) => !u[part])) this.units.delete(id); }
       }
       return null;
     }
@@ -75,6 +78,8 @@ export class FleetView {
     switch (kind) {
       case "connection": this.unit(id).connection = msg.state; break;
       case "factsheet": this.unit(id).factsheet = msg; break;
+      // A VDA 5050 vehicle's battery and own errors (protocol.md §4.7).
+      case "vehicle": this.unit(id).vehicle = msg; break;
       case "state": {
         if (!Array.isArray(msg.position)) return `ignored a state of ${id} without a position`;
         const u = this.unit(id);

@@ -53,8 +53,9 @@ export function topicsFor(root) {
   };
 }
 
-// What the page reads: every unit's connection, factsheet and state, the fleet views, its replies.
-const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state"];
+// What the page reads: every unit's connection, factsheet, state and (a VDA 5050 vehicle's) own
+// condition, the fleet views, its replies.
+const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state", "vehicle"];
 const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events"];
 
 /** What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0). */

@@ -65,6 +65,16 @@ export const TOPICS = freeze({
     "schema": "schemas/UnitState.json",
     "max_bytes": 16384
   },
+  "vehicle": {
+    "pattern": "units/{unit}/vehicle",
+    "placeholder": "unit",
+    "qos": 1,
+    "retained": true,
+    "payload": "json",
+    "model": "VehicleCondition",
+    "schema": "schemas/VehicleCondition.json",
+    "max_bytes": 16384
+  },
   "order": {
     "pattern": "units/{unit}/order",
     "placeholder": "unit",

@@ -36,11 +36,17 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
   if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
   // A job whose item is on board is marked (the load says how heavy).
   const carrying = s && s.load_kg > 0 ? "job carrying" : "job";
-  // A VDA 5050 vehicle (gridfleet vda5050 carries it) says so beside its link.
+  // A VDA 5050 vehicle (gridfleet vda5050 carries it) says so beside its link, with its battery;
+  // its own errors (a FATAL one makes its unit broken) follow the status.
   const vda = /^vda5050-(.+)$/.exec(u.factsheet?.model ?? "");
-  const link = (u.connection ?? "?") + (vda ? ` · VDA 5050 ${vda[1]}` : "");
+  const own = u.vehicle;
+  let link = (u.connection ?? "?") + (vda ? ` · VDA 5050 ${vda[1]}` : "");
+  if (own?.battery_pct != null) {
+    link += ` · battery ${Math.round(own.battery_pct)} %${own.charging ? " charging" : ""}`;
+  }
+  if (own?.errors?.length) status += ` · vehicle: ${own.errors.join("; ")}`;
   return [
-    [u.id, "id"], [link, vda ? "link vda" : "link"],
+    [u.id, "id"], [link, vda || own ? "link vda" : "link"],
     [s ? `[${s.position[0]}, ${s.position[1]}]` : "—", "pos"], [status, "status"],
     [job ?? "—", carrying], [s ? `${s.load_kg}${cap} kg` : (cap ? `0${cap} kg` : "—"), "load"],
   ];
