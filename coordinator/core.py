@@ -377,7 +377,7 @@ class CoordinatorCore:
             moves = self.moves.plan(
                 units,
                 movable,
-                lambda u: self.orders.reserved(u, now, self.world),
+                self.orders.reserved,
                 targets,
                 self.progress.urgency(units),
             )

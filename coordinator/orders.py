@@ -14,10 +14,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from gridfleet.coordinator.world import UnitRecord, World
+from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Action, UnitState
-from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S, STALE_AFTER_STEPS
+from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S
 
 # A step waits for acknowledgements only while more than one in LATE_SHARE of the units ordered
 # still owe one (see Orders.holding_back). A unit acknowledges with the state of its next step,
@@ -109,15 +109,15 @@ class Orders:
         assert u.state is not None
         return self.acked(u) and not u.state.released
 
-    def reserved(self, u: UnitRecord, now: float, world: World) -> set[Cell]:
-        """Squares besides its own that nobody else may enter: what the unit may still drive."""
+    def reserved(self, u: UnitRecord) -> set[Cell]:
+        """Squares besides its own that nobody else may enter: what the unit may still drive.
+
+        A lost unit's too, for as long as it is lost: unheard, it may have driven them (a unit
+        cut off holds still only after a few periods without orders, a VDA 5050 vehicle drives
+        its whole base), so it may stand on any of them now (protocol.md §8).
+        """
         assert u.state is not None
         t = self.tracks.get(u.id)
-        if u.lost_since is not None:
-            period = max(world.step_period_s, world.stale_after_s(u) / STALE_AFTER_STEPS)
-            hold_after = max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * period) + period
-            if now - u.lost_since > hold_after:
-                return set()  # it holds still by now: only its last square stays reserved
         out = set(u.state.released)
         if t is not None and not self.acked(u):
             out |= t.unacked

@@ -653,3 +653,36 @@ def test_a_goal_sent_as_the_unit_picks_up_leaves_the_job_with_the_item() -> None
             break
     assert (job.state, job.unit) == ("done", "u")
     assert other.job_id is None and other.load_kg == 0.0  # v never picked anything up
+
+
+def test_a_lost_units_released_squares_stay_reserved_for_as_long_as_it_is_lost() -> None:
+    # Unheard, it may have driven them (a VDA 5050 vehicle drives its whole base): nobody else
+    # is released one of them, however long it stays lost.
+    core, yard = one_unit(5.0)
+    other = UnitLogic("v", core.world.grid, Cell(4, 0), 5.0, 1.0)
+    yard = Yard(core.world.grid, [yard.units["u"], other])
+    meet(core, yard.state("v"), 5.0)
+    lost = yard.units["u"]
+    goal = SetGoal(header=header("t"), request_id="g1", reply_to="t", unit="u", target=Cell(3, 0))
+    assert reply_in(request(core, "set_goal", goal, 0.0)).accepted
+    now = 0.0
+    while not lost.released:
+        now += 1.0
+        assert now < 10, "u never released a square"
+        if (order := orders_in(core.step(now)).get("u")) is not None:
+            lost.on_order(order, now)
+        from_unit(core, "state", "v", yard.state("v"), now)
+    from_unit(core, "state", "u", yard.state("u"), now)  # its last word: released, not driven
+    ahead = set(lost.released)
+    goal = goal.model_copy(update={"request_id": "g2", "unit": "v", "target": Cell(1, 0)})
+    assert reply_in(request(core, "set_goal", goal, now)).accepted
+    for _ in range(200):  # u says nothing more: lost after a few seconds, for good
+        now += 1.0
+        order = orders_in(core.step(now)).get("v")
+        if order is not None:
+            assert not ahead & set(order.released), f"{order.released} released at {now} s"
+            other.on_order(order, now)
+        yard.tick("v", now)
+        from_unit(core, "state", "v", yard.state("v"), now)
+    assert core.world.units["u"].lost_since is not None
+    assert other.position not in ahead
