@@ -300,7 +300,18 @@ async def test_a_browser_tab_closing_mid_stream_leaves_the_log_quiet(
         publisher = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="publisher")
         publisher.connect("127.0.0.1", broker.port)
         publisher.loop_start()
+        # A last reader, whose copy of a final marker says everything before it went out: a
+        # broker stopped with messages still queued says so ("N messages not broadcasted").
+        drained = threading.Event()
+        reader = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="reader")
+        reader.on_message = lambda c, u, m: drained.set() if m.topic == "x/end" else None
+        subscribed = threading.Event()
+        reader.on_subscribe = lambda c, u, mid, codes, p: subscribed.set()
+        reader.connect("127.0.0.1", broker.port)
+        reader.subscribe("x/#")
+        reader.loop_start()
         try:
+            assert await asyncio.to_thread(subscribed.wait, 30), "no SUBACK for the reader"
             for tab in range(3):
                 page = await websockets.connect(broker.ws_url, subprotocols=["mqtt"])
                 client_id = f"page-{tab}".encode()
@@ -314,9 +325,12 @@ async def test_a_browser_tab_closing_mid_stream_leaves_the_log_quiet(
                 await page.close(code=1001)  # the tab goes away with messages on their way
                 for _ in range(200):
                     publisher.publish("x/y", b"z" * 100)
+            publisher.publish("x/end", b"")
+            assert await asyncio.to_thread(drained.wait, 30), "the marker never came"
         finally:
-            publisher.loop_stop()
-            publisher.disconnect()
+            for client in (publisher, reader):
+                client.loop_stop()
+                client.disconnect()
     noisy = [r.getMessage() for r in caplog.records if r.name.startswith("amqtt")]
     assert noisy == []
 
