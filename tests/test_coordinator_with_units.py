@@ -330,5 +330,8 @@ def test_coordinator_restart_mid_run_loses_no_job(
             print({i: (j.state, j.unit, j.reason) for i, j in operator.listed_jobs().items()})
             print({u: operator.states(u)[-1] for u in CAPACITY})
             raise
-    assert {operator.job_state(i) for i in ids} == {"done"}
+    listed = operator.listed_jobs()
+    assert {listed[i].state for i in ids} == {"done"}, {
+        i: (listed[i].state, listed[i].unit, listed[i].reason) for i in ids
+    }
     assert world.collisions == 0, world.log
