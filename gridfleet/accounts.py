@@ -112,10 +112,14 @@ class Account:
         if self.role not in ("vehicle", "vda5050") and links:
             raise ConfigError(f"account {self.name}: a {self.role} account has no vehicles")
         for what in ("unit", "topic"):
-            values = [getattr(v, what) for v in links]
-            twice = sorted({x for x in values if values.count(x) > 1})
-            if twice:
-                raise ConfigError(f"account {self.name}: vehicle {what} {twice[0]!r} twice")
+            twice = _repeated([getattr(v, what) for v in links])
+            if twice is not None:
+                raise ConfigError(f"account {self.name}: vehicle {what} {twice!r} twice")
+
+
+def _repeated(values: Sequence[str]) -> str | None:
+    """The first (in sorted order) of `values` that occurs more than once, if any."""
+    return min((x for x in set(values) if values.count(x) > 1), default=None)
 
 
 @dataclass(frozen=True)
@@ -164,10 +168,9 @@ def default_accounts(units: list[str], vehicles: Sequence[VehicleLink] = ()) -> 
         made.append(Account("vda5050", new_password(), "vda5050", vehicles=tuple(vehicles)))
     for v in vehicles:
         made.append(Account(v.unit, new_password(), "vehicle", v.unit, (v,)))
-    names = [a.name for a in made]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError(f"account {twice[0]!r} twice: a unit and a vehicle share the id")
+    twice = _repeated([a.name for a in made])
+    if twice is not None:
+        raise ConfigError(f"account {twice!r} twice: a unit and a vehicle share the id")
     return Accounts({a.name: a for a in made})
 
 
