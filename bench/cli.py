@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+from typing import Any
 
 from gridfleet.errors import ConfigError
+from gridfleet.options import GridfleetParser
 
 # What pyproject's `bench` extra brings; a bench that needs one missing says how to install it.
 BENCH_EXTRA = {"psutil", "playwright", "matplotlib"}
@@ -39,26 +41,52 @@ BENCHES: dict[str, tuple[str, str]] = {
 }
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add one subcommand per benchmark."""
-    sub = parser.add_subparsers(dest="bench", metavar="<bench>", required=True)
-    for name, (module_name, help_text) in BENCHES.items():
-        description = help_text[0].upper() + help_text[1:]
+class _BenchParser(GridfleetParser):
+    """A bench's parser whose module is imported only when that bench is chosen (or its help is
+    asked for): each bench module pulls in its own stack (scipy, playwright, psutil), and every
+    `gridfleet bench` command would otherwise pay for all six before parsing a flag."""
+
+    def __init__(self, *args: Any, module_name: str = "", **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._module_name: str | None = module_name or None
+        self._missing: str | None = None
+
+    def _load(self) -> None:
+        name, self._module_name = self._module_name, None
+        if name is None:
+            return
         try:
-            module = importlib.import_module(module_name)
+            module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
             if exc.name not in BENCH_EXTRA:
                 raise
-            # Still listed; run with any flags, it says what to install (no flag is parsed: the
-            # parser's prefix character never occurs).
-            cmd = sub.add_parser(
-                name, help=help_text, description=description, prefix_chars="\0", add_help=False
-            )
-            cmd.set_defaults(bench_missing=exc.name)
-            cmd.add_argument("flags", nargs="*")
-            continue
-        cmd = sub.add_parser(name, help=help_text, description=description)
-        module.add_arguments(cmd)
+            self._missing = exc.name  # still listed; run with any flags, it says what to install
+            return
+        module.add_arguments(self)
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> tuple[Any, list[str]]:
+        """The bench's own flags, parsed once its module is in; any flags when it cannot be."""
+        self._load()
+        if self._missing is not None:
+            namespace = argparse.Namespace() if namespace is None else namespace
+            namespace.bench_missing = self._missing
+            return namespace, []
+        return super().parse_known_args(args, namespace)
+
+    def format_help(self) -> str:
+        """The bench's help, with its flags."""
+        self._load()
+        return super().format_help()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add one subcommand per benchmark."""
+    sub = parser.add_subparsers(
+        dest="bench", metavar="<bench>", required=True, parser_class=_BenchParser
+    )
+    for name, (module_name, help_text) in BENCHES.items():
+        description = help_text[0].upper() + help_text[1:]
+        sub.add_parser(name, help=help_text, description=description, module_name=module_name)
 
 
 def run(args: argparse.Namespace) -> int:
