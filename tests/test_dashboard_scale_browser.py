@@ -33,7 +33,7 @@ def test_a_150_unit_fleet_keeps_the_page_in_its_frame_budget_and_the_fleet_at_pa
     # with 150 units (before issue 19 it froze for seconds at a time) and answers every input the
     # bench gives it (each a round trip into the page, four a second), and the fleet keeps stepping.
     result = run_page_bench(
-        150, 450, step=0.2, phase_s=5, phases=1, viewport=(1280, 800), warmup_s=10
+        150, 450, step=0.2, phase_s=3, phases=1, viewport=(1280, 800), warmup_s=2
     )
     page = result.open[0]
     summary = result.summary()
