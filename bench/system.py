@@ -35,6 +35,7 @@ from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.console.feed import random_job
 from gridfleet.console.operator import Operator, operator_session
+from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze_after_start
@@ -169,6 +170,7 @@ async def run_system(
     warmup_s: float | None = None,
     deploy: Deploy = "processes",
     workers: int | None = None,
+    window: int = DEFAULT_WINDOW,
 ) -> SystemResult:
     """Run the whole system with `units` simulated units and measure it (see the module doc)."""
     if units < 1:
@@ -193,6 +195,7 @@ async def run_system(
             broker=broker_url,
             root=root,
             step_s=step_s,
+            window=window,
             db_path=Path(tmp) / "jobs.db",
             ws_port=None,
         )
@@ -235,6 +238,7 @@ async def run_system(
         step_s=step_s,
         broker=broker_url or "embedded amqtt",
         deploy=deploy,
+        window=window,
         unit_workers=shards,
         map_size=(scenario.grid.width, scenario.grid.height),
         free_squares=len(scenario.grid.free_cells()),

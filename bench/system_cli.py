@@ -13,6 +13,7 @@ from typing import Any, TextIO
 from gridfleet.bench.system import run_system
 from gridfleet.bench.system_result import SystemResult, summarise
 from gridfleet.config import check_step, parse_broker_url
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
 from gridfleet.errors import ConfigError
 from gridfleet.tasks import stop_on_signals
 
@@ -26,6 +27,18 @@ def unit_counts(text: str) -> list[int]:
     if not counts:
         raise argparse.ArgumentTypeError("give at least one unit count")
     return counts
+
+
+def window_list(text: str) -> list[int]:
+    """`4` or `1,4`: the windows to run, each 1 to MAX_WINDOW."""
+    try:
+        windows = [int(part) for part in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list of windows") from None
+    bad = [w for w in windows if not 1 <= w <= MAX_WINDOW]
+    if bad or not windows:
+        raise argparse.ArgumentTypeError(f"{text!r}: each window is 1 to {MAX_WINDOW} squares")
+    return windows
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,6 +72,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers",
         type=int,
         help="unit processes (default: one per 50 units, at most one per core)",
+    )
+    parser.add_argument(
+        "--windows",
+        type=window_list,
+        default=[DEFAULT_WINDOW],
+        metavar="N[,N...]",
+        help=f"the coordinator's --window (default {DEFAULT_WINDOW}); several are run in turn, "
+        "alternating within each repeat, to compare them side by side",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -99,6 +120,7 @@ def _cell(summary: dict[str, Any], name: str, fmt: str) -> str:
 
 COLUMNS = (
     ("units", "units", "d"),
+    ("window", "window", "d"),
     ("msgs/s", "messages_per_s", ".0f"),
     ("steps/s", "step_rate", ".2f"),
     ("moves/unit/s", "moves_per_unit_s", ".2f"),
@@ -123,9 +145,10 @@ def print_table(summaries: list[dict[str, Any]], out: TextIO) -> None:
 
 async def _bench(args: argparse.Namespace, results: list[list[SystemResult]]) -> None:
     for units in args.units:
-        runs: list[SystemResult] = []
-        results.append(runs)
-        for n in range(args.repeat):
+        by_window: dict[int, list[SystemResult]] = {w: [] for w in args.windows}
+        results.extend(by_window.values())
+        for n, window in ((n, w) for n in range(args.repeat) for w in args.windows):
+            runs = by_window[window]
             result = await run_system(
                 units,
                 args.step,
@@ -136,11 +159,13 @@ async def _bench(args: argparse.Namespace, results: list[list[SystemResult]]) ->
                 warmup_s=args.warmup,
                 deploy=args.deploy,
                 workers=args.workers,
+                window=window,
             )
             runs.append(result)
             if not args.json:
                 print(
-                    f"  {units} units, run {n + 1}/{args.repeat}: {result.messages_per_s:.0f} msg/s,"
+                    f"  {units} units, window {window}, run {n + 1}/{args.repeat}: "
+                    f"{result.messages_per_s:.0f} msg/s,"
                     f" {result.step_rate:.2f} steps/s, estop {result.estop_ms_median} ms",
                     file=sys.stderr,
                     flush=True,
@@ -181,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     finished = asyncio.run(_main(args, results))
     summaries = [summarise(runs) for runs in results if runs]
     if args.json:
-        keys = ("units", "step", "duration", "repeat", "seed", "deploy", "workers")
+        keys = ("units", "step", "duration", "repeat", "seed", "deploy", "workers", "windows")
         config = {k: getattr(args, k) for k in keys}
         config["broker"] = args.broker or "embedded amqtt"
         output = {

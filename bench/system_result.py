@@ -18,6 +18,7 @@ class SystemResult:
     step_s: float
     broker: str  # "embedded amqtt" or the URL given
     deploy: str  # "processes" (as deployed) or "threads"
+    window: int  # squares a unit could be released ahead (the coordinator's --window)
     unit_workers: int  # processes the units ran in
     map_size: tuple[int, int]
     free_squares: int
@@ -77,6 +78,7 @@ def summarise(runs: Sequence[SystemResult]) -> dict[str, Any]:
     """Median, min and max of each figure over repeated runs of one unit count."""
     out: dict[str, Any] = {
         "units": runs[0].units,
+        "window": runs[0].window,
         "runs": len(runs),
         "nominal_step_rate": runs[0].nominal_step_rate,
     }

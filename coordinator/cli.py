@@ -8,6 +8,8 @@ import asyncio
 from gridfleet.config import check_step
 from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import default_db_path
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
+from gridfleet.errors import ConfigError
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.options import add_common, broker_url
@@ -30,6 +32,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--db", default=None, metavar="PATH", help=f"job database (default {default_db_path()})"
     )
     parser.add_argument(
+        "--window",
+        type=int,
+        default=DEFAULT_WINDOW,
+        metavar="N",
+        help=f"squares a unit may be released ahead on a free road, 1 to {MAX_WINDOW} "
+        f"(default {DEFAULT_WINDOW}; 1: one square per order)",
+    )
+    parser.add_argument(
         "--client-id",
         default=None,
         help="MQTT client id and sender (default 'coordinator'; under another --root the client "
@@ -40,6 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run until interrupted (SIGINT/SIGTERM)."""
     check_step(args.step)
+    if not 1 <= args.window <= MAX_WINDOW:
+        raise ConfigError(f"--window {args.window}: give 1 to {MAX_WINDOW} squares")
     grid = load_map(args.map)
     coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),
@@ -48,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
         step_s=args.step,
         db_path=args.db,
         client_id=args.client_id,
+        window=args.window,
     )
 
     async def main() -> None:

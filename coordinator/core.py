@@ -44,7 +44,8 @@ from gridfleet.coordinator.progress import JobProgress
 from gridfleet.coordinator.stop import FleetStop
 from gridfleet.coordinator.views import Views
 from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
-from gridfleet.coordinator.world import World
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, Claims
+from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
@@ -95,7 +96,11 @@ class CoordinatorCore:
         topics: Topics | None = None,
         stamp: HeaderStamper | None = None,
         controls: Mapping[str, UnitControlState] | None = None,
+        window: int = DEFAULT_WINDOW,
     ) -> None:
+        if not 1 <= window <= MAX_WINDOW:
+            raise ValueError(f"window {window}: give 1 to {MAX_WINDOW} squares")
+        self.window = window  # squares a unit may be released ahead (window.py)
         self.world = world
         self.jobs = jobs
         self.topics = topics or Topics()
@@ -384,6 +389,7 @@ class CoordinatorCore:
         for uid, target in targets.items():
             if target is None:  # an idle unit making way for another shows where it goes
                 targets[uid] = self.planner.parking(uid)
+        claims = self._claims(units, moves, targets)
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:
@@ -404,7 +410,11 @@ class CoordinatorCore:
                 step_no=self.step_no,
                 now=now,
                 heartbeat_s=self._heartbeat_s,
+                held=u.id in self.directives.controls,
+                window=self.window,
+                ahead=partial(self._ahead, claims, u.id, targets[u.id]),
             )
+            claims.hold(u.id, order.released)
             orders[u.id] = order
             routes[u.id] = RouteView(
                 released=order.released,
@@ -413,6 +423,38 @@ class CoordinatorCore:
                 control=self.directives.controls.get(u.id),
             )
         return StepResult(self.step_no, orders, routes)
+
+    def _claims(
+        self, units: list[UnitRecord], moves: dict[str, Cell], targets: dict[str, Cell | None]
+    ) -> Claims:
+        """Who stands on, holds, enters this step or intends each square (window.py)."""
+        claims = Claims(self.world.grid)
+        if self.window == 1:
+            return claims  # no unit is given more than its move: nothing to claim
+        for u in units:
+            assert u.state is not None
+            claims.hold(u.id, [u.state.position, *sorted(self.orders.reserved(u))])
+        for uid, move in moves.items():
+            claims.hold(uid, [move])
+        for uid, follow in self.moves.following.items():
+            claims.hold(uid, [follow.square])
+        for u in units:
+            assert u.state is not None
+            target = targets.get(u.id)
+            if target is not None and u.state.position != target:
+                way = self.planner.route(u.state.position, target, self.window, u.id)
+                claims.intend(u.id, way)
+        return claims
+
+    def _ahead(
+        self, claims: Claims, unit: str, target: Cell | None, last: Cell, room: int
+    ) -> list[Cell]:
+        """The squares of `unit`'s way after `last` that its window may take (window.py)."""
+        record = self.world.units[unit]
+        if target is None or last == target or record.state is None:
+            return []
+        way = self.planner.route(last, target, room, unit)
+        return claims.ahead(unit, record.state.position, way, room)
 
     def _route(self, unit: str, start: Cell, target: Cell) -> list[Cell]:
         """The way shown for `unit` from `start` to `target`: its guide path where it has one."""

@@ -81,6 +81,16 @@ def follows_unsent(state: UnitState, t: Track) -> bool:
     )
 
 
+def _no_return(more: list[Cell], pos: Cell, released: list[Cell]) -> list[Cell]:
+    """`more` up to the first square the unit stands on or is already given: a way back through
+    its own square would make the unit drop the squares before it (§4.4 rule 3)."""
+    been = {pos, *released}
+    for i, c in enumerate(more):
+        if c in been:
+            return more[:i]
+    return more
+
+
 class Orders:
     """Every unit's Track, the order each unit gets next, and the acknowledgements still due."""
 
@@ -137,9 +147,15 @@ class Orders:
         step_no: int,
         now: float,
         heartbeat_s: float,
+        held: bool = False,
+        window: int = 1,
+        ahead: Callable[[Cell, int], list[Cell]] | None = None,
     ) -> OrderPlan:
         """This step's order for an active unit: a new move, its remaining squares, or a halt order.
 
+        `held`: an operator paused it or took it out of service: a halt order. With `window` > 1,
+        a unit whose squares are known exactly (it settled with a move, or acknowledged what it
+        drives) gets its way topped up to `window` squares by `ahead(last, room)` (window.py).
         Sent when it changes anything, else only once `heartbeat_s` have passed since the last
         (a repeat costs the broker, the unit and us a round trip, and tells the unit nothing).
         """
@@ -153,14 +169,21 @@ class Orders:
             t.waiting = 0
         elif st.status == "waiting":
             t.waiting += 1
-        if estop or t.forged:
+        exact = False  # whether `released` is exactly what the unit will drive
+        if estop or t.forged or held:
             released: list[Cell] = []
         elif settled:
             released = [move] if move is not None and move != pos else []
+            exact = True
         else:
             remaining = self._remaining(u, t)
             blocked = any(not grid.is_free(c) for c in remaining)
             released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
+            exact = self.acked(u) and st.status != "waiting"
+        if exact and released and ahead is not None and len(released) < window:
+            released = released + _no_return(
+                ahead(released[-1], window - len(released)), pos, released
+            )
         t.forged = False
         if target != t.target or t.order_id is None:
             t.route_no += 1

@@ -19,6 +19,7 @@ from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
 from gridfleet.coordinator.jobs import JobBook
 from gridfleet.coordinator.store import JobStore, default_db_path
+from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
@@ -41,6 +42,7 @@ class CoordinatorShell:
         db_path: str | Path | None = None,
         client_id: str | None = None,
         seed: int = 0,
+        window: int = DEFAULT_WINDOW,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.broker = broker
@@ -60,6 +62,7 @@ class CoordinatorShell:
             topics=self.topics,
             stamp=HeaderStamper(sender),
             controls=self.store.load_controls(),
+            window=window,
         )
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.events.restore(self.store.load_events())

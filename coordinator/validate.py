@@ -1,4 +1,5 @@
-"""Plan validator, the oracle of every planner test: continuity, walls, vertex, swap, rotation."""
+"""Plan validator, the oracle of every planner test: continuity, walls, vertex, swap, rotation;
+and released windows, checked like a plan: contiguous, on free squares, nobody else's."""
 
 from __future__ import annotations
 
@@ -13,7 +14,9 @@ class Violation:
     """One broken rule: at which step (transition t → t+1), which kind, which agents, and how."""
 
     step: int
-    kind: str  # "continuity" | "wall" | "vertex" | "swap" | "rotation"
+    # "continuity" | "wall" | "vertex" | "swap" | "rotation"; windows: "occupied" | "overlap" |
+    # "length"
+    kind: str
     agents: tuple[int, ...]
     detail: str
 
@@ -85,4 +88,45 @@ def validate_step(
             out.append(
                 Violation(step, kind, tuple(sorted(path)), f"{kind} of agents {sorted(path)}")
             )
+    return out
+
+
+def validate_windows(
+    grid: GridMap,
+    positions: Sequence[Cell],
+    windows: Sequence[Sequence[Cell]],
+    bound: int | None = None,
+) -> list[Violation]:
+    """Every violation in released windows (windows[i]: what agent i may still drive, in order).
+
+    A window starts next to its agent and goes on square by square (continuity), on free squares
+    (wall), never onto a square another agent stands on (occupied) or another window holds
+    (overlap), and is at most `bound` squares long (length): then no two agents can ever meet,
+    whatever their clocks, since each drives only its own window.
+    """
+    out: list[Violation] = []
+    if len(positions) != len(windows):
+        return [Violation(0, "continuity", (), "agent count and window count differ")]
+    out.extend(_check_squares(grid, 0, positions))
+    occupant = {c: i for i, c in enumerate(positions)}
+    holder: dict[Cell, int] = {}
+    for i, window in enumerate(windows):
+        if bound is not None and len(window) > bound:
+            out.append(Violation(0, "length", (i,), f"agent {i}: {len(window)} > {bound} squares"))
+        before = positions[i]
+        for c in window:
+            if before.manhattan(c) != 1:
+                detail = f"agent {i}: {list(c)} is not next to {list(before)}"
+                out.append(Violation(0, "continuity", (i,), detail))
+            before = c
+            if not grid.is_free(c):
+                out.append(Violation(0, "wall", (i,), f"agent {i}: window on blocked {list(c)}"))
+            j = occupant.get(c)
+            if j is not None and j != i:
+                detail = f"agent {i}'s window holds {list(c)}, where agent {j} stands"
+                out.append(Violation(0, "occupied", (i, j), detail))
+            k = holder.setdefault(c, i)
+            if k != i:
+                detail = f"agents {k} and {i} both hold {list(c)}"
+                out.append(Violation(0, "overlap", (k, i), detail))
     return out

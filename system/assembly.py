@@ -20,6 +20,7 @@ from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.config import with_ca_file, with_credentials
 from gridfleet.coordinator.store import default_db_path
+from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import Scenario, with_units
@@ -48,6 +49,7 @@ class SystemSpec:
     broker_ws: str | None = None  # the external broker's websocket URL (for the dashboard)
     root: str = DEFAULT_ROOT
     step_s: float = 0.5
+    window: int = DEFAULT_WINDOW  # squares a unit may be released ahead (coordinator.window)
     db_path: Path | None = None  # the coordinator's job store (None: per user, as a service)
     seed: int = 0
     coordinator_id: str | None = None  # default: 'coordinator', its client id per root
@@ -172,6 +174,7 @@ class Assembly:
                 db_path=db_path,
                 seed=spec.seed,
                 client_id=spec.coordinator_id,
+                window=spec.window,
             )
             system.threads["coordinator"] = coordinator.start(timeout)
             fleet = fleet_thread(
@@ -248,6 +251,7 @@ class Assembly:
         step = ["--step", str(spec.step_s)]
         scenario = str(spec.scenario.path)
         coordinator = ["coordinator", *common, "--map", str(spec.scenario.map_path), *step]
+        coordinator += ["--window", str(spec.window)]
         if spec.db_path is not None:
             coordinator += ["--db", str(spec.db_path)]
         system.children["coordinator"] = await sup.start(

@@ -19,6 +19,7 @@ from paho.mqtt.client import topic_matches_sub
 from gridfleet.console.feed import scenario_job_id
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Reply, SetGoal, SubmitJob, Topics, decode, encode
@@ -73,7 +74,14 @@ class LockstepBus:
 class Lockstep:
     """A scenario's coordinator and units on a LockstepBus, stepped on a simulated clock."""
 
-    def __init__(self, scenario: Scenario, step_s: float, seed: int = 0, root: str = "sim") -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        step_s: float,
+        seed: int = 0,
+        root: str = "sim",
+        window: int = DEFAULT_WINDOW,
+    ) -> None:
         self.scenario = scenario
         self.step_s = step_s
         self.topics = Topics(root)
@@ -88,6 +96,7 @@ class Lockstep:
             seed=seed,
             topics=self.topics,
             stamp=HeaderStamper("coordinator"),
+            window=window,
         )
         self.units = [
             UnitCore(UnitLogic(u.id, grid, u.start, u.capacity, step_s), self.topics, color=u.color)
@@ -170,9 +179,11 @@ class Lockstep:
         return jobs_done and not self.core.directives.goals
 
 
-def run_lockstep(scenario: Scenario, step_s: float, max_steps: int, seed: int) -> SimulationResult:
+def run_lockstep(
+    scenario: Scenario, step_s: float, max_steps: int, seed: int, window: int = DEFAULT_WINDOW
+) -> SimulationResult:
     """The scenario to the end (or `max_steps`), deterministically; the same result as ever."""
-    sim = Lockstep(scenario, step_s, seed)
+    sim = Lockstep(scenario, step_s, seed, window=window)
     sim.start()
     replies = sim.submit_scenario()
     goals = [

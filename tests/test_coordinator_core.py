@@ -13,6 +13,8 @@ from collections.abc import Callable
 import pytest
 
 from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.validate import validate_windows
+from gridfleet.coordinator.window import MAX_WINDOW
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CancelJob,
@@ -40,25 +42,13 @@ from support.effects import header
 ROWS = ROOM_ROWS
 
 
-def check_released_disjoint(units: list[UnitLogic]) -> None:
-    """No square is released to two units, and no two units are released into each other."""
-    claimed: dict[Cell, str] = {}
-    for u in units:
-        for c in u.released:
-            assert c not in claimed, f"{c} released to {claimed[c]} and {u.unit_id}"
-            claimed[c] = u.unit_id
-    # Layer one of the safety model on its own: a released square never holds another unit,
-    # not even one about to leave it (units run on their own clocks).
-    standing = {u.position: u.unit_id for u in units}
-    for u in units:
-        for c in u.released:
-            who = standing.get(c, u.unit_id)
-            assert who == u.unit_id, f"{c} released to {u.unit_id} holds {who}"
-    for u in units:
-        for other in units:
-            if u is not other and u.released and other.released:
-                swap = u.released[0] == other.position and other.released[0] == u.position
-                assert not swap, f"{u.unit_id} and {other.unit_id} released into each other"
+def check_released_disjoint(units: list[UnitLogic], grid: GridMap) -> None:
+    """The units' released windows, as they stand, pass the validator: contiguous from each
+    unit, on free squares, no square of one unit's window held by or standing under another
+    (units run on their own clocks: "it leaves as I enter" is not safe), so no swap either."""
+    positions = [u.position for u in units]
+    problems = validate_windows(grid, positions, [u.released for u in units], bound=MAX_WINDOW)
+    assert problems == [], problems
 
 
 def simulate(
@@ -105,7 +95,7 @@ def simulate(
         pending = [m for m in pending if m[0] > t]
         for _, uid, order in due:
             yard.units[uid].on_order(order, now)
-        check_released_disjoint(units)
+        check_released_disjoint(units, grid)
         for u in rng.sample(units, len(units)):
             yard.tick(u.unit_id, now)
         assert (yard.world.prevented, yard.world.collisions) == (0, 0), f"at step {t}"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.coordinator.validate import validate_plan, validate_step
+from gridfleet.coordinator.validate import validate_plan, validate_step, validate_windows
 from gridfleet.grid import Cell, GridMap
 
 GRID = GridMap.from_rows(["....", ".@..", "....", "...."])
@@ -55,3 +55,29 @@ def test_rotation_of_three_on_a_ring() -> None:
 
 def test_agent_count_change_is_reported() -> None:
     assert validate_step(GRID, [C(0, 0)], [C(0, 0), C(1, 0)])[0].kind == "continuity"
+
+
+def test_good_windows_are_clean() -> None:
+    # A drives the top row, B follows one square behind its window, C waits with none.
+    positions = [C(1, 0), C(0, 0), C(0, 3)]
+    windows = [[C(2, 0), C(3, 0), C(3, 1)], [], []]
+    assert validate_windows(GRID, positions, windows, bound=4) == []
+
+
+@pytest.mark.parametrize(
+    ("positions", "windows", "kind"),
+    [
+        ([C(0, 0)], [[C(2, 0)]], "continuity"),  # does not start next to its unit
+        ([C(0, 0)], [[C(1, 0), C(2, 1)]], "continuity"),  # a gap inside the window
+        ([C(0, 1)], [[C(1, 1)]], "wall"),  # onto the wall
+        ([C(3, 0)], [[C(4, 0)]], "wall"),  # off the map
+        ([C(0, 0), C(2, 0)], [[C(1, 0), C(2, 0)], []], "occupied"),  # onto a unit standing still
+        ([C(0, 0), C(3, 0)], [[C(1, 0), C(2, 0)], [C(2, 0)]], "overlap"),  # both hold [2, 0]
+        ([C(0, 0), C(1, 0)], [[C(1, 0)], [C(0, 0)]], "occupied"),  # a swap, as windows
+        ([C(0, 3)], [[C(1, 3), C(2, 3), C(3, 3), C(3, 2), C(3, 1)]], "length"),
+    ],
+)
+def test_each_window_failure_is_caught(
+    positions: list[Cell], windows: list[list[Cell]], kind: str
+) -> None:
+    assert kind in {v.kind for v in validate_windows(GRID, positions, windows, bound=4)}

@@ -9,6 +9,7 @@ from __future__ import annotations
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
 from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.grid import GridMap
 from gridfleet.protocol import (
@@ -29,7 +30,12 @@ TOPICS = Topics("gridfleet")
 
 
 def make_core(
-    grid: GridMap, *, jobs: list[Job] | None = None, step_s: float = 1.0, seed: int = 0
+    grid: GridMap,
+    *,
+    jobs: list[Job] | None = None,
+    step_s: float = 1.0,
+    seed: int = 0,
+    window: int = DEFAULT_WINDOW,
 ) -> CoordinatorCore:
     """A core on `grid` under the root `gridfleet`, order nonce `n`, every header at FIXED."""
     return CoordinatorCore(
@@ -39,6 +45,7 @@ def make_core(
         seed=seed,
         topics=TOPICS,
         stamp=stamper("coordinator"),
+        window=window,
     )
 
 

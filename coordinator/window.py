@@ -1,0 +1,74 @@
+"""Released windows (protocol.md §4.4): how many squares of its way a unit is given ahead.
+
+Pure. The planner still decides every settled unit's next square; a window adds the squares of
+the unit's way after it (or after what it still may drive) that are safe to give it now, so a
+unit on a free road has its next square before it needs it and drives every step instead of
+waiting a round trip per square. A square is safe to add when nobody else could be on it or enter
+it before the unit's state shows the unit has left it:
+
+- nobody stands on it, holds it (may still drive it, `Orders.reserved`) or waits to follow into it;
+- it is nobody else's move of this step, nor in a window given out earlier in this step;
+- nobody else's way enters it within the window (contention: the planner decides that square, one
+  step at a time, so a window never takes what another unit needs next).
+
+Every square a window gives stays reserved for its unit until the unit's state shows it left, so
+the safety argument of single-square releases carries over unchanged: a released square is
+empty and nobody else's when given, and nobody else is given it while it is held.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+from gridfleet.grid import Cell, GridMap
+
+DEFAULT_WINDOW = 4  # squares a unit may be released ahead (1: one square per order, as before)
+MAX_WINDOW = 32  # the setting's bound (an order releases at most MAX_RELEASED squares)
+
+
+class Claims:
+    """This step's claims on squares: who stands on, holds, enters or intends each one."""
+
+    def __init__(self, grid: GridMap) -> None:
+        self.grid = grid
+        self._holder: dict[Cell, str] = {}  # first claimant wins; others are refused it
+        self._intent: dict[Cell, set[str]] = {}
+        self._ways: dict[str, dict[Cell, int]] = {}  # each unit's way: square -> its place
+
+    def hold(self, unit: str, squares: Iterable[Cell]) -> None:
+        """`unit` stands on, may drive, follows into or was just given `squares`."""
+        for c in squares:
+            self._holder.setdefault(c, unit)
+
+    def intend(self, unit: str, way: list[Cell]) -> None:
+        """`unit`'s way enters these squares within the window: no other window may take them
+        (but for a unit ahead of it on that same way, see `safe`)."""
+        order = {c: i for i, c in enumerate(way)}
+        self._ways[unit] = order
+        for c in way:
+            self._intent.setdefault(c, set()).add(unit)
+
+    def safe(self, unit: str, here: Cell, square: Cell) -> bool:
+        """Whether `square` may go into the window of `unit`, which stands on `here`."""
+        if not self.grid.is_free(square):
+            return False
+        if self._holder.get(square, unit) != unit:
+            return False
+        for other in self._intent.get(square, set()) - {unit}:
+            way = self._ways[other]
+            # A unit whose way passes `here` before `square` comes behind `unit` on the same
+            # road: it cannot reach `square` before `unit` has left it, so it does not contend.
+            if not way.get(here, len(way)) < way[square]:
+                return False
+        return True
+
+    def ahead(self, unit: str, here: Cell, way: Iterable[Cell], room: int) -> list[Cell]:
+        """The first squares of `way` (each adjacent to the one before) that are safe for `unit`
+        on `here`, at most `room` of them; given to it at once (held)."""
+        out: list[Cell] = []
+        for c in way:
+            if len(out) >= room or not self.safe(unit, here, c):
+                break
+            out.append(c)
+        self.hold(unit, out)
+        return out

@@ -1,0 +1,176 @@
+"""Released windows (coordinator/window.py, protocol.md §4.4): a unit on a free road is given the
+next squares of its way and drives every step without waiting a round trip per square; a
+follower gets its leader's square the step after the leader left; a stop, a pause, a halt order
+and a lost coordinator cut a window to nothing. Every window is checked by the validator."""
+
+from __future__ import annotations
+
+from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.validate import validate_windows
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import ControlUnit, Order, SetGoal
+from gridfleet.robots.unit import UnitLogic
+
+from support.coordinator_drive import (
+    TOPICS,
+    from_unit,
+    make_core,
+    meet,
+    orders_in,
+    reply_in,
+    request,
+)
+from support.coordinator_fakes import Yard
+from support.effects import header
+
+ROAD = GridMap.from_rows(["............", "@@@@@@@@@@@.", "............"])
+
+
+def fleet(
+    window: int, starts: dict[str, Cell], grid: GridMap = ROAD
+) -> tuple[CoordinatorCore, Yard]:
+    """A core with `window` and units at `starts` (10 kg, 1 s steps), online and heard from."""
+    core = make_core(grid, window=window)
+    yard = Yard(grid, [UnitLogic(u, grid, c, 10.0, 1.0) for u, c in starts.items()])
+    for u in starts:
+        meet(core, yard.state(u), 10.0)
+    return core, yard
+
+
+def goal(core: CoordinatorCore, unit: str, target: Cell) -> None:
+    req = SetGoal(
+        header=header("t"), request_id=f"g-{unit}", reply_to="t", unit=unit, target=target
+    )
+    assert reply_in(request(core, "set_goal", req, 0.0)).accepted
+
+
+def deliver(core: CoordinatorCore, yard: Yard, now: float) -> dict[str, Order]:
+    """One coordinator step; every unit takes its order. The windows pass the validator."""
+    orders = orders_in(core.step(now))
+    for uid, order in orders.items():
+        yard.units[uid].on_order(order, now)
+    units = list(yard.units.values())
+    problems = validate_windows(
+        yard.world.grid, [u.position for u in units], [u.released for u in units], core.window
+    )
+    assert problems == [], problems
+    return orders
+
+
+def test_a_unit_alone_is_released_a_window_and_drives_on_consecutive_steps() -> None:
+    core, yard = fleet(4, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    first = deliver(core, yard, 1.0)["u"]
+    assert first.released == [Cell(1, 0), Cell(2, 0), Cell(3, 0), Cell(4, 0)]
+    assert first.planned[:2] == [Cell(5, 0), Cell(6, 0)]
+    unit = yard.units["u"]
+    xs = []
+    for t in range(2, 9):
+        yard.tick("u", float(t))
+        xs.append(unit.position.x)
+        # Its state reaches the coordinator only every other step (a loaded broker): the window
+        # it was given carries it on regardless.
+        if t % 2 == 0:
+            from_unit(core, "state", "u", yard.state("u"), float(t))
+        deliver(core, yard, float(t))
+    assert xs == [1, 2, 3, 4, 5, 6, 7]
+
+
+def test_with_one_square_per_order_the_same_unit_waits_for_its_states() -> None:
+    # The same drive, window 1 (as before windows): a move only after the state of the last.
+    core, yard = fleet(1, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    assert deliver(core, yard, 1.0)["u"].released == [Cell(1, 0)]
+    unit = yard.units["u"]
+    xs = []
+    for t in range(2, 9):
+        yard.tick("u", float(t))
+        xs.append(unit.position.x)
+        if t % 2 == 0:
+            from_unit(core, "state", "u", yard.state("u"), float(t))
+        deliver(core, yard, float(t))
+    assert xs == [1, 2, 2, 3, 3, 4, 4]
+
+
+def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> None:
+    core, yard = fleet(4, {"lead": Cell(1, 0), "next": Cell(0, 0)})
+    goal(core, "lead", Cell(11, 2))
+    goal(core, "next", Cell(10, 0))
+    orders = deliver(core, yard, 1.0)
+    assert orders["lead"].released == [Cell(2, 0), Cell(3, 0), Cell(4, 0), Cell(5, 0)]
+    assert orders["next"].released == []  # its way starts where the leader still stands
+    yard.tick("lead", 1.5)
+    yard.tick("next", 1.5)
+    from_unit(core, "state", "lead", yard.state("lead"), 1.5)  # it left [1, 0]
+    from_unit(core, "state", "next", yard.state("next"), 1.5)
+    orders = deliver(core, yard, 2.0)
+    # [1, 0] at once; not [2, 0], where the leader stands now.
+    assert orders["next"].released == [Cell(1, 0)]
+
+
+def test_the_stop_cuts_every_window_to_nothing() -> None:
+    core, yard = fleet(4, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    deliver(core, yard, 1.0)
+    unit = yard.units["u"]
+    assert len(unit.released) == 4
+    halts = orders_in(core.on_message(TOPICS.fleet("estop"), b"engaged|op|test", 1.2))
+    assert halts["u"].released == []
+    unit.on_order(halts["u"], 1.2)
+    assert unit.released == []
+    assert deliver(core, yard, 2.0)["u"].released == []  # and nothing while it holds
+
+
+def test_a_pause_cuts_the_window_to_nothing_and_resume_gives_one_again() -> None:
+    core, yard = fleet(4, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    deliver(core, yard, 1.0)
+    unit = yard.units["u"]
+
+    def control(command: str) -> None:
+        req = ControlUnit(
+            header=header("t"), request_id=command, reply_to="t", unit="u", command=command
+        )
+        assert reply_in(request(core, "control_unit", req, 1.5)).accepted
+
+    control("pause")
+    assert deliver(core, yard, 2.0)["u"].released == []
+    assert unit.released == [] and unit.position == Cell(0, 0)
+    from_unit(core, "state", "u", yard.state("u"), 2.5)
+    control("resume")
+    assert len(deliver(core, yard, 3.0)["u"].released) == 4
+
+
+def test_an_obstacle_found_in_a_window_gets_a_halt_order_that_cuts_it() -> None:
+    grid = GridMap.from_rows(["............", "............"])
+    core = make_core(grid, window=4)
+    yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 10.0, 1.0)], hidden={Cell(3, 0)})
+    meet(core, yard.state("u"), 10.0)
+    goal(core, "u", Cell(8, 0))
+    assert deliver(core, yard, 1.0)["u"].released == [
+        Cell(1, 0),
+        Cell(2, 0),
+        Cell(3, 0),
+        Cell(4, 0),
+    ]
+    yard.tick("u", 1.5)
+    yard.tick("u", 1.7)  # at [2, 0]: it senses the obstacle at [3, 0] and waits
+    from_unit(core, "state", "u", yard.state("u"), 1.8)
+    unit = yard.units["u"]
+    assert unit.position == Cell(2, 0)
+    order = deliver(core, yard, 2.0)["u"]
+    assert Cell(3, 0) not in order.released  # cut at once: the halt order, or a way round
+    assert unit.released == order.released
+
+
+def test_a_unit_that_loses_the_coordinator_drops_its_window_and_holds() -> None:
+    core, yard = fleet(4, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    deliver(core, yard, 1.0)
+    unit = yard.units["u"]
+    # No order comes any more: it drives on what it was given, until its hold time (3 step
+    # periods of 1 s) has passed without an order; then it holds and drops the rest.
+    for t in (1.5, 2.5, 3.5, 4.5):
+        yard.tick("u", t)
+    assert unit.released == [] and yard.state("u").status == "holding"
+    assert unit.position.x < 4
