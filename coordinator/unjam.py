@@ -97,12 +97,40 @@ class Unjam:
             return None  # search once the fleet is still: it starts from where everyone stands
         self._stalled = 1
         # An agent with no target stays where it is at the end, though it may make way meanwhile.
-        goals = [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
+        goals = self._one_each(
+            config, [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
+        )
+        if goals is None:
+            self._retry_at = float("inf")  # not with these targets: wait for them to change
+            return None
         self._search = LaCAM(self.nbrs, config, goals, [self.field_of(g) for g in goals], self.seed)
         self._search_from = config
         self._search_budget = min(self.search_nodes << self._failed, MAX_SEARCH_NODES)
         self.searches += 1
         return self._go_on(config, frozen, reserved)
+
+    def _one_each(self, config: Config, goals: list[Index]) -> list[Index] | None:
+        """The goals with each square wanted by one agent only, or None when that cannot be.
+
+        Two agents may be sent to one square (two jobs picked up at one place): no configuration
+        has both there, so a search for one would only hold the fleet still until its budget ran
+        out, again and again. The agent nearest such a square keeps it; the others stay where
+        they stand at the end (they get it once it is free, planned as usual).
+        """
+        wanted: dict[Index, list[int]] = {}
+        for i, g in enumerate(goals):
+            wanted.setdefault(g, []).append(i)
+        if all(len(agents) == 1 for agents in wanted.values()):
+            return goals
+        out = list(goals)
+        for g, agents in wanted.items():
+            if len(agents) > 1:
+                field = self.field_of(g)
+                keeper = min(agents, key=lambda i: (field[config[i]], i))
+                for i in agents:
+                    if i != keeper:
+                        out[i] = config[i]
+        return out if len(set(out)) == len(out) else None
 
     def _distance(self, config: Config, goal: Sequence[Index]) -> int:
         """The fleet's total distance to its targets."""

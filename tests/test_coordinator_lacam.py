@@ -207,3 +207,28 @@ def test_a_fleet_that_moves_while_the_search_goes_on_drops_it(
     trip(unjam, names, goal)
     assert unjam.moves(names, [0, 2], goal, [False, False], set()) is None  # b was moved
     assert not unjam.following
+
+
+def test_two_agents_sent_to_one_square_do_not_hold_the_fleet_still_searching() -> None:
+    # Two jobs picked up at one place send two units to one square: no configuration has both
+    # there. A search for one held the whole fleet still, budget after budget (a warehouse run
+    # stood still from step 90 on); the nearer keeps the square, the other waits where it is.
+    grid = GridMap.from_rows([".....", ".....", "....."])
+    w = grid.width
+    cache = DistanceFieldCache(grid)
+    unjam = Unjam(neighbour_table(grid), lambda g: cache.flat(Cell(g % w, g // w)))
+    flat = [1 * w + 0, 1 * w + 4, 1 * w + 2]  # a and b both want [2, 1], where c stands
+    goal = [1 * w + 2, 1 * w + 2, 0 * w + 2]  # ...and c wants [2, 0]
+    names = ["a", "b", "c"]
+    held_still = 0
+    for _ in range(200):
+        out = unjam.moves(names, flat, goal, [False] * 3, set())
+        if out is not None and out != flat:
+            break
+        held_still += out is not None
+    else:
+        raise AssertionError(f"no move in 200 steps, {held_still} of them held still searching")
+    assert unjam.searches >= 1
+    assert len(set(out)) == 3 and all(
+        a == b or grid.is_free(Cell(b % w, b // w)) for a, b in zip(flat, out, strict=True)
+    )
