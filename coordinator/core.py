@@ -433,7 +433,8 @@ class CoordinatorCore:
             return claims  # no unit is given more than its move: nothing to claim
         for u in units:
             assert u.state is not None
-            claims.hold(u.id, [u.state.position, *sorted(self.orders.reserved(u))])
+            claims.stand(u.id, u.state.position)
+            claims.hold(u.id, sorted(self.orders.reserved(u)))
         for uid, move in moves.items():
             claims.hold(uid, [move])
         for uid, follow in self.moves.following.items():

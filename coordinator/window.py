@@ -8,8 +8,10 @@ it before the unit's state shows the unit has left it:
 
 - nobody stands on it, holds it (may still drive it, `Orders.reserved`) or waits to follow into it;
 - it is nobody else's move of this step, nor in a window given out earlier in this step;
-- nobody else's way enters it within the window (contention: the planner decides that square, one
-  step at a time, so a window never takes what another unit needs next).
+- nobody else's way enters it within the window, and nobody else stands close enough to reach it
+  before the unit has driven through it (contention: there the planner decides, one step at a time,
+  pushing the less urgent out of the way; a unit in a window cannot be pushed). A unit coming
+  behind on the same way does not contend: it cannot pass the unit ahead of it.
 
 Every square a window gives stays reserved for its unit until the unit's state shows it left, so
 the safety argument of single-square releases carries over unchanged: a released square is
@@ -34,11 +36,17 @@ class Claims:
         self._holder: dict[Cell, str] = {}  # first claimant wins; others are refused it
         self._intent: dict[Cell, set[str]] = {}
         self._ways: dict[str, dict[Cell, int]] = {}  # each unit's way: square -> its place
+        self._standing: dict[Cell, str] = {}  # where each unit stands
 
     def hold(self, unit: str, squares: Iterable[Cell]) -> None:
         """`unit` stands on, may drive, follows into or was just given `squares`."""
         for c in squares:
             self._holder.setdefault(c, unit)
+
+    def stand(self, unit: str, square: Cell) -> None:
+        """`unit` stands on `square` (and holds it)."""
+        self._standing[square] = unit
+        self.hold(unit, [square])
 
     def intend(self, unit: str, way: list[Cell]) -> None:
         """`unit`'s way enters these squares within the window: no other window may take them
@@ -48,26 +56,41 @@ class Claims:
         for c in way:
             self._intent.setdefault(c, set()).add(unit)
 
-    def safe(self, unit: str, here: Cell, square: Cell) -> bool:
-        """Whether `square` may go into the window of `unit`, which stands on `here`."""
+    def safe(self, unit: str, here: Cell, square: Cell, steps: int) -> bool:
+        """Whether `square`, `steps` squares ahead of `unit` on `here`, may go into its window."""
         if not self.grid.is_free(square):
             return False
         if self._holder.get(square, unit) != unit:
             return False
-        for other in self._intent.get(square, set()) - {unit}:
-            way = self._ways[other]
-            # A unit whose way passes `here` before `square` comes behind `unit` on the same
-            # road: it cannot reach `square` before `unit` has left it, so it does not contend.
-            if not way.get(here, len(way)) < way[square]:
-                return False
+        if any(self._contends(other, here, square) for other in self._intent.get(square, ())):
+            return False
+        # Anyone who could be on it by the time `unit` has driven through it (one step later).
+        reach = steps + 1
+        for dx in range(-reach, reach + 1):
+            rest = reach - abs(dx)
+            for dy in range(-rest, rest + 1):
+                other = self._standing.get(Cell(square.x + dx, square.y + dy))
+                if other is not None and self._contends(other, here, square):
+                    return False
         return True
+
+    def _contends(self, other: str, here: Cell, square: Cell) -> bool:
+        """Whether `other` could want `square` before the unit on `here` has left it: any unit
+        but the one itself and one coming behind it (its way passes `here` before `square`)."""
+        if other == self._standing.get(here):
+            return False
+        way = self._ways.get(other, {})
+        if here not in way:
+            return True
+        return square in way and way[square] < way[here]
 
     def ahead(self, unit: str, here: Cell, way: Iterable[Cell], room: int) -> list[Cell]:
         """The first squares of `way` (each adjacent to the one before) that are safe for `unit`
         on `here`, at most `room` of them; given to it at once (held)."""
         out: list[Cell] = []
+        ahead = {c for c in self._holder if self._holder[c] == unit} - {here}
         for c in way:
-            if len(out) >= room or not self.safe(unit, here, c):
+            if len(out) >= room or not self.safe(unit, here, c, len(ahead) + len(out) + 1):
                 break
             out.append(c)
         self.hold(unit, out)
