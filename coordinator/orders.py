@@ -65,6 +65,7 @@ class Track:
     forged: bool = False  # the unit follows an update we never sent: halt it, then a new order
     sent_at: float = float("-inf")  # when the latest update went out
     action: Action | None = None  # the action of the latest update
+    reach: int = 1  # squares it may be released ahead: grows each time it ran dry (window.py)
 
 
 def acknowledges(state: UnitState, order_id: str | None, update_id: int) -> bool:
@@ -155,7 +156,8 @@ class Orders:
 
         `held`: an operator paused it or took it out of service: a halt order. With `window` > 1,
         a unit whose squares are known exactly (it settled with a move, or acknowledged what it
-        drives) gets its way topped up to `window` squares by `ahead(last, room)` (window.py).
+        drives) gets its way topped up by `ahead(last, room)` to as many squares as it has needed
+        ahead so far, at most `window` (window.py).
         Sent when it changes anything, else only once `heartbeat_s` have passed since the last
         (a repeat costs the broker, the unit and us a round trip, and tells the unit nothing).
         """
@@ -165,6 +167,9 @@ class Orders:
         pos = st.position
         if self.acked(u):
             t.unacked = set()  # what it may still drive is exactly its reported `released`
+        elif t.sent and not st.released and st.status != "waiting":
+            # It drove all it had before our latest squares reached it: a round trip lost.
+            t.reach = min(window, t.reach + 1)
         if settled or estop or st.estop:
             t.waiting = 0
         elif st.status == "waiting":
@@ -180,10 +185,9 @@ class Orders:
             blocked = any(not grid.is_free(c) for c in remaining)
             released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
             exact = self.acked(u) and st.status != "waiting"
-        if exact and released and ahead is not None and len(released) < window:
-            released = released + _no_return(
-                ahead(released[-1], window - len(released)), pos, released
-            )
+        room = min(window, t.reach) - len(released)
+        if exact and released and ahead is not None and room > 0:
+            released = released + _no_return(ahead(released[-1], room), pos, released)
         t.forged = False
         if target != t.target or t.order_id is None:
             t.route_no += 1

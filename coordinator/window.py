@@ -8,10 +8,15 @@ it before the unit's state shows the unit has left it:
 
 - nobody stands on it, holds it (may still drive it, `Orders.reserved`) or waits to follow into it;
 - it is nobody else's move of this step, nor in a window given out earlier in this step;
-- nobody else's way enters it within the window, and nobody else stands close enough to reach it
-  before the unit has driven through it (contention: there the planner decides, one step at a time,
-  pushing the less urgent out of the way; a unit in a window cannot be pushed). A unit coming
-  behind on the same way does not contend: it cannot pass the unit ahead of it.
+- nobody else's way enters it within the window (contention: there the planner decides, one step
+  at a time, pushing the less urgent out of the way; a unit in a window cannot be pushed). A unit
+  coming behind on the same way does not contend: it cannot pass the unit ahead of it.
+
+A window is reserved road nobody else may use, so a unit gets one only once it needs it: its
+window starts at one square and grows by one (up to the coordinator's bound) each time the unit
+ran out of squares before the order that would have given it the next one reached it (a round
+trip lost: a unit on its own clock, a loaded broker). Units whose orders arrive in time, as in
+`simulate --deterministic`, keep moving one planned square at a time, every square the planner's.
 
 Every square a window gives stays reserved for its unit until the unit's state shows it left, so
 the safety argument of single-square releases carries over unchanged: a released square is
@@ -56,23 +61,14 @@ class Claims:
         for c in way:
             self._intent.setdefault(c, set()).add(unit)
 
-    def safe(self, unit: str, here: Cell, square: Cell, steps: int) -> bool:
-        """Whether `square`, `steps` squares ahead of `unit` on `here`, may go into its window."""
+    def safe(self, unit: str, here: Cell, square: Cell) -> bool:
+        """Whether `square` may go into the window of `unit`, which stands on `here`."""
         if not self.grid.is_free(square):
             return False
         if self._holder.get(square, unit) != unit:
             return False
-        if any(self._contends(other, here, square) for other in self._intent.get(square, ())):
-            return False
-        # Anyone who could be on it by the time `unit` has driven through it (one step later).
-        reach = steps + 1
-        for dx in range(-reach, reach + 1):
-            rest = reach - abs(dx)
-            for dy in range(-rest, rest + 1):
-                other = self._standing.get(Cell(square.x + dx, square.y + dy))
-                if other is not None and self._contends(other, here, square):
-                    return False
-        return True
+        contenders = self._intent.get(square, ())
+        return not any(self._contends(other, here, square) for other in contenders)
 
     def _contends(self, other: str, here: Cell, square: Cell) -> bool:
         """Whether `other` could want `square` before the unit on `here` has left it: any unit
@@ -88,9 +84,8 @@ class Claims:
         """The first squares of `way` (each adjacent to the one before) that are safe for `unit`
         on `here`, at most `room` of them; given to it at once (held)."""
         out: list[Cell] = []
-        ahead = {c for c in self._holder if self._holder[c] == unit} - {here}
         for c in way:
-            if len(out) >= room or not self.safe(unit, here, c, len(ahead) + len(out) + 1):
+            if len(out) >= room or not self.safe(unit, here, c):
                 break
             out.append(c)
         self.hold(unit, out)

@@ -57,45 +57,61 @@ def deliver(core: CoordinatorCore, yard: Yard, now: float) -> dict[str, Order]:
     return orders
 
 
-def test_a_unit_alone_is_released_a_window_and_drives_on_consecutive_steps() -> None:
+def late_drive(core: CoordinatorCore, yard: Yard, unit: str, steps: range) -> list[int]:
+    """The unit drives for `steps` (1 s apart); its state reaches the coordinator only every other
+    step (a loaded broker). Its x after each of its steps."""
+    xs = []
+    for t in steps:
+        yard.tick(unit, float(t))
+        xs.append(yard.units[unit].position.x)
+        if t % 2 == 0:
+            from_unit(core, "state", unit, yard.state(unit), float(t))
+        deliver(core, yard, float(t))
+    return xs
+
+
+def test_a_unit_whose_orders_come_late_grows_a_window_and_drives_on_consecutive_steps() -> None:
     core, yard = fleet(4, {"u": Cell(0, 0)})
     goal(core, "u", Cell(11, 2))
-    first = deliver(core, yard, 1.0)["u"]
-    assert first.released == [Cell(1, 0), Cell(2, 0), Cell(3, 0), Cell(4, 0)]
-    assert first.planned[:2] == [Cell(5, 0), Cell(6, 0)]
-    unit = yard.units["u"]
-    xs = []
-    for t in range(2, 9):
-        yard.tick("u", float(t))
-        xs.append(unit.position.x)
-        # Its state reaches the coordinator only every other step (a loaded broker): the window
-        # it was given carries it on regardless.
-        if t % 2 == 0:
-            from_unit(core, "state", "u", yard.state("u"), float(t))
-        deliver(core, yard, float(t))
-    assert xs == [1, 2, 3, 4, 5, 6, 7]
+    assert deliver(core, yard, 1.0)["u"].released == [Cell(1, 0)]  # no window before it needs one
+    xs = late_drive(core, yard, "u", range(2, 11))
+    # It ran dry waiting for orders twice; its window grew, and it has driven every step since.
+    assert xs == [1, 2, 2, 3, 4, 5, 6, 7, 8]
+    order = deliver(core, yard, 11.0)["u"]
+    assert order.released == [Cell(9, 0), Cell(10, 0), Cell(11, 0), Cell(11, 1)]  # grown to 4
 
 
-def test_with_one_square_per_order_the_same_unit_waits_for_its_states() -> None:
-    # The same drive, window 1 (as before windows): a move only after the state of the last.
+def test_with_one_square_per_order_the_same_unit_keeps_waiting_for_its_states() -> None:
     core, yard = fleet(1, {"u": Cell(0, 0)})
     goal(core, "u", Cell(11, 2))
     assert deliver(core, yard, 1.0)["u"].released == [Cell(1, 0)]
-    unit = yard.units["u"]
-    xs = []
-    for t in range(2, 9):
-        yard.tick("u", float(t))
-        xs.append(unit.position.x)
-        if t % 2 == 0:
-            from_unit(core, "state", "u", yard.state("u"), float(t))
-        deliver(core, yard, float(t))
-    assert xs == [1, 2, 2, 3, 3, 4, 4]
+    assert late_drive(core, yard, "u", range(2, 11)) == [1, 2, 2, 3, 3, 4, 4, 5, 5]
+
+
+def test_a_unit_whose_states_come_in_time_is_released_one_square_at_a_time() -> None:
+    core, yard = fleet(4, {"u": Cell(0, 0)})
+    goal(core, "u", Cell(11, 2))
+    for t in range(1, 8):
+        assert len(deliver(core, yard, float(t))["u"].released) == 1
+        yard.tick("u", t + 0.5)
+        from_unit(core, "state", "u", yard.state("u"), t + 0.5)
+    assert yard.units["u"].position == Cell(7, 0)
+
+
+def windowed(starts: dict[str, Cell], goals: dict[str, Cell]) -> tuple[CoordinatorCore, Yard]:
+    """Units at `starts` whose orders have come late until each has a window of 4 (the first
+    unit's goal is far enough to need it), then heard in time again."""
+    core, yard = fleet(4, starts)
+    for unit, target in goals.items():
+        goal(core, unit, target)
+    for track in (core.orders.track(u) for u in starts):
+        track.reach = 4  # as late_drive grows it; set here so the units start where placed
+    return core, yard
 
 
 def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> None:
-    core, yard = fleet(4, {"lead": Cell(1, 0), "next": Cell(0, 0)})
-    goal(core, "lead", Cell(11, 2))
-    goal(core, "next", Cell(10, 0))
+    starts = {"lead": Cell(1, 0), "next": Cell(0, 0)}
+    core, yard = windowed(starts, {"lead": Cell(11, 2), "next": Cell(10, 0)})
     orders = deliver(core, yard, 1.0)
     assert orders["lead"].released == [Cell(2, 0), Cell(3, 0), Cell(4, 0), Cell(5, 0)]
     assert orders["next"].released == []  # its way starts where the leader still stands
@@ -109,8 +125,7 @@ def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> 
 
 
 def test_the_stop_cuts_every_window_to_nothing() -> None:
-    core, yard = fleet(4, {"u": Cell(0, 0)})
-    goal(core, "u", Cell(11, 2))
+    core, yard = windowed({"u": Cell(0, 0)}, {"u": Cell(11, 2)})
     deliver(core, yard, 1.0)
     unit = yard.units["u"]
     assert len(unit.released) == 4
@@ -122,8 +137,7 @@ def test_the_stop_cuts_every_window_to_nothing() -> None:
 
 
 def test_a_pause_cuts_the_window_to_nothing_and_resume_gives_one_again() -> None:
-    core, yard = fleet(4, {"u": Cell(0, 0)})
-    goal(core, "u", Cell(11, 2))
+    core, yard = windowed({"u": Cell(0, 0)}, {"u": Cell(11, 2)})
     deliver(core, yard, 1.0)
     unit = yard.units["u"]
 
@@ -147,6 +161,7 @@ def test_an_obstacle_found_in_a_window_gets_a_halt_order_that_cuts_it() -> None:
     yard = Yard(grid, [UnitLogic("u", grid, Cell(0, 0), 10.0, 1.0)], hidden={Cell(3, 0)})
     meet(core, yard.state("u"), 10.0)
     goal(core, "u", Cell(8, 0))
+    core.orders.track("u").reach = 4
     assert deliver(core, yard, 1.0)["u"].released == [
         Cell(1, 0),
         Cell(2, 0),
@@ -164,8 +179,7 @@ def test_an_obstacle_found_in_a_window_gets_a_halt_order_that_cuts_it() -> None:
 
 
 def test_a_unit_that_loses_the_coordinator_drops_its_window_and_holds() -> None:
-    core, yard = fleet(4, {"u": Cell(0, 0)})
-    goal(core, "u", Cell(11, 2))
+    core, yard = windowed({"u": Cell(0, 0)}, {"u": Cell(11, 2)})
     deliver(core, yard, 1.0)
     unit = yard.units["u"]
     # No order comes any more: it drives on what it was given, until its hold time (3 step
