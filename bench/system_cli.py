@@ -30,14 +30,13 @@ def unit_counts(text: str) -> list[int]:
 
 
 def window_list(text: str) -> list[int]:
-    """`4` or `1,4`: the windows to run, each 1 to MAX_WINDOW."""
+    """`4` or `1,4`: the windows to run, each 1 to MAX_WINDOW (ConfigError otherwise)."""
     try:
         windows = [int(part) for part in text.split(",")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a list of windows") from None
-    bad = [w for w in windows if not 1 <= w <= MAX_WINDOW]
-    if bad or not windows:
-        raise argparse.ArgumentTypeError(f"{text!r}: each window is 1 to {MAX_WINDOW} squares")
+        raise ConfigError(f"--windows {text}: not a list of windows, e.g. 1,4") from None
+    if any(not 1 <= w <= MAX_WINDOW for w in windows):
+        raise ConfigError(f"--windows {text}: each window is 1 to {MAX_WINDOW} squares")
     return windows
 
 
@@ -75,8 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--windows",
-        type=window_list,
-        default=[DEFAULT_WINDOW],
+        default=str(DEFAULT_WINDOW),
         metavar="N[,N...]",
         help=f"the coordinator's --window (default {DEFAULT_WINDOW}); several are run in turn, "
         "alternating within each repeat, to compare them side by side",
@@ -104,6 +102,8 @@ def check(args: argparse.Namespace) -> None:
         raise ConfigError("--workers: unit workers are processes, not with --deploy threads")
     if args.broker is not None:
         parse_broker_url(args.broker)
+    if isinstance(args.windows, str):
+        args.windows = window_list(args.windows)
 
 
 def _cell(summary: dict[str, Any], name: str, fmt: str) -> str:

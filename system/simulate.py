@@ -22,6 +22,7 @@ from gridfleet.console.clean import clean_root
 from gridfleet.console.feed import scenario_job_id, submit_scenario
 from gridfleet.console.monitor import FleetMonitor
 from gridfleet.console.operator import Operator
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze
@@ -57,6 +58,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seed", type=int, default=0, help="the coordinator's tie-breaking seed (default 0)"
+    )
+    parser.add_argument(
+        "--window",
+        type=int,
+        default=DEFAULT_WINDOW,
+        metavar="N",
+        help=f"the coordinator's window: squares a unit may be released ahead, 1 to {MAX_WINDOW} "
+        f"(default {DEFAULT_WINDOW})",
     )
     parser.add_argument(
         "--deterministic",
@@ -133,6 +142,7 @@ async def simulate(
     record: bool = False,
     sensors_see_units: bool = True,
     seed: int = 0,
+    window: int = DEFAULT_WINDOW,
 ) -> SimulationResult:
     """Run coordinator and units in this process (an own broker in a child) until done."""
     started = time.monotonic()
@@ -148,6 +158,7 @@ async def simulate(
         ws_port=None,
         sensors_see_units=sensors_see_units,
         seed=seed,
+        window=window,
         # Its own process: in this one, amqtt shares the interpreter with the coordinator and
         # every unit, and at short steps its queue grew without bound (bench/README.md).
         own_broker="processes",
@@ -293,6 +304,8 @@ def run(args: argparse.Namespace) -> int:
     check_step(args.step)
     if args.max_steps < 1:
         raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
+    if not 1 <= args.window <= MAX_WINDOW:
+        raise ConfigError(f"--window {args.window}: give 1 to {MAX_WINDOW} squares")
     scenario = with_units(load_scenario(args.scenario))
     if args.json:
         # Keep stdout for the one JSON object.
@@ -305,7 +318,7 @@ def run(args: argparse.Namespace) -> int:
         )
 
         started = time.monotonic()
-        outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed)
+        outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed, args.window)
         outcome.wall_time_s = round(time.monotonic() - started, 3)
     else:
         root = args.root
@@ -316,7 +329,15 @@ def run(args: argparse.Namespace) -> int:
             root = f"gridfleet-sim-{uuid.uuid4().hex[:8]}"
         try:
             outcome = asyncio.run(
-                simulate(scenario, args.step, args.max_steps, root, args.broker, seed=args.seed)
+                simulate(
+                    scenario,
+                    args.step,
+                    args.max_steps,
+                    root,
+                    args.broker,
+                    seed=args.seed,
+                    window=args.window,
+                )
             )
         finally:
             if own_root:

@@ -85,6 +85,8 @@ def test_embedded_broker_table() -> None:
         (["--broker", "mqtt://127.0.0.1:{closed}"], "cannot reach the broker"),
         (["--broker", "http://nowhere"], "http://nowhere"),
         (["--workers", "0"], "--workers 0"),
+        (["--windows", "1,0"], "each window is 1 to 32 squares"),
+        (["--windows", "four"], "not a list of windows"),
         (["--workers", "2", "--deploy", "threads"], "not with --deploy threads"),
     ],
 )

@@ -52,6 +52,14 @@ def test_unknown_command_is_one_line_error() -> None:
     assert out.returncode == 2 and "invalid choice" in out.stderr and "Traceback" not in out.stderr
 
 
+def test_a_coordinator_window_out_of_range_is_one_line() -> None:
+    out = run_cli("coordinator", "--map", "maps/playfield.map", "--window", "0")
+    assert out.returncode == 2
+    assert out.stderr.strip().splitlines() == [
+        "gridfleet coordinator: error: --window 0: give 1 to 32 squares"
+    ]
+
+
 def test_broker_config_error_is_one_line(tmp_path: Path) -> None:
     out = run_cli("broker", "--config", str(tmp_path / "absent.toml"))
     assert out.returncode == 2

@@ -97,6 +97,7 @@ def test_human_summary() -> None:
         ([str(MAPS / "corridor.map")], "corridor.map"),
         ([str(MAPS / "corridor.toml"), "--step", "0"], "step"),
         ([str(MAPS / "corridor.toml"), "--max-steps", "0"], "max-steps"),
+        ([str(MAPS / "corridor.toml"), "--window", "0"], "--window 0: give 1 to 32 squares"),
     ],
 )
 def test_bad_input_is_one_clear_line(args: list[str], message: str) -> None:
