@@ -428,8 +428,8 @@ class CoordinatorCore:
     def _release_followers(self, now: float) -> list[Outbound]:
         """Units waiting to follow into a square that a state just showed empty get it now, not
         at the next step (protocol.md §4.4): the square is nobody's, as at a step."""
-        if self.estop or not self.moves.following or self.window == 1:
-            return []  # window 1: one square per order, every one at a step, as before windows
+        if self.estop or not self.moves.following:
+            return []
         records = [u for u in self.world.units.values() if u.state is not None]
         taken: set[Cell] = set()
         for u in records:
