@@ -222,7 +222,6 @@ class CoordinatorCore:
                 self.errors_reported += 1
                 error = self.say.error(topic, forged, None)
                 return self._effects([error], log=((logging.WARNING, forged),))
-            return self._effects(self._release_followers(now))
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
@@ -424,52 +423,6 @@ class CoordinatorCore:
                 control=self.directives.controls.get(u.id),
             )
         return StepResult(self.step_no, orders, routes)
-
-    def _release_followers(self, now: float) -> list[Outbound]:
-        """Units waiting to follow into a square that a state just showed empty get it now, not
-        at the next step (protocol.md §4.4): the square is nobody's, as at a step."""
-        if self.estop or not self.moves.following:
-            return []
-        records = [u for u in self.world.units.values() if u.state is not None]
-        taken: set[Cell] = set()
-        for u in records:
-            assert u.state is not None
-            taken.add(u.state.position)
-            taken |= self.orders.reserved(u)
-        out: list[Outbound] = []
-        for uid, follow in list(self.moves.following.items()):
-            rec = self.world.units.get(uid)
-            if follow.square in taken or rec is None or rec.state is None:
-                continue
-            st = rec.state
-            if (
-                uid in self.directives.controls
-                or st.estop
-                or st.mode != "coordinated"
-                or rec.connection in ("offline", "broken")
-                or not self.orders.settled(rec)
-                or follow.square.manhattan(st.position) != 1
-            ):
-                continue
-            plan = self.orders.order(
-                rec,
-                settled=True,
-                move=follow.square,
-                target=self.progress.target(uid) or self.planner.parking(uid),
-                action=self.progress.action(uid),
-                estop=False,
-                grid=self.world.grid,
-                route=partial(self._route, uid),
-                step_no=self.step_no,
-                now=now,
-                heartbeat_s=self._heartbeat_s,
-            )
-            del self.moves.following[uid]
-            taken.add(follow.square)
-            if plan.send:
-                out.append(self.say.order(uid, plan))
-        self.stop.also_releasing(set(out))
-        return out
 
     def _claims(
         self, units: list[UnitRecord], moves: dict[str, Cell], targets: dict[str, Cell | None]

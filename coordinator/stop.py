@@ -124,10 +124,6 @@ class FleetStop:
         """The orders of the step just made that release squares (the stop may withdraw them)."""
         self._releasing = orders
 
-    def also_releasing(self, orders: set[Outbound]) -> None:
-        """Orders sent between steps that release squares (a follower's, core.py)."""
-        self._releasing = self._releasing | orders
-
     def withdrawn(self, out: Outbound) -> bool:
         """Whether `out`, of the last step, must not go out after all: an order that releases
         squares, once the stop was engaged while the step's messages were going out (the halt

@@ -109,37 +109,19 @@ def windowed(starts: dict[str, Cell], goals: dict[str, Cell]) -> tuple[Coordinat
     return core, yard
 
 
-def test_a_follower_gets_the_leaders_square_as_soon_as_the_leaders_state_shows_it_left() -> None:
+def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> None:
     starts = {"lead": Cell(1, 0), "next": Cell(0, 0)}
     core, yard = windowed(starts, {"lead": Cell(11, 2), "next": Cell(10, 0)})
     orders = deliver(core, yard, 1.0)
     assert orders["lead"].released == [Cell(2, 0), Cell(3, 0), Cell(4, 0), Cell(5, 0)]
     assert orders["next"].released == []  # its way starts where the leader still stands
-    yard.tick("next", 1.2)
-    from_unit(core, "state", "next", yard.state("next"), 1.2)
     yard.tick("lead", 1.5)
-    # The leader's state shows it has left [1, 0]: the follower gets it with that state, not a
-    # step later, and not [2, 0], where the leader stands now.
-    at_once = orders_in(from_unit(core, "state", "lead", yard.state("lead"), 1.5))
-    assert list(at_once) == ["next"] and at_once["next"].released == [Cell(1, 0)]
-    yard.units["next"].on_order(at_once["next"], 1.5)
-    yard.tick("next", 1.7)  # it shows its new direction first (its LEDs), then drives
-    yard.tick("next", 1.9)
-    assert yard.units["next"].position == Cell(1, 0)
-    deliver(core, yard, 2.0)  # the windows still pass the validator
-
-
-def test_a_state_showing_the_square_still_held_releases_nothing_to_the_follower() -> None:
-    starts = {"lead": Cell(1, 0), "next": Cell(0, 0)}
-    core, yard = windowed(starts, {"lead": Cell(11, 2), "next": Cell(10, 0)})
-    deliver(core, yard, 1.0)
-    # The leader has not moved yet: its state still stands on [1, 0].
-    assert orders_in(from_unit(core, "state", "lead", yard.state("lead"), 1.5)) == {}
-    # Nor under the stop, though it has left.
-    core.on_message(TOPICS.fleet("estop"), b"engaged|op|test", 1.6)
-    yard.tick("lead", 1.7)
-    stopped = orders_in(from_unit(core, "state", "lead", yard.state("lead"), 1.8))
-    assert "next" not in stopped
+    yard.tick("next", 1.5)
+    from_unit(core, "state", "lead", yard.state("lead"), 1.5)  # it left [1, 0]
+    from_unit(core, "state", "next", yard.state("next"), 1.5)
+    orders = deliver(core, yard, 2.0)
+    # [1, 0] at once; not [2, 0], where the leader stands now.
+    assert orders["next"].released == [Cell(1, 0)]
 
 
 def test_the_stop_cuts_every_window_to_nothing() -> None:
