@@ -53,6 +53,7 @@ def job_before(broker: BrokerThread, root: str) -> Callable[..., subprocess.Comp
     return run
 
 
+@pytest.mark.slow  # the whole system, end to end: make test, not test-fast
 def test_submit_list_cancel_goal_and_refusal(
     job: Callable[..., subprocess.CompletedProcess[str]],
     job_before: Callable[..., subprocess.CompletedProcess[str]],
@@ -91,6 +92,7 @@ def test_submit_list_cancel_goal_and_refusal(
     assert (everything.returncode, everything.stdout.strip()) == (0, "accepted"), everything.stderr
 
 
+@pytest.mark.slow  # the whole system, end to end: make test, not test-fast
 def test_units_are_paused_and_taken_out_of_service_and_a_waiting_job_says_why(
     job: Callable[..., subprocess.CompletedProcess[str]],
     broker: BrokerThread,
@@ -216,6 +218,7 @@ def test_a_held_press_without_a_coordinator_is_named_and_not_released(
     unit.publish(topics.fleet("estop"), b"", retain=True)
 
 
+@pytest.mark.slow  # the whole system, end to end: make test, not test-fast
 def test_release_names_the_press_that_held_the_fleet_and_the_coordinator_clears_it(
     job: Callable[..., subprocess.CompletedProcess[str]],
     run_system: Callable[..., tuple[ServiceThread, ServiceThread]],

@@ -38,6 +38,7 @@ def failure_report(out: subprocess.CompletedProcess[str]) -> str:
     return json.dumps(kept) + out.stderr[-2000:]
 
 
+@pytest.mark.slow  # every scenario through the whole system: make test, not test-fast
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
 def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
@@ -157,6 +158,7 @@ def _without_wall_time(out: subprocess.CompletedProcess[str]) -> dict[str, Any]:
     return result
 
 
+@pytest.mark.slow  # two whole warehouse runs: make test, not test-fast
 def test_a_deterministic_run_is_the_same_every_time() -> None:
     # Issue 14: warehouse took 184-417 steps over repeated runs; nobody could compare two
     # scenarios or two planner versions with it.
