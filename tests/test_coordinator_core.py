@@ -59,11 +59,12 @@ def simulate(
     p_order: float,
     steps: int = 1500,
     hidden: set[Cell] | None = None,
+    window: int = 1,
 ) -> tuple[CoordinatorCore, Yard, int]:
     rng = random.Random(seed)
     grid = GridMap.from_rows(ROWS)
     free = [c for c in grid.free_cells() if c not in (hidden or set())]
-    core = make_core(grid, seed=seed)
+    core = make_core(grid, seed=seed, window=window)
     world = core.world
     spots = rng.sample(free, n_units)
     capacities = [rng.choice([2.0, 5.0, 10.0, 20.0]) for _ in range(n_units)]
@@ -112,15 +113,17 @@ def simulate(
     )
 
 
+@pytest.mark.parametrize("window", [1, 4])
 @pytest.mark.parametrize("seed", range(4))
-def test_jobs_finish_safely_with_reliable_messages(seed: int) -> None:
-    core, _, _ = simulate(4, 12, seed, p_state=1.0, p_order=1.0)
+def test_jobs_finish_safely_with_reliable_messages(seed: int, window: int) -> None:
+    core, _, _ = simulate(4, 12, seed, p_state=1.0, p_order=1.0, window=window)
     assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
 
 
+@pytest.mark.parametrize("window", [1, 4])
 @pytest.mark.parametrize("seed", range(4))
-def test_jobs_finish_safely_with_late_and_lost_messages(seed: int) -> None:
-    core, _, _ = simulate(8, 20, seed, p_state=0.6, p_order=0.7)
+def test_jobs_finish_safely_with_late_and_lost_messages(seed: int, window: int) -> None:
+    core, _, _ = simulate(8, 20, seed, p_state=0.6, p_order=0.7, window=window)
     assert all(j.state in ("done", "rejected") for j in core.jobs.jobs.values())
 
 
