@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test firmware-checkout beside-soak install schemas clean system-deps
+.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests.
@@ -24,11 +24,10 @@ install: $(STAMP)
 run: $(STAMP)
 	$(BIN)/gridfleet up
 
-# The chaos soak runs on one core beside the static checks, the firmware's host tests built from
-# a clean checkout and the simulate tests (one at a time: together about as long as the soak),
-# then every other test runs four at a time.
+# The chaos soak runs beside the static checks and the firmware's host tests built from a clean
+# checkout (each about a core's work), then every other test runs four at a time.
 test: system-deps $(STAMP)
-	$(MAKE) --no-print-directory -j2 --output-sync=target soak beside-soak
+	$(MAKE) --no-print-directory -j2 --output-sync=target soak check firmware-checkout
 	$(MAKE) --no-print-directory pytest
 
 # Installs the missing Debian packages as root (or with password-less sudo); otherwise says the
@@ -81,15 +80,9 @@ soak: $(STAMP)
 firmware-checkout: $(STAMP)
 	$(BIN)/pytest -q -m firmware
 
-# What make test runs on the core the soak leaves free: the checks, the firmware's build, and
-# tests that are one process each and need no other test's ports.
-BESIDE_SOAK := tests/test_simulate.py
-beside-soak: check firmware-checkout
-	$(BIN)/pytest -q $(BESIDE_SOAK)
-
-# Every test but the soak, the firmware's build and those make test runs beside the soak.
+# Every test but the soak and the firmware's build (make test runs those beside the checks).
 pytest: $(STAMP)
-	$(BIN)/pytest $(XDIST) -m "not soak and not firmware" $(addprefix --ignore=,$(BESIDE_SOAK))
+	$(BIN)/pytest $(XDIST) -m "not soak and not firmware"
 
 # Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
 # (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
