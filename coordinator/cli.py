@@ -8,8 +8,7 @@ import asyncio
 from gridfleet.config import check_step
 from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import default_db_path
-from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
-from gridfleet.errors import ConfigError
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.options import add_common, broker_url
@@ -50,8 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run until interrupted (SIGINT/SIGTERM)."""
     check_step(args.step)
-    if not 1 <= args.window <= MAX_WINDOW:
-        raise ConfigError(f"--window {args.window}: give 1 to {MAX_WINDOW} squares")
+    check_window(args.window)
     grid = load_map(args.map)
     coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),

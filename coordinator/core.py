@@ -435,16 +435,14 @@ class CoordinatorCore:
             assert u.state is not None
             claims.stand(u.id, u.state.position)
             claims.hold(u.id, sorted(self.orders.reserved(u)))
-        for uid, move in moves.items():
-            claims.hold(uid, [move])
-        for uid, follow in self.moves.following.items():
-            claims.hold(uid, [follow.square])
-        for u in units:
-            assert u.state is not None
             target = targets.get(u.id)
             if target is not None and u.state.position != target:
                 way = self.planner.route(u.state.position, target, self.window, u.id)
                 claims.intend(u.id, way)
+        for uid, move in moves.items():
+            claims.hold(uid, [move])
+        for uid, follow in self.moves.following.items():
+            claims.hold(uid, [follow.square])
         return claims
 
     def _ahead(

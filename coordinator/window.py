@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
+from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 
 # Squares a unit may be released ahead. 1 (one square per order, as before windows) by default: with
@@ -34,6 +35,13 @@ from gridfleet.grid import Cell, GridMap
 # forth at a dead end (bench/README.md); 4 is measured there and is `--window 4`.
 DEFAULT_WINDOW = 1
 MAX_WINDOW = 32  # the setting's bound (an order releases at most MAX_RELEASED squares)
+
+
+def check_window(window: int, flag: str = "--window") -> int:
+    """`window` when it is 1 to MAX_WINDOW squares; else a ConfigError naming `flag`."""
+    if not 1 <= window <= MAX_WINDOW:
+        raise ConfigError(f"{flag} {window}: give 1 to {MAX_WINDOW} squares")
+    return window
 
 
 class Claims:

@@ -22,7 +22,7 @@ from gridfleet.console.clean import clean_root
 from gridfleet.console.feed import scenario_job_id, submit_scenario
 from gridfleet.console.monitor import FleetMonitor
 from gridfleet.console.operator import Operator
-from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
+from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
 from gridfleet.heap import freeze
@@ -304,8 +304,7 @@ def run(args: argparse.Namespace) -> int:
     check_step(args.step)
     if args.max_steps < 1:
         raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
-    if not 1 <= args.window <= MAX_WINDOW:
-        raise ConfigError(f"--window {args.window}: give 1 to {MAX_WINDOW} squares")
+    check_window(args.window)
     scenario = with_units(load_scenario(args.scenario))
     if args.json:
         # Keep stdout for the one JSON object.
