@@ -10,13 +10,17 @@ STAMP := $(VENV)/.installed
 # dashboard, doctest and g++ for the firmware's host tests.
 DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
-# npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles.
+# npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
+# while pip installs. pip does not byte-compile every module of every package (scipy's alone took
+# a quarter of a minute): Python compiles what is imported, once, on first use.
+NPM_CI := npm ci --no-audit --no-fund --loglevel=error
 $(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"
-	cd dashboard && npm ci --no-audit --no-fund --loglevel=error
-	cd tests/vda5050_lib && npm ci --no-audit --no-fund --loglevel=error
+	(cd dashboard && $(NPM_CI)) & dashboard=$$!; \
+	(cd tests/vda5050_lib && $(NPM_CI)) & vda=$$!; \
+	$(BIN)/pip install --quiet --no-compile -c constraints.txt -e ".[test]"; pip=$$?; \
+	wait $$dashboard && wait $$vda && exit $$pip
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -61,9 +65,10 @@ typecheck: $(STAMP)
 
 # The tests run TEST_WORKERS at a time (pytest-xdist; 0: one at a time), each on its own ports
 # (a band of them per worker: gridfleet/ports.py), folders and topic root. Most of a test's time is
-# waiting on a broker, a browser or a clock, so four keep 2 cores busy.
+# waiting on a broker, a browser or a clock, so four keep 2 cores busy. A worker is handed two
+# tests at a time, the long ones first (tests/conftest.py), so no long test starts last.
 TEST_WORKERS ?= 4
-XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist worksteal)
+XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist load --maxschedchunk 2)
 
 # The edit-test loop: every test but the browser, soak and slow end-to-end ones (no lint).
 test-fast: $(STAMP)
