@@ -384,7 +384,12 @@ class Soak:
     # ---- the end ------------------------------------------------------------------------
 
     async def drain(self) -> None:
-        """Faults over: release any stop, stop the feed, and give every job time to end."""
+        """Faults over: release any stop, stop the feed, and give every job time to end.
+
+        A stop can come back during the drain: a coordinator restarted by the last faults reads
+        a device's press whose clearing the broker's restart lost, and engages the latch again
+        (the safe side). The operator releases it again, as they would at the hall.
+        """
         listener = self.listener
         assert listener is not None
         if listener.stopped:
@@ -403,6 +408,9 @@ class Soak:
         while time.monotonic() < deadline:
             if listener.jobs and all(s in FINAL for s in listener.jobs.values()):
                 return
+            if listener.stopped:
+                self.release_repeats += 1
+                await self.release()
             await asyncio.sleep(0.2)  # polling the listener, with a deadline
 
     async def _start_and_inject(self) -> None:
