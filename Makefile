@@ -11,16 +11,18 @@ STAMP := $(VENV)/.installed
 DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
 
 # npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
-# while pip installs. pip does not byte-compile every module of every package (scipy's alone took
-# a quarter of a minute): Python compiles what is imported, once, on first use.
+# while pip installs. pip byte-compiles every module at install: where PYTHONDONTWRITEBYTECODE is
+# set, nothing compiled later is kept, and every process of every test would compile again; so
+# gridfleet's own modules are compiled here too (0.7 -> 0.4 s to start a component).
 NPM_CI := npm ci --no-audit --no-fund --loglevel=error
 $(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	(cd dashboard && $(NPM_CI)) & dashboard=$$!; \
 	(cd tests/vda5050_lib && $(NPM_CI)) & vda=$$!; \
-	$(BIN)/pip install --quiet --no-compile -c constraints.txt -e ".[test]"; pip=$$?; \
+	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"; pip=$$?; \
 	wait $$dashboard && wait $$vda && exit $$pip
+	$(BIN)/python -m compileall -q -j 0 -x node_modules gridfleet $(PARTS) tests >/dev/null
 	touch $(STAMP)
 
 install: $(STAMP)
