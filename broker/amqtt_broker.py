@@ -13,6 +13,7 @@ import weakref
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 from amqtt.adapters import (
@@ -42,6 +43,7 @@ _HANDLER_STOP_S = 1.0  # how long a connection's handler may take to stop before
 _PRUNE_FLOOR = 1024  # finished deliveries amqtt may keep before we sweep them out
 _YIELD_EVERY = 64  # messages routed in a row before other tasks get a turn
 _BROADCAST_STOP_S = 5.0  # at shutdown, how long deliveries still under way may take
+KEEP_ALIVE_GRACE = 1.5  # a client silent this many keep-alive periods is gone (MQTT-3.1.2-24)
 _REFUSAL_LOG_S = 1.0  # refused CONNECTs: at most one log line this often (a flood is one line/s)
 
 
@@ -367,11 +369,29 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             incoming.parent = 0
         delay = self.config.get("timeout-disconnect-delay", 0)
         if session.keep_alive > 0 and isinstance(delay, int):
-            session.keep_alive += delay
+            # MQTT-3.1.2-24: silent for one and a half keep-alive periods, a client is gone.
+            session.keep_alive = session.keep_alive * KEEP_ALIVE_GRACE + delay
+        if isinstance(reader, _GuardedReader):
+            # amqtt 0.12.1 waits that long for each packet, then does nothing and waits again
+            # (its handle_read_timeout is empty): a unit whose link died without a FIN stayed
+            # connected, its will unsent and its `online` standing, for good.
+            handler.handle_read_timeout = partial(
+                self._keep_alive_expired, reader, session.client_id, session.keep_alive
+            )
 
         session.attributes["gridfleet.authenticated"] = True  # for _authenticate, next
         self._ended[handler] = asyncio.Event()
         return handler, session
+
+    def _keep_alive_expired(self, reader: _GuardedReader, client_id: str, after_s: float) -> None:
+        """Close a connection silent for 1.5 keep-alive periods: amqtt then sends its will."""
+        log.warning(
+            "broker: client %s from %s silent for %.1f s (1.5 keep-alive periods): disconnected",
+            client_id,
+            reader.peer,
+            after_s,
+        )
+        reader.hang_up()
 
     def _log_refusal(self, what: str) -> None:
         """Log a refusal (a CONNECT, a websocket, a message dropped): at most one line a second,

@@ -79,14 +79,14 @@ class MqttProbe:
                 Seen(msg.topic, bytes(msg.payload), msg.retain, msg.qos, time.monotonic())
             )
 
-    def connect(self, timeout: float = 10.0) -> MqttProbe:
+    def connect(self, timeout: float = 10.0, keepalive: int = 60) -> MqttProbe:
         """Connect and start paho's network thread (once: see below)."""
         # A second connect() makes paho drop the live socket and open another: a SUBSCRIBE sent
         # meanwhile is lost without a SUBACK (2 in 30 tries here; amqtt logs "No data to decode
         # MQTT packet fixed header"). That was the late-client test's rare timeout.
         if self._connected.is_set():
             raise AssertionError("MqttProbe.connect() called twice (`with` connects by itself)")
-        self.client.connect(self._broker.host, self._broker.port)
+        self.client.connect(self._broker.host, self._broker.port, keepalive=keepalive)
         self.client.loop_start()
         if not (self._answered.wait(timeout) and self._connected.is_set()):
             self.client.loop_stop()
@@ -156,6 +156,11 @@ class MqttProbe:
         sock = self.client.socket()
         if sock is not None:
             sock.close()
+
+    def fall_silent(self) -> None:
+        """Send nothing more, not even a ping, on a link left open: as a host whose link died
+        without a FIN looks to the broker."""
+        self.client.loop_stop()
 
     def close(self) -> None:
         """Disconnect cleanly."""
