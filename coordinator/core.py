@@ -346,6 +346,10 @@ class CoordinatorCore:
         self.step_no += 1
         units = [u for u in self.world.units.values() if u.state is not None]
         active = self.world.roll_call(now)
+        for unit, silent_s in self.world.silenced:
+            self.events.unit_silent(self.say.stamp.now(), unit, silent_s)
+        for unit in self.world.heard_again:
+            self.events.unit_changed(self.say.stamp.now(), unit, "heard")
         self.progress.advance(units, active, now, self.step_no)
         settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
         if not self.estop:

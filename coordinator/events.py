@@ -21,12 +21,13 @@ from gridfleet.protocol.messages import MAX_EVENTS, EventKind
 
 SAFETY_EVENTS = 50  # stop and loss lines kept whatever else happens (the latest this many)
 UNIT_EVENTS = 4  # a unit's latest online/offline/lost lines kept
-_LOST = "lost (its connection broke)"
+_LOST = "lost (its connection broke)"  # its will; "lost (no state for ...)": fell silent
+_HEARD = "heard again"
 
 
 def _is_safety(entry: EventEntry) -> bool:
     """A stop engaged or released, or a unit lost: what a person asks about afterwards."""
-    return entry.kind == "stop" or (entry.kind == "unit" and entry.text.endswith(_LOST))
+    return entry.kind == "stop" or (entry.kind == "unit" and " lost (" in entry.text)
 
 
 def _kg(mass: float) -> str:
@@ -134,9 +135,13 @@ class EventLog:
         return None
 
     def unit_changed(self, at: datetime, unit: str, connection: str) -> None:
-        """A unit came online, went offline, or was lost (its last will)."""
-        words = {"online": "online", "offline": "offline", "broken": _LOST}
+        """A unit came online, went offline, was lost (its last will) or was heard again."""
+        words = {"online": "online", "offline": "offline", "broken": _LOST, "heard": _HEARD}
         self.add(at, "unit", f"unit {unit} {words.get(connection, connection)}", unit=unit)
+
+    def unit_silent(self, at: datetime, unit: str, silent_s: float) -> None:
+        """A unit still `online` whose states stopped: lost to the fleet (protocol.md §8)."""
+        self.add(at, "unit", f"unit {unit} lost (no state for {silent_s:.1f} s)", unit=unit)
 
     def take(self, header: Header) -> EventsView:
         """The view, which counts as sent from here on (the caller checks `dirty` first)."""

@@ -25,6 +25,7 @@ class UnitRecord:
     state: UnitState | None = None
     state_at: float | None = None  # when the latest state arrived (monotonic seconds)
     lost_since: float | None = None  # when it stopped counting as active (None: active)
+    fell_silent: bool = False  # lost because its states stopped, its connection still `online`
     interval_s: float | None = None  # how far apart its states arrive (moving average)
     rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
     moved_at: float | None = None  # when its state last showed it on a new square
@@ -53,6 +54,8 @@ class World:
         self._grid = self.base.with_blocked(self.obstacles)
         self.map_id = self.base.map_id()
         self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
+        self.silenced: list[tuple[str, float]] = []  # (unit, seconds silent): see roll_call
+        self.heard_again: list[str] = []
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
 
@@ -227,16 +230,27 @@ class World:
         return now - rec.state_at <= self.stale_after_s(rec)
 
     def roll_call(self, now: float) -> set[str]:
-        """Ids of the units heard from that are active now; notes since when each other one is lost."""
+        """Ids of the units heard from that are active now; notes since when each other one is lost.
+
+        `silenced` and `heard_again` name the units that, since the last roll call, were lost
+        with their connection still `online` (a link that died without a FIN: only their silence
+        tells, until the broker's keep-alive ends the session), and those heard from again.
+        """
         active = set()
+        self.silenced, self.heard_again = [], []
         for rec in self.units.values():
             if rec.state is None:
                 continue
             if self.is_active(rec, now):
                 active.add(rec.id)
-                rec.lost_since = None
+                if rec.fell_silent:
+                    self.heard_again.append(rec.id)
+                rec.lost_since, rec.fell_silent = None, False
             elif rec.lost_since is None:
                 rec.lost_since = now
+                if rec.connection not in ("offline", "broken") and rec.state_at is not None:
+                    rec.fell_silent = True
+                    self.silenced.append((rec.id, now - rec.state_at))
         return active
 
     def capacities(self) -> list[float]:

@@ -382,3 +382,19 @@ async def test_a_restarted_coordinator_publishes_the_history_it_kept(
         # The released latch it reads again is no news: the view is the history it kept.
         await async_wait_for(lambda: told(late), what="the events view after the restart")
         assert told(late) == history
+
+
+def test_a_unit_still_online_whose_states_stop_is_told_lost_and_then_heard_again() -> None:
+    # A link that dies without a FIN: the connection stays `online` until the broker's keep-alive
+    # ends the session, and only the unit's silence tells. The fleet stopped counting the unit,
+    # and nobody was told.
+    core = make_core(GRID)
+    yard = Yard(GRID, [UnitLogic("u", GRID, Cell(0, 0), 10.0, 1.0)])
+    meet(core, yard.state("u"), 10.0)
+    core.step(1.0)
+    assert "lost" not in " ".join(texts(core.events))
+    lost = core.step(6.5)  # silent for 5 step periods and more (protocol.md §8)
+    assert [e.text for e in lost.events] == ["unit u lost (no state for 6.5 s)"]
+    assert [e.text for e in core.step(7.5).events] == []  # said once
+    from_unit(core, "state", "u", yard.state("u"), 8.0)
+    assert [e.text for e in core.step(8.5).events] == ["unit u heard again"]
