@@ -454,8 +454,8 @@ class CoordinatorCore:
     ) -> list[Cell]:
         """The squares of `unit`'s way after `last` that its window may take (window.py)."""
         record = self.world.units[unit]
-        if target is None or last == target or record.state is None or self.planner.unjam.busy:
-            return []  # out of a livelock the fleet goes a configuration at a time (unjam.py)
+        if target is None or last == target or record.state is None:
+            return []
         way = self.planner.route(last, target, room, unit)
         return claims.ahead(unit, record.state.position, way, room)
 

@@ -26,7 +26,6 @@ STALL = 64  # ...and so do this many steps in a row without getting nearer the t
 SEARCH_NODES = 2000  # LaCAM's first budget, in successors tried; doubled on each retry...
 MAX_SEARCH_NODES = 64_000  # ...up to this
 STEP_WORK = 8000  # agents times successors a step may search for (~35 ms on this machine)
-SETTLE = 8  # steps a due search waits for units still driving (their windows) to stop
 PATIENCE = 16  # steps the fleet may take to reach the plan's next configuration before it is
 # dropped (a unit lost or stopped would hold the others on a plan that cannot go on)
 
@@ -48,7 +47,6 @@ class Unjam:
     _baseline: Config | None = None  # the first configuration under this key, not yet summed
     _failed: int = 0  # searches out of budget under this key
     _retry_at: float = REVISITS + 1
-    _settling: int = 0  # steps a due search has waited for the fleet to be still
     _search: LaCAM | None = None  # under way, from `_search_from`
     _search_from: Config = ()
     _search_budget: int = 0
@@ -75,8 +73,6 @@ class Unjam:
                 return out
         if self._search is not None:
             return self._go_on(config, frozen, reserved)
-        if self._settling:
-            return self._settle(config, goal, frozen, reserved)
         if all(g in (NONE, p) for p, g in zip(pos, goal, strict=True)):
             return None
         entered = self._entered.get(config, 0)
@@ -97,26 +93,9 @@ class Unjam:
         self._stalled += 1
         if entered < self._retry_at and self._stalled < STALL * (self._retry_at - REVISITS):
             return None
-        return self._settle(config, goal, frozen, reserved)
-
-    def _settle(
-        self, config: Config, goal: Sequence[Index], frozen: Sequence[bool], reserved: set[Index]
-    ) -> list[Index] | None:
-        """Search once the fleet is still (it starts from where everyone stands); meanwhile
-        nobody is given a move, so units driving their windows stop within a few steps.
-
-        A unit that cannot stop being frozen (paused, lost, under its own stop) would hold the
-        fleet for good: after SETTLE steps the fleet is planned as usual again, and the search
-        waits for this configuration to come round twice as often.
-        """
         if any(frozen):
-            if self._settling < SETTLE:
-                self._settling += 1
-                return list(config)
-            self._settling, self._stalled = 0, 1
-            self._retry_at *= 2
-            return None
-        self._settling, self._stalled = 0, 1
+            return None  # search once the fleet is still: it starts from where everyone stands
+        self._stalled = 1
         # An agent with no target stays where it is at the end, though it may make way meanwhile.
         goals = self._one_each(
             config, [p if g == NONE else g for p, g in zip(config, goal, strict=True)]
@@ -162,12 +141,6 @@ class Unjam:
         """Is a plan out of a livelock being followed?"""
         return self._plan is not None
 
-    @property
-    def busy(self) -> bool:
-        """Is the way out of a livelock being waited for, searched or followed? Released windows
-        are given no squares ahead meanwhile: the way goes a configuration at a time."""
-        return self._settling > 0 or self._search is not None or self._plan is not None
-
     def _reset(self, key: tuple[tuple[str, ...], Config]) -> None:
         self._key = key
         self._entered.clear()
@@ -178,7 +151,6 @@ class Unjam:
         self._retry_at = REVISITS + 1
         self._plan = None
         self._search = None
-        self._settling = 0
 
     def _go_on(
         self, config: Config, frozen: Sequence[bool], reserved: set[Index]

@@ -14,7 +14,7 @@ from gridfleet.coordinator import unjam as unjam_module
 from gridfleet.coordinator.lacam import LaCAM, NoSolution, is_valid_move
 from gridfleet.coordinator.pibt import neighbour_table
 from gridfleet.coordinator.planner import Planner
-from gridfleet.coordinator.unjam import PATIENCE, SETTLE, Unjam
+from gridfleet.coordinator.unjam import PATIENCE, Unjam
 from gridfleet.coordinator.validate import validate_plan
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache, adjacency
@@ -159,33 +159,6 @@ def test_a_configuration_entered_a_third_time_starts_a_search_and_its_plan_is_fo
     assert unjam.moves(names, [1, 2], goal, [False, False], set()) == [2, 3]
     assert unjam.moves(names, [2, 3], goal, [False, False], set()) is None  # arrived: PIBT again
     assert not unjam.following
-
-
-def test_a_due_search_holds_everyone_until_the_units_still_driving_have_stopped() -> None:
-    # Units driving their released windows are frozen: the search waits for them, and nobody is
-    # given a move meanwhile (else windows kept some unit always driving, and a warehouse run
-    # with windows of 4 never searched its way out of two units pushing each other at a dead end).
-    unjam, names, goal = line_unjam()
-    for pos in ([0, 1], [1, 2], [0, 1], [1, 2]):
-        assert unjam.moves(names, pos, goal, [False, False], set()) is None
-    assert unjam.moves(names, [0, 1], goal, [False, True], set()) == [0, 1]
-    assert unjam.busy and unjam.searches == 0
-    assert unjam.moves(names, [0, 1], goal, [False, False], set()) == [1, 2]  # still: search
-    assert unjam.following and unjam.searches == 1
-
-
-def test_a_unit_that_never_stops_holds_the_fleet_only_a_few_steps() -> None:
-    # A paused or lost unit stays frozen: the fleet is planned as usual again after SETTLE steps,
-    # and is not held again at once.
-    unjam, names, goal = line_unjam()
-    for pos in ([0, 1], [1, 2], [0, 1], [1, 2]):
-        assert unjam.moves(names, pos, goal, [False, False], set()) is None
-    held = [unjam.moves(names, [0, 1], goal, [False, True], set()) for _ in range(SETTLE)]
-    assert held == [[0, 1]] * SETTLE
-    assert unjam.moves(names, [0, 1], goal, [False, True], set()) is None
-    assert not unjam.busy
-    assert unjam.moves(names, [0, 1], goal, [False, True], set()) is None
-    assert unjam.searches == 0
 
 
 def test_a_unit_that_cannot_move_holds_the_one_behind_it_and_a_held_plan_is_dropped() -> None:

@@ -5,10 +5,7 @@ and a lost coordinator cut a window to nothing. Every window is checked by the v
 
 from __future__ import annotations
 
-import pytest
-
 from gridfleet.coordinator.core import CoordinatorCore
-from gridfleet.coordinator.unjam import Unjam
 from gridfleet.coordinator.validate import validate_windows
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import ControlUnit, Order, SetGoal
@@ -125,24 +122,6 @@ def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> 
     orders = deliver(core, yard, 2.0)
     # [1, 0] at once; not [2, 0], where the leader stands now.
     assert orders["next"].released == [Cell(1, 0)]
-
-
-def test_no_window_grows_while_the_fleet_is_led_out_of_a_livelock(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    # The way out (unjam.py) goes a configuration at a time, and waits for units still driving
-    # to stop: a window topped up meanwhile kept a unit driving, and the search never began.
-    core, yard = windowed({"u": Cell(0, 0)}, {"u": Cell(11, 2)})
-    window = deliver(core, yard, 1.0)["u"].released
-    assert len(window) == 4
-    monkeypatch.setattr(Unjam, "busy", property(lambda self: True))
-    given = []
-    for t in range(2, 9):
-        yard.tick("u", t + 0.5)
-        from_unit(core, "state", "u", yard.state("u"), t + 0.5)
-        given.append(deliver(core, yard, t + 1.0)["u"].released)
-    # What it had left, then the planner's one square a step.
-    assert given == [window[1:], window[2:], window[3:], *([Cell(x, 0)] for x in range(5, 9))]
 
 
 def test_the_stop_cuts_every_window_to_nothing() -> None:
