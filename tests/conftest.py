@@ -71,22 +71,12 @@ def pytest_runtest_makereport(
             gc.enable()
 
 
-def _long_first(item: pytest.Item) -> int:
-    """0 for the whole-system runs, 1 for the browser's tests, 2 for the rest."""
-    if item.get_closest_marker("slow") is not None:
-        return 0
-    return 1 if item.get_closest_marker("browser") is not None else 2
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """The long tests first; on Mosquitto, only the tests that talk to the suite's broker.
+    """On Mosquitto: only the tests that talk to the suite's broker, and not the amqtt-only ones.
 
-    Workers take tests in this order (`--dist load`), so the long ones start at once, side by
-    side, and the short ones fill in around them: a long test started last was the run's tail.
-    On Mosquitto the others (pure cores, parsers, systems with a broker of their own) run the same
-    whatever broker the fixtures would start, and not the amqtt-only ones; `make test` runs them.
+    The others (pure cores, parsers, systems with a broker of their own) run the same whatever
+    broker the fixtures would start; `make test` runs them, once.
     """
-    items.sort(key=_long_first)  # stable: within a kind, the files' own order
     if BROKER_KIND != "mosquitto":
         return
     keep, drop = [], []
