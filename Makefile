@@ -13,7 +13,7 @@ DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-de
 # npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
 # while pip installs. pip byte-compiles every module at install: where PYTHONDONTWRITEBYTECODE is
 # set, nothing compiled later is kept, and every process of every test would compile again; so
-# gridfleet's own modules are compiled here too (0.7 -> 0.4 s to start a component).
+# gridfleet's own modules are compiled here too.
 NPM_CI := npm ci --no-audit --no-fund --loglevel=error
 $(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
 	$(PYTHON) -m venv $(VENV)
@@ -68,8 +68,8 @@ typecheck: $(STAMP)
 # The tests run TEST_WORKERS at a time (pytest-xdist; 0: one at a time), each on its own ports
 # (a band of them per worker: gridfleet/ports.py), folders and topic root. Most of a test's time is
 # waiting on a broker, a browser or a clock, so four keep 2 cores busy. (Handing out the long
-# tests first, side by side, made the main lane 30 s shorter, and a vda-5050-lib test fail in 3
-# of 6 fresh-clone runs: its vehicles lost for seconds beside the other whole-system runs.)
+# tests first, side by side, made a vda-5050-lib test fail in 3 of 6 fresh-clone runs: its
+# vehicles lost for seconds beside the other whole-system runs.)
 TEST_WORKERS ?= 4
 XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist worksteal)
 

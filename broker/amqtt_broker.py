@@ -368,9 +368,11 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         else:
             incoming.parent = 0
         delay = self.config.get("timeout-disconnect-delay", 0)
-        if session.keep_alive > 0 and isinstance(delay, int):
+        if session.keep_alive > 0:
             # MQTT-3.1.2-24: silent for one and a half keep-alive periods, a client is gone.
-            session.keep_alive = session.keep_alive * KEEP_ALIVE_GRACE + delay
+            session.keep_alive *= KEEP_ALIVE_GRACE
+            if isinstance(delay, int):
+                session.keep_alive += delay
         if isinstance(reader, _GuardedReader):
             # amqtt 0.12.1 waits that long for each packet, then does nothing and waits again
             # (its handle_read_timeout is empty): a unit whose link died without a FIN stayed

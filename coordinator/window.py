@@ -32,7 +32,7 @@ from gridfleet.grid import Cell, GridMap
 
 # Squares a unit may be released ahead. 1 (one square per order, as before windows) by default: with
 # 4, a simulate run of the warehouse once never finished, two units pushing each other back and
-# forth at a dead end (bench/README.md); 4 is measured there and is `--window 4`.
+# forth in a corridor (bench/README.md); 4 is measured there and is `--window 4`.
 DEFAULT_WINDOW = 1
 MAX_WINDOW = 32  # the setting's bound (an order releases at most MAX_RELEASED squares)
 
