@@ -13,19 +13,30 @@ from collections.abc import Iterator
 # range (32768 and up, where port 0 binds and outgoing connections land), walking it with a
 # counter: no two workers, and no two calls in one, are handed the same port. The OS's pick of
 # port 0 may hand one worker the port another was given a moment earlier and has not bound yet
-# (a CI run lost a dashboard's port that way).
+# (a CI run lost a dashboard's port that way). A run beside the workers (make test's soak, which
+# restarts its broker on the port it was given) names a band of its own in PORT_BAND_ENV.
 _BANDS_START, _BAND_SIZE, _BANDS = 20000, 1000, 12
+PORT_BAND_ENV = "GRIDFLEET_PORT_BAND"
 _band: Iterator[int] | None = None
+
+
+def _band_number() -> int | None:
+    """This process's band: the one PORT_BAND_ENV names, else its xdist worker's, else none."""
+    named = os.environ.get(PORT_BAND_ENV, "")
+    if named.isdigit():
+        return int(named)
+    worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
+    return None if worker is None else int(worker[1])
 
 
 def free_port() -> int:
     """A loopback port nobody listens on now (free until somebody binds it)."""
     global _band
-    worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
-    if worker is None:
+    band = _band_number()
+    if band is None:
         return _bind_test(0)
     if _band is None:
-        first = _BANDS_START + int(worker[1]) % _BANDS * _BAND_SIZE
+        first = _BANDS_START + band % _BANDS * _BAND_SIZE
         # A random start: a subprocess of the worker (same band) walks elsewhere in it.
         start = random.randrange(_BAND_SIZE)
         _band = itertools.cycle([first + (start + i) % _BAND_SIZE for i in range(_BAND_SIZE)])

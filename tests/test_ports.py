@@ -35,8 +35,18 @@ def test_a_port_somebody_holds_is_passed_over() -> None:
     assert len(set(handed)) == 100
 
 
+def test_a_run_beside_the_workers_takes_the_band_it_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    monkeypatch.setenv(ports.PORT_BAND_ENV, "10")
+    monkeypatch.setattr(ports, "_band", None)
+    handed = [ports.free_port() for _ in range(20)]
+    assert len(set(handed)) == 20
+    assert all(30000 <= p < 31000 for p in handed)
+
+
 def test_outside_xdist_the_os_picks(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
+    monkeypatch.delenv(ports.PORT_BAND_ENV, raising=False)
     port = ports.free_port()
     with socket.socket() as s:
         s.bind(("127.0.0.1", port))  # free, as promised
