@@ -122,8 +122,9 @@ def playfield() -> Path:
     return MAPS / "playfield.toml"
 
 
-# Browser fixtures of the dashboard (`chromium`, `open_dashboard`), usable by any test.
-pytest_plugins = ["support.browser"]
+# Browser fixtures of the dashboard (`chromium`, `open_dashboard`) and a LAN of network
+# namespaces (`test_lan`), usable by any test.
+pytest_plugins = ["support.browser", "support.lan"]
 
 
 @pytest.fixture

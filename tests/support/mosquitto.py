@@ -31,10 +31,10 @@ def _popen(conf: Path, log: Path) -> subprocess.Popen[bytes]:
 
 @contextmanager
 def running_mosquitto(
-    directory: Path, conf: Callable[[int], str], port: int | None = None
+    directory: Path, conf: Callable[[int], str], port: int | None = None, host: str = "127.0.0.1"
 ) -> Iterator[int]:
     """Mosquitto with the config `conf(port)` written into `directory` (on `port`, else a free
-    one); yields its port."""
+    one), listening on `host`; yields its port."""
     if not Path(MOSQUITTO).exists():
         pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
     port = port or free_port()
@@ -48,7 +48,7 @@ def running_mosquitto(
     def listening() -> bool:
         assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
         with socket.socket() as probe:
-            return probe.connect_ex(("127.0.0.1", port)) == 0
+            return probe.connect_ex((host, port)) == 0
 
     try:
         wait_for(listening, 10, what="mosquitto listening")
@@ -59,13 +59,18 @@ def running_mosquitto(
 
 
 @contextmanager
-def mosquitto_with_accounts(accounts: Accounts, topics: Topics, directory: Path) -> Iterator[str]:
-    """Mosquitto with the files and config 'gridfleet accounts mosquitto' writes; its URL."""
+def mosquitto_with_accounts(
+    accounts: Accounts, topics: Topics, directory: Path, host: str = "127.0.0.1"
+) -> Iterator[str]:
+    """Mosquitto with the files and config 'gridfleet accounts mosquitto' writes, listening on
+    `host`; its URL."""
     passwd, acl = write_files(accounts, topics, directory)
     with running_mosquitto(
-        directory, lambda port: mosquitto_conf(passwd, acl, port=port, ws_port=None)
+        directory,
+        lambda port: mosquitto_conf(passwd, acl, host=host, port=port, ws_port=None),
+        host=host,
     ) as port:
-        yield f"mqtt://127.0.0.1:{port}"
+        yield f"mqtt://{host}:{port}"
 
 
 class MosquittoBroker:

@@ -1,0 +1,253 @@
+"""Across a LAN (network namespaces on one bridge): a unit's link that dies without a word.
+
+The broker and the coordinator run on this machine, unit1 on a host of its own that reaches the
+broker by its LAN address, as a robot on Wi-Fi does; accounts are on, as a broker beyond loopback
+needs them. The unit's link is cut at the bridge (no FIN, no RST): only the broker's keep-alive
+can tell the fleet, on the embedded broker and on Mosquitto alike (protocol.md §4.1, §8).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+from pathlib import Path
+
+import pytest
+
+from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.grid import Cell
+from gridfleet.protocol import Topics
+from gridfleet.system.broker_thread import BrokerThread
+
+from support.lan import Host, Lan
+from support.mosquitto import mosquitto_with_accounts
+from support.operator_peer import OperatorPeer
+from support.probe import MqttProbe
+from support.security import login
+from support.wait import wait_for
+
+pytestmark = pytest.mark.slow  # whole systems waiting out keep-alives: make test, not test-fast
+
+REPO = Path(__file__).resolve().parent.parent
+GRIDFLEET = [sys.executable, "-m", "gridfleet"]
+STEP_S = 0.1
+KEEP_ALIVE_S = 10  # gridfleet's clients (gridfleet/bus.py)
+# protocol.md §4.1: the broker ends a session silent for 1.5 keep-alives and sends its will.
+BROKEN_WITHIN_S = 1.5 * KEEP_ALIVE_S
+SCENARIO = f"""
+name = "lan"
+map = "{REPO / "maps" / "playfield.map"}"
+[[units]]
+id = "unit1"
+start = [0, 0]
+capacity = 5.0
+[[units]]
+id = "unit2"
+start = [9, 0]
+capacity = 1.0
+"""
+
+
+class Processes:
+    """Components started for a test, each logging to a file, all stopped at its end."""
+
+    def __init__(self, logs: Path) -> None:
+        self.logs = logs
+        self.running: dict[str, subprocess.Popen[bytes]] = {}
+
+    def start(self, name: str, argv: list[str], host: Host | None = None) -> None:
+        """Run `argv` (on `host`, else on this machine), its output into `<name>.log`."""
+        command = argv if host is None else host.command(argv)
+        with (self.logs / f"{name}.log").open("ab") as log:
+            self.running[name] = subprocess.Popen(
+                command, stdout=log, stderr=subprocess.STDOUT, cwd=REPO
+            )
+
+    def stop(self) -> None:
+        """SIGTERM to each, SIGKILL to any still running after 10 s."""
+        for proc in self.running.values():
+            proc.send_signal(signal.SIGTERM)
+        for proc in self.running.values():
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+
+    def tails(self) -> str:
+        """The last lines each component logged (for a failure's message)."""
+        return "\n".join(
+            f"--- {path.name}\n{path.read_text(errors='replace')[-3000:]}"
+            for path in sorted(self.logs.glob("*.log"))
+        )
+
+
+@pytest.fixture
+def accounts() -> Accounts:
+    return default_accounts(["unit1", "unit2"])
+
+
+@pytest.fixture(params=["embedded", "mosquitto"])
+def lan_broker(
+    request: pytest.FixtureRequest,
+    test_lan: Lan,
+    accounts: Accounts,
+    topics: Topics,
+    tmp_path: Path,
+) -> Iterator[str]:
+    """A broker with accounts listening on this machine's LAN address (no credentials in URL)."""
+    if request.param == "mosquitto":
+        directory = tmp_path / "mosquitto"
+        directory.mkdir()
+        with mosquitto_with_accounts(accounts, topics, directory, host=test_lan.address) as url:
+            yield url
+        return
+    settings = BrokerSettings(
+        host=test_lan.address, port=0, ws_port=None, accounts=accounts, root=topics.root
+    )
+    broker = BrokerThread(settings)
+    broker.start()
+    try:
+        yield broker.url
+    finally:
+        broker.stop()
+
+
+def truth_lines(path: Path) -> list[dict[str, object]]:
+    """The robots' truth file (`gridfleet robots --truth`), one dict a line."""
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_place(
+    test_lan: Lan,
+    lan_broker: str,
+    accounts: Accounts,
+    topics: Topics,
+    tmp_path: Path,
+) -> None:
+    scenario, accounts_file = tmp_path / "lan.toml", tmp_path / "accounts.toml"
+    scenario.write_text(SCENARIO)
+    write_accounts(accounts, accounts_file)
+    common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
+    robot = test_lan.host("unit1")
+    processes = Processes(tmp_path)
+    with ExitStack() as stack:
+        stack.callback(processes.stop)
+        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        operator = OperatorPeer(probe, topics)
+        probe.subscribe(topics.fleet("events"), qos=1)
+        processes.start(
+            "coordinator",
+            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
+             "--step", str(STEP_S), "--db", str(tmp_path / "jobs.db")],
+        )  # fmt: skip
+        for unit, host in (("unit1", robot), ("unit2", None)):
+            processes.start(
+                unit,
+                [*GRIDFLEET, "robots", "--scenario", str(scenario), "--units", unit, *common,
+                 "--step", str(STEP_S), "--truth", str(tmp_path / f"{unit}.truth")],
+                host=host,
+            )  # fmt: skip
+
+        def fail(what: str) -> str:
+            heard = {u: operator.connections(u) for u in ("unit1", "unit2")}
+            return (
+                f"{what}\nconnections {heard}; topics {sorted(probe.messages)}\n{processes.tails()}"
+            )
+
+        try:
+            wait_for(
+                lambda: all(operator.connections(u)[-1:] == ["online"] for u in ("unit1", "unit2")),
+                30,
+                what="both units online",
+            )
+            wait_for(operator.coordinator_status, 30, what="the coordinator")
+            # 2 kg: unit2 (1 kg) cannot take it, so the job is unit1's and waits for it.
+            reply = operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0)
+            assert reply.accepted, reply
+            job = reply.job_id
+            assert job is not None
+            wait_for(
+                lambda: (s := operator.last_state("unit1")) is not None and s.load_kg > 0,
+                30,
+                what="unit1 carrying the item",
+            )
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+
+        # The unit's host falls off the LAN without a word.
+        robot.cut()
+        cut_at = time.monotonic()
+        views_at_cut = len(operator.job_views())
+        before = operator.last_state("unit1")
+        assert before is not None
+        try:
+            wait_for(
+                lambda: operator.connections("unit1")[-1:] == ["broken"],
+                BROKEN_WITHIN_S + 30,
+                what="unit1 broken",
+            )
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        broken_after = time.monotonic() - cut_at
+        # The will, sent by the broker's keep-alive (1.5 x 10 s), and not much later; never sooner
+        # than a keep-alive (it is the broker's, not a client's, doing).
+        assert KEEP_ALIVE_S <= broken_after <= BROKEN_WITHIN_S + 5, broken_after
+        events = [m.payload.decode() for m in probe.received(topics.fleet("events"))]
+        assert any("unit unit1 lost" in e for e in events), events
+        # §8: the item is on board, so the job waits for the unit, nobody else can finish it;
+        # gone for 20 loss timeouts (at least 10 s), it fails.
+        try:
+            wait_for(lambda: operator.job_state(job) == "failed", 60, what=f"{job} failed")
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        view = operator.listed_jobs()[job]
+        assert view.unit == "unit1", view
+        assert "carrying the item" in (view.reason or ""), view
+        since_cut = operator.job_views()[views_at_cut:]
+        shown = [j.state for v in since_cut for j in v.listed() if j.id == job]
+        assert "queued" not in shown, shown  # never put back in the queue for another
+        left_at = before.position
+
+        # Plugged in again: it comes back by itself where it stood, and puts the item of the
+        # failed job down at its pickup (§8, stray items).
+        robot.heal()
+        try:
+            wait_for(
+                lambda: operator.connections("unit1")[-1:] == ["online"],
+                60,
+                what="unit1 online again",
+            )
+            wait_for(
+                lambda: (
+                    (s := operator.last_state("unit1")) is not None
+                    and s.load_kg == 0
+                    and s.position == Cell(1, 0)
+                ),
+                60,
+                what="the item put down at the pickup",
+            )
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        back = [s for s in operator.states("unit1") if s.step > before.step]
+        assert back, "no state after the cut"
+        # No teleport: within the squares it had been released, which it may have driven unheard.
+        first_back = back[0].position
+        assert abs(first_back.x - left_at.x) + abs(first_back.y - left_at.y) <= 2, (
+            left_at,
+            first_back,
+        )
+        assert operator.listed_jobs()[job].state == "failed"  # never done twice, nor by another
+
+    for unit in ("unit1", "unit2"):
+        lines = truth_lines(tmp_path / f"{unit}.truth")
+        assert lines, processes.tails()
+        assert lines[-1]["collisions"] == 0, (unit, lines[-1])
