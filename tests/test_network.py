@@ -9,6 +9,7 @@ can tell the fleet, on the embedded broker and on Mosquitto alike (protocol.md Â
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -28,6 +29,7 @@ from gridfleet.system.broker_thread import BrokerThread
 from support.lan import Host, Lan
 from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
+from support.output import Output
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
@@ -251,3 +253,73 @@ def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_pla
         lines = truth_lines(tmp_path / f"{unit}.truth")
         assert lines, processes.tails()
         assert lines[-1]["collisions"] == 0, (unit, lines[-1])
+
+
+# A short Wi-Fi hang the session outlives, and one longer than the broker's keep-alive: the
+# device's session ends, and the press must come over the next one, once.
+@pytest.mark.parametrize("stall_s", [5.0, BROKEN_WITHIN_S + 5], ids=["short", "past-keep-alive"])
+def test_a_press_on_a_device_whose_link_stalls_arrives_once_when_it_returns(
+    stall_s: float,
+    test_lan: Lan,
+    lan_broker: str,
+    accounts: Accounts,
+    topics: Topics,
+    tmp_path: Path,
+) -> None:
+    accounts_file = tmp_path / "accounts.toml"
+    write_accounts(accounts, accounts_file)
+    common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
+    press, link = topics.device("device_stop", "device-unit1"), "device-unit1"
+    panel = test_lan.host("panel")
+    processes = Processes(tmp_path)
+    with ExitStack() as stack:
+        stack.callback(processes.stop)
+        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        probe.subscribe(press, qos=1)
+        probe.subscribe(topics.device("device_connection", link), qos=1)
+        probe.subscribe(topics.fleet("estop"), qos=1)
+        processes.start(
+            "coordinator",
+            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
+             "--db", str(tmp_path / "jobs.db")],
+        )  # fmt: skip
+        device = subprocess.Popen(
+            panel.command([*GRIDFLEET, "device", "--unit", "unit1", *common]),
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=REPO,
+            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )  # fmt: skip
+        stack.callback(lambda: device.poll() is None and device.kill())
+        shown = Output(device)
+        shown.wait(r"link=online", 30)
+        wait_for(
+            lambda: probe.received(topics.device("device_connection", link)), 30, what="online"
+        )
+
+        panel.stall()
+        assert device.stdin is not None
+        device.stdin.write("s\n")
+        device.stdin.flush()
+        shown.wait(r"leds=#### .*stop=pending", 10)  # shown at once, still being sent
+        stalled_until = time.monotonic() + stall_s
+        wait_for(lambda: time.monotonic() > stalled_until, stall_s + 1, what="the stall's end")
+        assert probe.received(press) == []  # nothing got through the stall
+        panel.heal()
+
+        arrived = wait_for(lambda: probe.received(press), 30, what="the press")
+        assert arrived[0].payload == b"engaged|device-unit1|button"
+        # The coordinator latches it: the fleet is stopped by the device.
+        wait_for(
+            lambda: any(
+                m.payload.startswith(b"engaged|device-unit1")
+                for m in probe.received(topics.fleet("estop"))
+            ),
+            30,
+            what="the latch engaged by the device",
+        )
+        # The device's own press came back to it: no longer pending.
+        wait_for(lambda: "stop=pending" not in shown.lines[-1], 30, what="the press confirmed")
+        # A clean exit says offline after everything it sent before: every press has arrived.
+        device.send_signal(signal.SIGTERM)
+        assert device.wait(15) == 0
+        probe.wait(topics.device("device_connection", link), lambda m: m.payload == b"offline")
+        assert [m.payload for m in probe.received(press)] == [b"engaged|device-unit1|button"]
