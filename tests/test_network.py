@@ -323,3 +323,101 @@ def test_a_press_on_a_device_whose_link_stalls_arrives_once_when_it_returns(
         assert device.wait(15) == 0
         probe.wait(topics.device("device_connection", link), lambda m: m.payload == b"offline")
         assert [m.payload for m in probe.received(press)] == [b"engaged|device-unit1|button"]
+
+
+def test_a_coordinator_cut_off_from_the_broker_holds_every_unit_until_it_is_back(
+    test_lan: Lan,
+    lan_broker: str,
+    accounts: Accounts,
+    topics: Topics,
+    tmp_path: Path,
+) -> None:
+    scenario, accounts_file = tmp_path / "lan.toml", tmp_path / "accounts.toml"
+    scenario.write_text(SCENARIO)
+    write_accounts(accounts, accounts_file)
+    common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
+    office = test_lan.host("coord")
+    processes = Processes(tmp_path)
+    units = ("unit1", "unit2")
+    with ExitStack() as stack:
+        stack.callback(processes.stop)
+        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        operator = OperatorPeer(probe, topics)
+        processes.start(
+            "coordinator",
+            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
+             "--step", str(STEP_S), "--db", str(tmp_path / "jobs.db")],
+            host=office,
+        )  # fmt: skip
+        processes.start(
+            "robots",
+            [*GRIDFLEET, "robots", "--scenario", str(scenario), *common, "--step", str(STEP_S),
+             "--truth", str(tmp_path / "robots.truth")],
+        )  # fmt: skip
+
+        def fail(what: str) -> str:
+            return f"{what}\n{processes.tails()}"
+
+        def status() -> str | None:
+            now = operator.coordinator_status()
+            return None if now is None else now.state
+
+        try:
+            wait_for(
+                lambda: all(operator.connections(u)[-1:] == ["online"] for u in units),
+                30,
+                what="both units online",
+            )
+            wait_for(lambda: status() == "online", 30, what="the coordinator online")
+            # A long job for each (unit2 carries 1 kg at most).
+            replies = [
+                operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0),
+                operator.submit_job(Cell(8, 0), Cell(0, 9), 1.0),
+            ]
+            jobs = [r.job_id for r in replies if r.job_id is not None]
+            assert len(jobs) == 2, replies
+            wait_for(
+                lambda: all(
+                    (s := operator.last_state(u)) is not None and s.status == "moving"
+                    for u in units
+                ),
+                30,
+                what="both units moving",
+            )
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+
+        # The coordinator's host falls off the LAN; the units still reach the broker.
+        office.cut()
+        try:
+            # §8: without orders for 3 steps a unit holds still (after the squares it was given).
+            wait_for(
+                lambda: all(
+                    (s := operator.last_state(u)) is not None
+                    and s.status == "holding"
+                    and "no order" in (s.wait_reason or "")
+                    for u in units
+                ),
+                15,
+                what="both units holding",
+            )
+            held = {u: operator.states(u)[-1] for u in units}
+            # Until the broker's keep-alive gives up on the coordinator and sends its will.
+            wait_for(lambda: status() == "broken", BROKEN_WITHIN_S + 30, what="coordinator broken")
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        for unit in units:
+            since = [s for s in operator.states(unit) if s.step >= held[unit].step]
+            assert {s.position for s in since} == {held[unit].position}, (unit, since)
+
+        # Back on the LAN: it reconnects by itself and the fleet finishes both jobs.
+        office.heal()
+        try:
+            wait_for(lambda: status() == "online", 60, what="the coordinator back")
+            wait_for(lambda: operator.all_final(jobs), 90, what="both jobs over")
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        assert [operator.job_state(j) for j in jobs] == ["done", "done"]
+
+    lines = truth_lines(tmp_path / "robots.truth")
+    assert lines and lines[-1]["collisions"] == 0, processes.tails()
