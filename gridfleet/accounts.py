@@ -40,10 +40,12 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import ErrorDetails
 
 from gridfleet.errors import ConfigError, ProtocolError
-from gridfleet.protocol import Topics, validate_id
+from gridfleet.protocol import TOPICS, Topics, validate_id
 from gridfleet.textfile import read_text
 
-Role = Literal["coordinator", "unit", "device", "dashboard", "operator", "vehicle", "vda5050"]
+Role = Literal[
+    "coordinator", "unit", "device", "dashboard", "operator", "vehicle", "vda5050", "bridge"
+]
 ROLES: tuple[Role, ...] = get_args(Role)
 REQUEST_KINDS = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
 MIN_PASSWORD = 12
@@ -285,6 +287,47 @@ class Rules:
     subscribe: tuple[str, ...]
 
 
+BridgeDirection = Literal["out", "in", "both"]
+
+
+@dataclass(frozen=True)
+class BridgeTopic:
+    """One topic filter a hall broker's bridge carries: `out` to the central broker, `in` from it."""
+
+    pattern: str
+    direction: BridgeDirection
+    qos: int
+
+
+def bridge_topics(topics: Topics) -> tuple[BridgeTopic, ...]:
+    """What a hall broker (its units and devices) and the central one (coordinator, people) share.
+
+    Out, what the hall's units and devices say; in, what they are told and read (orders, goals,
+    the latch, the coordinator's status); both ways the presses (pressed in a hall, cleared by the
+    coordinator after a release) and the units' states (units of other halls are seen by their
+    state). Each at the QoS protocol.md gives its topic. Nothing else crosses: the views (map,
+    jobs, routes, events) and the requests stay on the central broker. docs/brokers.md says why.
+    """
+    t = topics
+
+    def unit(kind: str, direction: BridgeDirection) -> BridgeTopic:
+        return BridgeTopic(t.all_units(kind), direction, TOPICS[kind].qos)
+
+    return (
+        *(unit(k, "out") for k in UNIT_OWN_KINDS if k not in ("state", "stop")),
+        unit("vehicle", "out"),
+        BridgeTopic(t.all_devices("device_connection"), "out", TOPICS["device_connection"].qos),
+        BridgeTopic(t.fleet("errors"), "out", TOPICS["errors"].qos),
+        unit("state", "both"),
+        unit("stop", "both"),
+        BridgeTopic(t.all_devices("device_stop"), "both", TOPICS["device_stop"].qos),
+        unit("order", "in"),
+        unit("goal", "in"),
+        BridgeTopic(t.fleet("estop"), "in", TOPICS["estop"].qos),
+        BridgeTopic(t.fleet("coordinator"), "in", TOPICS["coordinator"].qos),
+    )
+
+
 def rules(account: Account, topics: Topics) -> Rules:
     """What `account` may publish and read, from protocol.md's topic table.
 
@@ -345,6 +388,12 @@ def rules(account: Account, topics: Topics) -> Rules:
             t.fleet("routes"),  # operators' pauses
             *(f"{v.topic}/{k}" for v in links for k in VDA_FROM_VEHICLE),
         ]
+    elif account.role == "bridge":
+        # A hall broker's bridge, on the central broker: what the hall's own accounts may say
+        # there, they checked at the hall.
+        carried = bridge_topics(t)
+        publish = [b.pattern for b in carried if b.direction in ("out", "both")]
+        subscribe = [b.pattern for b in carried if b.direction in ("in", "both")]
     else:  # dashboard, operator: the people's side
         publish = [
             *(t.request(k) for k in REQUEST_KINDS),

@@ -9,6 +9,7 @@ from typing import get_args
 
 from gridfleet.accounts import (
     Account,
+    Accounts,
     Role,
     VehicleLink,
     default_accounts,
@@ -17,7 +18,7 @@ from gridfleet.accounts import (
     write_accounts,
 )
 from gridfleet.broker.certs import DEFAULT_HOSTS, make_tls, write_tls
-from gridfleet.broker.mosquitto import mosquitto_conf, write_files
+from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -70,6 +71,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="where Mosquitto keeps retained messages (the latched stop among them) across "
         "restarts (default OUT/data; 'none': nothing survives a restart)",
+    )
+    mosq.add_argument(
+        "--bridge-to",
+        metavar="HOST:PORT",
+        help="a hall's broker: bridge it to the central broker at HOST:PORT (units and devices "
+        "here, coordinator and people there; docs/brokers.md)",
+    )
+    mosq.add_argument(
+        "--bridge-account",
+        metavar="NAME",
+        help="with --bridge-to: the bridge account it logs in as there ('accounts add NAME "
+        "--role bridge')",
     )
     tls = sub.add_parser("tls", help="make a local CA and the broker's TLS certificate")
     tls.add_argument("--out", type=Path, required=True, help="directory for the three files")
@@ -143,8 +156,10 @@ def _mosquitto(args: argparse.Namespace) -> int:
     """`gridfleet accounts mosquitto`: passwd, acl and a mosquitto.conf that uses them."""
     if (args.tls_cert is None) != (args.tls_key is None):
         raise ConfigError("TLS needs both --tls-cert FILE and --tls-key FILE")
+    accounts = load_accounts(args.file)
+    bridge = _bridge(accounts, args.bridge_to, args.bridge_account, Topics(args.root))
     out = args.out.resolve()
-    passwd, acl = write_files(load_accounts(args.file), Topics(args.root), out)
+    passwd, acl = write_files(accounts, Topics(args.root), out)
     persistence = args.persistence if args.persistence is not None else out / "data"
     keep = None if str(persistence) == "none" else persistence.resolve()
     if keep is not None:
@@ -160,7 +175,8 @@ def _mosquitto(args: argparse.Namespace) -> int:
             tls_cert=None if args.tls_cert is None else args.tls_cert.resolve(),
             tls_key=None if args.tls_key is None else args.tls_key.resolve(),
             persistence_dir=keep,
-        ),
+        )
+        + bridge,
         encoding="utf-8",
     )
     print(
@@ -168,3 +184,21 @@ def _mosquitto(args: argparse.Namespace) -> int:
         "started as root, Mosquitto reads passwd and acl as user mosquitto: chown them to it"
     )
     return 0
+
+
+def _bridge(accounts: Accounts, to: str | None, name: str | None, topics: Topics) -> str:
+    """The bridge section `--bridge-to` and `--bridge-account` ask for ('' without them)."""
+    if to is None and name is None:
+        return ""
+    if to is None or name is None:
+        raise ConfigError("a bridge needs both --bridge-to HOST:PORT and --bridge-account NAME")
+    host, colon, port = to.rpartition(":")
+    if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--bridge-to {to!r}: give the central broker as HOST:PORT")
+    account = accounts.get(name)
+    if account.role != "bridge":
+        raise ConfigError(
+            f"--bridge-account {name}: a {account.role} account; make one with "
+            f"'gridfleet accounts add {name} --role bridge --file FILE'"
+        )
+    return bridge_conf(account, host, int(port), topics)

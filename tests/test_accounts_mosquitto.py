@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.accounts import Accounts, default_accounts, write_accounts
+from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
 from gridfleet.broker.mosquitto import password_hash
 from gridfleet.protocol import Topics
 
@@ -105,3 +105,55 @@ def test_a_vehicle_cannot_forge_orders_states_or_the_latch(
     mosquitto: str, accounts: Accounts
 ) -> None:
     check_a_vehicle_cannot_forge(mosquitto, accounts, T)
+
+
+def accounts_mosquitto(*args: str) -> subprocess.CompletedProcess[str]:
+    """`gridfleet accounts mosquitto ARGS`, its output captured."""
+    return subprocess.run(
+        [sys.executable, "-m", "gridfleet", "accounts", "mosquitto", *args],
+        capture_output=True, text=True, timeout=60, check=False,
+    )  # fmt: skip
+
+
+def test_a_halls_broker_gets_a_bridge_carrying_the_protocols_topics(tmp_path: Path) -> None:
+    accounts_file, out = tmp_path / "accounts.toml", tmp_path / "hall"
+    hall1 = Account("hall1", new_password(), "bridge")
+    write_accounts(default_accounts(["unit1"]).with_account(hall1), accounts_file)
+    done = accounts_mosquitto(
+        *("--file", str(accounts_file), "--out", str(out), "--root", "lab"),
+        *("--bridge-to", "10.0.0.5:1883", "--bridge-account", "hall1"),
+    )
+    assert done.returncode == 0, done.stderr
+    conf = (out / "mosquitto.conf").read_text()
+    bridge = conf[conf.index("connection hall1") :]
+    assert "address 10.0.0.5:1883\n" in bridge and f"remote_password {hall1.password}\n" in bridge
+    assert "cleansession false\n" in bridge  # queued both ways across a cut
+    topics = [line.split()[1:] for line in bridge.splitlines() if line.startswith("topic ")]
+    assert ["lab/v1/units/+/state", "both", "0"] in topics
+    assert ["lab/v1/fleet/estop", "in", "1"] in topics
+    assert ["lab/v1/devices/+/stop", "both", "1"] in topics
+    assert not any(t[0].endswith(("jobs", "map", "routes", "events")) for t in topics)
+    # On the central broker, the bridge account may say there what the hall's units may.
+    acl = (out / "acl").read_text()
+    assert "user hall1\ntopic write lab/v1/units/+/connection" in acl
+    assert "topic read lab/v1/units/+/order" in acl[acl.index("user hall1") :]
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--bridge-to", "10.0.0.5:1883"], "both --bridge-to HOST:PORT and --bridge-account"),
+        (["--bridge-to", "10.0.0.5", "--bridge-account", "hall1"], "give the central broker as"),
+        (["--bridge-to", "h:1883", "--bridge-account", "unit1"], "a unit account; make one with"),
+        (["--bridge-to", "h:1883", "--bridge-account", "nobody"], "no account 'nobody'"),
+    ],
+)
+def test_a_bridge_asked_for_wrongly_is_one_line_and_writes_nothing(
+    tmp_path: Path, args: list[str], says: str
+) -> None:
+    accounts_file, out = tmp_path / "accounts.toml", tmp_path / "hall"
+    hall1 = Account("hall1", new_password(), "bridge")
+    write_accounts(default_accounts(["unit1"]).with_account(hall1), accounts_file)
+    done = accounts_mosquitto("--file", str(accounts_file), "--out", str(out), *args)
+    assert done.returncode == 2 and says in done.stderr, done.stderr
+    assert done.stderr.count("\n") == 1 and not out.exists()

@@ -6,7 +6,7 @@ import os
 import shutil
 import socket
 import subprocess
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -22,19 +22,24 @@ from support.wait import wait_for
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
-def _popen(conf: Path, log: Path) -> subprocess.Popen[bytes]:
+def _popen(conf: Path, log: Path, on: Sequence[str] = ()) -> subprocess.Popen[bytes]:
     """Mosquitto on `conf`, its log into `log`: a pipe nobody reads fills up (64 KiB, a few hundred
-    connections logged) and Mosquitto then blocks writing to it, accepting nobody."""
+    connections logged) and Mosquitto then blocks writing to it, accepting nobody. `on`: the
+    command that runs it elsewhere (`ip netns exec NS`: a host of a test LAN)."""
     with log.open("ab") as out:
-        return subprocess.Popen([MOSQUITTO, "-c", str(conf)], stdout=out, stderr=out)
+        return subprocess.Popen([*on, MOSQUITTO, "-c", str(conf)], stdout=out, stderr=out)
 
 
 @contextmanager
 def running_mosquitto(
-    directory: Path, conf: Callable[[int], str], port: int | None = None, host: str = "127.0.0.1"
+    directory: Path,
+    conf: Callable[[int], str],
+    port: int | None = None,
+    host: str = "127.0.0.1",
+    on: Sequence[str] = (),
 ) -> Iterator[int]:
     """Mosquitto with the config `conf(port)` written into `directory` (on `port`, else a free
-    one), listening on `host`; yields its port."""
+    one), listening on `host`, run by the command `on` (default: here); yields its port."""
     if not Path(MOSQUITTO).exists():
         pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
     port = port or free_port()
@@ -43,7 +48,7 @@ def running_mosquitto(
     as_root = "user root\n" if os.geteuid() == 0 else ""
     path.write_text(conf(port) + as_root)
     log = directory / "mosquitto.log"
-    proc = _popen(path, log)
+    proc = _popen(path, log, on)
 
     def listening() -> bool:
         assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
