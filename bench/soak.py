@@ -12,6 +12,7 @@ cannot obey a stop it cannot read), and main-lane faults then strike while the s
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import random
 import signal
@@ -27,6 +28,8 @@ from typing import Any, TextIO
 
 import aiomqtt
 
+from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
+from gridfleet.bench.lan import Host, lan
 from gridfleet.bench.soak_check import (
     FINAL,
     Disturbed,
@@ -38,12 +41,19 @@ from gridfleet.bench.soak_check import (
     Truth,
     check,
 )
-from gridfleet.bench.soak_faults import FAMILIES, Fault, main_faults, stop_faults
+from gridfleet.bench.soak_faults import (
+    LOCAL_FAMILIES,
+    NETWORK_FAMILIES,
+    NETWORK_HOSTS,
+    Fault,
+    main_faults,
+    stop_faults,
+)
 from gridfleet.bench.soak_listen import SoakListener
 from gridfleet.bench.soak_proxy import FaultyProxy
 from gridfleet.bench.soak_scenario import make_soak_scenario
 from gridfleet.bus import make_client
-from gridfleet.config import parse_broker_url
+from gridfleet.config import parse_broker_url, with_credentials
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
 from gridfleet.system.assembly import SystemSpec, cli, start_broker_process
@@ -65,9 +75,12 @@ class SoakConfig:
     seed: int = 0
     broker: str | None = None  # None: an embedded broker the soak restarts too
     step_s: float = 0.1
-    faults: tuple[str, ...] = FAMILIES
+    faults: tuple[str, ...] = LOCAL_FAMILIES
     drain_s: float = 90.0  # after the faults: time for every job to end
     stranded_s: float = 30.0
+    # The units and the coordinator on hosts of a LAN of namespaces (root), the broker on this
+    # machine's LAN address with accounts; the silent and stall faults need it.
+    network: bool = False
 
 
 @dataclass
@@ -82,6 +95,8 @@ class SoakResult:
     unrecovered: list[str] = field(default_factory=list)  # faults the system did not recover from
     release_repeats: int = 0  # operator releases that had to be given again (not a failure)
     fault_s: dict[str, list[float]] = field(default_factory=dict)  # main-lane fault to flowing
+    # --network: a host's link cut for longer than the keep-alive, to its will seen (`broken`)
+    detections_s: list[float] = field(default_factory=list)
 
     @property
     def ok(self) -> bool:
@@ -105,6 +120,12 @@ class SoakResult:
             "faults_unrecovered": len(self.unrecovered),
             "release_repeats": self.release_repeats,
             "max_recovery_s": round(max(self.recoveries_s), 3) if self.recoveries_s else None,
+            "max_fault_s": {
+                kind: round(max(took), 2) for kind, took in sorted(self.fault_s.items())
+            },
+            "max_silent_detection_s": (
+                round(max(self.detections_s), 2) if self.detections_s else None
+            ),
             "median_fault_s": {
                 kind: round(statistics.median(took), 2)
                 for kind, took in sorted(self.fault_s.items())
@@ -155,35 +176,79 @@ class Soak:
         self.proxy: FaultyProxy | None = None
         self.listener: SoakListener | None = None
         self.truth = workdir / "truth.jsonl"
+        self.network = contextlib.ExitStack()  # the LAN, when cfg.network: removed at the end
+        self.hosts: dict[str, Host] = {}
+        self.detections: list[float] = []
+        self.accounts = Accounts({})
+        self.operator_url = ""  # how the soak's operator and its device log in
+        self.device_url = ""
 
     # ---- the system ---------------------------------------------------------------------
 
     async def start(self) -> None:
         """Broker (ours, on a fixed port), proxy, coordinator, units, feed and the listener."""
         cfg = self.cfg
+        listen, logins = "127.0.0.1", list[str]()
+        if cfg.network:
+            listen, logins = self._make_network()
         if cfg.broker is None:
-            spec = SystemSpec(self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None)
-            self.broker_url, _ = await start_broker_process(self.sup, spec)
+            spec = SystemSpec(
+                self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None, listen=listen
+            )
+            self.broker_url, _ = await start_broker_process(self.sup, spec, logins)
             self.children["broker"] = self.sup.children[-1]
         else:
             self.broker_url = cfg.broker
+        self.operator_url = self.device_url = self.broker_url
+        if cfg.network:
+            self.operator_url = self._login("operator")
+            self.device_url = self._login(DEVICE)
         target = parse_broker_url(self.broker_url)
-        self.proxy = FaultyProxy(target.host, target.port)
-        via = f"mqtt://127.0.0.1:{await self.proxy.start()}"
-        self.listener = SoakListener(self.broker_url, self.topics, f"{self.root}-listener")
+        self.proxy = FaultyProxy(target.host, target.port, listen=listen)
+        via = f"mqtt://{listen}:{await self.proxy.start()}"
+        self.listener = SoakListener(self.operator_url, self.topics, self._client_id("listener"))
         self.tasks.append(asyncio.create_task(self.listener.run()))
-        common = ["--broker", via, "--root", self.root, "--step", str(cfg.step_s)]
+        common = ["--root", self.root, "--step", str(cfg.step_s), *logins]
+        # On the LAN the units' host reaches the broker through the proxy (delays, cuts) and the
+        # coordinator's host directly; on loopback every client goes through the proxy.
+        proxied = ["--broker", via, *common]
+        direct = ["--broker", self.broker_url, *common] if cfg.network else proxied
         scenario = str(self.scenario.path)
-        coordinator = cli("coordinator", *common, "--map", str(self.scenario.map_path))
+        coordinator = cli("coordinator", *direct, "--map", str(self.scenario.map_path))
         coordinator += ["--db", str(self.dir / "jobs.db")]
-        robots = cli("robots", *common, "--scenario", scenario)
+        robots = cli("robots", *proxied, "--scenario", scenario)
         robots += ["--state", str(self.dir / "units.sqlite3"), "--truth", str(self.truth)]
+        if cfg.network:
+            coordinator = self.hosts["office"].command(coordinator)
+            robots = self.hosts["units"].command(robots)
         keep = str(max(2, cfg.units // 2))
-        feed = cli("feed", *common, "--scenario", scenario, "--demo", "--keep-active", keep)
+        feed = cli("feed", *direct, "--scenario", scenario, "--demo", "--keep-active", keep)
         for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
             self.children[name] = await self.sup.start(ChildSpec(name, argv))
         await self._wait_flowing(time.time(), "start-up")
         self.progress += 1
+
+    def _make_network(self) -> tuple[str, list[str]]:
+        """The LAN and its two hosts, and the accounts a broker beyond loopback needs; the
+        broker's address and the flags that log each component in."""
+        net = self.network.enter_context(lan())
+        self.hosts = {name: net.host(name) for name in NETWORK_HOSTS}
+        device = Account(DEVICE, new_password(), "device", self.unit_ids[0])
+        self.accounts = default_accounts(self.unit_ids).with_account(device)
+        accounts_file = self.dir / "accounts.toml"
+        write_accounts(self.accounts, accounts_file)
+        print(f"soak: LAN {net.network}, hosts {self.hosts}", file=self.log)
+        return net.address, ["--accounts", str(accounts_file)]
+
+    def _login(self, account: str) -> str:
+        """The broker's URL logging in as `account`."""
+        return with_credentials(self.broker_url, account, self.accounts.get(account).password)
+
+    def _client_id(self, what: str, device: bool = False) -> str:
+        """A client id of the soak's own (one its account owns, on the LAN)."""
+        if not self.cfg.network:
+            return f"{self.root}-{what}"
+        return f"{DEVICE if device else 'operator'}-{self.root}-{what}"
 
     async def _wait_flowing(self, since: float, what: str) -> float | None:
         """Wait until every unit's state and the coordinator's routes arrived after `since`;
@@ -207,7 +272,12 @@ class Soak:
 
     async def main_lane(self, deadline: float) -> None:
         """One process or link fault at a time, each with its recovery, until `deadline`."""
-        families = [f for f in self.cfg.faults if f != "broker" or self.cfg.broker is None]
+        cfg = self.cfg
+        families = [
+            f
+            for f in cfg.faults
+            if (f != "broker" or cfg.broker is None) and (cfg.network or f not in NETWORK_FAMILIES)
+        ]
         for fault in main_faults(self.rng, families, self.cfg.step_s):
             await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
             if time.monotonic() >= deadline:
@@ -250,6 +320,34 @@ class Soak:
                 await asyncio.sleep(fault.hold_s)  # the fault itself: a slow link for a while
             finally:
                 proxy.latency_s = 0.0
+        elif fault.kind.startswith(("silent_", "stall_")):
+            host = self.hosts[fault.target]
+            since = time.time()
+            (host.cut if fault.kind.startswith("silent_") else host.stall)()
+            try:
+                if fault.kind.startswith("silent_long_"):
+                    await self._wait_broken(fault, since)
+                else:
+                    await asyncio.sleep(fault.hold_s)  # the fault itself: the link gone a while
+            finally:
+                host.heal()
+
+    async def _wait_broken(self, fault: Fault, since: float) -> None:
+        """Through a cut past the keep-alive: note when the cut host's will arrived."""
+        listener = self.listener
+        assert listener is not None
+        who = self.unit_ids if fault.target == "units" else ["coordinator"]
+        end = time.monotonic() + fault.hold_s
+        seen = False
+        while time.monotonic() < end:
+            if not seen and any(listener.broken.get(w, 0.0) > since for w in who):
+                self.detections.append(time.time() - since)
+                seen = True
+            await asyncio.sleep(0.05)  # the fault itself lasts until `end`; polling meanwhile
+        if not seen:
+            self.unrecovered.append(
+                f"{fault.kind} at {since:.2f}: no will ('broken') within {fault.hold_s:.1f} s"
+            )
 
     async def _restart(self, name: str, sig: signal.Signals) -> None:
         """Signal a process and wait until the supervisor has it running (and ready) again."""
@@ -294,7 +392,7 @@ class Soak:
                     await self.publish(self.topics.fleet("estop"), "engaged|operator|soak")
                 else:
                     topic = self.topics.device("device_stop", DEVICE)
-                    await self.publish(topic, f"engaged|{DEVICE}|button")
+                    await self.publish(topic, f"engaged|{DEVICE}|button", as_device=True)
                 await self._wait_shown(True)
             await asyncio.sleep(fault.hold_s)  # the fault itself: the stop held this long
             await self.release()
@@ -342,14 +440,14 @@ class Soak:
                 again = time.monotonic() + RELEASE_AGAIN_S
             await asyncio.sleep(0.05)  # polling the listener, with a deadline
 
-    async def publish(self, topic: str, payload: str) -> None:
+    async def publish(self, topic: str, payload: str, as_device: bool = False) -> None:
         """Publish retained at QoS 1 straight to the broker, retrying while it restarts."""
         deadline = time.monotonic() + RECOVERY_WAIT_S
+        url = self.device_url if as_device else self.operator_url
         while True:
             try:
-                async with make_client(
-                    self.broker_url, f"{self.root}-op-{uuid.uuid4().hex[:4]}"
-                ) as c:
+                client_id = self._client_id(f"op-{uuid.uuid4().hex[:4]}", as_device)
+                async with make_client(url, client_id) as c:
                     await c.publish(topic, payload.encode(), qos=1, retain=True)
                 return
             except aiomqtt.MqttError:
@@ -440,6 +538,7 @@ class Soak:
             await asyncio.gather(*self.tasks, return_exceptions=True)
             if self.proxy is not None:
                 await self.proxy.close()
+            self.network.close()
         assert self.listener is not None
         for at, report in self.listener.errors:
             print(f"[errors     ] {at:.2f} {report}", file=self.log)
@@ -470,6 +569,7 @@ class Soak:
             self.unrecovered,
             self.release_repeats,
             dict(self.fault_s),
+            self.detections,
         )
 
 

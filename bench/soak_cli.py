@@ -10,8 +10,9 @@ import os
 import sys
 from pathlib import Path
 
+from gridfleet.bench.lan import can_make_lans
 from gridfleet.bench.soak import SoakConfig, SoakResult, run_soak
-from gridfleet.bench.soak_faults import FAMILIES, parse_families
+from gridfleet.bench.soak_faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 
@@ -36,8 +37,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--faults",
         type=families,
-        default=FAMILIES,
-        help=f"fault families to inject (default all: {','.join(FAMILIES)})",
+        default=None,
+        help=f"fault families to inject (default all: {','.join(LOCAL_FAMILIES)}, and with "
+        f"--network {','.join(NETWORK_FAMILIES)})",
+    )
+    parser.add_argument(
+        "--network",
+        action="store_true",
+        help="the units and the coordinator on hosts of their own (network namespaces on one "
+        "bridge; needs root), the broker on this machine's LAN address with accounts; adds "
+        "silent link cuts and stalls to the faults",
     )
     parser.add_argument(
         "--drain", type=float, default=90.0, help="seconds for jobs to end after the faults"
@@ -67,13 +76,25 @@ def config(args: argparse.Namespace) -> SoakConfig:
     check_step(args.step)
     if args.broker is not None:
         parse_broker_url(args.broker)
+    faults = args.faults or (FAMILIES if args.network else LOCAL_FAMILIES)
+    if args.network:
+        if args.broker is not None:
+            raise ConfigError(
+                "--network runs its own broker, on the LAN with accounts: no --broker"
+            )
+        why_not = can_make_lans()
+        if why_not is not None:
+            raise ConfigError(f"--network: {why_not}")
+    elif set(faults) & set(NETWORK_FAMILIES):
+        raise ConfigError(f"--faults {','.join(NETWORK_FAMILIES)} need --network")
     return SoakConfig(
         minutes=args.minutes,
         units=args.units,
         seed=args.seed,
         broker=args.broker,
         step_s=args.step,
-        faults=args.faults,
+        faults=faults,
+        network=args.network,
         drain_s=args.drain,
         stranded_s=args.stranded,
     )

@@ -7,8 +7,17 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 # Families the CLI's --faults selects from; each gives one or more counted kinds.
-FAMILIES = ("units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press")
+FAMILIES = (
+    "units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press", "silent", "stall"
+)  # fmt: skip
 STOP_FAMILIES = ("estop", "press")  # the stop lane; the rest are the main lane's
+# Only with --network (the units and the coordinator on hosts of a LAN of namespaces): a host's
+# link cut without a word, or every packet dropped with both ends up.
+NETWORK_FAMILIES = ("silent", "stall")
+LOCAL_FAMILIES = tuple(f for f in FAMILIES if f not in NETWORK_FAMILIES)
+NETWORK_HOSTS = ("units", "office")  # the robots' host, the coordinator's
+KEEP_ALIVE_S = 10.0  # gridfleet's clients: the broker gives up on a silent one after 1.5 of it
+LONG_SILENCE_SHARE = 0.2  # of the silent cuts, longer than the broker's keep-alive
 
 
 @dataclass(frozen=True)
@@ -42,6 +51,16 @@ def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> I
                 yield Fault("cut", hold_s=rng.uniform(0.0, 1.0))
             elif family == "delay":
                 yield Fault("delay", hold_s=rng.uniform(1.0, 3.0), latency_s=rng.uniform(0.05, 0.5))
+            elif family == "silent":
+                host = rng.choice(NETWORK_HOSTS)
+                if rng.random() < LONG_SILENCE_SHARE:  # past the keep-alive: the will is sent
+                    hold = rng.uniform(1.5 * KEEP_ALIVE_S + 1.0, 1.5 * KEEP_ALIVE_S + 5.0)
+                    yield Fault(f"silent_long_{host}", host, hold)
+                else:
+                    yield Fault(f"silent_{host}", host, rng.uniform(0.5, 4.0))
+            elif family == "stall":
+                host = rng.choice(NETWORK_HOSTS)
+                yield Fault(f"stall_{host}", host, rng.uniform(0.5, 5.0))
 
 
 def stop_faults(rng: random.Random, families: Sequence[str]) -> Iterator[Fault]:

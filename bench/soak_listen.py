@@ -13,7 +13,15 @@ from gridfleet.bench.soak_check import Event, JobSeen, StateSeen, Stop
 from gridfleet.bus import make_client
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
-from gridfleet.protocol import TOPICS, JobsView, Topics, UnitState, decode
+from gridfleet.protocol import (
+    TOPICS,
+    Connection,
+    CoordinatorStatus,
+    JobsView,
+    Topics,
+    UnitState,
+    decode,
+)
 from gridfleet.protocol.device import decode_estop, decode_press
 
 RETAINED_S = 0.5  # after (re)subscribing: the retained stop messages have arrived by then
@@ -38,6 +46,7 @@ class SoakListener:
         self.reported_stopped = False  # the stop as the last Stop event gave it
         self.settling = False  # just (re)connected: the retained stop is still arriving
         self.worst_lag = (0.0, 0.0)  # (seconds a unit's live state took to reach us, when)
+        self.broken: dict[str, float] = {}  # unit or "coordinator" -> when its will last came
 
     @property
     def stopped(self) -> bool:
@@ -105,6 +114,12 @@ class SoakListener:
                         self.events.append(JobSeen(now, job.id, job.state))
             elif kind == "routes":
                 self.last_routes = now
+            elif kind == "connection" and who is not None:
+                if decode(Connection, payload).state == "broken":
+                    self.broken[who] = now
+            elif kind == "coordinator":
+                if decode(CoordinatorStatus, payload).state == "broken":
+                    self.broken["coordinator"] = now
             elif kind == "errors":
                 self.errors.append((now, payload.decode("utf-8", "replace")))
             elif kind == "estop":

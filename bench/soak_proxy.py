@@ -1,4 +1,4 @@
-"""A TCP proxy on loopback between the clients and the broker: it can cut every connection or
+"""A TCP proxy between the clients and the broker (on loopback, or the soak's LAN): it can cut every connection or
 delay the traffic, which is how the soak injects network faults."""
 
 from __future__ import annotations
@@ -8,10 +8,11 @@ import contextlib
 
 
 class FaultyProxy:
-    """Forwards `127.0.0.1:<port>` to the broker; `cut()` drops all, `latency_s` delays bytes."""
+    """Forwards `<listen>:<port>` to the broker; `cut()` drops all, `latency_s` delays bytes."""
 
-    def __init__(self, target_host: str, target_port: int) -> None:
+    def __init__(self, target_host: str, target_port: int, listen: str = "127.0.0.1") -> None:
         self.target = (target_host, target_port)
+        self.listen = listen  # loopback, or the soak's LAN address (--network)
         self.latency_s = 0.0
         self.refusing = False  # while set, new connections are closed at once (the link is down)
         self.port = 0
@@ -20,8 +21,8 @@ class FaultyProxy:
         self._sockets: set[asyncio.StreamWriter] = set()  # both ends of every open link
 
     async def start(self) -> int:
-        """Listen on a free loopback port; returns it."""
-        self._server = await asyncio.start_server(self._accept, "127.0.0.1", 0)
+        """Listen on a free port of `listen`; returns it."""
+        self._server = await asyncio.start_server(self._accept, self.listen, 0)
         self.port = self._server.sockets[0].getsockname()[1]
         return self.port
 

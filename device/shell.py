@@ -8,6 +8,7 @@ import logging
 import time
 from collections.abc import Callable
 
+from gridfleet.bus import KEEP_ALIVE_S
 from gridfleet.device.core import DeviceCore, Refusal
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.outbound import Outbound
@@ -17,6 +18,12 @@ from gridfleet.protocol.constants import DEFAULT_ROOT
 log = logging.getLogger("gridfleet.device")
 
 BACKOFF = Backoff(first=0.5, most=10.0)
+# A press whose acknowledgement is late is not given up on before the broker would give up on
+# the device (1.5 keep-alives, then its will): a link that hangs for longer than the usual 10 s
+# delivers the press by TCP's retransmission once it is back, and a copy sent over a new session
+# meanwhile would arrive too. Past the broker's keep-alive the old connection is refused, and the
+# press goes once over the next session.
+PRESS_ACK_S = 1.5 * KEEP_ALIVE_S + 5.0
 
 
 class DeviceShell:
@@ -43,6 +50,7 @@ class DeviceShell:
             online=lambda: core.connection("online"),
             offline=lambda: core.connection("offline"),
             backoff=BACKOFF,
+            ack_s=PRESS_ACK_S,
         )
         self.on_change = on_change
         self.clock = clock
@@ -107,7 +115,13 @@ class DeviceShell:
         while not shutdown.is_set():
             self._wake.clear()
             # The screen shows the stop; a log line would be drawn across it.
-            await self._send(self.core.due(self.clock()))
+            for message in self.core.due(self.clock()):
+                if await self.endpoint.publish(message):
+                    # The broker has it: a re-send waits `retry_s` from its acknowledgement, not
+                    # from the hand-over (after a stall the acknowledgement comes late, and the
+                    # press's echo, which confirms it, right after: re-sent before, it arrived
+                    # twice in a CI run).
+                    self.core.stop_sent(self.clock())
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), self.core.next_stop_in(self.clock()))
 

@@ -33,11 +33,16 @@ def tls_context(ca_file: str | None) -> ssl.SSLContext:
 MAX_INFLIGHT = 1000
 
 
+# Every gridfleet client's MQTT keep-alive: a broker ends a session silent for 1.5 times it and
+# sends the client's will (protocol.md §4.1).
+KEEP_ALIVE_S = 10
+
+
 def make_client(
     url: str | BrokerURL,
     client_id: str,
     will: aiomqtt.Will | None = None,
-    keepalive: int = 10,
+    keepalive: int = KEEP_ALIVE_S,
     max_queued_outgoing: int | None = 10_000,
     timeout: float = 10.0,
     max_inflight: int = MAX_INFLIGHT,

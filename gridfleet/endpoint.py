@@ -45,9 +45,9 @@ async def _finish(work: Awaitable[Any]) -> Any:
     return await work
 
 
-async def send(client: aiomqtt.Client, out: Outbound) -> None:
-    """Publish `out` on `client` with its QoS and retain flag."""
-    await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain, timeout=ACK_S)
+async def send(client: aiomqtt.Client, out: Outbound, ack_s: float = ACK_S) -> None:
+    """Publish `out` on `client` with its QoS and retain flag (a QoS 1 waits `ack_s` at most)."""
+    await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain, timeout=ack_s)
 
 
 def payload_of(message: aiomqtt.Message) -> bytes:
@@ -80,8 +80,11 @@ class Endpoint:
         online: Callable[[], Outbound] | None = None,
         offline: Callable[[], Outbound] | None = None,
         backoff: Backoff = Backoff(),
+        ack_s: float = ACK_S,
     ) -> None:
         self.url = url
+        # A send not acknowledged within this ends the session (then it is sent again on the next).
+        self.ack_s = ack_s
         self.where = str(parse_broker_url(url))  # for messages: never the password
         self.client_id = client_id
         self.name = name or client_id
@@ -203,7 +206,7 @@ class Endpoint:
         if client is None:
             return False
         try:
-            await send(client, out)
+            await send(client, out, self.ack_s)
         except aiomqtt.MqttError as exc:
             # A send still pending on a connection already replaced (its acknowledgement timed
             # out long after a reconnect) says nothing about the live one: leave that alone.

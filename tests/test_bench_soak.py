@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import io
 import json
+import random
 import subprocess
 import sys
 import time
@@ -17,7 +18,14 @@ import pytest
 from gridfleet.bench import soak_listen
 from gridfleet.bench.soak import Soak, SoakConfig
 from gridfleet.bench.soak_check import Stop
-from gridfleet.bench.soak_faults import FAMILIES, main_faults, parse_families, stop_faults
+from gridfleet.bench.soak_faults import (
+    KEEP_ALIVE_S,
+    LOCAL_FAMILIES,
+    NETWORK_HOSTS,
+    main_faults,
+    parse_families,
+    stop_faults,
+)
 from gridfleet.bench.soak_proxy import FaultyProxy
 from gridfleet.protocol import Topics
 from gridfleet.robots.truth import write_truth
@@ -71,6 +79,8 @@ def test_one_minute_soak_is_green_and_reports_every_figure(tmp_path: Path) -> No
         (["--units", "0"], "--units 0"),
         (["--faults", "units,meteor"], "meteor"),
         (["--broker", "http://nowhere"], "http://nowhere"),
+        (["--faults", "units,silent"], "need --network"),
+        (["--network", "--broker", "mqtt://127.0.0.1:1883"], "no --broker"),
     ],
 )
 def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
@@ -80,15 +90,13 @@ def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
 
 
 def test_the_schedule_is_seeded_and_covers_every_family_each_round() -> None:
-    import random
-
     first = [
         f.kind
-        for f, _ in zip(main_faults(random.Random(3), FAMILIES, 0.1), range(12), strict=False)
+        for f, _ in zip(main_faults(random.Random(3), LOCAL_FAMILIES, 0.1), range(12), strict=False)
     ]
     again = [
         f.kind
-        for f, _ in zip(main_faults(random.Random(3), FAMILIES, 0.1), range(12), strict=False)
+        for f, _ in zip(main_faults(random.Random(3), LOCAL_FAMILIES, 0.1), range(12), strict=False)
     ]
     assert first == again
     round_one = {k.split("_")[-1] for k in first[:6]}
@@ -107,6 +115,22 @@ def test_the_schedule_is_seeded_and_covers_every_family_each_round() -> None:
     assert parse_families("units, cut") == ["units", "cut"]
     with pytest.raises(ValueError, match="meteor"):
         parse_families("meteor")
+
+
+def test_the_network_schedule_cuts_and_stalls_both_hosts_some_cuts_past_the_keep_alive() -> None:
+    faults = [
+        f
+        for f, _ in zip(
+            main_faults(random.Random(1), ["silent", "stall"], 0.1), range(200), strict=False
+        )
+    ]
+    assert {f.target for f in faults} == set(NETWORK_HOSTS)
+    kinds = {f.kind for f in faults}
+    assert kinds == {f"{k}_{h}" for k in ("silent", "silent_long", "stall") for h in NETWORK_HOSTS}
+    long_cuts = [f for f in faults if f.kind.startswith("silent_long_")]
+    # Long enough for the broker to give up (1.5 keep-alives) and send the will.
+    assert all(f.hold_s > 1.5 * KEEP_ALIVE_S for f in long_cuts)
+    assert all(f.hold_s < 1.5 * KEEP_ALIVE_S for f in faults if f not in long_cuts)
 
 
 async def test_the_proxy_forwards_cuts_and_delays() -> None:

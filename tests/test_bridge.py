@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
+from gridfleet.bench.lan import Host, Lan
 from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
 
-from support.lan import Host, Lan
 from support.mosquitto import running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe

@@ -1,0 +1,170 @@
+"""A LAN made of network namespaces on this machine: hosts on one bridge, links to cut and stall.
+
+For the tests (tests/support/lan.py) and `gridfleet bench soak --network`.
+
+Each host is a namespace of its own with one interface (`eth0`) plugged into a bridge that lives
+in a namespace of its own too; this machine (the tests' process, its brokers and probes) is
+plugged in as one more host by a veth pair, so whatever it serves on `Lan.address` is reached by
+the other hosts across the bridge, as a LAN's hosts reach a broker. Everything is made with
+`ip` and `tc` as root and removed again, also when its user fails (and what a killed run left is
+swept up by the next one: the names carry the process id).
+
+Faults, per host:
+- `cut`: its bridge port goes down. Nothing is sent, nothing is closed (no FIN, no RST): the
+  other side learns of it only from a keep-alive, as with a switch port that dies.
+- `stall`: every packet either way is dropped (a `tbf` qdisc too small for any packet) while
+  both ends stay up, as with a Wi-Fi link that hangs.
+- `heal`: both undone.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+import random
+import re
+import shutil
+import subprocess
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+PREFIX = "gfl"  # every namespace made here: gfl<pid>-... (swept once <pid> is gone)
+SUBNETS = ipaddress.IPv4Network("10.231.0.0/16")
+DROP_ALL = ["tbf", "rate", "8bit", "burst", "1", "limit", "1"]  # no packet fits: all dropped
+
+
+class LanError(RuntimeError):
+    """An `ip` or `tc` command failed (the kernel lacks namespaces, veth or tbf)."""
+
+
+def _ip(*args: str, check: bool = True) -> subprocess.CompletedProcess[str]:
+    done = subprocess.run(["ip", *args], capture_output=True, text=True, check=False)
+    if check and done.returncode != 0:
+        raise LanError(f"ip {' '.join(args)}: {done.stderr.strip()}")
+    return done
+
+
+def _tc(netns: str, *args: str, check: bool = True) -> None:
+    done = subprocess.run(["tc", "-n", netns, *args], capture_output=True, text=True, check=False)
+    if check and done.returncode != 0:
+        raise LanError(f"tc -n {netns} {' '.join(args)}: {done.stderr.strip()}")
+
+
+@dataclass
+class Host:
+    """One machine on the LAN: a namespace with `eth0` on the bridge, at `address`."""
+
+    name: str
+    netns: str
+    address: str
+    port: str  # its bridge port, in the LAN's namespace
+    lan: Lan
+
+    def command(self, argv: Sequence[str]) -> list[str]:
+        """`argv` run on this host."""
+        return ["ip", "netns", "exec", self.netns, *argv]
+
+    def popen(self, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[Any]:
+        """Start `argv` on this host."""
+        return subprocess.Popen(self.command(argv), **kwargs)
+
+    def cut(self) -> None:
+        """Unplug it at the bridge: nothing more arrives either way, and nobody is told."""
+        _ip("-n", self.lan.netns, "link", "set", self.port, "down")
+
+    def stall(self) -> None:
+        """Drop every packet either way, both ends staying up."""
+        _tc(self.netns, "qdisc", "replace", "dev", "eth0", "root", *DROP_ALL)
+        _tc(self.lan.netns, "qdisc", "replace", "dev", self.port, "root", *DROP_ALL)
+
+    def heal(self) -> None:
+        """Plugged in again, nothing dropped."""
+        _tc(self.netns, "qdisc", "del", "dev", "eth0", "root", check=False)
+        _tc(self.lan.netns, "qdisc", "del", "dev", self.port, "root", check=False)
+        _ip("-n", self.lan.netns, "link", "set", self.port, "up")
+
+
+@dataclass
+class Lan:
+    """The bridge, this machine on it at `address`, and the hosts added with `host`."""
+
+    tag: str
+    short: str  # six hex digits naming this LAN's interfaces
+    netns: str
+    network: ipaddress.IPv4Network
+    address: str
+    hosts: dict[str, Host] = field(default_factory=dict)
+
+    def host(self, name: str) -> Host:
+        """A new host on the LAN (a namespace with its own address), called `name` here."""
+        if not re.fullmatch(r"[a-z0-9]{1,6}", name) or name in self.hosts:
+            raise ValueError(f"host name {name!r}: 1-6 lowercase letters or digits, not taken")
+        number = len(self.hosts) + 2
+        netns = f"{self.tag}-{name}"
+        # Interface names hold 15 characters: the LAN's short id and the host's number.
+        port, inside = f"gf{self.short}{number}p", f"gf{self.short}{number}i"
+        address = str(self.network.network_address + number)
+        _ip("netns", "add", netns)
+        host = Host(name, netns, address, port, self)
+        self.hosts[name] = host
+        _ip("link", "add", inside, "type", "veth", "peer", "name", port)
+        _ip("link", "set", port, "netns", self.netns)
+        _ip("-n", self.netns, "link", "set", port, "master", "br0", "up")
+        _ip("link", "set", inside, "netns", netns)
+        _ip("-n", netns, "link", "set", inside, "name", "eth0")
+        _ip("-n", netns, "addr", "add", f"{address}/{self.network.prefixlen}", "dev", "eth0")
+        _ip("-n", netns, "link", "set", "eth0", "up")
+        _ip("-n", netns, "link", "set", "lo", "up")
+        return host
+
+
+def _in_use() -> set[ipaddress.IPv4Network]:
+    listed = _ip("-4", "-o", "addr", "show").stdout
+    found = re.findall(r"inet (\d+\.\d+\.\d+\.\d+/\d+)", listed)
+    return {ipaddress.IPv4Interface(a).network for a in found}
+
+
+def _sweep() -> None:
+    """Remove what killed runs left: namespaces named for a process that is gone."""
+    for netns in _ip("netns", "list", check=False).stdout.split():
+        made = re.fullmatch(rf"{PREFIX}(\d+)-[0-9a-f]+-\w+", netns)
+        if made and not os.path.exists(f"/proc/{made[1]}"):
+            _ip("netns", "del", netns, check=False)
+
+
+def can_make_lans() -> str | None:
+    """Why this machine cannot make a test LAN, or None when it can."""
+    if os.geteuid() != 0:
+        return "network namespaces need root"
+    missing = [tool for tool in ("ip", "tc") if shutil.which(tool) is None]
+    return f"{' and '.join(missing)} not installed (iproute2)" if missing else None
+
+
+@contextmanager
+def lan() -> Iterator[Lan]:
+    """A LAN for one test, removed afterwards whatever happened."""
+    _sweep()
+    short = os.urandom(3).hex()
+    tag = f"{PREFIX}{os.getpid()}-{short}"
+    taken = _in_use()
+    free = [n for n in SUBNETS.subnets(new_prefix=24) if not any(n.overlaps(t) for t in taken)]
+    network = random.choice(free)
+    here = f"gf{short}h"
+    made = Lan(tag, short, f"{tag}-lan", network, str(network.network_address + 1))
+    try:
+        _ip("netns", "add", made.netns)
+        _ip("-n", made.netns, "link", "add", "br0", "type", "bridge")
+        _ip("-n", made.netns, "link", "set", "br0", "up")
+        _ip("link", "add", here, "type", "veth", "peer", "name", f"{here}b")
+        _ip("link", "set", f"{here}b", "netns", made.netns)
+        _ip("-n", made.netns, "link", "set", f"{here}b", "master", "br0", "up")
+        _ip("addr", "add", f"{made.address}/{network.prefixlen}", "dev", here)
+        _ip("link", "set", here, "up")
+        yield made
+    finally:
+        for host in made.hosts.values():
+            _ip("netns", "del", host.netns, check=False)
+        _ip("netns", "del", made.netns, check=False)  # takes the bridge and this machine's link
+        _ip("link", "del", here, check=False)
