@@ -14,7 +14,8 @@ Faults, per host:
   other side learns of it only from a keep-alive, as with a switch port that dies.
 - `stall`: every packet either way is dropped (a `tbf` qdisc too small for any packet) while
   both ends stay up, as with a Wi-Fi link that hangs.
-- `heal`: both undone.
+- `narrow`: a thin link (a `tbf` rate limit): slow, and what queues too long is dropped.
+- `heal`: all undone.
 """
 
 from __future__ import annotations
@@ -78,6 +79,12 @@ class Host:
         """Drop every packet either way, both ends staying up."""
         _tc(self.netns, "qdisc", "replace", "dev", "eth0", "root", *DROP_ALL)
         _tc(self.lan.netns, "qdisc", "replace", "dev", self.port, "root", *DROP_ALL)
+
+    def narrow(self, kbit: int) -> None:
+        """Limit its link to `kbit` kbit/s either way; what queues past 50 ms is dropped (loss)."""
+        shape = ["tbf", "rate", f"{kbit}kbit", "burst", "1600", "latency", "50ms"]
+        _tc(self.netns, "qdisc", "replace", "dev", "eth0", "root", *shape)
+        _tc(self.lan.netns, "qdisc", "replace", "dev", self.port, "root", *shape)
 
     def heal(self) -> None:
         """Plugged in again, nothing dropped."""

@@ -7,6 +7,11 @@ timeout, and cuts or slows every client's connection through `FaultyProxy`; one 
 each followed by its recovery. The stop lane engages the stop from an operator (the latch) or a
 device (a press) and releases it as an operator; it engages only between main-lane faults (a unit
 cannot obey a stop it cannot read), and main-lane faults then strike while the stop is held.
+
+With `network` the units and the coordinator run on hosts of their own (network namespaces on
+one bridge, `gridfleet.bench.lan`), reaching the broker at this machine's LAN address with
+accounts, and the main lane also cuts a host's link without a word (some cuts past the broker's
+keep-alive: the will must come), stalls it, or narrows it to a thin, lossy link.
 """
 
 from __future__ import annotations
@@ -320,10 +325,13 @@ class Soak:
                 await asyncio.sleep(fault.hold_s)  # the fault itself: a slow link for a while
             finally:
                 proxy.latency_s = 0.0
-        elif fault.kind.startswith(("silent_", "stall_")):
+        elif fault.kind.startswith(("silent_", "stall_", "narrow_")):
             host = self.hosts[fault.target]
             since = time.time()
-            (host.cut if fault.kind.startswith("silent_") else host.stall)()
+            if fault.kind.startswith("narrow_"):
+                host.narrow(fault.kbit)
+            else:
+                (host.cut if fault.kind.startswith("silent_") else host.stall)()
             try:
                 if fault.kind.startswith("silent_long_"):
                     await self._wait_broken(fault, since)

@@ -46,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the units and the coordinator on hosts of their own (network namespaces on one "
         "bridge; needs root), the broker on this machine's LAN address with accounts; adds "
-        "silent link cuts and stalls to the faults",
+        "silent link cuts, stalls and thin lossy links to the faults",
     )
     parser.add_argument(
         "--drain", type=float, default=90.0, help="seconds for jobs to end after the faults"

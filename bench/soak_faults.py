@@ -8,16 +8,18 @@ from dataclasses import dataclass
 
 # Families the CLI's --faults selects from; each gives one or more counted kinds.
 FAMILIES = (
-    "units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press", "silent", "stall"
+    "units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press",
+    "silent", "stall", "narrow",
 )  # fmt: skip
 STOP_FAMILIES = ("estop", "press")  # the stop lane; the rest are the main lane's
 # Only with --network (the units and the coordinator on hosts of a LAN of namespaces): a host's
-# link cut without a word, or every packet dropped with both ends up.
-NETWORK_FAMILIES = ("silent", "stall")
+# link cut without a word, every packet dropped with both ends up, or a thin lossy link.
+NETWORK_FAMILIES = ("silent", "stall", "narrow")
 LOCAL_FAMILIES = tuple(f for f in FAMILIES if f not in NETWORK_FAMILIES)
 NETWORK_HOSTS = ("units", "office")  # the robots' host, the coordinator's
 KEEP_ALIVE_S = 10.0  # gridfleet's clients: the broker gives up on a silent one after 1.5 of it
 LONG_SILENCE_SHARE = 0.2  # of the silent cuts, longer than the broker's keep-alive
+KBITS = (32, 64, 128, 256)  # `narrow`: a poor Wi-Fi link's rates (a state is ~0.5 kB)
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,7 @@ class Fault:
     target: str = ""  # the process: broker, coordinator or robots
     hold_s: float = 0.0  # paused, link down, slowed or stop held this long
     latency_s: float = 0.0
+    kbit: int = 0  # `narrow`: the link's rate
 
 
 def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> Iterator[Fault]:
@@ -61,6 +64,9 @@ def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> I
             elif family == "stall":
                 host = rng.choice(NETWORK_HOSTS)
                 yield Fault(f"stall_{host}", host, rng.uniform(0.5, 5.0))
+            elif family == "narrow":
+                host = rng.choice(NETWORK_HOSTS)
+                yield Fault(f"narrow_{host}", host, rng.uniform(1.0, 5.0), kbit=rng.choice(KBITS))
 
 
 def stop_faults(rng: random.Random, families: Sequence[str]) -> Iterator[Fault]:

@@ -117,20 +117,23 @@ def test_the_schedule_is_seeded_and_covers_every_family_each_round() -> None:
         parse_families("meteor")
 
 
-def test_the_network_schedule_cuts_and_stalls_both_hosts_some_cuts_past_the_keep_alive() -> None:
+def test_the_network_schedule_cuts_stalls_and_narrows_both_hosts_some_cuts_past_the_keep_alive() -> (
+    None
+):
+    families = ["silent", "stall", "narrow"]
     faults = [
-        f
-        for f, _ in zip(
-            main_faults(random.Random(1), ["silent", "stall"], 0.1), range(200), strict=False
-        )
+        f for f, _ in zip(main_faults(random.Random(1), families, 0.1), range(300), strict=False)
     ]
     assert {f.target for f in faults} == set(NETWORK_HOSTS)
     kinds = {f.kind for f in faults}
-    assert kinds == {f"{k}_{h}" for k in ("silent", "silent_long", "stall") for h in NETWORK_HOSTS}
+    assert kinds == {
+        f"{k}_{h}" for k in ("silent", "silent_long", "stall", "narrow") for h in NETWORK_HOSTS
+    }
     long_cuts = [f for f in faults if f.kind.startswith("silent_long_")]
     # Long enough for the broker to give up (1.5 keep-alives) and send the will.
     assert all(f.hold_s > 1.5 * KEEP_ALIVE_S for f in long_cuts)
     assert all(f.hold_s < 1.5 * KEEP_ALIVE_S for f in faults if f not in long_cuts)
+    assert all(f.kbit > 0 for f in faults if f.kind.startswith("narrow_"))
 
 
 async def test_the_proxy_forwards_cuts_and_delays() -> None:

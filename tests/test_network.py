@@ -22,12 +22,15 @@ import pytest
 
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.bench.lan import Host, Lan
+from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.broker.mosquitto import mosquitto_conf, write_files
+from gridfleet.config import with_ca_file
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.system.broker_thread import BrokerThread
 
-from support.mosquitto import mosquitto_with_accounts
+from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.output import Output
 from support.probe import MqttProbe
@@ -95,28 +98,52 @@ def accounts() -> Accounts:
     return default_accounts(["unit1", "unit2"])
 
 
-@pytest.fixture(params=["embedded", "mosquitto"])
+@pytest.fixture
 def lan_broker(
     request: pytest.FixtureRequest,
+    broker: BrokerThread,
     test_lan: Lan,
     accounts: Accounts,
     topics: Topics,
     tmp_path: Path,
 ) -> Iterator[str]:
-    """A broker with accounts listening on this machine's LAN address (no credentials in URL)."""
-    if request.param == "mosquitto":
-        directory = tmp_path / "mosquitto"
-        directory.mkdir()
-        with mosquitto_with_accounts(accounts, topics, directory, host=test_lan.address) as url:
-            yield url
+    """The suite's kind of broker (`broker`'s: amqtt, Mosquitto under `make test-mosquitto`) with
+    accounts, listening on this machine's LAN address; its URL (no credentials). A test may ask
+    for TLS (indirect parameter "tls"): a certificate for that address, the CA in the URL."""
+    tls = tmp_path / "tls"
+    if getattr(request, "param", "plain") == "tls":
+        tls.mkdir()
+        write_tls(make_tls([test_lan.address]), tls)
+    cert, key = (tls / "server.pem", tls / "server.key") if tls.exists() else (None, None)
+
+    def trusted(url: str) -> str:
+        return with_ca_file(url, str(tls / "ca.pem")) if tls.exists() else url
+
+    if isinstance(broker, MosquittoBroker):
+        passwd, acl = write_files(accounts, topics, tmp_path / "mosquitto")
+        with running_mosquitto(
+            tmp_path / "mosquitto",
+            lambda port: mosquitto_conf(
+                passwd, acl, host=test_lan.address, port=port, ws_port=None, tls_cert=cert,
+                tls_key=key,
+            ),
+            host=test_lan.address,
+        ) as port:  # fmt: skip
+            yield trusted(f"{'mqtts' if cert else 'mqtt'}://{test_lan.address}:{port}")
         return
     settings = BrokerSettings(
-        host=test_lan.address, port=0, ws_port=None, accounts=accounts, root=topics.root
+        host=test_lan.address,
+        port=0,
+        ws_port=None,
+        accounts=accounts,
+        root=topics.root,
+        tls_cert=cert,
+        tls_key=key,
     )
     broker = BrokerThread(settings)
     broker.start()
     try:
-        yield broker.url
+        yield trusted(broker.url)
     finally:
         broker.stop()
 
@@ -128,6 +155,7 @@ def truth_lines(path: Path) -> list[dict[str, object]]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
+@pytest.mark.parametrize("lan_broker", ["plain", "tls"], indirect=True)
 def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_place(
     test_lan: Lan,
     lan_broker: str,
