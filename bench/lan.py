@@ -3,11 +3,13 @@
 For the tests (tests/support/lan.py) and `gridfleet bench soak --network`.
 
 Each host is a namespace of its own with one interface (`eth0`) plugged into a bridge that lives
-in a namespace of its own too; this machine (the tests' process, its brokers and probes) is
-plugged in as one more host by a veth pair, so whatever it serves on `Lan.address` is reached by
-the other hosts across the bridge, as a LAN's hosts reach a broker. Everything is made with
-`ip` and `tc` as root and removed again, also when its user fails (and what a killed run left is
-swept up by the next one: the names carry the process id).
+in a namespace of its own too. The first host, `here`, stands for the machine running the broker,
+the coordinator and whoever watches: a thread of this process enters it with `Lan.call` (sockets
+it makes, and threads it starts, are on the LAN) and a command runs there with `Lan.command`.
+Nothing is made in this machine's own namespace: a new address there makes Chromium drop the
+requests it has in flight (ERR_NETWORK_CHANGED; a page in another test stopped loading). Made
+with `ip` and `tc` as root and removed again, also when its user fails (and what a killed run
+left is swept up by the next one: the names carry the process id).
 
 Faults, per host:
 - `cut`: its bridge port goes down. Nothing is sent, nothing is closed (no FIN, no RST): the
@@ -20,17 +22,23 @@ Faults, per host:
 
 from __future__ import annotations
 
+import ctypes
 import ipaddress
 import os
 import random
 import re
 import shutil
 import subprocess
-from collections.abc import Iterator, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
+T = TypeVar("T")
+
+HERE = "here"  # the first host: the broker's machine
 PREFIX = "gfl"  # every namespace made here: gfl<pid>-... (swept once <pid> is gone)
 SUBNETS = ipaddress.IPv4Network("10.231.0.0/16")
 DROP_ALL = ["tbf", "rate", "8bit", "burst", "1", "limit", "1"]  # no packet fits: all dropped
@@ -95,42 +103,82 @@ class Host:
 
 @dataclass
 class Lan:
-    """The bridge, this machine on it at `address`, and the hosts added with `host`."""
+    """The bridge, its first host `here` (the broker's machine), and the hosts added with `host`."""
 
     tag: str
     short: str  # six hex digits naming this LAN's interfaces
     netns: str
     network: ipaddress.IPv4Network
-    address: str
     hosts: dict[str, Host] = field(default_factory=dict)
+
+    @property
+    def here(self) -> Host:
+        """The broker's machine on the LAN."""
+        return self.hosts[HERE]
+
+    @property
+    def address(self) -> str:
+        """`here`'s address: where the LAN's hosts reach the broker."""
+        return self.here.address
+
+    def command(self, argv: Sequence[str]) -> list[str]:
+        """`argv` run on `here`."""
+        return self.here.command(argv)
+
+    def call(self, work: Callable[[], T]) -> T:
+        """`work()` run by a thread of this process on `here`: what it connects, binds or starts
+        (threads included) is on the LAN. Its result, or its exception."""
+        done: Future[T] = Future()
+
+        def run() -> None:
+            try:
+                _enter(self.here.netns)
+                done.set_result(work())
+            except BaseException as exc:  # handed to the caller
+                done.set_exception(exc)
+
+        thread = threading.Thread(target=run, name=f"on {self.here.netns}", daemon=True)
+        thread.start()
+        return done.result()
+
+    def enter(self) -> None:
+        """Put the calling thread on `here` for good (a process that lives on the LAN)."""
+        _enter(self.here.netns)
 
     def host(self, name: str) -> Host:
         """A new host on the LAN (a namespace with its own address), called `name` here."""
         if not re.fullmatch(r"[a-z0-9]{1,6}", name) or name in self.hosts:
             raise ValueError(f"host name {name!r}: 1-6 lowercase letters or digits, not taken")
-        number = len(self.hosts) + 2
+        number = len(self.hosts) + 1
         netns = f"{self.tag}-{name}"
         # Interface names hold 15 characters: the LAN's short id and the host's number.
-        port, inside = f"gf{self.short}{number}p", f"gf{self.short}{number}i"
+        port = f"gf{self.short}{number}p"
         address = str(self.network.network_address + number)
         _ip("netns", "add", netns)
         host = Host(name, netns, address, port, self)
         self.hosts[name] = host
-        _ip("link", "add", inside, "type", "veth", "peer", "name", port)
-        _ip("link", "set", port, "netns", self.netns)
+        # Made in the host's namespace with its peer in the LAN's: never in this machine's.
+        _ip("-n", netns, "link", "add", "eth0", "type", "veth", "peer", "name", port, "netns",
+            self.netns)  # fmt: skip
         _ip("-n", self.netns, "link", "set", port, "master", "br0", "up")
-        _ip("link", "set", inside, "netns", netns)
-        _ip("-n", netns, "link", "set", inside, "name", "eth0")
         _ip("-n", netns, "addr", "add", f"{address}/{self.network.prefixlen}", "dev", "eth0")
         _ip("-n", netns, "link", "set", "eth0", "up")
         _ip("-n", netns, "link", "set", "lo", "up")
         return host
 
 
-def _in_use() -> set[ipaddress.IPv4Network]:
-    listed = _ip("-4", "-o", "addr", "show").stdout
-    found = re.findall(r"inet (\d+\.\d+\.\d+\.\d+/\d+)", listed)
-    return {ipaddress.IPv4Interface(a).network for a in found}
+_CLONE_NEWNET = 0x40000000
+_libc = ctypes.CDLL(None, use_errno=True)
+
+
+def _enter(netns: str) -> None:
+    """Move the calling thread into network namespace `netns` (setns(2))."""
+    fd = os.open(f"/run/netns/{netns}", os.O_RDONLY)
+    try:
+        if _libc.setns(fd, _CLONE_NEWNET) != 0:
+            raise LanError(f"setns {netns}: {os.strerror(ctypes.get_errno())}")
+    finally:
+        os.close(fd)
 
 
 def _sweep() -> None:
@@ -151,27 +199,21 @@ def can_make_lans() -> str | None:
 
 @contextmanager
 def lan() -> Iterator[Lan]:
-    """A LAN for one test, removed afterwards whatever happened."""
+    """A LAN, its host `here` made, removed afterwards whatever happened."""
     _sweep()
     short = os.urandom(3).hex()
     tag = f"{PREFIX}{os.getpid()}-{short}"
-    taken = _in_use()
-    free = [n for n in SUBNETS.subnets(new_prefix=24) if not any(n.overlaps(t) for t in taken)]
-    network = random.choice(free)
-    here = f"gf{short}h"
-    made = Lan(tag, short, f"{tag}-lan", network, str(network.network_address + 1))
+    network = SUBNETS.subnets(new_prefix=24)
+    # A subnet of its own: two LANs of one machine are apart anyway, but a host's address reads
+    # better unique in a log.
+    made = Lan(tag, short, f"{tag}-lan", random.choice(list(network)))
     try:
         _ip("netns", "add", made.netns)
         _ip("-n", made.netns, "link", "add", "br0", "type", "bridge")
         _ip("-n", made.netns, "link", "set", "br0", "up")
-        _ip("link", "add", here, "type", "veth", "peer", "name", f"{here}b")
-        _ip("link", "set", f"{here}b", "netns", made.netns)
-        _ip("-n", made.netns, "link", "set", f"{here}b", "master", "br0", "up")
-        _ip("addr", "add", f"{made.address}/{network.prefixlen}", "dev", here)
-        _ip("link", "set", here, "up")
+        made.host(HERE)
         yield made
     finally:
         for host in made.hosts.values():
             _ip("netns", "del", host.netns, check=False)
-        _ip("netns", "del", made.netns, check=False)  # takes the bridge and this machine's link
-        _ip("link", "del", here, check=False)
+        _ip("netns", "del", made.netns, check=False)  # takes the bridge with it

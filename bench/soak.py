@@ -238,6 +238,9 @@ class Soak:
         broker's address and the flags that log each component in."""
         net = self.network.enter_context(lan())
         self.hosts = {name: net.host(name) for name in NETWORK_HOSTS}
+        # The soak itself (its broker, proxy, listener, operator and feed) lives on the LAN's
+        # first host from now on: the threads and processes it starts follow it there.
+        net.enter()
         device = Account(DEVICE, new_password(), "device", self.unit_ids[0])
         self.accounts = default_accounts(self.unit_ids).with_account(device)
         accounts_file = self.dir / "accounts.toml"

@@ -15,6 +15,9 @@ from gridfleet.heap import freeze_after_start
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.tasks import stop_on_signals
 
+log = logging.getLogger("gridfleet.broker")
+LEFTOVERS_S = 2.0  # after the broker stopped: how long its remaining tasks get to end
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet broker`; flags win over the config file."""
@@ -89,12 +92,27 @@ async def serve(settings: BrokerSettings) -> None:
         print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)
         freeze_after_start()
         await stop.wait()
-    if broker.abandoned:
-        # amqtt's own tasks could hold up the loop's shutdown as they held up the broker's; end
-        # the process now (its sockets close with it): a supervisor is waiting to restart it.
+    # amqtt's own tasks can outlive its shutdown, and asyncio.run would wait for them for good
+    # (in the network soak a broker that had logged "broker stopped" was still running 15 s
+    # after SIGTERM, its connections still open). Cancelled, they get LEFTOVERS_S; then the
+    # process ends anyway (its sockets close with it): a supervisor is waiting to restart it.
+    others = asyncio.all_tasks() - {asyncio.current_task()}
+    if broker.abandoned or not await _leftovers_ended(others, LEFTOVERS_S):
         logging.shutdown()
         sys.stdout.flush()
         os._exit(0)
+
+
+async def _leftovers_ended(others: set[asyncio.Task[object]], within_s: float) -> bool:
+    """Cancel `others`; whether they all ended within `within_s`."""
+    for task in others:
+        task.cancel()
+    if not others:
+        return True
+    _, pending = await asyncio.wait(others, timeout=within_s)
+    if pending:
+        log.warning("%d of the broker's tasks outlived its shutdown; ending anyway", len(pending))
+    return not pending
 
 
 def run(args: argparse.Namespace) -> int:

@@ -41,6 +41,7 @@ class Site:
 
     central: str
     hall: str
+    lan: Lan
     hall_host: Host
     accounts: Accounts
     accounts_file: Path
@@ -63,6 +64,8 @@ def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
                     passwd, acl, host=test_lan.address, port=port, ws_port=None
                 ),
                 host=test_lan.address,
+                on=test_lan.command([]),
+                inside=test_lan.call,
             )
         )
         hall_passwd, hall_acl = write_files(accounts, topics, hall_dir)
@@ -78,11 +81,13 @@ def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
                 ),
                 host=hall.address,
                 on=hall.command([]),
+                inside=test_lan.call,
             )
         )
         yield Site(
             f"mqtt://{test_lan.address}:{central_port}",
             f"mqtt://{hall.address}:{hall_port}",
+            test_lan,
             hall,
             accounts,
             accounts_file,
@@ -117,13 +122,14 @@ def test_the_playfield_finishes_across_a_bridge_and_a_bridge_cut_loses_nothing(
             tails = "\n".join(f"--- {n}\n{p.read_text()[-3000:]}" for n, p in logs.items())
             return f"{what}\n{tails}"
 
-        probe = stack.enter_context(MqttProbe(login(site.central, site.accounts, "operator")))
+        probe = site.lan.call(MqttProbe(login(site.central, site.accounts, "operator")).connect)
+        stack.callback(probe.close)
         operator = OperatorPeer(probe, topics)
         probe.subscribe(topics.fleet("events"), qos=1)
         start(
             "coordinator",
-            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"),
-             "--broker", site.central, *common, "--db", str(tmp_path / "jobs.db")],
+            site.lan.command([*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"),
+             "--broker", site.central, *common, "--db", str(tmp_path / "jobs.db")]),
         )  # fmt: skip
         start(
             "robots",
@@ -171,43 +177,44 @@ def test_the_playfield_finishes_across_a_bridge_and_a_bridge_cut_loses_nothing(
         operator.engage("stop during the bridge cut")
         site.hall_host.heal()
 
-        with MqttProbe(login(site.hall, site.accounts, "operator")) as hall_probe:
-            hall_probe.subscribe(topics.fleet("estop"), qos=1)
-            hall_probe.subscribe(topics.all_units("state"), qos=0)
-            try:
-                # The latch crossed to the hall: retained there, and every unit stopped by it.
-                wait_for(
-                    lambda: (
-                        (m := hall_probe.received(topics.fleet("estop")))
-                        and decode_estop(m[-1].payload).engaged
-                    ),
-                    60,
-                    what="the engaged latch on the hall's broker",
-                )
-                wait_for(
-                    lambda: all(
-                        (s := operator.last_state(u)) is not None and s.status == "stopped"
-                        for u in UNITS
-                    ),
-                    60,
-                    what="every unit stopped, as the central broker hears it",
-                )
-            except Exception as exc:
-                raise AssertionError(fail(str(exc))) from exc
-            stopped_at = {u: operator.last_state(u) for u in UNITS}
-            operator.release("bridge healed")
-            try:
-                wait_for(
-                    lambda: (
-                        (m := hall_probe.received(topics.fleet("estop")))
-                        and not decode_estop(m[-1].payload).engaged
-                    ),
-                    30,
-                    what="the release on the hall's broker",
-                )
-                wait_for(lambda: operator.all_final(jobs), 120, what="every job over")
-            except Exception as exc:
-                raise AssertionError(fail(str(exc))) from exc
+        hall_probe = site.lan.call(MqttProbe(login(site.hall, site.accounts, "operator")).connect)
+        stack.callback(hall_probe.close)
+        hall_probe.subscribe(topics.fleet("estop"), qos=1)
+        hall_probe.subscribe(topics.all_units("state"), qos=0)
+        try:
+            # The latch crossed to the hall: retained there, and every unit stopped by it.
+            wait_for(
+                lambda: (
+                    (m := hall_probe.received(topics.fleet("estop")))
+                    and decode_estop(m[-1].payload).engaged
+                ),
+                60,
+                what="the engaged latch on the hall's broker",
+            )
+            wait_for(
+                lambda: all(
+                    (s := operator.last_state(u)) is not None and s.status == "stopped"
+                    for u in UNITS
+                ),
+                60,
+                what="every unit stopped, as the central broker hears it",
+            )
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
+        stopped_at = {u: operator.last_state(u) for u in UNITS}
+        operator.release("bridge healed")
+        try:
+            wait_for(
+                lambda: (
+                    (m := hall_probe.received(topics.fleet("estop")))
+                    and not decode_estop(m[-1].payload).engaged
+                ),
+                30,
+                what="the release on the hall's broker",
+            )
+            wait_for(lambda: operator.all_final(jobs), 120, what="every job over")
+        except Exception as exc:
+            raise AssertionError(fail(str(exc))) from exc
         assert [operator.job_state(j) for j in jobs] == ["done"] * len(jobs)
         # Stopped units stayed where the stop found them until the release.
         for unit, state in stopped_at.items():

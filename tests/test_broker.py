@@ -17,6 +17,7 @@ import paho.mqtt.client as mqtt
 import pytest
 import websockets
 
+from gridfleet.broker import cli as broker_cli
 from gridfleet.broker import embedded
 from gridfleet.broker.embedded import BrokerSettings, load_settings
 from gridfleet.errors import ConfigError
@@ -359,3 +360,26 @@ def test_subscribing_and_unsubscribing_change_where_an_already_routed_topic_goes
     late.wait(marker)
     assert [m.payload for m in early.received(topic)] == [b"1", b"2"]
     assert [m.payload for m in late.received(topic)] == [b"2", b"3"]
+
+
+async def test_the_broker_process_ends_even_when_a_task_ignores_its_cancel() -> None:
+    # In the network soak a broker that had logged "broker stopped" still ran 15 s after SIGTERM
+    # (asyncio.run waits for every task it cancels; a reader can lose its cancel, see above):
+    # `gridfleet broker` gives the leftovers a bound, then ends the process anyway.
+    release = asyncio.Event()
+
+    async def deaf_to_cancel() -> None:
+        while not release.is_set():
+            with contextlib.suppress(asyncio.CancelledError):
+                await release.wait()
+
+    deaf = asyncio.create_task(deaf_to_cancel())
+    polite = asyncio.create_task(asyncio.Event().wait())
+    await asyncio.sleep(0)  # both running
+    try:
+        assert not await asyncio.wait_for(broker_cli._leftovers_ended({deaf, polite}, 0.2), 5)
+        assert polite.cancelled()
+    finally:
+        release.set()
+        await deaf
+    assert await broker_cli._leftovers_ended({deaf, polite}, 0.2)  # all ended: the loop may close

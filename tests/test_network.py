@@ -62,13 +62,14 @@ capacity = 1.0
 class Processes:
     """Components started for a test, each logging to a file, all stopped at its end."""
 
-    def __init__(self, logs: Path) -> None:
+    def __init__(self, logs: Path, lan: Lan) -> None:
         self.logs = logs
+        self.lan = lan
         self.running: dict[str, subprocess.Popen[bytes]] = {}
 
     def start(self, name: str, argv: list[str], host: Host | None = None) -> None:
-        """Run `argv` (on `host`, else on this machine), its output into `<name>.log`."""
-        command = argv if host is None else host.command(argv)
+        """Run `argv` on `host` (else on the broker's), its output into `<name>.log`."""
+        command = (host or self.lan.here).command(argv)
         with (self.logs / f"{name}.log").open("ab") as log:
             self.running[name] = subprocess.Popen(
                 command, stdout=log, stderr=subprocess.STDOUT, cwd=REPO
@@ -128,6 +129,8 @@ def lan_broker(
                 tls_key=key,
             ),
             host=test_lan.address,
+            on=test_lan.command([]),
+            inside=test_lan.call,
         ) as port:  # fmt: skip
             yield trusted(f"{'mqtts' if cert else 'mqtt'}://{test_lan.address}:{port}")
         return
@@ -141,7 +144,7 @@ def lan_broker(
         tls_key=key,
     )
     broker = BrokerThread(settings)
-    broker.start()
+    test_lan.call(broker.start)  # its event loop's thread, and so its sockets, on the LAN
     try:
         yield trusted(broker.url)
     finally:
@@ -168,10 +171,11 @@ def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_pla
     write_accounts(accounts, accounts_file)
     common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
     robot = test_lan.host("unit1")
-    processes = Processes(tmp_path)
+    processes = Processes(tmp_path, test_lan)
     with ExitStack() as stack:
         stack.callback(processes.stop)
-        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
+        stack.callback(probe.close)
         operator = OperatorPeer(probe, topics)
         probe.subscribe(topics.fleet("events"), qos=1)
         processes.start(
@@ -228,9 +232,10 @@ def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_pla
         except Exception as exc:
             raise AssertionError(fail(str(exc))) from exc
         broken_after = time.monotonic() - cut_at
-        # The will, sent by the broker's keep-alive (1.5 x 10 s), and not much later; never sooner
-        # than a keep-alive (it is the broker's, not a client's, doing).
-        assert KEEP_ALIVE_S <= broken_after <= BROKEN_WITHIN_S + 5, broken_after
+        # The will, sent by the broker's keep-alive (1.5 x 10 s), and not much later (Mosquitto
+        # looks at keep-alives every few seconds: 20.9 s seen in CI); never sooner than a
+        # keep-alive (it is the broker's, not a client's, doing).
+        assert KEEP_ALIVE_S <= broken_after <= BROKEN_WITHIN_S + 10, broken_after
         events = [m.payload.decode() for m in probe.received(topics.fleet("events"))]
         assert any("unit unit1 lost" in e for e in events), events
         # §8: the item is on board, so the job waits for the unit, nobody else can finish it;
@@ -299,10 +304,11 @@ def test_a_press_on_a_device_whose_link_stalls_arrives_once_when_it_returns(
     common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
     press, link = topics.device("device_stop", "device-unit1"), "device-unit1"
     panel = test_lan.host("panel")
-    processes = Processes(tmp_path)
+    processes = Processes(tmp_path, test_lan)
     with ExitStack() as stack:
         stack.callback(processes.stop)
-        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
+        stack.callback(probe.close)
         probe.subscribe(press, qos=1)
         probe.subscribe(topics.device("device_connection", link), qos=1)
         probe.subscribe(topics.fleet("estop"), qos=1)
@@ -365,11 +371,12 @@ def test_a_coordinator_cut_off_from_the_broker_holds_every_unit_until_it_is_back
     write_accounts(accounts, accounts_file)
     common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
     office = test_lan.host("coord")
-    processes = Processes(tmp_path)
+    processes = Processes(tmp_path, test_lan)
     units = ("unit1", "unit2")
     with ExitStack() as stack:
         stack.callback(processes.stop)
-        probe = stack.enter_context(MqttProbe(login(lan_broker, accounts, "operator")))
+        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
+        stack.callback(probe.close)
         operator = OperatorPeer(probe, topics)
         processes.start(
             "coordinator",

@@ -37,9 +37,11 @@ def running_mosquitto(
     port: int | None = None,
     host: str = "127.0.0.1",
     on: Sequence[str] = (),
+    inside: Callable[[Callable[[], bool]], bool] = lambda look: look(),
 ) -> Iterator[int]:
     """Mosquitto with the config `conf(port)` written into `directory` (on `port`, else a free
-    one), listening on `host`, run by the command `on` (default: here); yields its port."""
+    one), listening on `host`, run by the command `on` (default: here); yields its port.
+    `inside` runs the look at its port where `host` is reached (a test LAN's `call`)."""
     if not Path(MOSQUITTO).exists():
         pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
     port = port or free_port()
@@ -50,10 +52,13 @@ def running_mosquitto(
     log = directory / "mosquitto.log"
     proc = _popen(path, log, on)
 
-    def listening() -> bool:
-        assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
+    def connects() -> bool:
         with socket.socket() as probe:
             return probe.connect_ex((host, port)) == 0
+
+    def listening() -> bool:
+        assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
+        return inside(connects)
 
     try:
         wait_for(listening, 10, what="mosquitto listening")
