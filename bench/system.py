@@ -98,13 +98,16 @@ class WorldCounts:
     moves: int
     collisions: int
     prevented: int
+    at: float  # wall time (time.time()) the counts are of
 
 
 def _thread_counts(fleet: ServiceThread[Fleet]) -> Counts:
     """Read from the units' thread (the bench in one process)."""
     world = world_of(fleet)
     return lambda: fleet.call(
-        lambda: WorldCounts(sum(world.moves.values()), world.collisions, world.prevented)
+        lambda: WorldCounts(
+            sum(world.moves.values()), world.collisions, world.prevented, time.time()
+        )
     )
 
 
@@ -118,10 +121,19 @@ def _truth_counts(path: Path) -> Counts:
         for line in reversed(lines):
             with contextlib.suppress(ValueError):
                 d = json.loads(line)
-                return WorldCounts(d["moves"], d["collisions"], d["prevented"])
+                return WorldCounts(d["moves"], d["collisions"], d["prevented"], d["t"])
         raise RuntimeError(f"{path}: no ground truth written yet")
 
     return read
+
+
+async def _counts_since(counts: Counts, since: float, step_s: float) -> WorldCounts:
+    """The first counts of `since` or later (waiting for the truth to catch up, STOP_WAIT_S at
+    most: then the latest)."""
+    deadline = time.monotonic() + STOP_WAIT_S
+    while (now := counts()).at < since and time.monotonic() < deadline:
+        await asyncio.sleep(step_s / 2)  # polling the truth file, with a deadline
+    return now
 
 
 async def _stop_trials(
@@ -147,11 +159,13 @@ async def _stop_trials(
         seen_ms.append(round((max(s.seen for s in shown) - t0) * 1000, 2))
         last = max(s.stamped for s in shown)
         applied_ms.append(round((last - wall).total_seconds() * 1000, 2))
-        # pacing: a truth file is written once a step, so one step more before it is read
-        await asyncio.sleep(step_s)
-        before = counts().moves
+        # Counts of after every unit showed the stop: a truth file is written once a step by a
+        # process the machine may keep waiting (a CI run counted moves made before the stop,
+        # read from a line written late).
+        before = await _counts_since(counts, time.time(), step_s)
         await asyncio.sleep(3 * step_s)  # pacing: give a stopped unit three steps to misbehave
-        moved += counts().moves - before
+        after = await _counts_since(counts, time.time(), step_s)
+        moved += after.moves - before.moves
         monitor.expect(False)
         await operator.set_estop(False, "system bench")
         with contextlib.suppress(TimeoutError):

@@ -16,6 +16,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
@@ -158,167 +159,183 @@ def truth_lines(path: Path) -> list[dict[str, object]]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-@pytest.mark.parametrize("lan_broker", ["plain", "tls"], indirect=True)
-def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_place(
-    test_lan: Lan,
-    lan_broker: str,
-    accounts: Accounts,
-    topics: Topics,
-    tmp_path: Path,
-) -> None:
-    scenario, accounts_file = tmp_path / "lan.toml", tmp_path / "accounts.toml"
-    scenario.write_text(SCENARIO)
+@dataclass
+class LanRun:
+    """What every test here starts from: the components' flags (broker, accounts, root), their
+    processes, and an operator listening on the broker's host."""
+
+    lan: Lan
+    tmp: Path
+    common: list[str]
+    processes: Processes
+    probe: MqttProbe
+    operator: OperatorPeer
+
+    def coordinator(self, host: Host | None = None) -> None:
+        """The coordinator on `host` (else the broker's), on the playfield's map."""
+        self.processes.start(
+            "coordinator",
+            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"),
+             *self.common, "--step", str(STEP_S), "--db", str(self.tmp / "jobs.db")],
+            host=host,
+        )  # fmt: skip
+
+    def robots(self, name: str, units: str | None = None, host: Host | None = None) -> None:
+        """SCENARIO's units (or only `units`) on `host`, their truth in `<name>.truth`."""
+        scenario = self.tmp / "lan.toml"
+        scenario.write_text(SCENARIO)
+        only = [] if units is None else ["--units", units]
+        self.processes.start(
+            name,
+            [*GRIDFLEET, "robots", "--scenario", str(scenario), *only, *self.common,
+             "--step", str(STEP_S), "--truth", str(self.tmp / f"{name}.truth")],
+            host=host,
+        )  # fmt: skip
+
+    def collisions(self, name: str) -> int:
+        """What the world of robots `name` counted at its last truth line."""
+        lines = truth_lines(self.tmp / f"{name}.truth")
+        assert lines, self.processes.tails()
+        return int(str(lines[-1]["collisions"]))
+
+
+@pytest.fixture
+def lan_run(
+    test_lan: Lan, lan_broker: str, accounts: Accounts, topics: Topics, tmp_path: Path
+) -> Iterator[LanRun]:
+    """A LanRun on the test's LAN and broker; every process stopped at the end."""
+    accounts_file = tmp_path / "accounts.toml"
     write_accounts(accounts, accounts_file)
     common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
-    robot = test_lan.host("unit1")
     processes = Processes(tmp_path, test_lan)
-    with ExitStack() as stack:
-        stack.callback(processes.stop)
-        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
-        stack.callback(probe.close)
-        operator = OperatorPeer(probe, topics)
-        probe.subscribe(topics.fleet("events"), qos=1)
-        processes.start(
-            "coordinator",
-            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
-             "--step", str(STEP_S), "--db", str(tmp_path / "jobs.db")],
-        )  # fmt: skip
-        for unit, host in (("unit1", robot), ("unit2", None)):
-            processes.start(
-                unit,
-                [*GRIDFLEET, "robots", "--scenario", str(scenario), "--units", unit, *common,
-                 "--step", str(STEP_S), "--truth", str(tmp_path / f"{unit}.truth")],
-                host=host,
-            )  # fmt: skip
+    probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
+    try:
+        yield LanRun(test_lan, tmp_path, common, processes, probe, OperatorPeer(probe, topics))
+    finally:
+        processes.stop()
+        probe.close()
 
-        def fail(what: str) -> str:
-            heard = {u: operator.connections(u) for u in ("unit1", "unit2")}
-            return (
-                f"{what}\nconnections {heard}; topics {sorted(probe.messages)}\n{processes.tails()}"
-            )
 
-        try:
-            wait_for(
-                lambda: all(operator.connections(u)[-1:] == ["online"] for u in ("unit1", "unit2")),
-                30,
-                what="both units online",
-            )
-            wait_for(operator.coordinator_status, 30, what="the coordinator")
-            # 2 kg: unit2 (1 kg) cannot take it, so the job is unit1's and waits for it.
-            reply = operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0)
-            assert reply.accepted, reply
-            job = reply.job_id
-            assert job is not None
-            wait_for(
-                lambda: (s := operator.last_state("unit1")) is not None and s.load_kg > 0,
-                30,
-                what="unit1 carrying the item",
-            )
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
+@pytest.mark.parametrize("lan_broker", ["plain", "tls"], indirect=True)
+def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_place(
+    lan_run: LanRun, topics: Topics
+) -> None:
+    probe, operator, processes = lan_run.probe, lan_run.operator, lan_run.processes
+    robot = lan_run.lan.host("unit1")
+    probe.subscribe(topics.fleet("events"), qos=1)
+    lan_run.coordinator()
+    lan_run.robots("unit1", "unit1", host=robot)
+    lan_run.robots("unit2", "unit2")
 
-        # The unit's host falls off the LAN without a word.
-        robot.cut()
-        cut_at = time.monotonic()
-        views_at_cut = len(operator.job_views())
-        before = operator.last_state("unit1")
-        assert before is not None
-        try:
-            wait_for(
-                lambda: operator.connections("unit1")[-1:] == ["broken"],
-                BROKEN_WITHIN_S + 30,
-                what="unit1 broken",
-            )
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
-        broken_after = time.monotonic() - cut_at
-        # The will, sent by the broker's keep-alive (1.5 x 10 s), and not much later (Mosquitto
-        # looks at keep-alives every few seconds: 20.9 s seen in CI); never sooner than a
-        # keep-alive (it is the broker's, not a client's, doing).
-        assert KEEP_ALIVE_S <= broken_after <= BROKEN_WITHIN_S + 10, broken_after
-        events = [m.payload.decode() for m in probe.received(topics.fleet("events"))]
-        assert any("unit unit1 lost" in e for e in events), events
-        # §8: the item is on board, so the job waits for the unit, nobody else can finish it;
-        # gone for 20 loss timeouts (at least 10 s), it fails.
-        try:
-            wait_for(lambda: operator.job_state(job) == "failed", 60, what=f"{job} failed")
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
-        view = operator.listed_jobs()[job]
-        assert view.unit == "unit1", view
-        assert "carrying the item" in (view.reason or ""), view
-        since_cut = operator.job_views()[views_at_cut:]
-        shown = [j.state for v in since_cut for j in v.listed() if j.id == job]
-        assert "queued" not in shown, shown  # never put back in the queue for another
-        left_at = before.position
+    def fail(what: str) -> str:
+        heard = {u: operator.connections(u) for u in ("unit1", "unit2")}
+        return f"{what}\nconnections {heard}; topics {sorted(probe.messages)}\n{processes.tails()}"
 
-        # Plugged in again: it comes back by itself where it stood, and puts the item of the
-        # failed job down at its pickup (§8, stray items).
-        robot.heal()
-        try:
-            wait_for(
-                lambda: operator.connections("unit1")[-1:] == ["online"],
-                60,
-                what="unit1 online again",
-            )
-            wait_for(
-                lambda: (
-                    (s := operator.last_state("unit1")) is not None
-                    and s.load_kg == 0
-                    and s.position == Cell(1, 0)
-                ),
-                60,
-                what="the item put down at the pickup",
-            )
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
-        back = [s for s in operator.states("unit1") if s.step > before.step]
-        assert back, "no state after the cut"
-        # No teleport: within the squares it had been released, which it may have driven unheard.
-        first_back = back[0].position
-        assert abs(first_back.x - left_at.x) + abs(first_back.y - left_at.y) <= 2, (
-            left_at,
-            first_back,
+    try:
+        wait_for(
+            lambda: all(operator.connections(u)[-1:] == ["online"] for u in ("unit1", "unit2")),
+            30,
+            what="both units online",
         )
-        assert operator.listed_jobs()[job].state == "failed"  # never done twice, nor by another
+        wait_for(operator.coordinator_status, 30, what="the coordinator")
+        # 2 kg: unit2 (1 kg) cannot take it, so the job is unit1's and waits for it.
+        reply = operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0)
+        assert reply.accepted, reply
+        job = reply.job_id
+        assert job is not None
+        wait_for(
+            lambda: (s := operator.last_state("unit1")) is not None and s.load_kg > 0,
+            30,
+            what="unit1 carrying the item",
+        )
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
 
-    for unit in ("unit1", "unit2"):
-        lines = truth_lines(tmp_path / f"{unit}.truth")
-        assert lines, processes.tails()
-        assert lines[-1]["collisions"] == 0, (unit, lines[-1])
+    # The unit's host falls off the LAN without a word.
+    robot.cut()
+    cut_at = time.monotonic()
+    views_at_cut = len(operator.job_views())
+    before = operator.last_state("unit1")
+    assert before is not None
+    try:
+        wait_for(
+            lambda: operator.connections("unit1")[-1:] == ["broken"],
+            BROKEN_WITHIN_S + 30,
+            what="unit1 broken",
+        )
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
+    broken_after = time.monotonic() - cut_at
+    # The will, sent by the broker's keep-alive (1.5 x 10 s), and not much later (Mosquitto
+    # looks at keep-alives every few seconds: 20.9 s seen in CI); never sooner than a
+    # keep-alive (it is the broker's, not a client's, doing).
+    assert KEEP_ALIVE_S <= broken_after <= BROKEN_WITHIN_S + 10, broken_after
+    events = [m.payload.decode() for m in probe.received(topics.fleet("events"))]
+    assert any("unit unit1 lost" in e for e in events), events
+    # §8: the item is on board, so the job waits for the unit, nobody else can finish it;
+    # gone for 20 loss timeouts (at least 10 s), it fails.
+    try:
+        wait_for(lambda: operator.job_state(job) == "failed", 60, what=f"{job} failed")
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
+    view = operator.listed_jobs()[job]
+    assert view.unit == "unit1", view
+    assert "carrying the item" in (view.reason or ""), view
+    since_cut = operator.job_views()[views_at_cut:]
+    shown = [j.state for v in since_cut for j in v.listed() if j.id == job]
+    assert "queued" not in shown, shown  # never put back in the queue for another
+    left_at = before.position
+
+    # Plugged in again: it comes back by itself where it stood, and puts the item of the
+    # failed job down at its pickup (§8, stray items).
+    robot.heal()
+    try:
+        wait_for(
+            lambda: operator.connections("unit1")[-1:] == ["online"],
+            60,
+            what="unit1 online again",
+        )
+        wait_for(
+            lambda: (
+                (s := operator.last_state("unit1")) is not None
+                and s.load_kg == 0
+                and s.position == Cell(1, 0)
+            ),
+            60,
+            what="the item put down at the pickup",
+        )
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
+    back = [s for s in operator.states("unit1") if s.step > before.step]
+    assert back, "no state after the cut"
+    # No teleport: within the squares it had been released, which it may have driven unheard.
+    first_back = back[0].position
+    assert abs(first_back.x - left_at.x) + abs(first_back.y - left_at.y) <= 2, (
+        left_at,
+        first_back,
+    )
+    assert operator.listed_jobs()[job].state == "failed"  # never done twice, nor by another
+
+    processes.stop()  # each world's last truth line is written on the way out
+    assert [lan_run.collisions(unit) for unit in ("unit1", "unit2")] == [0, 0]
 
 
 # A short Wi-Fi hang the session outlives, and one longer than the broker's keep-alive: the
 # device's session ends, and the press must come over the next one, once.
 @pytest.mark.parametrize("stall_s", [8.0, BROKEN_WITHIN_S + 5], ids=["short", "past-keep-alive"])
 def test_a_press_on_a_device_whose_link_stalls_arrives_once_when_it_returns(
-    stall_s: float,
-    test_lan: Lan,
-    lan_broker: str,
-    accounts: Accounts,
-    topics: Topics,
-    tmp_path: Path,
+    stall_s: float, lan_run: LanRun, topics: Topics
 ) -> None:
-    accounts_file = tmp_path / "accounts.toml"
-    write_accounts(accounts, accounts_file)
-    common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
+    probe = lan_run.probe
     press, link = topics.device("device_stop", "device-unit1"), "device-unit1"
-    panel = test_lan.host("panel")
-    processes = Processes(tmp_path, test_lan)
+    panel = lan_run.lan.host("panel")
     with ExitStack() as stack:
-        stack.callback(processes.stop)
-        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
-        stack.callback(probe.close)
         probe.subscribe(press, qos=1)
         probe.subscribe(topics.device("device_connection", link), qos=1)
         probe.subscribe(topics.fleet("estop"), qos=1)
-        processes.start(
-            "coordinator",
-            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
-             "--db", str(tmp_path / "jobs.db")],
-        )  # fmt: skip
+        lan_run.coordinator()
         device = subprocess.Popen(
-            panel.command([*GRIDFLEET, "device", "--unit", "unit1", *common]),
+            panel.command([*GRIDFLEET, "device", "--unit", "unit1", *lan_run.common]),
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, cwd=REPO,
             text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"},
         )  # fmt: skip
@@ -360,99 +377,76 @@ def test_a_press_on_a_device_whose_link_stalls_arrives_once_when_it_returns(
 
 
 def test_a_coordinator_cut_off_from_the_broker_holds_every_unit_until_it_is_back(
-    test_lan: Lan,
-    lan_broker: str,
-    accounts: Accounts,
-    topics: Topics,
-    tmp_path: Path,
+    lan_run: LanRun,
 ) -> None:
-    scenario, accounts_file = tmp_path / "lan.toml", tmp_path / "accounts.toml"
-    scenario.write_text(SCENARIO)
-    write_accounts(accounts, accounts_file)
-    common = ["--broker", lan_broker, "--accounts", str(accounts_file), "--root", topics.root]
-    office = test_lan.host("coord")
-    processes = Processes(tmp_path, test_lan)
+    operator, processes = lan_run.operator, lan_run.processes
+    office = lan_run.lan.host("coord")
     units = ("unit1", "unit2")
-    with ExitStack() as stack:
-        stack.callback(processes.stop)
-        probe = test_lan.call(MqttProbe(login(lan_broker, accounts, "operator")).connect)
-        stack.callback(probe.close)
-        operator = OperatorPeer(probe, topics)
-        processes.start(
-            "coordinator",
-            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"), *common,
-             "--step", str(STEP_S), "--db", str(tmp_path / "jobs.db")],
-            host=office,
-        )  # fmt: skip
-        processes.start(
-            "robots",
-            [*GRIDFLEET, "robots", "--scenario", str(scenario), *common, "--step", str(STEP_S),
-             "--truth", str(tmp_path / "robots.truth")],
-        )  # fmt: skip
+    lan_run.coordinator(host=office)
+    lan_run.robots("robots")
 
-        def fail(what: str) -> str:
-            return f"{what}\n{processes.tails()}"
+    def fail(what: str) -> str:
+        return f"{what}\n{processes.tails()}"
 
-        def status() -> str | None:
-            now = operator.coordinator_status()
-            return None if now is None else now.state
+    def status() -> str | None:
+        now = operator.coordinator_status()
+        return None if now is None else now.state
 
-        try:
-            wait_for(
-                lambda: all(operator.connections(u)[-1:] == ["online"] for u in units),
-                30,
-                what="both units online",
-            )
-            wait_for(lambda: status() == "online", 30, what="the coordinator online")
-            # A long job for each (unit2 carries 1 kg at most).
-            replies = [
-                operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0),
-                operator.submit_job(Cell(8, 0), Cell(0, 9), 1.0),
-            ]
-            jobs = [r.job_id for r in replies if r.job_id is not None]
-            assert len(jobs) == 2, replies
-            wait_for(
-                lambda: all(
-                    (s := operator.last_state(u)) is not None and s.status == "moving"
-                    for u in units
-                ),
-                30,
-                what="both units moving",
-            )
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
+    try:
+        wait_for(
+            lambda: all(operator.connections(u)[-1:] == ["online"] for u in units),
+            30,
+            what="both units online",
+        )
+        wait_for(lambda: status() == "online", 30, what="the coordinator online")
+        # A long job for each (unit2 carries 1 kg at most).
+        replies = [
+            operator.submit_job(Cell(1, 0), Cell(9, 9), 2.0),
+            operator.submit_job(Cell(8, 0), Cell(0, 9), 1.0),
+        ]
+        jobs = [r.job_id for r in replies if r.job_id is not None]
+        assert len(jobs) == 2, replies
+        wait_for(
+            lambda: all(
+                (s := operator.last_state(u)) is not None and s.status == "moving" for u in units
+            ),
+            30,
+            what="both units moving",
+        )
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
 
-        # The coordinator's host falls off the LAN; the units still reach the broker.
-        office.cut()
-        try:
-            # §8: without orders for 3 steps a unit holds still (after the squares it was given).
-            wait_for(
-                lambda: all(
-                    (s := operator.last_state(u)) is not None
-                    and s.status == "holding"
-                    and "no order" in (s.wait_reason or "")
-                    for u in units
-                ),
-                15,
-                what="both units holding",
-            )
-            held = {u: operator.states(u)[-1] for u in units}
-            # Until the broker's keep-alive gives up on the coordinator and sends its will.
-            wait_for(lambda: status() == "broken", BROKEN_WITHIN_S + 30, what="coordinator broken")
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
-        for unit in units:
-            since = [s for s in operator.states(unit) if s.step >= held[unit].step]
-            assert {s.position for s in since} == {held[unit].position}, (unit, since)
+    # The coordinator's host falls off the LAN; the units still reach the broker.
+    office.cut()
+    try:
+        # §8: without orders for 3 steps a unit holds still (after the squares it was given).
+        wait_for(
+            lambda: all(
+                (s := operator.last_state(u)) is not None
+                and s.status == "holding"
+                and "no order" in (s.wait_reason or "")
+                for u in units
+            ),
+            15,
+            what="both units holding",
+        )
+        held = {u: operator.states(u)[-1] for u in units}
+        # Until the broker's keep-alive gives up on the coordinator and sends its will.
+        wait_for(lambda: status() == "broken", BROKEN_WITHIN_S + 30, what="coordinator broken")
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
+    for unit in units:
+        since = [s for s in operator.states(unit) if s.step >= held[unit].step]
+        assert {s.position for s in since} == {held[unit].position}, (unit, since)
 
-        # Back on the LAN: it reconnects by itself and the fleet finishes both jobs.
-        office.heal()
-        try:
-            wait_for(lambda: status() == "online", 60, what="the coordinator back")
-            wait_for(lambda: operator.all_final(jobs), 90, what="both jobs over")
-        except Exception as exc:
-            raise AssertionError(fail(str(exc))) from exc
-        assert [operator.job_state(j) for j in jobs] == ["done", "done"]
+    # Back on the LAN: it reconnects by itself and the fleet finishes both jobs.
+    office.heal()
+    try:
+        wait_for(lambda: status() == "online", 60, what="the coordinator back")
+        wait_for(lambda: operator.all_final(jobs), 90, what="both jobs over")
+    except Exception as exc:
+        raise AssertionError(fail(str(exc))) from exc
+    assert [operator.job_state(j) for j in jobs] == ["done", "done"]
 
-    lines = truth_lines(tmp_path / "robots.truth")
-    assert lines and lines[-1]["collisions"] == 0, processes.tails()
+    processes.stop()  # the world's last truth line is written on the way out
+    assert lan_run.collisions("robots") == 0
