@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import TypeVar
 
 T = TypeVar("T")
 
@@ -74,10 +74,6 @@ class Host:
     def command(self, argv: Sequence[str]) -> list[str]:
         """`argv` run on this host."""
         return ["ip", "netns", "exec", self.netns, *argv]
-
-    def popen(self, argv: Sequence[str], **kwargs: Any) -> subprocess.Popen[Any]:
-        """Start `argv` on this host."""
-        return subprocess.Popen(self.command(argv), **kwargs)
 
     def cut(self) -> None:
         """Unplug it at the bridge: nothing more arrives either way, and nobody is told."""
