@@ -171,6 +171,7 @@ class CoordinatorCore:
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         """React to one message; a bad one is reported on `errors` and changes nothing."""
+        self.world.heard(now)  # whatever it says, the coordinator can hear
         try:
             arrival = inbound.read(self.topics, topic, payload)
             if arrival is None:

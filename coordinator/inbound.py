@@ -67,6 +67,9 @@ def subscriptions(topics: Topics) -> list[tuple[str, int]]:
     out = [(topics.all_units(kind), TOPICS[kind].qos) for kind in _FROM_UNITS]
     out += stop_filters(topics)
     out.append((topics.all_requests, 1))
+    # Its own status comes back every few seconds: hearing nothing, not even that, the
+    # coordinator knows the silence is its own link's, not its units' (world.py, heard).
+    out.append((topics.fleet("coordinator"), TOPICS["coordinator"].qos))
     return out
 
 

@@ -110,8 +110,7 @@ class JobProgress:
                     # only late (a busy machine, a network hiccup) or restarted (it says goodbye
                     # and resumes with the item on board) carries on when it is heard again, so
                     # wait for it; give up once it has stayed away too long.
-                    away = 0.0 if rec.lost_since is None else now - rec.lost_since
-                    if away > self._give_up_after_s(rec):
+                    if self.world.away_s(rec, now) > self._give_up_after_s(rec):
                         self.jobs.set(
                             job,
                             "failed",

@@ -13,6 +13,9 @@ from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitStat
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (a move under way)
+# Nothing at all heard for longer than this (not even the coordinator's own status, which comes
+# back to it every few seconds, pace.py) is the coordinator's own link, not its units' silence.
+DEAF_AFTER_S = 10.0
 
 
 @dataclass
@@ -56,6 +59,7 @@ class World:
         self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
         self.silenced: list[tuple[str, float]] = []  # (unit, seconds silent): see roll_call
         self.heard_again: list[str] = []
+        self.heard_at: float | None = None  # when the coordinator last heard anything at all
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
 
@@ -94,6 +98,29 @@ class World:
             raise ProtocolError(f"{what} {list(c)} is on a wall")
         if c in self.obstacles:
             raise ProtocolError(f"{what} {list(c)} is on a known obstacle")
+
+    def heard(self, now: float) -> None:
+        """Something arrived; after a gap of DEAF_AFTER_S, the gap does not count as units' absence.
+
+        Cut off from the broker (a partition, a stalled link), the coordinator hears nobody and
+        cannot tell who is gone: the time a lost unit has been away resumes from where it was when
+        the coordinator stopped hearing, and a unit lost meanwhile counts from now.
+        """
+        last, self.heard_at = self.heard_at, now
+        if last is None or now - last <= DEAF_AFTER_S:
+            return
+        for rec in self.units.values():
+            if rec.lost_since is not None:
+                rec.lost_since = now if rec.lost_since > last else rec.lost_since + (now - last)
+
+    def away_s(self, rec: UnitRecord, now: float) -> float:
+        """How long `rec` has been lost, counted while the coordinator could hear (0: active)."""
+        if rec.lost_since is None:
+            return 0.0
+        # Until something more is heard, the time since the last message is not yet known to be
+        # the unit's absence rather than the coordinator's own deafness.
+        heard = now if self.heard_at is None else min(now, self.heard_at)
+        return max(0.0, heard - rec.lost_since)
 
     def on_connection(self, unit_id: str, msg: Connection) -> None:
         """A unit said it is online, offline or broken."""

@@ -349,6 +349,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         subscribe = [
             *(t.all_units(k) for k in ("connection", "factsheet", "state")),
             t.fleet("estop"),
+            t.fleet("coordinator"),  # its own status, heard back: it can hear (world.py)
             *presses,
             t.all_requests,
         ]

@@ -35,6 +35,7 @@ from support.coordinator_drive import (
     orders_in,
     reply_in,
     request,
+    step_hearing_itself,
 )
 from support.coordinator_fakes import ROOM_ROWS, Yard
 from support.effects import header
@@ -202,7 +203,7 @@ def test_a_carrying_unit_that_is_only_late_finishes_its_job() -> None:
     core, yard, now = _carrying_unit()
     for _ in range(30):  # 30 s of silence: lost for a while, but the item is on board
         now += 1.0
-        core.step(now)
+        step_hearing_itself(core, now)
     job = next(iter(core.jobs.jobs.values()))
     assert job.state == "to_dropoff" and job.unit == "u"
     assert _run_to_end(core, yard, now) == "done"
@@ -212,9 +213,38 @@ def test_a_carrying_unit_gone_for_good_fails_its_job_with_the_reason() -> None:
     core, _, now = _carrying_unit()
     for _ in range(200):
         now += 1.0
-        core.step(now)
+        step_hearing_itself(core, now)
     job = next(iter(core.jobs.jobs.values()))
     assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
+
+
+def test_a_coordinator_that_hears_nothing_takes_the_silence_for_its_own() -> None:
+    # Cut off from the broker, it hears nobody, not even its own status: however long that
+    # lasts, the unit's absence is not known, and the job whose item it carries does not fail.
+    core, yard, now = _carrying_unit()
+    job = next(iter(core.jobs.jobs.values()))
+    for _ in range(300):  # three times the failure timeout (20 x its 5 s loss timeout)
+        now += 1.0
+        core.step(now)
+    assert job.state == "to_dropoff" and job.unit == "u"
+    # Back on the network: the unit was only cut off with it, and finishes.
+    from_unit(core, "state", "u", yard.state("u"), now)
+    assert _run_to_end(core, yard, now) == "done"
+
+
+def test_after_its_own_silence_the_coordinator_counts_a_units_absence_from_when_it_hears() -> None:
+    core, _, now = _carrying_unit()
+    job = next(iter(core.jobs.jobs.values()))
+    for _ in range(60):  # deaf for a minute, then its own status comes back; the unit's does not
+        now += 1.0
+        core.step(now)
+    healed = now
+    while job.state == "to_dropoff":
+        now += 1.0
+        assert now < healed + 200, "never failed"
+        step_hearing_itself(core, now)
+    # 20 loss timeouts (100 s) of absence heard, not counting the minute it heard nothing.
+    assert job.state == "failed" and now - healed >= 100
 
 
 def test_a_carrying_unit_that_restarts_finishes_its_job() -> None:
@@ -235,7 +265,7 @@ def test_a_carrying_unit_offline_for_good_fails_its_job() -> None:
     from_unit(core, "connection", "u", Connection(header=header("u"), state="offline"), now)
     for _ in range(200):  # 20 times its 5 s loss timeout, not at once: it may come back with it
         now += 1.0
-        core.step(now)
+        step_hearing_itself(core, now)
     job = next(iter(core.jobs.jobs.values()))
     assert job.state == "failed" and "lost carrying the item" in (job.reason or "")
 
@@ -275,7 +305,7 @@ def test_a_unit_back_with_the_item_of_a_failed_job_puts_it_back_and_works_again(
     core, yard, now = _carrying_unit()
     for _ in range(200):  # gone long enough for its job to fail
         now += 1.0
-        core.step(now)
+        step_hearing_itself(core, now)
     failed = next(iter(core.jobs.jobs.values()))
     assert failed.state == "failed"
     unit = yard.units["u"]

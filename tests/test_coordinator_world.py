@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from gridfleet.coordinator.jobs import Job
-from gridfleet.coordinator.world import World
+from gridfleet.coordinator.world import DEAF_AFTER_S, World
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
 
@@ -97,3 +97,33 @@ def test_a_unit_cannot_claim_a_queued_job_it_was_never_given_or_cannot_carry() -
         core.step(1.0)
         job = core.jobs.jobs[job_id]
         assert job.unit != "u", (job_id, job.state)  # big may have it now, never u
+
+
+def test_a_gap_in_everything_heard_is_the_coordinators_own_not_its_units() -> None:
+    world = World(GridMap.from_rows(ROWS), step_period_s=0.1)  # loss timeout 0.5 s
+    here = state(Cell(0, 0), {}, [])
+    world.on_state("gone", here, 0.0)
+    world.on_state("late", state(Cell(3, 0), {}, []), 0.0)
+    world.heard(0.0)
+    world.roll_call(1.0)  # both lost at 1 s
+    world.heard(4.0)  # something else heard: 3 s of absence so far
+    assert world.away_s(world.units["gone"], 4.0) == 3.0
+    # Nothing heard from 4 s to 30 s: not counted, however long it lasted.
+    assert world.away_s(world.units["gone"], 30.0) == 3.0
+    world.heard(30.0)
+    assert world.away_s(world.units["gone"], 31.0) == 3.0
+    world.heard(32.0)
+    assert world.away_s(world.units["gone"], 32.0) == 5.0
+    # A gap up to DEAF_AFTER_S is only a quiet fleet: it counts.
+    world.heard(32.0 + DEAF_AFTER_S)
+    assert world.away_s(world.units["gone"], 32.0 + DEAF_AFTER_S) == 5.0 + DEAF_AFTER_S
+
+
+def test_a_unit_lost_while_the_coordinator_heard_nothing_counts_from_when_it_hears() -> None:
+    world = World(GridMap.from_rows(ROWS), step_period_s=0.1)
+    world.on_state("u", state(Cell(0, 0), {}, []), 0.0)
+    world.heard(0.0)
+    world.roll_call(20.0)  # its own link down since 0 s: the unit is lost, as far as it knows
+    world.heard(40.0)
+    assert world.units["u"].lost_since == 40.0
+    assert world.away_s(world.units["u"], 40.0) == 0.0

@@ -46,7 +46,7 @@ STEP_S = 0.1
 KEEP_ALIVE_S = 10  # gridfleet's clients (gridfleet/bus.py)
 # protocol.md §4.1: the broker ends a session silent for 1.5 keep-alives and sends its will.
 BROKEN_WITHIN_S = 1.5 * KEEP_ALIVE_S
-PARTITION_S = 6.0  # the coordinator's host cut off this long: past every unit's hold timeout
+PARTITION_S = 15.0  # the coordinator's host cut off at least this long: past §8's 10 s failure
 SCENARIO = f"""
 name = "lan"
 map = "{REPO / "maps" / "playfield.map"}"
@@ -407,18 +407,18 @@ def test_a_coordinator_cut_off_from_the_broker_holds_every_unit_until_it_is_back
         ]
         jobs = [r.job_id for r in replies if r.job_id is not None]
         assert len(jobs) == 2, replies
+        # Both items on board: only these units can finish these jobs (§8).
         wait_for(
-            lambda: all(
-                (s := operator.last_state(u)) is not None and s.status == "moving" for u in units
-            ),
-            30,
-            what="both units moving",
+            lambda: all((s := operator.last_state(u)) is not None and s.load_kg > 0 for u in units),
+            60,
+            what="both units carrying their items",
         )
     except Exception as exc:
         raise AssertionError(fail(str(exc))) from exc
 
     # The coordinator's host falls off the LAN; the units still reach the broker.
     office.cut()
+    cut_at = time.monotonic()
     try:
         # §8: without orders for 3 steps a unit holds still (after the squares it was given).
         wait_for(
@@ -432,10 +432,14 @@ def test_a_coordinator_cut_off_from_the_broker_holds_every_unit_until_it_is_back
             what="both units holding",
         )
         held = {u: operator.states(u)[-1] for u in units}
-        # Cut off for a while, shorter than a carried job's failure timeout (20 loss timeouts,
-        # 10 s): a coordinator cut off for longer fails the jobs whose units it stopped hearing,
-        # its own silence taken for theirs (seen on Mosquitto; the next session's to mend).
-        until = time.monotonic() + PARTITION_S
+        # Cut off while an item was on board (a unit that had already delivered would leave its
+        # job nothing to fail by).
+        assert any(held[u].load_kg > 0 for u in units), held
+        # Cut off until the broker gives up on it (its will), and past a carried job's failure
+        # timeout (20 loss timeouts, 10 s): hearing nobody, not even its own status, the
+        # coordinator takes the silence for its own, not its units' (protocol.md §8).
+        until = cut_at + PARTITION_S
+        wait_for(lambda: status() == "broken", 40, what="the coordinator's will")
         wait_for(lambda: time.monotonic() > until, PARTITION_S + 1, what="the partition's end")
     except Exception as exc:
         raise AssertionError(fail(str(exc))) from exc

@@ -72,6 +72,16 @@ def meet(core: CoordinatorCore, state: UnitState, capacity_kg: float, step_s: fl
     from_unit(core, "state", unit_id, state, 0.0)
 
 
+def step_hearing_itself(core: CoordinatorCore, now: float) -> Effects:
+    """One step whose own status comes back to the core, as the broker sends it (its link works)."""
+    effects = core.step(now)
+    own = TOPICS.fleet("coordinator")
+    for out in effects.publish:
+        if out.topic == own:
+            core.on_message(out.topic, out.payload, now)
+    return effects
+
+
 def orders_in(effects: Effects) -> dict[str, Order]:
     """The orders among `effects`, by unit."""
     out = {}
