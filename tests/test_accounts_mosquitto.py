@@ -17,6 +17,7 @@ from gridfleet.protocol import Topics
 from support.mosquitto import mosquitto_with_accounts
 from support.security import (
     VEHICLES,
+    check_a_bridge_carries_only_the_halls_topics,
     check_a_unit_cannot_forge,
     check_a_vehicle_cannot_forge,
     check_only_operators_write_the_latch,
@@ -35,7 +36,8 @@ def test_password_hashes_are_mosquittos_own_format() -> None:
 
 @pytest.fixture(scope="module")
 def accounts() -> Accounts:
-    return default_accounts(["unit1", "unit2"], VEHICLES)
+    hall = Account("hall1", new_password(), "bridge")
+    return default_accounts(["unit1", "unit2"], VEHICLES).with_account(hall)
 
 
 @pytest.fixture(scope="module")
@@ -105,6 +107,12 @@ def test_a_vehicle_cannot_forge_orders_states_or_the_latch(
     mosquitto: str, accounts: Accounts
 ) -> None:
     check_a_vehicle_cannot_forge(mosquitto, accounts, T)
+
+
+def test_a_halls_bridge_carries_only_what_a_hall_may_say_and_read(
+    mosquitto: str, accounts: Accounts
+) -> None:
+    check_a_bridge_carries_only_the_halls_topics(mosquitto, accounts, T, "hall1")
 
 
 def accounts_mosquitto(*args: str) -> subprocess.CompletedProcess[str]:

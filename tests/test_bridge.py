@@ -5,7 +5,6 @@ coordinator and the people on the central broker. The bridge is cut mid-run and 
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from collections.abc import Iterator
 from contextlib import ExitStack
@@ -20,6 +19,7 @@ from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
 
+from support.lan import Processes
 from support.mosquitto import running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -98,45 +98,27 @@ def test_the_playfield_finishes_across_a_bridge_and_a_bridge_cut_loses_nothing(
     site: Site, topics: Topics, tmp_path: Path
 ) -> None:
     common = ["--accounts", str(site.accounts_file), "--root", topics.root, "--step", str(STEP_S)]
-    logs: dict[str, Path] = {}
     with ExitStack() as stack:
-        procs: list[subprocess.Popen[bytes]] = []
-
-        def start(name: str, argv: list[str]) -> None:
-            logs[name] = tmp_path / f"{name}.log"
-            with logs[name].open("ab") as log:
-                procs.append(subprocess.Popen(argv, stdout=log, stderr=log, cwd=REPO))
-
-        def stop_all() -> None:
-            for proc in procs:
-                proc.terminate()
-            for proc in procs:
-                try:
-                    proc.wait(10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
-
-        stack.callback(stop_all)
+        processes = Processes(tmp_path, site.lan)
+        stack.callback(processes.stop)
 
         def fail(what: str) -> str:
-            tails = "\n".join(f"--- {n}\n{p.read_text()[-3000:]}" for n, p in logs.items())
-            return f"{what}\n{tails}"
+            return f"{what}\n{processes.tails()}"
 
         probe = site.lan.call(MqttProbe(login(site.central, site.accounts, "operator")).connect)
         stack.callback(probe.close)
         operator = OperatorPeer(probe, topics)
         probe.subscribe(topics.fleet("events"), qos=1)
-        start(
+        processes.start(
             "coordinator",
-            site.lan.command([*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"),
-             "--broker", site.central, *common, "--db", str(tmp_path / "jobs.db")]),
+            [*GRIDFLEET, "coordinator", "--map", str(REPO / "maps" / "playfield.map"),
+             "--broker", site.central, *common, "--db", str(tmp_path / "jobs.db")],
         )  # fmt: skip
-        start(
+        processes.start(
             "robots",
-            site.hall_host.command(
-                [*GRIDFLEET, "robots", "--scenario", str(PLAYFIELD), "--broker", site.hall,
-                 *common, "--truth", str(tmp_path / "robots.truth")]
-            ),
+            [*GRIDFLEET, "robots", "--scenario", str(PLAYFIELD), "--broker", site.hall,
+             *common, "--truth", str(tmp_path / "robots.truth")],
+            site.hall_host,
         )  # fmt: skip
         try:
             # The hall's units, heard on the central broker across the bridge.

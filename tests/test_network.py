@@ -31,6 +31,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.lan import Processes
 from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.output import Output
@@ -59,41 +60,6 @@ id = "unit2"
 start = [9, 0]
 capacity = 1.0
 """
-
-
-class Processes:
-    """Components started for a test, each logging to a file, all stopped at its end."""
-
-    def __init__(self, logs: Path, lan: Lan) -> None:
-        self.logs = logs
-        self.lan = lan
-        self.running: dict[str, subprocess.Popen[bytes]] = {}
-
-    def start(self, name: str, argv: list[str], host: Host | None = None) -> None:
-        """Run `argv` on `host` (else on the broker's), its output into `<name>.log`."""
-        command = (host or self.lan.here).command(argv)
-        with (self.logs / f"{name}.log").open("ab") as log:
-            self.running[name] = subprocess.Popen(
-                command, stdout=log, stderr=subprocess.STDOUT, cwd=REPO
-            )
-
-    def stop(self) -> None:
-        """SIGTERM to each, SIGKILL to any still running after 10 s."""
-        for proc in self.running.values():
-            proc.send_signal(signal.SIGTERM)
-        for proc in self.running.values():
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait(5)
-
-    def tails(self) -> str:
-        """The last lines each component logged (for a failure's message)."""
-        return "\n".join(
-            f"--- {path.name}\n{path.read_text(errors='replace')[-3000:]}"
-            for path in sorted(self.logs.glob("*.log"))
-        )
 
 
 @pytest.fixture

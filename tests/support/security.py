@@ -229,3 +229,49 @@ def check_a_vehicle_cannot_forge(url: str, accounts: Accounts, topics: Topics) -
         assert b"released|agv1|forged" not in latch  # (a latch retained before may be there)
         adapter.publish(f"{agv2.topic}/order", b'{"adapter order": true}')
         wait_for(lambda: vehicle2.received(f"{agv2.topic}/order"), what="the adapter's order")
+
+
+def check_a_bridge_carries_only_the_halls_topics(
+    url: str, accounts: Accounts, topics: Topics, bridge: str
+) -> None:
+    """A hall's bridge account (on the central broker) says only what a hall's units and devices
+    may say, and reads only what the hall needs: the latch, an order, a request or a fleet view
+    it writes reaches nobody; requests and fleet views never reach it; a state and a goal do."""
+    t = topics
+    with (
+        MqttProbe(login(url, accounts, "coordinator")) as coordinator,
+        MqttProbe(login(url, accounts, "operator")) as operator,
+        MqttProbe(login(url, accounts, bridge)) as hall,
+    ):
+        for topic in (t.fleet("estop"), t.all_units("order"), t.all_requests, t.fleet("jobs")):
+            coordinator.subscribe(topic)
+        coordinator.subscribe(t.fleet("coordinator"))
+        coordinator.subscribe(t.unit("state", "unit1"))  # its marker, below
+        hall.subscribe(t.all_requests)
+        hall.subscribe(t.fleet("jobs"))
+        hall.subscribe(t.unit("goal", "unit1"))  # the operator's marker, below
+        hall.publish(t.fleet("estop"), b"released|hall|forged", retain=True)
+        hall.publish(t.unit("order", "unit1"), b'{"forged": "an order"}')
+        hall.publish(t.request("cancel_job"), b'{"forged": "a request"}')
+        hall.publish(t.fleet("jobs"), b'{"forged": "a queue"}', retain=True)
+        hall.publish(t.fleet("coordinator"), b'{"forged": "a coordinator"}', retain=True)
+        hall.publish(t.unit("state", "unit1"), b'{"carried": true}')
+        operator.publish(t.request("cancel_job"), b'{"for the coordinator": true}')
+        operator.publish(t.unit("goal", "unit1"), b'{"carried": true}')
+        # Each marker comes after the messages before it on its connection (a broker keeps one
+        # client's messages in order for each subscriber): the others had their chance.
+        wait_for(lambda: coordinator.received(t.unit("state", "unit1")), what="the hall's state")
+        wait_for(lambda: hall.received(t.unit("goal", "unit1")), what="the operator's goal")
+        wait_for(lambda: coordinator.received(t.request("cancel_job")), what="the request")
+        assert b"released|hall|forged" not in [
+            m.payload for m in coordinator.received(t.fleet("estop"))
+        ]
+        assert coordinator.received(t.unit("order", "unit1")) == []
+        assert [m.payload for m in coordinator.received(t.request("cancel_job"))] == [
+            b'{"for the coordinator": true}'
+        ]
+        assert coordinator.received(t.fleet("jobs")) == []
+        assert b'{"forged": "a coordinator"}' not in [
+            m.payload for m in coordinator.received(t.fleet("coordinator"))
+        ]
+        assert hall.received(t.request("cancel_job")) == [] and hall.received(t.fleet("jobs")) == []
