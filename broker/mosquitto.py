@@ -123,12 +123,19 @@ def mosquitto_conf(
 BRIDGE_KEEP_ALIVE_S = 10
 
 
-def bridge_conf(account: Account, central_host: str, central_port: int, topics: Topics) -> str:
+def bridge_conf(
+    account: Account,
+    central_host: str,
+    central_port: int,
+    topics: Topics,
+    ca_file: Path | None = None,
+) -> str:
     """The `connection` section that bridges a hall's Mosquitto to the central broker.
 
     It logs in there as the `bridge` account `account` and carries `bridge_topics` (see
     docs/brokers.md). Its session outlives a cut (`cleansession false`): what each side sent
     at QoS 1 meanwhile is delivered when the link is back, and the retained latch is read again.
+    With `ca_file` it speaks TLS, trusting that CA and checking the central broker's name.
     """
     if account.role != "bridge":
         raise ValueError(f"account {account.name} is a {account.role} account, not a bridge")
@@ -150,5 +157,9 @@ def bridge_conf(account: Account, central_host: str, central_port: int, topics: 
         "restart_timeout 1 10",
         "notifications false",
     ]
+    if ca_file is not None:
+        # The bridge's password crosses the site's network: only to the broker the CA vouches
+        # for, under the name it was reached by (bridge_insecure false checks the name).
+        lines += [f"bridge_cafile {ca_file}", "bridge_insecure false"]
     lines += [f"topic {b.pattern} {b.direction} {b.qos}" for b in bridge_topics(topics)]
     return "\n".join(lines) + "\n"

@@ -84,6 +84,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --bridge-to: the bridge account it logs in as there ('accounts add NAME "
         "--role bridge')",
     )
+    mosq.add_argument(
+        "--bridge-ca",
+        type=Path,
+        metavar="FILE",
+        help="with --bridge-to: the bridge speaks TLS to the central broker, trusting this CA "
+        "('accounts tls' wrote it as ca.pem; HOST must be a name or address its certificate has)",
+    )
     tls = sub.add_parser("tls", help="make a local CA and the broker's TLS certificate")
     tls.add_argument("--out", type=Path, required=True, help="directory for the three files")
     tls.add_argument(
@@ -157,7 +164,9 @@ def _mosquitto(args: argparse.Namespace) -> int:
     if (args.tls_cert is None) != (args.tls_key is None):
         raise ConfigError("TLS needs both --tls-cert FILE and --tls-key FILE")
     accounts = load_accounts(args.file)
-    bridge = _bridge(accounts, args.bridge_to, args.bridge_account, Topics(args.root))
+    bridge = _bridge(
+        accounts, args.bridge_to, args.bridge_account, Topics(args.root), args.bridge_ca
+    )
     out = args.out.resolve()
     passwd, acl = write_files(accounts, Topics(args.root), out)
     persistence = args.persistence if args.persistence is not None else out / "data"
@@ -186,9 +195,14 @@ def _mosquitto(args: argparse.Namespace) -> int:
     return 0
 
 
-def _bridge(accounts: Accounts, to: str | None, name: str | None, topics: Topics) -> str:
-    """The bridge section `--bridge-to` and `--bridge-account` ask for ('' without them)."""
+def _bridge(
+    accounts: Accounts, to: str | None, name: str | None, topics: Topics, ca: Path | None
+) -> str:
+    """The bridge section `--bridge-to`, `--bridge-account` (and `--bridge-ca`) ask for ('' without
+    them)."""
     if to is None and name is None:
+        if ca is not None:
+            raise ConfigError("--bridge-ca is for a bridge: give --bridge-to and --bridge-account")
         return ""
     if to is None or name is None:
         raise ConfigError("a bridge needs both --bridge-to HOST:PORT and --bridge-account NAME")
@@ -201,4 +215,6 @@ def _bridge(accounts: Accounts, to: str | None, name: str | None, topics: Topics
             f"--bridge-account {name}: a {account.role} account; make one with "
             f"'gridfleet accounts add {name} --role bridge --file FILE'"
         )
-    return bridge_conf(account, host, int(port), topics)
+    if ca is not None and not ca.is_file():
+        raise ConfigError(f"--bridge-ca {ca}: no such file (the CA 'accounts tls' wrote: ca.pem)")
+    return bridge_conf(account, host, int(port), topics, None if ca is None else ca.resolve())

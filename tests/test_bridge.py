@@ -15,7 +15,9 @@ import pytest
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
 from gridfleet.bench.lan import Host, Lan
+from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
+from gridfleet.config import with_ca_file
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
 
@@ -47,9 +49,17 @@ class Site:
     accounts_file: Path
 
 
-@pytest.fixture
-def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
-    """Central Mosquitto on this machine's LAN address; the hall's on its host, bridged to it."""
+@pytest.fixture(params=["plain", "tls"])
+def site(
+    request: pytest.FixtureRequest, test_lan: Lan, topics: Topics, tmp_path: Path
+) -> Iterator[Site]:
+    """Central Mosquitto on this machine's LAN address; the hall's on its host, bridged to it
+    (over TLS to the central broker, with the "tls" parameter: its certificate for that address)."""
+    tls = tmp_path / "tls" if request.param == "tls" else None
+    if tls is not None:
+        tls.mkdir()
+        write_tls(make_tls([test_lan.address]), tls)
+    cert, key = (None, None) if tls is None else (tls / "server.pem", tls / "server.key")
     accounts = default_accounts(UNITS).with_account(Account("hall1", new_password(), "bridge"))
     accounts_file = tmp_path / "accounts.toml"
     write_accounts(accounts, accounts_file)
@@ -61,7 +71,13 @@ def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
             running_mosquitto(
                 central_dir,
                 lambda port: mosquitto_conf(
-                    passwd, acl, host=test_lan.address, port=port, ws_port=None
+                    passwd,
+                    acl,
+                    host=test_lan.address,
+                    port=port,
+                    ws_port=None,
+                    tls_cert=cert,
+                    tls_key=key,
                 ),
                 host=test_lan.address,
                 on=test_lan.command([]),
@@ -69,7 +85,13 @@ def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
             )
         )
         hall_passwd, hall_acl = write_files(accounts, topics, hall_dir)
-        bridge = bridge_conf(accounts.get("hall1"), test_lan.address, central_port, topics)
+        bridge = bridge_conf(
+            accounts.get("hall1"),
+            test_lan.address,
+            central_port,
+            topics,
+            None if tls is None else tls / "ca.pem",
+        )
         hall_port = stack.enter_context(
             running_mosquitto(
                 hall_dir,
@@ -84,8 +106,9 @@ def site(test_lan: Lan, topics: Topics, tmp_path: Path) -> Iterator[Site]:
                 inside=test_lan.call,
             )
         )
+        central = f"{'mqtt' if tls is None else 'mqtts'}://{test_lan.address}:{central_port}"
         yield Site(
-            f"mqtt://{test_lan.address}:{central_port}",
+            central if tls is None else with_ca_file(central, str(tls / "ca.pem")),
             f"mqtt://{hall.address}:{hall_port}",
             test_lan,
             hall,
