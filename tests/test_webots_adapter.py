@@ -15,7 +15,7 @@ from gridfleet.robots.webots.settings import BROKER_ENV, read_settings
 from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
 
-from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble
+from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble, WebotsExited
 
 PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
 N, E, S, W = Direction.N, Direction.E, Direction.S, Direction.W
@@ -151,6 +151,113 @@ def test_webots_ending_the_controller_shows_in_advance(make: Make) -> None:
     assert world.ended
 
 
+ALL_LIT = Leds(N=True, E=True, S=True, W=True)
+
+
+def _turn_with_new_leds(world: WebotsWorld, intention: list[Leds]) -> None:
+    intention[0] = ALL_LIT  # the LEDs would have to change, were they shown
+    with world.turn():
+        pass
+
+
+AFTER_THE_END: dict[str, Callable[[WebotsWorld, list[Leds]], object]] = {
+    "advance": lambda world, intention: world.advance(),
+    "advance with other LEDs": lambda world, intention: world.advance(ALL_LIT),
+    "sense": lambda world, intention: world.sense("unit1"),
+    "move": lambda world, intention: world.move("unit1", E),
+    "resume": lambda world, intention: world.resume("unit1", Cell(0, 4)),
+    "turn": _turn_with_new_leds,
+}
+
+
+@pytest.mark.parametrize("call", AFTER_THE_END, ids=str)
+def test_after_a_step_returned_minus_one_nothing_calls_webots(make: Make, call: str) -> None:
+    # Webots' library ends the process at the next step or field read after -1: the unit would
+    # go without its goodbye. The double raises and lists any such call.
+    intention = [DARK]
+    world, robot, scene = make(leds=lambda: intention[0])
+    scene.ended.set()
+    assert not world.advance()  # the step that returns -1
+    assert robot.exited
+    AFTER_THE_END[call](world, intention)
+    assert robot.calls_after_end == []
+
+
+def test_after_the_end_the_unit_holds_still_and_its_sensors_read_as_not_measured(
+    make: Make,
+) -> None:
+    world, robot, scene = make()
+    scene.ended.set()
+    assert not world.advance() and world.ended
+    assert not world.advance()  # and stays so
+    # Not measured reads as a unit: never free, never an obstacle reported to the fleet.
+    assert world.sense("unit1") == {N: "wall", E: "unit", S: "unit", W: "wall"}
+    assert not world.move("unit1", E)
+    world.resume("unit1", Cell(0, 4))
+    assert (world.position("unit1"), world.moves["unit1"], world.prevented) == (Cell(0, 0), 0, 0)
+    assert (robot.applied, robot.calls_after_end) == ([], [])
+
+
+def test_webots_ending_during_a_move_makes_no_move_and_reads_nothing_after(make: Make) -> None:
+    world, robot, scene = make()
+    scene.end_on_move = True  # Webots quits in the very step that would move the unit
+    assert not world.move("unit1", E)
+    assert world.ended
+    assert (world.position("unit1"), world.moves["unit1"], world.collisions) == (Cell(0, 0), 0, 0)
+    assert (robot.applied, robot.calls_after_end) == ([], [])
+    world, robot, scene = make()
+    scene.end_on_move = True
+    world.resume("unit1", Cell(0, 4))  # a mirror following its unit: the same
+    assert world.ended and world.position("unit1") == Cell(0, 0)
+    assert (robot.applied, robot.calls_after_end) == ([], [])
+
+
+def test_the_double_fails_any_call_after_minus_one_as_webots_ends_the_process(
+    make: Make,
+) -> None:
+    _, robot, scene = make()
+    timestep = int(robot.getBasicTimeStep())
+    own = robot.getSelf()
+    root = robot.getRoot()
+    scene.ended.set()
+    assert robot.step(timestep) == -1
+    calls: list[Callable[[], object]] = [
+        lambda: robot.step(timestep),
+        robot.getSelf,
+        lambda: own.getField("name"),
+        lambda: robot.node.fields["translation"].getSFVec3f(),
+        lambda: robot.sensors["ds N"].getValue(),
+        lambda: robot.leds["led N"].set(1),
+        lambda: root.getField("children"),
+    ]
+    for call in calls:
+        with pytest.raises(WebotsExited):
+            call()
+    assert robot.calls_after_end == [
+        "Robot.step",
+        "Supervisor.getSelf",
+        "Node.getField",
+        "Field.getSFVec3f",
+        "DistanceSensor.getValue",
+        "LED.set",
+        "Node.getField",
+    ]
+    assert not scene.robot("unit2").exited  # each controller ends at its own -1
+
+
+def test_the_double_answers_as_webots_does(make: Make, capsys: pytest.CaptureFixture[str]) -> None:
+    _, robot, scene = make(units=["unit1"])  # unit2..unit4 are mirrors here
+    # The C function behind getSFBool returns an int, and Webots' Python passes it on.
+    flags = [scene.robot(u).node.fields["mirror"].getSFBool() for u in ("unit1", "unit2")]
+    assert flags == [0, 1] and all(type(f) is int for f in flags)
+    # A vector that is not a list is refused with a message, and nothing moves.
+    translation = robot.node.fields["translation"]
+    translation.setSFVec3f((0.1, 0.0, 0.05))  # type: ignore[arg-type]
+    assert robot.step(int(robot.getBasicTimeStep())) == 0
+    assert robot.applied == [] and robot.square() == Cell(0, 0)
+    assert "Error: new field value has wrong type or length." in capsys.readouterr().err
+
+
 def test_other_units_are_known_only_from_what_they_said(make: Make) -> None:
     world, _, _ = make()
     with pytest.raises(KeyError):
@@ -197,6 +304,12 @@ def test_the_settings_come_from_the_world_file(make: Make, scenario: Scenario) -
         "mqtt://10.1.2.3:1883",
         "gridfleet",
     )
+
+
+def test_the_mirror_field_is_a_bool_though_webots_gives_an_int(make: Make) -> None:
+    _, robot, scene = make(units=["unit1"])
+    assert read_settings(robot, environ={}).mirror is False
+    assert read_settings(scene.robot("unit2"), environ={}).mirror is True
 
 
 def test_an_empty_broker_field_takes_the_environment_then_the_default(make: Make) -> None:

@@ -17,9 +17,10 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.grid import Cell, Direction
 from gridfleet.ports import free_port
-from gridfleet.protocol import Factsheet, Topics, decode
+from gridfleet.protocol import Connection, Factsheet, Topics, decode
 from gridfleet.robots.fleet import Fleet
 from gridfleet.robots.webots.host import MODEL, WebotsUnit
 from gridfleet.robots.webots.main import run_controller
@@ -161,6 +162,39 @@ def test_the_webots_unit_finishes_a_job_beside_headless_units_without_collisions
     assert robot.steps > len(robot.applied)  # Webots was stepped between the moves too
 
 
+@pytest.mark.timeout(90)
+def test_webots_ending_the_controller_as_the_unit_moves_it_says_offline_and_calls_webots_no_more(
+    running: tuple[ServiceThread[CoordinatorShell], ServiceThread[WebotsBesideHeadless]],
+    playfield_scene: tuple[Scenario, SceneDouble],
+    operator: OperatorPeer,
+    topics: Topics,
+) -> None:
+    coordinator, _units = running
+    _scenario, scene = playfield_scene
+    robot = scene.robot(WEBOTS_UNIT)
+    world = coordinator.service.world
+    wait_for(
+        lambda: coordinator.call(lambda: WEBOTS_UNIT in world.units),
+        timeout=15,
+        what="the coordinator knows the Webots unit",
+    )
+    connection = topics.unit("connection", WEBOTS_UNIT)
+    operator.probe.wait(connection, lambda m: decode(Connection, m.payload).state == "online")
+    # Webots quits in the step that would make the unit's first move.
+    scene.end_on_move = True
+    assert operator.set_goal(WEBOTS_UNIT, Cell(9, 6)).accepted
+    operator.probe.wait(
+        connection, lambda m: decode(Connection, m.payload).state == "offline", timeout=30
+    )
+    assert robot.exited and robot.calls_after_end == []
+    assert robot.applied == [] and robot.square() == Cell(9, 9)  # the move was never made
+    states = [
+        s.state
+        for s in (decode(Connection, m.payload) for m in operator.probe.received(connection))
+    ]
+    assert "broken" not in states, states  # the goodbye, not the broker's last will
+
+
 def test_webots_ending_the_controller_ends_it_cleanly_even_without_a_broker(
     playfield_scene: tuple[Scenario, SceneDouble], capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -170,6 +204,7 @@ def test_webots_ending_the_controller_ends_it_cleanly_even_without_a_broker(
     scene.end_at_step = 8
     assert run_controller(robot) == 0
     assert scene.ended.is_set() and robot.steps == 7
+    assert robot.exited and robot.calls_after_end == []
     assert robot.applied == []  # never connected: it held still
 
 

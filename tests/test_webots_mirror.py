@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -72,3 +73,22 @@ def test_the_mirror_stands_and_lights_where_the_units_state_says(
     probe.publish(topics.unit("connection", "marker"), b"{}", qos=1)
     probe.wait(topics.unit("connection", "marker"))
     assert probe.received(topics.unit("connection", "unit2")) == []
+
+
+def test_a_state_after_webots_ended_the_controller_moves_nothing_and_calls_webots_no_more() -> None:
+    # A state can arrive between the step that returned -1 and the mirror's stop.
+    scenario = load_scenario(PLAYFIELD)
+    truth = SharedTruth.from_scenario(scenario)
+    assert isinstance(truth, SharedTruth)
+    scene = SceneDouble(world_text(scenario, WorldOptions(units=["unit1"])), truth)
+    robot = scene.robot("unit2")
+    mirror = MirrorUnit(robot, read_settings(robot, environ={}))
+    try:
+        scene.ended.set()
+        assert not mirror.webots.call(mirror.world.advance)
+        state = state_of("unit2", Cell(8, 0), Direction.S)
+        asyncio.run(mirror._follow(mirror.topic, state))
+    finally:
+        mirror.webots.close()
+    assert robot.exited and robot.calls_after_end == []
+    assert (robot.square(), robot.applied, robot.lit()) == (Cell(9, 0), [], frozenset())

@@ -10,11 +10,18 @@ step of the unit begins and ends.
 Every call into Webots goes through `call`, which runs it where the controller API may be used
 (the one Webots thread, `robots.webots.clock`; inline in tests). The robot is passed in, so
 tests give a test double of Webots' `controller.Supervisor`.
+
+Once a step has returned -1 (Webots reloads or quits) no call reaches Webots again: the
+controller library ends the process at the next step or field read (`exit()`), and the unit
+would leave without its `offline` goodbye. From then on the LEDs stay as they are, the sensors
+read as not measured (a unit: never free, never reported) and every move is refused, while the
+shell stops and says goodbye.
 """
 
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable, Iterator, Mapping
 from types import MappingProxyType
 from typing import Protocol, TypeVar, cast
@@ -130,12 +137,16 @@ class WebotsWorld:
 
         False once Webots ends the controller (reload, quit): then the unit must say goodbye.
         """
+        if self.ended:
+            return False
         self._show(self._intended() if leds is None else leds)
         if self.robot.step(self.timestep_ms) == -1:
             self.ended = True
         return not self.ended
 
     def _show(self, leds: Leds) -> None:
+        if self.ended:
+            return
         for d, led in self._leds.items():
             on = bool(getattr(leds, d.value))
             if self._shown.get(d) != on:
@@ -145,11 +156,17 @@ class WebotsWorld:
     def _sense(self) -> dict[Direction, SensorReading]:
         here = self._here
         return {
-            d: reading(sensor.getValue(), not self.grid.in_bounds(here.step(d)))
+            d: reading(
+                # after -1 a read would end the process; not measured reads as a unit
+                math.nan if self.ended else sensor.getValue(),
+                not self.grid.in_bounds(here.step(d)),
+            )
             for d, sensor in self._sensors.items()
         }
 
     def _move(self, direction: Direction) -> bool:
+        if self.ended:
+            return False
         if self._sense()[direction] != "free":
             self.prevented += 1
             return False
@@ -163,10 +180,12 @@ class WebotsWorld:
 
     def _place(self, cell: Cell) -> None:
         """Set the translation to `cell` and step, so that the move is made and sensed."""
+        if self.ended:
+            return
         x, y = metres(cell)
         self._translation.setSFVec3f([x, y, self._z])
-        self.advance()
-        self._here = self._read_square()
+        if self.advance():  # a step that ended Webots made no move, and nothing may be read now
+            self._here = self._read_square()
 
     def _check(self) -> None:
         """Count what the unit now shares its square with in this Webots world."""

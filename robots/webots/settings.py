@@ -87,7 +87,7 @@ def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> U
         grid=grid,
         broker=broker,
         root=root,
-        mirror=field("mirror").getSFBool(),
+        mirror=bool(field("mirror").getSFBool()),
     )
 
 

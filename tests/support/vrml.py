@@ -2,8 +2,9 @@
 
 It reads what gridfleet writes and ships: comments, EXTERNPROTO lines, PROTO interfaces, nodes
 with DEF/USE, fields whose value is a node, a `[ ... ]` list, `IS name`, or numbers, strings
-and booleans. Anything else (an unclosed brace or bracket, a stray token, a field given twice)
-raises VrmlError naming the line, so a file that reads here has balanced nodes and lists.
+and booleans. Anything else (an unclosed brace or bracket, a stray token, a field given twice,
+a template statement of a procedural PROTO) raises VrmlError naming the line, so a file that
+reads here has balanced nodes and lists.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ Value = Union["Node", "Is", tuple[Scalar, ...], list[Union["Node", Scalar]]]
 _TOKEN = re.compile(
     r'(?P<string>"(?:[^"\\]|\\.)*")|(?P<punct>[{}\[\]])|(?P<word>[^\s{}\[\],"#]+)|(?P<bad>")'
 )
+TEMPLATE_OPENINGS = ("%<", "%{")  # JavaScript and Lua template statements of Webots PROTOs
 _NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$")
 
 
@@ -59,6 +61,17 @@ class Proto:
     interface: dict[str, tuple[str, Value]]
     body: Node
     externprotos: list[str]
+    # Each field's declaring keyword: `field`, `unconnectedField`, …
+    keywords: dict[str, str] = field(default_factory=dict)
+
+    def links(self) -> set[str]:
+        """The interface fields the body's `IS` statements name."""
+        return {
+            value.name
+            for node in self.body.nodes()
+            for value in node.fields.values()
+            if isinstance(value, Is)
+        }
 
 
 @dataclass
@@ -209,23 +222,31 @@ def read_world(text: str) -> World:
 def read_proto(text: str) -> Proto:
     """Read a .proto file with one PROTO; VrmlError on anything unbalanced or unexpected."""
     _header(text)
+    for number, line in enumerate(text.splitlines(), start=1):
+        # A procedural PROTO's body is a program's output, not VRML until Webots runs it.
+        if any(opening in _strip_comment(line) for opening in TEMPLATE_OPENINGS):
+            raise VrmlError(f"line {number}: a template statement (procedural PROTO)")
     tokens = _Tokens(text)
     externs = _externprotos(tokens)
     tokens.take("PROTO")
     name = tokens.take()[1]
     tokens.take("[")
     interface: dict[str, tuple[str, Value]] = {}
+    keywords: dict[str, str] = {}
     while (nxt := tokens.peek()) is not None and nxt[1] != "]":
         keyword = tokens.take()[1]
         if keyword not in ("field", "vrmlField", "hiddenField", "unconnectedField"):
             raise VrmlError(f"line {nxt[2]}: expected a field declaration, found {keyword!r}")
         kind = tokens.take()[1]
         field_name = tokens.take()[1]
+        if field_name in interface:
+            raise VrmlError(f"line {nxt[2]}: PROTO field {field_name!r} declared twice")
         interface[field_name] = (kind, _value(tokens))
+        keywords[field_name] = keyword
     tokens.take("]")
     tokens.take("{")
     body = _node(tokens)
     tokens.take("}")
     if tokens.peek() is not None:
         raise VrmlError(f"line {tokens.take()[2]}: text after the PROTO's body")
-    return Proto(name, interface, body, externs)
+    return Proto(name, interface, body, externs, keywords)

@@ -9,11 +9,19 @@ collisions are counted); its obstacles are the file's `GridObstacle`s. Each unit
 translation (a set takes effect at the next `step`, as in Webots), and measures its distance
 sensors by casting each sensor's ray, as placed in GridUnit.proto, against the other units'
 boxes, the obstacles' boxes and the arena's walls.
+
+It is as strict as Webots' controller library where gridfleet could trip: once `step` has
+returned -1 the library ends the controller's process (`exit()`) at its next call, so every
+call after that (a step, a field, a device, the robot's own getters) raises `WebotsExited` and
+is listed in `calls_after_end`, since the code under test may catch the error. `getSFBool` gives
+an int (0 or 1), as the C function behind it does, and `setSFVec3f` ignores anything but a list
+of three numbers, with Webots' message on stderr.
 """
 
 from __future__ import annotations
 
 import math
+import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -41,71 +49,93 @@ class SharedTruth(WorldSim):
         return self.lock
 
 
+class WebotsExited(AssertionError):
+    """A call into Webots after `step` returned -1: the real library ends the process there."""
+
+
 class FieldDouble:
-    """A field of a node: a value from the world file, or the unit's live translation."""
+    """A field as one robot's controller reaches it: a world file's value, or a live translation."""
 
     def __init__(
-        self, value: Value | list[NodeDouble], owner: SupervisorDouble | None = None
+        self,
+        robot: SupervisorDouble,
+        value: Value | list[NodeDouble],
+        live: SupervisorDouble | None = None,
     ) -> None:
+        self.robot = robot  # the controller that holds this field (its calls are checked)
         self.value = value
-        self.owner = owner  # set for a grid unit's translation: read from and set in the truth
+        self.live = live  # set for a grid unit's translation: read from and set in the truth
 
     def _items(self) -> list[Scalar | Node | NodeDouble]:
         return list(self.value) if isinstance(self.value, tuple | list) else []
 
     def getSFVec3f(self) -> list[float]:
-        if self.owner is not None:
-            return self.owner.translation()
+        self.robot.api("Field.getSFVec3f")
+        if self.live is not None:
+            return self.live.translation()
         return numbers(self.value)
 
     def setSFVec3f(self, value: list[float]) -> None:
-        if self.owner is None:
+        self.robot.api("Field.setSFVec3f")
+        if self.live is None:
             raise PermissionError("only a grid unit's translation is set in these tests")
-        assert len(value) == 3, value
-        self.owner.pending = list(value)
+        if not isinstance(value, list) or len(value) != 3:
+            print("Error: new field value has wrong type or length.", file=sys.stderr)
+            return
+        self.live.pending = list(value)
 
     def getSFFloat(self) -> float:
+        self.robot.api("Field.getSFFloat")
         (number,) = numbers(self.value)
         return number
 
     def getSFString(self) -> str:
+        self.robot.api("Field.getSFString")
         (text,) = self._items()
         assert isinstance(text, str), self.value
         return text
 
     def getSFColor(self) -> list[float]:
+        self.robot.api("Field.getSFColor")
         return numbers(self.value)
 
-    def getSFBool(self) -> bool:
+    def getSFBool(self) -> int:
+        self.robot.api("Field.getSFBool")
         (flag,) = self._items()
         assert isinstance(flag, bool), self.value
-        return flag
+        return 1 if flag else 0
 
     def getCount(self) -> int:
+        self.robot.api("Field.getCount")
         return len(self._items())
 
     def getMFString(self, index: int) -> str:
+        self.robot.api("Field.getMFString")
         text = self._items()[index]
         assert isinstance(text, str), self.value
         return text
 
     def getMFNode(self, index: int) -> NodeDouble:
+        self.robot.api("Field.getMFNode")
         node = self._items()[index]
         assert isinstance(node, NodeDouble)
         return node
 
 
 class NodeDouble:
-    """A node of the scene: its type and fields (a PROTO instance answers with its own)."""
+    """A node of the scene as one robot's controller sees it: its type and (PROTO) fields."""
 
-    def __init__(self, kind: str, fields: dict[str, FieldDouble]) -> None:
+    def __init__(self, robot: SupervisorDouble, kind: str, fields: dict[str, FieldDouble]) -> None:
+        self.robot = robot
         self.kind = kind
         self.fields = fields
 
     def getField(self, name: str) -> FieldDouble | None:
+        self.robot.api("Node.getField")
         return self.fields.get(name)
 
     def getTypeName(self) -> str:
+        self.robot.api("Node.getTypeName")
         return self.kind
 
 
@@ -118,10 +148,12 @@ class DistanceSensorDouble:
         self.enabled_at: int | None = None
 
     def enable(self, sampling_period: int) -> None:
+        self.robot.api("DistanceSensor.enable")
         assert sampling_period > 0
         self.enabled_at = self.robot.time_ms
 
     def getValue(self) -> float:
+        self.robot.api("DistanceSensor.getValue")
         if self.enabled_at is None or self.robot.time_ms <= self.enabled_at:
             return math.nan
         return self.robot.scene.measure(self.robot, self.ray)
@@ -136,10 +168,12 @@ class LedDouble:
         self.history: list[tuple[int, int]] = []
 
     def set(self, value: int) -> None:
+        self.robot.api("LED.set")
         self.value = value
         self.history.append((self.robot.time_ms, value))
 
     def get(self) -> int:
+        self.robot.api("LED.get")
         return self.value
 
 
@@ -165,35 +199,61 @@ class SupervisorDouble:
         self.applied: list[Applied] = []
         self.z = numbers(scene.field_value(node, "translation"))[2]
         fields = {
-            name: FieldDouble(scene.field_value(node, name)) for name in scene.unit_proto.interface
+            name: FieldDouble(self, scene.field_value(node, name))
+            for name in scene.unit_proto.interface
         }
-        fields["translation"] = FieldDouble((), owner=self)
-        self.node = NodeDouble("GridUnit", fields)
+        fields["translation"] = FieldDouble(self, (), live=self)
+        self.node = NodeDouble(self, "GridUnit", fields)
         self.sensors = {r.name: DistanceSensorDouble(self, r) for r in scene.rays}
         self.leds = {f"led {d.value}": LedDouble(self) for d in Direction}
+        self.exited = False  # a step returned -1: the library ends the process at the next call
+        self.calls_after_end: list[str] = []
+        self._root: NodeDouble | None = None
+
+    def api(self, call: str) -> None:
+        """Every call into this controller's API comes here first: none may follow a -1."""
+        if self.exited:
+            self.calls_after_end.append(call)
+            raise WebotsExited(f"{self.unit_id}: {call} after step() returned -1")
+
+    def seen_by(self, robot: SupervisorDouble) -> NodeDouble:
+        """This unit's node as another robot's controller finds it in the scene tree."""
+        fields = {n: FieldDouble(robot, f.value, f.live) for n, f in self.node.fields.items()}
+        return NodeDouble(robot, "GridUnit", fields)
 
     # -- the API ---------------------------------------------------------------------------------
 
     def getName(self) -> str:
+        self.api("Robot.getName")
         return self.unit_id
 
     def getBasicTimeStep(self) -> float:
+        self.api("Robot.getBasicTimeStep")
         return float(self.scene.basic_time_step)
 
     def getSelf(self) -> NodeDouble:
+        self.api("Supervisor.getSelf")
         return self.node
 
     def getRoot(self) -> NodeDouble:
-        return self.scene.root
+        self.api("Supervisor.getRoot")
+        if self._root is None:
+            self._root = self.scene.root_for(self)
+        return self._root
 
     def getDevice(self, name: str) -> DistanceSensorDouble | LedDouble | None:
+        self.api("Robot.getDevice")
         return self.sensors.get(name) or self.leds.get(name)
 
     def step(self, duration_ms: int) -> int:
+        self.api("Robot.step")
         assert duration_ms > 0 and duration_ms % self.scene.basic_time_step == 0, duration_ms
         if self.scene.end_at_step is not None and self.steps + 1 >= self.scene.end_at_step:
             self.scene.ended.set()
+        if self.scene.end_on_move and self.pending is not None:
+            self.scene.ended.set()
         if self.scene.ended.is_set():
+            self.exited = True
             return -1
         self.time_ms += duration_ms
         self.steps += 1
@@ -254,12 +314,12 @@ class SceneDouble:
             self.obstacles.append((x - w / 2, y - d / 2, x + w / 2, y + d / 2))
         self.ended = threading.Event()  # set: every robot's next step returns -1 (Webots quits)
         self.end_at_step: int | None = None  # a robot's step with this number ends Webots
+        self.end_on_move = False  # True: Webots ends during a step that would apply a translation
         self.jumps: list[tuple[str, Cell, Cell]] = []  # translations more than one square
         self.robots = {
             r.unit_id: r
             for r in (SupervisorDouble(self, n) for n in self.world.of_type("GridUnit"))
         }
-        self.root = NodeDouble("Group", {"children": FieldDouble(list(self._children()))})
 
     def field_value(self, node: Node, name: str) -> Value:
         """A field of a PROTO instance in the file: its own value, else the PROTO's default."""
@@ -270,17 +330,25 @@ class SceneDouble:
         assert not isinstance(default, Is)
         return default
 
-    def _children(self) -> Iterator[NodeDouble]:
+    def root_for(self, robot: SupervisorDouble) -> NodeDouble:
+        """The scene tree's root as `robot`'s controller gets it (`Supervisor.getRoot`)."""
+        return NodeDouble(
+            robot, "Group", {"children": FieldDouble(robot, list(self._children(robot)))}
+        )
+
+    def _children(self, robot: SupervisorDouble) -> Iterator[NodeDouble]:
         for node in self.world.nodes:
             if node.type == "GridUnit":
-                yield self.robots[str(self.field_value(node, "name")[0])].node  # type: ignore[index]
+                unit = self.robots[str(self.field_value(node, "name")[0])]  # type: ignore[index]
+                yield robot.node if unit is robot else unit.seen_by(robot)
             elif node.type == "GridObstacle":
                 fields = {
-                    n: FieldDouble(self.field_value(node, n)) for n in ("translation", "name")
+                    n: FieldDouble(robot, self.field_value(node, n))
+                    for n in ("translation", "name")
                 }
-                yield NodeDouble("GridObstacle", fields)
+                yield NodeDouble(robot, "GridObstacle", fields)
             else:
-                yield NodeDouble(node.type, {})
+                yield NodeDouble(robot, node.type, {})
 
     def robot(self, unit_id: str) -> SupervisorDouble:
         """The Supervisor of grid unit `unit_id`."""
