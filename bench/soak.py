@@ -11,7 +11,10 @@ cannot obey a stop it cannot read), and main-lane faults then strike while the s
 With `network` the units and the coordinator run on hosts of their own (network namespaces on
 one bridge, `gridfleet.bench.lan`), reaching the broker at this machine's LAN address with
 accounts, and the main lane also cuts a host's link without a word (some cuts past the broker's
-keep-alive: the will must come), stalls it, or narrows it to a thin, lossy link.
+keep-alive: the will must come), stalls it, or narrows it to a thin, lossy link. With `bridge`
+as well, the units' host is a hall with a Mosquitto of its own, bridged to a central Mosquitto
+(the coordinator's, the soak's) through the proxy: every fault of the hall's link and of the
+proxy is then a bridge's.
 """
 
 from __future__ import annotations
@@ -19,8 +22,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import os
 import random
+import shutil
 import signal
+import socket
 import statistics
 import tempfile
 import time
@@ -47,6 +53,7 @@ from gridfleet.bench.soak_check import (
     check,
 )
 from gridfleet.bench.soak_faults import (
+    BRIDGED_HOSTS,
     LOCAL_FAMILIES,
     NETWORK_FAMILIES,
     NETWORK_HOSTS,
@@ -57,6 +64,7 @@ from gridfleet.bench.soak_faults import (
 from gridfleet.bench.soak_listen import SoakListener
 from gridfleet.bench.soak_proxy import FaultyProxy
 from gridfleet.bench.soak_scenario import make_soak_scenario
+from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url, with_credentials
 from gridfleet.ports import free_port
@@ -67,6 +75,8 @@ from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
 DEVICE = "soak-dev"
 STALL_S = 90.0  # no progress (start-up done, a fault injected) this long: say where it waits
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+HALL = "hall1"  # the hall broker's bridge account
 EXIT_WAIT_S = 15.0  # a process signalled to stop that is still running after this is a finding
 RELEASE_AGAIN_S = 5.0  # an operator whose release did not take releases again after this
 
@@ -86,6 +96,9 @@ class SoakConfig:
     # The units and the coordinator on hosts of a LAN of namespaces (root), the broker on this
     # machine's LAN address with accounts; the silent and stall faults need it.
     network: bool = False
+    # With `network`: the units on a hall's Mosquitto bridged to a central Mosquitto (no broker
+    # restarts: Mosquitto keeps the latch only as often as it saves).
+    bridge: bool = False
 
 
 @dataclass
@@ -196,7 +209,9 @@ class Soak:
         listen, logins = "127.0.0.1", list[str]()
         if cfg.network:
             listen, logins = self._make_network()
-        if cfg.broker is None:
+        if cfg.bridge:
+            self.broker_url = await self._start_central(listen)
+        elif cfg.broker is None:
             spec = SystemSpec(
                 self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None, listen=listen
             )
@@ -210,7 +225,10 @@ class Soak:
             self.device_url = self._login(DEVICE)
         target = parse_broker_url(self.broker_url)
         self.proxy = FaultyProxy(target.host, target.port, listen=listen)
-        via = f"mqtt://{listen}:{await self.proxy.start()}"
+        proxy_port = await self.proxy.start()
+        via = f"mqtt://{listen}:{proxy_port}"
+        if cfg.bridge:
+            via = await self._start_hall(listen, proxy_port)  # the bridge through the proxy
         self.listener = SoakListener(self.operator_url, self.topics, self._client_id("listener"))
         self.tasks.append(asyncio.create_task(self.listener.run()))
         common = ["--root", self.root, "--step", str(cfg.step_s), *logins]
@@ -225,7 +243,7 @@ class Soak:
         robots += ["--state", str(self.dir / "units.sqlite3"), "--truth", str(self.truth)]
         if cfg.network:
             coordinator = self.hosts["office"].command(coordinator)
-            robots = self.hosts["units"].command(robots)
+            robots = self.hosts["hall" if cfg.bridge else "units"].command(robots)
         keep = str(max(2, cfg.units // 2))
         feed = cli("feed", *direct, "--scenario", scenario, "--demo", "--keep-active", keep)
         for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
@@ -237,16 +255,47 @@ class Soak:
         """The LAN and its two hosts, and the accounts a broker beyond loopback needs; the
         broker's address and the flags that log each component in."""
         net = self.network.enter_context(lan())
-        self.hosts = {name: net.host(name) for name in NETWORK_HOSTS}
+        names = BRIDGED_HOSTS if self.cfg.bridge else NETWORK_HOSTS
+        self.hosts = {name: net.host(name) for name in names}
         # The soak itself (its broker, proxy, listener, operator and feed) lives on the LAN's
         # first host from now on: the threads and processes it starts follow it there.
         net.enter()
         device = Account(DEVICE, new_password(), "device", self.unit_ids[0])
         self.accounts = default_accounts(self.unit_ids).with_account(device)
+        if self.cfg.bridge:
+            self.accounts = self.accounts.with_account(Account(HALL, new_password(), "bridge"))
         accounts_file = self.dir / "accounts.toml"
         write_accounts(self.accounts, accounts_file)
         print(f"soak: LAN {net.network}, hosts {self.hosts}", file=self.log)
         return net.address, ["--accounts", str(accounts_file)]
+
+    async def _start_central(self, listen: str) -> str:
+        """The central Mosquitto (accounts, on the LAN's first host), listening; its URL."""
+        directory = self.dir / "central"
+        passwd, acl = write_files(self.accounts, self.topics, directory)
+        port = free_port()
+        conf = mosquitto_conf(passwd, acl, host=listen, port=port, ws_port=None)
+        self.children["broker"] = await self.sup.start(
+            ChildSpec("broker", [MOSQUITTO, "-c", str(_conf_file(directory, conf))])
+        )
+        deadline = time.monotonic() + 10.0
+        while not _connects(listen, port):
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the central mosquitto is not listening on {listen}:{port}")
+            await asyncio.sleep(0.05)  # polling its port, with a deadline
+        return f"mqtt://{listen}:{port}"
+
+    async def _start_hall(self, central_host: str, central_port: int) -> str:
+        """The hall's Mosquitto on its host, bridged to `central_host:central_port`; the URL its
+        units reach it at (its loopback: only the bridge crosses the hall's link)."""
+        directory = self.dir / "hall"
+        passwd, acl = write_files(self.accounts, self.topics, directory)
+        port = free_port()
+        bridge = bridge_conf(self.accounts.get(HALL), central_host, central_port, self.topics)
+        conf = mosquitto_conf(passwd, acl, host="127.0.0.1", port=port, ws_port=None) + bridge
+        argv = self.hosts["hall"].command([MOSQUITTO, "-c", str(_conf_file(directory, conf))])
+        self.children["hall"] = await self.sup.start(ChildSpec("hall", argv))
+        return f"mqtt://127.0.0.1:{port}"  # the units wait for it: they retry until it listens
 
     def _login(self, account: str) -> str:
         """The broker's URL logging in as `account`."""
@@ -281,12 +330,14 @@ class Soak:
     async def main_lane(self, deadline: float) -> None:
         """One process or link fault at a time, each with its recovery, until `deadline`."""
         cfg = self.cfg
+        restartable = cfg.broker is None and not cfg.bridge
         families = [
             f
             for f in cfg.faults
-            if (f != "broker" or cfg.broker is None) and (cfg.network or f not in NETWORK_FAMILIES)
+            if (f != "broker" or restartable) and (cfg.network or f not in NETWORK_FAMILIES)
         ]
-        for fault in main_faults(self.rng, families, self.cfg.step_s):
+        hosts = BRIDGED_HOSTS if cfg.bridge else NETWORK_HOSTS
+        for fault in main_faults(self.rng, families, self.cfg.step_s, hosts):
             await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return
@@ -336,7 +387,7 @@ class Soak:
             else:
                 (host.cut if fault.kind.startswith("silent_") else host.stall)()
             try:
-                if fault.kind.startswith("silent_long_"):
+                if fault.kind.startswith("silent_long_") and fault.target != "hall":
                     await self._wait_broken(fault, since)
                 else:
                     await asyncio.sleep(fault.hold_s)  # the fault itself: the link gone a while
@@ -591,3 +642,18 @@ async def run_soak(cfg: SoakConfig, log: TextIO, keep: Path | None = None) -> So
         return await Soak(cfg, keep, log).run()
     with tempfile.TemporaryDirectory(prefix="gridfleet-soak-") as tmp:
         return await Soak(cfg, Path(tmp), log).run()
+
+
+def _conf_file(directory: Path, conf: str) -> Path:
+    """`conf` written as `directory/mosquitto.conf`."""
+    # Started as root, Mosquitto reads its files as user mosquitto unless told to stay root (the
+    # accounts' files are the owner's only).
+    path = directory / "mosquitto.conf"
+    path.write_text(conf + ("user root\n" if os.geteuid() == 0 else ""))
+    return path
+
+
+def _connects(host: str, port: int) -> bool:
+    """Whether a TCP connection to `host:port` is taken."""
+    with socket.socket() as probe:
+        return probe.connect_ex((host, port)) == 0

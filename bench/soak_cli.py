@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from gridfleet.bench.lan import can_make_lans
-from gridfleet.bench.soak import SoakConfig, SoakResult, run_soak
+from gridfleet.bench.soak import MOSQUITTO, SoakConfig, SoakResult, run_soak
 from gridfleet.bench.soak_faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
@@ -47,6 +47,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="the units and the coordinator on hosts of their own (network namespaces on one "
         "bridge; needs root), the broker on this machine's LAN address with accounts; adds "
         "silent link cuts, stalls and thin lossy links to the faults",
+    )
+    parser.add_argument(
+        "--bridge",
+        action="store_true",
+        help="with --network: the units on a hall's Mosquitto of their own, bridged through the "
+        "proxy to a central Mosquitto (coordinator, soak): the hall's link faults and the "
+        "proxy's cuts and delays are the bridge's; no broker restarts",
     )
     parser.add_argument(
         "--drain", type=float, default=90.0, help="seconds for jobs to end after the faults"
@@ -85,6 +92,10 @@ def config(args: argparse.Namespace) -> SoakConfig:
         why_not = can_make_lans()
         if why_not is not None:
             raise ConfigError(f"--network: {why_not}")
+        if args.bridge and not Path(MOSQUITTO).exists():
+            raise ConfigError("--bridge runs Mosquitto: install it (apt-get install mosquitto)")
+    elif args.bridge:
+        raise ConfigError("--bridge bridges the hosts of a LAN: give --network too")
     elif set(faults) & set(NETWORK_FAMILIES):
         raise ConfigError(f"--faults {','.join(NETWORK_FAMILIES)} need --network")
     return SoakConfig(
@@ -95,6 +106,7 @@ def config(args: argparse.Namespace) -> SoakConfig:
         step_s=args.step,
         faults=faults,
         network=args.network,
+        bridge=args.bridge,
         drain_s=args.drain,
         stranded_s=args.stranded,
     )

@@ -17,6 +17,8 @@ STOP_FAMILIES = ("estop", "press")  # the stop lane; the rest are the main lane'
 NETWORK_FAMILIES = ("silent", "stall", "narrow")
 LOCAL_FAMILIES = tuple(f for f in FAMILIES if f not in NETWORK_FAMILIES)
 NETWORK_HOSTS = ("units", "office")  # the robots' host, the coordinator's
+# With a bridge the robots' host is a hall with a broker of its own: its link is the bridge's.
+BRIDGED_HOSTS = ("hall", "office")
 KEEP_ALIVE_S = 10.0  # gridfleet's clients: the broker gives up on a silent one after 1.5 of it
 LONG_SILENCE_SHARE = 0.2  # of the silent cuts, longer than the broker's keep-alive
 KBITS = (32, 64, 128, 256)  # `narrow`: a poor Wi-Fi link's rates (a state is ~0.5 kB)
@@ -33,8 +35,14 @@ class Fault:
     kbit: int = 0  # `narrow`: the link's rate
 
 
-def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> Iterator[Fault]:
-    """Process and link faults for ever: every selected family once per round, in seeded order."""
+def main_faults(
+    rng: random.Random,
+    families: Sequence[str],
+    step_s: float,
+    hosts: Sequence[str] = NETWORK_HOSTS,
+) -> Iterator[Fault]:
+    """Process and link faults for ever: every selected family once per round, in seeded order;
+    the network's on one of `hosts` at random."""
     staleness = 5 * step_s  # the coordinator's and units' staleness timeout
     chosen = [f for f in FAMILIES if f in families and f not in STOP_FAMILIES]
     while chosen:
@@ -55,17 +63,17 @@ def main_faults(rng: random.Random, families: Sequence[str], step_s: float) -> I
             elif family == "delay":
                 yield Fault("delay", hold_s=rng.uniform(1.0, 3.0), latency_s=rng.uniform(0.05, 0.5))
             elif family == "silent":
-                host = rng.choice(NETWORK_HOSTS)
+                host = rng.choice(hosts)
                 if rng.random() < LONG_SILENCE_SHARE:  # past the keep-alive: the will is sent
                     hold = rng.uniform(1.5 * KEEP_ALIVE_S + 1.0, 1.5 * KEEP_ALIVE_S + 5.0)
                     yield Fault(f"silent_long_{host}", host, hold)
                 else:
                     yield Fault(f"silent_{host}", host, rng.uniform(0.5, 4.0))
             elif family == "stall":
-                host = rng.choice(NETWORK_HOSTS)
+                host = rng.choice(hosts)
                 yield Fault(f"stall_{host}", host, rng.uniform(0.5, 5.0))
             elif family == "narrow":
-                host = rng.choice(NETWORK_HOSTS)
+                host = rng.choice(hosts)
                 yield Fault(f"narrow_{host}", host, rng.uniform(1.0, 5.0), kbit=rng.choice(KBITS))
 
 

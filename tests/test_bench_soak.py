@@ -19,6 +19,7 @@ from gridfleet.bench import soak_listen
 from gridfleet.bench.soak import Soak, SoakConfig
 from gridfleet.bench.soak_check import Stop
 from gridfleet.bench.soak_faults import (
+    BRIDGED_HOSTS,
     KEEP_ALIVE_S,
     LOCAL_FAMILIES,
     NETWORK_HOSTS,
@@ -81,6 +82,7 @@ def test_one_minute_soak_is_green_and_reports_every_figure(tmp_path: Path) -> No
         (["--broker", "http://nowhere"], "http://nowhere"),
         (["--faults", "units,silent"], "need --network"),
         (["--network", "--broker", "mqtt://127.0.0.1:1883"], "no --broker"),
+        (["--bridge"], "give --network too"),
     ],
 )
 def test_bad_arguments_are_one_line(args: list[str], says: str) -> None:
@@ -134,6 +136,19 @@ def test_the_network_schedule_cuts_stalls_and_narrows_both_hosts_some_cuts_past_
     assert all(f.hold_s > 1.5 * KEEP_ALIVE_S for f in long_cuts)
     assert all(f.hold_s < 1.5 * KEEP_ALIVE_S for f in faults if f not in long_cuts)
     assert all(f.kbit > 0 for f in faults if f.kind.startswith("narrow_"))
+
+
+def test_with_a_bridge_the_network_faults_strike_the_halls_link_and_the_coordinators() -> None:
+    faults = [
+        f
+        for f, _ in zip(
+            main_faults(random.Random(1), ["silent", "stall"], 0.1, BRIDGED_HOSTS),
+            range(100),
+            strict=False,
+        )
+    ]
+    assert {f.target for f in faults} == {"hall", "office"}
+    assert "silent_long_hall" in {f.kind for f in faults}  # past the bridge's keep-alive too
 
 
 async def test_the_proxy_forwards_cuts_and_delays() -> None:
