@@ -19,12 +19,28 @@ SKETCH = (FW / "esp32_unit" / "esp32_unit.ino").read_text()
 DEFINES = dict(re.findall(r"^#define (GF_\w+) (.+)$", CONFIG, re.MULTILINE))
 
 
+# The real libraries the firmware builds against on the device, kept beside the repository
+# (CI has them; a clone elsewhere may not).
+FIRMWARE_LIBS = REPO.parent / "shared" / "firmware-libs"
+
+
 def tracked(under: str) -> list[str]:
-    """Files git tracks under `under` (what a clean clone has)."""
+    """Files under `under` that a clean clone has: tracked, or new and not git-ignored."""
     out = subprocess.run(
-        ["git", "ls-files", "-z", under], cwd=REPO, capture_output=True, check=True, timeout=30
+        ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard", under],
+        cwd=REPO,
+        capture_output=True,
+        check=True,
+        timeout=30,
     )
-    return [p for p in out.stdout.decode().split("\0") if p]
+    return [p for p in out.stdout.decode().split("\0") if p and (REPO / p).exists()]
+
+
+def copy_checkout(under: str, into: Path) -> None:
+    """Copy the files of a clean clone under `under` into `into`, keeping their paths."""
+    for name in tracked(under):
+        (into / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy2(REPO / name, into / name)
 
 
 def have_toolchain() -> bool:
@@ -39,23 +55,56 @@ def have_toolchain() -> bool:
 @pytest.mark.firmware  # make test runs it beside the soak and the static checks
 @pytest.mark.timeout(240)  # a cold g++ build of the host tests, with its own 180 s limit
 def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
-    files = tracked("firmware")
-    assert "firmware/esp32_unit/config.h" not in files  # the real config is never committed
-    for name in files:
-        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
-        shutil.copy2(REPO / name, tmp_path / name)
+    assert "firmware/esp32_unit/config.h" not in tracked("firmware")  # never committed
+    copy_checkout("firmware", tmp_path)
     out = subprocess.run(
-        ["make", "-C", str(tmp_path / "firmware"), "-j2", "test"],
+        ["make", "-C", str(tmp_path / "firmware"), "-j2", "test", f"FIRMWARE_LIBS={FIRMWARE_LIBS}"],
         capture_output=True,
         text=True,
         timeout=180,
     )
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     results = re.findall(r"test cases:\s+(\d+) \|\s+(\d+) passed \|\s+(\d+) failed", out.stdout)
-    assert len(results) == 2, out.stdout[-2000:]  # the logic tests and the sketch test both ran
+    # The logic tests, the sketch on stand-ins, and (with the real libraries) the sketch on the
+    # real PubSubClient and ArduinoCore-API in arduino-esp32 2.x's and 3.x's layouts.
+    assert len(results) == (4 if FIRMWARE_LIBS.is_dir() else 2), out.stdout[-2000:]
     for total, passed, failed in results:
         assert int(total) > 0 and total == passed and failed == "0"
     assert int(results[0][0]) >= 20  # the logic suite, not an empty shell
+    assert "warning" not in out.stdout + out.stderr  # none from the project's code
+
+
+@pytest.mark.skipif(
+    not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
+)
+@pytest.mark.firmware
+@pytest.mark.timeout(120)
+def test_without_the_real_libraries_the_stand_in_tests_run_and_say_so_in_one_line() -> None:
+    out = subprocess.run(
+        ["make", "-C", str(FW), "-j2", "test", "FIRMWARE_LIBS=/nonexistent/firmware-libs"],
+        capture_output=True,
+        text=True,
+        timeout=110,
+    )
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    said = [line for line in out.stdout.splitlines() if "/nonexistent/firmware-libs" in line]
+    assert said == [
+        "firmware: /nonexistent/firmware-libs not found: the sketch is not built against the "
+        "real PubSubClient and ArduinoCore-API here (FIRMWARE_LIBS=DIR gives them)"
+    ]
+    assert len(re.findall(r"Status: SUCCESS", out.stdout)) == 2
+
+
+def test_readme_and_comments_say_the_press_is_confirmed_on_the_devices_own_stop_topic() -> None:
+    # The device confirms its press when it comes back on <root>/v1/devices/<id>/stop, which it
+    # subscribes to; the fleet's latch (fleet/estop) carries the coordinator's copy instead.
+    never_lost = README[README.index("**Never lost, never sent twice.**") :]
+    never_lost = never_lost[: never_lost.index("\n\n")]
+    assert "`<root>/v1/devices/<device id>/stop`" in never_lost
+    assert "estop topic" not in never_lost
+    timing = (FW / "esp32_unit" / "src" / "timing.h").read_text()
+    pending = timing[timing.index("class PendingStop") - 600 : timing.index("class PendingStop")]
+    assert "devices/<id>/stop" in pending and "estop topic" not in pending
 
 
 def test_make_test_runs_the_host_tests_and_installs_their_compiler() -> None:

@@ -3,8 +3,8 @@
 // this file only wires it to WiFi, PubSubClient, the pins and the button interrupt.
 #include <Arduino.h>
 #include <PubSubClient.h>
+#include <Ticker.h>
 #include <WiFi.h>
-#include <WiFiClientSecure.h>
 
 #include <atomic>
 
@@ -14,14 +14,18 @@
 #include "src/tls_config.h"
 
 WiFiClient wifiClient;
-WiFiClientSecure secureClient;
+gf::SecureClient secureClient;
 // TLS when config.h gives the broker's CA (the broker's certificate must be signed by it and
 // name GF_MQTT_HOST); plain TCP when GF_MQTT_CA_PEM is empty.
 WiFiClient& netClient = gf::chooseClient(wifiClient, secureClient, GF_MQTT_CA_PEM);
-PubSubClient mqttClient(netClient);
-gf::PubSubTransport transport(mqttClient, GF_MQTT_USER, GF_MQTT_PASSWORD);
+gf::WatchedClient watchedClient(netClient, gf::usesTls(GF_MQTT_CA_PEM) ? &secureClient : nullptr,
+                                gf::kMqttBufferBytes);
+PubSubClient mqttClient(watchedClient);
+gf::PubSubTransport transport(mqttClient, watchedClient, GF_MQTT_HOST, GF_MQTT_PORT, GF_MQTT_USER,
+                              GF_MQTT_PASSWORD);
 gf::WiFiLink wifiLink(GF_WIFI_SSID, GF_WIFI_PASSWORD);
 gf::ArduinoClock arduinoClock;
+gf::SerialLog serialLog;
 gf::Device* device = nullptr;
 bool configOk = false;
 
@@ -53,6 +57,32 @@ void showLeds(const gf::Leds& leds) {
   digitalWrite(GF_PIN_LED_W, leds.w ? HIGH : LOW);
 }
 
+// A connection attempt blocks loop() for up to gf::kConnectAttemptBoundMs (TCP connect, TLS
+// handshake, CONNACK). Meanwhile this timer (in the esp_timer task) runs the LEDs: the offline
+// chase, or the stop pattern as soon as the button is pressed; the loop takes the press itself
+// from the interrupt's flag once the attempt returns.
+Ticker ledTicker;
+constexpr uint32_t kLedTickMs = 50;
+std::atomic<bool> connecting{false};
+std::atomic<bool> stopWhileConnecting{false};
+
+void showLedsWhileConnecting() {
+  if (!connecting.load()) return;
+  if (buttonEdge.load() || digitalRead(GF_PIN_BUTTON) == LOW) stopWhileConnecting.store(true);
+  showLeds(gf::ledsFor(gf::Direction::None, stopWhileConnecting.load(), false, millis()));
+}
+
+class LedsWhileConnecting : public gf::BlockingHook {
+ public:
+  void enter() override {
+    stopWhileConnecting.store(device != nullptr && device->showsStop());
+    connecting.store(true);
+    showLedsWhileConnecting();  // at once, not a timer period later
+  }
+  void leave() override { connecting.store(false); }
+};
+LedsWhileConnecting ledsWhileConnecting;
+
 void setup() {
   Serial.begin(115200);
   pinMode(GF_PIN_LED_N, OUTPUT);
@@ -65,6 +95,8 @@ void setup() {
   static gf::DeviceConfig config = makeConfig();
   std::string problem = config.problem();
   if (problem.empty()) problem = gf::caProblem(GF_MQTT_CA_PEM);
+  // Room for the longest estop (512 bytes) with its topic and header; larger ones are dropped.
+  if (problem.empty()) problem = gf::configureClient(mqttClient, gf::kMqttBufferBytes);
   if (!problem.empty()) {
     Serial.println(("gridfleet: config.h: " + problem).c_str());
     return;  // loop() then blinks the stop pattern and does nothing else
@@ -73,14 +105,15 @@ void setup() {
   WiFi.setAutoReconnect(true);
   mqttClient.setServer(GF_MQTT_HOST, GF_MQTT_PORT);
   mqttClient.setCallback(onMqttMessage);
-  // Room for the longest estop payload (512 bytes) plus topic and header; longer ones are dropped.
-  mqttClient.setBufferSize(static_cast<uint16_t>(gf::proto::kTopicEstopMaxBytes + 256));
-  mqttClient.setKeepAlive(10);
-  // connect() blocks until the broker answers or this many seconds pass: keep the loop lively.
-  mqttClient.setSocketTimeout(2);
-  static gf::Device dev(config, transport, wifiLink, arduinoClock);
+  if (gf::usesTls(GF_MQTT_CA_PEM)) secureClient.setHandshakeTimeout(gf::kTlsHandshakeTimeoutS);
+  transport.setBlockingHook(&ledsWhileConnecting);
+  ledTicker.attach_ms(kLedTickMs, showLedsWhileConnecting);
+  static gf::Device dev(config, transport, wifiLink, arduinoClock, &serialLog);
   device = &dev;
-  Serial.println(("gridfleet: device " + config.device + " shows unit " + config.unit).c_str());
+  Serial.println(("gridfleet: device " + config.device + " shows unit " + config.unit + ", broker " +
+                  GF_MQTT_HOST + ":" + std::to_string(GF_MQTT_PORT) +
+                  (gf::usesTls(GF_MQTT_CA_PEM) ? " (TLS)" : " (plain TCP)"))
+                     .c_str());
 }
 
 void loop() {

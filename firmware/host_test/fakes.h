@@ -2,6 +2,7 @@
 #pragma once
 
 #include <map>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -21,8 +22,21 @@ class FakeLink : public gf::NetLink {
  public:
   bool up() override { return isUp; }
   void begin() override { ++begins; }
+  std::string status() override { return isUp ? "up" : "wrong password"; }
   bool isUp = true;
   int begins = 0;
+};
+
+class FakeLog : public gf::Log {
+ public:
+  void line(const std::string& text) override { lines.push_back(text); }
+  bool has(const std::string& part) const {
+    for (const auto& l : lines) {
+      if (l.find(part) != std::string::npos) return true;
+    }
+    return false;
+  }
+  std::vector<std::string> lines;
 };
 
 // Behaves like a broker with one client: keeps retained values, delivers to subscriptions on
@@ -38,22 +52,33 @@ class FakeMqtt : public gf::MqttTransport {
   bool connect(const std::string& clientId, const std::string& willTopic,
                const std::string& willPayload) override {
     ++connectCalls;
+    if (clock != nullptr) clock->advance(connectTakesMs);  // the attempt blocks
+    // As PubSubClient does: while the old session looks open, true without a new CONNECT.
+    if (isConnected) return true;
     if (!brokerUp) return false;
+    ++connectPackets;
     isConnected = true;
+    refused = false;
     this->clientId = clientId;
     will = {willTopic, willPayload, true};
     subscriptions.clear();
     return true;
   }
   bool connected() override { return isConnected; }
-  void disconnect() override { isConnected = false; }  // clean: no will
   bool subscribe(const std::string& topic, uint8_t qos) override {
     if (!isConnected || failSubscribe) return false;
+    // Written: PubSubClient says yes here, whatever the SUBACK will say.
+    if (refuseTopics.count(topic)) {
+      subackRefusals = true;
+      return true;
+    }
     subscriptions[topic] = qos;
     auto it = retained.find(topic);
     if (it != retained.end()) inbox.emplace_back(topic, it->second);
     return true;
   }
+  bool refusedSubscription() override { return isConnected && refused; }
+  std::string lastError() override { return error; }
   bool publish(const std::string& topic, const std::string& payload, bool isRetained) override {
     if (!isConnected) return false;
     published.push_back({topic, payload, isRetained});
@@ -62,6 +87,8 @@ class FakeMqtt : public gf::MqttTransport {
     return true;
   }
   void loop() override {
+    if (subackRefusals) refused = true;  // the SUBACK arrives
+    subackRefusals = false;
     auto batch = std::move(inbox);
     inbox.clear();
     for (auto& [topic, payload] : batch) {
@@ -77,8 +104,10 @@ class FakeMqtt : public gf::MqttTransport {
     if (isRetained) retained[topic] = payload;
     if (isConnected && subscriptions.count(topic)) inbox.emplace_back(topic, payload);
   }
-  // The connection drops: the broker publishes the will.
-  void drop() {
+  // The connection drops (or the device closes it without DISCONNECT): the broker publishes
+  // the will.
+  void drop() override {
+    if (isConnected) ++drops;
     isConnected = false;
     inbox.clear();
     if (!will.topic.empty()) retained[will.topic] = will.payload;
@@ -90,11 +119,19 @@ class FakeMqtt : public gf::MqttTransport {
   }
 
   gf::Device* device = nullptr;
+  FakeClock* clock = nullptr;
+  uint32_t connectTakesMs = 0;
   bool brokerUp = true;
   bool isConnected = false;
   bool dropPublishes = false;
   bool failSubscribe = false;
+  std::set<std::string> refuseTopics;  // the broker's ACL says no: a refusing SUBACK
+  bool subackRefusals = false;
+  bool refused = false;
+  std::string error = "broker down";
   int connectCalls = 0;
+  int connectPackets = 0;  // CONNECTs that reached the broker
+  int drops = 0;
   std::string clientId;
   Msg will;
   std::map<std::string, uint8_t> subscriptions;
@@ -105,8 +142,10 @@ class FakeMqtt : public gf::MqttTransport {
 
 // A device wired to the fakes, with helpers to run its loop.
 struct Rig {
-  explicit Rig(gf::DeviceConfig cfg = defaultConfig()) : config(std::move(cfg)), device(config, mqtt, link, clock) {
+  explicit Rig(gf::DeviceConfig cfg = defaultConfig())
+      : config(std::move(cfg)), device(config, mqtt, link, clock, &log) {
     mqtt.device = &device;
+    mqtt.clock = &clock;
   }
   static gf::DeviceConfig defaultConfig() {
     gf::DeviceConfig c;
@@ -128,6 +167,7 @@ struct Rig {
   FakeClock clock;
   FakeLink link;
   FakeMqtt mqtt;
+  FakeLog log;
   gf::Device device;
 };
 

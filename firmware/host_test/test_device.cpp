@@ -239,6 +239,8 @@ TEST_CASE("a session whose subscriptions fail is dropped and retried with back-o
   r.tick();
   CHECK_FALSE(r.device.online());
   CHECK_FALSE(r.mqtt.connected());
+  // Dropped without a DISCONNECT: the broker keeps the will, which replaces the `online`.
+  CHECK(r.mqtt.retained.at(kConn) == "broken");
   r.run(r.config.mqttBackoffInitialMs - 1);
   CHECK(r.mqtt.connectCalls == 1);
   r.mqtt.failSubscribe = false;
@@ -350,4 +352,77 @@ TEST_CASE("a press cleared while offline is not shown after reconnecting") {
   REQUIRE(r.device.online());
   CHECK_FALSE(r.device.pressed());
   CHECK(r.device.leds() == gf::Leds{false, true, false, false});
+}
+
+TEST_CASE("a subscription the broker refuses drops the session, says so, retries with back-off") {
+  Rig r;
+  r.mqtt.refuseTopics.insert(kEstop);  // PubSubClient's subscribe() still says true
+  r.tick();
+  r.tick();  // the refusing SUBACK arrives
+  CHECK_FALSE(r.device.online());
+  CHECK_FALSE(r.mqtt.connected());
+  CHECK(r.mqtt.retained.at(kConn) == "broken");  // no DISCONNECT: the will stands
+  CHECK(r.log.has("refused a subscription"));
+  CHECK(r.log.has(kEstop));
+  const int before = r.mqtt.connectPackets;
+  r.run(r.config.mqttBackoffInitialMs - 2);
+  CHECK(r.mqtt.connectPackets == before);  // back-off, not a tight reconnect loop
+  r.mqtt.refuseTopics.clear();
+  r.run(5);
+  CHECK(r.mqtt.connectPackets == before + 1);
+  r.run(2);
+  CHECK(r.device.online());
+}
+
+TEST_CASE("after WiFi drops, the next connect is a new session even if the old socket looks open") {
+  Rig r;
+  r.tick();
+  REQUIRE(r.mqtt.connectPackets == 1);
+  r.link.isUp = false;  // the socket of the old session is not closed by the WiFi drop itself
+  r.run(5);
+  CHECK_FALSE(r.device.online());
+  r.link.isUp = true;
+  r.run(5);
+  REQUIRE(r.device.online());
+  // PubSubClient's connect() would have said yes to the stale session without a CONNECT.
+  CHECK(r.mqtt.connectPackets == 2);
+  CHECK(r.mqtt.subscriptions.size() == 3);
+  CHECK(r.mqtt.retained.at(kConn) == "online");
+}
+
+TEST_CASE("the log says why a connect failed, when it tries again, and what WiFi does") {
+  Rig r;
+  r.link.isUp = false;
+  r.run(r.config.linkBackoffInitialMs + 1);
+  CHECK(r.log.has("WiFi: not joined yet (wrong password); joining again"));
+  r.mqtt.brokerUp = false;
+  r.mqtt.error = "the broker refused the user name or password";
+  r.link.isUp = true;
+  r.tick();
+  CHECK(r.log.has("WiFi: connected"));
+  CHECK(r.log.has("MQTT: connect failed: the broker refused the user name or password; next try "
+                  "in 500 ms"));
+  r.mqtt.brokerUp = true;
+  r.run(600);
+  CHECK(r.log.has("MQTT: connected as dev1"));
+  r.mqtt.drop();
+  r.run(2);
+  CHECK(r.log.has("MQTT: connection lost"));
+}
+
+TEST_CASE("the back-off runs from the end of a failed attempt, however long it blocked") {
+  Rig r;
+  r.mqtt.brokerUp = false;
+  r.mqtt.connectTakesMs = 5000;  // a dead TLS broker: each attempt waits for the handshake
+  std::vector<std::pair<uint32_t, uint32_t>> attempts;  // start, end
+  for (int i = 0; i < 20000 && attempts.size() < 3; ++i) {
+    const uint32_t start = r.clock.now;
+    const int before = r.mqtt.connectCalls;
+    r.tick();
+    if (r.mqtt.connectCalls != before) attempts.emplace_back(start, r.clock.now);
+    r.clock.advance(1);
+  }
+  REQUIRE(attempts.size() == 3);
+  CHECK(attempts[1].first - attempts[0].second == r.config.mqttBackoffInitialMs);
+  CHECK(attempts[2].first - attempts[1].second == 2 * r.config.mqttBackoffInitialMs);
 }

@@ -4,6 +4,7 @@
 #include <string>
 #include <utility>
 
+#include "../esp32_unit/src/device.h"
 #include "../esp32_unit/src/protocol.h"
 
 using gf::Direction;
@@ -162,4 +163,24 @@ TEST_CASE("estop payloads: protocol_table.h's words, separator and limits") {
   CHECK(estop(big) == EstopKind::Engaged);
   CHECK(estop(big + "r") == EstopKind::Invalid);
   CHECK(p::kTopicEstopMaxBytes == p::kMaxEstopBytes);
+}
+
+TEST_CASE("a topic root is refused when the longest estop would not fit the MQTT buffer") {
+  namespace p = gf::proto;
+  // The 512-byte estop arrives as a QoS 1 PUBLISH: 1 + 2 header bytes, 2 topic length bytes,
+  // the topic, 2 packet id bytes, the payload; PubSubClient drops any packet over its buffer.
+  const std::string suffix = std::string("/") + p::kTopicVersion + "/" + p::kTopicEstop;
+  CHECK(gf::kMaxRootBytes == gf::kMqttBufferBytes - 7 - p::kMaxEstopBytes - suffix.size());
+  CHECK(gf::kMaxRootBytes == 234);
+  std::string root;
+  while (root.size() + 1 + 60 <= gf::kMaxRootBytes) root += (root.empty() ? "" : "/") + std::string(60, 'a');
+  root += "/" + std::string(gf::kMaxRootBytes - root.size() - 1, 'b');
+  REQUIRE(root.size() == gf::kMaxRootBytes);
+  CHECK(gf::isValidRoot(root));
+  CHECK_FALSE(gf::isValidRoot(root + "c"));
+  gf::DeviceConfig config;
+  config.root = root + "c";
+  CHECK(config.problem().find("at most 234 bytes") != std::string::npos);
+  config.root = root;
+  CHECK(config.problem().empty());
 }

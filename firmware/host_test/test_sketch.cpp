@@ -4,8 +4,12 @@
 
 #include <Arduino.h>
 #include <PubSubClient.h>
+#include <Ticker.h>
 #include <WiFi.h>
+#include <WiFiClientSecure.h>
 #include <config.h>
+
+#include <set>
 
 #include <string>
 #include <utility>
@@ -16,6 +20,8 @@
 void setup();
 void loop();
 extern PubSubClient mqttClient;
+extern Ticker ledTicker;
+extern WiFiClientSecure secureClient;
 
 namespace {
 const std::string kRoot = GF_TOPIC_ROOT;
@@ -102,4 +108,56 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
   CHECK(mqttClient.published.back().payload ==
         p::kEstopEngaged + sep + GF_DEVICE_ID + sep + p::kEstopButtonReason);
   CHECK(mqttClient.bufferSize >= p::kMaxEstopBytes + 100);
+}
+
+TEST_CASE("while a connection attempt blocks, a timer runs the LEDs and shows a press at once") {
+  // The sketch is set up and connected (the test above); the broker connection now breaks.
+  REQUIRE(mqttClient.connected());
+  REQUIRE(static_cast<bool>(ledTicker.fire));
+  CHECK(ledTicker.periodMs <= 100);
+  host::pinIn[GF_PIN_BUTTON] = HIGH;
+  loops(300);  // the earlier press settles
+  mqttClient.inbox.emplace_back(kRoot + "/v1/fleet/estop", "released|dashboard|ok");
+  mqttClient.inbox.emplace_back(kPress, "engaged|" GF_DEVICE_ID "|button");  // it has the press
+  mqttClient.inbox.emplace_back(kPress, "");  // and an operator's release cleared it
+  loops(2);
+  const auto ledsNow = [] {
+    return std::string(1, host::pinOut[GF_PIN_LED_N] ? 'N' : '.') +
+           (host::pinOut[GF_PIN_LED_E] ? 'E' : '.') + (host::pinOut[GF_PIN_LED_S] ? 'S' : '.') +
+           (host::pinOut[GF_PIN_LED_W] ? 'W' : '.');
+  };
+  std::set<std::string> chase;
+  std::set<std::string> afterPress;
+  int stopsBefore = 0;
+  for (const auto& m : mqttClient.published) stopsBefore += m.topic == kPress;
+  int blocked = 0;
+  host::duringConnect = [&] {
+    // The loop is stuck in connect(): only the timer runs, every periodMs.
+    ++blocked;
+    for (int i = 0; i < 20; ++i) {
+      host::nowMs += ledTicker.periodMs;
+      ledTicker.fire();
+      chase.insert(ledsNow());
+    }
+    host::pinIn[GF_PIN_BUTTON] = LOW;
+    host::isr[GF_PIN_BUTTON]();
+    for (int i = 0; i < 20; ++i) {
+      host::nowMs += ledTicker.periodMs;
+      ledTicker.fire();
+      afterPress.insert(ledsNow());
+    }
+    host::pinIn[GF_PIN_BUTTON] = HIGH;
+  };
+  secureClient.open = false;  // the broker went away
+  loops(3);
+  host::duringConnect = nullptr;
+  REQUIRE(blocked == 1);
+  // The offline chase ran round (one LED at a time), and the press showed the stop blink.
+  CHECK(chase == std::set<std::string>{"N...", ".E..", "..S.", "...W"});
+  CHECK(afterPress == std::set<std::string>{"NESW", "...."});
+  // Once connect() returned, the loop took the press from the interrupt's flag and sent it.
+  loops(5);
+  int stopsAfter = 0;
+  for (const auto& m : mqttClient.published) stopsAfter += m.topic == kPress;
+  CHECK(stopsAfter == stopsBefore + 1);
 }

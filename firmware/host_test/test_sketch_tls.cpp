@@ -6,17 +6,40 @@
 #include <WiFiClientSecure.h>
 #include <config.h>
 
+#include "../esp32_unit/src/pubsub_transport.h"
 #include "../esp32_unit/src/tls_config.h"
 
 extern PubSubClient mqttClient;
 extern WiFiClient wifiClient;
-extern WiFiClientSecure secureClient;
+extern WiFiClient& netClient;
+extern gf::SecureClient secureClient;
+extern gf::WatchedClient watchedClient;
 
 TEST_CASE("with a CA in config.h the sketch talks MQTT through WiFiClientSecure trusting it") {
-  CHECK(mqttClient.network == &secureClient);
+  CHECK(mqttClient.network == &watchedClient);
+  CHECK(&netClient == &secureClient);
+  CHECK(watchedClient.usesTls());
   CHECK(secureClient.caCert == GF_MQTT_CA_PEM);
   CHECK(secureClient.caCertCalls == 1);
   CHECK(GF_MQTT_PORT == 8883);
+}
+
+TEST_CASE("a TLS connection attempt is bounded: TCP connect and handshake timeouts are set") {
+  // arduino-esp32 would otherwise wait 30 s for the TCP connect and 120 s for the handshake.
+  CHECK(secureClient.handshakeTimeoutS == gf::kTlsHandshakeTimeoutS);
+  REQUIRE(secureClient.connects > 0);
+  CHECK(secureClient.lastTimeoutMs == static_cast<int32_t>(gf::kTcpConnectTimeoutMs));
+  CHECK(secureClient.lastHost == GF_MQTT_HOST);
+  CHECK(secureClient.lastPort == GF_MQTT_PORT);
+  CHECK(gf::kConnectAttemptBoundMs <= 10000);
+}
+
+TEST_CASE("a buffer PubSubClient cannot allocate is a configuration problem, not ignored") {
+  WiFiClient plain;
+  PubSubClient client(plain);
+  CHECK(gf::configureClient(client, gf::kMqttBufferBytes).empty());
+  client.acceptBufferSize = false;
+  CHECK(gf::configureClient(client, gf::kMqttBufferBytes).find("no memory") != std::string::npos);
 }
 
 TEST_CASE("an empty CA means plain TCP and no CA is set") {

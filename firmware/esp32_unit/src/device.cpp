@@ -3,17 +3,23 @@
 namespace gf {
 
 std::string DeviceConfig::problem() const {
-  if (!isValidRoot(root)) return "topic root '" + root + "' is not valid";
+  if (!isValidRoot(root)) {
+    return "topic root '" + root + "' is not valid ('/'-separated ids, at most " +
+           std::to_string(kMaxRootBytes) + " bytes, so that the longest stop fits the " +
+           std::to_string(kMqttBufferBytes) + "-byte MQTT buffer)";
+  }
   if (!isValidId(unit)) return "unit id '" + unit + "' is not a valid id";
   if (!isValidId(device)) return "device id '" + device + "' is not a valid id";
   return "";
 }
 
-Device::Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock)
+Device::Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock,
+               Log* log)
     : config_(config),
       mqtt_(mqtt),
       link_(link),
       clock_(clock),
+      log_(log),
       directionTopic_(gf::directionTopic(config.root, config.unit)),
       estopTopic_(gf::estopTopic(config.root)),
       pressTopic_(deviceStopTopic(config.root, config.device)),
@@ -30,9 +36,12 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
   if (debouncer_.update(buttonEdge, buttonPressed, now)) stop_.press();
 
   if (!link_.up()) {
+    if (linkWasUp_) say("WiFi: lost (" + link_.status() + ")");
+    linkWasUp_ = false;
     if (online_) lost();
     // WiFi.begin() returns at once; give each try time to join before starting over.
     if (!linkStarted_ || uint32_t(now - linkStartMs_) >= linkWaitMs_) {
+      if (linkStarted_) say("WiFi: not joined yet (" + link_.status() + "); joining again");
       link_.begin();
       linkStarted_ = true;
       linkStartMs_ = now;
@@ -40,6 +49,8 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
     }
     return;
   }
+  if (!linkWasUp_) say("WiFi: connected");
+  linkWasUp_ = true;
   linkBackoff_.reset();
   linkStarted_ = false;
 
@@ -50,6 +61,12 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
   mqtt_.loop();  // may deliver messages, may find the connection gone
   if (!mqtt_.connected()) {
     lost();
+    return;
+  }
+  if (mqtt_.refusedSubscription()) {
+    // The broker said no to a topic (its ACL): without it the device would miss stops.
+    abandon(now, "the broker refused a subscription (does this account's ACL allow reading " +
+                     directionTopic_ + ", " + estopTopic_ + " and " + pressTopic_ + "?)");
     return;
   }
   if (stop_.due(now) && mqtt_.publish(pressTopic_, stopPayload_, proto::kTopicDeviceStopRetained)) {
@@ -63,7 +80,12 @@ void Device::connectIfDue(uint32_t now) {
   lastAttemptMs_ = now;
   ++connectAttempts_;
   if (!mqtt_.connect(config_.device, connectionTopic_, proto::kDeviceWill)) {
+    // The wait runs from the attempt's end: one against a dead TLS broker blocks for seconds,
+    // and measured from its start the next would follow at once.
+    lastAttemptMs_ = clock_.nowMs();
     waitMs_ = mqttBackoff_.next();
+    say("MQTT: connect failed: " + mqtt_.lastError() + "; next try in " +
+        std::to_string(waitMs_) + " ms");
     return;
   }
   bool ok = mqtt_.publish(connectionTopic_, proto::kDeviceOnline,
@@ -74,17 +96,37 @@ void Device::connectIfDue(uint32_t now) {
   ok = ok && mqtt_.subscribe(estopTopic_, proto::kTopicEstopQos);
   ok = ok && mqtt_.subscribe(pressTopic_, proto::kTopicDeviceStopQos);
   if (!ok) {
-    // A half-set-up session would miss the stop: drop it and try again later.
-    mqtt_.disconnect();
+    // A half-set-up session would miss the stop: drop it (no DISCONNECT: the broker then
+    // replaces the `online` just sent with the will) and try again later.
+    mqtt_.drop();
     waitMs_ = mqttBackoff_.next();
+    say("MQTT: could not send the subscriptions; next try in " + std::to_string(waitMs_) +
+        " ms");
     return;
   }
   mqttBackoff_.reset();
   waitMs_ = 0;
   online_ = true;
+  say("MQTT: connected as " + config_.device + ", showing " + directionTopic_);
+}
+
+void Device::abandon(uint32_t now, const std::string& why) {
+  lost();
+  attempted_ = true;
+  lastAttemptMs_ = now;
+  waitMs_ = mqttBackoff_.next();
+  say("MQTT: " + why + "; next try in " + std::to_string(waitMs_) + " ms");
+}
+
+void Device::say(const std::string& text) {
+  if (log_ != nullptr) log_->line(text);
 }
 
 void Device::lost() {
+  if (online_) say("MQTT: connection lost");
+  // Close what is left of the old session: PubSubClient's connect() would otherwise reuse a
+  // socket that still looks open (after a WiFi drop) and send no new CONNECT.
+  mqtt_.drop();
   online_ = false;
   // Read afresh on the next session: a press cleared meanwhile is not replayed, one held is.
   pressed_ = false;
@@ -118,7 +160,7 @@ void Device::onMessage(const std::string& topic, const uint8_t* payload, size_t 
 }
 
 Leds Device::leds() const {
-  return ledsFor(direction_, estopEngaged_ || pressed_ || stop_.pending(), online_, clock_.nowMs());
+  return ledsFor(direction_, showsStop(), online_, clock_.nowMs());
 }
 
 }  // namespace gf

@@ -19,12 +19,25 @@ class MqttTransport {
   virtual bool connect(const std::string& clientId, const std::string& willTopic,
                        const std::string& willPayload) = 0;
   virtual bool connected() = 0;
-  virtual void disconnect() = 0;
+  // Close the connection without a DISCONNECT, so the broker publishes the will (`broken`).
+  virtual void drop() = 0;
+  // True when the SUBSCRIBE was written (PubSubClient does not wait for the SUBACK).
   virtual bool subscribe(const std::string& topic, uint8_t qos) = 0;
+  // The broker's SUBACK refused a subscription of this session.
+  virtual bool refusedSubscription() = 0;
   // QoS 0 (all PubSubClient can send); true when handed to the socket.
   virtual bool publish(const std::string& topic, const std::string& payload, bool retained) = 0;
   // Pump the connection: incoming messages reach Device::onMessage from here.
   virtual void loop() = 0;
+  // Why the last connect() failed, in words.
+  virtual std::string lastError() = 0;
+};
+
+// Where the device says what it is doing and why a connection failed (Serial on the ESP32).
+class Log {
+ public:
+  virtual ~Log() = default;
+  virtual void line(const std::string& text) = 0;
 };
 
 // The network link under MQTT (WiFi on the ESP32).
@@ -34,6 +47,8 @@ class NetLink {
   virtual bool up() = 0;
   // Start (or restart) joining the network; must not block.
   virtual void begin() = 0;
+  // The link's state in words (for the log).
+  virtual std::string status() = 0;
 };
 
 class Clock {
@@ -59,7 +74,8 @@ struct DeviceConfig {
 
 class Device {
  public:
-  Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock);
+  Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, Clock& clock,
+         Log* log = nullptr);
 
   // One pass of the main loop: `buttonEdge` is the interrupt's flag (taken and cleared by the
   // caller), `buttonPressed` the pin level now.
@@ -68,6 +84,8 @@ class Device {
   void onMessage(const std::string& topic, const uint8_t* payload, size_t len);
 
   Leds leds() const;  // what the LEDs should show now
+  // The stop pattern is due: the fleet's latch, this device's press, or one not yet confirmed.
+  bool showsStop() const { return estopEngaged_ || pressed_ || stop_.pending(); }
   bool online() const { return online_; }
   Direction direction() const { return direction_; }
   bool estopEngaged() const { return estopEngaged_; }  // the fleet's latch says engaged
@@ -83,11 +101,15 @@ class Device {
  private:
   void connectIfDue(uint32_t now);
   void lost();
+  // Give up this session without a DISCONNECT (the will stays) and try again after back-off.
+  void abandon(uint32_t now, const std::string& why);
+  void say(const std::string& text);
 
   DeviceConfig config_;
   MqttTransport& mqtt_;
   NetLink& link_;
   Clock& clock_;
+  Log* log_;
   std::string directionTopic_;
   std::string estopTopic_;
   std::string pressTopic_;
@@ -102,6 +124,7 @@ class Device {
   uint32_t lastAttemptMs_ = 0;
   uint32_t waitMs_ = 0;
   bool linkStarted_ = false;
+  bool linkWasUp_ = false;
   uint32_t linkStartMs_ = 0;
   uint32_t linkWaitMs_ = 0;
   uint32_t connectAttempts_ = 0;

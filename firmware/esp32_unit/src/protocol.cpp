@@ -75,6 +75,7 @@ bool isValidId(const std::string& id) {
 }
 
 bool isValidRoot(const std::string& root) {
+  if (root.size() > kMaxRootBytes) return false;
   size_t start = 0;
   while (true) {
     size_t slash = root.find('/', start);

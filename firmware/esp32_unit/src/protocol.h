@@ -18,9 +18,23 @@ constexpr size_t kMaxReasonChars = proto::kMaxEstopReasonChars;
 // What the button's stop says as its <reason> (protocol.md 5.6).
 constexpr const char* kButtonReason = proto::kEstopButtonReason;
 
+namespace detail {
+constexpr size_t length(const char* s) { return *s == '\0' ? 0 : 1 + length(s + 1); }
+}  // namespace detail
+
+// PubSubClient's buffer on the device, for one whole packet: it drops any larger one.
+constexpr size_t kMqttBufferBytes = kMaxEstopBytes + 256;
+// The longest topic root with which the longest estop still fits that buffer: the QoS 1
+// PUBLISH is a fixed header (1 byte and 2 of length), the topic's length (2), the topic
+// `<root>/<version>/fleet/estop`, a packet id (2) and up to kMaxEstopBytes of payload.
+constexpr size_t kMaxRootBytes = kMqttBufferBytes - (1 + 2) - 2 - 2 - kMaxEstopBytes -
+                                 (1 + detail::length(proto::kTopicVersion) + 1 +
+                                  detail::length(proto::kTopicEstop));
+
 // An id: 1-64 of letters, digits, '_', '.', '-', starting with a letter or digit.
 bool isValidId(const std::string& id);
-// A topic root: '/'-separated segments of letters, digits, '_', '.', '-'.
+// A topic root: '/'-separated segments of letters, digits, '_', '.', '-', and at most
+// kMaxRootBytes long (a longer one would make the device drop the longest valid stop).
 bool isValidRoot(const std::string& root);
 
 std::string directionTopic(const std::string& root, const std::string& unit);

@@ -37,9 +37,9 @@ class Backoff {
 };
 
 // A stop press that is not done until the device has seen its own `engaged` come back from the
-// broker. PubSubClient publishes QoS 0 only, so the device publishes retained, watches the estop
-// topic it subscribes to, and publishes again (same payload, idempotent) after each reconnect and
-// every `retryMs` until it sees it.
+// broker. PubSubClient publishes QoS 0 only, so the device publishes retained to its own
+// `devices/<id>/stop`, which it subscribes to, and publishes again (same payload, idempotent)
+// after each reconnect and every `retryMs` until it sees it come back there.
 class PendingStop {
  public:
   explicit PendingStop(uint32_t retryMs) : retryMs_(retryMs) {}

@@ -1,7 +1,9 @@
-// Host-only stand-in for the few Arduino core calls the sketch uses; it records pin activity
-// so the sketch smoke test can look at it. Not the Arduino API's code: just its signatures.
+// Host-only stand-in for the few Arduino core calls the sketch uses, for a clone without the
+// real libraries (../shared/firmware-libs): it records pin activity so the sketch smoke test can
+// look at it. Not the Arduino API's code: just the signatures of the calls used.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <cstdio>
 #include <map>
@@ -39,7 +41,50 @@ inline void attachInterrupt(int irq, void (*fn)(), int /*mode*/) { host::isr[irq
 
 struct HostSerial {
   void begin(unsigned long) {}
-  void println(const char* s) { std::fprintf(stderr, "[serial] %s\n", s); }
-  void print(const char* s) { std::fprintf(stderr, "%s", s); }
+  void println(const char* s) {
+    print(s);
+    std::fprintf(stderr, "\n");
+    atLineStart = true;
+  }
+  void print(const char* s) {
+    std::fprintf(stderr, "%s%s", atLineStart ? "[serial] " : "", s);
+    atLineStart = false;
+  }
+  bool atLineStart = true;
 };
 inline HostSerial Serial;
+
+// The shape of the Arduino API's Print, Stream and Client (what PubSubClient talks through).
+class IPAddress {};
+class Print {
+ public:
+  virtual ~Print() = default;
+  virtual size_t write(uint8_t) = 0;
+  virtual size_t write(const uint8_t* buf, size_t size) {
+    size_t n = 0;
+    while (size-- > 0) n += write(*buf++);
+    return n;
+  }
+  virtual void flush() {}
+};
+class Stream : public Print {
+ public:
+  virtual int available() = 0;
+  virtual int read() = 0;
+  virtual int peek() = 0;
+};
+class Client : public Stream {
+ public:
+  virtual int connect(IPAddress ip, uint16_t port) = 0;
+  virtual int connect(const char* host, uint16_t port) = 0;
+  size_t write(uint8_t) override = 0;
+  size_t write(const uint8_t* buf, size_t size) override = 0;
+  int available() override = 0;
+  int read() override = 0;
+  virtual int read(uint8_t* buf, size_t size) = 0;
+  int peek() override = 0;
+  void flush() override = 0;
+  virtual void stop() = 0;
+  virtual uint8_t connected() = 0;
+  virtual operator bool() = 0;
+};

@@ -19,7 +19,7 @@ class PubSubClient {
     bool retained;
   };
 
-  explicit PubSubClient(WiFiClient& net) : network(&net) {}
+  explicit PubSubClient(Client& net) : network(&net) {}
   PubSubClient& setServer(const char* host, uint16_t port) {
     this->host = host;
     this->port = port;
@@ -30,6 +30,7 @@ class PubSubClient {
     return *this;
   }
   bool setBufferSize(uint16_t size) {
+    if (!acceptBufferSize) return false;  // as when malloc fails
     bufferSize = size;
     return true;
   }
@@ -54,8 +55,14 @@ class PubSubClient {
     isConnected = acceptConnect;
     return isConnected;
   }
-  bool connected() { return isConnected; }
-  void disconnect() { isConnected = false; }
+  bool connected() {
+    if (isConnected && !network->connected()) isConnected = false;
+    return isConnected;
+  }
+  void disconnect() {
+    ++disconnects;
+    isConnected = false;
+  }
   bool subscribe(const char* topic, uint8_t qos) {
     subscriptions.emplace_back(topic, qos);
     return isConnected;
@@ -76,7 +83,9 @@ class PubSubClient {
   int state() { return isConnected ? 0 : -1; }
 
   // Test side.
-  WiFiClient* network;  // the client it talks through (plain or TLS)
+  Client* network;  // the client it talks through
+  bool acceptBufferSize = true;
+  int disconnects = 0;  // clean DISCONNECTs sent
   std::string host;
   uint16_t port = 0;
   uint16_t bufferSize = 256;
