@@ -87,6 +87,7 @@ test("the queue view: jobs under way indexed by unit, the latest finished, the c
   v.apply("state", "u1", state([0, 0]), 0);
   const u = v.units.get("u1");
   assert.equal(v.isSilent(u, 900), false);
+  v.apply("routes", null, JSON.stringify({ step: 11, routes: {} }), 1100); // the page still hears
   assert.equal(v.isSilent(u, 1100), true);
 });
 

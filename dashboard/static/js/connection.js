@@ -2,12 +2,18 @@
 // page's subscriptions, made again on every connect (a restarted broker has forgotten them). No DOM:
 // the page hears the state through `onStatus`.
 
+// The page's MQTT keep-alive (s), every gridfleet client's (gridfleet/bus.py KEEP_ALIVE_S): the
+// broker ends the page's session 1.5 × it after its link dies, and MQTT.js gives up a connection
+// whose ping goes unanswered as soon (then reconnects). The page knows sooner that it hears
+// nothing (hearing.js).
+export const KEEP_ALIVE_S = 10;
+
 /** MQTT.js options besides the client id. */
 export const CLIENT_OPTIONS = {
   clean: true,
   reconnectPeriod: 1000,
   connectTimeout: 5000,
-  keepalive: 30,
+  keepalive: KEEP_ALIVE_S,
   resubscribe: false, // we subscribe on every connect ourselves, so a restarted broker gets them
 };
 

@@ -3,6 +3,7 @@
 //
 //   login.js       the settings from the dashboard server, logging in and out
 //   connection.js  the MQTT.js client, its status, subscribing on every connect
+//   hearing.js     whether the page hears anything at all, and the broker badge's words
 //   model.js       FleetView: the fleet as the page knows it, from messages alone
 //   requests.js    request ids, the requests waiting (sent again until answered), the words
 //   forms.js       the goal and job forms: checks, requests, messages
@@ -14,6 +15,7 @@ import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
 import { layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
 import { Forms } from "./forms.js";
+import { brokerBadge, newsPeriodS } from "./hearing.js";
 import { loadSettings, logIn, logOut, mqttLogin } from "./login.js";
 import { FleetView } from "./model.js";
 import { ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor } from "./protocol.js";
@@ -121,6 +123,9 @@ class Dashboard {
     this.panelUrgent = true; // ... at once (the operator did something), not at the next tick
     this.panelAt = 0; // when the panel was last filled in
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
+    this.conn = { state: "connecting", text: "connecting…" }; // the connection's own status
+    this.connectedAt = null; // when it last connected (ms): a silence counts from then at most
+    this.badge = null; // what the broker badge shows
     this.forms = new Forms(this.view, {
       send: (kind, form, what, body) => this.request(kind, form, what, body),
       onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.touched(); },
@@ -128,8 +133,12 @@ class Dashboard {
     this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subscriptions(this.topics, clientId), {
       onStatus: (state, text) => {
         // Presses are read afresh from the retained ones: one cleared meanwhile is not replayed.
-        if (state === "connected") this.view.presses.clear();
-        showConnection(state, text);
+        if (state === "connected") {
+          this.view.presses.clear();
+          this.connectedAt = Date.now();
+        }
+        this.conn = { state, text };
+        this.showBroker(Date.now());
         this.renderEstop();
       },
       onMessage: (topic, payload, retained) => this.onMessage(topic, payload, retained),
@@ -167,13 +176,20 @@ class Dashboard {
       requestAnimationFrame(frame);
     };
     requestAnimationFrame(frame);
-    setInterval(() => this.page.seen(Date.now()), 500);
+    setInterval(() => {
+      const now = Date.now();
+      this.page.seen(now);
+      this.showBroker(now); // a page gone deaf hears no message to tell it so: the clock does
+    }, 500);
     setInterval(() => { this.view.utilisation.sample(this.view, Date.now()); this.panelDirty = true; }, 1000);
     setInterval(() => this.retry(Date.now()), 500);
   }
 
   // ---- messages in, requests out ----
   onMessage(topic, payload, retained = false) {
+    const now = Date.now();
+    this.view.heard(now);
+    if (this.badge?.state === "deaf") this.showBroker(now); // hearing again: at once
     const parsed = parseTopic(this.topics.prefix, topic);
     if (!parsed) return;
     const text = new TextDecoder().decode(payload);
@@ -181,7 +197,7 @@ class Dashboard {
       if (parsed.id === this.clientId) this.show(this.requests.reply(text));
       return;
     }
-    const problem = this.view.apply(parsed.kind, parsed.id, text, Date.now(), retained);
+    const problem = this.view.apply(parsed.kind, parsed.id, text, now, retained);
     if (problem) log(problem);
     if (parsed.kind === "errors" && !problem) {
       // A refused request of anybody's is in the coordinator's events, in words: only ours is
@@ -336,6 +352,15 @@ class Dashboard {
   }
 
   // ---- rendering ----
+  /** The broker badge: the connection's status, or that the page has heard nothing for a while. */
+  showBroker(now) {
+    const since = this.connectedAt == null ? null : Math.max(this.connectedAt, this.view.heardAt ?? -Infinity);
+    const badge = brokerBadge(this.conn.state, this.conn.text, since, now, newsPeriodS(this.view.coordinator));
+    if (badge.state === this.badge?.state && badge.text === this.badge?.text) return;
+    this.badge = badge;
+    showConnection(badge.state, badge.text);
+  }
+
   renderPanel(now) {
     this.page.renderPanel(now, this.ui);
     this.forms.syncUnits(this.page.unitIds(), this.ui.selectedUnit);

@@ -31,6 +31,12 @@ export class FleetView {
     this.events = []; // the coordinator's recent history (fleet/events), oldest first
     this.jobNumbers = new JobNumbers(); // P3 on the map goes with D3 and row 3
     this.utilisation = new Utilisation(); // sampled by the page (utilisation.sample)
+    this.heardAt = null; // when the page last heard anything at all (ms), null before it has
+  }
+
+  /** Something arrived (any message): the page's own link worked at `now`. */
+  heard(now) {
+    this.heardAt = this.heardAt == null ? now : Math.max(this.heardAt, now);
   }
 
   unit(id) {
@@ -47,6 +53,7 @@ export class FleetView {
    * the broker on subscribing, so what it says was known before the page loaded.
    */
   apply(kind, id, text, now, retained = false) {
+    this.heard(now);
     const seen = retained ? -Infinity : now; // an obstacle is "new" only if found since the load
     if (kind === "estop") {
       if (text === "") { this.latch = null; return null; }
@@ -134,11 +141,16 @@ export class FleetView {
     });
   }
 
-  /** A unit whose state has been silent for 5 step periods (≥ 0.5 s), as protocol.md §8 says. */
+  /**
+   * A unit whose state has been silent for 5 step periods (≥ 0.5 s), as protocol.md §8 says,
+   * counted up to when the page last heard anything: a silence the page shares with every unit
+   * is its own link's (hearing.js), and says nothing of the unit's.
+   */
   isSilent(u, now) {
     if (u.lastSeen == null) return false;
     const period = u.factsheet?.step_period_s ?? 1;
-    return now - u.lastSeen > Math.max(500, 5 * period * 1000);
+    const heard = this.heardAt == null ? now : Math.min(now, this.heardAt);
+    return heard - u.lastSeen > Math.max(500, 5 * period * 1000);
   }
 
   /** The coordinator's latest step: its status says it only on changes, its routes every step. */

@@ -239,6 +239,7 @@ export class PageView {
         }
         this.controls(tr.querySelector("td.control"), id);
         tr.dataset.link = u.connection ?? "unknown";
+        tr.dataset.state = r.state; // moving, idle, … away: what the filter and the map's colours say
         tr.classList.toggle("selected", id === ui.selectedUnit);
         tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
         tr.children[3].title = tr.children[3].textContent; // the whole of a long status
