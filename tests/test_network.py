@@ -31,7 +31,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.system.broker_thread import BrokerThread
 
-from support.lan import Processes
+from support.lan import LAN_SCENARIO, Processes
 from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.output import Output
@@ -48,18 +48,6 @@ KEEP_ALIVE_S = 10  # gridfleet's clients (gridfleet/bus.py)
 # protocol.md §4.1: the broker ends a session silent for 1.5 keep-alives and sends its will.
 BROKEN_WITHIN_S = 1.5 * KEEP_ALIVE_S
 PARTITION_S = 15.0  # the coordinator's host cut off at least this long: past §8's 10 s failure
-SCENARIO = f"""
-name = "lan"
-map = "{REPO / "maps" / "playfield.map"}"
-[[units]]
-id = "unit1"
-start = [0, 0]
-capacity = 5.0
-[[units]]
-id = "unit2"
-start = [9, 0]
-capacity = 1.0
-"""
 
 
 @pytest.fixture
@@ -148,9 +136,9 @@ class LanRun:
         )  # fmt: skip
 
     def robots(self, name: str, units: str | None = None, host: Host | None = None) -> None:
-        """SCENARIO's units (or only `units`) on `host`, their truth in `<name>.truth`."""
+        """LAN_SCENARIO's units (or only `units`) on `host`, their truth in `<name>.truth`."""
         scenario = self.tmp / "lan.toml"
-        scenario.write_text(SCENARIO)
+        scenario.write_text(LAN_SCENARIO)
         only = [] if units is None else ["--units", units]
         self.processes.start(
             name,

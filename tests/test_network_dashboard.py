@@ -30,7 +30,7 @@ from gridfleet.protocol import Topics
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import CHROMIUM, CHROMIUM_ARGS, VIEWPORT, WAIT_MS, OpenDashboard
-from support.lan import Processes
+from support.lan import LAN_SCENARIO, Processes
 from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -50,18 +50,6 @@ DEAF_WITHIN_S = 3 + 10
 # page's as every gridfleet client's: connection.js); at the old 30 s it took up to 45 s.
 KEEP_ALIVE_S = 10
 RECONNECTING_WITHIN_S = 1.5 * KEEP_ALIVE_S + 10
-SCENARIO = f"""
-name = "lan-page"
-map = "{REPO / "maps" / "playfield.map"}"
-[[units]]
-id = "unit1"
-start = [0, 0]
-capacity = 5.0
-[[units]]
-id = "unit2"
-start = [9, 0]
-capacity = 1.0
-"""
 
 
 @pytest.fixture
@@ -161,7 +149,7 @@ def test_a_page_whose_link_dies_says_it_hears_nothing_and_does_not_blame_the_uni
     accounts_file = tmp_path / "accounts.toml"
     write_accounts(accounts, accounts_file)
     scenario = tmp_path / "lan-page.toml"
-    scenario.write_text(SCENARIO)
+    scenario.write_text(LAN_SCENARIO)
     common = ["--broker", mqtt_url, "--accounts", str(accounts_file), "--root", topics.root]
     processes = Processes(tmp_path, test_lan)
     processes.start(

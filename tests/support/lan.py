@@ -11,9 +11,22 @@ import pytest
 
 from gridfleet.bench.lan import Host, Lan, can_make_lans, lan
 
-__all__ = ["Lan", "Processes", "test_lan"]
+__all__ = ["LAN_SCENARIO", "Lan", "Processes", "test_lan"]
 
 REPO = Path(__file__).resolve().parents[2]
+# The LAN tests' fleet: two units on the playfield, one of them too weak for heavy items.
+LAN_SCENARIO = f"""
+name = "lan"
+map = "{REPO / "maps" / "playfield.map"}"
+[[units]]
+id = "unit1"
+start = [0, 0]
+capacity = 5.0
+[[units]]
+id = "unit2"
+start = [9, 0]
+capacity = 1.0
+"""
 
 
 @pytest.fixture
