@@ -155,8 +155,10 @@ def test_a_halls_broker_gets_a_bridge_carrying_the_protocols_topics(tmp_path: Pa
         (["--bridge-to", "h:1883", "--bridge-account", "unit1"], "a unit account; make one with"),
         (["--bridge-to", "h:1883", "--bridge-account", "nobody"], "no account 'nobody'"),
         (["--bridge-ca", "ca.pem"], "--bridge-ca is for a bridge"),
-        (["--bridge-to", "h:8883", "--bridge-account", "hall1", "--bridge-ca", "/nope.pem"],
-         "--bridge-ca /nope.pem: no such file"),
+        (
+            ["--bridge-to", "h:8883", "--bridge-account", "hall1", "--bridge-ca", "/nope.pem"],
+            "--bridge-ca /nope.pem: no such file",
+        ),
     ],
 )
 def test_a_bridge_asked_for_wrongly_is_one_line_and_writes_nothing(
