@@ -7,8 +7,8 @@ STAMP := $(VENV)/.installed
 .PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
-# dashboard, doctest and g++ for the firmware's host tests.
-DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make
+# dashboard, doctest and g++ for the firmware's host tests, Prometheus to scrape a fleet's metrics.
+DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make prometheus
 
 # npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
 # while pip installs. pip byte-compiles every module at install: where PYTHONDONTWRITEBYTECODE is

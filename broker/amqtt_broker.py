@@ -34,6 +34,7 @@ from gridfleet.broker.gate import Gate
 from gridfleet.broker.limits import Limits
 from gridfleet.broker.quiet import GONE, quiet_normal_closes
 from gridfleet.broker.routing import Subscriptions
+from gridfleet.broker.stats import BrokerFigures, BrokerStats
 
 log = logging.getLogger("gridfleet.broker")
 
@@ -159,10 +160,11 @@ class _Outlet:
     # they wait for ever, each holding its message, so the broker grows without bound. Here a
     # message past the backlog's limit is dropped instead, and logged once per connection.
 
-    def __init__(self, handler: Any, backlog: Backlog, limits: Limits) -> None:
+    def __init__(self, handler: Any, backlog: Backlog, limits: Limits, stats: BrokerStats) -> None:
         self._handler = handler
         self._backlog = backlog
         self._limits = limits
+        self._stats = stats
 
     def mqtt_publish(
         self, topic: str, data: bytes, qos: int, retain: bool, ack_timeout: int | None = None
@@ -178,6 +180,7 @@ class _Outlet:
         if qos == 0 and self._write_now(topic, data):
             return _done()
         if not backlog.admit(size, self._limits):
+            self._stats.dropped += 1
             if backlog.dropped == 1:
                 log.warning(
                     "broker: client %s is not reading: dropping its messages beyond %d queued "
@@ -259,6 +262,24 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
         self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
         self._prune_at = _PRUNE_FLOOR
+        self.stats = BrokerStats()
+
+    def figures(self) -> BrokerFigures:
+        """Its totals and its state now (call it on the broker's loop)."""
+        backlogs = list(self._backlogs.values())
+        stats = self.stats
+        return BrokerFigures(
+            clients=sum(s.transitions.state == "connected" for s, _ in self._sessions.values()),
+            sessions=len(self._sessions),
+            queued_messages=sum(b.messages for b in backlogs),
+            queued_bytes=sum(b.bytes for b in backlogs),
+            retained=len(self._retained_messages),
+            routing=self._broadcast_queue.qsize(),
+            received=stats.received,
+            delivered=stats.delivered,
+            dropped=stats.dropped,
+            refused=dict(stats.refused),
+        )
 
     def bound_port(self, listener: str = "default") -> int:
         """The port `listener` listens on (the one the OS picked for port 0)."""
@@ -293,6 +314,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             accounts=self.gate is not None,
         )
         if refused is not None:
+            self.stats.refused["websocket"] += 1
             self._log_refusal(f"a websocket from {_peer(websocket.remote_address)}: {refused}")
             await websocket.close(1008, "origin not allowed")  # 1008: policy violation
             return
@@ -330,6 +352,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
         refusal = await self._refusal(incoming, remote_address)
         if refusal is not None:
+            self.stats.refused["connect"] += 1
             self._log_refusal(f"{peer} (client id {incoming.client_id!r}): {refusal}")
             # A refused client may hang up first (over TLS a reset surfaced as a traceback).
             with contextlib.suppress(ConnectionError):
@@ -443,6 +466,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             )
             if refused is not None:
                 who = f"client {client_session.client_id} ({client_session.username})"
+                self.stats.refused["publish"] += 1
                 self._log_refusal(f"a message of {who} on {message.topic}: {refused}")
                 return True  # dropped; the connection stays
         return bool(await super()._handle_message_delivery(client_session, handler, wait_deliver))
@@ -513,7 +537,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         backlog = self._backlogs.get(handler)
         if backlog is None:
             backlog = self._backlogs[handler] = Backlog(str(session.client_id))
-        return _Outlet(handler, backlog, self.limits)
+        return _Outlet(handler, backlog, self.limits, self.stats)
 
     async def _broadcast_loop(self) -> None:
         """amqtt's loop, without a task and a wait per message: each is routed as it is taken."""
@@ -552,6 +576,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         topic, data = broadcast["topic"], broadcast["data"]
         forced = broadcast.get("qos")  # amqtt delivers at the subscription's QoS unless forced
         checking = self.plugins_manager.is_topic_filtering_enabled()
+        self.stats.received += 1
         for a_filter in self._subscriptions.matching(topic, self._matches):
             for session, sub_qos in tuple(self._subscriptions.get(a_filter, ())):
                 qos = sub_qos if forced is None else forced
@@ -566,6 +591,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
                     continue
                 handler = self._get_handler(session)
                 if handler is not None:
+                    self.stats.delivered += 1
                     delivery = asyncio.ensure_future(
                         handler.mqtt_publish(topic, data, qos, retain=False)
                     )

@@ -12,6 +12,13 @@ from pathlib import Path
 from gridfleet.accounts import load_accounts
 from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
 from gridfleet.heap import freeze_after_start
+from gridfleet.metrics import (
+    MetricsOptions,
+    MetricsServer,
+    add_metrics_arguments,
+    metrics_options,
+    read_on_loop,
+)
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.tasks import stop_on_signals
 
@@ -57,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "then mqtts:// and wss://",
     )
     parser.add_argument("--tls-key", type=Path, metavar="FILE", help="its private key (PEM)")
+    add_metrics_arguments(parser, "the broker")
 
 
 def settings_from(args: argparse.Namespace) -> BrokerSettings:
@@ -84,14 +92,26 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
     return settings
 
 
-async def serve(settings: BrokerSettings) -> None:
-    """Run the broker until SIGINT or SIGTERM."""
+async def serve(settings: BrokerSettings, metrics: MetricsOptions | None = None) -> None:
+    """Run the broker until SIGINT or SIGTERM (and its metrics, when asked for)."""
     stop = stop_on_signals()
     async with EmbeddedBroker(settings) as broker:
         ws = f" and {broker.ws_url}" if broker.ws_url else ""
         print(f"gridfleet broker listening on {broker.url}{ws}", flush=True)
-        freeze_after_start()
-        await stop.wait()
+        server = None
+        if metrics is not None:
+            from gridfleet.broker.metrics import broker_registry  # prometheus: only when asked
+
+            loop = asyncio.get_running_loop()
+            registry = broker_registry(lambda: read_on_loop(loop, broker.figures))
+            server = MetricsServer(registry, metrics).start()
+            print(f"gridfleet broker metrics on {server.url}", flush=True)
+        try:
+            freeze_after_start()
+            await stop.wait()
+        finally:
+            if server is not None:
+                server.stop()
     # amqtt's own tasks can outlive its shutdown, and asyncio.run would wait for them for good
     # (in the network soak a broker that had logged "broker stopped" was still running 15 s
     # after SIGTERM, its connections still open). Cancelled, they get LEFTOVERS_S; then the
@@ -117,5 +137,6 @@ async def _leftovers_ended(others: set[asyncio.Task[object]], within_s: float) -
 
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet broker`."""
-    asyncio.run(serve(settings_from(args)))
+    settings, metrics = settings_from(args), metrics_options(args)
+    asyncio.run(serve(settings, metrics))
     return 0

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from gridfleet.accounts import Accounts, rules
 from gridfleet.broker.gate import Gate
 from gridfleet.broker.limits import MAX_PACKET_BYTES, MAX_QUEUED_BYTES, MAX_QUEUED_MESSAGES, Limits
+from gridfleet.broker.stats import BrokerFigures
 from gridfleet.broker.tls import amqtt_listener_context
 from gridfleet.config import is_loopback
 from gridfleet.errors import ConfigError
@@ -229,6 +230,10 @@ class EmbeddedBroker:
         log.debug(
             "broker listening on %s%s", self.url, f" and {self.ws_url}" if self.ws_url else ""
         )
+
+    def figures(self) -> BrokerFigures | None:
+        """Its totals and its state now (None: not running); call it on the broker's loop."""
+        return None if self._broker is None else self._broker.figures()
 
     def _bound_port(self, listener: str) -> int:
         server = self._broker._servers[listener]

@@ -11,6 +11,7 @@ from gridfleet.coordinator.store import default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
+from gridfleet.metrics import add_metrics_arguments, metrics_options
 from gridfleet.options import add_common, broker_url
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.tasks import stop_on_signals
@@ -44,12 +45,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="MQTT client id and sender (default 'coordinator'; under another --root the client "
         "id names the root too, so fleets can share a broker)",
     )
+    add_metrics_arguments(parser, "the coordinator")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run until interrupted (SIGINT/SIGTERM)."""
     check_step(args.step)
     check_window(args.window)
+    metrics = metrics_options(args)
     grid = load_map(args.map)
     coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),
@@ -59,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         db_path=args.db,
         client_id=args.client_id,
         window=args.window,
+        metrics=metrics,
     )
 
     async def main() -> None:

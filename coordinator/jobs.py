@@ -175,6 +175,10 @@ class JobBook:
             job.wait, job.wait_reason = code, words
             self.changed.add(job.id)
 
+    def counts(self) -> dict[JobState, int]:
+        """How many jobs are in each state (those with none left out)."""
+        return {state: n for state, n in self._counts.items() if n > 0}
+
     @property
     def open_count(self) -> int:
         """Jobs not final (queued or under way)."""
@@ -199,7 +203,7 @@ class JobBook:
             header=header,
             jobs=[j.view() for j in self._open.values()],
             finished=[j.view() for j in finished],
-            counts={k: n for k, n in self._counts.items() if n > 0},
+            counts=self.counts(),
             done_per_minute=self.done_per_minute(step_no, step_period_s),
         )
 

@@ -3,7 +3,8 @@
 Every decision is the core's (coordinator/core.py): the shell hands it what arrives and the time,
 and does what the returned Effects say: persist, publish, come back for batched views, and pace
 the step loop (one step per period, waiting a while for the last step's acknowledgements while
-more than a few late units owe them).
+more than a few late units owe them). With `metrics`, it also counts what passes through it and
+serves `/metrics` (metrics.py; nothing is counted without).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import secrets
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
@@ -25,6 +27,10 @@ from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
 from gridfleet.protocol import HeaderStamper, Topics
 from gridfleet.tasks import cancel_and_wait
+
+if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
+    from gridfleet.coordinator.metrics import CoordinatorMetrics
+    from gridfleet.metrics import MetricsOptions, MetricsServer
 
 log = logging.getLogger("gridfleet.coordinator")
 
@@ -44,6 +50,7 @@ class CoordinatorShell:
         seed: int = 0,
         window: int = DEFAULT_WINDOW,
         clock: Callable[[], float] = time.monotonic,
+        metrics: MetricsOptions | None = None,
     ) -> None:
         self.broker = broker
         self.topics = Topics(root)
@@ -80,6 +87,15 @@ class CoordinatorShell:
         self.ready = asyncio.Event()
         self._acked = asyncio.Event()  # set whenever nothing is awaited any more
         self._views_later: asyncio.Task[None] | None = None
+        # Metrics only when asked for (--metrics): otherwise nothing is counted at all.
+        self.metrics: CoordinatorMetrics | None = None
+        self.metrics_server: MetricsServer | None = None
+        if metrics is not None:
+            from gridfleet.coordinator.metrics import CoordinatorMetrics
+            from gridfleet.metrics import MetricsServer
+
+            self.metrics = CoordinatorMetrics(self.core, connected=self.ready.is_set, clock=clock)
+            self.metrics_server = MetricsServer(self.metrics.registry, metrics)
         self._save(self.core.restored())
 
     @property
@@ -90,6 +106,10 @@ class CoordinatorShell:
     async def run(self, shutdown: asyncio.Event) -> None:
         """Serve until `stop` is set; reconnects with back-off when the broker goes away."""
         try:
+            if self.metrics is not None and self.metrics_server is not None:
+                self.metrics.bind(asyncio.get_running_loop())
+                self.metrics_server.start()
+                log.info("coordinator metrics on %s", self.metrics_server.url)
             await self.endpoint.run(
                 shutdown,
                 self.handle,
@@ -99,6 +119,8 @@ class CoordinatorShell:
                 on_stop=lambda: self._apply(self.core.halt_orders()),
             )
         finally:
+            if self.metrics_server is not None:
+                self.metrics_server.stop()
             self.store.close()
 
     async def _on_connect(self) -> None:
@@ -108,14 +130,23 @@ class CoordinatorShell:
 
     async def handle(self, topic: str, payload: bytes) -> None:
         """One inbound message, to the core; then whatever it says to do."""
-        await self._apply(self.core.on_message(topic, payload, self.clock()))
+        if self.metrics is None:
+            await self._apply(self.core.on_message(topic, payload, self.clock()))
+            return
+        errors = self.core.errors_reported
+        effects = self.core.on_message(topic, payload, self.clock())
+        self.metrics.received_one(topic, refused=self.core.errors_reported > errors)
+        await self._apply(effects)
 
     async def _steps(self, shutdown: asyncio.Event) -> None:
         """The step loop, for as long as a session lasts."""
         next_at = self.clock()
         try:
             while not shutdown.is_set():
+                began = time.perf_counter()
                 effects = self.core.step(self.clock())
+                if self.metrics is not None:
+                    self.metrics.stepped(time.perf_counter() - began)
                 await self._apply(effects)
                 next_at += self.step_s
                 delay = max(0.0, next_at - self.clock())
@@ -142,15 +173,16 @@ class CoordinatorShell:
         # Every message is handed to the client before any acknowledgement is awaited: in the
         # core's order on the wire (paho queues each in the first, synchronous part of a
         # publish), and a step's hundred orders take one round trip to the broker, not a hundred.
-        sends = [
-            asyncio.ensure_future(self.endpoint.publish(out))
-            for out in effects.publish
-            if not self.core.withdrawn(out)
-        ]
+        outs = [out for out in effects.publish if not self.core.withdrawn(out)]
+        sends = [asyncio.ensure_future(self.endpoint.publish(out)) for out in outs]
+        if self.metrics is not None:
+            self.metrics.sent_some([out.topic for out in outs])
         if sends:
             await asyncio.gather(*sends)
 
     def _save(self, effects: Effects) -> None:
+        if self.metrics is not None and effects.persist:
+            self.metrics.jobs_changed(effects.persist)
         if effects.persist or effects.answered:
             self.store.save(effects.persist, effects.answered)
         if effects.controls:

@@ -74,6 +74,7 @@ class SystemSpec:
         True  # processes only: run the scenario's simulated units (not: they join from elsewhere)
     )
     vehicles: Path | None = None  # processes only: VDA 5050 vehicles, their adapter's file
+    metrics_port: int | None = None  # the coordinator's metrics on 127.0.0.1 (0: a free port)
 
 
 def cli(*args: str) -> list[str]:
@@ -166,6 +167,11 @@ class Assembly:
             if accounts is not None:
                 login = accounts.get("coordinator")
                 coordinator_url = with_credentials(system.url, login.name, login.password)
+            metrics = None
+            if spec.metrics_port is not None:
+                from gridfleet.metrics import MetricsOptions  # prometheus_client: only when asked
+
+                metrics = MetricsOptions(spec.metrics_port)
             coordinator = coordinator_thread(
                 scenario,
                 coordinator_url,
@@ -175,6 +181,7 @@ class Assembly:
                 seed=spec.seed,
                 client_id=spec.coordinator_id,
                 window=spec.window,
+                metrics=metrics,
             )
             system.threads["coordinator"] = coordinator.start(timeout)
             fleet = fleet_thread(
@@ -254,6 +261,8 @@ class Assembly:
         coordinator += ["--window", str(spec.window)]
         if spec.db_path is not None:
             coordinator += ["--db", str(spec.db_path)]
+        if spec.metrics_port is not None:
+            coordinator += ["--metrics", str(spec.metrics_port)]
         system.children["coordinator"] = await sup.start(
             ChildSpec("coordinator", cli(*coordinator))
         )

@@ -10,6 +10,7 @@ from pathlib import Path
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import check_step, is_loopback
 from gridfleet.errors import ConfigError
+from gridfleet.metrics import MetricsOptions
 from gridfleet.options import add_common
 from gridfleet.robots.shards import workers_for
 from gridfleet.robots.vda5050.config import VehicleConfig, load_vehicles
@@ -110,6 +111,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run the simulated units in N processes (default: one per 50 units, at most one "
         "per core)",
     )
+    parser.add_argument(
+        "--metrics",
+        type=int,
+        metavar="PORT",
+        help="serve the coordinator's metrics in the Prometheus format on "
+        "http://127.0.0.1:PORT/metrics (docs/monitoring.md)",
+    )
 
 
 def check_accounts(path: Path, scenario: Scenario) -> Accounts:
@@ -170,6 +178,8 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
             f"--accounts FILE (make it with '{MAKE_ACCOUNTS}'), or listen on 127.0.0.1"
         )
     check_tls(args)
+    if args.metrics is not None:
+        MetricsOptions(args.metrics)  # a bad port: one line now, not from the coordinator later
     scenario = with_units(load_scenario(args.scenario))
     workers = workers_for(len(scenario.units)) if args.workers is None else args.workers
     if workers < 1:
@@ -205,6 +215,7 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         unit_workers=workers,
         robots=not args.no_robots,
         vehicles=vehicles,
+        metrics_port=args.metrics,
     )
 
 
