@@ -55,8 +55,10 @@ from gridfleet.bench.soak_check import (
 from gridfleet.bench.soak_faults import (
     BRIDGED_HOSTS,
     LOCAL_FAMILIES,
+    MOSQUITTO_WILL_SLACK_S,
     NETWORK_FAMILIES,
     NETWORK_HOSTS,
+    WILL_SLACK_S,
     Fault,
     main_faults,
     stop_faults,
@@ -337,7 +339,8 @@ class Soak:
             if (f != "broker" or restartable) and (cfg.network or f not in NETWORK_FAMILIES)
         ]
         hosts = BRIDGED_HOSTS if cfg.bridge else NETWORK_HOSTS
-        for fault in main_faults(self.rng, families, self.cfg.step_s, hosts):
+        slack = MOSQUITTO_WILL_SLACK_S if cfg.bridge else WILL_SLACK_S
+        for fault in main_faults(self.rng, families, self.cfg.step_s, hosts, slack):
             await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return

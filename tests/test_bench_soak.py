@@ -22,6 +22,7 @@ from gridfleet.bench.soak_faults import (
     BRIDGED_HOSTS,
     KEEP_ALIVE_S,
     LOCAL_FAMILIES,
+    MOSQUITTO_WILL_SLACK_S,
     NETWORK_HOSTS,
     main_faults,
     parse_families,
@@ -149,6 +150,12 @@ def test_with_a_bridge_the_network_faults_strike_the_halls_link_and_the_coordina
     ]
     assert {f.target for f in faults} == {"hall", "office"}
     assert "silent_long_hall" in {f.kind for f in faults}  # past the bridge's keep-alive too
+
+
+def test_on_mosquitto_a_long_cut_lasts_past_its_coarser_keep_alive_check() -> None:
+    schedule = main_faults(random.Random(2), ["silent"], 0.1, BRIDGED_HOSTS, MOSQUITTO_WILL_SLACK_S)
+    long_cuts = [f for f, _ in zip(schedule, range(200), strict=False) if "long" in f.kind]
+    assert long_cuts and all(f.hold_s >= 1.5 * KEEP_ALIVE_S + 8 for f in long_cuts)
 
 
 async def test_the_proxy_forwards_cuts_and_delays() -> None:
