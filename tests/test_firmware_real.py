@@ -19,6 +19,7 @@ import pytest
 
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.firmware_libs import compiler_warnings, firmware_libs, make_env
 from support.mosquitto import MosquittoBroker
 from support.mqtt_tap import MqttTap, Packet
 from support.probe import MqttProbe, Seen
@@ -26,7 +27,7 @@ from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 FW = REPO / "firmware"
-FIRMWARE_LIBS = REPO.parent / "shared" / "firmware-libs"
+FIRMWARE_LIBS = firmware_libs()
 MAX_ROOT_BYTES = 234  # firmware/esp32_unit/src/protocol.h: kMaxRootBytes (its unit test checks it)
 STOP_RETRY_MS = 2000  # config.example.h: GF_STOP_RETRY_MS
 CONNECT, PUBLISH, PUBACK, SUBSCRIBE = 1, 3, 4, 8
@@ -73,9 +74,10 @@ def device_host(tmp_path_factory: pytest.TempPathFactory) -> Path:
         capture_output=True,
         text=True,
         timeout=240,
+        env=make_env(),
     )
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    assert "warning" not in out.stdout + out.stderr
+    assert compiler_warnings(out.stdout + out.stderr) == []
     return build / "real3" / "device_host"
 
 
