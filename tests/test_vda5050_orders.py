@@ -172,3 +172,41 @@ def test_a_2_0_vehicle_gets_no_factsheet_request() -> None:
     headers = Headers(Vehicle("agv1", "acme", "sn-7", "2.0.0"))
     with pytest.raises(ConfigError, match=r"2\.0\.0 has no factsheetRequest"):
         instant_action(headers, "factsheetRequest", "f-1", T0)
+
+
+def _actions_on_released_nodes(orders: list[dict[str, Any] | None]) -> list[tuple[str, str]]:
+    return [
+        (n["nodeId"], a["actionId"])
+        for o in orders
+        if o is not None
+        for n in o["nodes"]
+        if n["released"]
+        for a in n["actions"]
+    ]
+
+
+def test_an_action_the_vehicle_has_is_not_sent_again_on_the_stitching_node() -> None:
+    # As a CI run found: the base ended on the dropoff with its drop; an update changed only the
+    # horizon, the next changed it back, and the stitching node carried the drop again: a second
+    # action with the same id, which vda-5050-lib 1.4.0 runs after the first until it crashes.
+    s = stitcher()
+    drop = Action(kind="drop", job_id="crate", square=Cell(9, 8), mass_kg=2.5)
+    sent = [
+        s.order(Cell(8, 8), [Cell(9, 8)], [], drop, T0),
+        s.order(Cell(8, 8), [Cell(9, 8)], [Cell(9, 7)], drop, T0 + 0.1),
+        s.order(Cell(8, 8), [Cell(9, 8)], [], drop, T0 + 0.2),
+    ]
+    assert all(o is not None for o in sent)
+    assert _actions_on_released_nodes(sent) == [(node_id(Cell(9, 8)), "drop-crate")]
+
+
+def test_an_action_given_once_its_square_is_in_the_base_goes_on_the_stitching_node_once() -> None:
+    s = stitcher()
+    drop = Action(kind="drop", job_id="crate", square=Cell(9, 8), mass_kg=2.5)
+    sent = [
+        s.order(Cell(8, 8), [Cell(9, 8)], [], None, T0),
+        s.order(Cell(8, 8), [Cell(9, 8)], [], drop, T0 + 0.1),  # the action comes later
+        s.order(Cell(8, 8), [Cell(9, 8)], [Cell(9, 7)], drop, T0 + 0.2),
+    ]
+    given = _actions_on_released_nodes(sent)
+    assert len(given) == 1 and given[0][0] == node_id(Cell(9, 8))

@@ -41,6 +41,10 @@ class _Base:
     cells: list[Cell] = field(default_factory=list)
     horizon: list[Cell] = field(default_factory=list)  # as last sent
     action: Action | None = None  # as last sent
+    # The action the vehicle already has on a released base node: an update repeats its last base
+    # node (the stitching node), and an action on it again is a second action with the same id
+    # (vda-5050-lib 1.4.0 then runs the copy after the first and recurses until it crashes).
+    given: Action | None = None
 
 
 class OrderStitcher:
@@ -153,8 +157,16 @@ class OrderStitcher:
                 },
                 "actions": [],
             }
-            if action is not None and cell == action.square and i == len(cells) - 1:
+            stitching = i == 0 and not first
+            if (
+                action is not None
+                and cell == action.square
+                and i == len(cells) - 1
+                and not (stitching and action == self._base.given)
+            ):
                 node["actions"] = [_vda_action(action, self.action_parameters)]
+                if i < released_count:
+                    self._base.given = action
             nodes.append(node)
             if i > 0:
                 prev = cells[i - 1]
