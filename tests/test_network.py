@@ -203,6 +203,13 @@ def test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_pla
             30,
             what="unit1 carrying the item",
         )
+        # And the coordinator knows it: on a busy machine a late state can count the unit lost a
+        # moment before the cut (its job re-queued, then adopted again when it is heard).
+        wait_for(
+            lambda: operator.job_state(job) in ("loaded", "to_dropoff"),
+            30,
+            what=f"{job} carried, as the coordinator lists it",
+        )
     except Exception as exc:
         raise AssertionError(fail(str(exc))) from exc
 
