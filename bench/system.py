@@ -232,13 +232,16 @@ async def run_system(
                     counts = _thread_counts(system.fleet)
                     roots = {"bench+coordinator+units": os.getpid()}
                 running = system.supervisor.children if system.supervisor else []
-                roots |= {c.spec.name: c.process.pid for c in running if c.process}
+
+                def components(own: dict[str, int] = roots) -> dict[str, int]:
+                    return own | {c.spec.name: c.process.pid for c in running if c.process}
+
                 figures = await _measure(
                     system.url,
                     root,
                     scenario,
                     counts,
-                    ProcessWatch(roots),
+                    ProcessWatch(components),
                     seed,
                     warmup,
                     duration_s,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import psutil
@@ -43,14 +44,17 @@ def _peak_rss_mb(proc: psutil.Process) -> float:
 class ProcessWatch:
     """`start()` at the window's start, `finish()` at its end: figures for every process."""
 
-    def __init__(self, roots: dict[str, int]) -> None:
-        self.roots = roots  # name -> pid of each component's process (this bench's own too)
+    def __init__(self, roots: Callable[[], dict[str, int]]) -> None:
+        # name -> pid of each component's process (this bench's own too), read afresh each time:
+        # a component restarting, or workers still starting, at the window's start are found at
+        # its end (a CI run listed no unit process at all).
+        self.roots = roots
         self._procs: dict[str, psutil.Process] = {}
         self._cpu0: dict[str, float] = {}
         self._t0 = 0.0
 
     def _collect(self) -> None:
-        for name, pid in self.roots.items():
+        for name, pid in self.roots().items():
             try:
                 root = psutil.Process(pid)
             except psutil.Error:
@@ -61,7 +65,7 @@ class ProcessWatch:
             children = sorted(root.children(recursive=True), key=lambda p: p.pid)
             prefix = "units" if name == "robots" else name  # the robots' workers
             for n, child in enumerate(c for c in children if _worker(c)):
-                self._procs[f"{prefix}-{n}"] = child
+                self._procs.setdefault(f"{prefix}-{n}", child)
 
     def start(self) -> None:
         """Note every process and its CPU time so far."""
@@ -70,11 +74,16 @@ class ProcessWatch:
         self._cpu0 = {n: _cpu_s(p) for n, p in self._procs.items()}
 
     def finish(self) -> list[ProcessFigures]:
-        """CPU % over the window since `start()` and peak RSS, per process."""
+        """CPU % over the window since `start()` and peak RSS, per process (one first seen now:
+        its CPU time since it started)."""
+        self._collect()
         elapsed = max(time.monotonic() - self._t0, 1e-9)
         out = []
         for name, proc in self._procs.items():
+            # (a component restarted meanwhile is a new process: its CPU time since it started)
             cpu = _cpu_s(proc) - self._cpu0.get(name, 0.0)
+            if cpu < 0:
+                cpu = _cpu_s(proc)
             out.append(
                 ProcessFigures(name, proc.pid, round(100 * cpu / elapsed, 1), _peak_rss_mb(proc))
             )
