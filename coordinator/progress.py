@@ -160,12 +160,15 @@ class JobProgress:
         step_no: int,
     ) -> None:
         """Reject what no unit can carry any more; assign queued jobs to idle, settled units."""
-        capacities = self.world.capacities()
-        for job in self.jobs.queued():
-            reason = capacity_reason(job.mass_kg, capacities)
-            if reason is not None:
-                self.jobs.set(job, "rejected", reason=reason, done_step=step_no)
-        self._fail_unreachable(cache, step_no)
+        # Just after a restart, the units heard so far may be only some of the fleet: a queued
+        # job that only an unheard unit can carry must wait for it, not be rejected.
+        if self.world.fleet_known():
+            capacities = self.world.capacities()
+            for job in self.jobs.queued():
+                reason = capacity_reason(job.mass_kg, capacities)
+                if reason is not None:
+                    self.jobs.set(job, "rejected", reason=reason, done_step=step_no)
+            self._fail_unreachable(cache, step_no)
         busy = {j.unit for j in self.jobs.active()}
         slots = []
         for u in units:

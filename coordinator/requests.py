@@ -68,9 +68,11 @@ def submit(
         submitted_by=sender,
         created_step=step_no,
     )
-    reason = capacity_reason(req.mass_kg, world.capacities()) or reach_reason(
-        cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
-    )
+    reason = None
+    if world.fleet_known():  # else queued: allocation rejects it once the fleet is known
+        reason = capacity_reason(req.mass_kg, world.capacities()) or reach_reason(
+            cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
+        )
     if reason is not None:
         # Listed as rejected (not merely refused) so the queue view shows why.
         job.state = "rejected"

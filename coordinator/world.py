@@ -16,6 +16,10 @@ REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (
 # Nothing at all heard for longer than this (not even the coordinator's own status, which comes
 # back to it every few seconds, pace.py) is the coordinator's own link, not its units' silence.
 DEAF_AFTER_S = 10.0
+# How long after it first hears anything the coordinator takes the fleet it knows for the whole
+# fleet: the retained factsheets arrive in a burst on subscribing, but a busy broker or machine
+# can spread them over seconds, and until then "no unit could carry it" only means "none heard".
+FLEET_KNOWN_AFTER_S = 5.0
 
 
 @dataclass
@@ -50,6 +54,7 @@ class World:
 
     base: GridMap
     step_period_s: float = 1.0
+    fleet_known_after_s: float = FLEET_KNOWN_AFTER_S  # 0 where every unit is there from the start
     obstacles: set[Cell] = field(default_factory=set)
     units: dict[str, UnitRecord] = field(default_factory=dict)
 
@@ -60,6 +65,7 @@ class World:
         self.silenced: list[tuple[str, float]] = []  # (unit, seconds silent): see roll_call
         self.heard_again: list[str] = []
         self.heard_at: float | None = None  # when the coordinator last heard anything at all
+        self.first_heard_at: float | None = None
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
 
@@ -107,11 +113,21 @@ class World:
         the coordinator stopped hearing, and a unit lost meanwhile counts from now.
         """
         last, self.heard_at = self.heard_at, now
+        if self.first_heard_at is None:
+            self.first_heard_at = now
         if last is None or now - last <= DEAF_AFTER_S:
             return
         for rec in self.units.values():
             if rec.lost_since is not None:
                 rec.lost_since = now if rec.lost_since > last else rec.lost_since + (now - last)
+
+    def fleet_known(self) -> bool:
+        """Whether the coordinator has listened long enough to know every unit's factsheet."""
+        if self.fleet_known_after_s <= 0:
+            return True
+        if self.first_heard_at is None or self.heard_at is None:
+            return False
+        return self.heard_at - self.first_heard_at >= self.fleet_known_after_s
 
     def away_s(self, rec: UnitRecord, now: float) -> float:
         """How long `rec` has been lost, counted while the coordinator could hear (0: active)."""

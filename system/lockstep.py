@@ -90,7 +90,8 @@ class Lockstep:
         starts = {u.id: u.start for u in scenario.units}
         self.world = WorldSim(grid, scenario.hidden_obstacles, starts)
         self.core = CoordinatorCore(
-            World(grid, step_period_s=step_s),
+            # Every unit is here before the first step: none can be heard late.
+            World(grid, step_period_s=step_s, fleet_known_after_s=0.0),
             JobBook(),
             nonce=f"seed{seed}",
             seed=seed,

@@ -15,11 +15,13 @@ import pytest
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.validate import validate_windows
 from gridfleet.coordinator.window import MAX_WINDOW
+from gridfleet.coordinator.world import FLEET_KNOWN_AFTER_S
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CancelJob,
     Connection,
     ControlUnit,
+    Factsheet,
     Order,
     Reply,
     SetGoal,
@@ -277,7 +279,12 @@ def _submit(
 
 
 def _ask_submit(
-    core: CoordinatorCore, rid: str, pickup: Cell, dropoff: Cell, mass_kg: float = 1.0
+    core: CoordinatorCore,
+    rid: str,
+    pickup: Cell,
+    dropoff: Cell,
+    mass_kg: float = 1.0,
+    now: float = 0.0,
 ) -> Reply:
     req = SubmitJob(
         header=header("t"),
@@ -287,7 +294,7 @@ def _ask_submit(
         dropoff=dropoff,
         mass_kg=mass_kg,
     )
-    return reply_in(request(core, "submit_job", req, 0.0))
+    return reply_in(request(core, "submit_job", req, now))
 
 
 def _steps_until(core: CoordinatorCore, yard: Yard, now: float, done: Callable[[], bool]) -> float:
@@ -413,6 +420,46 @@ def test_a_job_walled_off_by_a_discovered_obstacle_fails_with_the_reason() -> No
     core.step(2.0)
     assert job.state == "failed"
     assert job.reason == "dropoff [9, 9] cannot be reached from pickup [5, 9]"
+
+
+def test_a_restarted_coordinator_waits_to_hear_the_fleet_before_rejecting_a_heavy_job() -> None:
+    # CI saw it: restarted mid-run, the coordinator had heard the light units' factsheets but not
+    # yet the heavy one's, and rejected the restored job that only the heavy unit can carry.
+    core, yard = one_unit(5.0)
+    core.world.fleet_known_after_s = FLEET_KNOWN_AFTER_S
+    core.world.first_heard_at = core.world.heard_at = 0.0
+    heavy = _ask_submit(core, "r1", Cell(9, 1), Cell(0, 0), mass_kg=8.0)
+    assert heavy.accepted  # not yet known to be beyond the whole fleet
+    strong = UnitLogic("strong", core.world.grid, Cell(9, 9), 10.0, 1.0)
+    from_unit(core, "connection", "strong", Connection(header=header("strong"), state="online"), 1)
+    fs = Factsheet(header=header("strong"), capacity_kg=10.0, step_period_s=1.0)
+    from_unit(core, "factsheet", "strong", fs, 1.0)
+    from_unit(core, "state", "strong", strong.report(header("strong")), 1.0)
+    job = core.jobs.jobs[heavy.job_id or ""]
+    for now in (FLEET_KNOWN_AFTER_S + 1.0, FLEET_KNOWN_AFTER_S + 2.0):
+        from_unit(core, "state", "strong", strong.report(header("strong")), now - 0.5)
+        step_one(core, yard, now)
+        assert job.state in ("queued", "assigned", "to_pickup"), job.state
+    assert job.unit == "strong"
+
+
+def test_a_job_too_heavy_for_the_whole_fleet_is_rejected_once_the_fleet_is_known() -> None:
+    core, yard = one_unit(5.0)
+    core.world.fleet_known_after_s = FLEET_KNOWN_AFTER_S
+    core.world.first_heard_at = core.world.heard_at = 0.0
+    heavy = _ask_submit(core, "r1", Cell(9, 1), Cell(0, 0), mass_kg=8.0)
+    assert heavy.accepted
+    job = core.jobs.jobs[heavy.job_id or ""]
+    step_one(core, yard, 1.0)
+    assert job.state == "queued"
+    from_unit(core, "state", "u", yard.state("u"), FLEET_KNOWN_AFTER_S)  # heard for long enough
+    step_one(core, yard, FLEET_KNOWN_AFTER_S + 0.5)
+    assert (job.state, job.reason) == (
+        "rejected",
+        "mass 8.0 kg exceeds every unit's capacity (largest 5.0 kg)",
+    )
+    late = _ask_submit(core, "r2", Cell(9, 1), Cell(0, 0), 8.0, FLEET_KNOWN_AFTER_S + 1.0)
+    assert (late.accepted, late.reason) == (False, job.reason)  # refused at once from now on
 
 
 def _wait(job_id: str, core: CoordinatorCore) -> tuple[str | None, str | None]:

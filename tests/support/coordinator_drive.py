@@ -39,7 +39,7 @@ def make_core(
 ) -> CoordinatorCore:
     """A core on `grid` under the root `gridfleet`, order nonce `n`, every header at FIXED."""
     return CoordinatorCore(
-        World(grid, step_period_s=step_s),
+        World(grid, step_period_s=step_s, fleet_known_after_s=0.0),
         JobBook(jobs),
         nonce="n",
         seed=seed,
