@@ -140,7 +140,13 @@ async def test_impossible_and_invalid_jobs_are_refused(
     broker: BrokerThread, root: str, tmp_path: Path
 ) -> None:
     async with rig(broker, root, tmp_path) as r:
-        await async_wait_for(lambda: len(r.coordinator.world.capacities()) == 4, what="factsheets")
+        world = r.coordinator.world
+        # Refused at once only when the coordinator has listened long enough to know the fleet.
+        await async_wait_for(
+            lambda: len(world.capacities()) == 4 and world.fleet_known(),
+            timeout=30,
+            what="the fleet known",
+        )
         heavy = r.submit(Cell(1, 1), Cell(1, 2), 50.0, "heavy")
         on_wall = r.submit(Cell(2, 2), Cell(1, 1), 1.0, "on-wall")  # (2, 2) is a wall
         off_map = r.submit(Cell(12, 3), Cell(1, 1), 1.0, "off-map")
