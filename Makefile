@@ -60,7 +60,7 @@ lint: $(STAMP)
 
 # mypy cannot follow the editable install's mapping of the checkout's folders into gridfleet.*, so
 # it checks a tree of links laid out as the installed package is.
-PARTS := broker coordinator robots dashboard device console system bench
+PARTS := broker coordinator robots dashboard device console alerts system bench
 typecheck: $(STAMP)
 	rm -rf build/typecheck && mkdir -p build/typecheck/gridfleet
 	cd build/typecheck/gridfleet && ln -s ../../../gridfleet/*.py ../../../gridfleet/protocol . && \

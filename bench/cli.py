@@ -34,6 +34,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "gridfleet.bench.logins",
         "the stop's latency while strangers flood the broker with wrong passwords",
     ),
+    "history": (
+        "gridfleet.bench.history",
+        "the job history's store with a year of jobs: how fast its queries are answered",
+    ),
     "vda5050": (
         "gridfleet.bench.vda5050",
         "a mixed fleet with VDA 5050 vehicles: jobs a minute, stop to every vehicle paused",

@@ -16,9 +16,9 @@ import secrets
 import time
 from collections.abc import Callable, Iterable
 
-from gridfleet.accounts import REQUEST_KINDS, Accounts
+from gridfleet.accounts import Accounts
 from gridfleet.config import names_owned_id
-from gridfleet.protocol import Topics
+from gridfleet.protocol import TOPICS, Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
 from gridfleet.throttle import FailureBudget, LoginThrottle
 
@@ -53,7 +53,14 @@ class Gate:
     ) -> None:
         topics = Topics(root)
         # Where a message names who sent it, for people and the fleet to read (protocol.md §10).
-        self._signed = {topics.request(k) for k in REQUEST_KINDS} | {topics.fleet("errors")}
+        # Every request kind, the dashboard's login reports for the audit among them.
+        requests = [k for k, spec in TOPICS.items() if spec.pattern.startswith("requests/")]
+        self._signed = {topics.request(k) for k in requests} | {topics.fleet("errors")}
+        # The latch names who engaged or released it (`engaged|<by>|…`), and the audit takes
+        # that as who did it: a person's `by` must be an id their account owns. The coordinator
+        # copies presses and restores the latch under the cause's own name.
+        self._latch = topics.fleet("estop")
+        self._copies_latch = {a.name for a in accounts.accounts.values() if a.role == "coordinator"}
         self._errors_topic = topics.fleet("errors")
         self.errors = FailureBudget(ERRORS_BURST, ERRORS_PER_S, clock)
         self._key = secrets.token_bytes(32)
@@ -104,6 +111,8 @@ class Gate:
         submitted with sender `coordinator` was listed as the coordinator's). Error reports are
         also limited per client. What cannot be read passes: the coordinator refuses it in words.
         """
+        if topic == self._latch:
+            return self._latch_refusal(username, data)
         if topic not in self._signed:
             return None
         if topic == self._errors_topic:
@@ -121,4 +130,19 @@ class Gate:
         owner = owner_of(sender, self._digests)
         if owner != username:
             return f"its header names sender {sender!r}, an id account {username!r} does not own"
+        return None
+
+    def _latch_refusal(self, username: str | None, data: bytes) -> str | None:
+        """Why a latch payload is dropped: its `by` is an id the publishing account does not own.
+
+        What is not a stop signal passes: the coordinator reports it and restores the latch.
+        """
+        if username is None or username in self._copies_latch:
+            return None
+        parts = data.split(b"|", 2)
+        if len(parts) < 2 or parts[0] not in (b"engaged", b"released"):
+            return None
+        by = parts[1].decode("utf-8", "replace")
+        if owner_of(by, self._digests) != username:
+            return f"its latch names {by!r}, an id account {username!r} does not own"
         return None

@@ -4,19 +4,21 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import csv
 import math
 import sys
 import uuid
 from collections.abc import Callable
-from typing import TextIO
+from datetime import UTC, datetime, timedelta
+from typing import TextIO, get_args
 
 from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_actions, add_common, broker_url, square
-from gridfleet.protocol import EstopSignal, JobsView, Reply, validate_id
+from gridfleet.protocol import EstopSignal, JobHistoryEntry, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_ESTOP_REASON
-from gridfleet.protocol.messages import FINAL_JOB_STATES
+from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
 from gridfleet.protocol.topics import Topics
 
 WAIT_S = 10.0
@@ -125,6 +127,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("squares", nargs="*", type=square, default=[], metavar="X,Y")
     which.add_argument("--all", action="store_true", help="every discovered obstacle")
     sub.add_parser("list", help="print the job queue")
+    history = sub.add_parser(
+        "history", help="print every change of every job in a time range (table, CSV or JSON)"
+    )
+    history.add_argument(
+        "--since",
+        type=timepoint,
+        default=timepoint("24h"),
+        metavar="WHEN",
+        help="from: an ISO 8601 time or date (local time unless it says its zone), or an age: "
+        "30m, 24h, 7d (default 24h ago)",
+    )
+    history.add_argument(
+        "--until", type=timepoint, default=None, metavar="WHEN", help="until (default now)"
+    )
+    history.add_argument("--unit", type=identifier("unit id"), help="only this unit's")
+    history.add_argument("--job", dest="job_id", type=identifier("job id"), help="only this job's")
+    history.add_argument(
+        "--state", choices=get_args(JobState), help="only the changes into this state"
+    )
+    form = history.add_mutually_exclusive_group()
+    form.add_argument("--csv", action="store_true", help="comma-separated values, with a header")
+    form.add_argument("--json", action="store_true", help="a JSON array of entries")
     stop = sub.add_parser("stop", help="engage the fleet-wide emergency stop (latched)")
     stop.add_argument("--reason", type=reason, default="operator", help="one line, for everybody")
     release = sub.add_parser("release", help="release the emergency stop")
@@ -148,6 +172,100 @@ UNIT_HELP = {
     "out_of_service": "take one unit out of service: no jobs, its unstarted job re-queued",
     "in_service": "bring a unit back into service",
 }
+
+
+AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+
+
+def timepoint(text: str) -> datetime:
+    """A point in time: ISO 8601 (local time unless it says its zone), `now`, or an age (24h)."""
+    now = datetime.now(UTC)
+    word = text.strip()
+    if word == "now":
+        return now
+    if word[-1:] in AGE_UNITS and word[:-1].replace(".", "", 1).isdigit():
+        return now - timedelta(seconds=float(word[:-1]) * AGE_UNITS[word[-1]])
+    try:
+        at = datetime.fromisoformat(word)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a time: give an ISO 8601 time or date (2026-11-26T14:00, "
+            "2026-11-26, 2026-11-26T14:00Z) or an age (30m, 24h, 7d)"
+        ) from None
+    return at if at.tzinfo is not None else at.astimezone()  # local time, with its zone
+
+
+HISTORY_COLUMNS = (
+    "at", "job", "state", "unit", "wait", "reason", "since_submitted_s", "pickup_x",
+    "pickup_y", "dropoff_x", "dropoff_y", "mass_kg", "priority", "submitted_by",
+)  # fmt: skip
+
+
+def history_row(entry: JobHistoryEntry) -> list[str]:
+    """One entry as the CSV's cells, in HISTORY_COLUMNS' order."""
+    cells: list[object] = [
+        entry.at.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z"),
+        entry.job,
+        entry.state,
+        entry.unit,
+        entry.wait,
+        entry.reason,
+        entry.since_submitted_s,
+        *entry.pickup,
+        *entry.dropoff,
+        entry.mass_kg,
+        entry.priority,
+        entry.submitted_by,
+    ]
+    return ["" if c is None else str(c) for c in cells]
+
+
+async def print_history(operator: Operator, args: argparse.Namespace, out: TextIO) -> int:
+    """`job history`: every page of the query, printed as it arrives; 1 when it is refused."""
+    query = {
+        "since": args.since,
+        "until": args.until,
+        "unit": args.unit,
+        "job_id": args.job_id,
+        "state": args.state,
+    }
+    writer = csv.writer(out, lineterminator="\n") if args.csv else None
+    if writer is not None:
+        writer.writerow(HISTORY_COLUMNS)
+    elif args.json:
+        print("[", file=out)
+    else:
+        print(
+            f"{'at (UTC)':<24} {'job':<16} {'state':<11} {'unit':<10} {'after':>9}  why", file=out
+        )
+    cursor: str | None = None
+    count = 0
+    while True:
+        page = await operator.job_history(args.timeout, **query, cursor=cursor)
+        if isinstance(page, Reply) or not page.accepted:
+            print(f"refused: {page.reason}", file=sys.stderr)
+            return 1
+        for entry in page.entries:
+            if writer is not None:
+                writer.writerow(history_row(entry))
+            elif args.json:
+                comma = "," if count else " "
+                print(f"{comma}{entry.model_dump_json(exclude_none=True)}", file=out)
+            else:
+                at = history_row(entry)[0]
+                after = f"{entry.since_submitted_s:.1f}s"
+                why = entry.reason or ""
+                line = f"{at:<24} {entry.job:<16} {entry.state:<11} {entry.unit or '-':<10}"
+                print(f"{line} {after:>9}  {why}".rstrip(), file=out)
+            count += 1
+        cursor = page.next_cursor
+        if cursor is None:
+            break
+    if args.json:
+        print("]", file=out)
+    elif writer is None:
+        print(f"{count} change{'' if count == 1 else 's'}", file=out)
+    return 0
 
 
 def print_jobs(view: JobsView, out: TextIO) -> None:
@@ -282,6 +400,8 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             assert operator.jobs is not None
             print_jobs(operator.jobs, out)
             return 0
+        if args.action == "history":
+            return await print_history(operator, args, out)
         try:
             await asyncio.wait_for(operator.coordinator_online.wait(), args.timeout)
         except TimeoutError:

@@ -32,6 +32,8 @@ from gridfleet.protocol import (
     EstopSignal,
     FleetMap,
     HeaderStamper,
+    JobHistoryPage,
+    JobHistoryQuery,
     JobsView,
     Reply,
     Routes,
@@ -75,7 +77,7 @@ class Operator:
         self.routes_changed = asyncio.Event()
         self.retry_s = retry_s
         self.resent = 0  # requests sent again for want of a reply (figures for the bench)
-        self._pending: dict[str, asyncio.Future[Reply]] = {}
+        self._pending: dict[str, asyncio.Future[Reply | JobHistoryPage]] = {}
         self._count = 0
         self.obstacles: frozenset[Cell] = frozenset()  # found by the units (fleet/map)
         # Request ids must be unique per sender across restarts (the coordinator remembers them),
@@ -93,6 +95,7 @@ class Operator:
             await self.client.subscribe(topic, qos=qos)
         for kind, topic in (
             ("reply", t.reply(self.client_id)),
+            ("history_reply", t.history_reply(self.client_id)),
             ("jobs", t.fleet("jobs")),
             ("map", t.fleet("map")),
             ("routes", t.fleet("routes")),
@@ -109,11 +112,15 @@ class Operator:
                 if kind in STOP_KINDS:
                     self.stop.apply(kind, source, str(message.topic), payload)
                     self.stop_changed.set()
-                elif kind == "reply":
-                    reply = decode(Reply, payload)
-                    future = self._pending.pop(reply.request_id, None)
+                elif kind in ("reply", "history_reply"):
+                    answer: Reply | JobHistoryPage
+                    if kind == "reply":
+                        answer = decode(Reply, payload)
+                    else:
+                        answer = decode(JobHistoryPage, payload, TOPICS[kind].max_bytes)
+                    future = self._pending.pop(answer.request_id, None)
                     if future is not None and not future.done():
-                        future.set_result(reply)
+                        future.set_result(answer)
                 elif kind == "jobs":
                     self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
                     self.jobs_changed.set()
@@ -152,12 +159,27 @@ class Operator:
             )
         except ValidationError as exc:
             raise ProtocolError(f"{kind}: {describe(exc)}") from None
-        return await self._send(kind, request, timeout)
+        answer = await self._send(kind, request, timeout)
+        assert isinstance(answer, Reply)  # only queries are answered with pages
+        return answer
 
-    async def _send(self, kind: str, request: Request, timeout: float) -> Reply:
-        """Send `request` until its reply arrives, backing off; give up after `timeout` s."""
+    async def job_history(self, timeout: float = WAIT_S, **query: object) -> JobHistoryPage | Reply:
+        """One page of the job history (protocol.md §6.10), or the Reply that refused the query."""
+        try:
+            request = JobHistoryQuery(
+                header=self.stamp("job_history"),
+                request_id=self._next_id(),
+                reply_to=self.client_id,
+                **query,  # type: ignore[arg-type]  # checked by the model, named in the error
+            )
+        except ValidationError as exc:
+            raise ProtocolError(f"job_history: {describe(exc)}") from None
+        return await self._send("job_history", request, timeout)
+
+    async def _send(self, kind: str, request: Request, timeout: float) -> Reply | JobHistoryPage:
+        """Send `request` until its answer arrives, backing off; give up after `timeout` s."""
         loop = asyncio.get_running_loop()
-        future: asyncio.Future[Reply] = loop.create_future()
+        future: asyncio.Future[Reply | JobHistoryPage] = loop.create_future()
         rid = request.request_id
         self._pending[rid] = future
         out = Outbound.of(kind, self.topics.request(kind), request)

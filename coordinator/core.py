@@ -31,9 +31,11 @@ from functools import partial
 
 from gridfleet.coordinator import inbound, requests
 from gridfleet.coordinator.answers import Answers
+from gridfleet.coordinator.audit import AuditLog, Identity
 from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.effects import Effects, Messages, Status
 from gridfleet.coordinator.events import EventLog
+from gridfleet.coordinator.history import range_problem
 from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.moves import Moves
@@ -56,6 +58,7 @@ from gridfleet.protocol import (
     ControlUnit,
     Factsheet,
     HeaderStamper,
+    JobHistoryQuery,
     RouteView,
     SetGoal,
     SubmitJob,
@@ -97,6 +100,7 @@ class CoordinatorCore:
         stamp: HeaderStamper | None = None,
         controls: Mapping[str, UnitControlState] | None = None,
         window: int = DEFAULT_WINDOW,
+        identity: Identity | None = None,
     ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window {window}: give 1 to {MAX_WINDOW} squares")
@@ -104,6 +108,7 @@ class CoordinatorCore:
         self.world = world
         self.jobs = jobs
         self.topics = topics or Topics()
+        self._own_status = self.topics.fleet("coordinator")
         self.say = Messages(self.topics, stamp or HeaderStamper("coordinator"))
         self.planner = Planner(world.grid, seed=seed)
         self.step_no = 0
@@ -121,6 +126,7 @@ class CoordinatorCore:
         self.pace = StepRate()
         self.errors_reported = 0
         self.events = EventLog()  # the recent history, in words (fleet/events)
+        self.audit = AuditLog(identity)  # who did what: operators' requests and the stop
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
 
@@ -172,6 +178,8 @@ class CoordinatorCore:
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         """React to one message; a bad one is reported on `errors` and changes nothing."""
         self.world.heard(now)  # whatever it says, the coordinator can hear
+        if topic == self._own_status:
+            self.world.heard_itself = True  # and every retained factsheet has arrived
         try:
             arrival = inbound.read(self.topics, topic, payload)
             if arrival is None:
@@ -227,11 +235,24 @@ class CoordinatorCore:
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
             return self._on_request(topic, msg, now)
+        elif isinstance(msg, JobHistoryQuery):
+            return self._on_history(topic, msg)
         return self._effects([])
+
+    def _on_history(self, topic: str, query: JobHistoryQuery) -> Effects:
+        """A job history query: the shell answers it from the store, or it is refused here."""
+        problem = range_problem(query, self.say.stamp.now())
+        if problem is None:
+            return replace(self._effects([]), history_queries=(query,))
+        notes: list[Note] = []
+        publish = [self._refuse(topic, f"JobHistoryQuery: {problem}", query.request_id, notes)]
+        page = self.say.history_page(query, [], None, refused=problem)
+        return self._effects([*publish, *([page] if page is not None else [])], log=notes)
 
     def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
         news = self.stop.on_payload(kind, source, topic, payload)
+        self.audit.stop(self.say.stamp.now(), kind, source, topic, payload)  # valid: applied
         if news.line is None:
             return self._effects(news.publish)
         self.events.add(self.say.stamp.now(), "stop", news.line)
@@ -274,6 +295,8 @@ class CoordinatorCore:
             outcome = requests.set_goal(
                 req, self.world, self.jobs, self.directives, cache, self.progress.requeue
             )
+        if known is None:  # a retry is the same act, recorded once
+            self.audit.request(self.say.stamp.now(), req, outcome)
         publish = []
         if not outcome.accepted:
             what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"
@@ -517,6 +540,7 @@ class CoordinatorCore:
             persist=persist,
             events=self.events.take_fresh(),
             controls=controls,
+            audit=self.audit.take(),
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,
             views_at=views_at,

@@ -4,11 +4,12 @@ messages they carry, stamped and addressed, with the QoS and retain flag protoco
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 from gridfleet import __version__
 from gridfleet.coordinator.answers import Answer
+from gridfleet.coordinator.audit import AuditNews
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.orders import OrderPlan
 from gridfleet.coordinator.requests import Outcome
@@ -18,6 +19,9 @@ from gridfleet.protocol import (
     CoordinatorStatus,
     EventEntry,
     HeaderStamper,
+    JobHistoryEntry,
+    JobHistoryPage,
+    JobHistoryQuery,
     Order,
     Reply,
     Routes,
@@ -37,6 +41,8 @@ class Effects:
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
     controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
+    history_queries: tuple[JobHistoryQuery, ...] = ()  # checked: answer each from the store
+    audit: AuditNews = field(default_factory=AuditNews)  # operators' acts, stop payloads seen
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
     acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then
     views_at: float | None = None  # call `views_due` at this time (end of a batch period)
@@ -79,6 +85,26 @@ class Messages:
             job_id=outcome.job_id,
         )
         return Outbound.of("reply", self.topics.reply(reply_to), reply)
+
+    def history_page(
+        self,
+        query: JobHistoryQuery,
+        entries: list[JobHistoryEntry],
+        next_cursor: str | None,
+        refused: str | None = None,
+    ) -> Outbound | None:
+        """A page of the job history for `query` (or why not), to its sender if it said where."""
+        if query.reply_to is None:
+            return None
+        page = JobHistoryPage(
+            header=self.stamp("history_reply"),
+            request_id=query.request_id,
+            accepted=refused is None,
+            reason=refused,
+            entries=entries,
+            next_cursor=next_cursor,
+        )
+        return Outbound.of("history_reply", self.topics.history_reply(query.reply_to), page)
 
     def error(self, topic: str, reason: str, request_id: str | None) -> Outbound:
         """A report on `errors` about a message refused on `topic`."""

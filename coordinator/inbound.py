@@ -17,6 +17,7 @@ from gridfleet.protocol import (
     Connection,
     ControlUnit,
     Factsheet,
+    JobHistoryQuery,
     SetGoal,
     SubmitJob,
     Topics,
@@ -37,7 +38,7 @@ class StopPayload:
     payload: bytes
 
 
-Message = Connection | Factsheet | UnitState | StopPayload | Request
+Message = Connection | Factsheet | UnitState | StopPayload | Request | JobHistoryQuery
 
 _FROM_UNITS: dict[str, type[Connection] | type[Factsheet] | type[UnitState]] = {
     "connection": Connection,
@@ -51,6 +52,8 @@ _REQUESTS: dict[str, type[Request]] = {
     "control_unit": ControlUnit,
     "clear_obstacles": ClearObstacles,
 }
+# Queries: answered from the stores, nothing changes, no answer is kept for a retry.
+_QUERIES: dict[str, type[JobHistoryQuery]] = {"job_history": JobHistoryQuery}
 
 
 @dataclass(frozen=True)
@@ -80,7 +83,7 @@ def reply_address(topics: Topics, topic: str, payload: bytes) -> tuple[str | Non
         data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
     except (ProtocolError, ValueError):
         return None, None
-    if kind not in _REQUESTS or not isinstance(data, dict):
+    if (kind not in _REQUESTS and kind not in _QUERIES) or not isinstance(data, dict):
         return None, None
     request_id, reply_to = data.get("request_id"), data.get("reply_to")
     if not (isinstance(request_id, str) and 0 < len(request_id) <= 64):  # as in Request
@@ -103,4 +106,6 @@ def read(topics: Topics, topic: str, payload: bytes) -> Arrival | None:
         return Arrival(kind, ident, StopPayload(payload))
     if kind in _REQUESTS:
         return Arrival(kind, None, decode(_REQUESTS[kind], payload, MAX_REQUEST_BYTES))
+    if kind in _QUERIES:
+        return Arrival(kind, None, decode(_QUERIES[kind], payload, MAX_REQUEST_BYTES))
     return None

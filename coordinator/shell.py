@@ -17,8 +17,12 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, AuditDesk, Identity
+from gridfleet.coordinator.audit_store import AuditStore
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
+from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, JobChanges
+from gridfleet.coordinator.history_store import HistoryStore
 from gridfleet.coordinator.jobs import JobBook
 from gridfleet.coordinator.store import JobStore, default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW
@@ -51,6 +55,9 @@ class CoordinatorShell:
         window: int = DEFAULT_WINDOW,
         clock: Callable[[], float] = time.monotonic,
         metrics: MetricsOptions | None = None,
+        identity: Identity | None = None,
+        audit_days: float = DEFAULT_AUDIT_DAYS,
+        history_days: float = DEFAULT_RETENTION_DAYS,
     ) -> None:
         self.broker = broker
         self.topics = Topics(root)
@@ -61,6 +68,13 @@ class CoordinatorShell:
         self.step_s = step_s
         self.clock = clock
         self.store = JobStore(db_path if db_path is not None else default_db_path())
+        # The audit trail: tables of its own in the same database (coordinator/audit.py).
+        identity = identity or Identity()
+        path = db_path if db_path is not None else default_db_path()
+        self.audit_store = AuditStore(path, audit_days)
+        # Every change of every job, with its time (coordinator/history.py): the same database.
+        self.history = HistoryStore(path, history_days)
+        self.job_changes = JobChanges(self.history.last)
         self.core = CoordinatorCore(
             World(grid, step_period_s=step_s),
             JobBook(self.store.load()),
@@ -70,7 +84,10 @@ class CoordinatorShell:
             stamp=HeaderStamper(sender),
             controls=self.store.load_controls(),
             window=window,
+            identity=identity,
         )
+        self.core.audit.restore(self.audit_store.load_seen())
+        self.audit_desk = AuditDesk(self.topics, self.core.say.stamp, identity)
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.events.restore(self.store.load_events())
         self.world = self.core.world
@@ -122,6 +139,8 @@ class CoordinatorShell:
             if self.metrics_server is not None:
                 self.metrics_server.stop()
             self.store.close()
+            self.audit_store.close()
+            self.history.close()
 
     async def _on_connect(self) -> None:
         await self._apply(self.core.on_connect(self.clock()))
@@ -130,6 +149,13 @@ class CoordinatorShell:
 
     async def handle(self, topic: str, payload: bytes) -> None:
         """One inbound message, to the core; then whatever it says to do."""
+        if self.audit_desk.reads(topic):  # the audit's own requests: answered from its store
+            answer = self.audit_desk.on_message(topic, payload, self.audit_store)
+            for line in answer.log:
+                log.info("%s", line)
+            self.audit_store.add(answer.entries)
+            await asyncio.gather(*(self.endpoint.publish(out) for out in answer.publish))
+            return
         if self.metrics is None:
             await self._apply(self.core.on_message(topic, payload, self.clock()))
             return
@@ -174,6 +200,11 @@ class CoordinatorShell:
         # core's order on the wire (paho queues each in the first, synchronous part of a
         # publish), and a step's hundred orders take one round trip to the broker, not a hundred.
         outs = [out for out in effects.publish if not self.core.withdrawn(out)]
+        for query in effects.history_queries:
+            entries, cursor = self.history.query(query, self.core.say.stamp.now())
+            page = self.core.say.history_page(query, entries, cursor)
+            if page is not None:
+                outs.append(page)
         sends = [asyncio.ensure_future(self.endpoint.publish(out)) for out in outs]
         if self.metrics is not None:
             self.metrics.sent_some([out.topic for out in outs])
@@ -185,10 +216,16 @@ class CoordinatorShell:
             self.metrics.jobs_changed(effects.persist)
         if effects.persist or effects.answered:
             self.store.save(effects.persist, effects.answered)
+        if effects.persist:
+            now = self.core.say.stamp.now()
+            self.history.add(self.job_changes.entries(effects.persist, now), now)
         if effects.controls:
             self.store.save_controls(effects.controls)
         if effects.events:
             self.store.save_events(effects.events)
+        self.audit_store.add(effects.audit.entries)
+        self.audit_store.save_seen(effects.audit.seen)
+        self.audit_store.prune(self.core.say.stamp.now().timestamp())  # about once an hour
 
     async def _views_after(self, at: float) -> None:
         await asyncio.sleep(max(0.0, at - self.clock()))  # pacing: the end of a batch period

@@ -16,9 +16,10 @@ REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (
 # Nothing at all heard for longer than this (not even the coordinator's own status, which comes
 # back to it every few seconds, pace.py) is the coordinator's own link, not its units' silence.
 DEAF_AFTER_S = 10.0
-# How long after it first hears anything the coordinator takes the fleet it knows for the whole
-# fleet: the retained factsheets arrive in a burst on subscribing, but a busy broker or machine
-# can spread them over seconds, and until then "no unit could carry it" only means "none heard".
+# Until the retained factsheets have all arrived, "no unit could carry it" only means "none heard
+# yet". They have once the coordinator hears its own status back (subscribed to last: a broker
+# sends a subscription's retained messages before it handles the next one), or, should that
+# never come back (a bridge in between), this long after it first heard anything.
 FLEET_KNOWN_AFTER_S = 5.0
 
 
@@ -66,6 +67,7 @@ class World:
         self.heard_again: list[str] = []
         self.heard_at: float | None = None  # when the coordinator last heard anything at all
         self.first_heard_at: float | None = None
+        self.heard_itself = False  # its own status came back: the retained factsheets are in
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
 
@@ -123,7 +125,7 @@ class World:
 
     def fleet_known(self) -> bool:
         """Whether the coordinator has listened long enough to know every unit's factsheet."""
-        if self.fleet_known_after_s <= 0:
+        if self.heard_itself or self.fleet_known_after_s <= 0:
             return True
         if self.first_heard_at is None or self.heard_at is None:
             return False

@@ -6,6 +6,7 @@ from __future__ import annotations
 from flask import Flask, Response, jsonify, request, send_from_directory
 
 from gridfleet.config import names_this_machine
+from gridfleet.dashboard.audit import login_reporter
 from gridfleet.dashboard.auth import current_user, install_login
 from gridfleet.dashboard.settings import (
     INSTALL_HINT,
@@ -24,7 +25,10 @@ def create_app(settings: DashboardSettings) -> Flask:
     # The page is small and changes with upgrades: never let a browser run yesterday's code.
     app.config["SEND_FILE_MAX_AGE_DEFAULT"] = 0
     app.extensions["gridfleet_settings"] = settings
-    secret, book = install_login(app, settings)
+    # Logins, logouts and failed logins go to the coordinator's audit trail (dashboard/audit.py).
+    audit = login_reporter(settings.accounts, settings.audit_broker, settings.root)
+    app.extensions["gridfleet_audit"] = audit
+    secret, book = install_login(app, settings, audit)
 
     @app.before_request
     def refuse_rebound_hosts() -> tuple[Response, int] | None:

@@ -8,6 +8,7 @@ from datetime import timedelta
 from flask import Flask, Response, jsonify, request, session
 
 from gridfleet.accounts import Account
+from gridfleet.dashboard.audit import LoginReporter, as_user
 from gridfleet.dashboard.login import (
     SESSION_S,
     LoginRefused,
@@ -47,8 +48,13 @@ def cross_site(method: str, origin: str | None, host_url: str, is_json: bool) ->
     return None
 
 
-def install_login(app: Flask, settings: DashboardSettings) -> tuple[bytes, SessionBook]:
-    """Configure the session cookie and add the login routes; the session secret and book."""
+def install_login(
+    app: Flask, settings: DashboardSettings, audit: LoginReporter | None = None
+) -> tuple[bytes, SessionBook]:
+    """Configure the session cookie and add the login routes; the session secret and book.
+
+    With `audit`, every login, logout and failed login is reported to the audit trail.
+    """
     # Random per start unless configured: a restart then logs everybody out (README, Dashboard).
     secret = settings.secret_key or secrets.token_bytes(32)
     app.secret_key = secret
@@ -86,6 +92,8 @@ def install_login(app: Flask, settings: DashboardSettings) -> tuple[bytes, Sessi
         wait = throttle.wait_s(name, who)
         if wait > 0:
             text = f"too many failed logins: try again in {wait:.0f} s"
+            if audit is not None:
+                audit.report("login_failed", as_user(name), who, "too many failed logins")
             response = jsonify({"error": text})
             response.headers["Retry-After"] = str(max(1, round(wait)))
             return response, 429
@@ -93,6 +101,8 @@ def install_login(app: Flask, settings: DashboardSettings) -> tuple[bytes, Sessi
             account = check_login(settings.accounts, body["username"], body["password"])
         except LoginRefused as refused:
             throttle.failed(name, who, known_name=name in settings.accounts.accounts)
+            if audit is not None:
+                audit.report("login_failed", as_user(name), who, str(refused))
             session.clear()
             return jsonify({"error": str(refused)}), 401
         book.close(session.get("sid"))
@@ -101,10 +111,15 @@ def install_login(app: Flask, settings: DashboardSettings) -> tuple[bytes, Sessi
         session["user"] = account.name
         session["tag"] = session_tag(secret, account)
         session["sid"] = book.open(account.name)
+        if audit is not None:
+            audit.report("login", account.name, who)
         return jsonify({"user": account.name}), 200
 
     @app.post("/api/logout")
     def logout() -> tuple[Response, int]:
+        user = current_user(settings, secret, book)  # who logs out (None: nobody was in)
+        if audit is not None and user is not None:
+            audit.report("logout", user.name, request.remote_addr)
         book.close(session.get("sid"))  # a copy of the cookie opens nothing any more
         session.clear()
         return jsonify({"ok": True}), 200

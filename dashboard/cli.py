@@ -14,7 +14,7 @@ from gridfleet.accounts import load_accounts
 from gridfleet.config import DEFAULT_WS_URL, is_loopback
 from gridfleet.dashboard.app import create_app
 from gridfleet.dashboard.server import DashboardServer
-from gridfleet.dashboard.settings import INSTALL_HINT, DashboardSettings
+from gridfleet.dashboard.settings import INSTALL_HINT, DashboardSettings, browser_broker_url
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
 from gridfleet.maps import load_map
@@ -64,6 +64,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scenario", metavar="FILE", help="show this scenario's map until fleet/map arrives"
     )
     where.add_argument("--map", metavar="FILE", help="show this .map file until fleet/map arrives")
+    parser.add_argument(
+        "--audit-broker",
+        metavar="URL",
+        help="with --accounts: where the dashboard reports logins, logouts and failed logins "
+        "to the coordinator's audit, as the dashboard account (default: --broker-ws, a 0.0.0.0 "
+        "host read as 127.0.0.1)",
+    )
     add_common(parser, broker=False)
 
 
@@ -98,7 +105,15 @@ def settings_from(
         accounts=None if args.accounts is None else load_accounts(args.accounts),
         secret_key=secret_from(environ),
         https=args.tls_cert is not None,
+        audit_broker=None if args.accounts is None else audit_broker(args),
     )
+
+
+def audit_broker(args: argparse.Namespace) -> str:
+    """Where the dashboard reports logins: --audit-broker, else the broker's websocket URL."""
+    if args.audit_broker is not None:
+        return str(args.audit_broker)
+    return browser_broker_url(args.broker_ws, "127.0.0.1")
 
 
 def tls_from(args: argparse.Namespace) -> ssl.SSLContext | None:

@@ -23,6 +23,8 @@ INSTALL_HINT = (
     "(or 'make install' at the top of the repository), then reload the page."
 )
 LOGIN_FIRST = "log in to see the fleet"
+# Who may read the audit trail (protocol.md §6.8), and so see the page's Audit view.
+AUDIT_ROLES = ("operator", "dashboard")
 # A broker listening on every address: the browser reaches it where it reached the page.
 WILDCARD_HOSTS = ("0.0.0.0", "::")
 
@@ -41,6 +43,8 @@ class DashboardSettings:
     accounts: Accounts | None = field(default=None, repr=False)
     secret_key: bytes | None = field(default=None, repr=False)  # None: a random one per start
     https: bool = False  # the page is served over HTTPS: its cookie goes over HTTPS only
+    # Where the dashboard itself reports logins for the audit (with accounts; None: nowhere).
+    audit_broker: str | None = None
 
     def __post_init__(self) -> None:
         url = parse_broker_url(self.broker_ws)
@@ -109,6 +113,9 @@ def settings_payload(
             "required": settings.accounts is not None,
             "user": None if user is None else user.name,
         },
+        # Whether the page shows the Audit view: the audit is for operator and dashboard accounts
+        # (protocol.md §6.8); without accounts anybody may read it.
+        "audit": user is None or user.role in AUDIT_ROLES,
         "mqtt": None if user is None else {"username": user.name, "password": user.password},
         "root": settings.root,
         "prefix": Topics(settings.root).prefix,

@@ -44,10 +44,31 @@ from gridfleet.protocol import TOPICS, Topics, validate_id
 from gridfleet.textfile import read_text
 
 Role = Literal[
-    "coordinator", "unit", "device", "dashboard", "operator", "vehicle", "vda5050", "bridge"
+    "coordinator",
+    "unit",
+    "device",
+    "dashboard",
+    "operator",
+    "vehicle",
+    "vda5050",
+    "bridge",
+    "alerts",  # the alerts process (`gridfleet alerts`): its view and its answers to acks
+    "viewer",  # a person who may read the fleet but not change it (nor acknowledge alerts)
 ]
 ROLES: tuple[Role, ...] = get_args(Role)
-REQUEST_KINDS = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
+REQUEST_KINDS = (
+    "submit_job",
+    "cancel_job",
+    "set_goal",
+    "control_unit",
+    "clear_obstacles",
+    "ack_alert",  # answered by the alerts process, not the coordinator
+    "audit",  # a page of the audit trail (protocol.md §6.8): people, not viewers
+    "job_history",  # a page of the job history (protocol.md §6.10)
+)
+# The dashboard's own report of a login, logout or failed login, for the audit (§6.9): only a
+# dashboard account may publish it, not an operator's.
+DASHBOARD_REQUEST_KINDS = ("audit_login",)
 MIN_PASSWORD = 12
 # A VDA 5050 vehicle's topics: interfaceName/majorVersion/manufacturer/serialNumber/<topic>.
 # Each level one of MQTT's, printable, without spaces (a Mosquitto ACL line ends at the topic).
@@ -162,6 +183,7 @@ def default_accounts(units: list[str], vehicles: Sequence[VehicleLink] = ()) -> 
         Account("coordinator", new_password(), "coordinator"),
         Account("dashboard", new_password(), "dashboard"),
         Account("operator", new_password(), "operator"),
+        Account("alerts", new_password(), "alerts"),
     ]
     for unit in units:
         made.append(Account(unit, new_password(), "unit", unit))
@@ -344,6 +366,8 @@ def rules(account: Account, topics: Topics) -> Rules:
                 for k in ("map", "jobs", "routes", "events", "errors", "coordinator", "estop")
             ),
             f"{t.prefix}/replies/+",
+            f"{t.prefix}/audit/replies/+",  # pages of the audit trail (protocol.md §6.8)
+            f"{t.prefix}/history/replies/+",  # pages of the job history (protocol.md §6.10)
             *presses,  # cleared after an operator's release
         ]
         subscribe = [
@@ -395,11 +419,28 @@ def rules(account: Account, topics: Topics) -> Rules:
         carried = bridge_topics(t)
         publish = [b.pattern for b in carried if b.direction in ("out", "both")]
         subscribe = [b.pattern for b in carried if b.direction in ("in", "both")]
+    elif account.role == "alerts":
+        # It reads what its rules watch and answers acknowledgements (protocol.md §5.8, §6.7).
+        publish = [t.fleet("alerts"), t.fleet("errors"), f"{t.prefix}/replies/+"]
+        subscribe = [
+            *(t.all_units(k) for k in ("connection", "state")),
+            *(t.fleet(k) for k in ("jobs", "coordinator")),
+            *presses,
+            t.fleet("estop"),
+            t.request("ack_alert"),
+        ]
+    elif account.role == "viewer":
+        publish = []  # reads everything, changes nothing
+        # Everything but the audit's replies (`audit/replies/+`): the audit is for operators.
+        tops = sorted({spec.pattern.split("/")[0] for spec in TOPICS.values()} - {"audit"})
+        subscribe = [f"{t.prefix}/{top}/#" for top in tops]
     else:  # dashboard, operator: the people's side
         publish = [
             *(t.request(k) for k in REQUEST_KINDS),
             t.all_units("goal"),
             t.fleet("estop"),
         ]
+        if account.role == "dashboard":
+            publish += [t.request(k) for k in DASHBOARD_REQUEST_KINDS]
         subscribe = [f"{t.prefix}/#"]
     return Rules(tuple(publish), tuple(subscribe))

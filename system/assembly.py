@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any, Literal, TextIO
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.config import with_ca_file, with_credentials
+from gridfleet.coordinator.audit import Identity
 from gridfleet.coordinator.store import default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.errors import ConfigError
@@ -75,6 +76,8 @@ class SystemSpec:
     )
     vehicles: Path | None = None  # processes only: VDA 5050 vehicles, their adapter's file
     metrics_port: int | None = None  # the coordinator's metrics on 127.0.0.1 (0: a free port)
+    alerts: bool = False  # processes only: the alerts process (`gridfleet alerts`)
+    alerts_config: Path | None = None  # its rules and webhook ([alerts]): no URL on a command line
 
 
 def cli(*args: str) -> list[str]:
@@ -126,6 +129,8 @@ class Assembly:
         in_processes_only = (spec.listen, spec.tls_cert, spec.tls_key, spec.ca_file)
         if mode == "threads" and in_processes_only != ("127.0.0.1", None, None, None):
             raise ConfigError("the listen address and TLS are set only as processes")
+        if mode == "threads" and spec.alerts:
+            raise ConfigError("the alerts process runs only as a process")
         if mode == "threads" and (spec.unit_workers != 1 or spec.truth is not None):
             raise ConfigError("unit workers and a truth file are set only as processes")
         if spec.unit_workers < 1:
@@ -182,6 +187,8 @@ class Assembly:
                 client_id=spec.coordinator_id,
                 window=spec.window,
                 metrics=metrics,
+                # Our own broker with accounts drops a request naming another account's id.
+                identity=Identity(accounts, vouched=spec.broker is None),
             )
             system.threads["coordinator"] = coordinator.start(timeout)
             fleet = fleet_thread(
@@ -263,9 +270,14 @@ class Assembly:
             coordinator += ["--db", str(spec.db_path)]
         if spec.metrics_port is not None:
             coordinator += ["--metrics", str(spec.metrics_port)]
+        if spec.broker is None and spec.accounts_file is not None:
+            # Our own broker drops a request or latch naming an id its account does not own.
+            coordinator += ["--vouched-senders"]
         system.children["coordinator"] = await sup.start(
             ChildSpec("coordinator", cli(*coordinator))
         )
+        if spec.alerts:
+            system.children["alerts"] = await sup.start(self._alerts(common))
         if spec.robots:
             system.children["robots"] = await sup.start(self._robots(common, step))
         if spec.vehicles is not None:
@@ -288,6 +300,7 @@ class Assembly:
                 scenario,
                 *logins,
                 *self.tls_files,
+                *(["--audit-broker", system.url] if logins else []),  # logins, for the audit
             )
             child = await sup.start(ChildSpec("dashboard", dashboard, ready=DASHBOARD_READY))
             system.children["dashboard"] = child
@@ -299,6 +312,12 @@ class Assembly:
                 ChildSpec("operator", feed, restart=spec.demo)
             )
         return system
+
+    def _alerts(self, common: list[str]) -> ChildSpec:
+        """The alerts process: its rules and webhook from a file, never on its command line."""
+        config = self.spec.alerts_config
+        alerts = cli("alerts", *common, *([] if config is None else ["--config", str(config)]))
+        return ChildSpec("alerts", alerts)
 
     def _robots(self, common: list[str], step: list[str]) -> ChildSpec:
         """The simulated units' process: they resume where they stood, beside the job store."""

@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "dashboard": ("gridfleet.dashboard.cli", "serve the browser dashboard"),
     "device": ("gridfleet.device.cli", "a virtual ESP32: direction LEDs and an emergency-stop key"),
     "job": ("gridfleet.console.job", "submit, cancel and list jobs; set goals; emergency stop"),
+    "audit": ("gridfleet.console.audit", "who did what and when: the audit trail of operator acts"),
     "feed": (
         "gridfleet.console.feed",
         "submit a scenario's jobs and goals; --demo keeps jobs coming",
@@ -52,6 +53,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "vda5050": (
         "gridfleet.robots.vda5050.cli",
         "run VDA 5050 vehicles (a vehicles file) as units of the fleet",
+    ),
+    "alerts": (
+        "gridfleet.alerts.cli",
+        "raise and clear alerts (webhook, metrics); --list shows them, --ack ID acknowledges one",
     ),
 }
 

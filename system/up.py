@@ -118,6 +118,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="serve the coordinator's metrics in the Prometheus format on "
         "http://127.0.0.1:PORT/metrics (docs/monitoring.md)",
     )
+    parser.add_argument(
+        "--alerts",
+        action="store_true",
+        help="also run the alerts process: lost or stuck units, waiting jobs, the stop, a slow "
+        "fleet, a coordinator down (docs/monitoring.md)",
+    )
+    parser.add_argument(
+        "--alerts-config",
+        type=Path,
+        metavar="FILE",
+        help="with --alerts: a TOML file whose [alerts] table sets its rules and webhook",
+    )
 
 
 def check_accounts(path: Path, scenario: Scenario) -> Accounts:
@@ -180,6 +192,7 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
     check_tls(args)
     if args.metrics is not None:
         MetricsOptions(args.metrics)  # a bad port: one line now, not from the coordinator later
+    alerts_config = check_alerts(args)
     scenario = with_units(load_scenario(args.scenario))
     workers = workers_for(len(scenario.units)) if args.workers is None else args.workers
     if workers < 1:
@@ -216,7 +229,28 @@ def spec_from(args: argparse.Namespace) -> SystemSpec:
         robots=not args.no_robots,
         vehicles=vehicles,
         metrics_port=args.metrics,
+        alerts=args.alerts,
+        alerts_config=alerts_config,
     )
+
+
+def check_alerts(args: argparse.Namespace) -> Path | None:
+    """--alerts-config, checked now (a mistake: one line before anything starts), made absolute."""
+    if args.alerts_config is not None and not args.alerts:
+        raise ConfigError("--alerts-config is for --alerts")
+    if not args.alerts:
+        return None
+    if args.accounts is not None and "alerts" not in load_accounts(args.accounts).accounts:
+        raise ConfigError(
+            f"{args.accounts}: no 'alerts' account for --alerts: add it with 'gridfleet accounts "
+            f"add alerts --role alerts --file {args.accounts}'"
+        )
+    if args.alerts_config is None:
+        return None
+    from gridfleet.alerts.settings import load_settings  # only with --alerts
+
+    load_settings(args.alerts_config)
+    return Path(args.alerts_config).resolve()
 
 
 async def bring_up(args: argparse.Namespace, supervisor: Supervisor) -> str:

@@ -462,6 +462,22 @@ def test_a_job_too_heavy_for_the_whole_fleet_is_rejected_once_the_fleet_is_known
     assert (late.accepted, late.reason) == (False, job.reason)  # refused at once from now on
 
 
+def test_its_own_status_heard_back_the_coordinator_knows_the_fleet_at_once() -> None:
+    # Subscribed to last: the retained factsheets came before it (inbound.subscriptions).
+    core, _ = one_unit(5.0)
+    core.world.fleet_known_after_s = FLEET_KNOWN_AFTER_S
+    core.world.first_heard_at = core.world.heard_at = 0.0
+    assert not core.world.fleet_known()
+    own = core.status("online")  # as it published it on connecting, and the broker sent back
+    core.on_message(own.topic, own.payload, 0.5)
+    assert core.world.fleet_known()
+    heavy = _ask_submit(core, "r1", Cell(9, 1), Cell(0, 0), 8.0, 0.6)
+    assert (heavy.accepted, heavy.reason) == (
+        False,
+        "mass 8.0 kg exceeds every unit's capacity (largest 5.0 kg)",
+    )
+
+
 def _wait(job_id: str, core: CoordinatorCore) -> tuple[str | None, str | None]:
     view = core.jobs.jobs[job_id].view()
     return view.wait, view.wait_reason

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+from datetime import timedelta
 from typing import Any
 
 import pytest
@@ -24,6 +25,7 @@ from gridfleet.protocol import (
     Connection,
     ControlUnit,
     Factsheet,
+    JobHistoryQuery,
     Leds,
     Sensors,
     SetGoal,
@@ -36,7 +38,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Message
 
 from support.coordinator_drive import TOPICS, from_unit, make_core, meet, orders_in, request
-from support.effects import header, header_json, published
+from support.effects import FIXED, header, header_json, published
 
 # Four by three squares, a wall at [1, 1].
 GRID = GridMap.from_rows(["....", ".@..", "...."])
@@ -763,6 +765,39 @@ def test_a_job_too_heavy_for_every_unit_is_refused_and_listed_as_rejected(
         reply(0, "r1", False, reason, "job-1"),
         jobs_view(1, job("rejected", mass_kg=50.0, reason=reason)),
     ]
+
+
+def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a_page(
+    core: CoordinatorCore,
+) -> None:
+    since = FIXED - timedelta(hours=1)
+    good = JobHistoryQuery(header=header("op"), request_id="h1", reply_to="op", since=since)
+    effects = request(core, "job_history", good, 0.0)
+    assert (published(effects), effects.history_queries) == ([], (good,))  # the store answers
+    bad = good.model_copy(update={"request_id": "h2", "until": since - timedelta(hours=1)})
+    effects = request(core, "job_history", bad, 1.0)
+    problem = "since 2026-11-21T09:00:00Z is not before until 2026-11-21T08:00:00Z"
+    page = {
+        "header": hdr(0),
+        "request_id": "h2",
+        "accepted": False,
+        "reason": problem,
+        "entries": [],
+        "next_cursor": None,
+    }
+    assert effects.history_queries == ()
+    assert published(effects) == [
+        error(0, "gridfleet/v1/requests/job_history", f"JobHistoryQuery: {problem}", "h2"),
+        ("gridfleet/v1/history/replies/op", page, 1, False),
+    ]
+    data = json.loads(encode(good.model_copy(update={"request_id": "h3"})))
+    unreadable = json.dumps({**data, "since": "last week"}).encode()
+    effects = request(core, "job_history", unreadable, 2.0)
+    (refused, answer) = published(effects)
+    assert refused[0] == ERRORS and refused[1]["request_id"] == "h3"
+    assert "since" in refused[1]["reason"]
+    assert answer == reply(0, "h3", False, refused[1]["reason"], None)
+    assert effects.history_queries == () and core.jobs.jobs == {}
 
 
 def test_a_refusal_without_reply_to_goes_to_errors_only(core: CoordinatorCore) -> None:

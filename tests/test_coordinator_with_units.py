@@ -8,19 +8,23 @@ replies awaited).
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
 
+from gridfleet.coordinator.history_store import HistoryStore
 from gridfleet.grid import Cell
-from gridfleet.protocol import Topics, UnitState
+from gridfleet.protocol import JobHistoryQuery, Topics, UnitState
 from gridfleet.scenario import load_scenario
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, coordinator_thread, world_of
 
 from support.coordinator_fakes import PLAYFIELD_JOBS
+from support.effects import header
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import WaitTimeout, wait_for
@@ -335,3 +339,15 @@ def test_coordinator_restart_mid_run_loses_no_job(
         i: (listed[i].state, listed[i].unit, listed[i].reason) for i in ids
     }
     assert world.collisions == 0, world.log
+    # The job history lost nothing either: each job's life from queued to done, once each change.
+    history = HistoryStore(tmp_path / "jobs.db")
+    since = datetime.now(UTC) - timedelta(hours=1)
+    for i in ids:
+        query = JobHistoryQuery(header=header("t"), request_id="q", since=since, job_id=i)
+        entries, _ = history.query(query, datetime.now(UTC))
+        keys = [(e.state, e.unit, e.wait) for e in entries]
+        assert keys[0][0] == "queued" and keys[-1][0] == "done", (i, keys)
+        assert all(a != b for a, b in itertools.pairwise(keys)), (i, keys)
+        ages = [e.since_submitted_s for e in entries]
+        assert ages[0] == 0 and ages == sorted(ages), (i, ages)
+    history.close()

@@ -14,7 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 
 BASE = "gridfleet"
-COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console")
+COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console", "alerts")
 COMPOSITION = ("system", "bench")  # bench stands on system: system never imports bench
 PARTS = (*COMPONENTS, *COMPOSITION)  # folders at the top of the checkout, installed as gridfleet.*
 PRODUCT = (BASE, *PARTS)
@@ -166,6 +166,7 @@ CORES = (
     "gridfleet.robots.vda5050.states",
     "gridfleet.robots.vda5050.core",
     "gridfleet.robots.vda5050.virtual",
+    "gridfleet.alerts.core",
 )
 
 

@@ -368,3 +368,166 @@ class CoordinatorStatus(Message):
     # The mean time one step actually took over the last few seconds (None until measured): on
     # a loaded machine or broker it is longer than `step_period_s`.
     achieved_step_s: Annotated[float, Field(gt=0, le=3600, allow_inf_nan=False)] | None = None
+
+
+# ---- alerts (the alerts process, `gridfleet alerts`: protocol.md §5.8, §6.7) ------------------
+
+AlertRule = Literal[
+    "unit_lost",
+    "unit_stuck",
+    "job_queued",
+    "estop",
+    "step_rate_low",
+    "coordinator_down",
+    "broker_down",
+]
+AlertSeverity = Literal["warning", "critical"]
+CLEARED_ALERTS_LISTED = 20  # the alerts view's latest cleared alerts
+# Alerts in force at once: one per rule and subject, and the subjects are units and open jobs
+# (MAX_OPEN_JOBS), so a view of them all stays well inside MAX_VIEW_BYTES.
+MAX_ACTIVE_ALERTS = 20000
+
+
+class AlertEntry(Model):
+    """One alert: a rule's condition about a subject, raised, maybe cleared and acknowledged."""
+
+    id: Id  # stable for the alert's life: the key an acknowledgement names
+    rule: AlertRule
+    subject: Id | None = None  # the unit or job it concerns; null for the fleet as a whole
+    severity: AlertSeverity
+    text: Text
+    raised_at: datetime
+    cleared_at: datetime | None = None
+    acked_by: Id | None = None  # the broker account that acknowledged it
+    acked_at: datetime | None = None
+
+
+class AlertsView(Message):
+    """`fleet/alerts`: the alerts in force, oldest first, and the latest cleared, newest first."""
+
+    active: Annotated[list[AlertEntry], Field(max_length=MAX_ACTIVE_ALERTS)]
+    cleared: Annotated[list[AlertEntry], Field(max_length=CLEARED_ALERTS_LISTED)] = Field(
+        default_factory=list
+    )
+
+
+class AckAlert(Request):
+    """`requests/ack_alert`: a person has seen an alert (active or cleared) and takes it on."""
+
+    alert_id: Id
+
+
+# ---- the audit trail (coordinator/audit.py: protocol.md §6.8, §6.9) ----------------------------
+
+AuditAct = Literal[
+    "stop_engage",
+    "stop_release",
+    "submit_job",
+    "cancel_job",
+    "set_goal",
+    "clear_goal",
+    "pause",
+    "resume",
+    "out_of_service",
+    "in_service",
+    "clear_obstacles",
+    "login",
+    "logout",
+    "login_failed",
+]
+AuditOutcome = Literal["accepted", "refused"]
+LoginEvent = Literal["login", "logout", "login_failed"]
+MAX_AUDIT_PAGE = 500  # entries one audit reply carries at most
+AuditCursor = Annotated[str, StringConstraints(pattern=r"^[0-9]{1,19}$")]
+
+
+class AuditEntry(Model):
+    """One operator act: who (the account), when, what, and whether it was carried out."""
+
+    at: datetime
+    actor: Id | None  # the account; with `verified` false, only what the client claimed
+    verified: bool  # the broker (or the dashboard's login) vouched for `actor`
+    via: Id | None = None  # the client id that sent it (the header's sender, the latch's `by`)
+    act: AuditAct
+    target: Annotated[str, StringConstraints(max_length=200)] | None = None  # job, unit, squares
+    detail: Text | None = None
+    outcome: AuditOutcome
+    reason: Text | None = None  # why it was refused
+
+
+class AuditQuery(Request):
+    """`requests/audit`: a page of the audit trail, oldest first (operators only)."""
+
+    since: datetime
+    until: datetime | None = None  # null: now
+    actor: Id | None = None  # only this account's acts
+    limit: Annotated[int, Field(ge=1, le=MAX_AUDIT_PAGE, strict=True)] = 100
+    cursor: AuditCursor | None = None  # the previous page's `next_cursor`
+
+
+class AuditPage(Message):
+    """`audit/replies/<client>`: the answer to an AuditQuery: a page of entries, or why not."""
+
+    request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
+    accepted: bool
+    reason: Text | None = None
+    entries: Annotated[list[AuditEntry], Field(max_length=MAX_AUDIT_PAGE)] = Field(
+        default_factory=list
+    )
+    next_cursor: AuditCursor | None = None  # null: this was the last page
+
+
+class AuditLogin(Request):
+    """`requests/audit_login`: the dashboard tells the audit of a login, logout or failed login."""
+
+    event: LoginEvent
+    user: Id | None  # the account logged in or out; for a failed login the name tried (if an id)
+    address: Annotated[str, StringConstraints(max_length=64)] | None = None  # the person's
+    reason: Text | None = None  # why a login failed
+
+
+# ---- the job history (coordinator/history.py: protocol.md §6.10) -------------------------------
+
+MAX_HISTORY_PAGE = 1000  # entries one history reply carries at most
+HistoryCursor = Annotated[str, StringConstraints(pattern=r"^[0-9]{1,19}$")]
+
+
+class JobHistoryEntry(Model):
+    """One change in a job's life: its state, unit or reason for waiting, and when."""
+
+    at: datetime
+    job: Id
+    state: JobState
+    unit: Id | None = None  # the unit it is assigned to (or was, when it ended)
+    wait: WaitCode | None = None  # why it waits, while queued or under way
+    reason: Text | None = None  # why it waits, or why it ended as it did, in words
+    since_submitted_s: Annotated[float, Field(ge=0, allow_inf_nan=False)]
+    pickup: Square
+    dropoff: Square
+    mass_kg: PositiveKg
+    priority: Annotated[int, Field(ge=0, le=100, strict=True)] = 0
+    submitted_by: Id | None = None
+
+
+class JobHistoryQuery(Request):
+    """`requests/job_history`: a page of the job history, oldest first."""
+
+    since: datetime
+    until: datetime | None = None  # null: now
+    unit: Id | None = None  # only changes of jobs while this unit had them
+    job_id: Id | None = None  # only this job's changes
+    state: JobState | None = None  # only changes into this state
+    limit: Annotated[int, Field(ge=1, le=MAX_HISTORY_PAGE, strict=True)] = 200
+    cursor: HistoryCursor | None = None  # the previous page's `next_cursor`
+
+
+class JobHistoryPage(Message):
+    """`history/replies/<client>`: the answer to a JobHistoryQuery: a page of entries, or why not."""
+
+    request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
+    accepted: bool
+    reason: Text | None = None
+    entries: Annotated[list[JobHistoryEntry], Field(max_length=MAX_HISTORY_PAGE)] = Field(
+        default_factory=list
+    )
+    next_cursor: HistoryCursor | None = None  # null: this was the last page

@@ -111,6 +111,41 @@ TOPICS: dict[str, TopicSpec] = {
             "ClearObstacles",
             MAX_REQUEST_BYTES,
         ),
+        TopicSpec(
+            "ack_alert", "requests/ack_alert", 1, False, "json", "AckAlert", MAX_REQUEST_BYTES
+        ),
+        TopicSpec("alerts", "fleet/alerts", 1, True, "json", "AlertsView", MAX_VIEW_BYTES),
+        TopicSpec("audit", "requests/audit", 1, False, "json", "AuditQuery", MAX_REQUEST_BYTES),
+        TopicSpec(
+            "audit_login",
+            "requests/audit_login",
+            1,
+            False,
+            "json",
+            "AuditLogin",
+            MAX_REQUEST_BYTES,
+        ),
+        TopicSpec(
+            "audit_reply", "audit/replies/{client}", 1, False, "json", "AuditPage", MAX_VIEW_BYTES
+        ),
+        TopicSpec(
+            "job_history",
+            "requests/job_history",
+            1,
+            False,
+            "json",
+            "JobHistoryQuery",
+            MAX_REQUEST_BYTES,
+        ),
+        TopicSpec(
+            "history_reply",
+            "history/replies/{client}",
+            1,
+            False,
+            "json",
+            "JobHistoryPage",
+            MAX_VIEW_BYTES,
+        ),
         TopicSpec("reply", "replies/{client}", 1, False, "json", "Reply", MAX_REQUEST_BYTES),
         TopicSpec("errors", "errors", 1, False, "json", "ErrorReport", MAX_REQUEST_BYTES),
         TopicSpec(
@@ -202,6 +237,16 @@ class Topics:
         """Where the coordinator answers requests of `client`."""
         return f"{self.prefix}/replies/{validate_id(client, 'client id')}"
 
+    def audit_reply(self, client: str) -> str:
+        """Where the coordinator answers `client`'s audit queries (apart from `replies/`: a
+        viewer may read replies, not the audit)."""
+        return f"{self.prefix}/audit/replies/{validate_id(client, 'client id')}"
+
+    def history_reply(self, client: str) -> str:
+        """Where the coordinator answers `client`'s job history queries (pages are large: apart
+        from the small replies on `replies/`)."""
+        return f"{self.prefix}/history/replies/{validate_id(client, 'client id')}"
+
     def device(self, kind: str, device: str) -> str:
         """A per-device topic (device_connection, device_stop): plain text, for firmware."""
         spec = TOPICS.get(kind)
@@ -232,6 +277,10 @@ class Topics:
             return _DEVICE_KINDS[rest[2]], validate_id(rest[1], "device id")
         if len(rest) == 2 and rest[0] == "replies":
             return "reply", validate_id(rest[1], "client id")
+        if len(rest) == 3 and rest[:2] == ["audit", "replies"]:
+            return "audit_reply", validate_id(rest[2], "client id")
+        if len(rest) == 3 and rest[:2] == ["history", "replies"]:
+            return "history_reply", validate_id(rest[2], "client id")
         joined = "/".join(rest)
         for kind, spec in TOPICS.items():
             if spec.pattern == joined:

@@ -215,6 +215,76 @@ export const TOPICS = freeze({
     "schema": "schemas/ClearObstacles.json",
     "max_bytes": 16384
   },
+  "ack_alert": {
+    "pattern": "requests/ack_alert",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "AckAlert",
+    "schema": "schemas/AckAlert.json",
+    "max_bytes": 16384
+  },
+  "alerts": {
+    "pattern": "fleet/alerts",
+    "placeholder": null,
+    "qos": 1,
+    "retained": true,
+    "payload": "json",
+    "model": "AlertsView",
+    "schema": "schemas/AlertsView.json",
+    "max_bytes": 8388608
+  },
+  "audit": {
+    "pattern": "requests/audit",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "AuditQuery",
+    "schema": "schemas/AuditQuery.json",
+    "max_bytes": 16384
+  },
+  "audit_login": {
+    "pattern": "requests/audit_login",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "AuditLogin",
+    "schema": "schemas/AuditLogin.json",
+    "max_bytes": 16384
+  },
+  "audit_reply": {
+    "pattern": "audit/replies/{client}",
+    "placeholder": "client",
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "AuditPage",
+    "schema": "schemas/AuditPage.json",
+    "max_bytes": 8388608
+  },
+  "job_history": {
+    "pattern": "requests/job_history",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "JobHistoryQuery",
+    "schema": "schemas/JobHistoryQuery.json",
+    "max_bytes": 16384
+  },
+  "history_reply": {
+    "pattern": "history/replies/{client}",
+    "placeholder": "client",
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "JobHistoryPage",
+    "schema": "schemas/JobHistoryPage.json",
+    "max_bytes": 8388608
+  },
   "reply": {
     "pattern": "replies/{client}",
     "placeholder": "client",

@@ -1,0 +1,428 @@
+"""The alerts core: what the fleet publishes and the time in; alerts raised, cleared, acknowledged out.
+
+Pure (no clock, no MQTT, no HTTP): the shell hands it each message with the monotonic time it
+arrived, ticks it, and tells it when the broker connection comes and goes; it returns what to
+publish (the retained view `fleet/alerts`, replies, error reports) and the webhook's notices as
+bytes. Every rule is a condition about a subject (a unit, a job, the fleet) that must hold for
+its threshold before it raises; an alert clears when its condition no longer holds. Timestamps
+come from the header stamper's clock, durations from the monotonic `now` the shell passes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Literal, get_args
+
+from pydantic import BaseModel, ConfigDict
+
+from gridfleet.alerts.settings import AlertSettings
+from gridfleet.config import names_owned_id
+from gridfleet.errors import ProtocolError
+from gridfleet.grid import Cell
+from gridfleet.outbound import Outbound, error_report
+from gridfleet.protocol import (
+    TOPICS,
+    Connection,
+    CoordinatorStatus,
+    HeaderStamper,
+    JobsView,
+    Reply,
+    Topics,
+    UnitState,
+    decode,
+    validate_id,
+)
+from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.messages import (
+    CLEARED_ALERTS_LISTED,
+    MAX_ACTIVE_ALERTS,
+    AckAlert,
+    AlertEntry,
+    AlertRule,
+    AlertSeverity,
+    AlertsView,
+)
+from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+
+RULES: tuple[AlertRule, ...] = get_args(AlertRule)
+SEVERITY: dict[AlertRule, AlertSeverity] = {
+    "unit_lost": "critical",
+    "unit_stuck": "warning",
+    "job_queued": "warning",
+    "estop": "critical",
+    "step_rate_low": "warning",
+    "coordinator_down": "critical",
+    "broker_down": "critical",
+}
+# Roles whose accounts may acknowledge an alert: the people who may change the fleet.
+ACK_ROLES = frozenset({"operator", "dashboard"})
+STILL = ("waiting", "holding")  # a unit in one of these, on one square, is not getting on
+Event = Literal["raised", "cleared", "acknowledged"]
+Note = tuple[int, str]
+Key = tuple[AlertRule, str | None]  # one condition: its rule and subject
+
+
+class Notice(BaseModel):
+    """The webhook's JSON body: one raise, clear or acknowledgement (docs/monitoring.md)."""
+
+    # Built on first use, as the protocol's models: building at import loads pydantic's plugin
+    # machinery, and with it the socket module (tests/test_layers.py).
+    model_config = ConfigDict(frozen=True, extra="forbid", defer_build=True)
+
+    event: Event
+    at: datetime  # when it happened
+    fleet: str  # the topic root: which fleet, where several share a receiver
+    text: str  # one line for people (chat): severity, what, and who acknowledged
+    alert: AlertEntry
+
+
+@dataclass
+class Effects:
+    """What one call asks of the shell."""
+
+    publish: list[Outbound] = field(default_factory=list)
+    notices: list[bytes] = field(default_factory=list)  # webhook bodies, in order
+    log: list[Note] = field(default_factory=list)
+
+
+@dataclass
+class _Unit:
+    """What the rules know of one unit."""
+
+    heard_at: float  # the last state (or `online`) arrived then
+    connection: str | None = None
+    position: Cell | None = None
+    status: str | None = None
+    wait_reason: str | None = None
+    still_since: float | None = None  # waiting or holding on one square since
+
+
+class AlertsCore:
+    """Rules over the fleet's messages: `on_message`, `tick`, `connected`, `disconnected`."""
+
+    def __init__(
+        self,
+        topics: Topics,
+        settings: AlertSettings,
+        stamp: HeaderStamper,
+        *,
+        nonce: str,
+        now: float,
+        accounts: Mapping[str, str] | None = None,
+    ) -> None:
+        self.topics = topics
+        self.settings = settings
+        self.stamp = stamp
+        self.nonce = nonce  # alert ids of one run never meet another run's
+        # Account name -> role: who sent an acknowledgement (None: no accounts, the sender is
+        # taken as it is: a broker without accounts vouches for nobody).
+        self.accounts = accounts
+        self.active: dict[Key, AlertEntry] = {}  # in raising order
+        self.cleared: list[AlertEntry] = []  # newest first, at most CLEARED_ALERTS_LISTED
+        self.raised_total: Counter[str] = Counter()
+        self.cleared_total: Counter[str] = Counter()
+        self._count = 0
+        self._units: dict[str, _Unit] = {}
+        self._queued: dict[str, tuple[float, str | None]] = {}  # job -> (queued since, why)
+        self._stop = StopView()
+        self._status: CoordinatorStatus | None = None
+        self._status_at = now  # no status yet: the coordinator counts as down from the start
+        self._online = False  # the broker connection, as the shell reports it
+        self._offline_since: float | None = now
+
+    # ---- what the shell calls -----------------------------------------------------------
+
+    def subscriptions(self) -> list[tuple[str, int]]:
+        """Every filter the rules follow, with its QoS (states at 0: they are many)."""
+        t = self.topics
+        return [
+            (t.all_units("connection"), TOPICS["connection"].qos),
+            (t.all_units("state"), TOPICS["state"].qos),
+            (t.fleet("jobs"), TOPICS["jobs"].qos),
+            (t.fleet("coordinator"), TOPICS["coordinator"].qos),
+            *stop_filters(t),
+            (t.request("ack_alert"), TOPICS["ack_alert"].qos),
+        ]
+
+    def connected(self, now: float) -> Effects:
+        """The broker session is up (again): the view goes out; silence so far was our own."""
+        self._online = True
+        self._offline_since = None
+        # Nothing could be heard meanwhile: units and the coordinator are judged afresh from now.
+        for unit in self._units.values():
+            unit.heard_at = max(unit.heard_at, now)
+        self._status_at = max(self._status_at, now)
+        return self._evaluate(now, view=True)
+
+    def disconnected(self, now: float) -> Effects:
+        """The broker session is lost: only `broker_down` can change until it is back."""
+        if self._online:
+            self._online = False
+            self._offline_since = now
+        return self._evaluate(now)
+
+    def tick(self, now: float) -> Effects:
+        """Raise what has lasted its threshold, clear what has ended."""
+        return self._evaluate(now)
+
+    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
+        """One message the rules follow; a bad one is reported on `errors` and changes nothing."""
+        try:
+            kind, ident = self.topics.parse(topic)
+        except ProtocolError:
+            return Effects()  # not ours to judge
+        try:
+            if kind == "ack_alert":
+                return self._on_ack(topic, payload, now)
+            self._read(kind, ident, topic, payload, now)
+        except ProtocolError as exc:
+            return Effects(
+                publish=[self._error(topic, str(exc), None)],
+                log=[(logging.WARNING, f"refused a message on {topic}: {exc}")],
+            )
+        return self._evaluate(now)
+
+    def view(self) -> Outbound:
+        """The retained view: the alerts in force, oldest first, and the latest cleared."""
+        active = list(self.active.values())[:MAX_ACTIVE_ALERTS]
+        view = AlertsView(header=self.stamp("alerts"), active=active, cleared=self.cleared)
+        return Outbound.of("alerts", self.topics.fleet("alerts"), view)
+
+    # ---- reading --------------------------------------------------------------------------
+
+    def _read(self, kind: str, ident: str | None, topic: str, payload: bytes, now: float) -> None:
+        if kind == "state" and ident is not None:
+            self._on_state(ident, decode(UnitState, payload), now)
+        elif kind == "connection" and ident is not None:
+            state = decode(Connection, payload).state
+            unit = self._units.setdefault(ident, _Unit(heard_at=now))
+            unit.connection = state
+            if state == "online":
+                unit.heard_at = now
+        elif kind in STOP_KINDS:
+            self._stop.apply(kind, ident, topic, payload)
+        elif kind == "jobs":
+            self._on_jobs(decode(JobsView, payload, TOPICS["jobs"].max_bytes), now)
+        elif kind == "coordinator":
+            self._status = decode(CoordinatorStatus, payload)
+            self._status_at = now
+
+    def _on_state(self, ident: str, state: UnitState, now: float) -> None:
+        unit = self._units.setdefault(ident, _Unit(heard_at=now))
+        unit.heard_at = now
+        still = state.status in STILL
+        if not still or unit.still_since is None or unit.position != state.position:
+            unit.still_since = now if still else None
+        unit.position = state.position
+        unit.status = state.status
+        unit.wait_reason = state.wait_reason
+
+    def _on_jobs(self, view: JobsView, now: float) -> None:
+        queued = {job.id: job.wait_reason for job in view.jobs if job.state == "queued"}
+        self._queued = {
+            job: (self._queued[job][0] if job in self._queued else now, why)
+            for job, why in queued.items()
+        }
+
+    # ---- the rules --------------------------------------------------------------------------
+
+    def _conditions(self, now: float) -> dict[Key, str]:
+        """Every condition that holds now and has lasted its threshold, with its words."""
+        s = self.settings
+        found: dict[Key, str] = {}
+        if s.broker_down_s is not None and self._offline_since is not None:
+            gone = now - self._offline_since
+            if gone > s.broker_down_s:
+                found["broker_down", None] = (
+                    f"the alerts process has had no broker for {gone:.0f} s"
+                )
+        if not self._online:
+            # Deaf, it cannot judge the rest: what was raised stays, nothing new is raised.
+            for key, alert in self.active.items():
+                if key[0] != "broker_down":
+                    found[key] = alert.text
+            return found
+        for name, unit in self._units.items():
+            silent = now - unit.heard_at
+            if unit.connection == "offline":
+                continue  # it said goodbye: nobody is to be called
+            if s.unit_lost_s is not None and silent > s.unit_lost_s:
+                how = "its connection broke" if unit.connection == "broken" else "no state"
+                found["unit_lost", name] = (
+                    f"unit {name} lost: {how}, nothing heard for {silent:.0f} s"
+                )
+            elif s.unit_stuck_s is not None and unit.still_since is not None:
+                still = now - unit.still_since
+                if still > s.unit_stuck_s:
+                    where = f"[{unit.position[0]}, {unit.position[1]}]" if unit.position else "?"
+                    reason = f": {unit.wait_reason}" if unit.wait_reason else ""
+                    found["unit_stuck", name] = (
+                        f"unit {name} {unit.status} on {where} for {still:.0f} s{reason}"
+                    )
+        if s.job_queued_s is not None:
+            for job, (since, why) in self._queued.items():
+                waited = now - since
+                if waited > s.job_queued_s:
+                    because = f": {why}" if why else ""
+                    found["job_queued", job] = (
+                        f"job {job} queued for {waited / 60:.1f} min{because}"
+                    )
+        cause = self._stop.cause
+        if s.estop and cause is not None and cause.engaged:
+            because = f": {cause.reason}" if cause.reason else ""
+            found["estop", None] = f"emergency stop engaged by {cause.by}{because}"
+        status = self._status
+        up = status is not None and status.state == "online"
+        if s.coordinator_down_s is not None:
+            quiet = now - self._status_at
+            if not up and quiet > s.coordinator_down_s:
+                said = f"its status says {status.state}" if status else "no status"
+                found["coordinator_down", None] = f"coordinator down: {said} for {quiet:.0f} s"
+            elif up and quiet > s.coordinator_down_s:
+                found["coordinator_down", None] = f"coordinator silent for {quiet:.0f} s"
+        if s.step_rate_below is not None and up and status is not None:
+            achieved = status.achieved_step_s
+            if achieved is not None and status.step_period_s / achieved < s.step_rate_below:
+                found["step_rate_low", None] = (
+                    f"the fleet steps {1 / achieved:.2f} times a second, "
+                    f"{100 * status.step_period_s / achieved:.0f} % of its "
+                    f"{1 / status.step_period_s:.2f}"
+                )
+        return found
+
+    def _evaluate(self, now: float, *, view: bool = False) -> Effects:
+        out = Effects()
+        found = self._conditions(now)
+        at = self.stamp.now()
+        for key in [k for k in self.active if k not in found]:
+            alert = self.active.pop(key).model_copy(update={"cleared_at": at})
+            self.cleared = [alert, *self.cleared][:CLEARED_ALERTS_LISTED]
+            self.cleared_total[alert.rule] += 1
+            out.notices.append(self._notice("cleared", alert, at))
+            out.log.append((logging.INFO, f"alert {alert.id} cleared: {alert.text}"))
+        for key, text in found.items():
+            if key in self.active:
+                continue
+            rule, subject = key
+            self._count += 1
+            alert = AlertEntry(
+                id=f"{self.nonce}-{self._count}",
+                rule=rule,
+                subject=subject,
+                severity=SEVERITY[rule],
+                text=text,
+                raised_at=at,
+            )
+            self.active[key] = alert
+            self.raised_total[rule] += 1
+            out.notices.append(self._notice("raised", alert, at))
+            out.log.append((logging.WARNING, f"alert {alert.id} raised: {text}"))
+        if (view or out.notices) and self._online:
+            out.publish.append(self.view())
+        return out
+
+    # ---- acknowledgements --------------------------------------------------------------------
+
+    def _on_ack(self, topic: str, payload: bytes, now: float) -> Effects:
+        request_id, reply_to = _reply_address(payload)
+        try:
+            ack = decode(AckAlert, payload, MAX_REQUEST_BYTES)
+            actor = self._actor(ack.header.sender)
+        except ProtocolError as exc:
+            return self._refuse(topic, str(exc), request_id, reply_to)
+        found = self._find(ack.alert_id)
+        if found is None:
+            reason = f"no alert {ack.alert_id!r}: it is neither active nor among the latest cleared"
+            return self._refuse(topic, reason, ack.request_id, ack.reply_to)
+        out = Effects()
+        if found.acked_by is None:  # acknowledged already: the first one stands, nothing changes
+            at = self.stamp.now()
+            acked = found.model_copy(update={"acked_by": actor, "acked_at": at})
+            self._replace(acked)
+            out.notices.append(self._notice("acknowledged", acked, at))
+            out.publish.append(self.view())
+            out.log.append((logging.INFO, f"alert {acked.id} acknowledged by {actor}"))
+        if ack.reply_to is not None:
+            out.publish.append(self._reply(ack.reply_to, ack.request_id, True, None))
+        return out
+
+    def _actor(self, sender: str) -> str:
+        """The account that sent a request: the broker binds its sender to the account (§10)."""
+        if self.accounts is None:
+            return sender
+        owners = [name for name in self.accounts if names_owned_id(name, sender)]
+        if not owners:
+            raise ProtocolError(f"sender {sender!r} belongs to no account")
+        owner = max(owners, key=len)  # the longest name that fits owns it, as at the broker
+        role = self.accounts[owner]
+        if role not in ACK_ROLES:
+            raise ProtocolError(f"account {owner!r} ({role}) may not acknowledge alerts")
+        return owner
+
+    def _find(self, alert_id: str) -> AlertEntry | None:
+        for alert in (*self.active.values(), *self.cleared):
+            if alert.id == alert_id:
+                return alert
+        return None
+
+    def _replace(self, alert: AlertEntry) -> None:
+        for key, old in self.active.items():
+            if old.id == alert.id:
+                self.active[key] = alert
+                return
+        self.cleared = [alert if old.id == alert.id else old for old in self.cleared]
+
+    def _refuse(
+        self, topic: str, reason: str, request_id: str | None, reply_to: str | None
+    ) -> Effects:
+        out = Effects(publish=[self._error(topic, reason, request_id)])
+        if request_id is not None and reply_to is not None:
+            out.publish.append(self._reply(reply_to, request_id, False, reason))
+        out.log.append((logging.WARNING, f"refused an acknowledgement: {reason}"))
+        return out
+
+    # ---- messages out -------------------------------------------------------------------------
+
+    def _reply(
+        self, reply_to: str, request_id: str, accepted: bool, reason: str | None
+    ) -> Outbound:
+        reply = Reply(
+            header=self.stamp("reply"), request_id=request_id, accepted=accepted, reason=reason
+        )
+        return Outbound.of("reply", self.topics.reply(reply_to), reply)
+
+    def _error(self, topic: str, reason: str, request_id: str | None) -> Outbound:
+        payload = error_report(self.stamp("errors"), topic, reason, request_id)
+        return Outbound.of("errors", self.topics.fleet("errors"), payload)
+
+    def _notice(self, event: Event, alert: AlertEntry, at: datetime) -> bytes:
+        if event == "raised":
+            line = f"[{alert.severity.upper()}] {alert.text}"
+        elif event == "cleared":
+            line = f"[CLEARED] {alert.text}"
+        else:
+            line = f"[ACKNOWLEDGED by {alert.acked_by}] {alert.text}"
+        notice = Notice(event=event, at=at, fleet=self.topics.root, text=line, alert=alert)
+        return notice.model_dump_json().encode()
+
+
+def _reply_address(payload: bytes) -> tuple[str | None, str | None]:
+    """(request id, reply_to) of a request that may not decode, each None where unreadable."""
+    try:
+        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
+    except ValueError:
+        return None, None
+    if not isinstance(data, dict):
+        return None, None
+    request_id, reply_to = data.get("request_id"), data.get("reply_to")
+    if not (isinstance(request_id, str) and 0 < len(request_id) <= 64):
+        return None, None
+    try:
+        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
+    except ProtocolError:
+        return request_id, None

@@ -1,0 +1,237 @@
+"""`gridfleet audit`: who did what and when, from the coordinator's audit trail, page by page.
+
+Times are UTC ISO 8601 (`2026-11-26T14:02`, a date alone is its midnight; an offset such as
+`+01:00` is honoured), or a span back from now: `90s`, `30m`, `2h`, `7d`. A range that cannot
+be read, or whose start is after its end, is refused in one line before anything is sent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import csv
+import json
+import math
+import re
+import secrets
+import sys
+from collections.abc import Callable
+from datetime import UTC, datetime, timedelta
+from typing import TextIO
+
+import aiomqtt
+
+from gridfleet.bus import make_client
+from gridfleet.config import owned_client_id, parse_broker_url, redacted
+from gridfleet.endpoint import payload_of, send
+from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
+from gridfleet.options import add_common, broker_url
+from gridfleet.outbound import Outbound
+from gridfleet.protocol import HeaderStamper, Topics, decode, validate_id
+from gridfleet.protocol.messages import MAX_AUDIT_PAGE, AuditEntry, AuditPage, AuditQuery
+from gridfleet.protocol.topics import TOPICS
+from gridfleet.tasks import cancel_and_wait
+
+WAIT_S = 10.0  # for each page's reply, re-sent meanwhile
+RETRY_S = 2.0
+PAGE = 200  # entries asked for at a time
+_SPAN = re.compile(r"(\d+(?:\.\d+)?)\s*([smhd])")
+_UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+FIELDS = ("at", "actor", "verified", "via", "act", "target", "detail", "outcome", "reason")
+
+
+def parse_time(text: str, now: datetime, flag: str) -> datetime:
+    """`text` as a UTC time: ISO 8601 (no zone: UTC) or a span back from `now` (`2h`)."""
+    span = _SPAN.fullmatch(text.strip())
+    if span is not None:
+        return now - timedelta(seconds=float(span.group(1)) * _UNIT_S[span.group(2)])
+    try:
+        moment = datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise ConfigError(
+            f"{flag} {text!r}: give a UTC time such as 2026-11-26T14:02 (or a date), or a span "
+            "back from now such as 30m, 2h, 7d"
+        ) from None
+    return moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment.astimezone(UTC)
+
+
+def time_range(since: str, until: str | None, now: datetime) -> tuple[datetime, datetime | None]:
+    """(since, until) read from the flags; ConfigError in one line when the range is wrong."""
+    start = parse_time(since, now, "--since")
+    end = None if until is None else parse_time(until, now, "--until")
+    if start > (end or now):
+        what = f"--until {end.isoformat()}" if end is not None else f"now ({now.isoformat()})"
+        raise ConfigError(f"--since {start.isoformat()} is after {what}: nothing can lie between")
+    return start, end
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Flags of `gridfleet audit`."""
+    add_common(parser)
+    parser.add_argument(
+        "--since", required=True, metavar="TIME", help="from this UTC time, or 2h, 7d ago"
+    )
+    parser.add_argument("--until", metavar="TIME", help="up to this time (default: now)")
+    parser.add_argument("--actor", metavar="ACCOUNT", help="only this account's acts")
+    shape = parser.add_mutually_exclusive_group()
+    shape.add_argument("--json", action="store_true", help="one JSON array of the entries")
+    shape.add_argument("--csv", action="store_true", help="CSV with a header row")
+    parser.add_argument(
+        "--timeout",
+        type=float,
+        default=WAIT_S,
+        metavar="S",
+        help=f"seconds to wait for each page from the coordinator (default {WAIT_S:g})",
+    )
+
+
+class AuditClient:
+    """Asks the coordinator for pages of the audit trail, re-sending each until it is answered."""
+
+    def __init__(self, url: str, topics: Topics, client_id: str, timeout: float) -> None:
+        self.url = url
+        self.topics = topics
+        self.client_id = owned_client_id(parse_broker_url(url).username, client_id)
+        self.timeout = timeout
+        self._stamp = HeaderStamper(self.client_id)
+        self._session = secrets.token_hex(3)
+        self._count = 0
+
+    async def entries(
+        self, since: datetime, until: datetime | None, actor: str | None
+    ) -> list[AuditEntry]:
+        """Every entry of the range, oldest first; GridfleetError when one is refused."""
+        out: list[AuditEntry] = []
+        async with make_client(self.url, self.client_id) as client:
+            await client.subscribe(self.topics.audit_reply(self.client_id), qos=1)
+            pages: asyncio.Queue[AuditPage] = asyncio.Queue()
+            listener = asyncio.create_task(self._listen(client, pages))
+            try:
+                cursor: str | None = None
+                while True:
+                    page = await self._page(client, pages, since, until, actor, cursor)
+                    out += page.entries
+                    cursor = page.next_cursor
+                    if cursor is None:
+                        return out
+            finally:
+                await cancel_and_wait(listener)
+
+    async def _listen(self, client: aiomqtt.Client, pages: asyncio.Queue[AuditPage]) -> None:
+        async for message in client.messages:
+            with contextlib.suppress(ProtocolError):  # not a page: not ours to judge
+                page = decode(AuditPage, payload_of(message), TOPICS["audit_reply"].max_bytes)
+                pages.put_nowait(page)
+
+    async def _page(
+        self,
+        client: aiomqtt.Client,
+        pages: asyncio.Queue[AuditPage],
+        since: datetime,
+        until: datetime | None,
+        actor: str | None,
+        cursor: str | None,
+    ) -> AuditPage:
+        self._count += 1
+        query = AuditQuery(
+            header=self._stamp("audit"),
+            request_id=f"{self.client_id}-{self._session}-{self._count}"[-64:],
+            reply_to=self.client_id,
+            since=since,
+            until=until,
+            actor=actor,
+            limit=min(PAGE, MAX_AUDIT_PAGE),
+            cursor=cursor,
+        )
+        out = Outbound.of("audit", self.topics.request("audit"), query)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + self.timeout
+        tries = 0
+        while (left := deadline - loop.time()) > 0:
+            tries += 1
+            await send(client, out)
+            with contextlib.suppress(TimeoutError):
+                while True:
+                    page = await asyncio.wait_for(pages.get(), min(RETRY_S, left))
+                    if page.request_id != query.request_id:
+                        continue  # a late answer to an earlier try
+                    if not page.accepted:
+                        raise GridfleetError(f"refused: {page.reason}")
+                    return page
+        raise GridfleetError(
+            f"no reply from the coordinator to the audit query after {tries} tries over "
+            f"{self.timeout:g} s: is it running, and may this account read the audit?"
+        )
+
+
+def print_table(entries: list[AuditEntry], out: TextIO) -> None:
+    """The entries as a table, one line each, oldest first."""
+    print(f"{'at (UTC)':<24} {'actor':<16} {'act':<15} {'target':<16} outcome", file=out)
+    for e in entries:
+        actor = e.actor or "-"
+        if not e.verified:
+            actor += "?"  # what the client claimed: the broker did not vouch for it
+        line = f"{_when(e.at):<24} {actor:<16} {e.act:<15} {e.target or '-':<16} {e.outcome}"
+        if e.reason:
+            line += f": {e.reason}"
+        if e.detail:
+            line += f"  ({e.detail})"
+        print(line, file=out)
+    if any(not e.verified for e in entries):
+        print(
+            "? not vouched for: what the client claimed, or the name typed at a failed login",
+            file=out,
+        )
+
+
+def _when(at: datetime) -> str:
+    return at.astimezone(UTC).strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z"
+
+
+def rows(entries: list[AuditEntry]) -> list[dict[str, object]]:
+    """The entries as plain rows (JSON's and CSV's), times in UTC ISO 8601."""
+    out = []
+    for e in entries:
+        row: dict[str, object] = json.loads(e.model_dump_json())
+        row["at"] = _when(e.at)
+        out.append(row)
+    return out
+
+
+def print_csv(entries: list[AuditEntry], out: TextIO) -> None:
+    """CSV with a header row; every field, empty for null."""
+    writer = csv.DictWriter(out, fieldnames=FIELDS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows(entries):
+        writer.writerow({k: "" if row.get(k) is None else row[k] for k in FIELDS})
+
+
+def run(args: argparse.Namespace, now: Callable[[], datetime] = lambda: datetime.now(UTC)) -> int:
+    """Entry point of `gridfleet audit`."""
+    if not 0 < args.timeout < math.inf:
+        raise ConfigError(f"--timeout {args.timeout:g}: give a positive number of seconds")
+    since, until = time_range(args.since, args.until, now())
+    actor = None
+    if args.actor is not None:
+        try:
+            actor = validate_id(args.actor, "--actor")
+        except ProtocolError as exc:
+            raise ConfigError(str(exc)) from None
+    url = broker_url(args, "operator")
+    client = AuditClient(url, Topics(args.root), f"audit-{secrets.token_hex(3)}", args.timeout)
+    try:
+        entries = asyncio.run(client.entries(since, until, actor))
+    except GridfleetError as exc:
+        if str(exc).startswith("refused: "):
+            print(exc, file=sys.stdout)
+            return 1
+        raise GridfleetError(f"{exc} (broker {redacted(args.broker)})") from None
+    if args.json:
+        json.dump(rows(entries), sys.stdout, indent=None)
+        print()
+    elif args.csv:
+        print_csv(entries, sys.stdout)
+    else:
+        print_table(entries, sys.stdout)
+    return 0

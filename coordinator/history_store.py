@@ -1,0 +1,164 @@
+"""The job history in SQLite (stdlib sqlite3), beside the jobs in the coordinator's store.
+
+One row per entry, its fields as columns. Rows older than the retention are removed at start and then hourly. A page is ordered by time, then by row, and
+its cursor is the last row's id, so a page that ends between two entries of the same time goes on
+exactly after them.
+"""
+
+from __future__ import annotations
+
+import sqlite3
+from collections.abc import Iterable
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, Key
+from gridfleet.protocol.messages import JobHistoryEntry, JobHistoryQuery
+
+PRUNE_EVERY = timedelta(hours=1)
+# An entry's fields as columns (a year of a busy hall is millions of rows: no JSON keys in each).
+COLUMNS = (
+    ("job", "TEXT NOT NULL"),
+    ("state", "TEXT NOT NULL"),
+    ("unit", "TEXT"),
+    ("wait", "TEXT"),
+    ("reason", "TEXT"),
+    ("since_submitted_s", "REAL NOT NULL"),
+    ("pickup_x", "INTEGER NOT NULL"),
+    ("pickup_y", "INTEGER NOT NULL"),
+    ("dropoff_x", "INTEGER NOT NULL"),
+    ("dropoff_y", "INTEGER NOT NULL"),
+    ("mass_kg", "REAL NOT NULL"),
+    ("priority", "INTEGER NOT NULL"),
+    ("submitted_by", "TEXT"),
+)
+_NAMES = ", ".join(c for c, _ in COLUMNS)
+
+
+def _row(e: JobHistoryEntry) -> tuple[object, ...]:
+    return (
+        e.at.timestamp(), e.job, e.state, e.unit, e.wait, e.reason, e.since_submitted_s,
+        e.pickup.x, e.pickup.y, e.dropoff.x, e.dropoff.y, e.mass_kg, e.priority, e.submitted_by,
+    )  # fmt: skip
+
+
+def _entry(row: tuple[Any, ...]) -> JobHistoryEntry:
+    # Validated (a row written by another version must not pass for an entry), from plain data:
+    # pydantic's core does it faster than the constructor, and reads `at` as Unix seconds, UTC.
+    at, job, state, unit, wait, reason, since, px, py, dx, dy, mass, priority, by = row
+    return JobHistoryEntry.model_validate(
+        {
+            "at": at,
+            "job": job,
+            "state": state,
+            "unit": unit,
+            "wait": wait,
+            "reason": reason,
+            "since_submitted_s": since,
+            "pickup": (px, py),
+            "dropoff": (dx, dy),
+            "mass_kg": mass,
+            "priority": priority,
+            "submitted_by": by,
+        }
+    )
+
+
+class HistoryStore:
+    """Job history entries, kept `retention_days`; every write is one committed transaction."""
+
+    def __init__(self, path: str | Path, retention_days: float = DEFAULT_RETENTION_DAYS) -> None:
+        if not retention_days > 0:
+            raise ValueError(f"history retention {retention_days} days: give more than 0")
+        self.retention = timedelta(days=retention_days)
+        if str(path) != ":memory:":
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(str(path))
+        self._db.execute("PRAGMA journal_mode=WAL")
+        with self._db:
+            self._db.execute(
+                "CREATE TABLE IF NOT EXISTS job_history (id INTEGER PRIMARY KEY AUTOINCREMENT, "
+                f"at REAL NOT NULL, {', '.join(f'{c} {t}' for c, t in COLUMNS)})"
+            )
+            # AUTOINCREMENT: a pruned entry's id is never given again, so an old cursor cannot
+            # point into newer entries. One index per filter a query may give, each ending in
+            # the time it is ordered by.
+            for name, columns in (
+                ("at", "at"),
+                ("unit", "unit, at"),
+                ("state", "state, at"),
+                ("job", "job, at"),
+            ):
+                self._db.execute(
+                    f"CREATE INDEX IF NOT EXISTS job_history_{name} ON job_history ({columns})"
+                )
+        self._pruned_at: datetime | None = None
+        self.prune(datetime.now(UTC))
+
+    def close(self) -> None:
+        """Close the database."""
+        self._db.close()
+
+    def add(self, entries: Iterable[JobHistoryEntry], now: datetime | None = None) -> None:
+        """Store `entries`; hourly, drop those older than the retention."""
+        rows = [_row(e) for e in entries]
+        if rows:
+            with self._db:
+                self._db.executemany(
+                    f"INSERT INTO job_history (at, {_NAMES}) VALUES (?{', ?' * len(COLUMNS)})",
+                    rows,
+                )
+        now = now or datetime.now(UTC)
+        if self._pruned_at is None or now - self._pruned_at >= PRUNE_EVERY:
+            self.prune(now)
+
+    def prune(self, now: datetime) -> int:
+        """Drop the entries older than the retention; how many went."""
+        with self._db:
+            gone = self._db.execute(
+                "DELETE FROM job_history WHERE at < ?", ((now - self.retention).timestamp(),)
+            ).rowcount
+        self._pruned_at = now
+        return gone
+
+    def last(self, job_id: str) -> tuple[Key, datetime] | None:
+        """The latest entry's key of `job_id` and when it was submitted; None if never stored."""
+        rows = self._db.execute(
+            "SELECT at, since_submitted_s, state, unit, wait FROM job_history WHERE job = ? "
+            "ORDER BY at, id",
+            (job_id,),
+        ).fetchall()
+        if not rows:
+            return None
+        at, since = rows[0][:2]
+        state, unit, wait = rows[-1][2:]
+        return (state, unit, wait), datetime.fromtimestamp(at - since, UTC)
+
+    def query(
+        self, query: JobHistoryQuery, now: datetime
+    ) -> tuple[list[JobHistoryEntry], str | None]:
+        """One page of entries for `query` (until `now` if it gives none), and the next cursor."""
+        until = query.until or now
+        where = ["at >= ?", "at < ?"]
+        args: list[object] = [query.since.timestamp(), until.timestamp()]
+        for column, value in (("unit", query.unit), ("job", query.job_id), ("state", query.state)):
+            if value is not None:
+                where.append(f"{column} = ?")
+                args.append(value)
+        if query.cursor is not None:
+            # After the cursor's row in (at, id) order; a pruned cursor row starts from `since`.
+            where.append(
+                "(at > COALESCE((SELECT at FROM job_history WHERE id = ?), -1e18) OR "
+                "(at = (SELECT at FROM job_history WHERE id = ?) AND id > ?))"
+            )
+            args += [int(query.cursor)] * 3
+        rows = self._db.execute(
+            f"SELECT id, at, {_NAMES} FROM job_history WHERE {' AND '.join(where)} "
+            "ORDER BY at, id LIMIT ?",
+            [*args, query.limit + 1],
+        ).fetchall()
+        more = len(rows) > query.limit
+        rows = rows[: query.limit]
+        entries = [_entry(row[1:]) for row in rows]
+        return entries, (str(rows[-1][0]) if more and rows else None)

@@ -1,0 +1,301 @@
+"""The audit trail over a real broker with accounts (the embedded amqtt and Mosquitto): each
+role's acts recorded with its account, forgeries, a viewer kept out, a restart, the dashboard's
+logins, and `gridfleet audit` itself."""
+
+from __future__ import annotations
+
+import asyncio
+import csv
+import io
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import pytest
+
+from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
+from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.console.audit import AuditClient
+from gridfleet.coordinator.audit import Identity
+from gridfleet.coordinator.shell import CoordinatorShell
+from gridfleet.dashboard.app import create_app
+from gridfleet.dashboard.audit import LoginReporter
+from gridfleet.dashboard.settings import DashboardSettings
+from gridfleet.grid import Cell, GridMap
+from gridfleet.protocol import SubmitJob, Topics, encode
+from gridfleet.protocol.messages import AuditEntry
+from gridfleet.system.broker_thread import BrokerThread
+from gridfleet.system.threads import ServiceThread
+
+from support.effects import header
+from support.mosquitto import mosquitto_with_accounts
+from support.operator_peer import OperatorPeer
+from support.probe import MqttProbe
+from support.security import login
+from support.wait import wait_for
+
+ROOT = "audit"
+T = Topics(ROOT)
+GRID = GridMap.from_rows(["....", "....", "...."], name="yard")
+Seen = tuple[str | None, str, str, bool]  # (actor, act, outcome, verified)
+
+
+@pytest.fixture(scope="module")
+def accounts() -> Accounts:
+    made = default_accounts(["unit1"])
+    made = made.with_account(Account("ann", new_password(), "operator"))
+    return made.with_account(Account("vera", new_password(), "viewer"))
+
+
+@pytest.fixture(scope="module", params=["amqtt", "mosquitto"])
+def broker(
+    request: pytest.FixtureRequest, accounts: Accounts, tmp_path_factory: pytest.TempPathFactory
+) -> Iterator[tuple[str, bool]]:
+    """(URL without a login, whether the broker vouches for senders) of a broker with accounts."""
+    if request.param == "amqtt":
+        settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=ROOT)
+        with BrokerThread(settings) as running:
+            yield running.url, True
+    else:
+        directory = tmp_path_factory.mktemp("mosquitto")
+        with mosquitto_with_accounts(accounts, T, directory) as url:
+            yield url, False
+
+
+@contextmanager
+def coordinator(
+    url: str, accounts: Accounts, db: Path, vouched: bool, *, fresh: bool = True
+) -> Iterator[ServiceThread[CoordinatorShell]]:
+    """A coordinator on its own account, its store at `db`, on a broker with no latch retained.
+
+    A latch left by an earlier test would be an act the new coordinator finds (made while it was
+    away, as far as it can tell): recorded. Each test starts without one (`fresh`).
+    """
+    if fresh:
+        with MqttProbe(login(url, accounts, "operator")) as operator:
+            operator.publish(T.fleet("estop"), b"", retain=True)
+
+    def make() -> CoordinatorShell:
+        return CoordinatorShell(
+            login(url, accounts, "coordinator"),
+            GRID,
+            root=ROOT,
+            step_s=0.2,
+            db_path=db,
+            identity=Identity(accounts, vouched=vouched),
+        )
+
+    with ServiceThread(make, "audit-coordinator") as running:
+        yield running
+
+
+@contextmanager
+def peer(url: str, accounts: Accounts, account: str, name: str) -> Iterator[OperatorPeer]:
+    """An operator peer logged in as `account`, its requests' sender `name`."""
+    with MqttProbe(login(url, accounts, account)) as probe:
+        yield OperatorPeer(probe, T, name)
+
+
+def audit(url: str, accounts: Accounts, account: str = "operator") -> list[AuditEntry]:
+    """The whole trail of the last hour, read as `account` over the protocol."""
+    client = AuditClient(login(url, accounts, account), T, "audit-test", timeout=10.0)
+    since = datetime.now(UTC) - timedelta(hours=1)
+    return asyncio.run(client.entries(since, None, None))
+
+
+def seen(entries: list[AuditEntry]) -> list[Seen]:
+    return [(e.actor, e.act, e.outcome, e.verified) for e in entries]
+
+
+def wait_for_entries(url: str, accounts: Accounts, n: int) -> list[AuditEntry]:
+    """The trail once it holds at least `n` entries."""
+
+    def enough() -> list[AuditEntry] | None:
+        entries = audit(url, accounts)
+        return entries if len(entries) >= n else None
+
+    found = wait_for(enough, timeout=30, interval=0.2, what=f"{n} audit entries")
+    assert found is not None
+    return found
+
+
+def test_each_roles_acts_are_recorded_with_its_account_and_a_restart_keeps_them(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    url, vouched = broker
+    db = tmp_path / "coordinator.sqlite3"
+    with coordinator(url, accounts, db, vouched):
+        with peer(url, accounts, "operator", "operator-peer") as op:
+            reply = op.reply_to(op.send_control_unit("unit1", "pause").request_id)
+            assert reply.reason == "unknown unit 'unit1'"
+        with peer(url, accounts, "ann", "ann-peer") as ann:
+            assert ann.set_goal("unit1", Cell(1, 1)).reason == "unknown unit 'unit1'"
+        with peer(url, accounts, "dashboard", "dashboard-page-1") as page:
+            assert page.reply_to(page.send_control_unit("unit1", "resume").request_id).reason
+        with MqttProbe(login(url, accounts, "vera")) as viewer:
+            # A viewer publishes nothing: the broker drops it, nothing reaches the coordinator.
+            viewer.publish(T.fleet("estop"), b"engaged|vera|a viewer's stop", retain=True)
+        with peer(url, accounts, "operator", "operator-peer") as op:
+            op.engage("checking", by="operator-peer")
+            wait_for_entries(url, accounts, 4)
+            op.release("checked", by="operator-peer")
+        entries = wait_for_entries(url, accounts, 5)
+    assert seen(entries) == [
+        ("operator", "pause", "refused", vouched),
+        ("ann", "set_goal", "refused", vouched),
+        ("dashboard", "resume", "refused", vouched),
+        ("operator", "stop_engage", "accepted", vouched),
+        ("operator", "stop_release", "accepted", vouched),
+    ]
+    assert [e.via for e in entries] == ["operator-peer", "ann-peer", "dashboard-page-1"] + [
+        "operator-peer"
+    ] * 2
+    # A restart: the trail is still there, and the retained latch read again is no new act.
+    with coordinator(url, accounts, db, vouched, fresh=False) as again:
+        wait_for(lambda: again.service.core.stop.view.latch is not None, what="the latch replayed")
+        with peer(url, accounts, "ann", "ann-peer2") as ann:
+            ann.set_goal("unit1", None)
+        after = wait_for_entries(url, accounts, 6)
+    assert seen(after) == [*seen(entries), ("ann", "clear_goal", "refused", vouched)]
+
+
+def forged_submit(sender: str) -> bytes:
+    return encode(
+        SubmitJob(
+            header=header(sender),
+            request_id="forged-1",
+            pickup=Cell(0, 0),
+            dropoff=Cell(3, 2),
+            mass_kg=1.0,
+        )
+    )
+
+
+def test_a_client_cannot_forge_the_actor(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    url, vouched = broker
+    with coordinator(url, accounts, tmp_path / "c.sqlite3", vouched):
+        with peer(url, accounts, "ann", "ann-peer") as ann:
+            ann.raw_request("submit_job", forged_submit("admin"))  # no such account
+            ann.raw_request("submit_job", forged_submit("operator-x"))  # another account's id
+            ann.set_goal("unit1", Cell(1, 1))  # her own, after them on the same connection
+        entries = wait_for_entries(url, accounts, 1 if vouched else 3)
+    if vouched:
+        # The embedded broker drops a request naming an id its account does not own.
+        assert seen(entries) == [("ann", "set_goal", "refused", True)]
+    else:
+        # Mosquitto cannot look into payloads: the claims arrive, and are recorded as claims.
+        assert [(e.actor, e.act, e.verified) for e in entries] == [
+            ("admin", "submit_job", False),
+            ("operator", "submit_job", False),
+            ("ann", "set_goal", False),
+        ]
+
+
+def test_a_viewer_can_neither_read_the_audit_nor_overhear_it(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    url, vouched = broker
+    with coordinator(url, accounts, tmp_path / "c.sqlite3", vouched):
+        with peer(url, accounts, "ann", "ann-peer") as ann:
+            ann.set_goal("unit1", Cell(1, 1))
+        with MqttProbe(login(url, accounts, "vera")) as viewer:
+            # Whatever it may subscribe to (a broker may refuse a filter it cannot fully read).
+            for topic in (f"{T.prefix}/#", f"{T.prefix}/audit/#", T.request("set_goal")):
+                viewer.subscribe(topic)
+            assert len(audit(url, accounts, "ann")) == 1  # ann's page went out meanwhile
+            # After ann's page, ann sends something the viewer may read: by then her page would
+            # have reached the viewer too, were it allowed to.
+            with peer(url, accounts, "ann", "ann-peer") as ann:
+                ann.set_goal("unit1", None)
+            viewer.wait(T.request("set_goal"))
+            assert not [t for t in viewer.messages if t.startswith(f"{T.prefix}/audit/")]
+
+
+def test_the_dashboards_logins_logouts_and_failed_logins_are_recorded(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    url, vouched = broker
+    settings = DashboardSettings(
+        broker_ws="ws://127.0.0.1:9", root=ROOT, accounts=accounts, audit_broker=url
+    )
+    app = create_app(settings)
+    reporter = app.extensions["gridfleet_audit"]
+    assert isinstance(reporter, LoginReporter)
+    try:
+        with coordinator(url, accounts, tmp_path / "c.sqlite3", vouched):
+            web = app.test_client()
+            ann = accounts.get("ann")
+            bad = web.post("/api/login", json={"username": "ann", "password": "not hers at all"})
+            assert bad.status_code == 401
+            good = web.post("/api/login", json={"username": "ann", "password": ann.password})
+            assert good.status_code == 200
+            assert web.post("/api/logout", json={}).status_code == 200
+            entries = wait_for_entries(url, accounts, 3)
+    finally:
+        reporter.stop()
+    assert [(e.actor, e.act, e.outcome, e.verified, e.via) for e in entries] == [
+        ("ann", "login_failed", "refused", False, "dashboard"),
+        ("ann", "login", "accepted", vouched, "dashboard"),
+        ("ann", "logout", "accepted", vouched, "dashboard"),
+    ]
+    assert entries[0].reason == "wrong user name or password"
+    assert entries[1].detail == "from 127.0.0.1"
+
+
+def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
+    )
+
+
+def test_the_command_line_prints_the_trail_and_refuses_a_bad_range(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    url, vouched = broker
+    file = tmp_path / "accounts.toml"
+    write_accounts(accounts, file)
+    common = ["--broker", url, "--accounts", str(file), "--root", ROOT]
+    with coordinator(url, accounts, tmp_path / "c.sqlite3", vouched):
+        with peer(url, accounts, "ann", "ann-peer") as ann:
+            ann.set_goal("unit1", Cell(1, 1))
+        done = gridfleet("audit", *common, "--since", "1h", "--csv", "--actor", "ann")
+        assert done.returncode == 0, done.stderr
+        rows = list(csv.reader(io.StringIO(done.stdout)))
+        assert rows[0] == [
+            "at",
+            "actor",
+            "verified",
+            "via",
+            "act",
+            "target",
+            "detail",
+            "outcome",
+            "reason",
+        ]
+        assert [row[1:] for row in rows[1:]] == [
+            [
+                "ann",
+                str(vouched),
+                "ann-peer",
+                "set_goal",
+                "unit1",
+                "to [1, 1]",
+                "refused",
+                "unknown unit 'unit1'",
+            ]
+        ]
+        viewer = ["--account", "vera", "--since", "1h", "--timeout", "2"]
+        as_viewer = gridfleet("audit", *common, *viewer)
+        assert as_viewer.returncode == 2
+        assert "no reply from the coordinator to the audit query" in as_viewer.stderr
+    backwards = gridfleet("audit", "--since", "2026-11-26T14:00", "--until", "2026-11-26T13:00")
+    assert backwards.returncode == 2
+    assert backwards.stderr.splitlines() == [
+        "gridfleet audit: error: --since 2026-11-26T14:00:00+00:00 is after --until "
+        "2026-11-26T13:00:00+00:00: nothing can lie between"
+    ]
