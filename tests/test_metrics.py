@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from prometheus_client import generate_latest
 
+from gridfleet.alerts.metrics import Figures, alerts_registry
 from gridfleet.broker.metrics import broker_registry
 from gridfleet.broker.stats import BrokerFigures
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
@@ -349,12 +350,14 @@ def test_the_coordinators_metrics_flags_answer_mistakes_in_one_line(tmp_path: Pa
 
 def idle_text() -> str:
     """The exposition of an idle coordinator core's metrics (its achieved step period known),
-    then of an idle broker's."""
+    then of an idle broker's, then of an idle alerts process's (with its webhook)."""
     core = make_core(load_map(MAP))
     core.pace.achieved_step_s = 0.5  # absent until measured: here so that it shows
     coordinator = generate_latest(CoordinatorMetrics(core).registry).decode()
     figures = BrokerFigures(0, 0, 0, 0, 0, 0, 0, 0, 0, {})
-    return coordinator + generate_latest(broker_registry(lambda: figures)).decode()
+    broker = generate_latest(broker_registry(lambda: figures)).decode()
+    alerts = Figures(webhook=(0, 0, 0, 0))
+    return coordinator + broker + generate_latest(alerts_registry(lambda: alerts)).decode()
 
 
 def idle_scrape() -> Scrape:
