@@ -11,7 +11,6 @@ counted), since a pager wants the latest news most.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import sqlite3
 import urllib.error
@@ -22,6 +21,7 @@ from pathlib import Path
 
 from gridfleet import __version__
 from gridfleet.alerts.settings import webhook_where
+from gridfleet.tasks import first_of
 
 log = logging.getLogger("gridfleet.alerts.webhook")
 
@@ -128,7 +128,7 @@ class Webhook:
             head = self.queue.head()
             if head is None:
                 self._more.clear()
-                await _first(shutdown, self._more)
+                await first_of(shutdown, self._more)
                 continue
             row, body = head
             try:
@@ -139,21 +139,9 @@ class Webhook:
             ) as exc:  # urllib's errors are OSErrors; ValueError: bad URL
                 self.failures += 1
                 log.warning("webhook %s: %s; trying again in %g s", self.where, exc, delay)
-                await _first(shutdown, timeout=delay)
+                await first_of(shutdown, timeout=delay)
                 delay = min(delay * 2, self.backoff.most)
                 continue
             self.queue.remove(row)
             self.sent += 1
             delay = self.backoff.first
-
-
-async def _first(*events: asyncio.Event, timeout: float | None = None) -> None:
-    """Until any of `events` is set, or `timeout` seconds have passed."""
-    waits = [asyncio.create_task(e.wait()) for e in events]
-    try:
-        await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for w in waits:
-            w.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await w

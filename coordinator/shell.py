@@ -30,7 +30,7 @@ from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
 from gridfleet.protocol import HeaderStamper, Topics
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.tasks import cancel_and_wait, first_of
 
 if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
     from gridfleet.coordinator.metrics import CoordinatorMetrics
@@ -178,11 +178,11 @@ class CoordinatorShell:
                 delay = max(0.0, next_at - self.clock())
                 if delay == 0.0:
                     next_at = self.clock()  # late: no burst of steps to catch up
-                await _wait(delay, shutdown)
+                await first_of(shutdown, timeout=delay)
                 until = effects.acks_until
                 if until is not None and self.core.orders.holding_back and self.clock() < until:
                     self._acked.clear()
-                    await _wait(until - self.clock(), shutdown, self._acked)
+                    await first_of(shutdown, self._acked, timeout=until - self.clock())
                     next_at = max(next_at, self.clock())
         finally:
             if self._views_later is not None:
@@ -230,13 +230,3 @@ class CoordinatorShell:
     async def _views_after(self, at: float) -> None:
         await asyncio.sleep(max(0.0, at - self.clock()))  # pacing: the end of a batch period
         await self._apply(self.core.views_due(self.clock()))
-
-
-async def _wait(timeout: float, *events: asyncio.Event) -> None:
-    """Until any of `events` is set, or `timeout` seconds have passed."""
-    waits = [asyncio.create_task(e.wait()) for e in events]
-    try:
-        await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
-    finally:
-        for w in waits:
-            w.cancel()

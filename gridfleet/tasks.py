@@ -26,6 +26,18 @@ async def cancel_and_wait(task: asyncio.Task[Any], retry_s: float = 0.05) -> Non
         task.result()
 
 
+async def first_of(*events: asyncio.Event, timeout: float | None = None) -> None:
+    """Until any of `events` is set, or `timeout` seconds have passed (None: no limit)."""
+    waits = [asyncio.create_task(e.wait()) for e in events]
+    try:
+        await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for w in waits:
+            w.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await w
+
+
 def stop_on_signals() -> asyncio.Event:
     """An event set by SIGINT, SIGTERM or SIGHUP (Ctrl-C, `gridfleet up`, systemd, a closed
     terminal): the way to stop."""

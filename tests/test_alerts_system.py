@@ -39,6 +39,7 @@ from gridfleet.protocol.messages import AckAlert, AlertsView
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.cli import gridfleet
 from support.mosquitto import mosquitto_with_accounts
 from support.probe import MqttProbe
 from support.security import login
@@ -143,15 +144,6 @@ def wait_view(probe: MqttProbe, topics: Topics, check: Any, what: str) -> Alerts
     found = wait_for(find, 20.0, what=what)
     assert found is not None
     return found
-
-
-def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
 
 
 def ack_request(sender: str, request_id: str, alert_id: str) -> bytes:

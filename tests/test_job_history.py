@@ -6,7 +6,6 @@ import csv
 import io
 import json
 import subprocess
-import sys
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -22,6 +21,7 @@ from gridfleet.protocol.messages import JobState
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.cli import gridfleet
 from support.effects import header
 from support.wait import wait_for
 
@@ -194,13 +194,7 @@ def test_a_cursor_whose_entry_was_pruned_starts_from_since(store: HistoryStore) 
 
 def gridfleet_job(broker: BrokerThread, root: str, *args: str) -> subprocess.CompletedProcess[str]:
     """Run `gridfleet job ARGS` against the session broker, in a process of its own."""
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "job", *args, "--broker", broker.url, "--root", root],
-        capture_output=True,
-        text=True,
-        timeout=90,
-        check=False,
-    )
+    return gridfleet("job", *args, "--broker", broker.url, "--root", root, timeout=90)
 
 
 @pytest.mark.slow  # the whole system, end to end

@@ -14,19 +14,9 @@ from gridfleet.protocol import Topics, decode_estop
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, world_of
 
+from support.cli import gridfleet
 from support.probe import MqttProbe
 from support.wait import wait_for
-
-
-def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
-    """Run `gridfleet ARGS` in a process of its own."""
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
 
 
 @pytest.fixture

@@ -438,7 +438,8 @@ AuditAct = Literal[
 AuditOutcome = Literal["accepted", "refused"]
 LoginEvent = Literal["login", "logout", "login_failed"]
 MAX_AUDIT_PAGE = 500  # entries one audit reply carries at most
-AuditCursor = Annotated[str, StringConstraints(pattern=r"^[0-9]{1,19}$")]
+# Where the next page of a stored record goes on (the last entry's row): opaque to clients.
+Cursor = Annotated[str, StringConstraints(pattern=r"^[0-9]{1,19}$")]
 
 
 class AuditEntry(Model):
@@ -462,19 +463,24 @@ class AuditQuery(Request):
     until: datetime | None = None  # null: now
     actor: Id | None = None  # only this account's acts
     limit: Annotated[int, Field(ge=1, le=MAX_AUDIT_PAGE, strict=True)] = 100
-    cursor: AuditCursor | None = None  # the previous page's `next_cursor`
+    cursor: Cursor | None = None  # the previous page's `next_cursor`
 
 
-class AuditPage(Message):
-    """`audit/replies/<client>`: the answer to an AuditQuery: a page of entries, or why not."""
+class Page(Message):
+    """The answer to a query of a stored record (audit, job history): a page, or why not."""
 
     request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
     accepted: bool
     reason: Text | None = None
+    next_cursor: Cursor | None = None  # null: this was the last page
+
+
+class AuditPage(Page):
+    """`audit/replies/<client>`: the answer to an AuditQuery: a page of entries, or why not."""
+
     entries: Annotated[list[AuditEntry], Field(max_length=MAX_AUDIT_PAGE)] = Field(
         default_factory=list
     )
-    next_cursor: AuditCursor | None = None  # null: this was the last page
 
 
 class AuditLogin(Request):
@@ -489,7 +495,6 @@ class AuditLogin(Request):
 # ---- the job history (coordinator/history.py: protocol.md §6.10) -------------------------------
 
 MAX_HISTORY_PAGE = 1000  # entries one history reply carries at most
-HistoryCursor = Annotated[str, StringConstraints(pattern=r"^[0-9]{1,19}$")]
 
 
 class JobHistoryEntry(Model):
@@ -518,16 +523,12 @@ class JobHistoryQuery(Request):
     job_id: Id | None = None  # only this job's changes
     state: JobState | None = None  # only changes into this state
     limit: Annotated[int, Field(ge=1, le=MAX_HISTORY_PAGE, strict=True)] = 200
-    cursor: HistoryCursor | None = None  # the previous page's `next_cursor`
+    cursor: Cursor | None = None  # the previous page's `next_cursor`
 
 
-class JobHistoryPage(Message):
+class JobHistoryPage(Page):
     """`history/replies/<client>`: the answer to a JobHistoryQuery: a page of entries, or why not."""
 
-    request_id: Annotated[str, StringConstraints(min_length=1, max_length=64)]
-    accepted: bool
-    reason: Text | None = None
     entries: Annotated[list[JobHistoryEntry], Field(max_length=MAX_HISTORY_PAGE)] = Field(
         default_factory=list
     )
-    next_cursor: HistoryCursor | None = None  # null: this was the last page
