@@ -236,7 +236,7 @@ async def print_history(operator: Operator, args: argparse.Namespace, out: TextI
         print("[", file=out)
     else:
         print(
-            f"{'at (UTC)':<24} {'job':<16} {'state':<11} {'unit':<10} {'after':>9}  why", file=out
+            f"{'at (UTC)':<24} {'job':<24} {'state':<11} {'unit':<10} {'after':>9}  why", file=out
         )
     cursor: str | None = None
     count = 0
@@ -255,7 +255,7 @@ async def print_history(operator: Operator, args: argparse.Namespace, out: TextI
                 at = history_row(entry)[0]
                 after = f"{entry.since_submitted_s:.1f}s"
                 why = entry.reason or ""
-                line = f"{at:<24} {entry.job:<16} {entry.state:<11} {entry.unit or '-':<10}"
+                line = f"{at:<24} {entry.job:<24} {entry.state:<11} {entry.unit or '-':<10}"
                 print(f"{line} {after:>9}  {why}".rstrip(), file=out)
             count += 1
         cursor = page.next_cursor
