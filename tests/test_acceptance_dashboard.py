@@ -404,9 +404,10 @@ def test_08_set_goal_by_clicking_and_the_emergency_stop(live: Callable[..., Live
     estop_topic = system.topics.fleet("estop")
     system.probe.subscribe(estop_topic)
     system.dash.press_stop()
-    system.probe.wait(estop_topic, lambda m: m.payload.startswith(b"engaged|dashboard"))
+    page_id = page.evaluate("document.body.dataset.clientId")  # the latch names the page
+    system.probe.wait(estop_topic, lambda m: m.payload.startswith(f"engaged|{page_id}|".encode()))
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
-    expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
+    expect(page.locator("#estop-banner")).to_contain_text(f"EMERGENCY STOP — engaged by {page_id}")
     expect(page.locator("#stop")).to_have_text("STOPPED")
     wait_for(
         lambda: all(system.states(u)[-1].status == "stopped" for u in goals),

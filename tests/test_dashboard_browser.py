@@ -385,7 +385,8 @@ def test_stop_button_engages_and_hold_releases(
     page.locator("#stop").click()
     seen = probe.wait(estop_topic, lambda m: decode_estop(m.payload).engaged)
     signal = decode_estop(seen.payload)
-    assert signal.by == "dashboard" and seen.qos == 1
+    page_id = page.evaluate("document.body.dataset.clientId")
+    assert signal.by == page_id and seen.qos == 1  # the page's own id: its account owns it
     # Retained: a newcomer learns the stop from the broker.
     late = MqttProbe(broker.url).connect()
     try:
@@ -394,7 +395,7 @@ def test_stop_button_engages_and_hold_releases(
     finally:
         late.close()
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
-    expect(page.locator("#estop-banner")).to_contain_text("EMERGENCY STOP — engaged by dashboard")
+    expect(page.locator("#estop-banner")).to_contain_text(f"EMERGENCY STOP — engaged by {page_id}")
     # The banner changes the layout; the map is redrawn to fit its box again.
     wait_in_page(
         page,
@@ -421,7 +422,7 @@ def test_stop_button_engages_and_hold_releases(
     dash.hold_release()
     probe.wait(estop_topic, lambda m: not decode_estop(m.payload).engaged, timeout=5)
     releases = [m for m in probe.received(estop_topic) if not decode_estop(m.payload).engaged]
-    assert len(releases) == 1 and decode_estop(releases[0].payload).by == "dashboard"
+    assert len(releases) == 1 and decode_estop(releases[0].payload).by == page_id
     expect(page.locator("body")).to_have_attribute("data-estop", "released")
     expect(page.locator("#estop-banner")).to_be_hidden()
 
@@ -491,7 +492,8 @@ def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
     with MqttProbe(fresh_broker.url) as probe:
         probe.subscribe(topics.fleet("estop"))  # retained: it arrived while we were away
         assert decode_estop(probe.wait(topics.fleet("estop")).payload).engaged
-    expect(dash.page.locator("#estop-banner")).to_contain_text("engaged by dashboard")
+    page_id = dash.page.evaluate("document.body.dataset.clientId")
+    expect(dash.page.locator("#estop-banner")).to_contain_text(f"engaged by {page_id}")
 
 
 def test_rows_survive_renders_so_clicks_are_not_lost(

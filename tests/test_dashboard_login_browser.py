@@ -147,6 +147,16 @@ def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
     # Reaches the coordinator only if the broker let the page's account write the latch.
     coordinator.wait(topics.fleet("estop"), lambda m: not decode_estop(m.payload).engaged)
     expect(page.locator("body")).to_have_attribute("data-estop", "released")
+    # And STOP on the page engages it: the latch names the page's own id, which the operator
+    # account owns (a fixed name was dropped by the broker: the stop must always get through).
+    dash.press_stop()
+    page_id = page.evaluate("document.body.dataset.clientId")
+    by_page = (True, page_id)
+    coordinator.wait(
+        topics.fleet("estop"),
+        lambda m: (decode_estop(m.payload).engaged, decode_estop(m.payload).by) == by_page,
+    )
+    expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
 
     page.locator("#logout").click()
     expect(page.locator("#login-form")).to_be_visible()

@@ -98,7 +98,8 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       assert.equal(T.allUnits(kind), topic.replace("/x1/", "/+/"));
     } else if (spec.placeholder === "client") {
       assert.deepEqual(parsed, { kind, id: "x1" });
-      assert.equal(T.reply("x1"), topic);
+      const builder = { reply: T.reply, history_reply: T.historyReply, audit_reply: T.auditReply }[kind];
+      assert.equal(builder("x1"), topic, kind);
     } else if (spec.pattern.startsWith("requests/")) {
       assert.equal(T.request(kind), topic);
       assert.equal(parsed, null, "the page reads no requests");
@@ -108,11 +109,16 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
     }
     // Every topic the page subscribes to, at the topic's own QoS.
     const filter = spec.placeholder === "unit" ? T.allUnits(kind)
-      : spec.placeholder === "client" ? T.reply("dash-1")
+      : spec.placeholder === "client" ? topic.replace("/x1", "/dash-1")
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  assert.equal(Object.keys(subs).length, 14); // 12, and every unit's and device's stop press
+  // 15, and every unit's and device's stop press: the fleet's views (alerts among them), the
+  // units' topics, and the answers to this page (its replies, history and audit pages).
+  assert.equal(Object.keys(subs).length, 17);
+  const viewer = subscriptions(T, "dash-1", { audit: false });
+  assert.ok(!(T.auditReply("dash-1") in viewer), "an account that may not read the audit does not ask for it");
+  assert.ok(T.historyReply("dash-1") in viewer);
   assert.throws(() => T.allUnits("estop"), /not a per-unit topic kind/);
   assert.throws(() => T.request("jobs"), /not a request kind/);
   const e = TABLE.estop;

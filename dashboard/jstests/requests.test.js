@@ -135,3 +135,17 @@ test("right after sending, the form says whether the broker has it", () => {
   assert.deepEqual(sentFeedback("job", "job x", true), { form: "job", kind: "pending", text: "job x: sent, waiting for the coordinator…" });
   assert.equal(sentFeedback("goal", "goal y", false).text, "goal y: queued: not connected to the broker");
 });
+
+test("a page answered on a topic of its own settles its request; an acknowledgement waits on the alerts process", () => {
+  const r = requests("dash-1", { waitMs: 10000 });
+  const { request_id } = r.create("job_history", "history", "job history", { since: "s" }, 0);
+  assert.equal(r.settle(request_id), true);
+  assert.equal(r.settle(request_id), false);
+  assert.deepEqual(r.due(20000), { resend: [], feedback: [] }, "settled: sent no more");
+  const ack = r.create("ack_alert", "alerts", "acknowledge estop a-1", { alert_id: "a-1" }, 0);
+  const { feedback } = r.due(10000);
+  assert.deepEqual(feedback, [{
+    form: "alerts", kind: "refused",
+    text: `acknowledge estop a-1: no reply from the alerts process to ack_alert ${ack.request_id} after 1 try over 10 s: is it running?`,
+  }]);
+});

@@ -2,12 +2,13 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 import { decodeEstop } from "../static/js/protocol.js";
-import { ESTOP_BY, estopLook, estopPayload, HOLD_MS } from "../static/js/stop.js";
+import { estopLook, estopPayload, HOLD_MS } from "../static/js/stop.js";
 
 test("STOP and the release are sent by 'dashboard', naming the page", () => {
-  assert.equal(estopPayload(true, "dash-1"), "engaged|dashboard|operator pressed STOP on dash-1");
-  assert.equal(estopPayload(false, "dash-1"), "released|dashboard|released by operator on dash-1");
-  assert.deepEqual(decodeEstop(estopPayload(true, "dash-1")), { engaged: true, by: ESTOP_BY, reason: "operator pressed STOP on dash-1" });
+  // The page's own client id: the one id its account is sure to own (protocol.md §10).
+  assert.equal(estopPayload(true, "ann-page-3fa2c1"), "engaged|ann-page-3fa2c1|STOP pressed on the page");
+  assert.equal(estopPayload(false, "ann-page-3fa2c1"), "released|ann-page-3fa2c1|released on the page");
+  assert.deepEqual(decodeEstop(estopPayload(true, "dash-1")), { engaged: true, by: "dash-1", reason: "STOP pressed on the page" });
   assert.equal(HOLD_MS, 1500);
 });
 

@@ -323,15 +323,31 @@ function baseLayer(map, L, dpr) {
  * labels go in data attributes too, for tests and assistive tools.
  */
 export function drawChart(canvas, perMinute, share) {
-  const key = `${perMinute.join(" ")}|${share}`;
+  drawBars(canvas, perMinute, share, {
+    attr: "perMinute", oldest: `${perMinute.length} min ago`, newest: "this minute",
+    none: `no job done in the last ${perMinute.length} min`,
+  });
+}
+
+/** The day's chart: a bar per clock hour of jobs done, the last 24 (from the job history). */
+export function drawDayChart(canvas, perHour, share) {
+  drawBars(canvas, perHour, share, {
+    attr: "perHour", oldest: `${perHour.length} h ago`, newest: "this hour",
+    none: `no job done in the last ${perHour.length} h`,
+  });
+}
+
+/** Bars of `counts` (oldest left) and the share of units busy; `words` label them. */
+function drawBars(canvas, counts, share, words) {
+  const key = `${counts.join(" ")}|${share}`;
   if (canvas.dataset.key === key) return;
   canvas.dataset.key = key;
-  canvas.dataset.perMinute = perMinute.join(" ");
+  canvas.dataset[words.attr] = counts.join(" ");
   canvas.dataset.utilisation = share == null ? "" : share.toFixed(2);
   const busy = share == null ? "" : `${Math.round(share * 100)} % of units busy`;
-  const none = perMinute.every((n) => n === 0);
+  const none = counts.every((n) => n === 0);
   canvas.dataset.busy = busy;
-  canvas.dataset.note = none ? `no job done in the last ${perMinute.length} min` : "";
+  canvas.dataset.note = none ? words.none : "";
   const dpr = window.devicePixelRatio || 1;
   const w = canvas.clientWidth || 300, h = canvas.clientHeight || 96;
   canvas.width = Math.round(w * dpr);
@@ -342,12 +358,12 @@ export function drawChart(canvas, perMinute, share) {
   const axis = 12; // the time axis under the bars
   const plot = h - axis - 14; // room above the tallest bar for its count
   const base = h - axis;
-  const top = Math.max(1, ...perMinute);
-  const bw = w / perMinute.length;
+  const top = Math.max(1, ...counts);
+  const bw = w / counts.length;
   g.font = "10px sans-serif";
   g.textBaseline = "bottom";
   g.textAlign = "center";
-  perMinute.forEach((n, i) => {
+  counts.forEach((n, i) => {
     const bh = (plot * n) / top;
     g.fillStyle = "#4caf50";
     g.fillRect(i * bw + 2, base - bh, bw - 4, bh);
@@ -362,9 +378,9 @@ export function drawChart(canvas, perMinute, share) {
   g.fillStyle = "#607d8b";
   g.textBaseline = "top";
   g.textAlign = "left";
-  g.fillText(`${perMinute.length} min ago`, 2, base + 1);
+  g.fillText(words.oldest, 2, base + 1);
   g.textAlign = "right";
-  g.fillText("this minute", w - 2, base + 1);
+  g.fillText(words.newest, w - 2, base + 1);
   if (none) {
     g.textAlign = "center";
     g.textBaseline = "middle";

@@ -10,23 +10,37 @@
 //   clicks.js      what a click on the map means in each click mode
 //   stop.js        STOP, hold to release, and how the stop shows
 //   view.js        the map, the tables, the badges and the message log (draw.js, rows.js)
+//   tabs.js        the tabs beside the map: the fleet now, History, Audit, Alerts
+//   history_view.js, audit_view.js   the records the coordinator keeps, page by page (paged_view.js)
+//   alerts_view.js the alerts' notifications, until acknowledged, and their list
+//   throughput.js  jobs done an hour over the last day, from the job history
 
+import { mayReadAudit } from "./audit.js";
+import { AlertsView } from "./alerts_view.js";
+import { AuditView } from "./audit_view.js";
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
-import { layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
+import { drawDayChart, layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
 import { Forms } from "./forms.js";
 import { brokerBadge, newsPeriodS } from "./hearing.js";
+import { HistoryView } from "./history_view.js";
 import { loadSettings, logIn, logOut, mqttLogin } from "./login.js";
 import { FleetView } from "./model.js";
+import { PagedQuery } from "./paging.js";
 import { ID_RE, makeClientId, parseTopic, Stamper, subscriptions, topicsFor } from "./protocol.js";
 import { Requests, sentFeedback } from "./requests.js";
 import { bindStopControls, estopLook, estopPayload, showEstop } from "./stop.js";
+import { Tabs } from "./tabs.js";
+import { DayThroughput, dayDue } from "./throughput.js";
 import { log, PageView, showConnection, showFatal } from "./view.js";
 
 const $ = (sel) => document.querySelector(sel);
 const PANEL_MS = 250; // the tables, chart and badges are filled in at most 4 times a second
 const MAP_MS = 100; // the map is redrawn for the fleet's news at most 10 times a second
 const PANEL_ONLY = new Set(["coordinator", "errors", "events", "reply"]); // nothing on the map
+// Answers of their own, each to one view: nothing of the fleet's map or tables changes with them.
+const RECORD_KINDS = new Set(["alerts", "history_reply", "audit_reply"]);
+const RECORD_FORMS = new Set(["history", "audit", "day", "alerts"]); // their words' places
 
 async function start() {
   const loaded = await loadSettings(fetch);
@@ -123,6 +137,10 @@ class Dashboard {
     this.panelUrgent = true; // ... at once (the operator did something), not at the next tick
     this.panelAt = 0; // when the panel was last filled in
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
+    this.mayAudit = mayReadAudit(settings); // the Audit tab, for accounts that may read it
+    this.day = new DayThroughput(); // jobs done an hour, from the job history
+    this.dayQuery = new PagedQuery(); // the day chart's question to the history, page by page
+    this.dayAsked = null; // {at, done}: when the history was last asked, and the jobs done then
     this.conn = { state: "connecting", text: "connecting…" }; // the connection's own status
     this.connectedAt = null; // when it last connected (ms): a silence counts from then at most
     this.badge = null; // what the broker badge shows
@@ -130,12 +148,14 @@ class Dashboard {
       send: (kind, form, what, body) => this.request(kind, form, what, body),
       onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.touched(); },
     });
-    this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subscriptions(this.topics, clientId), {
+    const subs = subscriptions(this.topics, clientId, { audit: this.mayAudit });
+    this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subs, {
       onStatus: (state, text) => {
         // Presses are read afresh from the retained ones: one cleared meanwhile is not replayed.
         if (state === "connected") {
           this.view.presses.clear();
           this.connectedAt = Date.now();
+          if (!this.dayAsked) this.askDay(Date.now()); // the day's chart, once subscribed
         }
         this.conn = { state, text };
         this.showBroker(Date.now());
@@ -150,6 +170,7 @@ class Dashboard {
   run() {
     this.client.start();
     this.bindControls();
+    this.bindRecords();
     // The map's box changes with the window and with the page around it (e.g. the stop banner);
     // kept here, so drawing never asks the browser for a layout.
     new ResizeObserver(([entry]) => {
@@ -181,8 +202,75 @@ class Dashboard {
       this.page.seen(now);
       this.showBroker(now); // a page gone deaf hears no message to tell it so: the clock does
     }, 500);
-    setInterval(() => { this.view.utilisation.sample(this.view, Date.now()); this.panelDirty = true; }, 1000);
+    setInterval(() => {
+      const now = Date.now();
+      this.view.utilisation.sample(this.view, now);
+      this.panelDirty = true;
+      // The day's chart: what is new in the history, once a minute or sooner after jobs were done.
+      if (this.dayAsked && dayDue(this.dayAsked, this.view.counts.done, now)) this.askDay(now);
+    }, 1000);
     setInterval(() => this.retry(Date.now()), 500);
+  }
+
+  // ---- the records: History, Audit, Alerts, the day's chart ----
+  bindRecords() {
+    const records = {
+      send: (kind, form, what, body) => this.request(kind, form, what, body, { quiet: true }),
+      feedback: (form, kind, text) => this.forms.feedback(form, kind, text),
+    };
+    this.history = new HistoryView(records);
+    this.audit = new AuditView(records);
+    this.alerts = new AlertsView({ send: (kind, form, what, body) => this.request(kind, form, what, body) });
+    this.tabs = new Tabs({
+      onOpen: (name) => {
+        if (name === "history") this.history.open();
+        if (name === "audit") this.audit.open();
+      },
+    });
+    this.tabs.offer("audit", this.mayAudit);
+  }
+
+  /** Ask the history for the day's done jobs not counted yet, unless a question is on its way. */
+  askDay(now) {
+    if (this.dayQuery.busy) return;
+    this.dayAsked = { at: now, done: this.view.counts.done };
+    this.drawDay(now); // a new hour's bar, even before the answer
+    const body = this.dayQuery.begin(this.day.query(now));
+    this.dayQuery.sent(this.request("job_history", "day", "the day's throughput", body, { quiet: true }));
+  }
+
+  /** A page for the day's chart: counted, the next asked for, the chart drawn. */
+  dayPage(page) {
+    if (this.dayQuery.error) {
+      this.forms.feedback("day", "refused", `the day's throughput: ${this.dayQuery.error}`);
+      return;
+    }
+    this.day.add(page.entries ?? []);
+    const body = this.dayQuery.more();
+    if (body) this.dayQuery.sent(this.request("job_history", "day", "the day's throughput", body, { quiet: true }));
+    else this.drawDay(Date.now());
+  }
+
+  drawDay(now) {
+    if (!this.dayQuery.body) return; // nothing asked yet: no bars rather than a false "none"
+    drawDayChart($("#day-chart"), this.day.perHour(now), null);
+  }
+
+  /** A message for the records (alerts, a page of the history or the audit): to its view. */
+  onRecord(kind, id, text) {
+    if (kind === "alerts") {
+      const problem = this.alerts.take(text);
+      if (problem) log(problem);
+      return;
+    }
+    if (id !== this.clientId) return; // another page's answer
+    let page;
+    try { page = JSON.parse(text); } catch { log(`ignored a malformed ${kind}`); return; }
+    if (typeof page !== "object" || page === null) return;
+    this.requests.settle(page.request_id); // answered: sent no more
+    if (kind === "audit_reply") { this.audit.onPage(page); return; }
+    if (this.dayQuery.take(page)) { this.dayPage(page); return; }
+    this.history.onPage(page);
   }
 
   // ---- messages in, requests out ----
@@ -193,6 +281,7 @@ class Dashboard {
     const parsed = parseTopic(this.topics.prefix, topic);
     if (!parsed) return;
     const text = new TextDecoder().decode(payload);
+    if (RECORD_KINDS.has(parsed.kind)) { this.onRecord(parsed.kind, parsed.id, text); return; }
     if (parsed.kind === "reply") {
       if (parsed.id === this.clientId) this.show(this.requests.reply(text));
       return;
@@ -219,14 +308,29 @@ class Dashboard {
 
   /** Feedback and a log line from the request bookkeeping, either may be null. */
   show({ feedback, log: line }) {
-    if (feedback) this.forms.feedback(feedback.form, feedback.kind, feedback.text);
+    if (feedback) {
+      this.forms.feedback(feedback.form, feedback.kind, feedback.text);
+      if (RECORD_FORMS.has(feedback.form)) this.recordAnswered(feedback);
+    }
     if (line) log(line);
   }
 
-  request(kind, form, what, body) {
-    const { message } = this.requests.create(kind, form, what, body);
+  /** A record's request was answered on the reply topic, or given up: its view hears it. */
+  recordAnswered({ form, kind, text }) {
+    // Accepted: the view says so (an acknowledged alert's notification goes with the next view).
+    if (kind !== "refused") return;
+    if (form === "alerts") this.alerts.answered();
+    if (form === "history") this.history.gaveUp(text);
+    if (form === "audit") this.audit.gaveUp(text);
+    if (form === "day") this.dayQuery.gaveUp(text);
+  }
+
+  /** Publish a request; returns its id. `quiet`: no "sent, waiting" words (its view says). */
+  request(kind, form, what, body, { quiet = false } = {}) {
+    const { request_id, message } = this.requests.create(kind, form, what, body);
     this.client.publish(this.topics.request(kind), JSON.stringify(message), { qos: 1, retain: false });
-    this.show({ feedback: sentFeedback(form, what, this.client.connected), log: null });
+    if (!quiet) this.show({ feedback: sentFeedback(form, what, this.client.connected), log: null });
+    return request_id;
   }
 
   /** Requests still without a reply go out again; those waited for too long are given up. */

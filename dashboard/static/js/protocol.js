@@ -17,6 +17,10 @@ const DEVICE_KINDS = new Map(
   kindsWhere((t) => t.placeholder === "device").map((k) => [TOPICS[k].pattern.split("/").pop(), k]),
 );
 const REQUEST_KINDS = new Set(kindsWhere((t) => t.pattern.startsWith("requests/")));
+// Answers addressed to one client (replies/<client>, history/replies/<client>, …), by path.
+const CLIENT_KINDS = new Map(
+  kindsWhere((t) => t.placeholder === "client").map((k) => [TOPICS[k].pattern.replace("/{client}", ""), k]),
+);
 // Fleet-wide topics by path (fleet/..., errors, coordinator/status); the page reads no requests.
 const FLEET_KINDS = new Map(
   kindsWhere((t, kind) => !t.placeholder && !REQUEST_KINDS.has(kind)).map((k) => [TOPICS[k].pattern, k]),
@@ -44,22 +48,29 @@ export function topicsFor(root) {
     jobs: topicOf(p, "jobs"),
     routes: topicOf(p, "routes"),
     events: topicOf(p, "events"),
+    alerts: topicOf(p, "alerts"),
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
     allUnits: (kind) => topicOf(p, check(UNIT_KINDS, kind, "a per-unit topic kind"), "+"),
     allDevices: (kind) => topicOf(p, check(new Set(DEVICE_KINDS.values()), kind, "a per-device topic kind"), "+"),
     request: (kind) => topicOf(p, check(REQUEST_KINDS, kind, "a request kind")),
     reply: (client) => topicOf(p, "reply", client),
+    historyReply: (client) => topicOf(p, "history_reply", client),
+    auditReply: (client) => topicOf(p, "audit_reply", client),
   };
 }
 
 // What the page reads: every unit's connection, factsheet, state and (a VDA 5050 vehicle's) own
-// condition, the fleet views, its replies.
+// condition, the fleet views, its replies and the history's pages.
 const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state", "vehicle"];
-const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events"];
+const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events", "alerts"];
 
-/** What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0). */
-export function subscriptions(topics, clientId) {
+/**
+ * What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0).
+ * `audit`: this login may read the audit (protocol.md §6.8); the broker refuses the audit's
+ * replies to any other account, so the page does not ask for them then.
+ */
+export function subscriptions(topics, clientId, { audit = true } = {}) {
   const subs = {};
   for (const kind of SUBSCRIBED_UNIT_KINDS) subs[topics.allUnits(kind)] = { qos: TOPICS[kind].qos };
   for (const kind of SUBSCRIBED_FLEET_KINDS) subs[topics[kind]] = { qos: TOPICS[kind].qos };
@@ -67,6 +78,8 @@ export function subscriptions(topics, clientId) {
   subs[topics.allUnits("stop")] = { qos: TOPICS.stop.qos };
   subs[topics.allDevices("device_stop")] = { qos: TOPICS.device_stop.qos };
   subs[topics.reply(clientId)] = { qos: TOPICS.reply.qos };
+  subs[topics.historyReply(clientId)] = { qos: TOPICS.history_reply.qos };
+  if (audit) subs[topics.auditReply(clientId)] = { qos: TOPICS.audit_reply.qos };
   return subs;
 }
 
@@ -80,9 +93,10 @@ export function parseTopic(prefix, topic) {
   if (rest.length === 3 && rest[0] === "devices" && DEVICE_KINDS.has(rest[2]) && ID_RE.test(rest[1])) {
     return { kind: DEVICE_KINDS.get(rest[2]), id: rest[1] };
   }
-  if (rest.length === 2 && topicOf(prefix, "reply", rest[1]) === topic && ID_RE.test(rest[1])) {
-    return { kind: "reply", id: rest[1] };
-  }
+  const client = rest.pop();
+  const answer = CLIENT_KINDS.get(rest.join("/"));
+  if (answer && ID_RE.test(client)) return { kind: answer, id: client };
+  rest.push(client);
   const kind = FLEET_KINDS.get(rest.join("/"));
   return kind ? { kind, id: null } : null;
 }

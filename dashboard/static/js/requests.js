@@ -12,6 +12,8 @@
 export const RETRY_MS = 2000;
 export const RETRY_MOST_MS = 10000;
 export const WAIT_MS = 60000;
+// Who answers a request: the coordinator, but for an alert's acknowledgement (protocol.md §6.7).
+const ANSWERED_BY = { ack_alert: "the alerts process" };
 
 /** A few random hex digits: request ids stay unique across page loads with one client id. */
 export function sessionTag() {
@@ -54,7 +56,8 @@ export class Requests {
         this.pending.delete(id);
         const tries = req.tries === 1 ? "1 try" : `${req.tries} tries`;
         const over = Math.round(this.waitMs / 1000);
-        const text = `${req.what}: no reply from the coordinator to ${req.kind} ${id} after ${tries} over ${over} s: is it running?`;
+        const who = ANSWERED_BY[req.kind] ?? "the coordinator";
+        const text = `${req.what}: no reply from ${who} to ${req.kind} ${id} after ${tries} over ${over} s: is it running?`;
         feedback.push({ form: req.form, kind: "refused", text });
       } else if (now >= req.next) {
         req.tries += 1;
@@ -84,6 +87,14 @@ export class Requests {
     }
     const reason = reply.reason ?? "no reason given";
     return { feedback: { form: req.form, kind: "refused", text: `${req.what}: refused — ${reason}` }, log: null };
+  }
+
+  /**
+   * The answer to request `requestId` came on a topic of its own (a page of the history or the
+   * audit): it is sent no more. True when it was waiting.
+   */
+  settle(requestId) {
+    return this.pending.delete(requestId);
   }
 
   /**

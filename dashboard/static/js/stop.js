@@ -4,12 +4,15 @@
 import { encodeEstop } from "./protocol.js";
 
 export const HOLD_MS = 1500; // release needs a deliberate press-and-hold
-export const ESTOP_BY = "dashboard";
 
-/** The retained fleet/estop payload for STOP pressed (engaged) or the stop released on page `clientId`. */
+/**
+ * The retained fleet/estop payload for STOP pressed (engaged) or the stop released on page
+ * `clientId`. The latch names the page's own client id, which its account owns: a broker with
+ * accounts drops a latch naming an id the publishing account does not own (protocol.md §10), so
+ * a fixed name would make STOP on the page of any account but `dashboard` do nothing.
+ */
 export function estopPayload(engaged, clientId) {
-  const reason = engaged ? `operator pressed STOP on ${clientId}` : `released by operator on ${clientId}`;
-  return encodeEstop(engaged, ESTOP_BY, reason);
+  return encodeEstop(engaged, clientId, engaged ? "STOP pressed on the page" : "released on the page");
 }
 
 /**
