@@ -44,6 +44,7 @@ def job_before(broker: BrokerThread, root: str) -> Callable[..., subprocess.Comp
 
 
 @pytest.mark.slow  # the whole system, end to end: make test, not test-fast
+@pytest.mark.timeout(180)  # its own waits (30 s, 60 s) and ten commands: more than 60 s when slow
 def test_submit_list_cancel_goal_and_refusal(
     job: Callable[..., subprocess.CompletedProcess[str]],
     job_before: Callable[..., subprocess.CompletedProcess[str]],
