@@ -11,7 +11,13 @@ from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
-from gridfleet.bench.anchors import find_anchors, lifelong_instances, load_instance, load_scen
+from gridfleet.bench.anchors import (
+    LifelongInstance,
+    find_anchors,
+    lifelong_instances,
+    load_instance,
+    load_scen,
+)
 from gridfleet.bench.plot import plot_report
 from gridfleet.bench.runs import (
     LifelongResult,
@@ -27,6 +33,7 @@ from gridfleet.maps import load_map
 log = logging.getLogger("gridfleet.bench")
 
 SUITES = ("lifelong", "oneshot", "scale")
+CHECKPOINTS = (1000, 2500)  # ticks at which an --instance run reports the tasks finished so far
 SCEN = "random-32-32-10-random-1.scen"
 R = TypeVar("R", LifelongResult, OneShotResult)
 
@@ -66,6 +73,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--instances", help="lifelong instances by name, comma-separated (default: all)"
     )
     parser.add_argument(
+        "--instance",
+        type=Path,
+        action="append",
+        help="run this lifelong instance file instead of the suites (its map: maps/ beside its "
+        "folder, or --anchors' maps/); may be given more than once",
+    )
+    parser.add_argument(
         "--horizon", type=_positive, help="cap every lifelong run at this many ticks"
     )
     parser.add_argument(
@@ -102,14 +116,22 @@ def run(args: argparse.Namespace) -> int:
     unknown = sorted(set(suites) - set(SUITES))
     if unknown or not suites:
         raise ConfigError(f"--suite: unknown {unknown or suites} (known: {', '.join(SUITES)})")
-    anchors = find_anchors(args.anchors)
     report: dict[str, list[dict[str, Any]]] = {}
+    if args.instance:
+        report["instance"] = [_instance(path, args) for path in args.instance]
+        return _report(report, args)
+    anchors = find_anchors(args.anchors)
     if "lifelong" in suites:
         report["lifelong"] = _lifelong(anchors, args)
     if "oneshot" in suites:
         report["oneshot"] = _oneshot(anchors, args)
     if "scale" in suites:
         report["scale"] = _scale(anchors, args)
+    return _report(report, args)
+
+
+def _report(report: dict[str, list[dict[str, Any]]], args: argparse.Namespace) -> int:
+    """Draw, print, and say whether any plan broke a rule."""
     if args.plot:
         plot_report(report, args.plot)
     if args.json:
@@ -165,6 +187,69 @@ def _lifelong(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
             }
         )
     return rows
+
+
+def _instance(path: Path, args: argparse.Namespace) -> dict[str, Any]:
+    """One lifelong instance file, by path, under its own rule (MR24: the task pool)."""
+    maps = Path(args.anchors) / "maps" if args.anchors else None
+    instance = load_instance(path, maps)
+    ticks = min(args.horizon or instance.horizon, instance.horizon)
+    log.info(
+        "%s: %d agents, %d of %d ticks", instance.name, instance.agents, ticks, instance.horizon
+    )
+    every = max(1, ticks // 20)
+
+    def progress(tick: int, finished: int) -> None:
+        if (tick + 1) % every == 0:
+            log.info("%s: tick %d, %d tasks finished", instance.name, tick + 1, finished)
+
+    result = run_lifelong(instance, ticks, seed=args.seed, progress=progress)
+    return instance_row(instance, result, peak_rss_mb())
+
+
+def instance_row(
+    instance: LifelongInstance, result: LifelongResult, rss_mb: float
+) -> dict[str, Any]:
+    """The figures of a run of `instance`: tasks against the competition's best, tick times."""
+    best, done, ticks, full = (
+        instance.best_tasks_finished,
+        result.tasks_finished,
+        result.ticks,
+        instance.horizon,
+    )
+    by_tick = result.finished_by_tick
+    tail = max(1, ticks // 10)  # the rate at the end: the last tenth of the run
+    end_rate = (by_tick[-1] - (by_tick[-tail - 1] if ticks > tail else 0)) / tail if ticks else 0.0
+    early = ticks < full
+    tick = result.tick
+    later = Timing(tick.seconds[1:])
+    row: dict[str, Any] = {
+        "instance": result.name,
+        "agents": result.agents,
+        "ticks": ticks,
+        "of_ticks": full,
+        "tasks_finished": done,
+        "best_in_competition": best,
+        "ratio_to_best": done / best if best else None,
+        **{f"finished_by_{t}": by_tick[t - 1] for t in CHECKPOINTS if t <= ticks},
+        "tasks_per_tick_at_end": end_rate,
+        # Stopped early: what the run would finish at the rate so far, and at its rate at the end
+        # (projections, not measurements: congestion and the pool change over a run).
+        "projected_linear": done * full / ticks if early and ticks else None,
+        "projected_linear_ratio": done * full / ticks / best if early and ticks and best else None,
+        "projected_end_rate": done + end_rate * (full - ticks) if early else None,
+        "first_tick_s": result.setup_s + (tick.seconds[0] if tick.seconds else 0.0),
+        "tick_ms_mean": later.mean_ms,
+        "tick_ms_p99": later.p99_ms,
+        "tick_ms_max": later.max_ms,
+        "planner_ms_p50": Timing(result.timing.seconds[1:]).median_ms,
+        "scheduler_ms_p50": Timing(result.scheduling.seconds[1:]).median_ms,
+        "fields_computed": result.fields_computed,
+        "peak_rss_mb": rss_mb,
+        "competition_model": instance.action_model,
+        "violations": result.violations,
+    }
+    return row
 
 
 def _oneshot(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -248,6 +333,8 @@ def _print_tables(report: dict[str, list[dict[str, Any]]]) -> None:
         "oneshot": "one-shot MAPF, Moving AI scenario (sum of costs over the no-other-agents bound)",
         "scale": "scale: pick-and-deliver jobs on a large map, allocated by the coordinator's "
         "allocator (first tick: every pick face's and station's distance field)",
+        "instance": "lifelong instance files under their own rule (tick: planner and "
+        "scheduler; projected_*: projections to the full horizon, not measured)",
     }
     for suite, rows in report.items():
         print(f"\n{titles[suite]}")

@@ -21,9 +21,12 @@ from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
 from gridfleet.coordinator.planner import AgentSpec, Planner
 from gridfleet.coordinator.validate import validate_step
 from gridfleet.grid import Cell, GridMap
-from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency, fields_that_fit
 
 Clock = Callable[[], float]
+ALLOCATE_AT_MOST = 256  # idle agents paired in one assignment (it is cubic in this)
+OFFER_AT_MOST = 1024  # open tasks offered to one assignment as they are; more: the nearest...
+OFFER_EACH = 2  # ...this many for each agent of the batch
 
 
 class StepPlanner(Protocol):
@@ -77,6 +80,16 @@ class LifelongResult:
     exhausted_at: int | None  # tick at which the task stream ran out, if it did
     violations: int
     timing: Timing
+    scheduling: Timing = Timing(())  # the scheduler's share of each tick (MR24: the allocator)
+    setup_s: float = 0.0  # planner and task pool made, the first tasks given out
+    finished_by_tick: tuple[int, ...] = ()  # tasks finished by the end of each tick
+    fields_computed: int = 0  # distance fields computed (beyond distinct targets: thrashing)
+
+    @property
+    def tick(self) -> Timing:
+        """Planner and scheduler together, every tick."""
+        both = zip(self.timing.seconds, self.scheduling.seconds, strict=False)
+        return Timing(tuple(p + a for p, a in both))
 
 
 @dataclass(frozen=True)
@@ -120,26 +133,43 @@ def run_lifelong(
     seed: int = 0,
     clock: Clock = time.perf_counter,
     planner: StepPlanner | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> LifelongResult:
     """Run `instance` for `horizon` ticks (default: its own); an idle agent is given a task.
 
-    How is the instance's rule: MR23's stream (`_Stream`) or MR24's pool (`_Pool`)."""
+    How is the instance's rule: MR23's stream (`_Stream`) or MR24's pool (`_Pool`). `progress`
+    is told (tick, tasks finished) after every tick."""
     ticks = instance.horizon if horizon is None else horizon
     names = [str(i) for i in range(instance.agents)]
     position = dict(zip(names, instance.starts, strict=True))
     errands: dict[str, list[Cell]] = {a: [] for a in names}
+    began = clock()
+    if planner is None:
+        # Room for every distinct target the run can meet (and a parking square an agent),
+        # within the fields' memory bound: a cache smaller than the targets of one tick
+        # computes them all again every tick.
+        targets = len({c for task in instance.tasks for c in task})
+        size = fields_that_fit(instance.grid, targets + instance.agents)
+        planner = Planner(instance.grid, seed=seed, cache_size=size)
+    cache = getattr(planner, "cache", None)  # the planner's own fields: one copy, not two
+    if not isinstance(cache, DistanceFieldCache):
+        cache = DistanceFieldCache(instance.grid)
     tasks: _Stream | _Pool = (
         _Stream(instance.tasks)
         if instance.open_tasks is None
-        else _Pool(instance.tasks, instance.open_tasks, DistanceFieldCache(instance.grid))
+        else _Pool(instance.tasks, instance.open_tasks, cache)
     )
     tasks.give(names, position, errands)
+    setup_s = clock() - began
     finished = 0
+    finished_by_tick: list[int] = []
+    scheduling: list[float] = []
     exhausted_at: int | None = None
-    checked = CheckedPlanner(planner or Planner(instance.grid, seed=seed), instance.grid, clock)
+    checked = CheckedPlanner(planner, instance.grid, clock)
     for tick in range(ticks):
         agents = {a: AgentSpec(position[a], errands[a][0] if errands[a] else None) for a in names}
         position = checked.step(agents)
+        began = clock()
         idle = []
         for a in names:
             if errands[a] and position[a] == errands[a][0]:
@@ -149,8 +179,12 @@ def run_lifelong(
                     tasks.reveal()
                     idle.append(a)
         tasks.give(idle, position, errands)
+        scheduling.append(clock() - began)
+        finished_by_tick.append(finished)
         if exhausted_at is None and any(not errands[a] for a in idle):
             exhausted_at = tick  # an agent done with its task found none left
+        if progress is not None:
+            progress(tick, finished)
     return LifelongResult(
         name=instance.name,
         agents=instance.agents,
@@ -160,6 +194,10 @@ def run_lifelong(
         exhausted_at=exhausted_at,
         violations=checked.violations,
         timing=Timing(tuple(checked.seconds)),
+        scheduling=Timing(tuple(scheduling)),
+        setup_s=setup_s,
+        finished_by_tick=tuple(finished_by_tick),
+        fields_computed=cache.computed,
     )
 
 
@@ -185,35 +223,83 @@ class _Stream:
 
 class _Pool:
     """MR24's rule: `open` tasks known at the start and one more each time one is finished; the
-    coordinator's allocator gives known tasks to idle agents (least travel to the first errand)."""
+    coordinator's allocator gives known tasks to idle agents (least travel to the first errand,
+    then on to the last). A task given out stays with its agent until done. As in the
+    competition's simulator, the task file is gone through again when it runs out (task k is
+    the file's k mod its length)."""
 
     def __init__(
         self, tasks: Sequence[tuple[Cell, ...]], open_tasks: int, cache: DistanceFieldCache
     ) -> None:
         self._tasks = tasks
-        self._open = list(range(min(open_tasks, len(tasks))))
+        self._open = dict.fromkeys(range(min(open_tasks, len(tasks))))  # in reveal order
         self._next = len(self._open)
         self._cache = cache
+        self._carry: dict[int, int] = {}  # the file's task -> travel from first to last errand
+
+    def task(self, k: int) -> tuple[Cell, ...]:
+        """The errands of the `k`th task revealed."""
+        return self._tasks[k % len(self._tasks)]
 
     def give(
         self, idle: list[str], position: dict[str, Cell], errands: dict[str, list[Cell]]
     ) -> None:
         """Known tasks to the `idle` agents, as the allocator pairs them."""
-        if not idle or not self._open:
-            return
-        units = [UnitSlot(a, position[a], 1.0) for a in idle]
-        jobs = [JobRequest(str(k), self._tasks[k][0], self._tasks[k][-1], 0.0) for k in self._open]
-        pairs = allocate(self._cache, units, jobs)
-        for job, agent in pairs.items():
-            errands[agent] = list(self._tasks[int(job)])
-        taken = {int(job) for job in pairs}
-        self._open = [k for k in self._open if k not in taken]
+        # The assignment is cubic: a fleet's worth of idle agents (every one, at the start) is
+        # paired a batch at a time, each batch offered the tasks nearest its agents.
+        for start in range(0, len(idle), ALLOCATE_AT_MOST):
+            if not self._open:
+                return
+            batch = idle[start : start + ALLOCATE_AT_MOST]
+            offered = list(self._open) if len(self._open) <= OFFER_AT_MOST else None
+            if offered is None:
+                offered = self._nearest(batch, position)
+            units = [UnitSlot(a, position[a], 1.0) for a in batch]
+            jobs = [JobRequest(str(k), self.task(k)[0], self.task(k)[-1], 0.0) for k in offered]
+            pairs = allocate(self._cache, units, jobs)
+            for job, agent in pairs.items():
+                errands[agent] = list(self.task(int(job)))
+                del self._open[int(job)]
+
+    def _nearest(self, batch: list[str], position: dict[str, Cell]) -> list[int]:
+        """Open tasks to offer `batch`: for each agent in turn, the OFFER_EACH not yet offered
+        whose first errands are nearest it (shortest onward travel first among equals)."""
+        by_first: dict[Cell, list[int]] = {}
+        for k in self._open:
+            by_first.setdefault(self.task(k)[0], []).append(k)
+        cache, w = self._cache, self._cache.grid.width
+        for ks in by_first.values():
+            ks.sort(key=self._carry_of)
+        firsts = list(by_first)
+        at = np.array([position[a].y * w + position[a].x for a in batch], dtype=np.intp)
+        # Few squares are first errands (a warehouse's pick faces), so one row per square.
+        near = np.stack([cache.distances(c, at) for c in firsts]).argsort(axis=0, kind="stable")
+        taken = dict.fromkeys(range(len(firsts)), 0)  # how many of each square's tasks offered
+        offered: list[int] = []
+        for col in range(len(batch)):
+            want = OFFER_EACH
+            for row in near[:, col].tolist():
+                ks = by_first[firsts[row]]
+                got = ks[taken[row] : taken[row] + want]
+                taken[row] += len(got)
+                offered.extend(got)
+                want -= len(got)
+                if want == 0:
+                    break
+        return offered
+
+    def _carry_of(self, k: int) -> int:
+        n = k % len(self._tasks)
+        carry = self._carry.get(n)
+        if carry is None:
+            first, last = self._tasks[n][0], self._tasks[n][-1]
+            carry = self._carry[n] = self._cache.distance(last, first)  # the first's field
+        return carry
 
     def reveal(self) -> None:
-        """One more task of the stream becomes known."""
-        if self._next < len(self._tasks):
-            self._open.append(self._next)
-            self._next += 1
+        """One more task becomes known (the file again from its start once it runs out)."""
+        self._open[self._next] = None
+        self._next += 1
 
 
 def run_one_shot(

@@ -45,7 +45,7 @@ def feasible(cache: DistanceFieldCache, unit: UnitSlot, job: JobRequest) -> int 
     to_pickup = cache.distance(unit.position, job.pickup)
     if to_pickup == UNREACHABLE:
         return None
-    carry = cache.distance(job.pickup, job.dropoff)
+    carry = cache.distance(job.dropoff, job.pickup)  # the pickup's field: see `allocate`
     if carry == UNREACHABLE:
         return None
     return to_pickup + carry
@@ -70,10 +70,12 @@ def allocate(
     at = np.array([u.position.y * grid.width + u.position.x for u in units]) * inside
     capacity = np.where(inside, [u.capacity_kg for u in units], -np.inf)  # off the map: none
     for r, job in enumerate(jobs):
-        carry = cache.distance(job.pickup, job.dropoff)
+        # Read off the pickup's field (the grid is undirected: the same length): jobs share a
+        # few pickups but rarely a dropoff, and a field per dropoff made thousands of BFS.
+        carry = cache.distance(job.dropoff, job.pickup)
         if carry == UNREACHABLE:
             continue
-        to_pickup = cache.get(job.pickup).reshape(-1)[at]
+        to_pickup = cache.distances(job.pickup, at)
         ok = (to_pickup != UNREACHABLE) & (capacity >= job.mass_kg)
         cost[r, ok] = to_pickup[ok] + carry - weight * job.priority
     # Imported here, as scipy is in gridfleet.paths (which says why).

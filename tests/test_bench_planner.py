@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.bench import anchors as bench_anchors
+from gridfleet.bench import runs as bench_runs
 from gridfleet.bench.anchors import (
     ANCHORS_ENV,
     LifelongInstance,
@@ -27,6 +28,7 @@ from gridfleet.bench.scale import run_scale
 from gridfleet.coordinator.planner import AgentSpec
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
+from gridfleet.paths import DistanceFieldCache
 
 CORRIDOR = GridMap.from_rows(["....."])
 BAY = GridMap.from_rows([".....", "@@.@@"])  # a corridor with one passing bay
@@ -190,7 +192,59 @@ def test_a_pool_of_known_tasks_goes_to_the_nearest_agents_and_refills_as_tasks_f
     assert run_lifelong(streamed).tasks_finished == 0  # 4 squares to the first errand
     # Task 1 (1 tick), then task 2, revealed meanwhile, (1 tick back) before the far task 0.
     assert run_lifelong(pooled).tasks_finished == 2
-    assert run_lifelong(replace(pooled, horizon=20)).exhausted_at == 5
+    # As the competition's simulator, the pool goes through the task file again: never runs out.
+    again = run_lifelong(replace(pooled, horizon=20))
+    assert again.exhausted_at is None and again.tasks_finished > len(tasks)
+    assert again.finished_by_tick[2] == 2 and again.finished_by_tick[-1] == again.tasks_finished
+
+
+def test_the_pool_gives_a_fleet_its_tasks_a_batch_at_a_time_each_task_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Small batches and offers stand in for 10,000 agents and 15,000 open tasks.
+    monkeypatch.setattr(bench_runs, "ALLOCATE_AT_MOST", 2)
+    monkeypatch.setattr(bench_runs, "OFFER_AT_MOST", 3)
+    monkeypatch.setattr(bench_runs, "OFFER_EACH", 1)
+    grid = GridMap.from_rows(["." * 8] * 4)
+    tasks = tuple((Cell(x, y), Cell(7 - x, 3 - y)) for y in range(2) for x in range(0, 8, 2))
+    pool = bench_runs._Pool(tasks, 8, DistanceFieldCache(grid))
+    names = [str(i) for i in range(5)]
+    position = {a: Cell(int(a), 3) for a in names}
+    errands: dict[str, list[Cell]] = {a: [] for a in names}
+    errands["4"] = [Cell(0, 0)]  # busy: a task once given out stays with its agent
+    pool.give(names[:4], position, errands)
+    given = [tuple(errands[a]) for a in names[:4]]
+    assert all(given) and len(set(given)) == 4 and errands["4"] == [Cell(0, 0)]
+    assert all(position[a].manhattan(errands[a][0]) <= 3 for a in names[:4])  # the near ones
+    inst = LifelongInstance("pool", grid, tuple(position.values()), tasks, 60, open_tasks=6)
+    result = run_lifelong(inst)
+    assert result.violations == 0 and result.tasks_finished > len(tasks)  # round the file again
+
+
+def test_an_instance_file_runs_by_path_under_mr24_rules(tmp_path: Path) -> None:
+    anchors = write_anchors(tmp_path)
+    (tmp_path / "instances-10k").mkdir()
+    path = tmp_path / "instances-10k" / "MR24-TINY.json"
+    tasks = [[[0, 5], [2, 0]], [[2, 5], [0, 0]], [[0, 3], [2, 2]], [[2, 4], [0, 1]]]
+    mr24 = {
+        "map": "tiny.map", "team_size": 2, "horizon": 200, "starts": [[0, 0], [2, 5]],
+        "tasks": tasks, "task_reveal_t": [0, 0, 0, 1], "best_tasks_finished": 10,
+        "action_model": "MAPF_T",
+    }  # fmt: skip
+    path.write_text(json.dumps(mr24))
+    out = bench("--instance", str(path), "--horizon", "50", "--json")
+    assert out.returncode == 0, out.stderr
+    (row,) = json.loads(out.stdout)["instance"]
+    assert row["instance"] == "MR24-TINY" and (row["ticks"], row["of_ticks"]) == (50, 200)
+    assert row["violations"] == 0 and row["tasks_finished"] >= 3 and row["best_in_competition"]
+    assert row["ratio_to_best"] == row["tasks_finished"] / 10
+    assert row["projected_linear"] == row["tasks_finished"] * 4  # stopped at a quarter
+    assert row["first_tick_s"] > 0 and row["peak_rss_mb"] > 0 and row["tick_ms_p99"] > 0
+    whole = bench("--instance", str(path), "--anchors", str(anchors), "--json")
+    (row,) = json.loads(whole.stdout)["instance"]
+    assert row["ticks"] == 200 and "finished_by_1000" not in row  # checkpoints within the run
+    assert row["projected_linear"] is None and row["violations"] == 0
+    assert "tasks_finished" in bench("--instance", str(path), "--horizon", "5").stdout
 
 
 def test_an_instance_with_reveal_times_keeps_as_many_tasks_known_as_it_starts_with(
