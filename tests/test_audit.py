@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
+import secrets
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -101,7 +102,11 @@ def peer(url: str, accounts: Accounts, account: str, name: str) -> Iterator[Oper
 
 def audit(url: str, accounts: Accounts, account: str = "operator") -> list[AuditEntry]:
     """The whole trail of the last hour, read as `account` over the protocol."""
-    client = AuditClient(login(url, accounts, account), T, "audit-test", timeout=10.0)
+    # A client id of its own each time: polling with one id, a new connection took the id from
+    # the previous one as it closed, and the broker dropped one of them (CI: not connected).
+    client = AuditClient(
+        login(url, accounts, account), T, f"audit-test-{secrets.token_hex(3)}", timeout=10.0
+    )
     since = datetime.now(UTC) - timedelta(hours=1)
     return asyncio.run(client.entries(since, None, None))
 
