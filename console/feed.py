@@ -18,11 +18,11 @@ from pathlib import Path
 from gridfleet.config import check_step
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError
-from gridfleet.grid import Cell
 from gridfleet.options import add_common, broker_url
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import JobSpec, Scenario, load_scenario
+from gridfleet.squares import Cell
 from gridfleet.tasks import stop_on_signals, until_stopped
 
 DEMO_KEEP_MIN = 6  # jobs the demo keeps queued at least (by default one per unit)

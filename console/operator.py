@@ -21,7 +21,6 @@ from gridfleet.bus import make_client
 from gridfleet.config import owned_client_id, parse_broker_url
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
-from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
@@ -46,6 +45,7 @@ from gridfleet.protocol import (
 from gridfleet.protocol.codec import describe
 from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+from gridfleet.squares import Cell
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.operator")

@@ -10,8 +10,8 @@ from typing import Any, TypeVar, overload
 
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.config import DEFAULT_MQTT_URL, with_ca_file, with_credentials
-from gridfleet.grid import Cell
 from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_COORD
+from gridfleet.squares import Cell
 
 _N = TypeVar("_N")
 

@@ -261,3 +261,26 @@ def test_the_audit_hook_run_catches_a_socket(tmp_path: Path) -> None:
         timeout=120,
     )
     assert done.returncode == 1 and "I/O from a pure core: socket.__new__" in done.stderr
+
+
+# The commands a person types again and again start without numpy (a quarter of a second of
+# every start): the protocol's squares are plain tuples (gridfleet/squares.py), not the map's.
+QUICK_COMMANDS = (
+    "gridfleet.system.cli",
+    "gridfleet.console.job",
+    "gridfleet.console.status",
+    "gridfleet.console.audit",
+    "gridfleet.console.clean",
+)
+
+
+def test_the_quick_commands_start_without_numpy() -> None:
+    imports = "; ".join(f"import {m}" for m in QUICK_COMMANDS)
+    done = subprocess.run(
+        [sys.executable, "-c", f"{imports}; import sys; print('numpy' in sys.modules)"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
+    assert (done.returncode, done.stdout.strip()) == (0, "False"), done.stderr[-2000:]

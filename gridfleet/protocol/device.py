@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from typing import Literal, get_args
 
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Direction
 from gridfleet.protocol.constants import (
     DIRECTION_NONE,
     ESTOP_ENGAGED,
@@ -17,6 +16,7 @@ from gridfleet.protocol.constants import (
     MAX_ESTOP_BYTES,
     MAX_ESTOP_REASON,
 )
+from gridfleet.squares import Direction
 
 _BY_RE = re.compile(ID_PATTERN)
 

@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
 
-from gridfleet.grid import Cell
 from gridfleet.protocol.constants import (
     ID_PATTERN,
     MAX_COORD,
@@ -16,6 +15,7 @@ from gridfleet.protocol.constants import (
     MAX_TEXT,
     PROTOCOL_VERSION,
 )
+from gridfleet.squares import Cell
 
 Id = Annotated[str, StringConstraints(pattern=ID_PATTERN)]
 Text = Annotated[str, StringConstraints(max_length=MAX_TEXT)]
