@@ -34,6 +34,36 @@ from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.robots.unit import Move, Sense, UnitLogic
 
 
+class Lateness:
+    """How much later than the most punctual order lately one arrives (protocol §4.4 rule 7).
+
+    The coordinator's and the unit's clocks need not agree: the least gap between an order's
+    header time and its arrival stands for their offset plus the link's delay, and an order is
+    late by how much its gap exceeds that. The least gap creeps up by `RELAX_S_PER_S` a second,
+    so a clock that slews (or a route that gets slower for good) is followed, while a queue that
+    piles up on a thin link, seconds a second, is not.
+    """
+
+    RELAX_S_PER_S = 0.05
+
+    def __init__(self) -> None:
+        self._least: float | None = None
+        self._at = 0.0
+
+    def reset(self) -> None:
+        """A new session or a new coordinator (another clock, perhaps): learn afresh."""
+        self._least = None
+
+    def late_by(self, gap_s: float, now: float) -> float:
+        """How late an order with this gap (arrival minus header time) is, in seconds."""
+        if self._least is None:
+            self._least = gap_s
+        else:
+            self._least = min(self._least + self.RELAX_S_PER_S * max(0.0, now - self._at), gap_s)
+        self._at = now
+        return gap_s - self._least
+
+
 class UnitCore:
     """A unit's decisions on the wire: inbound topics, connects and steps in; `Outbound`s out."""
 
@@ -58,6 +88,7 @@ class UnitCore:
         self._quiet_ticks = 0
         self.stop = StopView()  # the latch and the held presses, as this unit read them
         self.map_id = logic.grid.map_id()  # the static map, before any obstacle is found
+        self.lateness = Lateness()  # of orders, against this unit's own clock (its stamper's)
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
         """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
@@ -90,6 +121,7 @@ class UnitCore:
     def on_connect(self, now: float) -> list[Outbound]:
         """Connected and subscribed: `online`, the factsheet, then the state and direction."""
         self.logic.on_connect(now)
+        self.lateness.reset()  # a new session: whatever piled up on the old one is gone
         self._sent_direction = None  # a new connection: say the direction again
         factsheet = Factsheet(
             header=self.stamp("factsheet"),
@@ -139,6 +171,8 @@ class UnitCore:
                 status = decode(CoordinatorStatus, payload)
             except ProtocolError:
                 return []  # the coordinator's own problem; nothing for a unit to change
+            if status.header.seq == 0:
+                self.lateness.reset()  # a coordinator (re)started: its clock may be another's
             self.logic.on_coordinator(status.step_period_s)
         return []
 
@@ -158,6 +192,16 @@ class UnitCore:
             order = decode(Order, payload, TOPICS["order"].max_bytes)
         except ProtocolError as exc:
             return self._refused(topic, "bad_order", str(exc))
+        gap = (self.stamp.now() - order.header.timestamp).total_seconds()
+        late = self.lateness.late_by(gap, now)
+        if self.logic.mode == "coordinated" and late > self.logic.hold_timeout_s:
+            # Later than no order at all would have held it: the link is piling orders up, and
+            # the stop may be queued behind them. Told once, on `errors`, till orders are on time.
+            first = self.logic.late_by_s is None
+            self.logic.on_late_order(late, now)
+            return (
+                [self._report(topic, self.logic.errors[-1].message), *self.state()] if first else []
+            )
         verdict = self.logic.on_order(order, now)
         if verdict.result == "refused":
             return [self._report(topic, verdict.reason or ""), *self.state()]

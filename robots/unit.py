@@ -94,6 +94,7 @@ class UnitLogic:
         self._started = 0.0
         self._last_order: float | None = None
         self._estop_wait_until: float | None = None
+        self.late_by_s: float | None = None  # how late the last order came, while that is too late
 
     # ---- what it follows ----------------------------------------------------------------------
 
@@ -146,6 +147,7 @@ class UnitLogic:
         """Take an order: stale ones change nothing, bad ones are refused with a `bad_order` error."""
         if self.mode != "coordinated":
             return Verdict("ignored")
+        self.late_by_s = None  # on time again: orders are driven
         verdict = self.orders.take(order, self.position)
         if verdict.result in ("accepted", "stale"):
             self._last_order = now  # even a repeated order shows the coordinator is there
@@ -154,6 +156,16 @@ class UnitLogic:
         if verdict.result != "stale":
             self._refresh(now)
         return verdict
+
+    def on_late_order(self, late_by_s: float, now: float) -> None:
+        """An order that came too late to drive (protocol §4.4 rule 7): drop what is left, hold."""
+        if self.mode != "coordinated":
+            return
+        if self.late_by_s is None:
+            self.error("late_order", f"orders come {late_by_s:.1f} s late: holding until on time")
+        self.late_by_s = late_by_s
+        self.orders.drop()
+        self._refresh(now)
 
     def on_goal(self, target: Cell | None, now: float) -> Verdict:
         """Set or clear the standalone goal; a goal off the map or on a wall is refused."""
@@ -280,6 +292,9 @@ class UnitLogic:
             if since > self.hold_timeout_s:
                 self.orders.drop()
                 return Intent(None, "holding", f"no order from the coordinator for {since:.1f} s")
+            if self.late_by_s is not None:
+                late = self.late_by_s
+                return Intent(None, "holding", f"orders come {late:.1f} s late; holding")
             self._act()
             return self.orders.next_move(self.position, self.sensors)
         return self.navigator.intent(self.position, self.sensors, self.step, waiting_counts)

@@ -237,7 +237,8 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
             "header": {
                 "version": "1.4",
                 "seq": 0,
-                "timestamp": "2026-11-23T00:00:00Z",
+                # Stamped now: an order stamped long ago is not driven at all (§4.4 rule 7).
+                "timestamp": datetime.now(UTC).isoformat(timespec="milliseconds"),
                 "sender": "coordinator",
             },
             "order_id": now.order_id,

@@ -6,6 +6,7 @@ and asserts the whole list it returns: topic, parsed payload, QoS and retain fla
 
 from __future__ import annotations
 
+from datetime import timedelta
 from typing import Any
 
 import pytest
@@ -14,6 +15,7 @@ from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CoordinatorStatus,
     Goal,
+    Header,
     Order,
     Topics,
     encode,
@@ -22,7 +24,7 @@ from gridfleet.protocol.messages import SensorReading
 from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import Mode, UnitLogic
 
-from support.effects import Published, header_json, published, stamper
+from support.effects import FIXED, Published, header, header_json, published, stamper
 
 ROOT = "gf/v1/"
 OPEN = (".....", ".....", ".....")
@@ -285,6 +287,63 @@ def test_a_stale_order_publishes_nothing_and_changes_nothing() -> None:
         stale = order_bytes("o1", update, [Cell(0, 0)])
         assert core.on_message(ROOT + "units/u1/order", stale, 0.3) == []
     assert core.logic.released == [Cell(1, 1)]
+
+
+def sent_before(seconds: float, oid: str, update: int, released: list[Cell]) -> bytes:
+    """An order whose header says it left the coordinator `seconds` before FIXED."""
+    stamped = Header(seq=0, timestamp=FIXED - timedelta(seconds=seconds), sender="coordinator")
+    return encode(Order(header=stamped, order_id=oid, update_id=update, released=released))
+
+
+def test_an_order_later_than_the_hold_time_is_not_driven_the_unit_holds_and_says_so_once() -> None:
+    # A thin link piles orders up (and the stop behind them): driving them would drive the past.
+    core = ready()  # its own clock says FIXED, as the punctual orders do
+    on_time = order_bytes("o1", 1, [Cell(1, 1)])
+    assert published(core.on_message(ROOT + "units/u1/order", on_time, 0.3), ROOT) == [
+        direction("E")
+    ]
+    late = sent_before(2.0, "o1", 2, [Cell(1, 1), Cell(2, 1)])
+    reason = "orders come 2.0 s late: holding until on time"
+    held = {
+        "status": "holding",
+        "wait_reason": "orders come 2.0 s late; holding",
+        "order_id": "o1",
+        "order_update_id": 1,
+        "errors": [{"code": "late_order", "message": reason}],
+    }
+    assert published(core.on_message(ROOT + "units/u1/order", late, 0.35), ROOT) == [
+        error(0, "units/u1/order", reason),
+        state(2, **held),
+        direction("-"),  # the LEDs no longer show a move
+    ]
+    later = sent_before(2.5, "o1", 3, [Cell(1, 1)])
+    assert core.on_message(ROOT + "units/u1/order", later, 0.4) == []  # told once
+    core.tick(lambda: FREE, refuse, 0.45)  # no move: the released square was dropped
+    assert (core.logic.position, core.logic.released) == (Cell(0, 1), [])
+    # On time again: driven again.
+    assert core.on_message(ROOT + "units/u1/order", order_bytes("o1", 4, [Cell(1, 1)]), 0.5)
+    core.tick(lambda: FREE, allow, 0.55)
+    assert (core.logic.position, core.logic.status) == (Cell(1, 1), "moving")
+
+
+def test_clocks_that_disagree_are_no_lateness_and_a_restarted_coordinator_is_learnt_afresh() -> (
+    None
+):
+    core = ready()
+    for update in (1, 2):  # the coordinator's clock an hour behind the unit's, steadily
+        behind = sent_before(3600.0, "o1", update, [Cell(1, 1)])
+        core.on_message(ROOT + "units/u1/order", behind, 0.3)
+        assert core.logic.late_by_s is None and core.logic.released == [Cell(1, 1)]
+    # A coordinator started afresh (its status from seq 0), on a host whose clock is right.
+    restarted = CoordinatorStatus(header=header("coordinator"), state="online", step_period_s=0.1)
+    assert core.on_message(ROOT + "coordinator/status", encode(restarted), 0.35) == []
+    core.on_message(ROOT + "units/u1/order", order_bytes("c2", 1, [Cell(1, 1)]), 0.4)
+    assert core.logic.late_by_s is None and core.logic.order_id == "c2"
+    # Without a restart, that same hour would have been lateness.
+    core = ready()
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1)]), 0.3)
+    core.on_message(ROOT + "units/u1/order", sent_before(3600.0, "o1", 2, [Cell(1, 1)]), 0.35)
+    assert core.logic.late_by_s == pytest.approx(3600.0, abs=0.01)
 
 
 def test_a_refused_order_is_reported_with_its_reason_and_in_the_state() -> None:
