@@ -24,6 +24,7 @@ import contextlib
 import json
 import os
 import random
+import shlex
 import shutil
 import signal
 import socket
@@ -45,6 +46,7 @@ from gridfleet.bench.soak_check import (
     FINAL,
     Disturbed,
     Event,
+    HallStop,
     Released,
     SoakLimits,
     SoakVerdict,
@@ -71,6 +73,7 @@ from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url, with_credentials
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
+from gridfleet.protocol.stop import stop_filters
 from gridfleet.system.assembly import SystemSpec, cli, start_broker_process
 from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 
@@ -78,6 +81,7 @@ RECOVERY_WAIT_S = 60.0  # a fault not recovered from within this is reported
 DEVICE = "soak-dev"
 STALL_S = 90.0  # no progress (start-up done, a fault injected) this long: say where it waits
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+MOSQUITTO_SUB = shutil.which("mosquitto_sub") or "/usr/bin/mosquitto_sub"
 HALL = "hall1"  # the hall broker's bridge account
 EXIT_WAIT_S = 15.0  # a process signalled to stop that is still running after this is a finding
 RELEASE_AGAIN_S = 5.0  # an operator whose release did not take releases again after this
@@ -132,6 +136,10 @@ class SoakResult:
             "faults": dict(sorted(self.faults.items())),
             "collisions": v.collisions,
             "moved_while_stopped": v.moved_while_stopped,
+            "moved_before_the_hall_had_the_stop": v.moved_before_the_hall_had_it,
+            "worst_stop_to_hall_s": (
+                None if v.worst_stop_to_hall_s is None else round(v.worst_stop_to_hall_s, 2)
+            ),
             "jobs_submitted": v.jobs_submitted,
             "jobs_done": v.jobs_done,
             "jobs_lost": v.jobs_lost,
@@ -153,6 +161,20 @@ class SoakResult:
             "ok": self.ok,
             "details": v.details + self.unrecovered,
         }
+
+
+def hall_stops(path: Path, topics: Topics) -> list[HallStop]:
+    """The stop as the hall's broker had it, from its watcher's lines (see `_start_hall`)."""
+    if not path.exists():
+        return []
+    watch = SoakListener("", topics, "hall-watch")
+    watch.settling = False
+    for line in path.read_text(encoding="utf-8", errors="replace").splitlines():
+        at, _, rest = line.partition(" ")
+        topic, _, payload = rest.partition(" ")
+        with contextlib.suppress(ValueError):
+            watch.take(topic, payload.encode(), float(at))
+    return [HallStop(e.t, e.engaged) for e in watch.events if isinstance(e, Stop)]
 
 
 def read_truth(path: Path) -> Iterator[Truth]:
@@ -196,6 +218,7 @@ class Soak:
         self.proxy: FaultyProxy | None = None
         self.listener: SoakListener | None = None
         self.truth = workdir / "truth.jsonl"
+        self.hall_watch = workdir / "hall-stop.txt"  # with `bridge`: the stop at the hall
         self.network = contextlib.ExitStack()  # the LAN, when cfg.network: removed at the end
         self.hosts: dict[str, Host] = {}
         self.detections: list[float] = []
@@ -297,6 +320,17 @@ class Soak:
         conf = mosquitto_conf(passwd, acl, host="127.0.0.1", port=port, ws_port=None) + bridge
         argv = self.hosts["hall"].command([MOSQUITTO, "-c", str(_conf_file(directory, conf))])
         self.children["hall"] = await self.sup.start(ChildSpec("hall", argv))
+        # What the hall's broker has of the stop, when: its units cannot know it sooner. One
+        # line a message, "<unix time> <topic> <payload>", read after the run (hall_stops).
+        operator = self.accounts.get("operator")
+        watch = [MOSQUITTO_SUB, "-h", "127.0.0.1", "-p", str(port), "-u", "operator"]
+        watch += ["-P", operator.password, "-i", self._client_id("hall-watch"), "-q", "1"]
+        watch += ["-F", "%U %t %p", "-k", "10"]
+        for topic, _ in stop_filters(self.topics):
+            watch += ["-t", topic]
+        script = f"exec {shlex.join(watch)} >> {shlex.quote(str(self.hall_watch))}"
+        argv = self.hosts["hall"].command(["sh", "-c", script])
+        self.children["hall-watch"] = await self.sup.start(ChildSpec("hall-watch", argv))
         return f"mqtt://127.0.0.1:{port}"  # the units wait for it: they retry until it listens
 
     def _login(self, account: str) -> str:
@@ -623,6 +657,8 @@ class Soak:
             file=self.log,
         )
         events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
+        if self.cfg.bridge:
+            events += hall_stops(self.hall_watch, self.topics)
         limits = SoakLimits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)
         return SoakResult(

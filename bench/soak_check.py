@@ -35,6 +35,14 @@ class Stop:
 
 
 @dataclass(frozen=True)
+class HallStop:
+    """The stop as a bridged hall's own broker had it (its units cannot know it sooner)."""
+
+    t: float
+    engaged: bool
+
+
+@dataclass(frozen=True)
 class Released:
     """The soak's operator published a release (the first, or one given again)."""
 
@@ -68,7 +76,7 @@ class Disturbed:
     end: float
 
 
-Event = Truth | Stop | Released | JobSeen | StateSeen | Disturbed
+Event = Truth | Stop | HallStop | Released | JobSeen | StateSeen | Disturbed
 
 
 @dataclass(frozen=True)
@@ -92,6 +100,10 @@ class SoakVerdict:
     jobs_duplicated: int = 0
     units_stranded: int = 0
     details: list[str] = field(default_factory=list)
+    # With a bridged hall: moves after the central broker had the stop but before the hall's
+    # broker did (the bridge's delay; told, not a failure), and the worst such delay.
+    moved_before_the_hall_had_it: int = 0
+    worst_stop_to_hall_s: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -113,7 +125,21 @@ def check(events: Iterable[Event], limits: SoakLimits) -> SoakVerdict:
     verdict.collisions = _collisions(truths, verdict.details)
     releases = [e.t for e in ordered if isinstance(e, Released)]
     stops = _stop_windows([e for e in ordered if isinstance(e, Stop)], releases)
-    verdict.moved_while_stopped = _moved_while_stopped(truths, stops, limits, verdict.details)
+    hall = [e for e in ordered if isinstance(e, HallStop)]
+    if hall:
+        # A hall's units are stopped from when its broker has the stop: nothing reaches them
+        # sooner. What moved before that is the bridge's delay, counted apart.
+        had = _stop_windows([Stop(e.t, e.engaged) for e in hall], releases)
+        known = _overlaps(stops, had)
+        verdict.moved_while_stopped = _moved_while_stopped(truths, known, limits, verdict.details)
+        # From each stop seen centrally to the hall's having it (its window ending after it).
+        reached = [(s, min((h for h, end in had if end > s), default=e)) for s, e in stops]
+        early = [(s, min(h, e)) for (s, e), (_, h) in zip(stops, reached, strict=True) if h > s]
+        verdict.moved_before_the_hall_had_it = _moved_while_stopped(truths, early, limits, [])
+        delays = [max(0.0, h - s) for s, h in reached if h != float("inf")]
+        verdict.worst_stop_to_hall_s = max(delays, default=None)
+    else:
+        verdict.moved_while_stopped = _moved_while_stopped(truths, stops, limits, verdict.details)
     _jobs([e for e in ordered if isinstance(e, JobSeen)], verdict)
     quiet = [(d.start, d.end) for d in ordered if isinstance(d, Disturbed)] + stops
     states = [e for e in ordered if isinstance(e, StateSeen)]
@@ -155,6 +181,17 @@ def _stop_windows(stops: Sequence[Stop], releases: Sequence[float]) -> list[tupl
     if since is not None:
         windows.append((since, float("inf")))
     return windows
+
+
+def _overlaps(
+    a: Sequence[tuple[float, float]], b: Sequence[tuple[float, float]]
+) -> list[tuple[float, float]]:
+    """Where windows of `a` and of `b` overlap."""
+    return [
+        (max(s1, s2), min(e1, e2))
+        for (s1, e1), (s2, e2) in itertools.product(a, b)
+        if max(s1, s2) < min(e1, e2)
+    ]
 
 
 def _moved_while_stopped(

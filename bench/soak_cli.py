@@ -122,6 +122,11 @@ def print_result(result: SoakResult) -> None:
         "jobs_duplicated", "units_stranded", "faults_unrecovered", "max_recovery_s",
     ):  # fmt: skip
         print(f"  {key:<20} {out[key]}")
+    if out["worst_stop_to_hall_s"] is not None:  # --bridge: the stop across the bridge
+        print(
+            f"  the stop reached the hall's broker {out['worst_stop_to_hall_s']} s late at worst;"
+        )
+        print(f"  moves before it had it: {out['moved_before_the_hall_had_the_stop']}")
     for line in out["details"]:
         print(f"  ! {line}")
     print("OK" if result.ok else "FAILED")

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
+from gridfleet.bench.soak import hall_stops
 from gridfleet.bench.soak_check import (
     Disturbed,
     Event,
+    HallStop,
     JobSeen,
     Released,
     SoakLimits,
@@ -13,6 +17,7 @@ from gridfleet.bench.soak_check import (
     Truth,
     check,
 )
+from gridfleet.protocol import Topics
 
 LIMITS = SoakLimits(step_s=0.1, stranded_s=5.0)
 HOME = {"u1": (0, 0), "u2": (5, 5)}
@@ -105,6 +110,19 @@ def test_a_move_before_a_release_given_again_fails() -> None:
     assert "moved [0, 0] -> [1, 0] at 3.00" in verdict.details[0]
 
 
+def test_a_bridged_halls_units_are_judged_from_when_its_broker_had_the_stop() -> None:
+    # Central stop at 1.0; the hall's broker had it at 1.8 (a thin bridge): a move at 1.5 is the
+    # bridge's delay, told apart; a move at 2.5, once the hall had it, fails.
+    before = [truth(0.0), Stop(1.0, True), HallStop(1.8, True), truth(1.3), truth(1.5, u1=(1, 0))]
+    after = [truth(1.9, u1=(1, 0)), truth(2.2, u1=(1, 0)), Stop(4.0, False), HallStop(4.2, False)]
+    verdict = check([*before, *after], LIMITS)
+    assert (verdict.moved_while_stopped, verdict.moved_before_the_hall_had_it) == (0, 1)
+    assert verdict.ok and verdict.worst_stop_to_hall_s == 0.8
+    late = check([*before, *after, truth(2.5, u1=(2, 0))], LIMITS)
+    assert (late.moved_while_stopped, late.moved_before_the_hall_had_it) == (1, 1)
+    assert not late.ok and "u1 moved [1, 0] -> [2, 0] at 2.50" in late.details[0]
+
+
 def test_a_lost_job_fails() -> None:
     events = [*clean(), JobSeen(1.0, "j3", "queued"), JobSeen(2.0, "j3", "to_pickup")]
     verdict = check(events, LIMITS)
@@ -144,3 +162,20 @@ def test_standing_still_through_faults_and_stops_is_not_stranded() -> None:
 def test_an_idle_unit_standing_still_is_not_stranded() -> None:
     events = [*clean(), *(StateSeen(4.0 + n, "u2", (5, 5), False) for n in range(20))]
     assert check(events, LIMITS).units_stranded == 0
+
+
+def test_the_hall_watchers_lines_give_the_stop_as_the_hall_had_it(tmp_path: Path) -> None:
+    # mosquitto_sub -F '%U %t %p' in the hall: a press held, the latch, both gone; junk skipped.
+    t = Topics("soak")
+    lines = [
+        f"100.5 {t.fleet('estop')} released|operator|soak",
+        f"101.0 {t.device('device_stop', 'dev1')} engaged|dev1|button",
+        "not a line",
+        f"102.0 {t.fleet('estop')} engaged|operator|soak",
+        f"103.0 {t.device('device_stop', 'dev1')} ",  # the press cleared (empty, retained)
+        f"104.0 {t.fleet('estop')} released|operator|soak",
+    ]
+    watched = tmp_path / "hall-stop.txt"
+    watched.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    assert hall_stops(watched, t) == [HallStop(101.0, True), HallStop(104.0, False)]
+    assert hall_stops(tmp_path / "none.txt", t) == []
