@@ -59,6 +59,14 @@ SEVERITY: dict[AlertRule, AlertSeverity] = {
     "coordinator_down": "critical",
     "broker_down": "critical",
 }
+# A restarted alerts process takes over the alerts in force from the retained view: each stays as
+# it was (its id, its acknowledgement) while its condition can still be found again, which takes
+# the rule's threshold (its clock starts when the new process first hears the subject) and the
+# retained messages' arrival; found again, it is adopted, with no second notice; not, it clears.
+ADOPT_SLACK_S = 10.0
+# Until the last run's view is read, or this long after the first connect (there was none), this
+# run publishes no view of its own: it would replace the retained one before it arrived.
+INHERIT_WAIT_S = 2.0
 # Roles whose accounts may acknowledge an alert: the people who may change the fleet.
 ACK_ROLES = frozenset({"operator", "dashboard"})
 STILL = ("waiting", "holding")  # a unit in one of these, on one square, is not getting on
@@ -134,6 +142,9 @@ class AlertsCore:
         self._status_at = now  # no status yet: the coordinator counts as down from the start
         self._online = False  # the broker connection, as the shell reports it
         self._offline_since: float | None = now
+        self._adopting: dict[Key, float] = {}  # alerts taken over from the last run -> until when
+        self._inheriting = True  # until the last run's view is read (or INHERIT_WAIT_S passed)
+        self._inherit_until: float | None = None  # set at the first connect
 
     # ---- what the shell calls -----------------------------------------------------------
 
@@ -147,6 +158,7 @@ class AlertsCore:
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),
             *stop_filters(t),
             (t.request("ack_alert"), TOPICS["ack_alert"].qos),
+            (t.fleet("alerts"), TOPICS["alerts"].qos),  # the last run's view, to take over
         ]
 
     def connected(self, now: float) -> Effects:
@@ -157,6 +169,8 @@ class AlertsCore:
         for unit in self._units.values():
             unit.heard_at = max(unit.heard_at, now)
         self._status_at = max(self._status_at, now)
+        if self._inherit_until is None:
+            self._inherit_until = now + INHERIT_WAIT_S
         return self._evaluate(now, view=True)
 
     def disconnected(self, now: float) -> Effects:
@@ -168,6 +182,10 @@ class AlertsCore:
 
     def tick(self, now: float) -> Effects:
         """Raise what has lasted its threshold, clear what has ended."""
+        waited = self._inherit_until is not None and now >= self._inherit_until
+        if self._inheriting and waited:
+            self._inheriting = False  # no view was retained: nothing to take over
+            return self._evaluate(now, view=True)
         return self._evaluate(now)
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
@@ -179,6 +197,11 @@ class AlertsCore:
         try:
             if kind == "ack_alert":
                 return self._on_ack(topic, payload, now)
+            if kind == "alerts":
+                view = decode(AlertsView, payload, TOPICS["alerts"].max_bytes)
+                was = self._inheriting
+                self._inherit(view, now)
+                return self._evaluate(now, view=was and not self._inheriting)
             self._read(kind, ident, topic, payload, now)
         except ProtocolError as exc:
             return Effects(
@@ -187,6 +210,11 @@ class AlertsCore:
             )
         return self._evaluate(now)
 
+    @property
+    def settled(self) -> bool:
+        """The last run's view read (or waited for) and each of its alerts kept or cleared."""
+        return not self._inheriting and not self._adopting
+
     def view(self) -> Outbound:
         """The retained view: the alerts in force, oldest first, and the latest cleared."""
         active = list(self.active.values())[:MAX_ACTIVE_ALERTS]
@@ -194,6 +222,34 @@ class AlertsCore:
         return Outbound.of("alerts", self.topics.fleet("alerts"), view)
 
     # ---- reading --------------------------------------------------------------------------
+
+    def _inherit(self, view: AlertsView, now: float) -> None:
+        """Take over the alerts of the last run's retained view."""
+        mine = f"{self.nonce}-"
+        if not self._inheriting or any(a.id.startswith(mine) for a in view.active):
+            return  # our own view, come back
+        self._inheriting = False
+        for alert in view.active:
+            key = (alert.rule, alert.subject)
+            if key not in self.active:
+                self.active[key] = alert
+                self._adopting[key] = now + self._threshold(alert.rule) + ADOPT_SLACK_S
+        known = {a.id for a in self.cleared}
+        inherited = [a for a in view.cleared if a.id not in known]
+        self.cleared = sorted(
+            [*self.cleared, *inherited], key=lambda a: a.cleared_at or a.raised_at, reverse=True
+        )[:CLEARED_ALERTS_LISTED]
+
+    def _threshold(self, rule: AlertRule) -> float:
+        """How long a condition of `rule` takes to be found, heard from its start."""
+        s = self.settings
+        seconds = {
+            "unit_lost": s.unit_lost_s,
+            "unit_stuck": s.unit_stuck_s,
+            "job_queued": s.job_queued_s,
+            "coordinator_down": s.coordinator_down_s,
+        }.get(rule)
+        return seconds or 0.0
 
     def _read(self, kind: str, ident: str | None, topic: str, payload: bytes, now: float) -> None:
         if kind == "state" and ident is not None:
@@ -299,7 +355,12 @@ class AlertsCore:
         out = Effects()
         found = self._conditions(now)
         at = self.stamp.now()
-        for key in [k for k in self.active if k not in found]:
+        for key in [k for k in self._adopting if k in found and self._online]:
+            del self._adopting[key]  # the last run's alert holds still: ours now, told once
+            out.log.append((logging.INFO, f"alert {self.active[key].id} taken over"))
+        waiting = {k for k, until in self._adopting.items() if now < until}
+        for key in [k for k in self.active if k not in found and k not in waiting]:
+            self._adopting.pop(key, None)
             alert = self.active.pop(key).model_copy(update={"cleared_at": at})
             self.cleared = [alert, *self.cleared][:CLEARED_ALERTS_LISTED]
             self.cleared_total[alert.rule] += 1
@@ -322,7 +383,7 @@ class AlertsCore:
             self.raised_total[rule] += 1
             out.notices.append(self._notice("raised", alert, at))
             out.log.append((logging.WARNING, f"alert {alert.id} raised: {text}"))
-        if (view or out.notices) and self._online:
+        if (view or out.notices) and self._online and not self._inheriting:
             out.publish.append(self.view())
         return out
 

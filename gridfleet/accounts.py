@@ -428,6 +428,7 @@ def rules(account: Account, topics: Topics) -> Rules:
             *presses,
             t.fleet("estop"),
             t.request("ack_alert"),
+            t.fleet("alerts"),  # its own view: a restarted process takes over what it says
         ]
     elif account.role == "viewer":
         publish = []  # reads everything, changes nothing

@@ -28,7 +28,7 @@ from gridfleet.protocol import (
     decode,
     encode,
 )
-from gridfleet.protocol.messages import AckAlert, AlertsView, ErrorReport
+from gridfleet.protocol.messages import AckAlert, AlertEntry, AlertsView, ErrorReport
 
 T = Topics("site")
 T0 = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
@@ -61,12 +61,17 @@ def at(s: float) -> datetime:
 class Rig:
     """A core with a coordinator online and the broker connected at t=0, and its clock."""
 
-    def __init__(self, settings: AlertSettings = SETTINGS, **kw: Any) -> None:
+    def __init__(
+        self, settings: AlertSettings = SETTINGS, *, retained: bool = True, **kw: Any
+    ) -> None:
         self.clock = Clock()
         self.core = AlertsCore(
             T, settings, HeaderStamper("alerts", self.clock), nonce="n1", now=0.0, **kw
         )
         self.connected = self.core.connected(0.0)
+        if retained:  # the view a last run left, with nothing in force: read, ours goes out
+            empty = AlertsView(header=HeaderStamper("alerts")("alerts"), active=[])
+            self.connected = self.send(0.0, T.fleet("alerts"), encode(empty))
         self.send(0.0, T.fleet("coordinator"), status("online"))
 
     def send(self, s: float, topic: str, payload: bytes) -> Effects:
@@ -563,6 +568,81 @@ def test_a_bad_config_file_names_the_file(tmp_path: Path) -> None:
     config.write_text("alerts = 3\n", encoding="utf-8")
     with pytest.raises(ConfigError, match=r"\[alerts\] must be a table"):
         load_settings(config)
+
+
+# ---- a restart -------------------------------------------------------------------------------
+
+
+def last_runs_view() -> bytes:
+    """What a stopped alerts process left retained: unit1 lost (acknowledged), unit2 lost."""
+
+    def lost(n: int, unit: str, acked: str | None) -> AlertEntry:
+        return AlertEntry(
+            id=f"old-{n}",
+            rule="unit_lost",
+            subject=unit,
+            severity="critical",
+            text=f"unit {unit} lost: its connection broke, nothing heard for 31 s",
+            raised_at=at(-100),
+            acked_by=acked,
+            acked_at=at(-90) if acked else None,
+        )
+
+    gone = lost(0, "unit3", None).model_copy(update={"cleared_at": at(-95)})
+    view = AlertsView(
+        header=HeaderStamper("alerts")("alerts"),
+        active=[lost(1, "unit1", "operator"), lost(2, "unit2", None)],
+        cleared=[gone],
+    )
+    return encode(view)
+
+
+def test_a_restarted_alerts_process_takes_over_what_still_holds_and_clears_what_does_not() -> None:
+    # As found: a restart raised every alert still in force again under a new id, and the
+    # people on call were paged twice for one lost unit.
+    rig = Rig(retained=False)
+    rig.send(0.1, T.unit("connection", "unit1"), connection("unit1", "broken"))  # retained
+    rig.state(0.1, "unit2", (1, 1))
+    rig.send(0.1, T.unit("connection", "unit2"), connection("unit2", "online"))
+    taken = rig.send(0.2, T.fleet("alerts"), last_runs_view())
+    assert notices(taken) == []  # nothing raised, nothing cleared yet
+    (view,) = views(taken)
+    assert [(a.id, a.acked_by) for a in view.active] == [("old-1", "operator"), ("old-2", None)]
+    assert [a.id for a in view.cleared] == ["old-0"]
+    # unit2 keeps sending states: it is back, and its alert clears after the threshold's wait.
+    for s in range(1, 40):
+        rig.state(float(s), "unit2", (1, 1))
+    assert notices(rig.tick(40.0)) == []  # unit1 found lost again (31 s silent): taken over
+    cleared = rig.tick(40.5)  # past 30 s + 10 s: unit2's was not found again
+    assert notices(cleared) == [
+        (
+            "cleared",
+            "old-2",
+            "[CLEARED] unit unit2 lost: its connection broke, nothing heard for 31 s",
+        )
+    ]
+    (view,) = views(cleared)
+    assert [(a.id, a.acked_by) for a in view.active] == [("old-1", "operator")]
+    for s in range(41, 100):
+        assert rig.state(float(s), "unit2", (1, 1)) == Effects()
+    assert rig.tick(100.0) == Effects()  # unit1's stays, raised once, by the last run
+    assert rig.core.raised_total["unit_lost"] == 0
+    # The view this run publishes, coming back, is not taken over again.
+    assert rig.send(100.5, T.fleet("alerts"), encode(view)) == Effects()
+
+
+def test_with_no_view_retained_the_first_goes_out_after_the_wait_and_is_not_taken_over() -> None:
+    rig = Rig(retained=False)
+    assert views(rig.connected) == []  # not yet: it would replace a retained view still coming
+    assert views(rig.tick(1.9)) == []
+    (own,) = views(rig.tick(2.0))  # INHERIT_WAIT_S: there was none
+    assert own.active == []
+    rig.send(30.0, T.unit("connection", "unit1"), connection("unit1", "broken"))
+    (raised,) = views(rig.tick(61.0))
+    assert [a.id for a in raised.active] == ["n1-1"]
+    assert rig.send(61.5, T.fleet("alerts"), encode(raised)) == Effects()  # ours, come back
+    assert rig.send(62.0, T.fleet("alerts"), last_runs_view()) == Effects()  # too late
+    assert list(rig.core.active) == [("unit_lost", "unit1")]
 
 
 def test_the_coordinator_leaves_acknowledgements_to_the_alerts_process() -> None:

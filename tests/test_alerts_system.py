@@ -341,3 +341,31 @@ def test_up_refuses_an_alerts_config_without_alerts_in_one_line(tmp_path: Path) 
         2,
         f"gridfleet up: error: {config}: unit_lost_s -3.0: give a number of seconds > 0, or off\n",
     )
+
+
+def test_a_restarted_alerts_process_pages_nobody_twice(
+    broker: Any, topics: Topics, receiver: Receiver
+) -> None:
+    # As found: a restart raised the lost unit again under a new id, and the webhook paged twice.
+    settings = AlertSettings(**{**QUIET.__dict__, "webhook": receiver.url})
+    with MqttProbe(broker.url) as unit, MqttProbe(broker.url, "person") as person:
+        person.subscribe(topics.fleet("alerts"))
+        unit_online(unit, topics, "unit1")
+        with alerts_process(broker.url, topics, settings):
+            view = wait_view(person, topics, lambda v: v.active, "the unit lost")
+            wait_for(lambda: receiver.events() == [("raised", "unit_lost")], 20.0, what="POST")
+        (lost,) = view.active
+        with alerts_process(broker.url, topics, settings) as again:
+            # Found again (unit1 still silent), it is taken over: same id, no second notice.
+            wait_for(lambda: again.call(lambda: again.service.core.settled), 20.0, what="settled")
+            latest = latest_view(person, topics)
+            assert latest is not None and [a.id for a in latest.active] == [lost.id]
+            assert receiver.events() == [("raised", "unit_lost")]
+            # The unit comes back: the alert the first run raised is cleared by the second.
+            unit_state(unit, topics, "unit1")
+            wait_for(
+                lambda: receiver.events() == [("raised", "unit_lost"), ("cleared", "unit_lost")],
+                20.0,
+                what="the cleared notice",
+            )
+            assert receiver.bodies[-1]["alert"]["id"] == lost.id
