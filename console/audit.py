@@ -1,7 +1,7 @@
 """`gridfleet audit`: who did what and when, from the coordinator's audit trail, page by page.
 
-Times are UTC ISO 8601 (`2026-11-26T14:02`, a date alone is its midnight; an offset such as
-`+01:00` is honoured), or a span back from now: `90s`, `30m`, `2h`, `7d`. A range that cannot
+Times are ISO 8601, local unless they name their zone (`2026-11-26T14:02`, a date alone is its
+midnight, `Z` or `+01:00` honoured), or a span back from now: `90s`, `30m`, `2h`, `7d`. A range that cannot
 be read, or whose start is after its end, is refused in one line before anything is sent.
 """
 
@@ -13,11 +13,10 @@ import contextlib
 import csv
 import json
 import math
-import re
 import secrets
 import sys
 from collections.abc import Callable
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from typing import TextIO
 
 import aiomqtt
@@ -26,7 +25,7 @@ from gridfleet.bus import make_client
 from gridfleet.config import owned_client_id, parse_broker_url, redacted
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
-from gridfleet.options import add_common, broker_url
+from gridfleet.options import add_common, broker_url, moment
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import HeaderStamper, Topics, decode, validate_id
 from gridfleet.protocol.messages import MAX_AUDIT_PAGE, AuditEntry, AuditPage, AuditQuery
@@ -36,24 +35,15 @@ from gridfleet.tasks import cancel_and_wait
 WAIT_S = 10.0  # for each page's reply, re-sent meanwhile
 RETRY_S = 2.0
 PAGE = 200  # entries asked for at a time
-_SPAN = re.compile(r"(\d+(?:\.\d+)?)\s*([smhd])")
-_UNIT_S = {"s": 1, "m": 60, "h": 3600, "d": 86400}
 FIELDS = ("at", "actor", "verified", "via", "act", "target", "detail", "outcome", "reason")
 
 
 def parse_time(text: str, now: datetime, flag: str) -> datetime:
-    """`text` as a UTC time: ISO 8601 (no zone: UTC) or a span back from `now` (`2h`)."""
-    span = _SPAN.fullmatch(text.strip())
-    if span is not None:
-        return now - timedelta(seconds=float(span.group(1)) * _UNIT_S[span.group(2)])
+    """`text` read by gridfleet.options.moment's rule; ConfigError naming `flag` otherwise."""
     try:
-        moment = datetime.fromisoformat(text.strip())
-    except ValueError:
-        raise ConfigError(
-            f"{flag} {text!r}: give a UTC time such as 2026-11-26T14:02 (or a date), or a span "
-            "back from now such as 30m, 2h, 7d"
-        ) from None
-    return moment.replace(tzinfo=UTC) if moment.tzinfo is None else moment.astimezone(UTC)
+        return moment(text, now)
+    except ValueError as exc:
+        raise ConfigError(f"{flag} {exc}") from None
 
 
 def time_range(since: str, until: str | None, now: datetime) -> tuple[datetime, datetime | None]:
@@ -70,7 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet audit`."""
     add_common(parser)
     parser.add_argument(
-        "--since", required=True, metavar="TIME", help="from this UTC time, or 2h, 7d ago"
+        "--since",
+        required=True,
+        metavar="TIME",
+        help="from this time (local unless it names its zone), or 2h, 7d ago",
     )
     parser.add_argument("--until", metavar="TIME", help="up to this time (default: now)")
     parser.add_argument("--actor", metavar="ACCOUNT", help="only this account's acts")

@@ -9,13 +9,13 @@ import math
 import sys
 import uuid
 from collections.abc import Callable
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from typing import TextIO, get_args
 
 from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
-from gridfleet.options import add_actions, add_common, broker_url, square
+from gridfleet.options import add_actions, add_common, broker_url, moment, square
 from gridfleet.protocol import EstopSignal, JobHistoryEntry, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_ESTOP_REASON
 from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
@@ -174,25 +174,12 @@ UNIT_HELP = {
 }
 
 
-AGE_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
-
-
 def timepoint(text: str) -> datetime:
-    """A point in time: ISO 8601 (local time unless it says its zone), `now`, or an age (24h)."""
-    now = datetime.now(UTC)
-    word = text.strip()
-    if word == "now":
-        return now
-    if word[-1:] in AGE_UNITS and word[:-1].replace(".", "", 1).isdigit():
-        return now - timedelta(seconds=float(word[:-1]) * AGE_UNITS[word[-1]])
+    """A point in time for `--since`/`--until` (gridfleet.options.moment's rule)."""
     try:
-        at = datetime.fromisoformat(word)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"{text!r} is not a time: give an ISO 8601 time or date (2026-11-26T14:00, "
-            "2026-11-26, 2026-11-26T14:00Z) or an age (30m, 24h, 7d)"
-        ) from None
-    return at if at.tzinfo is not None else at.astimezone()  # local time, with its zone
+        return moment(text, datetime.now(UTC))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 HISTORY_COLUMNS = (

@@ -6,6 +6,7 @@ import argparse
 import re
 import sys
 from collections.abc import Iterable
+from datetime import datetime, timedelta
 from typing import Any, TypeVar, overload
 
 from gridfleet.accounts import Accounts, load_accounts
@@ -166,3 +167,30 @@ def broker_url(args: argparse.Namespace, account: str) -> str:
         return str(args.broker)
     chosen = accounts.get(getattr(args, "account", None) or account)
     return with_credentials(args.broker, chosen.name, chosen.password)
+
+
+SPAN_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400}
+_SPAN = re.compile(r"(\d+(?:\.\d+)?)\s*([smhd])")
+MOMENT_FORMS = (
+    "an ISO 8601 time or date, local unless it names its zone (2026-11-26T14:02, 2026-11-26, "
+    "2026-11-26T14:02Z), now, or a span back from now (90s, 30m, 24h, 7d)"
+)
+
+
+def moment(text: str, now: datetime) -> datetime:
+    """A point in time as a person types it (see MOMENT_FORMS); ValueError when it is none.
+
+    A time without a zone is the local time of the machine the command runs on, as a person at
+    it reads a clock: the same rule for every command that takes one.
+    """
+    word = text.strip()
+    if word == "now":
+        return now
+    span = _SPAN.fullmatch(word)
+    if span is not None:
+        return now - timedelta(seconds=float(span.group(1)) * SPAN_UNITS[span.group(2)])
+    try:
+        at = datetime.fromisoformat(word)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a time: give {MOMENT_FORMS}") from None
+    return at if at.tzinfo is not None else at.astimezone()  # local, with its zone

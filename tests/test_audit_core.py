@@ -340,14 +340,18 @@ def test_only_people_ask_for_the_audit_and_only_the_dashboard_reports_logins() -
 NOW = datetime(2026, 11, 26, 15, 0, tzinfo=UTC)
 
 
-def test_times_read_as_utc_or_a_span_back_from_now() -> None:
-    assert parse_time("2026-11-26T14:02", NOW, "--since") == datetime(
+def test_times_read_as_local_unless_they_name_their_zone_or_a_span_back_from_now() -> None:
+    # One rule with `gridfleet job history` (gridfleet.options.moment): a person reads a clock.
+    local = datetime(2026, 11, 26, 14, 2).astimezone()
+    assert parse_time("2026-11-26T14:02", NOW, "--since") == local
+    assert parse_time("2026-11-26", NOW, "--since") == datetime(2026, 11, 26).astimezone()
+    assert parse_time("2026-11-26T14:02Z", NOW, "--since") == datetime(
         2026, 11, 26, 14, 2, tzinfo=UTC
     )
-    assert parse_time("2026-11-26", NOW, "--since") == datetime(2026, 11, 26, tzinfo=UTC)
     assert parse_time("2026-11-26T15:02+01:00", NOW, "--since") == datetime(
         2026, 11, 26, 14, 2, tzinfo=UTC
     )
+    assert parse_time("now", NOW, "--until") == NOW
     assert parse_time("90m", NOW, "--since") == datetime(2026, 11, 26, 13, 30, tzinfo=UTC)
     assert parse_time("7d", NOW, "--since") == datetime(2026, 11, 19, 15, 0, tzinfo=UTC)
 
@@ -358,17 +362,18 @@ def test_times_read_as_utc_or_a_span_back_from_now() -> None:
         (
             "yesterday",
             None,
-            "--since 'yesterday': give a UTC time such as 2026-11-26T14:02 (or a date), or a "
-            "span back from now such as 30m, 2h, 7d",
+            "--since 'yesterday' is not a time: give an ISO 8601 time or date, local unless it "
+            "names its zone (2026-11-26T14:02, 2026-11-26, 2026-11-26T14:02Z), now, or a span "
+            "back from now (90s, 30m, 24h, 7d)",
         ),
         (
-            "2026-11-26T14:00",
-            "2026-11-26T13:00",
+            "2026-11-26T14:00Z",
+            "2026-11-26T13:00Z",
             "--since 2026-11-26T14:00:00+00:00 is after --until 2026-11-26T13:00:00+00:00: "
             "nothing can lie between",
         ),
         (
-            "2026-11-27",
+            "2026-11-27T00:00Z",
             None,
             "--since 2026-11-27T00:00:00+00:00 is after now (2026-11-26T15:00:00+00:00): "
             "nothing can lie between",

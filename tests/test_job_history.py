@@ -267,7 +267,8 @@ def test_a_bad_range_or_time_is_refused_in_one_line_and_changes_nothing(
         garbage.stderr.strip()
         .splitlines()[-1]
         .endswith(
-            "argument --since: 'yesterday-ish' is not a time: give an ISO 8601 time or date "
-            "(2026-11-26T14:00, 2026-11-26, 2026-11-26T14:00Z) or an age (30m, 24h, 7d)"
+            "argument --since: 'yesterday-ish' is not a time: give an ISO 8601 time or date, "
+            "local unless it names its zone (2026-11-26T14:02, 2026-11-26, 2026-11-26T14:02Z), "
+            "now, or a span back from now (90s, 30m, 24h, 7d)"
         )
     )
