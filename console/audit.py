@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import contextlib
 import csv
 import json
 import math
@@ -19,18 +18,12 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import TextIO
 
-import aiomqtt
-
-from gridfleet.bus import make_client
-from gridfleet.config import owned_client_id, parse_broker_url, redacted
-from gridfleet.endpoint import payload_of, send
+from gridfleet.config import redacted
+from gridfleet.console.operator import operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_common, broker_url, moment
-from gridfleet.outbound import Outbound
-from gridfleet.protocol import HeaderStamper, Topics, decode, validate_id
-from gridfleet.protocol.messages import MAX_AUDIT_PAGE, AuditEntry, AuditPage, AuditQuery
-from gridfleet.protocol.topics import TOPICS
-from gridfleet.tasks import cancel_and_wait
+from gridfleet.protocol import Topics, validate_id
+from gridfleet.protocol.messages import MAX_AUDIT_PAGE, AuditEntry
 
 WAIT_S = 10.0  # for each page's reply, re-sent meanwhile
 RETRY_S = 2.0
@@ -79,83 +72,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-class AuditClient:
-    """Asks the coordinator for pages of the audit trail, re-sending each until it is answered."""
-
-    def __init__(self, url: str, topics: Topics, client_id: str, timeout: float) -> None:
-        self.url = url
-        self.topics = topics
-        self.client_id = owned_client_id(parse_broker_url(url).username, client_id)
-        self.timeout = timeout
-        self._stamp = HeaderStamper(self.client_id)
-        self._session = secrets.token_hex(3)
-        self._count = 0
-
-    async def entries(
-        self, since: datetime, until: datetime | None, actor: str | None
-    ) -> list[AuditEntry]:
-        """Every entry of the range, oldest first; GridfleetError when one is refused."""
-        out: list[AuditEntry] = []
-        async with make_client(self.url, self.client_id) as client:
-            await client.subscribe(self.topics.audit_reply(self.client_id), qos=1)
-            pages: asyncio.Queue[AuditPage] = asyncio.Queue()
-            listener = asyncio.create_task(self._listen(client, pages))
-            try:
-                cursor: str | None = None
-                while True:
-                    page = await self._page(client, pages, since, until, actor, cursor)
-                    out += page.entries
-                    cursor = page.next_cursor
-                    if cursor is None:
-                        return out
-            finally:
-                await cancel_and_wait(listener)
-
-    async def _listen(self, client: aiomqtt.Client, pages: asyncio.Queue[AuditPage]) -> None:
-        async for message in client.messages:
-            with contextlib.suppress(ProtocolError):  # not a page: not ours to judge
-                page = decode(AuditPage, payload_of(message), TOPICS["audit_reply"].max_bytes)
-                pages.put_nowait(page)
-
-    async def _page(
-        self,
-        client: aiomqtt.Client,
-        pages: asyncio.Queue[AuditPage],
-        since: datetime,
-        until: datetime | None,
-        actor: str | None,
-        cursor: str | None,
-    ) -> AuditPage:
-        self._count += 1
-        query = AuditQuery(
-            header=self._stamp("audit"),
-            request_id=f"{self.client_id}-{self._session}-{self._count}"[-64:],
-            reply_to=self.client_id,
-            since=since,
-            until=until,
-            actor=actor,
-            limit=min(PAGE, MAX_AUDIT_PAGE),
-            cursor=cursor,
-        )
-        out = Outbound.of("audit", self.topics.request("audit"), query)
-        loop = asyncio.get_running_loop()
-        deadline = loop.time() + self.timeout
-        tries = 0
-        while (left := deadline - loop.time()) > 0:
-            tries += 1
-            await send(client, out)
-            with contextlib.suppress(TimeoutError):
-                while True:
-                    page = await asyncio.wait_for(pages.get(), min(RETRY_S, left))
-                    if page.request_id != query.request_id:
-                        continue  # a late answer to an earlier try
-                    if not page.accepted:
-                        raise GridfleetError(f"refused: {page.reason}")
-                    return page
-        raise GridfleetError(
-            f"no reply from the coordinator to the audit query after {tries} tries over "
-            f"{self.timeout:g} s: is it running, and may this account read the audit?"
-        )
+async def read_trail(
+    url: str,
+    topics: Topics,
+    since: datetime,
+    until: datetime | None,
+    actor: str | None,
+    timeout: float,
+) -> list[AuditEntry]:
+    """Every entry of the range, oldest first, page by page; GridfleetError when refused."""
+    out: list[AuditEntry] = []
+    async with operator_session(url, topics, f"audit-{secrets.token_hex(3)}", RETRY_S) as operator:
+        cursor: str | None = None
+        while True:
+            limit = min(PAGE, MAX_AUDIT_PAGE)
+            query = {"since": since, "until": until, "actor": actor, "limit": limit}
+            page = await operator.audit(timeout, **query, cursor=cursor)
+            if not page.accepted:
+                raise GridfleetError(f"refused: {page.reason}")
+            out += page.entries
+            cursor = page.next_cursor
+            if cursor is None:
+                return out
 
 
 def print_table(entries: list[AuditEntry], out: TextIO) -> None:
@@ -212,9 +150,8 @@ def run(args: argparse.Namespace, now: Callable[[], datetime] = lambda: datetime
         except ProtocolError as exc:
             raise ConfigError(str(exc)) from None
     url = broker_url(args, "operator")
-    client = AuditClient(url, Topics(args.root), f"audit-{secrets.token_hex(3)}", args.timeout)
     try:
-        entries = asyncio.run(client.entries(since, until, actor))
+        entries = asyncio.run(read_trail(url, Topics(args.root), since, until, actor, args.timeout))
     except GridfleetError as exc:
         if str(exc).startswith("refused: "):
             print(exc, file=sys.stdout)

@@ -43,12 +43,13 @@ from gridfleet.protocol import (
     encode_estop,
 )
 from gridfleet.protocol.codec import describe
-from gridfleet.protocol.messages import FINAL_JOB_STATES, Request
+from gridfleet.protocol.messages import FINAL_JOB_STATES, AuditPage, AuditQuery, Request
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.squares import Cell
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.operator")
+Answer = Reply | JobHistoryPage | AuditPage  # what the coordinator answers a request with
 WAIT_S = 60.0  # how long a request waits for its reply in all, re-sent meanwhile
 RETRY_S = 2.0  # the first wait before a request is sent again; it doubles up to RETRY_MOST_S
 RETRY_MOST_S = 10.0
@@ -77,8 +78,9 @@ class Operator:
         self.routes_changed = asyncio.Event()
         self.retry_s = retry_s
         self.resent = 0  # requests sent again for want of a reply (figures for the bench)
-        self._pending: dict[str, asyncio.Future[Reply | JobHistoryPage]] = {}
+        self._pending: dict[str, asyncio.Future[Answer]] = {}
         self._count = 0
+        self._audit_followed = False  # its replies, subscribed at the first query (operators')
         self.obstacles: frozenset[Cell] = frozenset()  # found by the units (fleet/map)
         # Request ids must be unique per sender across restarts (the coordinator remembers them),
         # and a client id may be reused: a random part per session.
@@ -112,12 +114,14 @@ class Operator:
                 if kind in STOP_KINDS:
                     self.stop.apply(kind, source, str(message.topic), payload)
                     self.stop_changed.set()
-                elif kind in ("reply", "history_reply"):
-                    answer: Reply | JobHistoryPage
+                elif kind in ("reply", "history_reply", "audit_reply"):
+                    answer: Answer
                     if kind == "reply":
                         answer = decode(Reply, payload)
-                    else:
+                    elif kind == "history_reply":
                         answer = decode(JobHistoryPage, payload, TOPICS[kind].max_bytes)
+                    else:
+                        answer = decode(AuditPage, payload, TOPICS[kind].max_bytes)
                     future = self._pending.pop(answer.request_id, None)
                     if future is not None and not future.done():
                         future.set_result(answer)
@@ -174,12 +178,37 @@ class Operator:
             )
         except ValidationError as exc:
             raise ProtocolError(f"job_history: {describe(exc)}") from None
-        return await self._send("job_history", request, timeout)
+        answer = await self._send("job_history", request, timeout)
+        assert not isinstance(answer, AuditPage)  # request ids are never shared
+        return answer
 
-    async def _send(self, kind: str, request: Request, timeout: float) -> Reply | JobHistoryPage:
+    async def audit(self, timeout: float = WAIT_S, **query: object) -> AuditPage:
+        """One page of the audit trail (protocol.md §6.8); a refusal is a page not `accepted`."""
+        try:
+            request = AuditQuery(
+                header=self.stamp("audit"),
+                request_id=self._next_id(),
+                reply_to=self.client_id,
+                **query,  # type: ignore[arg-type]  # checked by the model, named in the error
+            )
+        except ValidationError as exc:
+            raise ProtocolError(f"audit: {describe(exc)}") from None
+        if not self._audit_followed:
+            # Only operators may read the audit: other accounts never follow its replies.
+            reply = self.topics.audit_reply(self.client_id)
+            await self.client.subscribe(reply, qos=TOPICS["audit_reply"].qos)
+            self._audit_followed = True
+        why = "is it running, and may this account read the audit?"
+        answer = await self._send("audit", request, timeout, why)
+        assert isinstance(answer, AuditPage)
+        return answer
+
+    async def _send(
+        self, kind: str, request: Request, timeout: float, why: str = "is it running?"
+    ) -> Answer:
         """Send `request` until its answer arrives, backing off; give up after `timeout` s."""
         loop = asyncio.get_running_loop()
-        future: asyncio.Future[Reply | JobHistoryPage] = loop.create_future()
+        future: asyncio.Future[Answer] = loop.create_future()
         rid = request.request_id
         self._pending[rid] = future
         out = Outbound.of(kind, self.topics.request(kind), request)
@@ -204,7 +233,7 @@ class Operator:
             self._pending.pop(rid, None)
         raise GridfleetError(
             f"no reply from the coordinator to {kind} {rid} after {_tries(tries)} over "
-            f"{timeout:.0f} s: is it running?"
+            f"{timeout:.0f} s: {why}"
         )
 
     async def submit_job(
