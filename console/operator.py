@@ -13,6 +13,7 @@ import contextlib
 import logging
 import secrets
 from collections.abc import AsyncIterator, Sequence
+from typing import TypeVar
 
 import aiomqtt
 from pydantic import ValidationError
@@ -50,6 +51,7 @@ from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.operator")
 Answer = Reply | JobHistoryPage | AuditPage  # what the coordinator answers a request with
+R = TypeVar("R", bound=Request)
 WAIT_S = 60.0  # how long a request waits for its reply in all, re-sent meanwhile
 RETRY_S = 2.0  # the first wait before a request is sent again; it doubles up to RETRY_MOST_S
 RETRY_MOST_S = 10.0
@@ -150,12 +152,10 @@ class Operator:
         self._count += 1
         return f"{self.client_id}-{self._session}-{self._count}"[-64:]
 
-    async def _request(
-        self, kind: str, model: type[Request], timeout: float, **fields: object
-    ) -> Reply:
-        """Build a request (a bad value is a ProtocolError naming its field), send, await reply."""
+    def _made(self, kind: str, model: type[R], fields: dict[str, object]) -> R:
+        """A request of `model` from this client; a bad value is a ProtocolError naming it."""
         try:
-            request = model(
+            return model(
                 header=self.stamp(kind),
                 request_id=self._next_id(),
                 reply_to=self.client_id,
@@ -163,36 +163,25 @@ class Operator:
             )
         except ValidationError as exc:
             raise ProtocolError(f"{kind}: {describe(exc)}") from None
-        answer = await self._send(kind, request, timeout)
+
+    async def _request(
+        self, kind: str, model: type[Request], timeout: float, **fields: object
+    ) -> Reply:
+        """Build a request, send it, await its reply."""
+        answer = await self._send(kind, self._made(kind, model, fields), timeout)
         assert isinstance(answer, Reply)  # only queries are answered with pages
         return answer
 
     async def job_history(self, timeout: float = WAIT_S, **query: object) -> JobHistoryPage | Reply:
         """One page of the job history (protocol.md §6.10), or the Reply that refused the query."""
-        try:
-            request = JobHistoryQuery(
-                header=self.stamp("job_history"),
-                request_id=self._next_id(),
-                reply_to=self.client_id,
-                **query,  # type: ignore[arg-type]  # checked by the model, named in the error
-            )
-        except ValidationError as exc:
-            raise ProtocolError(f"job_history: {describe(exc)}") from None
+        request = self._made("job_history", JobHistoryQuery, query)
         answer = await self._send("job_history", request, timeout)
         assert not isinstance(answer, AuditPage)  # request ids are never shared
         return answer
 
     async def audit(self, timeout: float = WAIT_S, **query: object) -> AuditPage:
         """One page of the audit trail (protocol.md §6.8); a refusal is a page not `accepted`."""
-        try:
-            request = AuditQuery(
-                header=self.stamp("audit"),
-                request_id=self._next_id(),
-                reply_to=self.client_id,
-                **query,  # type: ignore[arg-type]  # checked by the model, named in the error
-            )
-        except ValidationError as exc:
-            raise ProtocolError(f"audit: {describe(exc)}") from None
+        request = self._made("audit", AuditQuery, query)
         if not self._audit_followed:
             # Only operators may read the audit: other accounts never follow its replies.
             reply = self.topics.audit_reply(self.client_id)
