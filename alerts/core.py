@@ -23,7 +23,6 @@ from pydantic import BaseModel, ConfigDict
 from gridfleet.alerts.settings import AlertSettings
 from gridfleet.config import names_owned_id
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     TOPICS,
@@ -48,6 +47,7 @@ from gridfleet.protocol.messages import (
     AlertsView,
 )
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+from gridfleet.squares import Cell
 
 RULES: tuple[AlertRule, ...] = get_args(AlertRule)
 SEVERITY: dict[AlertRule, AlertSeverity] = {

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from typing import Literal
 
 from gridfleet.errors import ProtocolError
-from gridfleet.grid import Direction
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     TOPICS,
@@ -31,6 +30,7 @@ from gridfleet.protocol import (
     encode_estop,
     validate_id,
 )
+from gridfleet.squares import Direction
 
 Pattern = Literal["direction", "stop", "offline"]
 

@@ -271,6 +271,8 @@ QUICK_COMMANDS = (
     "gridfleet.console.status",
     "gridfleet.console.audit",
     "gridfleet.console.clean",
+    "gridfleet.alerts.cli",
+    "gridfleet.device.cli",
 )
 
 

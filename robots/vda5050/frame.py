@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 from gridfleet.errors import ConfigError
-from gridfleet.grid import Cell
+from gridfleet.squares import Cell
 
 AXES = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
