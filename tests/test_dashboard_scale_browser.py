@@ -39,10 +39,12 @@ def test_a_150_unit_fleet_keeps_the_page_in_its_frame_budget_and_the_fleet_at_pa
     summary = result.summary()
     assert page.fps > 0, result  # drawing, not frozen
     assert page.steps_per_s > 0, result
-    # The queue view: 450 jobs were queued at the start; every view stays under 400 bytes a job
-    # it lists (before, every job that had ever finished added 200 bytes to every view): a size,
-    # not a speed.
-    assert summary["jobs_view_bytes_per_job_max"] <= 400, result
+    # The queue view: every view stays under 400 bytes a job it lists, beside its fixed part (the
+    # header, the counts, the jobs done per minute: under 1 kB); before, every job that had ever
+    # finished added 200 bytes to every view. A size, not a speed. (CI: a view sampled while the
+    # feed had submitted one job was 436 bytes: the fixed part, counted as that one job's.)
+    sizes = list(zip(result.jobs_view_bytes, result.jobs_view_listed, strict=True))
+    assert all(size <= 1000 + 400 * listed for size, listed in sizes), (summary, sizes)
 
 
 @pytest.fixture
