@@ -193,6 +193,11 @@ def _renderers() -> list[psutil.Process]:
     return [p for p in kids if "--type=renderer" in " ".join(p.cmdline())]
 
 
+def _p95(samples: list[float]) -> float:
+    """The 95th percentile; with one sample (an input that took the whole phase), that one."""
+    return statistics.quantiles(samples, n=20)[-1] if len(samples) > 1 else max(samples)
+
+
 def measure_open(page: Any, steps: StepCounter, seconds: float) -> OpenPhase:
     """One open phase: the page's frames, long tasks, input delay and CPU, and the step rate."""
     renderers = _renderers()
@@ -217,7 +222,7 @@ def measure_open(page: Any, steps: StepCounter, seconds: float) -> OpenPhase:
         long_task_ms_max=round(max(long, default=0.0), 1),
         busy_share=round(sum(long) / probe["ms"], 3),
         input_delay_ms_mean=round(statistics.fmean(delays), 1),
-        input_delay_ms_p95=round(statistics.quantiles(delays, n=20)[-1], 1),
+        input_delay_ms_p95=round(_p95(delays), 1),
         renderer_cpu_pct=round(100 * (cpu1 - cpu0) / elapsed, 1),
         renderer_rss_mb=round(rss, 1),
         steps_per_s=round(((last or 0) - (first or 0)) / elapsed, 2),
