@@ -196,12 +196,10 @@ class UnitCore:
         late = self.lateness.late_by(gap, now)
         if self.logic.mode == "coordinated" and late > self.logic.hold_timeout_s:
             # Later than no order at all would have held it: the link is piling orders up, and
-            # the stop may be queued behind them. Told once, on `errors`, till orders are on time.
-            first = self.logic.late_by_s is None
-            self.logic.on_late_order(late, now)
-            return (
-                [self._report(topic, self.logic.errors[-1].message), *self.state()] if first else []
-            )
+            # the stop may be queued behind them. Told on `errors` once a spell, at most every 10 s.
+            if self.logic.on_late_order(late, now):
+                return [self._report(topic, self.logic.errors[-1].message), *self.state()]
+            return []
         verdict = self.logic.on_order(order, now)
         if verdict.result == "refused":
             return [self._report(topic, verdict.reason or ""), *self.state()]

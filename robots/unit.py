@@ -46,6 +46,7 @@ from gridfleet.robots.decisions import Intent, Readings, Verdict, sq
 from gridfleet.robots.navigation import Navigator
 
 Mode = Literal["coordinated", "standalone"]
+LATE_TOLD_EVERY_S = 10.0  # a unit tells of late orders at most this often (protocol §4.4 rule 7)
 MAX_ERRORS = 16
 ESTOP_WAIT_MIN_S = 0.2  # after connecting, hold at least this long for the retained stop
 ESTOP_WAIT_MAX_S = 1.0  # and at most this long (protocol.md §5.1)
@@ -95,6 +96,7 @@ class UnitLogic:
         self._last_order: float | None = None
         self._estop_wait_until: float | None = None
         self.late_by_s: float | None = None  # how late the last order came, while that is too late
+        self._late_told_at: float | None = None
 
     # ---- what it follows ----------------------------------------------------------------------
 
@@ -157,15 +159,23 @@ class UnitLogic:
             self._refresh(now)
         return verdict
 
-    def on_late_order(self, late_by_s: float, now: float) -> None:
-        """An order that came too late to drive (protocol §4.4 rule 7): drop what is left, hold."""
+    def on_late_order(self, late_by_s: float, now: float) -> bool:
+        """An order that came too late to drive (protocol §4.4 rule 7): drop what is left, hold.
+
+        True when it is to be told: once a late spell, and at most every LATE_TOLD_EVERY_S (a
+        starved link or process flapping between late and on time must not flood `errors`).
+        """
         if self.mode != "coordinated":
-            return
-        if self.late_by_s is None:
+            return False
+        told = self._late_told_at
+        tell = self.late_by_s is None and (told is None or now - told >= LATE_TOLD_EVERY_S)
+        if tell:
             self.error("late_order", f"orders come {late_by_s:.1f} s late: holding until on time")
+            self._late_told_at = now
         self.late_by_s = late_by_s
         self.orders.drop()
         self._refresh(now)
+        return tell
 
     def on_goal(self, target: Cell | None, now: float) -> Verdict:
         """Set or clear the standalone goal; a goal off the map or on a wall is refused."""

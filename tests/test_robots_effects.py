@@ -324,6 +324,14 @@ def test_an_order_later_than_the_hold_time_is_not_driven_the_unit_holds_and_says
     assert core.on_message(ROOT + "units/u1/order", order_bytes("o1", 4, [Cell(1, 1)]), 0.5)
     core.tick(lambda: FREE, allow, 0.55)
     assert (core.logic.position, core.logic.status) == (Cell(1, 1), "moving")
+    # Late again within 10 s: held, not told (a flapping link must not flood `errors`) ...
+    again = sent_before(3.0, "o1", 5, [Cell(2, 1)])
+    assert core.on_message(ROOT + "units/u1/order", again, 0.6) == []
+    assert core.logic.late_by_s == pytest.approx(3.0, abs=0.01) and core.logic.released == []
+    core.on_message(ROOT + "units/u1/order", order_bytes("o1", 6, [Cell(2, 1)]), 0.7)
+    # ... told again once 10 s have passed since it last told.
+    told = core.on_message(ROOT + "units/u1/order", sent_before(3.0, "o1", 7, []), 10.4)
+    assert [p[0] for p in published(told, ROOT)][:1] == ["errors"]
 
 
 def test_clocks_that_disagree_are_no_lateness_and_a_restarted_coordinator_is_learnt_afresh() -> (
