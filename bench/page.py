@@ -201,8 +201,13 @@ def _p95(samples: list[float]) -> float:
     return statistics.quantiles(samples, n=20)[-1] if len(samples) > 1 else max(samples)
 
 
-def measure_open(page: Any, steps: StepCounter, seconds: float) -> OpenPhase:
-    """One open phase: the page's frames, long tasks, input delay and CPU, and the step rate."""
+def measure_open(
+    page: Any, steps: StepCounter, seconds: float, until_a_step_s: float = 0.0
+) -> OpenPhase:
+    """One open phase: the page's frames, long tasks, input delay and CPU, and the step rate.
+
+    `until_a_step_s`: the phase goes on, up to that long, until the fleet has made a step.
+    """
     renderers = _renderers()
     cpu0 = sum(sum(p.cpu_times()[:2]) for p in renderers)
     page.evaluate(READ_PROBE)  # start counting now
@@ -210,7 +215,11 @@ def measure_open(page: Any, steps: StepCounter, seconds: float) -> OpenPhase:
     delays: list[float] = []
     # A phase is its span and at least a few inputs: on a starved machine one input can take the
     # whole span (CI: 5.7 s, in which the step counter saw no step), which measures the stall only.
-    while time.monotonic() - t0 < seconds or len(delays) < MIN_INPUTS:
+    while (
+        time.monotonic() - t0 < seconds
+        or len(delays) < MIN_INPUTS
+        or (steps.step == first and time.monotonic() - t0 < until_a_step_s)
+    ):
         a = time.perf_counter()
         page.evaluate("1")
         delays.append((time.perf_counter() - a) * 1000)
@@ -244,8 +253,12 @@ def run_page_bench(
     screenshot: Path | None = None,
     seed: int = 1,
     warmup_s: float = 20.0,
+    until_a_step_s: float = 0.0,
 ) -> PageResult:
-    """Alternate closed and open phases on one running fleet; every figure of every phase."""
+    """Alternate closed and open phases on one running fleet; every figure of every phase.
+
+    `until_a_step_s`: each open phase goes on, up to that long, until the fleet has made a step.
+    """
     try:
         from playwright.sync_api import sync_playwright
     except ImportError as exc:  # a test extra: say how to get it
@@ -275,7 +288,7 @@ def run_page_bench(
                         raise TimeoutError("the page showed no unit within 30 s")
                     time.sleep(0.05)
                 time.sleep(2)  # the retained views arrived; measure the steady page
-                result.open.append(measure_open(page, steps, phase_s))
+                result.open.append(measure_open(page, steps, phase_s, until_a_step_s))
                 if screenshot is not None:
                     page.screenshot(path=str(screenshot))
                 page.close()

@@ -194,9 +194,9 @@ class UnitCore:
             return self._refused(topic, "bad_order", str(exc))
         gap = (self.stamp.now() - order.header.timestamp).total_seconds()
         late = self.lateness.late_by(gap, now)
-        if self.logic.mode == "coordinated" and late > self.logic.hold_timeout_s:
-            # Later than no order at all would have held it: the link is piling orders up, and
-            # the stop may be queued behind them. Told on `errors` once a spell, at most every 10 s.
+        if self.logic.mode == "coordinated" and late > self.logic.late_order_s:
+            # The link is piling orders up, and the stop may be queued behind them. Told on
+            # `errors` once a spell, at most every 10 s.
             if self.logic.on_late_order(late, now):
                 return [self._report(topic, self.logic.errors[-1].message), *self.state()]
             return []

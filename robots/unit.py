@@ -29,7 +29,12 @@ from collections.abc import Callable
 from typing import Literal
 
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MAX_TEXT, MIN_TIMEOUT_S
+from gridfleet.protocol.constants import (
+    HOLD_AFTER_STEPS,
+    LATE_ORDER_MIN_S,
+    MAX_TEXT,
+    MIN_TIMEOUT_S,
+)
 from gridfleet.protocol.messages import (
     Action,
     Header,
@@ -129,6 +134,11 @@ class UnitLogic:
     def hold_timeout_s(self) -> float:
         """How long a coordinated unit waits for an order before it holds still (protocol §8)."""
         return max(MIN_TIMEOUT_S, HOLD_AFTER_STEPS * max(self.step_s, self.coordinator_step_s))
+
+    @property
+    def late_order_s(self) -> float:
+        """How late an order may come and still be driven (protocol §4.4 rule 7)."""
+        return max(LATE_ORDER_MIN_S, self.hold_timeout_s)
 
     def since_order_s(self, now: float) -> float:
         """Seconds since the last valid order (or since `start`)."""

@@ -302,13 +302,18 @@ def test_an_order_later_than_the_hold_time_is_not_driven_the_unit_holds_and_says
     assert published(core.on_message(ROOT + "units/u1/order", on_time, 0.3), ROOT) == [
         direction("E")
     ]
+    # Later than its hold time, but by a busy host's second: still driven (rule 7's 1.5 s).
+    assert core.logic.hold_timeout_s < 1.0
+    busy = sent_before(1.0, "o1", 2, [Cell(1, 1)])
+    assert published(core.on_message(ROOT + "units/u1/order", busy, 0.32), ROOT) == []
+    assert core.logic.late_by_s is None and core.logic.released == [Cell(1, 1)]
     late = sent_before(2.0, "o1", 2, [Cell(1, 1), Cell(2, 1)])
     reason = "orders come 2.0 s late: holding until on time"
     held = {
         "status": "holding",
         "wait_reason": "orders come 2.0 s late; holding",
         "order_id": "o1",
-        "order_update_id": 1,
+        "order_update_id": 2,
         "errors": [{"code": "late_order", "message": reason}],
     }
     assert published(core.on_message(ROOT + "units/u1/order", late, 0.35), ROOT) == [
