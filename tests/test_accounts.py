@@ -277,6 +277,11 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
         assert T.request(kind) in operator.publish, kind
         assert T.request(kind) not in device.publish, kind
     assert T.all_units("order") not in operator.publish and T.fleet("map") not in operator.publish
+    # The alerts view: the alerts process's alone (a restarted one takes over what it says).
+    alerts = rules(accounts.get("alerts"), T)
+    assert T.fleet("alerts") in alerts.publish and T.fleet("alerts") in alerts.subscribe
+    for other in (unit1, device, coordinator, operator):
+        assert T.fleet("alerts") not in other.publish
 
 
 # ---- the broker enforces them --------------------------------------------------------------------

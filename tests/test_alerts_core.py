@@ -657,3 +657,15 @@ def test_the_coordinator_leaves_acknowledgements_to_the_alerts_process() -> None
     # Not refused, not answered: a reply of its own would race the alerts process's.
     assert inbound.read(T, T.request("ack_alert"), encode(request)) is None
     assert inbound.reply_address(T, T.request("ack_alert"), encode(request)) == (None, None)
+
+
+def test_an_unreadable_retained_view_is_reported_and_the_good_one_after_it_is_still_taken_over() -> (
+    None
+):
+    rig = Rig(retained=False)
+    bad = rig.send(0.1, T.fleet("alerts"), b'{"header": {"version": "1.4"}, "active": 7}')
+    (error,) = errors(bad)
+    assert error.startswith("AlertsView: ") and views(bad) == [] and bad.notices == []
+    assert not rig.core.settled and rig.core.active == {}  # still waiting for a view to read
+    (view,) = views(rig.send(0.2, T.fleet("alerts"), last_runs_view()))
+    assert [a.id for a in view.active] == ["old-1", "old-2"]
