@@ -46,7 +46,6 @@ from gridfleet.bench.soak_check import (
     FINAL,
     Disturbed,
     Event,
-    HallStop,
     Released,
     SoakLimits,
     SoakVerdict,
@@ -163,7 +162,7 @@ class SoakResult:
         }
 
 
-def hall_stops(path: Path, topics: Topics) -> list[HallStop]:
+def hall_stops(path: Path, topics: Topics) -> list[Stop]:
     """The stop as the hall's broker had it, from its watcher's lines (see `_start_hall`)."""
     if not path.exists():
         return []
@@ -174,7 +173,7 @@ def hall_stops(path: Path, topics: Topics) -> list[HallStop]:
         topic, _, payload = rest.partition(" ")
         with contextlib.suppress(ValueError):
             watch.take(topic, payload.encode(), float(at))
-    return [HallStop(e.t, e.engaged) for e in watch.events if isinstance(e, Stop)]
+    return [Stop(e.t, e.engaged, "hall") for e in watch.events if isinstance(e, Stop)]
 
 
 def read_truth(path: Path) -> Iterator[Truth]:
@@ -642,12 +641,17 @@ class Soak:
         for at, report in self.listener.errors:
             print(f"[errors     ] {at:.2f} {report}", file=self.log)
         # The stop as the listener saw it and the releases given, to read a verdict against.
+        hall = hall_stops(self.hall_watch, self.topics) if self.cfg.bridge else []
         stops = [
-            e for e in (*self.listener.events, *self.recorded) if isinstance(e, Stop | Released)
+            e
+            for e in (*self.listener.events, *self.recorded, *hall)
+            if isinstance(e, Stop | Released)
         ]
         for event in sorted(stops, key=lambda e: e.t):
             if isinstance(event, Released):
                 said = "released by the soak's operator"
+            elif event.where == "hall":
+                said = f"{'engaged' if event.engaged else 'released'} on the hall's broker"
             else:
                 said = f"seen {'engaged' if event.engaged else 'released'} by the listener"
             print(f"[stop       ] {event.t:.2f} {said}", file=self.log)
@@ -656,9 +660,7 @@ class Soak:
             f"[listener   ] a unit's state reached it {lag:.2f} s late at worst, at {when:.2f}",
             file=self.log,
         )
-        events = [*self.listener.events, *self.recorded, *read_truth(self.truth)]
-        if self.cfg.bridge:
-            events += hall_stops(self.hall_watch, self.topics)
+        events = [*self.listener.events, *self.recorded, *read_truth(self.truth), *hall]
         limits = SoakLimits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)
         return SoakResult(

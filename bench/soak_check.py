@@ -10,6 +10,7 @@ import itertools
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 FINAL = frozenset({"done", "cancelled", "rejected", "failed"})
 
@@ -28,18 +29,14 @@ class Truth:
 
 @dataclass(frozen=True)
 class Stop:
-    """The stop as the listener saw it change: engaged (latch or press) or released."""
+    """The stop as the listener saw it change: engaged (latch or press) or released.
+
+    `where`: on the central broker, or on a bridged hall's own (its units cannot know it sooner).
+    """
 
     t: float
     engaged: bool
-
-
-@dataclass(frozen=True)
-class HallStop:
-    """The stop as a bridged hall's own broker had it (its units cannot know it sooner)."""
-
-    t: float
-    engaged: bool
+    where: Literal["central", "hall"] = "central"
 
 
 @dataclass(frozen=True)
@@ -76,7 +73,7 @@ class Disturbed:
     end: float
 
 
-Event = Truth | Stop | HallStop | Released | JobSeen | StateSeen | Disturbed
+Event = Truth | Stop | Released | JobSeen | StateSeen | Disturbed
 
 
 @dataclass(frozen=True)
@@ -124,12 +121,13 @@ def check(events: Iterable[Event], limits: SoakLimits) -> SoakVerdict:
     truths = [e for e in ordered if isinstance(e, Truth)]
     verdict.collisions = _collisions(truths, verdict.details)
     releases = [e.t for e in ordered if isinstance(e, Released)]
-    stops = _stop_windows([e for e in ordered if isinstance(e, Stop)], releases)
-    hall = [e for e in ordered if isinstance(e, HallStop)]
+    central = [e for e in ordered if isinstance(e, Stop) and e.where == "central"]
+    stops = _stop_windows(central, releases)
+    hall = [e for e in ordered if isinstance(e, Stop) and e.where == "hall"]
     if hall:
         # A hall's units are stopped from when its broker has the stop: nothing reaches them
         # sooner. What moved before that is the bridge's delay, counted apart.
-        had = _stop_windows([Stop(e.t, e.engaged) for e in hall], releases)
+        had = _stop_windows(hall, releases)
         known = _overlaps(stops, had)
         verdict.moved_while_stopped = _moved_while_stopped(truths, known, limits, verdict.details)
         # From each stop seen centrally to the hall's having it (its window ending after it).

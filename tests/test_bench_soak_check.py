@@ -8,7 +8,6 @@ from gridfleet.bench.soak import hall_stops
 from gridfleet.bench.soak_check import (
     Disturbed,
     Event,
-    HallStop,
     JobSeen,
     Released,
     SoakLimits,
@@ -113,8 +112,19 @@ def test_a_move_before_a_release_given_again_fails() -> None:
 def test_a_bridged_halls_units_are_judged_from_when_its_broker_had_the_stop() -> None:
     # Central stop at 1.0; the hall's broker had it at 1.8 (a thin bridge): a move at 1.5 is the
     # bridge's delay, told apart; a move at 2.5, once the hall had it, fails.
-    before = [truth(0.0), Stop(1.0, True), HallStop(1.8, True), truth(1.3), truth(1.5, u1=(1, 0))]
-    after = [truth(1.9, u1=(1, 0)), truth(2.2, u1=(1, 0)), Stop(4.0, False), HallStop(4.2, False)]
+    before = [
+        truth(0.0),
+        Stop(1.0, True),
+        Stop(1.8, True, "hall"),
+        truth(1.3),
+        truth(1.5, u1=(1, 0)),
+    ]
+    after = [
+        truth(1.9, u1=(1, 0)),
+        truth(2.2, u1=(1, 0)),
+        Stop(4.0, False),
+        Stop(4.2, False, "hall"),
+    ]
     verdict = check([*before, *after], LIMITS)
     assert (verdict.moved_while_stopped, verdict.moved_before_the_hall_had_it) == (0, 1)
     assert verdict.ok and verdict.worst_stop_to_hall_s == 0.8
@@ -177,5 +187,5 @@ def test_the_hall_watchers_lines_give_the_stop_as_the_hall_had_it(tmp_path: Path
     ]
     watched = tmp_path / "hall-stop.txt"
     watched.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    assert hall_stops(watched, t) == [HallStop(101.0, True), HallStop(104.0, False)]
+    assert hall_stops(watched, t) == [Stop(101.0, True, "hall"), Stop(104.0, False, "hall")]
     assert hall_stops(tmp_path / "none.txt", t) == []
