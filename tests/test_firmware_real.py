@@ -288,7 +288,7 @@ def test_the_sketch_on_the_real_pubsubclient_over_real_sockets(
 
         # Reconnecting re-subscribes, each at its QoS, and sends the press once.
         again = wait_for(resubscribed, 45, what="a reconnect that subscribes again")
-        wait_for(lambda: presses(again), 10, what="the press after the outage")
+        wait_for(lambda: presses(again), 30, what="the press after the outage")
         probe.wait(press, lambda m: m.payload == pressed)
         assert stays(lambda: len(presses()) == 2, STOP_RETRY_MS / 1000 + 1.5)
         assert len(presses(again)) == 1
