@@ -83,11 +83,12 @@ async def read_trail(
     """Every entry of the range, oldest first, page by page; GridfleetError when refused."""
     out: list[AuditEntry] = []
     async with operator_session(url, topics, f"audit-{secrets.token_hex(3)}", RETRY_S) as operator:
+        limit = min(PAGE, MAX_AUDIT_PAGE)
         cursor: str | None = None
         while True:
-            limit = min(PAGE, MAX_AUDIT_PAGE)
-            query = {"since": since, "until": until, "actor": actor, "limit": limit}
-            page = await operator.audit(timeout, **query, cursor=cursor)
+            page = await operator.audit(
+                timeout, since=since, until=until, actor=actor, limit=limit, cursor=cursor
+            )
             if not page.accepted:
                 raise GridfleetError(f"refused: {page.reason}")
             out += page.entries

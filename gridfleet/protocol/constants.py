@@ -42,8 +42,8 @@ STALE_AFTER_STEPS = 5  # the coordinator treats a unit as lost after this many s
 # well inside STALE_AFTER_STEPS, so a quiet unit is never taken for a lost one.
 STATE_HEARTBEAT_STEPS = 3
 MIN_TIMEOUT_S = 0.5  # no timeout is shorter than this, whatever the step period
-# An order is too late to drive (protocol §4.4 rule 7) when later than this, or than the unit's hold
-# time if that is longer: a busy host delays every message by up to a second, and holding a whole
-# fleet for that turns a slow fleet into a stopped one (150 units beside 3 CPU hogs and an open page:
-# 726 late-order holds, and the fleet's steps fell from 2-4.6 a second to 0-1.4 with the page open).
+# An order is too late to drive (protocol §4.4 rule 7) when later than this, or than the unit's
+# hold time if that is longer: a busy host delays every message by up to a second, and holding a
+# whole fleet for that turns a slow fleet into a stopped one (150 units beside 3 CPU hogs and an
+# open page: 726 late-order holds, and 0-1.4 steps a second with the page open, from 2-4.6).
 LATE_ORDER_MIN_S = 1.5
