@@ -75,6 +75,11 @@ class OpenDashboard:
             found[unit] = (int(x), int(y))
         return found
 
+    def wait_for_map(self) -> None:
+        """Wait until the page shows the coordinator's map (its forms refuse every square before)."""
+        # A form sent sooner is answered "no map yet" (CI failed on that once, under load).
+        expect(self.page.locator("#map-name")).not_to_have_text("no map yet")
+
     def submit_job(
         self,
         pickup: tuple[int, int],
@@ -83,7 +88,8 @@ class OpenDashboard:
         priority: int = 0,
         job_id: str | None = None,
     ) -> None:
-        """Fill the job form and press "queue job" (as an operator would)."""
+        """Fill the job form and press "queue job" (as an operator would, once the map shows)."""
+        self.wait_for_map()
         form = self.page.locator("#job-form")
         values = {
             "px": pickup[0],
@@ -99,7 +105,8 @@ class OpenDashboard:
         form.locator("button[type=submit]").click()
 
     def set_goal(self, unit: str, target: tuple[int, int]) -> None:
-        """Choose `unit` and send it to `target` with the goal form."""
+        """Choose `unit` and send it to `target` with the goal form, once the map shows."""
+        self.wait_for_map()
         form = self.page.locator("#goal-form")
         form.locator("select[name=unit]").select_option(unit)
         form.locator("input[name=x]").fill(str(target[0]))
