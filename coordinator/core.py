@@ -413,6 +413,7 @@ class CoordinatorCore:
                 self.orders.reserved,
                 targets,
                 self.progress.urgency(units),
+                driving={u.id for u in units if u.id in active and u.id not in settled},
             )
         for uid, target in targets.items():
             if target is None:  # an idle unit making way for another shows where it goes

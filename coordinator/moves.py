@@ -10,6 +10,7 @@ has gone, or is re-planned after FOLLOW_PATIENCE steps.
 from __future__ import annotations
 
 from collections.abc import Callable
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 
 from gridfleet.coordinator.planner import AgentSpec, Planner
@@ -41,8 +42,14 @@ class Moves:
         reserved: Callable[[UnitRecord], set[Cell]],
         targets: dict[str, Cell | None],
         urgency: dict[str, float],
+        driving: AbstractSet[str] = frozenset(),
     ) -> dict[str, Cell]:
-        """The next square of each unit that moves; `reserved(u)` are squares `u` may still drive."""
+        """The next square of each unit that moves; `reserved(u)` are squares `u` may still drive.
+
+        `driving`: units that may not move this step only because they are still driving (or
+        have yet to acknowledge) what they were given; they keep their targets, and so their
+        priorities.
+        """
         agents: dict[str, AgentSpec] = {}
         blocked: set[Cell] = set()
         seen: set[Cell] = set()
@@ -68,7 +75,11 @@ class Moves:
                 continue
             self.following.pop(u.id, None)
             still = u.id not in movable
-            agents[u.id] = AgentSpec(pos, None if still else targets[u.id], frozen=still)
+            # Without its target an agent counts as arrived and its priority starts again at 0;
+            # a unit still driving at a step would lose its priority to whoever it meets, and
+            # two units meeting head-on took turns pushing each other back (bench/README.md).
+            keeps = not still or u.id in driving
+            agents[u.id] = AgentSpec(pos, targets[u.id] if keeps else None, frozen=still)
         # A reserved square may hold another unit (a follower waits for it to leave): that unit
         # may stay or leave, but nobody else may be released into it.
         moves = self.planner.step(agents, reserved=blocked, urgency=urgency)
