@@ -306,3 +306,28 @@ def test_a_unit_facing_a_dead_end_backs_off_to_let_the_other_pass() -> None:
     # Without a side square behind, backing off does not help: no swap.
     s = search_on(["......", "######"], {Cell(2, 0): Cell(5, 0), Cell(3, 0): Cell(0, 0)})
     assert swap_partner(s, 0, 3) is None
+
+
+def test_a_shown_route_is_a_shortest_way_square_by_square_and_stops_at_its_limit() -> None:
+    # A maze-like map, larger than the compact-field threshold on one side of the test and small
+    # on the other: the way is checked against the distance field, square by square.
+    for rows in (["....@....", ".@@.@.@@.", ".@.....@.", ".@@@@@.@.", "........."],
+                 ["." * 90 if y % 4 else "." + "@" * 88 + "." for y in range(60)]):  # fmt: skip
+        grid = GridMap.from_rows(rows)
+        planner, cache = Planner(grid), DistanceFieldCache(grid)
+        free = [
+            c
+            for y in range(grid.height)
+            for x in range(grid.width)
+            if grid.is_free(c := Cell(x, y))
+        ]
+        for start, target in zip(free[::7], free[::-5], strict=False):
+            d = cache.distance(start, target)
+            way = planner.route(start, target, 256)
+            assert len(way) == d
+            for here, there in zip([start, *way], way, strict=False):
+                assert here.manhattan(there) == 1 and grid.is_free(there)
+                assert cache.distance(there, target) == cache.distance(here, target) - 1
+            assert planner.route(start, target, 3) == way[:3]
+    walled = GridMap.from_rows(["..@..", "..@.."])
+    assert Planner(walled).route(Cell(0, 0), Cell(4, 0)) == []  # unreachable: no way shown
