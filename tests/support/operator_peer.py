@@ -12,6 +12,7 @@ through an `MqttProbe`.
 from __future__ import annotations
 
 import itertools
+import time
 from typing import TypedDict, Unpack
 
 from gridfleet.grid import Cell
@@ -33,7 +34,10 @@ from gridfleet.protocol.messages import Request
 from support.fleet_peer import publish
 from support.probe import MqttProbe
 from support.readers import FleetReader
-from support.wait import wait_for
+from support.wait import WaitTimeout, wait_for
+
+ASK_S = 20.0  # how long a request waits for its reply, sent again meanwhile
+RESEND_S = 2.0  # the first wait before it is sent again; doubled each time (as RETRY_S)
 
 
 class JobOptions(TypedDict, total=False):
@@ -68,9 +72,9 @@ class OperatorPeer(FleetReader):
 
     # -- requests and their replies -------------------------------------------------------------
 
-    def set_goal(self, unit: str, target: Cell | None, *, timeout: float = 10.0) -> Reply:
+    def set_goal(self, unit: str, target: Cell | None, *, timeout: float = ASK_S) -> Reply:
         """Send `unit` to `target` (None clears its goal); the coordinator's reply."""
-        return self.reply_to(self.send_set_goal(unit, target).request_id, timeout)
+        return self._answer("set_goal", self.send_set_goal(unit, target), timeout)
 
     def send_set_goal(self, unit: str, target: Cell | None) -> SetGoal:
         """`set_goal` without waiting: the request sent (its `request_id` finds the reply)."""
@@ -102,12 +106,12 @@ class OperatorPeer(FleetReader):
         dropoff: Cell,
         mass_kg: float,
         *,
-        timeout: float = 10.0,
+        timeout: float = ASK_S,
         **options: Unpack[JobOptions],
     ) -> Reply:
         """Queue a job; the coordinator's reply (its `job_id` names the job when accepted)."""
         request = self.send_submit_job(pickup, dropoff, mass_kg, **options)
-        return self.reply_to(request.request_id, timeout)
+        return self._answer("submit_job", request, timeout)
 
     def send_submit_job(
         self, pickup: Cell, dropoff: Cell, mass_kg: float, **options: Unpack[JobOptions]
@@ -125,9 +129,9 @@ class OperatorPeer(FleetReader):
         self._send("submit_job", request)
         return request
 
-    def cancel_job(self, job_id: str, *, timeout: float = 10.0) -> Reply:
+    def cancel_job(self, job_id: str, *, timeout: float = ASK_S) -> Reply:
         """Delete a queued job or abort an active one; the coordinator's reply."""
-        return self.reply_to(self.send_cancel_job(job_id).request_id, timeout)
+        return self._answer("cancel_job", self.send_cancel_job(job_id), timeout)
 
     def send_cancel_job(self, job_id: str) -> CancelJob:
         """`cancel_job` without waiting: the request sent (its `request_id` finds the reply)."""
@@ -159,6 +163,23 @@ class OperatorPeer(FleetReader):
         )
         assert reply is not None
         return reply
+
+    def _answer(self, kind: str, request: Request, timeout: float) -> Reply:
+        """The reply to `request` (just sent), sending it again while none comes, as the
+        operator's client does (console/operator.py): the coordinator answers a repeat with its
+        first answer, and a coordinator whose session broke and came back (CI, once, on a busy
+        machine) never saw the first."""
+        deadline = time.monotonic() + timeout
+        pause = RESEND_S
+        while True:
+            wait = min(pause, deadline - time.monotonic())
+            try:
+                return self.reply_to(request.request_id, max(wait, 0.0))
+            except WaitTimeout:
+                if time.monotonic() >= deadline:
+                    raise
+            self._send(kind, request)
+            pause *= 2
 
     def _request_id(self) -> str:
         return f"{self.name}-{next(self._ids)}"
