@@ -75,15 +75,18 @@ async def _keep_jobs(
 
     async def submit(job: tuple[Cell, Cell, float]) -> Reply:
         async with limit:
-            return await operator.submit_job(*job)
+            reply = await operator.submit_job(*job)
+        # Counted as it is answered, not when the whole batch is: at 200 units and more the
+        # batch outlasted the run, which then reported no job submitted.
+        submitted[0] += reply.accepted
+        return reply
 
     while True:
         deficit = target - operator.active_jobs() if operator.jobs is not None else target
         if deficit > 0:
             jobs = [random_job(scenario, rng, fields) for _ in range(deficit)]
-            replies = await asyncio.gather(*(submit(job) for job in jobs), return_exceptions=True)
             # A reply that timed out (an overloaded broker) is a job less, not the end of the run.
-            submitted[0] += sum(isinstance(r, Reply) and r.accepted for r in replies)
+            await asyncio.gather(*(submit(job) for job in jobs), return_exceptions=True)
         operator.jobs_changed.clear()
         await operator.jobs_changed.wait()
 
