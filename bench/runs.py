@@ -197,8 +197,14 @@ def run_lifelong(
         scheduling=Timing(tuple(scheduling)),
         setup_s=setup_s,
         finished_by_tick=tuple(finished_by_tick),
-        fields_computed=cache.computed,
+        fields_computed=cache.computed + _lanes_computed(planner),
     )
+
+
+def _lanes_computed(planner: StepPlanner) -> int:
+    """Fields of a planner's one-way lanes computed (beside its plain ones), if it has lanes."""
+    lanes = getattr(planner, "lanes", None)
+    return lanes.computed if isinstance(lanes, DistanceFieldCache) else 0
 
 
 class _Stream:

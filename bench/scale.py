@@ -101,6 +101,8 @@ def run_scale(
     travel: list[int] = []
     started = clock()
     planner.cache.warm((*faces, *drops))  # in bulk, before the first tick
+    if planner.lanes is not None:
+        planner.lanes.warm((*faces, *drops))
     first_tick_s = clock() - started
     for tick in range(ticks):
         began = clock()

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from gridfleet.coordinator.flow import lane_costs
 from gridfleet.coordinator.guidance import MAX_SQUARES, Guidance
 from gridfleet.coordinator.parking import parking_square
 from gridfleet.coordinator.pibt import NONE, PIBT, neighbour_table
@@ -48,13 +49,20 @@ class Planner:
     """Plans one step at a time for a fleet on one grid; keeps priorities between steps."""
 
     def __init__(
-        self, grid: GridMap, seed: int = 0, cache_size: int = 4096, guided: bool | None = None
+        self,
+        grid: GridMap,
+        seed: int = 0,
+        cache_size: int = 4096,
+        guided: bool | None = None,
+        lanes: bool | None = None,
     ) -> None:
         """`guided`: traffic-flow guidance (`coordinator.guidance`); None: on for maps of up to
-        `guidance.MAX_SQUARES` squares."""
+        `guidance.MAX_SQUARES` squares. `lanes`: one-way lanes (`coordinator.flow`); None: on
+        where guidance is off (a guide path per unit is too much on a large map)."""
         self._rng = np.random.default_rng(seed)
         self._seed = seed
         self._guided = guided
+        self._lanes_wanted = lanes
         self._cache_size = cache_size
         self._priority: dict[str, float] = {}
         self._tiebreak: dict[str, float] = {}
@@ -69,13 +77,21 @@ class Planner:
     def set_grid(self, grid: GridMap) -> None:
         """Re-plan on a new grid (e.g. after an obstacle was reported); drops cached fields."""
         self._grid = grid
-        self.cache = DistanceFieldCache(grid, size=self._cache_size)
         self._free = ~grid.blocked.reshape(-1)
         self._nbrs = neighbour_table(grid)
-        self.unjam = Unjam(self._nbrs, self._field_to, self._seed)
         guided = self._guided
         if guided is None:
             guided = grid.width * grid.height <= MAX_SQUARES
+        lanes = not guided if self._lanes_wanted is None else self._lanes_wanted
+        # One-way lanes: the fields units descend cost more against a lane (`flow`); plain
+        # fields stay for the allocator, the display and getting units unstuck.
+        self.lanes = (
+            DistanceFieldCache(grid, size=self._cache_size, costs=lane_costs(grid))
+            if lanes
+            else None
+        )
+        self.cache = DistanceFieldCache(grid, size=self._cache_size)
+        self.unjam = Unjam(self._nbrs, self._field_to, self._seed)
         # Guide paths follow the traffic of the grid they were made on: a new grid, new ones.
         self.guidance = Guidance(self._nbrs, self._field_to) if guided else None
 
@@ -142,7 +158,7 @@ class Planner:
         if spec.target is None:
             return None
         if self.guidance is None:
-            return self.cache.flat(spec.target)
+            return (self.cache if self.lanes is None else self.lanes).flat(spec.target)
         w = self._grid.width
         here, target = spec.position, spec.target
         guided = self.guidance.field(agent, here.y * w + here.x, target.y * w + target.x)
@@ -224,11 +240,20 @@ class Planner:
         # Cell.neighbours): a route shown for every unit in every order cost the coordinator
         # about a seventh of its time at 500 units built from Cells (and a field copied per call
         # on the large maps).
-        field = self.cache.flat(target)
-        d = self.cache.distance(start, target)
         out: list[Cell] = []
         here = start.y * w + start.x
-        while 0 < d < UNREACHABLE and len(out) < limit:
+        if self.cache.distance(start, target) >= UNREACHABLE:
+            return out
+        if self.lanes is not None:
+            # As PIBT ranks squares: down the lanes' field, each square cheaper than the last.
+            lane = self.lanes.flat(target)
+            while lane[here] > 0 and len(out) < limit:
+                here = min(self._nbrs[here], key=lane.__getitem__)
+                out.append(Cell(here % w, here // w))
+            return out
+        field = self.cache.flat(target)
+        d = field[here]
+        while d > 0 and len(out) < limit:
             here = next(n for n in self._nbrs[here] if field[n] == d - 1)
             out.append(Cell(here % w, here // w))
             d -= 1

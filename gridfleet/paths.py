@@ -70,6 +70,21 @@ def _bfs(
     return field
 
 
+def _cheapest(
+    grid: GridMap, target: Cell, reversed_costs: csr_matrix, dtype: np.dtype[Any], cut_off: int
+) -> npt.NDArray[Any]:
+    """The cheapest cost from every square to `target` by flat index, `cut_off` where none."""
+    n = grid.height * grid.width
+    field = np.full(n, cut_off, dtype=dtype)
+    if grid.is_free(target):
+        from scipy.sparse.csgraph import dijkstra
+
+        cost = dijkstra(reversed_costs, directed=True, indices=target.y * grid.width + target.x)
+        reached = np.isfinite(cost)
+        field[reached] = cost[reached]
+    return field
+
+
 def _depths(
     order: npt.NDArray[np.int32], parent: npt.NDArray[np.int32], n: int
 ) -> npt.NDArray[np.int32]:
@@ -132,7 +147,9 @@ class DistanceFieldCache:
     on a compact one (larger than any distance, which is all the planner asks of it).
     """
 
-    def __init__(self, grid: GridMap, size: int = 4096) -> None:
+    def __init__(self, grid: GridMap, size: int = 4096, costs: csr_matrix | None = None) -> None:
+        """`costs`: a cost per move (row: from, column: to) instead of one step each; the field
+        is then the cheapest cost to the target (Dijkstra), not the fewest steps."""
         self.grid = grid
         self.size = size
         self.compact = DistanceFieldCache.is_compact(grid)
@@ -142,6 +159,10 @@ class DistanceFieldCache:
         # and checks the whole graph first (more than the search itself on a large map).
         self._graph = adjacency(grid).astype(np.float64)
         self._graph.sort_indices()
+        # The cost towards a target is searched from it backwards: along each move reversed.
+        self._reversed = None if costs is None else costs.T.tocsr().astype(np.float64)
+        if self._reversed is not None:
+            self._reversed.sort_indices()
         self._fields: OrderedDict[Cell, npt.NDArray[Any]] = OrderedDict()  # flat, as kept
         self.computed = 0  # fields computed so far (more than the targets asked for: thrashing)
 
@@ -161,7 +182,10 @@ class DistanceFieldCache:
         """The field towards `target` by flat index, as kept (computed on first use)."""
         field = self._fields.get(target)
         if field is None:
-            field = _bfs(self.grid, target, self._graph, self._dtype, self._cut_off)
+            if self._reversed is None:
+                field = _bfs(self.grid, target, self._graph, self._dtype, self._cut_off)
+            else:
+                field = _cheapest(self.grid, target, self._reversed, self._dtype, self._cut_off)
             self.computed += 1
             self._fields[target] = field
             if len(self._fields) > self.size:
