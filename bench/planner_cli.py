@@ -20,6 +20,7 @@ from gridfleet.bench.anchors import (
 )
 from gridfleet.bench.plot import plot_report
 from gridfleet.bench.runs import (
+    GUIDANCE,
     LifelongResult,
     OneShotResult,
     Timing,
@@ -100,6 +101,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--scale-stations", type=_positive, default=200, help="squares jobs end at (200)"
     )
+    parser.add_argument(
+        "--guidance",
+        choices=list(GUIDANCE),
+        default="auto",
+        help="auto: as the coordinator (guide paths on maps up to 4096 squares, one-way lanes "
+        "above); off: plain shortest-path fields; lanes; paths (default auto)",
+    )
     parser.add_argument("--repeat", type=_positive, default=1, help="runs of each (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="planner and scale-run seed")
     parser.add_argument("--json", action="store_true", help="print JSON instead of tables")
@@ -170,7 +178,8 @@ def _lifelong(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
         instance = load_instance(path, anchors / "maps")
         log.info("lifelong %s: %d agents", instance.name, instance.agents)
         result, timing = _repeat(
-            args.repeat, partial(run_lifelong, instance, args.horizon, seed=args.seed)
+            args.repeat,
+            partial(run_lifelong, instance, args.horizon, seed=args.seed, guidance=args.guidance),
         )
         rows.append(
             {
@@ -203,8 +212,10 @@ def _instance(path: Path, args: argparse.Namespace) -> dict[str, Any]:
         if (tick + 1) % every == 0:
             log.info("%s: tick %d, %d tasks finished", instance.name, tick + 1, finished)
 
-    result = run_lifelong(instance, ticks, seed=args.seed, progress=progress)
-    return instance_row(instance, result, peak_rss_mb())
+    result = run_lifelong(
+        instance, ticks, seed=args.seed, progress=progress, guidance=args.guidance
+    )
+    return {**instance_row(instance, result, peak_rss_mb()), "guidance": args.guidance}
 
 
 def instance_row(
@@ -260,7 +271,15 @@ def _oneshot(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
             raise ConfigError(f"--agents: {args.scen} has {len(agents)} agents, not {n}")
         log.info("one-shot %s: %d agents", args.scen, n)
         result, timing = _repeat(
-            args.repeat, partial(run_one_shot, grid, agents[:n], max_steps=1000, seed=args.seed)
+            args.repeat,
+            partial(
+                run_one_shot,
+                grid,
+                agents[:n],
+                max_steps=1000,
+                seed=args.seed,
+                guidance=args.guidance,
+            ),
         )
         ratio = result.sum_of_costs / result.lower_bound if result.sum_of_costs else None
         rows.append(
@@ -293,6 +312,7 @@ def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
             seed=args.seed,
             pick_faces=args.scale_pick_faces,
             stations=args.scale_stations,
+            guidance=args.guidance,
         )
         try:
             results = [once() for _ in range(args.repeat)]
@@ -302,6 +322,7 @@ def _scale(anchors: Path, args: argparse.Namespace) -> list[dict[str, Any]]:
         rows.append(
             {
                 "map": grid.name,
+                "guidance": args.guidance,
                 "agents": n,
                 "ticks": result.ticks,
                 "tasks_finished": result.tasks_finished,

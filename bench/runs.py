@@ -106,6 +106,17 @@ class OneShotResult:
     timing: Timing
 
 
+# How the planner is guided (`gridfleet bench planner --guidance`): "auto" is what the coordinator
+# runs (guide paths up to guidance.MAX_SQUARES squares, one-way lanes above); "off" is plain
+# shortest-path fields, the League of Robot Runners' default entry's PIBT without its guidance.
+GUIDANCE: dict[str, dict[str, bool]] = {
+    "auto": {},
+    "off": {"guided": False, "lanes": False},
+    "lanes": {"guided": False, "lanes": True},
+    "paths": {"guided": True, "lanes": False},
+}
+
+
 @dataclass
 class CheckedPlanner:
     """Steps a planner, timing each step and checking it with the plan validator (untimed)."""
@@ -134,6 +145,7 @@ def run_lifelong(
     clock: Clock = time.perf_counter,
     planner: StepPlanner | None = None,
     progress: Callable[[int, int], None] | None = None,
+    guidance: str = "auto",
 ) -> LifelongResult:
     """Run `instance` for `horizon` ticks (default: its own); an idle agent is given a task.
 
@@ -150,7 +162,7 @@ def run_lifelong(
         # computes them all again every tick.
         targets = len({c for task in instance.tasks for c in task})
         size = fields_that_fit(instance.grid, targets + instance.agents)
-        planner = Planner(instance.grid, seed=seed, cache_size=size)
+        planner = Planner(instance.grid, seed=seed, cache_size=size, **GUIDANCE[guidance])
     cache = getattr(planner, "cache", None)  # the planner's own fields: one copy, not two
     if not isinstance(cache, DistanceFieldCache):
         cache = DistanceFieldCache(instance.grid)
@@ -315,6 +327,7 @@ def run_one_shot(
     seed: int = 0,
     clock: Clock = time.perf_counter,
     planner: StepPlanner | None = None,
+    guidance: str = "auto",
 ) -> OneShotResult:
     """Move every agent to its goal; stop when all are there at once or after `max_steps`."""
     names = [str(i) for i in range(len(agents))]
@@ -325,7 +338,7 @@ def run_one_shot(
     if UNREACHABLE in shortest:
         raise ValueError("an agent's goal cannot be reached from its start")
     arrived = {a: 0 if position[a] == goal[a] else None for a in names}
-    checked = CheckedPlanner(planner or Planner(grid, seed=seed), grid, clock)
+    checked = CheckedPlanner(planner or Planner(grid, seed=seed, **GUIDANCE[guidance]), grid, clock)
     makespan: int | None = 0 if all(v == 0 for v in arrived.values()) else None
     step = 0
     while makespan is None and step < max_steps:

@@ -15,7 +15,7 @@ import time
 from collections import deque
 from dataclasses import dataclass, field
 
-from gridfleet.bench.runs import CheckedPlanner, Clock, Timing, largest_region
+from gridfleet.bench.runs import GUIDANCE, CheckedPlanner, Clock, Timing, largest_region
 from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
 from gridfleet.coordinator.planner import AgentSpec, Planner
 from gridfleet.grid import Cell, GridMap
@@ -76,6 +76,7 @@ def run_scale(
     pick_faces: int = 2000,
     stations: int = 200,
     clock: Clock = time.perf_counter,
+    guidance: str = "auto",
 ) -> ScaleResult:
     """Run `agents` units for `ticks` ticks on `grid`, a job queue always waiting for them."""
     cells = largest_region(grid)
@@ -93,7 +94,8 @@ def run_scale(
     }
     # Room for every pick face and station and for the squares idle units park on: a cache
     # smaller than the fields used in one tick would compute them all again every tick.
-    planner = Planner(grid, seed=seed, cache_size=pick_faces + stations + PARKING_FIELDS)
+    size = pick_faces + stations + PARKING_FIELDS
+    planner = Planner(grid, seed=seed, cache_size=size, **GUIDANCE[guidance])
     checked = CheckedPlanner(planner, grid, clock)
     queue: deque[JobRequest] = deque()
     made = finished = second_half = 0

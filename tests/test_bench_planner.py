@@ -10,11 +10,13 @@ import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from gridfleet.bench import anchors as bench_anchors
 from gridfleet.bench import runs as bench_runs
+from gridfleet.bench import scale as scale_module
 from gridfleet.bench.anchors import (
     ANCHORS_ENV,
     LifelongInstance,
@@ -25,7 +27,7 @@ from gridfleet.bench.anchors import (
 )
 from gridfleet.bench.runs import random_instance, run_lifelong, run_one_shot
 from gridfleet.bench.scale import run_scale
-from gridfleet.coordinator.planner import AgentSpec
+from gridfleet.coordinator.planner import AgentSpec, Planner
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
@@ -343,6 +345,7 @@ def test_the_command_prints_tables_by_default(tmp_path: Path) -> None:
         (["--agents", "0"], "expected counts of at least 1"),
         (["--repeat", "two"], "expected whole numbers"),
         (["--suite", "scale", "--scale-map", "tiny.map", "--scale-agents", "99"], "do not fit"),
+        (["--guidance", "magic"], "invalid choice: 'magic'"),
     ],
 )
 def test_bad_arguments_are_one_line_and_exit_2(
@@ -388,6 +391,28 @@ def test_a_scale_run_allocates_jobs_and_finishes_them_the_same_way_twice() -> No
     )
     with pytest.raises(ValueError, match="do not fit"):
         run_scale(grid, 190, 5, pick_faces=10, stations=3)
+
+
+@pytest.mark.parametrize(
+    ("guidance", "guided", "lanes"),
+    [("auto", True, False), ("off", False, False), ("lanes", False, True), ("paths", True, False)],
+)
+def test_a_scale_run_is_planned_with_the_guidance_asked_for(
+    monkeypatch: pytest.MonkeyPatch, guidance: str, guided: bool, lanes: bool
+) -> None:
+    made: list[Planner] = []
+    real = scale_module.Planner
+
+    def recorded(*args: Any, **kwargs: Any) -> Planner:
+        made.append(real(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(scale_module, "Planner", recorded)
+    grid = GridMap.from_rows(["." * 16] * 12)  # small: guide paths, no lanes, unless asked
+    result = run_scale(grid, 20, 60, seed=4, pick_faces=10, stations=3, guidance=guidance)
+    assert result.violations == 0 and result.tasks_finished > 0
+    (planner,) = made
+    assert (planner.guidance is not None, planner.lanes is not None) == (guided, lanes)
 
 
 def test_the_command_draws_its_figures_into_the_file_named(tmp_path: Path) -> None:
