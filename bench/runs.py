@@ -9,7 +9,6 @@ from __future__ import annotations
 import random
 import statistics
 import time
-from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -26,7 +25,6 @@ from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency, fields_t
 
 Clock = Callable[[], float]
 ALLOCATE_AT_MOST = 256  # idle agents paired in one assignment (it is cubic in this)
-CROWDING = False  # the pool tells the allocator how many agents head for each pickup
 OFFER_AT_MOST = 1024  # open tasks offered to one assignment as they are; more: the nearest...
 OFFER_EACH = 2  # ...this many for each agent of the batch
 
@@ -267,7 +265,6 @@ class _Pool:
         """Known tasks to the `idle` agents, as the allocator pairs them."""
         # The assignment is cubic: a fleet's worth of idle agents (every one, at the start) is
         # paired a batch at a time, each batch offered the tasks nearest its agents.
-        crowding = Counter(e[0] for e in errands.values() if e) if CROWDING else None
         for start in range(0, len(idle), ALLOCATE_AT_MOST):
             if not self._open:
                 return
@@ -277,12 +274,10 @@ class _Pool:
                 offered = self._nearest(batch, position)
             units = [UnitSlot(a, position[a], 1.0) for a in batch]
             jobs = [JobRequest(str(k), self.task(k)[0], self.task(k)[-1], 0.0) for k in offered]
-            pairs = allocate(self._cache, units, jobs, crowding)
+            pairs = allocate(self._cache, units, jobs)
             for job, agent in pairs.items():
                 errands[agent] = list(self.task(int(job)))
                 del self._open[int(job)]
-                if crowding is not None:
-                    crowding[errands[agent][0]] += 1
 
     def _nearest(self, batch: list[str], position: dict[str, Cell]) -> list[int]:
         """Open tasks to offer `batch`: for each agent in turn, the OFFER_EACH not yet offered

@@ -7,7 +7,7 @@ assignment solver (Hungarian method, `scipy.optimize.linear_sum_assignment`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -16,7 +16,6 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 
 INFEASIBLE = 1e12  # cost of a pair that must never be chosen (filtered after solving)
-CROWDED = 2  # squares of travel a pickup costs more for each unit already heading for it
 
 
 @dataclass(frozen=True)
@@ -53,17 +52,12 @@ def feasible(cache: DistanceFieldCache, unit: UnitSlot, job: JobRequest) -> int 
 
 
 def allocate(
-    cache: DistanceFieldCache,
-    units: Sequence[UnitSlot],
-    jobs: Sequence[JobRequest],
-    crowding: Mapping[Cell, int] | None = None,
+    cache: DistanceFieldCache, units: Sequence[UnitSlot], jobs: Sequence[JobRequest]
 ) -> dict[str, str]:
     """Job id → unit id for an optimal set of pairs; capacity and reachability always hold.
 
     Higher-priority jobs win when there are more jobs than units: each priority point outweighs
-    any travel on the map. Among equal priorities the total travel is minimal, where a pickup
-    that `crowding` says other units are already heading for counts `CROWDED` squares of travel
-    more for each of them.
+    any travel on the map. Among equal priorities the total travel is minimal.
     """
     if not units or not jobs:
         return {}
@@ -83,8 +77,7 @@ def allocate(
             continue
         to_pickup = cache.distances(job.pickup, at)
         ok = (to_pickup != UNREACHABLE) & (capacity >= job.mass_kg)
-        crowd = CROWDED * crowding.get(job.pickup, 0) if crowding else 0
-        cost[r, ok] = to_pickup[ok] + carry + crowd - weight * job.priority
+        cost[r, ok] = to_pickup[ok] + carry - weight * job.priority
     # Imported here, as scipy is in gridfleet.paths (which says why).
     from scipy.optimize import linear_sum_assignment
 

@@ -138,17 +138,3 @@ def test_a_unit_reported_off_the_map_gets_no_job() -> None:
     job = JobRequest("j", FREE[0], FREE[1], 1.0)
     assert allocate(CACHE, [UnitSlot("lost", Cell(-1, 99), 10.0)], [job]) == {}
     assert allocate(CACHE, [UnitSlot("u", FREE[2], 10.0)], [job]) == {"j": "u"}
-
-
-def test_a_pickup_others_are_heading_for_counts_as_farther() -> None:
-    hall = GridMap.from_rows(["." * 20])
-    cache = DistanceFieldCache(hall)
-    unit = [UnitSlot("u", Cell(10, 0), 5.0)]
-    near = JobRequest("near", Cell(12, 0), Cell(12, 0), 1.0)  # 2 squares away
-    far = JobRequest("far", Cell(5, 0), Cell(5, 0), 1.0)  # 5 squares away
-    assert allocate(cache, unit, [near, far]) == {"near": "u"}
-    # One unit already heading for (12, 0) adds CROWDED squares: 2 + 2 < 5, still near.
-    assert allocate(cache, unit, [near, far], {Cell(12, 0): 1}) == {"near": "u"}
-    # Two: 2 + 4 > 5, the other pickup it is.
-    assert allocate(cache, unit, [near, far], {Cell(12, 0): 2}) == {"far": "u"}
-    assert allocate(cache, unit, [near, far], {}) == {"near": "u"}
