@@ -1,7 +1,9 @@
 """PIBT-family multi-unit planner: one collision-free, rotation-free step for every unit.
 
 Pure: a grid, current squares, targets and priorities in; next squares out. Distance fields
-(BFS, cached per target) from `gridfleet.paths` are the heuristic. Priority inheritance with
+(cached per target) from `gridfleet.paths` are the heuristic: on maps of up to 4096 squares a
+unit's field follows its guide path (`coordinator.guidance`), on larger ones the cheapest cost
+under one-way lanes (`coordinator.flow`). Priority inheritance with
 backtracking (PIBT, Okumura et al. 2019) lets a high-priority unit push lower ones out of its way.
 
 Units run asynchronously (each enters a released square only when its own sensor sees it free),
