@@ -440,7 +440,7 @@ class CoordinatorCore:
                 now=now,
                 heartbeat_s=self._heartbeat_s,
                 held=u.id in self.directives.controls,
-                window=self.window,
+                window=1 if self.planner.unjam.busy else self.window,
                 ahead=partial(self._ahead, claims, u.id, targets[u.id]),
             )
             claims.hold(u.id, order.released)

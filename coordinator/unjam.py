@@ -47,6 +47,7 @@ class Unjam:
     _baseline: Config | None = None  # the first configuration under this key, not yet summed
     _failed: int = 0  # searches out of budget under this key
     _retry_at: float = REVISITS + 1
+    _due: bool = False  # a search is due, and waits for the units still driving to stop
     _search: LaCAM | None = None  # under way, from `_search_from`
     _search_from: Config = ()
     _search_budget: int = 0
@@ -74,6 +75,7 @@ class Unjam:
         if self._search is not None:
             return self._go_on(config, frozen, reserved)
         if all(g in (NONE, p) for p, g in zip(pos, goal, strict=True)):
+            self._due = False
             return None
         entered = self._entered.get(config, 0)
         if config != self._last:
@@ -90,11 +92,16 @@ class Unjam:
         total = self._distance(config, goal)
         if total < self._nearest:
             self._nearest, self._stalled = total, 0
+            self._due = False  # nearer the targets than ever under them: no livelock after all
         self._stalled += 1
         if entered < self._retry_at and self._stalled < STALL * (self._retry_at - REVISITS):
             return None
         if any(frozen):
-            return None  # search once the fleet is still: it starts from where everyone stands
+            # Search once the fleet is still: it starts from where everyone stands. Meanwhile
+            # `busy` holds every released window to its next square, so those still driving stop.
+            self._due = True
+            return None
+        self._due = False
         self._stalled = 1
         # An agent with no target stays where it is at the end, though it may make way meanwhile.
         goals = self._one_each(
@@ -141,6 +148,17 @@ class Unjam:
         """Is a plan out of a livelock being followed?"""
         return self._plan is not None
 
+    @property
+    def busy(self) -> bool:
+        """Is a way out of a livelock due, being searched or followed?
+
+        Released windows give no square beyond a unit's next one meanwhile (coordinator.core):
+        with windows some unit of a livelocked fleet was nearly always still driving, so the
+        search, which starts only from a still fleet, never began (1 simulate run in 342 over
+        MQTT went round in circles to its step limit, bench/README.md).
+        """
+        return self._due or self._search is not None or self._plan is not None
+
     def _reset(self, key: tuple[tuple[str, ...], Config]) -> None:
         self._key = key
         self._entered.clear()
@@ -149,6 +167,7 @@ class Unjam:
         self._baseline = None
         self._failed = 0
         self._retry_at = REVISITS + 1
+        self._due = False
         self._plan = None
         self._search = None
 

@@ -161,6 +161,40 @@ def test_a_configuration_entered_a_third_time_starts_a_search_and_its_plan_is_fo
     assert not unjam.following
 
 
+def test_a_livelock_seen_while_a_unit_still_drives_waits_busy_and_searches_once_all_stop() -> None:
+    # With released windows some unit of a fleet going round in circles was nearly always still
+    # driving, so the search (from a still fleet only) never began. Busy, the coordinator gives no
+    # window beyond the next square, those driving stop, and the search begins.
+    unjam, names, goal = line_unjam()
+    assert not unjam.busy
+    for pos in ([0, 1], [1, 2], [0, 1], [1, 2]):
+        assert unjam.moves(names, pos, goal, [False, True], set()) is None
+    assert unjam.moves(names, [0, 1], goal, [False, True], set()) is None  # due, b still driving
+    assert unjam.busy and unjam.searches == 0
+    assert unjam.moves(names, [0, 1], goal, [False, True], set()) is None
+    assert unjam.busy  # stays so until the fleet is still...
+    assert unjam.moves(names, [0, 1], goal, [False, False], set()) == [1, 2]  # ...then searches
+    assert unjam.busy and unjam.following and unjam.searches == 1
+    assert unjam.moves(names, [1, 2], goal, [False, False], set()) == [2, 3]
+    assert unjam.moves(names, [2, 3], goal, [False, False], set()) is None
+    assert not unjam.busy
+
+
+def test_a_livelock_due_is_called_off_by_new_targets_or_by_getting_nearer_them() -> None:
+    unjam, names, goal = line_unjam()
+    for pos in ([0, 1], [1, 2], [0, 1], [1, 2], [0, 1]):
+        unjam.moves(names, pos, goal, [False, True], set())
+    assert unjam.busy
+    assert unjam.moves(names, [0, 1], [2, 5], [False, True], set()) is None
+    assert not unjam.busy  # new targets: whatever went round in circles is over
+    unjam, names, goal = line_unjam()
+    for pos in ([0, 1], [1, 2], [0, 1], [1, 2], [0, 1]):
+        unjam.moves(names, pos, goal, [False, True], set())
+    assert unjam.busy
+    assert unjam.moves(names, [1, 3], goal, [False, True], set()) is None
+    assert not unjam.busy  # nearer the targets than ever: no livelock after all
+
+
 def test_a_unit_that_cannot_move_holds_the_one_behind_it_and_a_held_plan_is_dropped() -> None:
     unjam, names, goal = line_unjam()
     trip(unjam, names, goal)

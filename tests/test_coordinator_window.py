@@ -5,7 +5,10 @@ and a lost coordinator cut a window to nothing. Every window is checked by the v
 
 from __future__ import annotations
 
+import pytest
+
 from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.unjam import Unjam
 from gridfleet.coordinator.validate import validate_windows
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import ControlUnit, Order, SetGoal
@@ -122,6 +125,22 @@ def test_a_follower_gets_the_leaders_square_the_step_after_the_leader_left() -> 
     orders = deliver(core, yard, 2.0)
     # [1, 0] at once; not [2, 0], where the leader stands now.
     assert orders["next"].released == [Cell(1, 0)]
+
+
+def test_while_a_way_out_of_a_livelock_is_due_no_window_goes_beyond_the_next_square(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The search out of a livelock starts from a still fleet; with windows some unit was nearly
+    # always still driving, and one simulate run in 342 went round in circles to its step limit.
+    core, yard = windowed({"u": Cell(0, 0)}, {"u": Cell(11, 2)})
+    monkeypatch.setattr(Unjam, "busy", property(lambda self: True))
+    assert deliver(core, yard, 1.0)["u"].released == [Cell(1, 0)]
+    yard.tick("u", 1.5)
+    from_unit(core, "state", "u", yard.state("u"), 1.5)
+    assert deliver(core, yard, 2.0)["u"].released == [Cell(2, 0)]
+    monkeypatch.undo()  # the way out found and followed: windows grow again once needed
+    late_drive(core, yard, "u", range(3, 9))
+    assert len(deliver(core, yard, 9.0)["u"].released) > 1
 
 
 def test_the_stop_cuts_every_window_to_nothing() -> None:
