@@ -121,8 +121,11 @@ class Unjam:
 
         Two agents may be sent to one square (two jobs picked up at one place): no configuration
         has both there, so a search for one would only hold the fleet still until its budget ran
-        out, again and again. The agent nearest such a square keeps it; the others stay where
-        they stand at the end (they get it once it is free, planned as usual).
+        out, again and again. The agent nearest such a square keeps it; each other one ends where
+        it stands, or, where that is a square somebody keeps, on the nearest square nobody does
+        (three units bringing jobs to one drop-off beside two going to another went round in
+        circles for good when the one left standing on the other's drop-off gave up the search).
+        They get their own goals once free, planned as usual.
         """
         wanted: dict[Index, list[int]] = {}
         for i, g in enumerate(goals):
@@ -130,14 +133,37 @@ class Unjam:
         if all(len(agents) == 1 for agents in wanted.values()):
             return goals
         out = list(goals)
+        kept: set[Index] = set()
+        left: list[int] = []
         for g, agents in wanted.items():
-            if len(agents) > 1:
-                field = self.field_of(g)
-                keeper = min(agents, key=lambda i: (field[config[i]], i))
-                for i in agents:
-                    if i != keeper:
-                        out[i] = config[i]
-        return out if len(set(out)) == len(out) else None
+            field = self.field_of(g)
+            keeper = min(agents, key=lambda i: (field[config[i]], i))
+            kept.add(g)
+            left.extend(i for i in agents if i != keeper)
+        for i in sorted(left):
+            end = self._nearest_not_in(config[i], kept)
+            if end is None:
+                return None
+            out[i] = end
+            kept.add(end)
+        return out
+
+    def _nearest_not_in(self, start: Index, taken: set[Index]) -> Index | None:
+        """The square nearest `start` (itself first) that is not in `taken`; None: none left."""
+        seen = {start}
+        frontier = [start]
+        while frontier:
+            for square in frontier:
+                if square not in taken:
+                    return square
+            nxt = []
+            for square in frontier:
+                for n in self.nbrs[square]:
+                    if n not in seen:
+                        seen.add(n)
+                        nxt.append(n)
+            frontier = nxt
+        return None
 
     def _distance(self, config: Config, goal: Sequence[Index]) -> int:
         """The fleet's total distance to its targets."""

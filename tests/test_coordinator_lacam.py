@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +18,10 @@ from gridfleet.coordinator.planner import Planner
 from gridfleet.coordinator.unjam import PATIENCE, Unjam
 from gridfleet.coordinator.validate import validate_plan
 from gridfleet.grid import Cell, GridMap
+from gridfleet.maps import load_map
 from gridfleet.paths import DistanceFieldCache, adjacency
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
 
 
 def random_problem(
@@ -266,3 +270,37 @@ def test_two_agents_sent_to_one_square_do_not_hold_the_fleet_still_searching() -
     assert len(set(out)) == 3 and all(
         a == b or grid.is_free(Cell(b % w, b // w)) for a, b in zip(flat, out, strict=True)
     )
+
+
+def test_units_left_standing_on_a_square_someone_keeps_make_way_and_the_search_goes_on() -> None:
+    # Seen in a dense warehouse run over MQTT: three units bringing jobs to [4, 0], two going to
+    # [8, 0], where one of the three stood, and one to [6, 0]. Only one unit can end on each; the
+    # others were left where they stood, one of them on [8, 0], so no search was possible, and two
+    # units went back and forth between [5, 0] and [6, 1] for 1,000 steps.
+    grid = load_map(MAPS / "warehouse.map")
+    w = grid.width
+    cache = DistanceFieldCache(grid)
+    unjam = Unjam(neighbour_table(grid), lambda g: cache.flat(Cell(g % w, g // w)))
+    at = {"u06": (6, 0), "u07": (7, 0), "u12": (8, 0), "x0": (5, 0), "x2": (9, 1), "x6": (9, 0)}
+    to = {"u06": (4, 0), "u07": (4, 0), "u12": (4, 0), "x0": (8, 0), "x2": (8, 0), "x6": (6, 0)}
+    names = list(at)
+    goal = [to[n][1] * w + to[n][0] for n in names]
+    here = [at[n][1] * w + at[n][0] for n in names]
+    there = list(here)
+    there[0] = 1 * w + 6  # u06 steps down to [6, 1] and back, as it did
+    out = None
+    for pos in (here, there, here, there, here):
+        out = unjam.moves(names, pos, goal, [False] * len(names), set())
+    assert unjam.searches == 1 and out is not None
+    pos = out
+    for _ in range(100):  # follow the plan to its end
+        out = unjam.moves(names, pos, goal, [False] * len(names), set())
+        if out is None:
+            break
+        pos = out
+    else:
+        raise AssertionError("the plan never ended")
+    ends = {n: (p % w, p // w) for n, p in zip(names, pos, strict=True)}
+    assert len(set(ends.values())) == len(names)
+    assert ends["x6"] == (6, 0) and (4, 0) in ends.values() and (8, 0) in ends.values()
+    assert [n for n in ("u06", "u07", "u12") if ends[n] == (4, 0)] != []
