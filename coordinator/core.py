@@ -418,7 +418,10 @@ class CoordinatorCore:
         for uid, target in targets.items():
             if target is None:  # an idle unit making way for another shows where it goes
                 targets[uid] = self.planner.parking(uid)
-        claims = self._claims(units, moves, targets)
+        # While a way out of a livelock is due, searched or followed, no window goes beyond a
+        # unit's next square, so units still driving stop and the search can begin (unjam.py).
+        window = 1 if self.planner.unjam.busy else self.window
+        claims = self._claims(units, moves, targets, window)
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:
@@ -440,7 +443,7 @@ class CoordinatorCore:
                 now=now,
                 heartbeat_s=self._heartbeat_s,
                 held=u.id in self.directives.controls,
-                window=1 if self.planner.unjam.busy else self.window,
+                window=window,
                 ahead=partial(self._ahead, claims, u.id, targets[u.id]),
             )
             claims.hold(u.id, order.released)
@@ -454,11 +457,15 @@ class CoordinatorCore:
         return StepResult(self.step_no, orders, routes)
 
     def _claims(
-        self, units: list[UnitRecord], moves: dict[str, Cell], targets: dict[str, Cell | None]
+        self,
+        units: list[UnitRecord],
+        moves: dict[str, Cell],
+        targets: dict[str, Cell | None],
+        window: int,
     ) -> Claims:
         """Who stands on, holds, enters this step or intends each square (window.py)."""
         claims = Claims(self.world.grid)
-        if self.window == 1:
+        if window == 1:
             return claims  # no unit is given more than its move: nothing to claim
         for u in units:
             assert u.state is not None
@@ -466,7 +473,7 @@ class CoordinatorCore:
             claims.hold(u.id, sorted(self.orders.reserved(u)))
             target = targets.get(u.id)
             if target is not None and u.state.position != target:
-                way = self.planner.route(u.state.position, target, self.window, u.id)
+                way = self.planner.route(u.state.position, target, window, u.id)
                 claims.intend(u.id, way)
         for uid, move in moves.items():
             claims.hold(uid, [move])
