@@ -90,12 +90,16 @@ soak: $(STAMP)
 firmware-checkout: $(STAMP)
 	$(BIN)/pytest -q -m firmware
 
-# Every test but the soak and the firmware's build (make test runs those beside it).
+# Every test but the soak and the firmware's build (make test runs those beside it); each test that
+# talks to the suite's broker once on the embedded amqtt and once on Debian's Mosquitto
+# (tests/conftest.py starts them on free loopback ports), in one run: as two runs, each ended
+# waiting for its own slowest tests while cores idled.
 pytest: $(STAMP)
-	$(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) -m "not soak and not firmware"
+	GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) \
+		-m "not soak and not firmware"
 
-# Every test that talks to the suite's broker, on Debian's Mosquitto instead of the embedded amqtt
-# (tests/conftest.py starts one on free loopback ports); the tests about amqtt itself stay out.
+# Only the tests that talk to the suite's broker, on Mosquitto alone; the tests about amqtt itself
+# stay out.
 test-mosquitto: system-deps $(STAMP)
 	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
 

@@ -24,32 +24,61 @@ REPO = Path(__file__).resolve().parent.parent
 MAPS = REPO / "maps"
 
 
-# Which broker the `broker` and `fresh_broker` fixtures start: the embedded amqtt (default), or
-# Debian's Mosquitto (`make test-mosquitto`). Tests that are about amqtt itself say so with the
+# Which brokers the `broker` and `fresh_broker` fixtures start: the embedded amqtt (the default),
+# Debian's Mosquitto, or both, comma-separated (`make test` runs each test that uses one on both,
+# `make test-mosquitto` on Mosquitto alone). Tests that are about amqtt itself say so with the
 # `amqtt_only` marker.
-BROKER_KIND = os.environ.get("GRIDFLEET_TEST_BROKER", "amqtt")
-if BROKER_KIND not in ("amqtt", "mosquitto"):
-    raise pytest.UsageError(f"GRIDFLEET_TEST_BROKER={BROKER_KIND!r}: give amqtt or mosquitto")
-BROKER_FIXTURES = {"broker", "fresh_broker"}
+BROKER_KINDS = tuple(os.environ.get("GRIDFLEET_TEST_BROKER", "amqtt").split(","))
+if not BROKER_KINDS or any(k not in ("amqtt", "mosquitto") for k in BROKER_KINDS):
+    raise pytest.UsageError(
+        f"GRIDFLEET_TEST_BROKER={','.join(BROKER_KINDS)!r}: give amqtt, mosquitto or amqtt,mosquitto"
+    )
 
 
-def _start_broker(tmp: pytest.TempPathFactory) -> BrokerThread | MosquittoBroker:
-    if BROKER_KIND == "mosquitto":
+def _kinds_for(definition: pytest.Item) -> tuple[str, ...]:
+    """The brokers a test that uses the suite's broker runs on."""
+    if definition.get_closest_marker("amqtt_only") is not None:
+        return tuple(k for k in BROKER_KINDS if k == "amqtt")
+    return BROKER_KINDS
+
+
+def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
+    """A test that uses the suite's broker runs once on each broker asked for (ids `[amqtt]`,
+    `[mosquitto]`); asked for one broker, its id stays as it is."""
+    if "broker_kind" not in metafunc.fixturenames:
+        return  # no suite broker (a module may have a `broker` fixture of its own)
+    kinds = _kinds_for(metafunc.definition)
+    if len(BROKER_KINDS) > 1 and kinds:  # an amqtt-only test too, so its kind is never a default
+        # Session scope: pytest keeps each broker's tests together, so a test worker starts each
+        # session broker about once, not once a test.
+        metafunc.parametrize("broker_kind", kinds, indirect=True, scope="session")
+
+
+@pytest.fixture(scope="session")
+def broker_kind(request: pytest.FixtureRequest) -> str:
+    """The kind of broker this test's `broker` or `fresh_broker` is."""
+    return str(getattr(request, "param", BROKER_KINDS[0]))
+
+
+def _start_broker(tmp: pytest.TempPathFactory, kind: str) -> BrokerThread | MosquittoBroker:
+    if kind == "mosquitto":
         return MosquittoBroker(tmp.mktemp("mosquitto"))
     return BrokerThread()
 
 
 @pytest.fixture(scope="session")
-def broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BrokerThread]:
-    """One broker for the session; tests keep apart through their own topic root."""
-    with _start_broker(tmp_path_factory) as running:
+def broker(tmp_path_factory: pytest.TempPathFactory, broker_kind: str) -> Iterator[BrokerThread]:
+    """One broker of each kind for the session; tests keep apart through their own topic root."""
+    with _start_broker(tmp_path_factory, broker_kind) as running:
         yield running  # type: ignore[misc]  # Mosquitto: the same interface, duck-typed
 
 
 @pytest.fixture
-def fresh_broker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[BrokerThread]:
+def fresh_broker(
+    tmp_path_factory: pytest.TempPathFactory, broker_kind: str
+) -> Iterator[BrokerThread]:
     """A broker of this test's own, for tests that stop or restart it."""
-    with _start_broker(tmp_path_factory) as running:
+    with _start_broker(tmp_path_factory, broker_kind) as running:
         yield running  # type: ignore[misc]
 
 
@@ -72,16 +101,17 @@ def pytest_runtest_makereport(
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """On Mosquitto: only the tests that talk to the suite's broker, and not the amqtt-only ones.
+    """Without amqtt among the brokers: only the tests that talk to the suite's broker, and not the
+    amqtt-only ones.
 
     The others (pure cores, parsers, systems with a broker of their own) run the same whatever
-    broker the fixtures would start; `make test` runs them, once.
+    broker the fixtures would start; a run with amqtt among its brokers runs them, once.
     """
-    if BROKER_KIND != "mosquitto":
+    if "amqtt" in BROKER_KINDS:
         return
     keep, drop = [], []
     for item in items:
-        uses = set(getattr(item, "fixturenames", ())) & BROKER_FIXTURES
+        uses = "broker_kind" in getattr(item, "fixturenames", ())
         (keep if uses and item.get_closest_marker("amqtt_only") is None else drop).append(item)
     if drop:
         config.hook.pytest_deselected(items=drop)

@@ -64,7 +64,7 @@ def lan_broker(
     topics: Topics,
     tmp_path: Path,
 ) -> Iterator[str]:
-    """The suite's kind of broker (`broker`'s: amqtt, Mosquitto under `make test-mosquitto`) with
+    """The kind of broker the test runs on (`broker`'s: amqtt or Mosquitto) with
     accounts, listening on this machine's LAN address; its URL (no credentials). A test may ask
     for TLS (indirect parameter "tls"): a certificate for that address, the CA in the URL."""
     tls = tmp_path / "tls"

@@ -61,7 +61,7 @@ def accounts() -> Accounts:
 def web_broker(
     broker: BrokerThread, test_lan: Lan, accounts: Accounts, topics: Topics, tmp_path: Path
 ) -> Iterator[tuple[str, str]]:
-    """The suite's kind of broker (amqtt, or Mosquitto under `make test-mosquitto`) with accounts,
+    """The kind of broker the test runs on (`broker`'s: amqtt or Mosquitto) with accounts,
     its TCP and websocket listeners on this machine's LAN address: (mqtt URL, ws URL)."""
     address = test_lan.address
     if isinstance(broker, MosquittoBroker):

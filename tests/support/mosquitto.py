@@ -84,7 +84,7 @@ def mosquitto_with_accounts(
 
 
 class MosquittoBroker:
-    """Debian's Mosquitto as the suite's broker (GRIDFLEET_TEST_BROKER=mosquitto): TCP and
+    """Debian's Mosquitto as the suite's broker (GRIDFLEET_TEST_BROKER): TCP and
     websockets on free loopback ports, anonymous, the interface of BrokerThread the tests use."""
 
     def __init__(self, directory: Path) -> None:
