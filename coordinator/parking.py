@@ -9,7 +9,7 @@ a parking square, and leaves before the other arrives (the corridor swap lets th
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Collection, Sequence
+from collections.abc import Collection, Iterator, Sequence
 
 Index = int  # a square as a flat index: y * width + x
 OPEN = 4  # free neighbours of a square on open floor, where a waiting unit is easily passed
@@ -26,18 +26,24 @@ def parking_square(
     Not a junction of one-wide aisles: a unit parked there stood in every aisle's way at once
     (warehouse runs jammed for minutes 1 time in 20 with junctions, not in 40 with open floor).
     """
-    seen = {start}
-    queue = deque([start])
     fallback: Index | None = None
-    while queue:
-        here = queue.popleft()
+    for here in nearest_first(nbrs, start):
         if here != start and here not in avoid and here not in occupied:
             if len(nbrs[here]) >= OPEN:
                 return here
             if fallback is None:
                 fallback = here
+    return fallback
+
+
+def nearest_first(nbrs: Sequence[tuple[Index, ...]], start: Index) -> Iterator[Index]:
+    """Every square reachable from `start`, nearest first (`start` itself first)."""
+    seen = {start}
+    queue = deque([start])
+    while queue:
+        here = queue.popleft()
+        yield here
         for n in nbrs[here]:
             if n not in seen:
                 seen.add(n)
                 queue.append(n)
-    return fallback

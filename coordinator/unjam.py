@@ -19,6 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from gridfleet.coordinator.lacam import Config, LaCAM, NoSolution
+from gridfleet.coordinator.parking import nearest_first
 from gridfleet.coordinator.pibt import NONE, Index
 
 REVISITS = 2  # a configuration entered this many times again means a livelock
@@ -141,29 +142,12 @@ class Unjam:
             kept.add(g)
             left.extend(i for i in agents if i != keeper)
         for i in sorted(left):
-            end = self._nearest_not_in(config[i], kept)
+            end = next((s for s in nearest_first(self.nbrs, config[i]) if s not in kept), None)
             if end is None:
                 return None
             out[i] = end
             kept.add(end)
         return out
-
-    def _nearest_not_in(self, start: Index, taken: set[Index]) -> Index | None:
-        """The square nearest `start` (itself first) that is not in `taken`; None: none left."""
-        seen = {start}
-        frontier = [start]
-        while frontier:
-            for square in frontier:
-                if square not in taken:
-                    return square
-            nxt = []
-            for square in frontier:
-                for n in self.nbrs[square]:
-                    if n not in seen:
-                        seen.add(n)
-                        nxt.append(n)
-            frontier = nxt
-        return None
 
     def _distance(self, config: Config, goal: Sequence[Index]) -> int:
         """The fleet's total distance to its targets."""
