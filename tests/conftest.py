@@ -112,7 +112,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     keep, drop = [], []
     for item in items:
         uses = "broker_kind" in getattr(item, "fixturenames", ())
-        (keep if uses and item.get_closest_marker("amqtt_only") is None else drop).append(item)
+        (keep if uses and _kinds_for(item) else drop).append(item)
     if drop:
         config.hook.pytest_deselected(items=drop)
         items[:] = keep
