@@ -263,6 +263,7 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
         self._prune_at = _PRUNE_FLOOR
         self.stats = BrokerStats()
+        self._shutting_down = False
 
     def figures(self) -> BrokerFigures:
         """Its totals and its state now (call it on the broker's loop)."""
@@ -493,6 +494,37 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         if ended is not None:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(ended.wait(), _TAKEOVER_WAIT_S)
+
+    # ---- ended sessions ------------------------------------------------------------------------
+
+    async def shutdown(self) -> None:
+        """amqtt's; from here on every session is cleaned up, connected or not."""
+        self._shutting_down = True
+        await super().shutdown()
+
+    async def _cleanup_session(self, client_id: str) -> None:
+        """amqtt's, for an ended session only (or any, at shutdown): never a newcomer's."""
+        # amqtt 0.12.1's session monitor lists the ended clean sessions, then cleans each up in
+        # turn by client id, awaiting each: a client back under one of those ids meanwhile had
+        # its new, connected session taken and its connection stopped.
+        entry = self._sessions.get(client_id)
+        ended = entry is None or entry[0].transitions.state == "disconnected"
+        if ended or self._shutting_down:
+            await super()._cleanup_session(client_id)
+
+    async def _del_all_subscriptions(self, session: Any) -> None:
+        """Drop the subscriptions of this session alone, not of another under its client id."""
+        # amqtt 0.12.1 dropped every subscription held under the session's client id, after
+        # awaiting the old connection's end: a client back under that id, which had subscribed
+        # meanwhile, stayed connected but deaf (to the emergency stop too).
+        for a_filter, holders in self._subscriptions.items():
+            kept = [(held, qos) for held, qos in holders if held is not session]
+            if len(kept) == len(holders):
+                continue
+            if kept:
+                holders[:] = kept
+            else:
+                del self._subscriptions[a_filter]
 
     async def _stop_handler(self, handler: Any) -> None:
         """amqtt's, made sure to end: a handler that has not stopped after _HANDLER_STOP_S has its

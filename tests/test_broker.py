@@ -12,6 +12,7 @@ import sys
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import paho.mqtt.client as mqtt
 import pytest
@@ -20,11 +21,12 @@ import websockets
 from gridfleet.broker import cli as broker_cli
 from gridfleet.broker import embedded
 from gridfleet.broker.embedded import BrokerSettings, load_settings
+from gridfleet.bus import make_client
 from gridfleet.errors import ConfigError
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
-from support.wait import wait_for
+from support.wait import async_wait_for, wait_for
 
 needs_mosquitto = pytest.mark.skipif(
     not shutil.which("mosquitto_pub"),
@@ -383,3 +385,44 @@ async def test_the_broker_process_ends_even_when_a_task_ignores_its_cancel() -> 
         release.set()
         await deaf
     assert await broker_cli._leftovers_ended({deaf, polite}, 0.2)  # all ended: the loop may close
+
+
+@pytest.mark.parametrize("cleaned_first", ["its-own", "another-ended-one"])
+async def test_a_client_back_under_its_id_keeps_its_subscriptions_while_the_old_one_is_cleaned_up(
+    cleaned_first: str,
+) -> None:
+    # amqtt's session monitor cleans up ended sessions by client id, awaiting each: a unit back
+    # under its id meanwhile lost what it had just subscribed to (connected, but deaf to the
+    # emergency stop), or its new connection (CI: an operator never heard the fleet's map).
+    async with embedded.EmbeddedBroker(BrokerSettings(port=0, ws_port=None)) as broker:
+        amqtt = broker._broker
+        held, go_on = asyncio.Event(), asyncio.Event()
+        cleaned: list[str] = []
+        stop_handler, cleanup = amqtt._stop_handler, amqtt._cleanup_session
+
+        async def held_up(handler: Any) -> None:
+            # The monitor stopping an ended session's handler, held up while the unit returns.
+            if handler.session.transitions.state == "disconnected":
+                held.set()
+                await go_on.wait()
+            await stop_handler(handler)
+
+        async def watched(client_id: str) -> None:
+            await cleanup(client_id)
+            cleaned.append(client_id)
+
+        amqtt._stop_handler, amqtt._cleanup_session = held_up, watched
+        if cleaned_first == "another-ended-one":
+            async with make_client(broker.url, "earlier"):
+                pass
+        async with make_client(broker.url, "unit1"):
+            pass  # the unit's link ends; its session waits for the monitor
+        await asyncio.wait_for(held.wait(), 10)
+        async with make_client(broker.url, "unit1") as unit, make_client(broker.url, "op") as op:
+            await unit.subscribe("t/fleet/estop", qos=1)
+            go_on.set()
+            await async_wait_for(lambda: "unit1" in cleaned, what="the monitor's pass")
+            await op.publish("t/fleet/estop", b"engaged", qos=1)
+            async with asyncio.timeout(10):
+                message = await anext(aiter(unit.messages))
+            assert message.payload == b"engaged"
