@@ -10,6 +10,7 @@ copies the live screenshot (test-artifacts/dashboard-real-playfield.png) to docs
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shutil
@@ -534,7 +535,7 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
 # ---- the README's picture ----------------------------------------------------------------------
 
 
-@pytest.mark.timeout(120)  # waits for a moment of the run, which a loaded machine makes rarer
+@pytest.mark.timeout(180)  # waits for a moment of the run, which a loaded machine makes rarer
 def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     """docs/dashboard.png: the page on the real playfield, mid-run (see the module docstring)."""
     system = live(step_s=0.25)
@@ -545,44 +546,60 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
         timeout=20,
         what="job-0 done",
     )
-    # The 15 kg job first, so unit4 (the only one able) takes it and unit3 the 8 kg one: the
-    # whole fleet at work. job-5 then waits for unit4.
-    jobs = sorted(playfield_jobs(), key=lambda j: -j[3])
-    jobs.append(("job-5", (2, 9), (9, 6), 15.0))
-    for job_id, pickup, dropoff, mass in jobs:
-        system.submit(job_id, pickup, dropoff, mass)
+    numbers = itertools.count(1)
+
+    def give_work() -> None:
+        # The 15 kg job first, so unit4 (the only one able) takes it and unit3 the 8 kg one: the
+        # whole fleet at work. The last one, 15 kg too, then waits for unit4.
+        jobs = sorted(playfield_jobs(), key=lambda j: -j[3])
+        for _, pickup, dropoff, mass in [*jobs, ("", (2, 9), (9, 6), 15.0)]:
+            system.submit(f"job-{next(numbers)}", pickup, dropoff, mass)
+
+    give_work()
     system.dash.submit_job((0, 5), (9, 5), 50, job_id="too-heavy")
     expect(system.page.locator("#job-feedback")).to_have_attribute("data-kind", "refused")
 
-    # Mid-run: three units under way (arrows lit, two of them moving this very step), an item on
-    # board, a job waiting.
-    def mid_run() -> bool:
+    # Mid-run: three units under way (arrows lit), an item on board, a job waiting, and no route
+    # through a known obstacle (not in the instant between a unit's discovery and the re-plan).
+    last: dict[str, object] = {}
+
+    def under_way() -> list[str]:
+        """The units with a lit arrow, when the rest of the moment holds too (else [])."""
         arrows = system.page.locator("#map").get_attribute("data-headings") or ""
         heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
-        moving = [u for u, r in unit_rows(system).items() if r["status"].startswith("moving")]
         states = {r["state"] for r in system.page_jobs().values()}
-        # Not in the instant between a unit's discovery and the re-plan around it (one step).
         known = obstacles_drawn(system)
-        return (
-            not any(system.routes_through(sq) for sq in known)
-            and len(heading) >= 3
-            and len(set(heading) & set(moving)) >= 2
-            and bool(states & {"loaded", "to_dropoff"})
-            and system.page_jobs().get("job-5", {}).get("state") == "queued"
-        )
+        last.update(heading=heading, job_states=sorted(states), obstacles=sorted(known))
+        through = [sq for sq in known if system.routes_through(sq)]
+        last.update(routes_through_obstacles=through)
+        if through or len(heading) < 3 or not states & {"loaded", "to_dropoff"}:
+            return []
+        return heading if "queued" in states else []
 
     def picture() -> Path | None:
-        # Kept only when the moment held from before the picture until after it.
-        if not mid_run():
+        if "queued" not in {r["state"] for r in system.page_jobs().values()}:
+            # The moment passed between two looks (a loaded machine looks less often): once more.
+            give_work()
+            return None
+        heading = under_way()
+        # Two of them moving this very step: a step's status, which changes every step, so it is
+        # asked before the picture only.
+        moving = [u for u, r in unit_rows(system).items() if r["status"].startswith("moving")]
+        last.update(moving=moving)
+        if len(set(heading) & set(moving)) < 2:
             return None
         # The side panel from its top (filling the job form scrolled it down to the form).
         system.page.locator("#side").evaluate("(side) => { side.scrollTop = 0; }")
         shot = system.dash.screenshot("dashboard-real-playfield")
-        return shot if mid_run() else None
+        # Kept only when the moment held from before the picture until after it.
+        return shot if under_way() else None
 
-    shot = wait_for(
-        picture, timeout=45, interval=0.05, what="units under way, an item on board, a job waiting"
-    )
+    try:
+        shot = wait_for(picture, timeout=120, interval=0.05, what="the moment")
+    except WaitTimeout as timeout:
+        pytest.fail(
+            f"{timeout}; units under way, an item on board, a job waiting? last look: {last}"
+        )
     expect(system.page.locator("#coord")).to_have_text(
         # After its first few seconds the coordinator also says the step it achieves.
         re.compile(
