@@ -15,15 +15,11 @@ from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.system.cli import COMMANDS, build_parser, main
 
-
-def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
-    )
+from support.cli import gridfleet
 
 
 def test_help_lists_every_subcommand() -> None:
-    out = run_cli("--help")
+    out = gridfleet("--help")
     assert out.returncode == 0
     for name in (
         "up",
@@ -42,18 +38,18 @@ def test_help_lists_every_subcommand() -> None:
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_each_subcommand_has_help(command: str) -> None:
-    out = run_cli(command, "--help")
+    out = gridfleet(command, "--help")
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith(f"usage: gridfleet {command}")
 
 
 def test_unknown_command_is_one_line_error() -> None:
-    out = run_cli("fly")
+    out = gridfleet("fly")
     assert out.returncode == 2 and "invalid choice" in out.stderr and "Traceback" not in out.stderr
 
 
 def test_a_coordinator_window_out_of_range_is_one_line() -> None:
-    out = run_cli("coordinator", "--map", "maps/playfield.map", "--window", "0")
+    out = gridfleet("coordinator", "--map", "maps/playfield.map", "--window", "0")
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [
         "gridfleet coordinator: error: --window 0: give 1 to 32 squares"
@@ -61,7 +57,7 @@ def test_a_coordinator_window_out_of_range_is_one_line() -> None:
 
 
 def test_broker_config_error_is_one_line(tmp_path: Path) -> None:
-    out = run_cli("broker", "--config", str(tmp_path / "absent.toml"))
+    out = gridfleet("broker", "--config", str(tmp_path / "absent.toml"))
     assert out.returncode == 2
     assert out.stderr.strip().splitlines() == [
         f"gridfleet broker: error: {tmp_path / 'absent.toml'}: no such broker config file"
@@ -203,7 +199,7 @@ def test_a_vda5050_adapter_with_a_bad_vehicles_file_says_what_in_one_line(
     path = tmp_path / "vehicles.toml"
     if vehicles is not None:
         path.write_text(vehicles, encoding="utf-8")
-    out = run_cli("vda5050", "--vehicles", str(path), "--map", "maps/playfield.map")
+    out = gridfleet("vda5050", "--vehicles", str(path), "--map", "maps/playfield.map")
     assert out.returncode == 2
     (line,) = out.stderr.strip().splitlines()
     assert line.startswith("gridfleet vda5050: error: ") and says in line, line

@@ -17,6 +17,7 @@ from gridfleet.device.shell import DeviceShell
 from gridfleet.protocol import ErrorReport, Leds, Topics, decode, decode_estop, decode_press
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.cli import gridfleet
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
 
@@ -270,12 +271,7 @@ def test_device_command_killed_leaves_its_last_will(
 
 
 def test_device_command_refuses_bad_ids() -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "device", "--unit", "bad/id"],
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
+    out = gridfleet("device", "--unit", "bad/id", timeout=30)
     assert out.returncode == 2
     assert "unit id" in out.stderr and "Traceback" not in out.stderr
 

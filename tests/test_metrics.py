@@ -8,8 +8,6 @@ import contextlib
 import json
 import re
 import socket
-import subprocess
-import sys
 import time
 from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass
@@ -37,6 +35,7 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.cli import build_parser
 from gridfleet.system.up import spec_from
 
+from support.cli import gridfleet
 from support.coordinator_drive import make_core
 from support.coordinator_fakes import FakeFleet
 from support.operator_peer import OperatorPeer
@@ -321,12 +320,7 @@ def test_a_token_file_must_hold_one_token(tmp_path: Path) -> None:
 
 
 def _cli(*args: str) -> tuple[int, list[str]]:
-    done = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "coordinator", "--map", str(MAP), *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    done = gridfleet("coordinator", "--map", str(MAP), *args)
     return done.returncode, done.stderr.strip().splitlines()
 
 

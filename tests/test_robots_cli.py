@@ -12,17 +12,13 @@ import pytest
 from gridfleet.protocol import Connection, Topics, decode
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.cli import gridfleet
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "robots", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    return gridfleet("robots", *args)
 
 
 @pytest.mark.parametrize(

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -13,18 +12,14 @@ import pytest
 from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.scenario import load_scenario
 
+from support.cli import gridfleet
+
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 
 def simulate(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "simulate", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
+    return gridfleet("simulate", *args, timeout=timeout)
 
 
 def failure_report(out: subprocess.CompletedProcess[str]) -> str:

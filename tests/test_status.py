@@ -31,6 +31,7 @@ from gridfleet.protocol.messages import JobState, Message
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.cli import gridfleet
 from support.effects import header
 from support.output import Output
 from support.probe import MqttProbe
@@ -181,13 +182,7 @@ def test_a_unit_known_only_by_its_connection_and_a_long_queue() -> None:
 
 
 def status(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "status", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        check=False,
-    )
+    return gridfleet("status", *args)
 
 
 def test_status_once_on_the_real_system(

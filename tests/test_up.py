@@ -15,6 +15,7 @@ from gridfleet.grid import Cell
 from gridfleet.protocol import Connection, Topics, decode
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.cli import gridfleet
 from support.output import Output, alive
 from support.probe import MqttProbe
 from support.wait import wait_for
@@ -104,10 +105,7 @@ def test_up_with_a_busy_broker_port_says_so_at_once_and_leaves_nothing(
 
 
 def test_up_refuses_a_bad_step_before_starting_anything() -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "up", "--step", "-1", "--mqtt-port", "0"],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
+    out = gridfleet("up", "--step", "-1", "--mqtt-port", "0")
     assert out.returncode == 2 and "started" not in out.stdout
     assert out.stderr.strip() == (
         "gridfleet up: error: --step -1: the step period must be in (0, 60] seconds"
@@ -115,10 +113,7 @@ def test_up_refuses_a_bad_step_before_starting_anything() -> None:
 
 
 def test_up_refuses_a_bad_unit_process_count_before_starting_anything() -> None:
-    out = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "up", "--workers", "0", "--mqtt-port", "0"],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
+    out = gridfleet("up", "--workers", "0", "--mqtt-port", "0")
     assert out.returncode == 2 and "started" not in out.stdout
     assert out.stderr.strip() == "gridfleet up: error: --workers 0: give at least 1"
 

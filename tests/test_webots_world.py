@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import stat
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,6 +22,7 @@ from gridfleet.robots.webots.geometry import (
 from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
 
+from support.cli import gridfleet
 from support.vrml import Node, VrmlError, World, read_world
 
 REPO = Path(__file__).resolve().parent.parent
@@ -52,13 +52,7 @@ def world_of(scenario: Scenario, **options: object) -> World:
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "webots-world", *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=REPO,
-    )
+    return gridfleet("webots-world", *args, cwd=REPO)
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
