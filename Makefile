@@ -91,9 +91,9 @@ firmware-checkout: $(STAMP)
 	$(BIN)/pytest -q -m firmware
 
 # Every test but the soak and the firmware's build (make test runs those beside it); each test that
-# talks to the suite's broker once on the embedded amqtt and once on Debian's Mosquitto
-# (tests/conftest.py starts them on free loopback ports), in one run: as two runs, each ended
-# waiting for its own slowest tests while cores idled.
+# talks to the suite's broker on the embedded amqtt, on Debian's Mosquitto, or on both when what it
+# checks is the broker's doing (`every_broker`; tests/conftest.py starts them on free loopback
+# ports), in one run: as two runs, each ended waiting for its own slowest tests while cores idled.
 pytest: $(STAMP)
 	GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) \
 		-m "not soak and not firmware"

@@ -8,7 +8,6 @@ import json
 import re
 import stat
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -36,6 +35,7 @@ from gridfleet.system.assembly import Assembly, SystemSpec
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import world_of
 
+from support.cli import gridfleet
 from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
@@ -51,6 +51,8 @@ from support.security import (
     login,
 )
 from support.wait import wait_for
+
+pytestmark = pytest.mark.every_broker  # each broker enforces the accounts and their rules itself
 
 REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
@@ -95,9 +97,7 @@ def ten_more_steps(op: OperatorPeer, unit: str) -> None:
 
 
 def cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
-    )
+    return gridfleet(*args)
 
 
 # ---- the file -----------------------------------------------------------------------------------

@@ -14,6 +14,7 @@ from gridfleet.accounts import Account, Accounts, default_accounts, new_password
 from gridfleet.broker.mosquitto import password_hash
 from gridfleet.protocol import Topics
 
+from support.cli import gridfleet
 from support.mosquitto import mosquitto_with_accounts
 from support.security import (
     VEHICLES,
@@ -24,6 +25,8 @@ from support.security import (
     check_strangers_are_refused,
     check_wills_obey_the_publish_rules,
 )
+
+pytestmark = pytest.mark.every_broker  # each broker enforces the accounts and their rules itself
 
 T = Topics("mosq")
 
@@ -117,10 +120,7 @@ def test_a_halls_bridge_carries_only_what_a_hall_may_say_and_read(
 
 def accounts_mosquitto(*args: str) -> subprocess.CompletedProcess[str]:
     """`gridfleet accounts mosquitto ARGS`, its output captured."""
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "accounts", "mosquitto", *args],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
+    return gridfleet("accounts", "mosquitto", *args)
 
 
 def test_a_halls_broker_gets_a_bridge_carrying_the_protocols_topics(tmp_path: Path) -> None:

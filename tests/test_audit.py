@@ -7,8 +7,6 @@ from __future__ import annotations
 import asyncio
 import csv
 import io
-import subprocess
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from datetime import UTC, datetime, timedelta
@@ -30,12 +28,15 @@ from gridfleet.protocol.messages import AuditEntry
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.cli import gridfleet
 from support.effects import header
 from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
+
+pytestmark = pytest.mark.every_broker  # the actor is the account the broker authenticated
 
 ROOT = "audit"
 T = Topics(ROOT)
@@ -246,12 +247,6 @@ def test_the_dashboards_logins_logouts_and_failed_logins_are_recorded(
     ]
     assert entries[0].reason == "wrong user name or password"
     assert entries[1].detail == "from 127.0.0.1"
-
-
-def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args], capture_output=True, text=True, timeout=60
-    )
 
 
 def test_the_command_line_prints_the_trail_and_refuses_a_bad_range(

@@ -28,6 +28,8 @@ from gridfleet.system.broker_thread import BrokerThread
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
 
+pytestmark = pytest.mark.every_broker  # about what a broker does
+
 needs_mosquitto = pytest.mark.skipif(
     not shutil.which("mosquitto_pub"),
     reason="mosquitto-clients not installed (.ci/run installs it)",

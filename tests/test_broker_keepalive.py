@@ -7,9 +7,13 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import pytest
+
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.probe import MqttProbe
+
+pytestmark = pytest.mark.every_broker  # the broker's keep-alive and will
 
 KEEP_ALIVE_S = 2
 

@@ -18,6 +18,10 @@ from gridfleet.system.broker_thread import BrokerThread
 
 from support.wait import async_wait_for
 
+pytestmark = (
+    pytest.mark.every_broker
+)  # oversized and malformed payloads meet the broker's limits first
+
 GRID = GridMap.from_rows(["....", ".@..", "...."])
 TOPICS = Topics("fuzz")
 HDR = {"version": "1.4", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "unit1"}

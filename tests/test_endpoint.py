@@ -17,6 +17,8 @@ from gridfleet.system.broker_thread import BrokerThread
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
+pytestmark = pytest.mark.every_broker  # wills, resubscription and back-off against the broker
+
 
 def make(url: str, topics: Topics) -> Endpoint:
     """An endpoint that follows the stop topic and says who it is on `devices/d1/connection`."""

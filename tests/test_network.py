@@ -39,7 +39,8 @@ from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
-pytestmark = pytest.mark.slow  # whole systems waiting out keep-alives: make test, not test-fast
+# Whole systems waiting out keep-alives: make test, not test-fast. Links cut: what the broker does.
+pytestmark = [pytest.mark.slow, pytest.mark.every_broker]
 
 REPO = Path(__file__).resolve().parent.parent
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]

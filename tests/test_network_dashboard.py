@@ -37,7 +37,8 @@ from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow]  # a whole system and a keep-alive's wait
+# A whole system and a keep-alive's wait (slow); a link cut: what the broker does (every broker).
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.every_broker]
 
 REPO = Path(__file__).resolve().parent.parent
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]

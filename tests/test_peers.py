@@ -44,6 +44,10 @@ from support.peers import DispatchPeer
 from support.probe import MqttProbe
 from support.wait import WaitTimeout, wait_for
 
+pytestmark = (
+    pytest.mark.every_broker
+)  # each kind's QoS and retain flag, as the broker delivers them
+
 Probes = Callable[..., MqttProbe]
 GRID = GridMap.from_rows(["....", ".@..", "...."], name="tiny")
 REQUESTS: dict[str, type[SubmitJob] | type[CancelJob] | type[SetGoal]] = {

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,26 +16,21 @@ from gridfleet.scenario import load_scenario
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.cli import gridfleet
 from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.wait import wait_for
 
+pytestmark = (
+    pytest.mark.every_broker
+)  # retained messages of several runs on one broker, and clearing them
+
 MAPS = Path(__file__).resolve().parent.parent / "maps"
-
-
-def gridfleet(*args: str, timeout: float = 240) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        check=False,
-    )
 
 
 def jobs_done(scenario: str, broker: str) -> list[str]:
     """Run `scenario` to the end on `broker`; the ids of the jobs done."""
-    out = gridfleet("simulate", str(MAPS / scenario), "--broker", broker, "--json")
+    out = gridfleet("simulate", str(MAPS / scenario), "--broker", broker, "--json", timeout=240)
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
     result: dict[str, Any] = json.loads(out.stdout)
     assert result["finished"] and result["collisions"] == 0

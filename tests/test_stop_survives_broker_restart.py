@@ -20,6 +20,8 @@ from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.wait import wait_for
 
+pytestmark = pytest.mark.every_broker  # a broker restarted with nothing kept
+
 PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
 ROOT = "restart"
 T = Topics(ROOT)

@@ -26,17 +26,14 @@ from gridfleet.config import parse_broker_url, redacted, with_ca_file, with_cred
 from gridfleet.errors import ConfigError
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.cli import gridfleet
 from support.probe import MqttProbe
 from support.security import check_strangers_are_refused
 
+pytestmark = pytest.mark.every_broker  # the broker's TLS listeners
+
 # A minimal MQTT 3.1.1 CONNECT (client id "x"), sent as plain bytes.
 PLAIN_CONNECT = b"\x10\x0d\x00\x04MQTT\x04\x02\x00\x3c\x00\x01x"
-
-
-def gridfleet(*args: str) -> subprocess.CompletedProcess[str]:
-    """Run a `gridfleet` command to its end."""
-    cmd = [sys.executable, "-m", "gridfleet", *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=60)
 
 
 @pytest.fixture(scope="module")

@@ -3,8 +3,6 @@ gridfleet's own client (aiomqtt, through a `gridfleet` command with --ca-file)."
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -13,9 +11,12 @@ import pytest
 from gridfleet.broker.certs import make_tls, write_tls
 from gridfleet.config import with_ca_file
 
+from support.cli import gridfleet
 from support.mosquitto import running_mosquitto
 from support.probe import MqttProbe
 from support.wait import wait_for
+
+pytestmark = pytest.mark.every_broker  # the broker's TLS listeners
 
 
 @pytest.fixture(scope="module")
@@ -44,13 +45,8 @@ def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
     mosquitto_tls: str, tls: Path
 ) -> None:
     ca = str(tls / "ca.pem")
-    cmd = [sys.executable, "-m", "gridfleet", "job", "--broker", mosquitto_tls, "--ca-file", ca]
-    done = subprocess.run(
-        [*cmd, "--root", "tlsq", "stop", "--reason", "over tls"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    cmd = ["job", "--broker", mosquitto_tls, "--ca-file", ca]
+    done = gridfleet(*cmd, "--root", "tlsq", "stop", "--reason", "over tls")
     assert done.returncode == 0, done.stderr
     with MqttProbe(with_ca_file(mosquitto_tls, ca)) as probe:
         probe.subscribe("tlsq/#")  # the stop is retained: it is there for a later reader
@@ -59,11 +55,6 @@ def test_a_gridfleet_command_with_the_ca_file_talks_to_mosquitto(
 
 
 def test_without_the_ca_file_the_command_is_refused(mosquitto_tls: str) -> None:
-    done = subprocess.run(
-        [sys.executable, "-m", "gridfleet", "job", "--broker", mosquitto_tls, "stop"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
+    done = gridfleet("job", "--broker", mosquitto_tls, "stop")
     assert done.returncode == 2
     assert "certificate verify failed" in done.stderr
