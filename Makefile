@@ -13,7 +13,8 @@ DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-de
 # npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
 # while pip installs. pip byte-compiles every module at install: where PYTHONDONTWRITEBYTECODE is
 # set, nothing compiled later is kept, and every process of every test would compile again; so
-# gridfleet's own modules are compiled here too.
+# gridfleet's own modules are compiled here too, and the test modules as pytest rewrites them (a
+# collection: the first runs of make test start their pytest processes all at once).
 NPM_CI := npm ci --no-audit --no-fund --loglevel=error
 $(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +24,7 @@ $(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda50
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"; pip=$$?; \
 	wait $$dashboard && wait $$vda && exit $$pip
 	$(BIN)/python -m compileall -q -j 0 -x node_modules gridfleet $(PARTS) tests >/dev/null
+	$(KEEP_BYTECODE) $(BIN)/pytest --collect-only -q -p no:cacheprovider >/dev/null || true
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -67,6 +69,12 @@ typecheck: $(STAMP)
 		for part in $(PARTS); do ln -s ../../../$$part $$part; done
 	cd build/typecheck && ../../$(BIN)/mypy --config-file ../../pyproject.toml -p gridfleet
 
+# pytest rewrites each test module's asserts on import and keeps the result beside it, unless
+# PYTHONDONTWRITEBYTECODE is set (it is on these machines): then each test worker rewrote every
+# test module again on every run, 7 of the 10 CPU-seconds it spent collecting. The tests keep them
+# (and what their processes compile) in the __pycache__ folders git ignores.
+KEEP_BYTECODE := PYTHONDONTWRITEBYTECODE=
+
 # The tests run TEST_WORKERS at a time (pytest-xdist; 0: one at a time), each on its own ports
 # (a band of them per worker: gridfleet/ports.py), folders and topic root. Most of a test's time is
 # waiting on a broker, a browser or a clock, so four keep 2 cores busy. (Handing out the long
@@ -77,31 +85,31 @@ XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist worksteal)
 
 # The edit-test loop: every test but the browser, soak and slow end-to-end ones (no lint).
 test-fast: $(STAMP)
-	$(BIN)/pytest -q $(XDIST) -m "not browser and not soak and not slow"
+	$(KEEP_BYTECODE) $(BIN)/pytest -q $(XDIST) -m "not browser and not soak and not slow"
 
 # The one-minute chaos soak. Its verdict is about the fleet under injected faults, not about a
 # machine shared with four test workers (a job still under way at the end of the drain failed a CI
 # run that way, before the tests beside it ran niced): make test runs it first in line for the
 # cores, on ports of a band no test worker takes (its broker comes back on the port it was given).
 soak: $(STAMP)
-	GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m soak
+	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m soak
 
 # The firmware's host tests, built with g++ from the files git tracks alone (tests/test_firmware.py).
 firmware-checkout: $(STAMP)
-	$(BIN)/pytest -q -m firmware
+	$(KEEP_BYTECODE) $(BIN)/pytest -q -m firmware
 
 # Every test but the soak and the firmware's build (make test runs those beside it); each test that
 # talks to the suite's broker on the embedded amqtt, on Debian's Mosquitto, or on both when what it
 # checks is the broker's doing (`every_broker`; tests/conftest.py starts them on free loopback
 # ports), in one run: as two runs, each ended waiting for its own slowest tests while cores idled.
 pytest: $(STAMP)
-	GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) \
+	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) \
 		-m "not soak and not firmware"
 
 # Only the tests that talk to the suite's broker, on Mosquitto alone; the tests about amqtt itself
 # stay out.
 test-mosquitto: system-deps $(STAMP)
-	GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
+	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=mosquitto $(BIN)/pytest $(XDIST)
 
 firmware-test:
 	@if [ -f firmware/Makefile ]; then $(MAKE) -C firmware test; fi

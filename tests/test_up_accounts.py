@@ -183,6 +183,7 @@ def test_a_person_is_told_where_to_open_the_dashboard() -> None:
     )
 
 
+@pytest.mark.slow  # `gridfleet up`, the whole system, end to end (as the playfield's above)
 @pytest.mark.timeout(180)
 def test_up_with_accounts_and_vehicles_a_vehicle_on_its_own_account_does_a_job(
     tmp_path: Path,
