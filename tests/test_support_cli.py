@@ -32,16 +32,16 @@ def bare(*args: str, cwd: Path, env: dict[str, str] | None = None) -> tuple[int,
 
 
 @pytest.mark.parametrize(
-    "args",
+    ("args", "folder"),
     [
-        ["--version"],
-        ["fly"],
-        ["coordinator", "--map", "maps/playfield.map", "--window", "0"],  # relative to the folder
-        ["webots-world", "maps/playfield.toml"],  # a world on stdout
+        (["--version"], "repo"),
+        (["fly"], "repo"),
+        (["coordinator", "--map", "maps/playfield.map", "--window", "0"], "repo"),
+        (["coordinator", "--map", "maps/playfield.map", "--window", "0"], "elsewhere"),  # no map
+        (["webots-world", "maps/playfield.toml"], "repo"),  # a world on stdout
     ],
-    ids=["version", "unknown-command", "bad-window", "output"],
+    ids=["version", "unknown-command", "bad-window", "map-not-there", "output"],
 )
-@pytest.mark.parametrize("folder", ["repo", "elsewhere"])
 def test_a_command_says_and_ends_as_in_a_bare_interpreter(
     args: list[str], folder: str, tmp_path: Path
 ) -> None:
