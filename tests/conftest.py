@@ -52,8 +52,8 @@ def _kinds_for(definition: pytest.Item) -> tuple[str, ...]:
 
 
 def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
-    """A test that uses the suite's broker runs once on each broker asked for (ids `[amqtt]`,
-    `[mosquitto]`); asked for one broker, its id stays as it is."""
+    """A test that uses the suite's broker runs once on each of its brokers (`_kinds_for`), its
+    id saying which (`[amqtt]`, `[mosquitto]`); asked for one broker, its id stays as it is."""
     if "broker_kind" not in metafunc.fixturenames:
         return  # no suite broker (a module may have a `broker` fixture of its own)
     kinds = _kinds_for(metafunc.definition)
