@@ -444,6 +444,7 @@ def test_estop_engaged_elsewhere_is_shown(
     expect(dash.page.locator("body")).to_have_attribute("data-estop", "released")
 
 
+@pytest.mark.every_broker  # a broker restarted, over websockets
 def test_reconnects_after_broker_restart(
     open_dashboard: Callable[..., OpenDashboard],
     fresh_broker: BrokerThread,
@@ -474,6 +475,7 @@ def test_missing_mqtt_js_says_how_to_install(
     expect(dash.page.locator("#conn")).to_have_attribute("data-state", "failed")
 
 
+@pytest.mark.every_broker  # a broker restarted, over websockets
 def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
     open_dashboard: Callable[..., OpenDashboard],
     fresh_broker: BrokerThread,

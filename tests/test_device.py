@@ -133,6 +133,7 @@ async def test_bad_payloads_change_nothing_and_are_reported(
         assert len(device.refused) == len(bad)
 
 
+@pytest.mark.every_broker  # a broker restarted
 async def test_press_while_broker_is_down_is_sent_after_reconnect(
     fresh_broker: BrokerThread, root: str
 ) -> None:
@@ -251,6 +252,7 @@ def test_device_command_with_stdin_from_dev_null_runs_without_keys(
     assert proc.p.stderr is not None and "Traceback" not in proc.p.stderr.read().decode()
 
 
+@pytest.mark.every_broker  # the broker sends the will
 def test_device_command_killed_leaves_its_last_will(
     broker: BrokerThread,
     topics: Topics,

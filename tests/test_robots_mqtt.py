@@ -8,6 +8,7 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 
 import aiomqtt
+import pytest
 
 from gridfleet.grid import Cell, Direction
 from gridfleet.outbound import Outbound
@@ -262,6 +263,7 @@ async def test_bad_orders_are_refused_with_an_error_and_change_nothing(
         assert fleet.world.moves["u1"] == 1
 
 
+@pytest.mark.every_broker  # a clean stop's offline, not the will
 async def test_connection_online_then_offline_on_a_clean_stop(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
@@ -280,6 +282,7 @@ async def test_connection_online_then_offline_on_a_clean_stop(
     assert [m.retain for m in c.probe.received(factsheets)] == [False]  # live delivery
 
 
+@pytest.mark.every_broker  # the broker sends the will
 async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnects(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
@@ -307,6 +310,7 @@ async def test_dropped_connection_shows_broken_and_the_unit_holds_then_reconnect
         await c.until_state("u1", lambda s: s.position == Cell(held.x + 1, 0))
 
 
+@pytest.mark.every_broker  # the broker takes over the session
 async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_alone(
     tmp_path: Path, broker: BrokerThread, root: str, topics: Topics, probe_factory: Probe
 ) -> None:
@@ -336,6 +340,7 @@ async def test_a_send_failing_late_on_the_dropped_connection_leaves_the_new_one_
         await c.until_state("u1", lambda s: s.position == Cell(1, 0))
 
 
+@pytest.mark.every_broker  # a broker restarted
 async def test_units_reconnect_after_a_broker_restart(
     tmp_path: Path, fresh_broker: BrokerThread, root: str, topics: Topics
 ) -> None:
