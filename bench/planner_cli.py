@@ -18,7 +18,7 @@ from gridfleet.bench.anchors import (
     load_instance,
     load_scen,
 )
-from gridfleet.bench.plot import plot_report
+from gridfleet.bench.plot import check_plot_target, plot_report
 from gridfleet.bench.runs import (
     GUIDANCE,
     LifelongResult,
@@ -124,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     unknown = sorted(set(suites) - set(SUITES))
     if unknown or not suites:
         raise ConfigError(f"--suite: unknown {unknown or suites} (known: {', '.join(SUITES)})")
+    if args.plot:
+        check_plot_target(args.plot)
     report: dict[str, list[dict[str, Any]]] = {}
     if args.instance:
         report["instance"] = [_instance(path, args) for path in args.instance]

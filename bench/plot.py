@@ -5,6 +5,7 @@ matplotlib is an optional extra (`pip install gridfleet[bench]`); without it the
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,24 @@ from gridfleet.errors import ConfigError
 Report = dict[str, list[dict[str, Any]]]
 
 
-def plot_report(report: Report, path: Path) -> None:
-    """Draw the lifelong and scale rows of `report` into `path` (PNG, SVG or PDF by its name)."""
+def check_plot_target(path: Path) -> None:
+    """Refuse a `--plot FILE` that could not be written now, not after a run of minutes."""
+    plt = _pyplot()
+    kinds = plt.figure().canvas.get_supported_filetypes()
+    plt.close("all")
+    if path.suffix.lstrip(".").lower() not in kinds:
+        raise ConfigError(
+            f"--plot: cannot write {path}: give a file ending in one of "
+            + ", ".join(f".{kind}" for kind in sorted(kinds))
+        )
+    if not path.parent.is_dir():
+        raise ConfigError(f"--plot: cannot write {path}: there is no folder {path.parent}")
+    if not os.access(path.parent, os.W_OK):
+        raise ConfigError(f"--plot: cannot write {path}: the folder {path.parent} is read-only")
+
+
+def _pyplot() -> Any:
+    """matplotlib's pyplot, drawing to files only; or a one-line error without it."""
     try:
         import matplotlib
 
@@ -24,6 +41,12 @@ def plot_report(report: Report, path: Path) -> None:
         raise ConfigError(
             "--plot needs matplotlib: pip install 'gridfleet[bench]' (or pip install matplotlib)"
         ) from None
+    return plt
+
+
+def plot_report(report: Report, path: Path) -> None:
+    """Draw the lifelong and scale rows of `report` into `path` (PNG, SVG or PDF by its name)."""
+    plt = _pyplot()
     life = sorted(report.get("lifelong", []), key=lambda r: r["agents"])
     scale = report.get("scale", [])
     fig, (tasks, ticks) = plt.subplots(1, 2, figsize=(11, 4.2))

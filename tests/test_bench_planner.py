@@ -426,13 +426,26 @@ def test_the_command_draws_its_figures_into_the_file_named(tmp_path: Path) -> No
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_a_plot_that_cannot_be_written_is_one_line_and_exit_2(tmp_path: Path) -> None:
-    out = bench(
-        "--anchors", str(write_anchors(tmp_path)), "--suite", "lifelong",
-        "--plot", str(tmp_path / "no-such-folder" / "planner.png"),
-    )  # fmt: skip
-    assert out.returncode == 2 and "--plot: cannot write" in out.stderr, out.stderr
-    assert "Traceback" not in out.stderr
+@pytest.mark.parametrize(
+    ("plot", "says"),
+    [
+        ("no-such-folder/planner.png", "there is no folder {tmp}/no-such-folder"),
+        ("planner.txt", "give a file ending in one of "),  # then each kind matplotlib writes
+    ],
+    ids=["no-folder", "unknown-kind"],
+)
+def test_a_plot_that_cannot_be_written_is_one_line_and_exit_2_before_any_run(
+    plot: str, says: str, tmp_path: Path
+) -> None:
+    # No benchmark data where --anchors says: a suite that ran first would say that instead.
+    out = bench("--anchors", str(tmp_path), "--suite", "lifelong", "--plot", str(tmp_path / plot))
+    assert out.returncode == 2, out.stderr
+    [line] = out.stderr.strip().splitlines()
+    said = f"gridfleet bench: error: --plot: cannot write {tmp_path / plot}: "
+    assert line.startswith(said + says.format(tmp=tmp_path)), line
+    if plot.endswith(".txt"):
+        assert {".png", ".svg", ".pdf"} <= set(line.removeprefix(said + says).split(", ")), line
+    assert not (tmp_path / plot).exists()
 
 
 def test_the_pinned_checksums_name_every_file_the_default_suites_read() -> None:
