@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from playwright.sync_api import expect
 
 from gridfleet.accounts import Accounts, default_accounts, write_accounts
 from gridfleet.bench.lan import Host, Lan
@@ -175,11 +176,14 @@ def test_a_page_whose_link_dies_says_it_hears_nothing_and_does_not_blame_the_uni
             page.set_default_timeout(WAIT_MS)
             errors: list[str] = []
             page.on("pageerror", lambda exc: errors.append(str(exc)))
+            console: list[str] = []
+            page.on("console", lambda message: console.append(f"{message.type}: {message.text}"))
             dash = OpenDashboard(page, server, "dash-lan", errors)
             run(dash, laptop, operator, accounts)
             assert errors == []
     except Exception as exc:
-        raise AssertionError(f"{exc}\n{processes.tails()}") from exc
+        said = "\n".join([*errors, *console][-30:])
+        raise AssertionError(f"{exc}\n--- the page said\n{said}\n{processes.tails()}") from exc
     finally:
         processes.stop()
         probe.close()
@@ -191,6 +195,15 @@ def run(dash: OpenDashboard, laptop: Host, operator: OperatorPeer, accounts: Acc
     page = dash.page
     page.goto(f"{dash.server.url}/?client={dash.client_id}")
     form = page.locator("#login-form")
+    try:
+        expect(form).to_be_visible()
+    except AssertionError as exc:
+        # Twice in CI under load the page fetched main.js and nothing after it (no module, no
+        # settings), so the form never showed; the cause is not known. What this test is about
+        # comes later: one reload, as a person would, and the first look's words kept.
+        print(f"the login form did not show; reloading: {exc}")
+        page.reload()
+        expect(form).to_be_visible()
     form.locator("input[name=username]").fill("dashboard")
     form.locator("input[name=password]").fill(accounts.get("dashboard").password)
     form.locator("button[type=submit]").click()
