@@ -16,9 +16,10 @@ Report = dict[str, list[dict[str, Any]]]
 
 def check_plot_target(path: Path) -> None:
     """Refuse a `--plot FILE` that could not be written now, not after a run of minutes."""
-    plt = _pyplot()
-    kinds = plt.figure().canvas.get_supported_filetypes()
-    plt.close("all")
+    _pyplot()  # or the one line saying matplotlib is missing
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    kinds = FigureCanvasBase.get_supported_filetypes()
     if path.suffix.lstrip(".").lower() not in kinds:
         raise ConfigError(
             f"--plot: cannot write {path}: give a file ending in one of "
