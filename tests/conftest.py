@@ -42,7 +42,7 @@ def _kinds_for(definition: pytest.Item) -> tuple[str, ...]:
     """The brokers a test that uses the suite's broker runs on."""
     if definition.get_closest_marker("amqtt_only") is not None:
         return tuple(k for k in BROKER_KINDS if k == "amqtt")
-    if len(BROKER_KINDS) == 1 or definition.get_closest_marker("every_broker") is not None:
+    if definition.get_closest_marker("every_broker") is not None:
         return BROKER_KINDS
     # The fleet's own behaviour over MQTT: running it again on the other broker mostly repeats
     # it, and the suite is bound by the machine's two cores. Its name picks the broker (not a
