@@ -563,25 +563,31 @@ def test_09_screenshot_of_the_live_playfield(live: Callable[..., Live]) -> None:
     # through a known obstacle (not in the instant between a unit's discovery and the re-plan).
     last: dict[str, object] = {}
 
-    def under_way() -> list[str]:
-        """The units with a lit arrow, when the rest of the moment holds too (else [])."""
+    def under_way() -> list[str] | None:
+        """The units with a lit arrow when the moment holds, else []; None once no job waits."""
         arrows = system.page.locator("#map").get_attribute("data-headings") or ""
         heading = [u for u, _, d in (a.partition(":") for a in arrows.split()) if d != "-"]
         states = {r["state"] for r in system.page_jobs().values()}
         known = obstacles_drawn(system)
-        last.update(heading=heading, job_states=sorted(states), obstacles=sorted(known))
         through = [sq for sq in known if system.routes_through(sq)]
-        last.update(routes_through_obstacles=through)
+        last.update(
+            heading=heading,
+            job_states=sorted(states),
+            obstacles=sorted(known),
+            routes_through_obstacles=through,
+        )
+        if "queued" not in states:
+            return None
         if through or len(heading) < 3 or not states & {"loaded", "to_dropoff"}:
             return []
-        return heading if "queued" in states else []
+        return heading
 
     def picture() -> Path | None:
-        if "queued" not in {r["state"] for r in system.page_jobs().values()}:
+        heading = under_way()
+        if heading is None:
             # The moment passed between two looks (a loaded machine looks less often): once more.
             give_work()
             return None
-        heading = under_way()
         # Two of them moving this very step: a step's status, which changes every step, so it is
         # asked before the picture only.
         moving = [u for u, r in unit_rows(system).items() if r["status"].startswith("moving")]
