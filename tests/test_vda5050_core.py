@@ -236,9 +236,10 @@ def test_the_vehicles_own_emergency_stop_is_a_press_and_a_fatal_error_makes_it_l
         errors=[{"errorType": "motorFault", "errorLevel": "FATAL", "errorReferences": []}],
     )
     outs = c.on_vehicle("state", vda(fatal), T0 + 2)
-    assert kinds(outs) == ["units/agv1/connection", "units/agv1/vehicle"]
-    assert decode(Connection, outs[0].payload).state == "broken"
-    assert decode(VehicleCondition, outs[1].payload).errors == ["FATAL motorFault"]  # why
+    assert kinds(outs) == ["units/agv1/state", "units/agv1/connection", "units/agv1/vehicle"]
+    assert [e.code for e in unit_state(outs).errors] == ["vehicle_down"]  # its last word
+    assert decode(Connection, outs[1].payload).state == "broken"
+    assert decode(VehicleCondition, outs[2].payload).errors == ["FATAL motorFault"]  # why
     # Well again: the fleet hears it back.
     outs = c.on_vehicle("state", vda(state(agvPosition=at(0, 0))), T0 + 3)
     assert kinds(outs)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
@@ -343,8 +344,14 @@ def test_a_vehicle_refusing_every_route_is_lost_to_the_fleet() -> None:
         vda_id = json.loads(sent[0].payload)["orderId"]
         refused = state(agvPosition=at(0, 0), errors=[refusal("noRouteError", vda_id, 0)])
         outs = c.on_vehicle("state", vda(refused), T0 + n)
-    assert kinds(outs) == ["units/agv1/connection"]
-    assert decode(Connection, outs[0].payload).state == "broken"
+    # Its last state first: the order it refused has ended, so the fleet keeps none of its
+    # squares reserved but the one it stands on (a lost unit's squares are kept as last heard).
+    assert kinds(outs) == ["units/agv1/state", "units/agv1/direction", "units/agv1/connection"]
+    last = unit_state(outs)
+    assert (last.position, last.released) == ((0, 0), [])
+    assert [e.code for e in last.errors] == ["order_refused", "vehicle_down"]
+    assert outs[1].payload == b"-"  # it goes nowhere
+    assert decode(Connection, outs[2].payload).state == "broken"
     # An error about an order gone by changes nothing.
     c2 = core()
     online(c2)

@@ -231,7 +231,10 @@ class VehicleCore:
             )
             if self.announced and not view.estop:
                 self.errors.append(UnitError(code="vehicle_down", message=why[:200]))
-                return outs + self._goodbye("broken") + self._vehicle_condition(view)
+                # A last state first: the fleet keeps a lost unit's squares as it last heard
+                # them, and an order the vehicle refused has ended (it releases nothing now).
+                last = self.state()
+                return outs + last + self._goodbye("broken") + self._vehicle_condition(view)
         # Its condition even while it is not a unit of the fleet: a vehicle down from the start
         # shows why on the dashboard.
         return outs + (self._announce(now) or self.state()) + self._vehicle_condition(view)
