@@ -33,12 +33,13 @@ run: $(STAMP)
 	$(BIN)/gridfleet up
 
 # Everything at once: the chaos soak, the static checks, the firmware's host tests built from a
-# clean checkout, and every other test four at a time, those at a lower priority (nice). The soak
-# spends most of its minute waiting on its fleet's clock, and its verdict counts a unit that moves
-# later than two steps after a stop: its fleet must never be the one kept waiting for a core.
+# clean checkout, and every other test four at a time, all but the soak at a lower priority
+# (nice). The soak spends most of its minute waiting on its fleet's clock, and its verdict counts
+# a unit that moves later than two steps after a stop: its fleet must never be the one kept
+# waiting for a core (five units moved 0.55 s after one, beside mypy and g++ at its priority).
 test: system-deps $(STAMP)
 	$(MAKE) --no-print-directory -j4 --output-sync=target soak check firmware-checkout pytest \
-		PYTEST_PRIORITY="nice -n 10"
+		PRIORITY="nice -n 10"
 
 # Installs the missing Debian packages as root (or with password-less sudo); otherwise says the
 # one command to run, and stops: no test is skipped for want of a tool.
@@ -56,9 +57,9 @@ system-deps:
 check: lint typecheck
 
 lint: $(STAMP)
-	$(BIN)/ruff check .
-	$(BIN)/ruff format --check .
-	cd dashboard && npx --no-install eslint .
+	$(PRIORITY) $(BIN)/ruff check .
+	$(PRIORITY) $(BIN)/ruff format --check .
+	cd dashboard && $(PRIORITY) npx --no-install eslint .
 
 # mypy cannot follow the editable install's mapping of the checkout's folders into gridfleet.*, so
 # it checks a tree of links laid out as the installed package is.
@@ -67,7 +68,7 @@ typecheck: $(STAMP)
 	rm -rf build/typecheck && mkdir -p build/typecheck/gridfleet
 	cd build/typecheck/gridfleet && ln -s ../../../gridfleet/*.py ../../../gridfleet/protocol . && \
 		for part in $(PARTS); do ln -s ../../../$$part $$part; done
-	cd build/typecheck && ../../$(BIN)/mypy --config-file ../../pyproject.toml -p gridfleet
+	cd build/typecheck && $(PRIORITY) ../../$(BIN)/mypy --config-file ../../pyproject.toml -p gridfleet
 
 # pytest rewrites each test module's asserts on import and keeps the result beside it, unless
 # PYTHONDONTWRITEBYTECODE is set (it is on these machines): then each test worker rewrote every
@@ -96,14 +97,14 @@ soak: $(STAMP)
 
 # The firmware's host tests, built with g++ from the files git tracks alone (tests/test_firmware.py).
 firmware-checkout: $(STAMP)
-	$(KEEP_BYTECODE) $(BIN)/pytest -q -m firmware
+	$(KEEP_BYTECODE) $(PRIORITY) $(BIN)/pytest -q -m firmware
 
 # Every test but the soak and the firmware's build (make test runs those beside it); each test that
 # talks to the suite's broker on the embedded amqtt, on Debian's Mosquitto, or on both when what it
 # checks is the broker's doing (`every_broker`; tests/conftest.py starts them on free loopback
 # ports), in one run: as two runs, each ended waiting for its own slowest tests while cores idled.
 pytest: $(STAMP)
-	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PYTEST_PRIORITY) $(BIN)/pytest $(XDIST) \
+	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PRIORITY) $(BIN)/pytest $(XDIST) \
 		-m "not soak and not firmware"
 
 # Only the tests that talk to the suite's broker, on Mosquitto alone; the tests about amqtt itself
