@@ -205,6 +205,7 @@ class Soak:
         self.children: dict[str, Child] = {}
         self.faults: Counter[str] = Counter()
         self.fault_s: defaultdict[str, list[float]] = defaultdict(list)  # fault to flowing again
+        self.fault_times: list[tuple[float, float, str]] = []  # (start, flowing again, kind)
         self.progress = 0  # start-up done, or a fault injected: what the watchdog watches
         self.stalled = False  # set by the watchdog when it gave up on the run
         self.recoveries: list[float] = []
@@ -386,6 +387,7 @@ class Soak:
                 await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
                 self.recorded.append(Disturbed(start, time.time()))
                 self.fault_s[fault.kind].append(time.time() - start)
+                self.fault_times.append((start, time.time(), fault.kind))
 
     async def _apply(self, fault: Fault) -> None:
         proxy = self.proxy
@@ -655,6 +657,9 @@ class Soak:
             else:
                 said = f"seen {'engaged' if event.engaged else 'released'} by the listener"
             print(f"[stop       ] {event.t:.2f} {said}", file=self.log)
+        # And each fault, to read a move in a stop against what the fleet was going through.
+        for start, end, kind in self.fault_times:
+            print(f"[fault      ] {start:.2f} {kind}, flowing again at {end:.2f}", file=self.log)
         lag, when = self.listener.worst_lag
         print(
             f"[listener   ] a unit's state reached it {lag:.2f} s late at worst, at {when:.2f}",
