@@ -110,12 +110,17 @@ def pytest_runtest_makereport(
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Without amqtt among the brokers: only the tests that talk to the suite's broker, and not the
-    amqtt-only ones.
+    """The `waits_first` tests first; without amqtt among the brokers, only the tests that talk
+    to the suite's broker, and not the amqtt-only ones.
 
     The others (pure cores, parsers, systems with a broker of their own) run the same whatever
     broker the fixtures would start; a run with amqtt among its brokers runs them, once.
     """
+    # First in line (stable, so every worker collects the same order): pytest-xdist hands each
+    # worker a block of the collection and steals from a block's end, so these run one after
+    # another in the first worker's block while the others take what needs the cores. Last in
+    # line, they ran on alone for 30 s after the rest had finished.
+    items.sort(key=lambda item: item.get_closest_marker("waits_first") is None)
     if "amqtt" in BROKER_KINDS:
         return
     keep, drop = [], []

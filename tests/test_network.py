@@ -39,8 +39,9 @@ from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
-# Whole systems waiting out keep-alives: make test, not test-fast. Links cut: what the broker does.
-pytestmark = [pytest.mark.slow, pytest.mark.every_broker]
+# Whole systems waiting out keep-alives: make test, not test-fast, and first in its line. Links
+# cut: what the broker does.
+pytestmark = [pytest.mark.slow, pytest.mark.every_broker, pytest.mark.waits_first]
 
 REPO = Path(__file__).resolve().parent.parent
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]
