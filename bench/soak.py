@@ -385,9 +385,10 @@ class Soak:
                 await self._apply(fault)
                 # Disturbed from the fault until everything flows again (or the wait gave up).
                 await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
-                self.recorded.append(Disturbed(start, time.time()))
-                self.fault_s[fault.kind].append(time.time() - start)
-                self.fault_times.append((start, time.time(), fault.kind))
+                flowing = time.time()
+                self.recorded.append(Disturbed(start, flowing))
+                self.fault_s[fault.kind].append(flowing - start)
+                self.fault_times.append((start, flowing, fault.kind))
 
     async def _apply(self, fault: Fault) -> None:
         proxy = self.proxy

@@ -72,6 +72,10 @@ def test_one_minute_soak_is_green_and_reports_every_figure(tmp_path: Path) -> No
     assert out["jobs_lost"] == 0 and out["jobs_duplicated"] == 0
     assert out["units_stranded"] == 0 and out["faults_unrecovered"] == 0
     assert out["max_recovery_s"] is not None and out["max_recovery_s"] > 0
+    # The log lists every main-lane fault it counted, to read a verdict against.
+    listed = [line for line in log.read_text().splitlines() if line.startswith("[fault      ]")]
+    main_lane = sum(n for kind, n in out["faults"].items() if not kind.startswith("estop_"))
+    assert len(listed) == main_lane, listed
 
 
 @pytest.mark.parametrize(
