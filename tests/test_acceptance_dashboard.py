@@ -505,21 +505,20 @@ def test_09_dashboard_shows_positions_done_and_pending_tasks(live: Callable[...,
     wait_for(lists_match_the_coordinator, timeout=30, what="pending and done jobs listed")
 
     # At the end: every job done by a unit able to carry it, the queue empty, the counts right.
-    try:
-        wait_for(
-            lambda: (
-                all(r["state"] == "done" for r in system.page_jobs().values())
-                and len(system.page_jobs()) == len(jobs)
-            ),
-            timeout=40,
-            what="every job done on the page",
-        )
-    except WaitTimeout as exc:  # say where each job and unit stood, to tell a stall from a slow run
+    def where() -> str:
         view = system.jobs()
         states = {j.id: (j.state, j.unit, j.wait_reason) for j in view.listed()} if view else None
-        raise WaitTimeout(
-            f"{exc}: page {system.page_jobs()}; coordinator {states}; units {unit_rows(system)}"
-        ) from None
+        return f"page {system.page_jobs()}; coordinator {states}; units {unit_rows(system)}"
+
+    wait_for(
+        lambda: (
+            all(r["state"] == "done" for r in system.page_jobs().values())
+            and len(system.page_jobs()) == len(jobs)
+        ),
+        timeout=40,
+        what="every job done on the page",
+        context=where,
+    )
     expect(system.page.locator("#queue-count")).to_have_text("(0)")
     expect(system.page.locator("#finished-counts")).to_have_text(f"done {len(jobs)}")
     rows = system.page_jobs()

@@ -23,7 +23,7 @@ from support.firmware_libs import compiler_warnings, firmware_libs, make_env
 from support.mosquitto import MosquittoBroker
 from support.mqtt_tap import MqttTap, Packet
 from support.probe import MqttProbe, Seen
-from support.wait import WaitTimeout, wait_for
+from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 FW = REPO / "firmware"
@@ -183,7 +183,7 @@ CONNECT_FAILED = "[serial] gridfleet: MQTT: connect failed"
 def story(device: Device, tap: MqttTap) -> str:
     """What the device said and sent, for a failure's report."""
     sent = [f"#{p.connection} kind {p.kind} at {p.at:.2f}" for p in tap.packets()]
-    return "device:\n" + "\n".join(device.lines("[serial]")) + "\nsent:\n" + "\n".join(sent)
+    return "\ndevice:\n" + "\n".join(device.lines("[serial]")) + "\nsent:\n" + "\n".join(sent)
 
 
 def test_the_sketch_on_the_real_pubsubclient_over_real_sockets(
@@ -300,11 +300,11 @@ def test_the_sketch_on_the_real_pubsubclient_over_real_sockets(
             return next((c for c in later if subscribed(c) == wanted), None)
 
         # Reconnecting re-subscribes, each at its QoS, and sends the press once.
-        try:
-            again = wait_for(resubscribed, 45, what="a reconnect that subscribes again")
-            wait_for(lambda: presses(again), 30, what="the press after the outage")
-        except WaitTimeout as exc:
-            raise WaitTimeout(f"{exc}\n{story(device, tap)}") from None
+        def told() -> str:
+            return story(device, tap)
+
+        again = wait_for(resubscribed, 45, what="a reconnect that subscribes again", context=told)
+        wait_for(lambda: presses(again), 30, what="the press after the outage", context=told)
         probe.wait(press, lambda m: m.payload == pressed)
         assert stays(lambda: len(presses()) == 2, STOP_RETRY_MS / 1000 + 1.5)
         assert len(presses(again)) == 1

@@ -25,7 +25,7 @@ from gridfleet.system.threads import coordinator_thread, fleet_thread
 from support.coordinator_fakes import PLAYFIELD_JOBS
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
-from support.wait import WaitTimeout, wait_for
+from support.wait import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 PROMETHEUS = shutil.which("prometheus")
@@ -153,10 +153,13 @@ def test_prometheus_scrapes_a_running_fleet_and_answers_promql(
 
         # Scraped, with the token: the target is up and the fleet's units are there.
         up = 'up{job="gridfleet-coordinator"}'
-        try:
-            wait_for(lambda: prometheus.value(up) == 1, timeout=60, interval=0.5, what=up)
-        except WaitTimeout as exc:
-            raise AssertionError(f"{exc}; targets: {prometheus.targets_health()}") from None
+        wait_for(
+            lambda: prometheus.value(up) == 1,
+            timeout=60,
+            interval=0.5,
+            what=up,
+            context=lambda: f"targets: {prometheus.targets_health()}",
+        )
         units = len(scenario.units)
         wait_for(
             lambda: prometheus.value('sum(gridfleet_units{connection="online"})') == units,

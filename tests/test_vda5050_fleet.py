@@ -30,7 +30,7 @@ from gridfleet.system.threads import ServiceThread
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.vda import official_if_here
-from support.wait import WaitTimeout, wait_for
+from support.wait import wait_for
 
 # Once, on the embedded broker: these are about the adapter and the vehicle; the vehicles nobody
 # here wrote (test_vda5050_lib.py) run on Mosquitto too.
@@ -309,11 +309,15 @@ def test_a_vehicle_refusing_what_the_spec_lets_it_refuse_strands_no_job(
     operator = mixed.operator
     for job_id, (pickup, dropoff, mass) in JOBS.items():
         assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
-    try:
-        wait_for(lambda: operator.all_final(list(JOBS)), timeout=150, what="every job final")
-    except WaitTimeout as exc:
-        units = {u: operator.last_state(u) for u in ("unit1", "unit2", "agv1")}
-        raise WaitTimeout(f"{exc}: {operator.listed_jobs()}; {units}") from None
+    wait_for(
+        lambda: operator.all_final(list(JOBS)),
+        timeout=150,
+        what="every job final",
+        context=lambda: (
+            operator.listed_jobs(),
+            {u: operator.last_state(u) for u in ("unit1", "unit2", "agv1")},
+        ),
+    )
     listed = operator.listed_jobs()
     assert {j: listed[j].state for j in JOBS} == dict.fromkeys(JOBS, "done"), listed
     assert mixed.judge.faults == []

@@ -31,7 +31,7 @@ from gridfleet.system.threads import ServiceThread
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.vda import official_if_here
-from support.wait import WaitTimeout, wait_for
+from support.wait import wait_for
 
 # On the embedded broker only, for now: one CI run on Mosquitto lost both vehicles' units while
 # they carried their items (the adapter's session there is under investigation).
@@ -206,12 +206,17 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
     }
     for job_id, (pickup, dropoff, mass) in jobs.items():
         assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
-    try:
-        wait_for(lambda: operator.all_final(list(jobs)), timeout=180, what="every job final")
-    except WaitTimeout:
+
+    def where() -> dict[str, tuple[str, str | None, str | None]]:
         listed = operator.listed_jobs()
-        where = {j: (listed[j].state, listed[j].unit, listed[j].wait_reason) for j in jobs}
-        raise AssertionError(f"not every job final after 180 s: {where}") from None
+        return {j: (listed[j].state, listed[j].unit, listed[j].wait_reason) for j in jobs}
+
+    wait_for(
+        lambda: operator.all_final(list(jobs)),
+        timeout=180,
+        what="every job final",
+        context=where,
+    )
     listed = operator.listed_jobs()
     outcome = {j: (listed[j].state, listed[j].unit, listed[j].reason) for j in jobs}
     assert {j: listed[j].state for j in jobs} == dict.fromkeys(jobs, "done"), outcome

@@ -19,15 +19,18 @@ def wait_for(
     timeout: float = 10.0,
     interval: float = 0.01,
     what: str = "condition",
+    context: Callable[[], object] | None = None,
 ) -> T:
-    """Poll `predicate` until it returns something truthy, or raise WaitTimeout."""
+    """Poll `predicate` until it returns something truthy, or raise WaitTimeout (with what
+    `context` says then: where things stood, to tell a stall from a slow run)."""
     deadline = time.monotonic() + timeout
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() > deadline:
-            raise WaitTimeout(f"timed out after {timeout} s waiting for {what}")
+            said = "" if context is None else f": {context()}"
+            raise WaitTimeout(f"timed out after {timeout} s waiting for {what}{said}")
         time.sleep(interval)
 
 
