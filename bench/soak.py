@@ -204,7 +204,6 @@ class Soak:
         self.sup = Supervisor(out=log, restart_delay=0.3, max_restart_delay=2.0, stable_after=3.0)
         self.children: dict[str, Child] = {}
         self.faults: Counter[str] = Counter()
-        self.fault_s: defaultdict[str, list[float]] = defaultdict(list)  # fault to flowing again
         self.fault_times: list[tuple[float, float, str]] = []  # (start, flowing again, kind)
         self.progress = 0  # start-up done, or a fault injected: what the watchdog watches
         self.stalled = False  # set by the watchdog when it gave up on the run
@@ -387,7 +386,6 @@ class Soak:
                 await self._wait_flowing(time.time(), f"{fault.kind} at {start:.2f}")
                 flowing = time.time()
                 self.recorded.append(Disturbed(start, flowing))
-                self.fault_s[fault.kind].append(flowing - start)
                 self.fault_times.append((start, flowing, fault.kind))
 
     async def _apply(self, fault: Fault) -> None:
@@ -669,6 +667,9 @@ class Soak:
         events = [*self.listener.events, *self.recorded, *read_truth(self.truth), *hall]
         limits = SoakLimits(self.cfg.step_s, stranded_s=self.cfg.stranded_s)
         verdict = check(events, limits)
+        fault_s: defaultdict[str, list[float]] = defaultdict(list)  # fault to flowing again
+        for start, end, kind in self.fault_times:
+            fault_s[kind].append(end - start)
         return SoakResult(
             self.cfg.minutes,
             self.cfg.units,
@@ -677,7 +678,7 @@ class Soak:
             self.recoveries,
             self.unrecovered,
             self.release_repeats,
-            dict(self.fault_s),
+            dict(fault_s),
             self.detections,
         )
 
