@@ -46,10 +46,10 @@ LIB_ACTIONS = {"stationType": "floor", "loadType": "EPAL", "duration": 0.5}
 class LibAgvs:
     """vda-5050-lib's virtual AGVs in a Node.js process of their own."""
 
-    def __init__(self, broker_url: str, agvs: dict[str, Cell]) -> None:
+    def __init__(self, broker_url: str, agvs: dict[str, Cell], speed_m_s: float) -> None:
         spec = {
             "brokerUrl": broker_url,
-            "speed": 0.5,
+            "speed": speed_m_s,
             "stateIntervalMs": 30000,
             "agvs": [
                 {
@@ -137,7 +137,14 @@ class LibFleet:
 
 
 @pytest.fixture
+def agv_speed() -> float:
+    """How fast vda-5050-lib's vehicles drive, in m/s (a test may parametrize it)."""
+    return 0.5
+
+
+@pytest.fixture
 def lib_fleet(
+    agv_speed: float,
     broker: BrokerThread,
     root: str,
     run_system: Callable[..., Any],
@@ -160,7 +167,9 @@ def lib_fleet(
     coordinator, _ = run_system(path, step_s=STEP)
     name = root.replace("/", "-")
     serials = {"agv1": f"{name}-1", "agv2": f"{name}-2"}
-    agvs = LibAgvs(broker.url, {serials["agv1"]: Cell(0, 9), serials["agv2"]: Cell(9, 9)})
+    agvs = LibAgvs(
+        broker.url, {serials["agv1"]: Cell(0, 9), serials["agv2"]: Cell(9, 9)}, agv_speed
+    )
     configs = [
         VehicleConfig(
             Vehicle(unit, "vdalib", serial, "2.0.0"), FRAME, capacity, 0.0, True, LIB_ACTIONS
@@ -228,9 +237,9 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
     assert topics >= {"order", "state", "connection"}
 
 
-def _agv1_job(fleet: LibFleet) -> str:
-    """A 2.5 kg job from beside agv1 (too heavy for unit1; agv2 and unit2 are far)."""
-    assert fleet.operator.submit_job(Cell(0, 6), Cell(9, 8), 2.5, job_id="crate").accepted
+def _agv1_job(fleet: LibFleet, pickup: Cell) -> str:
+    """A 2.5 kg job from up agv1's column (too heavy for unit1; agv2 and unit2 are far)."""
+    assert fleet.operator.submit_job(pickup, Cell(9, 8), 2.5, job_id="crate").accepted
     wait_for(
         lambda: any(s["driving"] for s in fleet.vehicle_states("agv1")),
         timeout=30,
@@ -244,6 +253,14 @@ def _agv1_job(fleet: LibFleet) -> str:
     return "crate"
 
 
+def _story(fleet: LibFleet, job: str, units: tuple[str, ...]) -> str:
+    """Where a job and some units stand: to tell a stall from a slow run."""
+    lines = [repr(fleet.operator.listed_jobs().get(job))]
+    for unit in units:
+        lines.append(f"{unit}: {fleet.operator.last_state(unit)}")
+    return "\n".join(lines)
+
+
 STOPPING_M = 0.05  # how far a vehicle may still move once it says it is paused: half a square
 
 
@@ -251,7 +268,7 @@ STOPPING_M = 0.05  # how far a vehicle may still move once it says it is paused:
 def test_the_fleet_stop_pauses_vda_5050_lib_agvs_and_the_release_resumes_them(
     lib_fleet: LibFleet,
 ) -> None:
-    job = _agv1_job(lib_fleet)
+    job = _agv1_job(lib_fleet, Cell(0, 6))
     lib_fleet.operator.engage("test")
     for unit in ("agv1", "agv2"):
         wait_for(
@@ -283,20 +300,35 @@ def test_the_fleet_stop_pauses_vda_5050_lib_agvs_and_the_release_resumes_them(
     assert lib_fleet.judge.faults == []
 
 
+# Slow, and sent far: the kill must come before agv1 holds its pickup (a lost unit's squares stay
+# reserved, protocol.md §8) or carries the item (then only agv1 may finish the job). At 2 s a
+# square, agv1 is released the pickup 6 squares up no sooner than some 8 s after it set off.
+@pytest.mark.parametrize("agv_speed", [0.05], ids=["slow"])
 @pytest.mark.timeout(180)
 def test_killed_vda_5050_lib_agvs_are_lost_and_their_job_goes_to_a_unit(
     lib_fleet: LibFleet,
 ) -> None:
-    job = _agv1_job(lib_fleet)
+    pickup = Cell(0, 3)
+    job = _agv1_job(lib_fleet, pickup)
     lib_fleet.agvs.process.kill()  # no goodbye: the broker sends their last wills
     lib_fleet.agvs.process.wait(10)
+    heard = lib_fleet.operator.last_state("agv1")
+    held = set() if heard is None else {heard.position, *heard.released}
+    assert heard is not None and heard.load_kg == 0 and pickup not in held, (
+        f"agv1 held its pickup before the kill: {heard}"
+    )
     for unit in ("agv1", "agv2"):
         wait_for(
             lambda u=unit: lib_fleet.operator.connections(u)[-1:] == ["broken"],
             timeout=20,
             what=f"{unit} lost",
         )
-    wait_for(lambda: lib_fleet.operator.job_state(job) == "done", timeout=120, what="job done")
+    wait_for(
+        lambda: lib_fleet.operator.job_state(job) == "done",
+        timeout=120,
+        what="job done",
+        context=lambda: _story(lib_fleet, job, ("agv1", "unit2")),
+    )
     assert lib_fleet.operator.listed_jobs()[job].unit == "unit2"
     assert lib_fleet.judge.faults == []
 
