@@ -68,14 +68,16 @@ class Vehicles:
         self.threads: list[ServiceThread[Any]] = []
         self.broker, self.root, self.grid = broker, root, grid
 
-    def add(self, unit: str, serial: str, at: Cell, capacity_kg: float, **spec: Any) -> None:
+    def add(
+        self, unit: str, serial: str, at: Cell, capacity_kg: float, speed: float = 1.0, **spec: Any
+    ) -> None:
         vehicle = Vehicle(unit, "gridfleet", serial, "2.1.0")
         self.configs.append(VehicleConfig(vehicle, FRAME, None, 0.0, False))
         start = FRAME.position(at)
         self.virtual[unit] = VirtualVehicleShell(
             vehicle,
             VirtualSpec(
-                start, FRAME.map_id, speed=1.0, capacity_kg=capacity_kg, action_s=0.2, **spec
+                start, FRAME.map_id, speed=speed, capacity_kg=capacity_kg, action_s=0.2, **spec
             ),
             self.broker.url,
         )
@@ -166,7 +168,7 @@ def mixed_fleet(
     its factsheet, with `quirks`) at (0, 9) on the playfield, known to the coordinator."""
     made: list[Mixed] = []
 
-    def start(quirks: frozenset[Quirk] = frozenset()) -> Mixed:
+    def start(quirks: frozenset[Quirk] = frozenset(), speed: float = 1.0) -> Mixed:
         judge = Judge()
         probe = probe_factory()
         probe.client.message_callback_add(
@@ -177,7 +179,7 @@ def mixed_fleet(
         operator = OperatorPeer(probe_factory(), topics, "tester")
         coordinator, _ = run_system(scenario(tmp_path), step_s=STEP)
         fleet = vehicles()
-        fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0, quirks=quirks)
+        fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0, speed=speed, quirks=quirks)
         fleet.start()
         world = coordinator.service.world
         wait_for(
@@ -238,9 +240,9 @@ def test_a_2_1_vehicle_beside_gridfleets_units_finishes_its_jobs_safely_and_by_i
         assert abs(sent_at.timestamp() - time.time()) < 600, message["timestamp"]
 
 
-def _agv1_job(operator: OperatorPeer) -> str:
-    """A 2.5 kg job from beside agv1 across the map: too heavy for unit1, far from unit2."""
-    assert operator.submit_job(Cell(0, 6), Cell(9, 9), 2.5, job_id="crate").accepted
+def _agv1_job(operator: OperatorPeer, pickup: Cell) -> str:
+    """A 2.5 kg job from up agv1's column across the map: too heavy for unit1, far from unit2."""
+    assert operator.submit_job(pickup, Cell(9, 9), 2.5, job_id="crate").accepted
     wait_for(
         lambda: (s := operator.last_state("agv1")) is not None and s.status == "moving",
         timeout=20,
@@ -257,7 +259,7 @@ def test_the_fleet_stop_pauses_the_vehicle_where_it_is_and_the_release_resumes_i
     mixed: Mixed,
 ) -> None:
     operator, virtual = mixed.operator, mixed.agv1
-    job = _agv1_job(operator)
+    job = _agv1_job(operator, Cell(0, 6))
     operator.engage("test")
     wait_for(lambda: virtual.core.paused, timeout=10, what="the vehicle paused")
     paused = [m for n, m in virtual.received if n == "instantActions"]
@@ -280,11 +282,23 @@ def test_the_fleet_stop_pauses_the_vehicle_where_it_is_and_the_release_resumes_i
     assert mixed.judge.faults == []
 
 
+# Slow, and sent far: the kill must come before agv1 holds its pickup (a lost unit's squares stay
+# reserved, protocol.md §8) or carries the item (then only agv1 may finish the job). At 2 s a
+# square, agv1 is released the pickup 6 squares up no sooner than some 8 s after it set off.
 @pytest.mark.timeout(120)
-def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(mixed: Mixed) -> None:
+def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(
+    mixed_fleet: Callable[..., Mixed],
+) -> None:
+    mixed = mixed_fleet(speed=0.05)
     operator = mixed.operator
-    job = _agv1_job(operator)
+    pickup = Cell(0, 3)
+    job = _agv1_job(operator, pickup)
     mixed.agv1.kill()  # its last will: CONNECTIONBROKEN
+    heard = operator.last_state("agv1")
+    held = set() if heard is None else {heard.position, *heard.released}
+    assert heard is not None and heard.load_kg == 0 and pickup not in held, (
+        f"agv1 held its pickup before the kill: {heard}"
+    )
     wait_for(lambda: operator.connections("agv1")[-1:] == ["broken"], timeout=20, what="agv1 lost")
     wait_for(lambda: operator.job_state(job) == "done", timeout=90, what="the job done")
     assert operator.listed_jobs()[job].unit == "unit2"
@@ -334,7 +348,7 @@ def test_a_vehicle_refusing_what_the_spec_lets_it_refuse_strands_no_job(
 @pytest.mark.timeout(120)
 def test_a_cancelled_job_cancels_the_vehicles_order_and_it_ends_idle(mixed: Mixed) -> None:
     operator, virtual = mixed.operator, mixed.agv1
-    job = _agv1_job(operator)
+    job = _agv1_job(operator, Cell(0, 6))
     assert operator.cancel_job(job).accepted
     wait_for(
         lambda: any(
@@ -385,7 +399,7 @@ def test_bad_messages_on_a_vehicles_topics_are_reported_and_the_fleet_runs_on(
         what="every bad message reported",
     )
     assert operator.connections("agv1")[-1] == "online"  # none of it changed anything
-    job = _agv1_job(operator)  # and it still drives
+    job = _agv1_job(operator, Cell(0, 6))  # and it still drives
     wait_for(lambda: operator.job_state(job) == "done", timeout=60, what="the job done")
 
 
@@ -394,7 +408,7 @@ def test_an_operators_pause_of_the_vehicles_unit_pauses_the_vehicle_and_resume_r
     mixed: Mixed,
 ) -> None:
     operator, virtual = mixed.operator, mixed.agv1
-    job = _agv1_job(operator)
+    job = _agv1_job(operator, Cell(0, 6))
     sent = operator.send_control_unit("agv1", "pause")
     assert operator.reply_to(sent.request_id).accepted
     wait_for(lambda: virtual.core.paused, timeout=10, what="the vehicle paused")
