@@ -50,22 +50,38 @@ def have_toolchain() -> bool:
     return shutil.which("g++") is not None and Path("/usr/include/doctest/doctest.h").exists()
 
 
-@pytest.mark.skipif(
-    not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
-)
-@pytest.mark.slow  # make test-fast: `make firmware-test` builds and runs the same host tests
-@pytest.mark.firmware  # make test runs it beside the soak and the static checks
-@pytest.mark.timeout(240)  # a cold g++ build of the host tests, with its own 180 s limit
-def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
-    assert "firmware/esp32_unit/config.h" not in tracked("firmware")  # never committed
-    copy_checkout("firmware", tmp_path)
+@pytest.fixture(scope="module")
+def clean_build(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[Path, subprocess.CompletedProcess[str]]:
+    """The firmware folder of a clean clone, built and tested with the real libraries: the
+    folder and what `make test` said."""
+    into = tmp_path_factory.mktemp("checkout")
+    copy_checkout("firmware", into)
     out = subprocess.run(
-        ["make", "-C", str(tmp_path / "firmware"), "-j2", "test", f"FIRMWARE_LIBS={FIRMWARE_LIBS}"],
+        ["make", "-C", str(into / "firmware"), "-j2", "test", f"FIRMWARE_LIBS={FIRMWARE_LIBS}"],
         capture_output=True,
         text=True,
         timeout=180,
         env=make_env(),
     )
+    return into / "firmware", out
+
+
+needs_toolchain = pytest.mark.skipif(
+    not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
+)
+
+
+@needs_toolchain
+@pytest.mark.slow  # make test-fast: `make firmware-test` builds and runs the same host tests
+@pytest.mark.firmware  # make test runs it beside the soak and the static checks
+@pytest.mark.timeout(240)  # a cold g++ build of the host tests, with its own 180 s limit
+def test_host_tests_pass_from_a_clean_checkout(
+    clean_build: tuple[Path, subprocess.CompletedProcess[str]],
+) -> None:
+    assert "firmware/esp32_unit/config.h" not in tracked("firmware")  # never committed
+    _, out = clean_build
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
     results = re.findall(r"test cases:\s+(\d+) \|\s+(\d+) passed \|\s+(\d+) failed", out.stdout)
     # The logic tests, the sketch on stand-ins, and (with the real libraries) the sketch on the
@@ -79,14 +95,18 @@ def test_host_tests_pass_from_a_clean_checkout(tmp_path: Path) -> None:
     assert compiler_warnings(out.stdout + out.stderr) == []
 
 
-@pytest.mark.skipif(
-    not have_toolchain(), reason="needs g++ and doctest-dev (.ci/run installs them)"
-)
+# In the clean checkout built above: the stand-in tests need nothing of the real libraries, so
+# make runs the programs it built there (a second cold build of them cost the lane ~50 s of g++).
+@needs_toolchain
+@pytest.mark.slow
 @pytest.mark.firmware
-@pytest.mark.timeout(120)
-def test_without_the_real_libraries_the_stand_in_tests_run_and_say_so_in_one_line() -> None:
+@pytest.mark.timeout(240)  # the clean build, when this runs first
+def test_without_the_real_libraries_the_stand_in_tests_run_and_say_so_in_one_line(
+    clean_build: tuple[Path, subprocess.CompletedProcess[str]],
+) -> None:
+    firmware, _ = clean_build
     out = subprocess.run(
-        ["make", "-C", str(FW), "-j2", "test", "FIRMWARE_LIBS=/nonexistent/firmware-libs"],
+        ["make", "-C", str(firmware), "-j2", "test", "FIRMWARE_LIBS=/nonexistent/firmware-libs"],
         capture_output=True,
         text=True,
         timeout=110,
