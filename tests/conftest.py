@@ -19,11 +19,8 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
 from support.mosquitto import MosquittoBroker
+from support.paths import MAPS
 from support.probe import MqttProbe
-
-REPO = Path(__file__).resolve().parent.parent
-MAPS = REPO / "maps"
-
 
 # Which brokers the `broker` and `fresh_broker` fixtures start: the embedded amqtt (the default),
 # Debian's Mosquitto, or both, comma-separated (`make test` asks for both, `make test-mosquitto`

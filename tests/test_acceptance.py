@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
@@ -22,6 +21,7 @@ from gridfleet.scenario import Scenario, load_scenario
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.simulate import SimulationResult, simulate
 
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
@@ -29,7 +29,6 @@ pytestmark = (
     pytest.mark.every_broker
 )  # the course's acceptance, broker items included (the latest messages kept)
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05
 MAX_STEPS = 600  # a few times what any of these scenarios needs; ends well inside the timeout
 

@@ -12,7 +12,6 @@ import asyncio
 import itertools
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any, TypeVar
 
 import pytest
@@ -25,10 +24,10 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, world_of
 
 from support.operator_peer import OperatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP_S = 0.05
 ALL = Leds(N=True, E=True, S=True, W=True)
 T = TypeVar("T")

@@ -13,7 +13,7 @@ from gridfleet.system.assembly import Assembly, SystemSpec
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import world_of
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
+from support.paths import MAPS
 
 
 @pytest.mark.parametrize(

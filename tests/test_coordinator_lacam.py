@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import random
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,7 +20,7 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.paths import DistanceFieldCache, adjacency
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
+from support.paths import MAPS
 
 
 def random_problem(

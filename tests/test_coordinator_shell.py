@@ -22,10 +22,10 @@ from gridfleet.system.broker_thread import BrokerThread
 
 from support.coordinator_fakes import PLAYFIELD_JOBS, FakeFleet
 from support.operator_peer import OperatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 STEP = 0.03
 PLAYFIELD_UNITS = [
     ("unit1", (0, 0), 2.0),

@@ -21,11 +21,11 @@ from gridfleet.scenario import load_scenario
 
 from support.browser import OpenDashboard, wait_in_page
 from support.fleet_peer import CoordinatorPeer, UnitPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 
 pytestmark = pytest.mark.browser
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 PLAYFIELD = MAPS / "playfield.toml"
 WAREHOUSE = MAPS / "warehouse.toml"
 PICKUP, DROPOFF = Cell(1, 1), Cell(8, 8)

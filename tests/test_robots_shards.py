@@ -29,10 +29,10 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import coordinator_thread
 
 from support.operator_peer import OperatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 PLAYFIELD = MAPS / "playfield.toml"
 STEP_S = 0.05
 

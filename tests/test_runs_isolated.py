@@ -18,14 +18,13 @@ from gridfleet.system.threads import ServiceThread
 
 from support.cli import gridfleet
 from support.mosquitto import running_mosquitto
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 pytestmark = (
     pytest.mark.every_broker
 )  # retained messages of several runs on one broker, and clearing them
-
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 
 
 def jobs_done(scenario: str, broker: str) -> list[str]:

@@ -9,7 +9,8 @@ import pytest
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.scenario import load_scenario
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
+from support.paths import MAPS
+
 SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 

@@ -13,8 +13,8 @@ from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.scenario import load_scenario
 
 from support.cli import gridfleet
+from support.paths import MAPS
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 

@@ -28,6 +28,7 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
 from support.operator_peer import OperatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.vda import official_if_here
 from support.wait import wait_for
@@ -36,7 +37,6 @@ from support.wait import wait_for
 # here wrote (test_vda5050_lib.py) run on Mosquitto too.
 pytestmark = [pytest.mark.slow, pytest.mark.amqtt_only]
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
 FRAME = Frame("hall")  # square (0, 0) at the origin, 0.1 m squares, y up
 STEP = 0.1
 # The adapter's clock (and the step period its units' factsheets give, which sets how long the

@@ -23,10 +23,9 @@ from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
 
 from support.cli import gridfleet
+from support.paths import MAPS, REPO
 from support.vrml import Node, VrmlError, World, read_world
 
-REPO = Path(__file__).resolve().parent.parent
-MAPS = REPO / "maps"
 SCENARIOS = sorted(MAPS.glob("*.toml"))
 SHIPPED = REPO / "robots" / "webots" / "worlds" / "playfield.wbt"
 
