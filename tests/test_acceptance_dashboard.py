@@ -30,12 +30,12 @@ from gridfleet.scenario import load_scenario
 from gridfleet.system.threads import ServiceThread, world_of
 
 from support.browser import OpenDashboard
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.wait import WaitTimeout, wait_for
 
 pytestmark = pytest.mark.browser
 
-REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 SCENARIO = load_scenario(PLAYFIELD)
 CAPACITY = {u.id: u.capacity for u in SCENARIO.units}

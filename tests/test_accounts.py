@@ -38,6 +38,7 @@ from gridfleet.system.threads import world_of
 from support.cli import gridfleet
 from support.mosquitto import mosquitto_with_accounts
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.security import (
     VEHICLES,
@@ -54,7 +55,6 @@ from support.wait import wait_for
 
 pytestmark = pytest.mark.every_broker  # each broker enforces the accounts and their rules itself
 
-REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 ROOT = "acct"
 T = Topics(ROOT)

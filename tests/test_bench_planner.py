@@ -32,6 +32,8 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 
+from support.paths import REPO
+
 CORRIDOR = GridMap.from_rows(["....."])
 BAY = GridMap.from_rows([".....", "@@.@@"])  # a corridor with one passing bay
 SHARED_ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors"
@@ -449,7 +451,7 @@ def test_a_plot_that_cannot_be_written_is_one_line_and_exit_2_before_any_run(
 
 
 def test_the_pinned_checksums_name_every_file_the_default_suites_read() -> None:
-    pinned = (Path(__file__).resolve().parents[1] / "bench" / "anchors.sha256").read_text()
+    pinned = (REPO / "bench" / "anchors.sha256").read_text()
     rows = [line.split() for line in pinned.splitlines()]
     assert all(len(r) == 2 and len(r[0]) == 64 for r in rows)
     named = {r[1] for r in rows}
@@ -459,6 +461,6 @@ def test_the_pinned_checksums_name_every_file_the_default_suites_read() -> None:
 
 @pytest.mark.skipif(not SHARED_ANCHORS.is_dir(), reason="the public benchmark data is not here")
 def test_the_benchmark_data_here_is_what_the_checksums_pin() -> None:
-    pinned = (Path(__file__).resolve().parents[1] / "bench" / "anchors.sha256").read_text()
+    pinned = (REPO / "bench" / "anchors.sha256").read_text()
     for digest, name in (line.split() for line in pinned.splitlines()):
         assert hashlib.sha256((SHARED_ANCHORS / name).read_bytes()).hexdigest() == digest, name

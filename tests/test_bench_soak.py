@@ -34,10 +34,10 @@ from gridfleet.robots.truth import write_truth
 from gridfleet.robots.world import WorldSim
 from gridfleet.scenario import load_scenario
 
+from support.paths import REPO
+
 # The benchmark's own runs: in make test, not in make test-fast.
 pytestmark = pytest.mark.slow
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:

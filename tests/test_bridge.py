@@ -24,13 +24,13 @@ from gridfleet.scenario import load_scenario
 from support.lan import Processes
 from support.mosquitto import running_mosquitto
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
 pytestmark = pytest.mark.slow  # a whole fleet across two brokers: make test, not test-fast
 
-REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 UNITS = [u.id for u in load_scenario(PLAYFIELD).units]
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]

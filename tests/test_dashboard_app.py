@@ -21,9 +21,8 @@ from gridfleet.ports import free_port
 from gridfleet.scenario import load_scenario
 from gridfleet.system.cli import build_parser
 
+from support.paths import REPO
 from support.wait import wait_for
-
-REPO = Path(__file__).resolve().parent.parent
 
 
 def get(url: str) -> tuple[int, str, bytes]:

@@ -28,11 +28,12 @@ from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import OpenDashboard, wait_in_page
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish
+from support.paths import MAPS
 from support.probe import MqttProbe
 
 pytestmark = pytest.mark.browser
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 PICKUP, DROPOFF = Cell(1, 1), Cell(8, 8)  # free squares of the playfield
 
 

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 
 from gridfleet.accounts import Account, default_accounts, new_password
 from gridfleet.console.job import HISTORY_COLUMNS
 from gridfleet.dashboard.settings import DashboardSettings, settings_payload
 
-HISTORY_JS = Path(__file__).resolve().parent.parent / "dashboard" / "static" / "js" / "history.js"
+from support.paths import REPO
+
+HISTORY_JS = REPO / "dashboard" / "static" / "js" / "history.js"
 
 
 def test_the_pages_csv_has_the_columns_of_the_command() -> None:

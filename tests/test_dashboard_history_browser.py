@@ -36,12 +36,12 @@ from gridfleet.system.threads import ServiceThread
 
 from support.browser import OpenDashboard
 from support.cli import gridfleet
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 pytestmark = pytest.mark.browser
 
-REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 DOCS = REPO / "docs"
 # Only the stop's rule: the others (the coordinator's absence above all) stay quiet in a test.

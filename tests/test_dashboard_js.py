@@ -6,11 +6,12 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
 
-DASHBOARD = Path(__file__).resolve().parent.parent / "dashboard"
+from support.paths import REPO
+
+DASHBOARD = REPO / "dashboard"
 SCRIPTS = DASHBOARD / "static" / "js"
 RELATIVE_IMPORT = re.compile(
     r"""^\s*(?:import|export)\b[^;]*?\bfrom\s+["'](\./[^"']+)["']""", re.M | re.S

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -23,12 +22,13 @@ from gridfleet.system.broker_thread import BrokerThread
 
 from support.browser import VIEWPORT, OpenDashboard
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 pytestmark = pytest.mark.browser
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 ROOT = "t/login"  # the accounts' rules are made for one root
 
 

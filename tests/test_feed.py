@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
@@ -18,10 +17,11 @@ from gridfleet.system.broker_thread import BrokerThread
 
 from support.effects import header
 from support.fleet_peer import CoordinatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
-WAREHOUSE = Path(__file__).resolve().parent.parent / "maps" / "warehouse.toml"
+WAREHOUSE = MAPS / "warehouse.toml"
 
 
 def test_demo_jobs_fit_the_fleets_mix_and_every_one_can_be_done() -> None:

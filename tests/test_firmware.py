@@ -12,8 +12,8 @@ from pathlib import Path
 import pytest
 
 from support.firmware_libs import compiler_warnings, firmware_libs, make_env
+from support.paths import REPO
 
-REPO = Path(__file__).resolve().parent.parent
 FW = REPO / "firmware"
 README = (FW / "README.md").read_text()
 CONFIG = (FW / "esp32_unit" / "config.example.h").read_text()

@@ -22,10 +22,10 @@ from gridfleet.system.broker_thread import BrokerThread
 from support.firmware_libs import compiler_warnings, firmware_libs, make_env
 from support.mosquitto import MosquittoBroker
 from support.mqtt_tap import MqttTap, Packet
+from support.paths import REPO
 from support.probe import MqttProbe, Seen
 from support.wait import wait_for
 
-REPO = Path(__file__).resolve().parent.parent
 FW = REPO / "firmware"
 FIRMWARE_LIBS = firmware_libs()
 MAX_ROOT_BYTES = 234  # firmware/esp32_unit/src/protocol.h: kMaxRootBytes (its unit test checks it)

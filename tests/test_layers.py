@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parent.parent
+from support.paths import REPO
 
 BASE = "gridfleet"
 COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console", "alerts")

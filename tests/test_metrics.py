@@ -39,11 +39,11 @@ from support.cli import gridfleet
 from support.coordinator_drive import make_core
 from support.coordinator_fakes import FakeFleet
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.scrape import Scrape, get, parse
 from support.wait import WaitTimeout
 
-REPO = Path(__file__).resolve().parent.parent
 MAP = REPO / "maps" / "playfield.map"
 STEP = 0.03
 UNITS = [("unit1", (0, 0), 2.0), ("unit2", (9, 0), 5.0), ("unit3", (0, 9), 10.0)]

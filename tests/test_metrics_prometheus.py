@@ -24,10 +24,10 @@ from gridfleet.system.threads import coordinator_thread, fleet_thread
 
 from support.coordinator_fakes import PLAYFIELD_JOBS
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.wait import wait_for
 
-REPO = Path(__file__).resolve().parent.parent
 PROMETHEUS = shutil.which("prometheus")
 STEP = 0.05
 TOKEN = "test-token-0123456789abcdef"

@@ -35,6 +35,7 @@ from support.lan import LAN_SCENARIO, Processes
 from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
 from support.output import Output
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
@@ -43,7 +44,6 @@ from support.wait import wait_for
 # cut: what the broker does.
 pytestmark = [pytest.mark.slow, pytest.mark.every_broker, pytest.mark.waits_first]
 
-REPO = Path(__file__).resolve().parent.parent
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]
 STEP_S = 0.1
 KEEP_ALIVE_S = 10  # gridfleet's clients (gridfleet/bus.py)

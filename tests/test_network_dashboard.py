@@ -34,6 +34,7 @@ from support.browser import CHROMIUM, CHROMIUM_ARGS, VIEWPORT, WAIT_MS, OpenDash
 from support.lan import LAN_SCENARIO, Processes
 from support.mosquitto import MosquittoBroker, running_mosquitto
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
@@ -41,7 +42,6 @@ from support.wait import wait_for
 # A whole system and a keep-alive's wait (slow); a link cut: what the broker does (every broker).
 pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.every_broker]
 
-REPO = Path(__file__).resolve().parent.parent
 GRIDFLEET = [sys.executable, "-m", "gridfleet"]
 STEP_S = 0.1
 UNITS = ("unit1", "unit2")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import re
-from pathlib import Path
 from typing import Any
 
 import jsonschema
@@ -22,7 +21,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.system.schemas import REPO, SCHEMA_DIR, generated, render, schemas
 
-DOC = Path(__file__).resolve().parent.parent / "protocol.md"
+DOC = REPO / "protocol.md"
 BLOCK_RE = re.compile(r"^```(json|text) (\w+)\n(.*?)^```", re.S | re.M)
 
 

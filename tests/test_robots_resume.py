@@ -23,10 +23,11 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.operator_peer import OperatorPeer
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 STEP_S = 0.05
 
 

@@ -118,7 +118,7 @@ def test_two_fleets_on_one_broker_keep_their_coordinators_connected(
 ) -> None:
     # Both coordinators were MQTT client `coordinator`: each connection took the other's over,
     # for ever (on Mosquitto as on the embedded broker).
-    grid = load_scenario(Path(__file__).resolve().parent.parent / "maps" / "playfield.toml").grid
+    grid = load_scenario(MAPS / "playfield.toml").grid
     roots = (f"{root}/a", f"{root}/b")
     probe = MqttProbe(broker.url).connect()
     for r in roots:

@@ -17,12 +17,13 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.mosquitto import running_mosquitto
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
 pytestmark = pytest.mark.every_broker  # a broker restarted with nothing kept
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 ROOT = "restart"
 T = Topics(ROOT)
 STEP_S = 0.1

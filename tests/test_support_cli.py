@@ -14,8 +14,7 @@ import pytest
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.cli import gridfleet
-
-REPO = Path(__file__).resolve().parent.parent
+from support.paths import REPO
 
 
 def bare(*args: str, cwd: Path, env: dict[str, str] | None = None) -> tuple[int, str, str]:

@@ -26,11 +26,11 @@ from gridfleet.system.cli import build_parser
 from gridfleet.system.up import spec_from, where_to_open
 
 from support.output import Output, alive
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
-REPO = Path(__file__).resolve().parent.parent
 PLAYFIELD = REPO / "maps" / "playfield.toml"
 UP = [sys.executable, "-m", "gridfleet", "up"]
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 
 import pytest
 
@@ -15,9 +14,10 @@ from gridfleet.robots.webots.settings import BROKER_ENV, read_settings
 from gridfleet.robots.webots.world_file import WorldOptions, world_text
 from gridfleet.scenario import Scenario, load_scenario
 
+from support.paths import MAPS
 from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble, WebotsExited
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 N, E, S, W = Direction.N, Direction.E, Direction.S, Direction.W
 DARK = Leds(N=False, E=False, S=False, W=False)
 

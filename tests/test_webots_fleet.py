@@ -31,11 +31,11 @@ from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.operator_peer import OperatorPeer
+from support.paths import REPO
 from support.probe import MqttProbe
 from support.wait import wait_for
 from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble
 
-REPO = Path(__file__).resolve().parent.parent
 CONTROLLER = REPO / "robots" / "webots" / "controllers" / "gridfleet_unit" / "gridfleet_unit.py"
 STEP = 0.1
 WEBOTS_UNIT = "unit4"  # capacity 20 kg: the only unit that can carry 15 kg

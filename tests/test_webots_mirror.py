@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable, Iterator
-from pathlib import Path
 
 import pytest
 
@@ -18,11 +17,12 @@ from gridfleet.scenario import load_scenario
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
+from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = MAPS / "playfield.toml"
 
 
 @pytest.fixture

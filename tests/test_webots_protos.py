@@ -17,9 +17,9 @@ from pathlib import Path
 
 import pytest
 
+from support.paths import REPO
 from support.vrml import Proto, VrmlError, read_proto
 
-REPO = Path(__file__).resolve().parent.parent
 # Folders that are not the project's own files (see .gitignore): installed packages, builds.
 NOT_SHIPPED = {"node_modules", "build", "dist", "__pycache__", "test-artifacts"}
 

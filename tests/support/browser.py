@@ -25,6 +25,7 @@ from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.grid import GridMap
 from gridfleet.system.broker_thread import BrokerThread
 
+from support.paths import REPO
 from support.wait import wait_for
 
 CHROMIUM = Path("/usr/bin/chromium")
@@ -37,7 +38,7 @@ CHROMIUM_ARGS = [
     "--disable-component-update",
     "--disable-sync",
 ]
-ARTIFACTS = Path(__file__).resolve().parents[2] / "test-artifacts"  # the repository's, as before
+ARTIFACTS = REPO / "test-artifacts"  # the repository's, as before
 VIEWPORT = {"width": 1440, "height": 900}
 # Every wait on the page is bounded, generously: a page on a machine shared with other test
 # workers may take seconds to show what a quiet one shows at once (Playwright's `expect` would

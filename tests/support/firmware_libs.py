@@ -6,7 +6,8 @@ import os
 import re
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
+from support.paths import REPO
+
 # Beside the repository (`../shared`); CI may clone elsewhere, and the development machines
 # keep the shared data at /work/shared. GRIDFLEET_FIRMWARE_LIBS names another place.
 CANDIDATES = [REPO.parent / "shared" / "firmware-libs", Path("/work/shared/firmware-libs")]

@@ -11,9 +11,10 @@ import pytest
 
 from gridfleet.bench.lan import Host, Lan, can_make_lans, lan
 
+from support.paths import REPO
+
 __all__ = ["LAN_SCENARIO", "Lan", "Processes", "test_lan"]
 
-REPO = Path(__file__).resolve().parents[2]
 # The LAN tests' fleet: two units on the playfield, one of them too weak for heavy items.
 LAN_SCENARIO = f"""
 name = "lan"

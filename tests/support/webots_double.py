@@ -25,15 +25,15 @@ import sys
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.robots.world import WorldSim
 
+from support.paths import REPO
 from support.vrml import Is, Node, Scalar, Value, read_proto, read_world
 from support.webots_rays import Ray, hit, numbers, to_wall, unit_geometry
 
-PROTOS = Path(__file__).resolve().parents[2] / "robots" / "webots" / "protos"
+PROTOS = REPO / "robots" / "webots" / "protos"
 SQUARE_M = 0.1  # the course's square: the only number this double shares with the product
 
 
