@@ -285,22 +285,42 @@ def test_the_fleet_stop_pauses_the_vehicle_where_it_is_and_the_release_resumes_i
 # Slow, and sent far: the kill must come before agv1 holds its pickup (a lost unit's squares stay
 # reserved, protocol.md §8) or carries the item (then only agv1 may finish the job). At 2 s a
 # square, agv1 is released the pickup 6 squares up no sooner than some 8 s after it set off.
+DYING_SPEED_M_S = 0.05
+FAR_PICKUP = Cell(0, 3)
+
+
+def assert_not_at_its_pickup(operator: OperatorPeer, unit: str, pickup: Cell) -> None:
+    """A killed vehicle's test's premise: the fleet last heard `unit` hold and carry none of it."""
+    heard = operator.last_state(unit)
+    held = set() if heard is None else {heard.position, *heard.released}
+    assert heard is not None and heard.load_kg == 0 and pickup not in held, (
+        f"{unit} held its pickup before the kill: {heard}"
+    )
+
+
+def where(operator: OperatorPeer, job: str, units: tuple[str, ...]) -> str:
+    """Where a job and some units stand: to tell a stall from a slow run."""
+    lines = [repr(operator.listed_jobs().get(job))]
+    lines += [f"{unit}: {operator.last_state(unit)}" for unit in units]
+    return "\n".join(lines)
+
+
 @pytest.mark.timeout(120)
 def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(
     mixed_fleet: Callable[..., Mixed],
 ) -> None:
-    mixed = mixed_fleet(speed=0.05)
+    mixed = mixed_fleet(speed=DYING_SPEED_M_S)
     operator = mixed.operator
-    pickup = Cell(0, 3)
-    job = _agv1_job(operator, pickup)
+    job = _agv1_job(operator, FAR_PICKUP)
     mixed.agv1.kill()  # its last will: CONNECTIONBROKEN
-    heard = operator.last_state("agv1")
-    held = set() if heard is None else {heard.position, *heard.released}
-    assert heard is not None and heard.load_kg == 0 and pickup not in held, (
-        f"agv1 held its pickup before the kill: {heard}"
-    )
+    assert_not_at_its_pickup(operator, "agv1", FAR_PICKUP)
     wait_for(lambda: operator.connections("agv1")[-1:] == ["broken"], timeout=20, what="agv1 lost")
-    wait_for(lambda: operator.job_state(job) == "done", timeout=90, what="the job done")
+    wait_for(
+        lambda: operator.job_state(job) == "done",
+        timeout=90,
+        what="the job done",
+        context=lambda: where(operator, job, ("agv1", "unit2")),
+    )
     assert operator.listed_jobs()[job].unit == "unit2"
     assert mixed.judge.faults == []
 

@@ -16,7 +16,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_vda5050_fleet import ADAPTER_STEP, STEP, Judge, scenario
+from test_vda5050_fleet import (
+    ADAPTER_STEP,
+    DYING_SPEED_M_S,
+    FAR_PICKUP,
+    STEP,
+    Judge,
+    assert_not_at_its_pickup,
+    scenario,
+    where,
+)
 
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics, UnitState, decode
@@ -216,7 +225,7 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
     for job_id, (pickup, dropoff, mass) in jobs.items():
         assert operator.submit_job(pickup, dropoff, mass, job_id=job_id).accepted
 
-    def where() -> dict[str, tuple[str, str | None, str | None]]:
+    def jobs_now() -> dict[str, tuple[str, str | None, str | None]]:
         listed = operator.listed_jobs()
         return {j: (listed[j].state, listed[j].unit, listed[j].wait_reason) for j in jobs}
 
@@ -224,7 +233,7 @@ def test_vda_5050_lib_agvs_beside_gridfleets_units_finish_every_job_safely(
         lambda: operator.all_final(list(jobs)),
         timeout=180,
         what="every job final",
-        context=where,
+        context=jobs_now,
     )
     listed = operator.listed_jobs()
     outcome = {j: (listed[j].state, listed[j].unit, listed[j].reason) for j in jobs}
@@ -251,14 +260,6 @@ def _agv1_job(fleet: LibFleet, pickup: Cell) -> str:
         what="crate to agv1",
     )
     return "crate"
-
-
-def _story(fleet: LibFleet, job: str, units: tuple[str, ...]) -> str:
-    """Where a job and some units stand: to tell a stall from a slow run."""
-    lines = [repr(fleet.operator.listed_jobs().get(job))]
-    for unit in units:
-        lines.append(f"{unit}: {fleet.operator.last_state(unit)}")
-    return "\n".join(lines)
 
 
 STOPPING_M = 0.05  # how far a vehicle may still move once it says it is paused: half a square
@@ -300,23 +301,16 @@ def test_the_fleet_stop_pauses_vda_5050_lib_agvs_and_the_release_resumes_them(
     assert lib_fleet.judge.faults == []
 
 
-# Slow, and sent far: the kill must come before agv1 holds its pickup (a lost unit's squares stay
-# reserved, protocol.md §8) or carries the item (then only agv1 may finish the job). At 2 s a
-# square, agv1 is released the pickup 6 squares up no sooner than some 8 s after it set off.
-@pytest.mark.parametrize("agv_speed", [0.05], ids=["slow"])
+# Slow, and sent far, as test_vda5050_fleet.py's vehicle that dies (the reason is there).
+@pytest.mark.parametrize("agv_speed", [DYING_SPEED_M_S], ids=["slow"])
 @pytest.mark.timeout(180)
 def test_killed_vda_5050_lib_agvs_are_lost_and_their_job_goes_to_a_unit(
     lib_fleet: LibFleet,
 ) -> None:
-    pickup = Cell(0, 3)
-    job = _agv1_job(lib_fleet, pickup)
+    job = _agv1_job(lib_fleet, FAR_PICKUP)
     lib_fleet.agvs.process.kill()  # no goodbye: the broker sends their last wills
     lib_fleet.agvs.process.wait(10)
-    heard = lib_fleet.operator.last_state("agv1")
-    held = set() if heard is None else {heard.position, *heard.released}
-    assert heard is not None and heard.load_kg == 0 and pickup not in held, (
-        f"agv1 held its pickup before the kill: {heard}"
-    )
+    assert_not_at_its_pickup(lib_fleet.operator, "agv1", FAR_PICKUP)
     for unit in ("agv1", "agv2"):
         wait_for(
             lambda u=unit: lib_fleet.operator.connections(u)[-1:] == ["broken"],
@@ -327,7 +321,7 @@ def test_killed_vda_5050_lib_agvs_are_lost_and_their_job_goes_to_a_unit(
         lambda: lib_fleet.operator.job_state(job) == "done",
         timeout=120,
         what="job done",
-        context=lambda: _story(lib_fleet, job, ("agv1", "unit2")),
+        context=lambda: where(lib_fleet.operator, job, ("agv1", "unit2")),
     )
     assert lib_fleet.operator.listed_jobs()[job].unit == "unit2"
     assert lib_fleet.judge.faults == []
