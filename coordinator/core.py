@@ -37,6 +37,7 @@ from gridfleet.coordinator.effects import Effects, Messages, Status
 from gridfleet.coordinator.events import EventLog
 from gridfleet.coordinator.history import range_problem
 from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
+from gridfleet.coordinator.inbox import Inbox, Refusals, Waiting
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.moves import Moves
 from gridfleet.coordinator.orders import OrderPlan, Orders, heartbeat_s
@@ -44,7 +45,7 @@ from gridfleet.coordinator.pace import StepRate
 from gridfleet.coordinator.planner import Planner
 from gridfleet.coordinator.progress import JobProgress
 from gridfleet.coordinator.stop import FleetStop
-from gridfleet.coordinator.views import Views
+from gridfleet.coordinator.views import Views, views_period_s
 from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, Claims
 from gridfleet.coordinator.world import UnitRecord, World
@@ -75,6 +76,8 @@ PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order sho
 ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
 Note = tuple[int, str]  # a line for the shell's log: (logging level, text)
+# Requests the inbox takes (answered by `serve`, urgent kinds and each account in turn).
+QUEUED = (SubmitJob, CancelJob, SetGoal, ControlUnit, ClearObstacles, JobHistoryQuery)
 
 
 @dataclass(frozen=True)
@@ -121,12 +124,15 @@ class CoordinatorCore:
         self._heartbeat_s = heartbeat_s(world.step_period_s)
         self.moves = Moves(self.planner)
         self.progress = JobProgress(world, jobs, self.directives)
-        self.views = Views()
+        self.views = Views(period_s=views_period_s(world.step_period_s))
         self.answers = Answers()  # a retried request gets its first answer (answers.py)
         self.pace = StepRate()
         self.errors_reported = 0
         self.events = EventLog()  # the recent history, in words (fleet/events)
-        self.audit = AuditLog(identity)  # who did what: operators' requests and the stop
+        self.identity = identity or Identity()
+        self.audit = AuditLog(self.identity)  # who did what: operators' requests and the stop
+        self.inbox = Inbox()  # requests waiting for `serve` (the shell's; tests answer at once)
+        self.inbox_refusals = Refusals()
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
 
@@ -165,9 +171,9 @@ class CoordinatorCore:
 
     def views_due(self, now: float) -> Effects:
         """The batch period `views_at` named is over: the views changed since go out."""
-        self.views.batch_over(now)
+        self.views.batch_over()
         notes: list[Note] = []
-        return self._effects(self._views(notes), log=notes)
+        return self._effects(self._views(notes, now), log=notes)
 
     def withdrawn(self, out: Outbound) -> bool:
         """Whether a message returned by the last step must not go out after all (the stop's)."""
@@ -177,22 +183,82 @@ class CoordinatorCore:
 
     def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
         """React to one message; a bad one is reported on `errors` and changes nothing."""
+        arrival = self._read(topic, payload, now)
+        if isinstance(arrival, Effects):
+            return arrival
+        return self._guarded(topic, arrival, now)
+
+    def offer(self, topic: str, payload: bytes, now: float) -> tuple[Effects, bool]:
+        """Like `on_message`, but a readable request waits in the inbox for `serve_one`.
+
+        (its Effects, whether it waits); refused at once, in words, when its account has too
+        many waiting (inbox.py).
+        """
+        arrival = self._read(topic, payload, now)
+        if isinstance(arrival, Effects):
+            return arrival, False
+        if not isinstance(arrival.message, QUEUED):
+            return self._guarded(topic, arrival, now), False
+        req = arrival.message
+        account, _ = self.identity.actor(req.header.sender)
+        refusal = self.inbox.offer(Waiting(account, arrival.kind, topic, arrival))
+        if refusal is None:
+            return self._effects([]), True
+        publish: list[Outbound] = []
+        notes: list[Note] = []
+        if req.reply_to is not None:
+            outcome = requests.Outcome(False, refusal)
+            publish.append(self.say.reply(req.reply_to, req.request_id, outcome))
+        reason = f"{type(req).__name__}: {refusal}"
+        if self.inbox_refusals.refused(account, topic, reason, now):
+            publish.append(self._refuse(topic, reason, req.request_id, notes))
+        else:
+            self.errors_reported += 1  # refused all the same: told with the others in a second
+        return self._effects(publish, log=notes), False
+
+    def serve_one(self, now: float) -> tuple[str, Effects] | None:
+        """Answer the next waiting request (urgent kinds first, each account in turn): its topic
+        and Effects; None when none waits."""
+        waiting = self.inbox.take()
+        if waiting is None:
+            return None
+        return waiting.topic, self._guarded(waiting.topic, waiting.arrival, now)
+
+    def _read(self, topic: str, payload: bytes, now: float) -> Arrival | Effects:
+        """The message decoded; or, for one to ignore or refuse, the Effects of that."""
         self.world.heard(now)  # whatever it says, the coordinator can hear
         if topic == self._own_status:
             self.world.heard_itself = True  # and every retained factsheet has arrived
         try:
             arrival = inbound.read(self.topics, topic, payload)
-            if arrival is None:
-                return self._effects([])
-            return self._on(arrival, topic, now)
         except ProtocolError as exc:
             notes: list[Note] = []
             refused = self._refuse_unreadable(topic, payload, str(exc), notes)
             return self._effects([*refused, *self.stop.heal(topic)], log=notes)
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
-            notes = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}")]
-            report = self._refuse(topic, f"internal error: {exc!r}", None, notes)
-            return self._effects([report], log=notes)
+            return self._failed(topic, exc)
+        return self._effects([]) if arrival is None else arrival
+
+    def _guarded(self, topic: str, arrival: Arrival, now: float) -> Effects:
+        """`_on`, with a refusal or a bug reported instead of raised."""
+        try:
+            return self._on(arrival, topic, now)
+        except ProtocolError as exc:
+            notes: list[Note] = []
+            request_id = getattr(arrival.message, "request_id", None)
+            reply_to = getattr(arrival.message, "reply_to", None)
+            refused = [self._refuse(topic, str(exc), request_id, notes)]
+            if request_id is not None and reply_to is not None:
+                outcome = requests.Outcome(False, str(exc))
+                refused.append(self.say.reply(reply_to, request_id, outcome))
+            return self._effects([*refused, *self.stop.heal(topic)], log=notes)
+        except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
+            return self._failed(topic, exc)
+
+    def _failed(self, topic: str, exc: Exception) -> Effects:
+        notes: list[Note] = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}")]
+        report = self._refuse(topic, f"internal error: {exc!r}", None, notes)
+        return self._effects([report], log=notes)
 
     def _refuse_unreadable(
         self, topic: str, payload: bytes, reason: str, notes: list[Note]
@@ -223,7 +289,8 @@ class CoordinatorCore:
         elif isinstance(msg, UnitState) and unit is not None:
             # Out of service, a unit may be moved by hand: it comes back wherever it is put.
             moved_by_hand = self.directives.controls.get(unit) == "out_of_service"
-            if self.world.on_state(unit, msg, now, relocatable=moved_by_hand):
+            reach = self.orders.reach(unit)  # a window may be driven at once (world.motion)
+            if self.world.on_state(unit, msg, now, relocatable=moved_by_hand, reach=reach):
                 self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
                 self.views.map_dirty = True
             forged = self.orders.heard(unit, msg)
@@ -272,7 +339,10 @@ class CoordinatorCore:
             outcome = known
         elif isinstance(req, SubmitJob):
             cache = self.planner.cache
-            outcome = requests.submit(req, sender, self.world, self.jobs, self.step_no, cache)
+            account = self._open_jobs_of(sender)
+            outcome = requests.submit(
+                req, sender, self.world, self.jobs, self.step_no, cache, account
+            )
         elif isinstance(req, CancelJob):
             outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
         elif isinstance(req, ControlUnit):
@@ -312,11 +382,19 @@ class CoordinatorCore:
             # The queue view follows a request at once, or at the end of the batch period.
             now_due, views_at = self.views.after_request(now)
             if now_due:
-                publish += self._views(notes)
+                publish += self._views(notes, now)
         effects = self._effects(publish, persist, views_at=views_at, log=notes, controls=controls)
         if known is None:  # a new request: its answer is kept
             effects = replace(effects, answered=(self.answers.remember(req, outcome),))
         return effects
+
+    def _open_jobs_of(self, sender: str | None) -> tuple[str, int] | None:
+        """The account of `sender` and how many jobs its senders have not finished."""
+        if sender is None:
+            return None
+        account, _ = self.identity.actor(sender)
+        open_by = self.jobs.open_by_submitter().items()
+        return account, sum(n for s, n in open_by if s and self.identity.actor(s)[0] == account)
 
     def _refuse(
         self, topic: str, reason: str, request_id: str | None, notes: list[Note]
@@ -352,7 +430,14 @@ class CoordinatorCore:
                 releasing.add(order)
         self.stop.releasing(releasing)
         publish.append(self.say.routes(result.step, result.routes))
-        publish += self._views(notes)
+        if self.views.due(now):
+            publish += self._views(notes, now)
+        for account, untold in self.inbox_refusals.due(now):
+            told = (
+                f"{untold.count} more requests of account {account!r} refused in the last "
+                f"{self.inbox_refusals.every_s:g} s; the latest: {untold.reason}"
+            )
+            publish.append(self._refuse(untold.topic, told, None, notes))
         if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
             publish.append(self.status("online"))
         # Back-pressure: when states come back late (an overloaded broker), a step before the
@@ -506,8 +591,8 @@ class CoordinatorCore:
         plans = self.orders.halt_orders(heard, self.step_no)
         return [self.say.order(unit_id, plan) for unit_id, plan in plans.items()]
 
-    def _views(self, notes: list[Note]) -> list[Outbound]:
-        send_map, send_jobs = self.views.take()
+    def _views(self, notes: list[Note], now: float | None = None) -> list[Outbound]:
+        send_map, send_jobs = self.views.take(now)
         out = []
         try:
             if send_map:

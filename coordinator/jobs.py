@@ -8,6 +8,7 @@ its size does not grow with the jobs that ever finished.
 from __future__ import annotations
 
 from collections import Counter, deque
+from collections.abc import Collection
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -96,6 +97,7 @@ class JobBook:
         # Indexes, so a step costs the jobs open, not every job ever finished (it grows all day).
         self._open: dict[str, Job] = {}  # not final, in submission order
         self._held: dict[str, Job] = {}  # unit -> the job it works on
+        self._open_by: Counter[str | None] = Counter()  # jobs not final per submitter
         for job in sorted(jobs or [], key=lambda j: j.order):
             self.jobs[job.id] = job
             self._counts[job.state] += 1
@@ -111,8 +113,13 @@ class JobBook:
     def _index(self, job: Job, held_by: str | None) -> None:
         """Bring the indexes up to `job`, which unit `held_by` worked on before the change."""
         if job.final:
-            self._open.pop(job.id, None)
+            if self._open.pop(job.id, None) is not None:
+                self._open_by[job.submitted_by] -= 1
+                if not self._open_by[job.submitted_by]:
+                    del self._open_by[job.submitted_by]
         else:
+            if job.id not in self._open:
+                self._open_by[job.submitted_by] += 1
             self._open[job.id] = job
         if held_by is not None and self._held.get(held_by) is job:
             del self._held[held_by]
@@ -184,6 +191,10 @@ class JobBook:
         """Jobs not final (queued or under way)."""
         return len(self._open)
 
+    def open_by_submitter(self) -> Counter[str | None]:
+        """Jobs not final, per the sender that submitted them."""
+        return self._open_by
+
     def queued(self) -> list[Job]:
         """Jobs waiting for a unit, in submission order."""
         return [j for j in self._open.values() if j.state == "queued"]
@@ -191,6 +202,10 @@ class JobBook:
     def active(self) -> list[Job]:
         """Jobs under way (assigned to a unit)."""
         return [j for j in self._open.values() if j.state in ACTIVE_STATES]
+
+    def busy_units(self) -> Collection[str]:
+        """The units working on a job."""
+        return self._held.keys()
 
     def of_unit(self, unit_id: str) -> Job | None:
         """The job `unit_id` is working on, if any."""

@@ -17,7 +17,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
-from gridfleet.protocol.constants import MAX_OPEN_JOBS
+from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_OPEN_JOBS_PER_ACCOUNT
 
 
 @dataclass(frozen=True)
@@ -36,13 +36,24 @@ def submit(
     jobs: JobBook,
     step_no: int,
     cache: DistanceFieldCache,
+    account: tuple[str, int] | None = None,
 ) -> Outcome:
-    """Queue a job, or refuse it (nothing changes) with the reason."""
-    if jobs.open_count >= MAX_OPEN_JOBS and (req.job_id is None or jobs.get(req.job_id) is None):
+    """Queue a job, or refuse it (nothing changes) with the reason.
+
+    `account`: the sender's account and how many of its jobs are not finished yet.
+    """
+    new = req.job_id is None or jobs.get(req.job_id) is None
+    if jobs.open_count >= MAX_OPEN_JOBS and new:
         return Outcome(
             False,
             f"the queue is full: {jobs.open_count} jobs are not finished yet (at most "
             f"{MAX_OPEN_JOBS}); wait for some to finish, or cancel some",
+        )
+    if account is not None and account[1] >= MAX_OPEN_JOBS_PER_ACCOUNT and new:
+        return Outcome(
+            False,
+            f"too many jobs: account {account[0]!r} has {account[1]} not finished yet (at most "
+            f"{MAX_OPEN_JOBS_PER_ACCOUNT} an account); wait for some to finish, or cancel some",
         )
     try:
         world.check_square(req.pickup, "pickup")

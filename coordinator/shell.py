@@ -37,6 +37,9 @@ if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with -
     from gridfleet.metrics import MetricsOptions, MetricsServer
 
 log = logging.getLogger("gridfleet.coordinator")
+# Requests answered in one go: their answers share a round trip to the broker, and between two
+# batches the reader takes what arrived meanwhile.
+SERVE_BATCH = 50
 
 
 class CoordinatorShell:
@@ -104,6 +107,7 @@ class CoordinatorShell:
         self.ready = asyncio.Event()
         self._acked = asyncio.Event()  # set whenever nothing is awaited any more
         self._views_later: asyncio.Task[None] | None = None
+        self._requests = asyncio.Event()  # set when requests wait in the core's inbox
         # Metrics only when asked for (--metrics): otherwise nothing is counted at all.
         self.metrics: CoordinatorMetrics | None = None
         self.metrics_server: MetricsServer | None = None
@@ -156,16 +160,47 @@ class CoordinatorShell:
             self.audit_store.add(answer.entries)
             await asyncio.gather(*(self.endpoint.publish(out) for out in answer.publish))
             return
-        if self.metrics is None:
-            await self._apply(self.core.on_message(topic, payload, self.clock()))
-            return
         errors = self.core.errors_reported
-        effects = self.core.on_message(topic, payload, self.clock())
-        self.metrics.received_one(topic, refused=self.core.errors_reported > errors)
+        effects, waits = self.core.offer(topic, payload, self.clock())
+        if waits:
+            self._requests.set()  # answered by _serve, between what else arrives
+        elif self.metrics is not None:
+            self.metrics.received_one(topic, refused=self.core.errors_reported > errors)
         await self._apply(effects)
 
+    async def _serve(self, shutdown: asyncio.Event) -> None:
+        """Answer the requests waiting in the core's inbox, a batch at a time, for a session.
+
+        Between batches the reader takes whatever arrived (states, the stop, cancels): one
+        account's flood never keeps the coordinator from reading, and its queue at the broker
+        never grows (it overflowed, and the broker dropped the coordinator's messages).
+        """
+        while not shutdown.is_set():
+            await first_of(shutdown, self._requests)
+            self._requests.clear()
+            await self.answer_waiting(shutdown)
+
+    async def answer_waiting(self, shutdown: asyncio.Event | None = None) -> None:
+        """Answer every request waiting in the inbox (until `shutdown`), a batch at a time."""
+        while len(self.core.inbox) and not (shutdown is not None and shutdown.is_set()):
+            batch = []
+            for _ in range(SERVE_BATCH):
+                errors = self.core.errors_reported
+                served = self.core.serve_one(self.clock())
+                if served is None:
+                    break
+                topic, effects = served
+                if self.metrics is not None:
+                    self.metrics.received_one(topic, self.core.errors_reported > errors)
+                batch.append(effects)
+            await self._apply(*batch)
+            await asyncio.sleep(0)  # a turn for the reader and the step loop
+
     async def _steps(self, shutdown: asyncio.Event) -> None:
-        """The step loop, for as long as a session lasts."""
+        """The step loop and the requests' answers, for as long as a session lasts."""
+        serving = asyncio.create_task(self._serve(shutdown))
+        if len(self.core.inbox):
+            self._requests.set()  # left from the session before: answered on this one
         next_at = self.clock()
         try:
             while not shutdown.is_set():
@@ -185,26 +220,29 @@ class CoordinatorShell:
                     await first_of(shutdown, self._acked, timeout=until - self.clock())
                     next_at = max(next_at, self.clock())
         finally:
+            await cancel_and_wait(serving)
             if self._views_later is not None:
                 await cancel_and_wait(self._views_later)
 
-    async def _apply(self, effects: Effects) -> None:
+    async def _apply(self, *batch: Effects) -> None:
         if not self.core.orders.holding_back:
             self._acked.set()
-        for level, line in effects.log:
-            log.log(level, line)
-        self._save(effects)
-        if effects.views_at is not None:
-            self._views_later = asyncio.create_task(self._views_after(effects.views_at))
-        # Every message is handed to the client before any acknowledgement is awaited: in the
-        # core's order on the wire (paho queues each in the first, synchronous part of a
-        # publish), and a step's hundred orders take one round trip to the broker, not a hundred.
-        outs = [out for out in effects.publish if not self.core.withdrawn(out)]
-        for query in effects.history_queries:
-            entries, cursor = self.history.query(query, self.core.say.stamp.now())
-            page = self.core.say.history_page(query, entries, cursor)
-            if page is not None:
-                outs.append(page)
+        outs = []
+        for effects in batch:
+            for level, line in effects.log:
+                log.log(level, line)
+            self._save(effects)
+            if effects.views_at is not None:
+                self._views_later = asyncio.create_task(self._views_after(effects.views_at))
+            # Every message is handed to the client before any acknowledgement is awaited: in
+            # the core's order on the wire (paho queues each in the first, synchronous part of a
+            # publish), and a step's hundred orders take one round trip to the broker, not 100.
+            outs += [out for out in effects.publish if not self.core.withdrawn(out)]
+            for query in effects.history_queries:
+                entries, cursor = self.history.query(query, self.core.say.stamp.now())
+                page = self.core.say.history_page(query, entries, cursor)
+                if page is not None:
+                    outs.append(page)
         sends = [asyncio.ensure_future(self.endpoint.publish(out)) for out in outs]
         if self.metrics is not None:
             self.metrics.sent_some([out.topic for out in outs])

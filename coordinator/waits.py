@@ -112,9 +112,19 @@ def explain_waits(
 ) -> None:
     """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
     controls = controls or {}
+    # A queued job's wait depends on its mass alone (which units could carry it, and are they
+    # free): worked out once a mass, not once a job (5,000 queued jobs each listing the active
+    # ones stretched the step to half a second).
+    queued_by_mass: dict[float, Wait | None] = {}
     for job in [*jobs.queued(), *jobs.active()]:
         if stopped:
             jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
+        elif job.state == "queued":
+            if job.mass_kg not in queued_by_mass:
+                queued_by_mass[job.mass_kg] = _clipped(
+                    _why_queued(job, jobs, units, active, goals, controls)
+                )
+            jobs.explain(job, queued_by_mass[job.mass_kg])
         else:
             why = why_waiting(job, jobs, units, active, goals, controls, stuck)
             jobs.explain(job, _clipped(why))
@@ -174,7 +184,7 @@ def _why_queued(
     if not online:
         away = _named(capable) or "none known"
         return ("no_capable_unit", f"no unit that can carry {job.mass_kg} kg is online ({away})")
-    busy = {j.unit for j in jobs.active()}
+    busy = jobs.busy_units()
     why_not = {}
     for u in online:
         if u in controls:

@@ -75,6 +75,7 @@ async def seeded(db: str | Path) -> CoordinatorShell:
     await c.handle(TOPICS.unit("state", "unit1"), state_payload())
     sub = {"header": HDR, "request_id": "r", "pickup": [3, 0], "dropoff": [3, 2], "mass_kg": 1.0}
     await c.handle(TOPICS.request("submit_job"), json.dumps(sub).encode())
+    await c.answer_waiting()
     assert len(c.core.jobs.jobs) == 1 and c.world.units["unit1"].state is not None
     return c
 
@@ -155,6 +156,7 @@ async def test_each_hostile_message_is_refused_and_changes_nothing(
     before = snapshot(c)
     errors = c.errors_sent
     await c.handle(topic, payload)
+    await c.answer_waiting()
     assert snapshot(c) == before
     assert c.errors_sent == errors + 1
 
@@ -195,6 +197,7 @@ def test_fuzz_every_topic_changes_nothing_and_never_raises(topic: str, payload: 
         c = await seeded(":memory:")
         before = snapshot(c)
         await c.handle(topic, payload)
+        await c.answer_waiting()
         after = snapshot(c)
         # A random payload may, very rarely, be a valid message: then it must be one.
         if after != before:

@@ -20,6 +20,8 @@ MAX_VIEW_BYTES = 8 * 1024 * 1024  # retained fleet views: map, jobs, routes
 # Jobs not yet final that the coordinator holds: the queue view lists each (under 1 KB even with
 # 64-character ids and a 500-character wait reason), so it stays well inside MAX_VIEW_BYTES.
 MAX_OPEN_JOBS = 5000
+# One account's share of them: one script cannot fill the queue and shut every other account out.
+MAX_OPEN_JOBS_PER_ACCOUNT = 2500
 MAX_RELEASED = 64  # squares one order may release
 MAX_PLANNED = 8192  # squares of the planned rest shown for display
 MAX_TEXT = 500  # characters of a reason or error message
