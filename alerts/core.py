@@ -36,7 +36,7 @@ from gridfleet.protocol import (
     decode,
     validate_id,
 )
-from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.constants import MAX_REQUEST_BYTES, MAX_TEXT
 from gridfleet.protocol.messages import (
     CLEARED_ALERTS_LISTED,
     MAX_ACTIVE_ALERTS,
@@ -73,6 +73,14 @@ STILL = ("waiting", "holding")  # a unit in one of these, on one square, is not 
 Event = Literal["raised", "cleared", "acknowledged"]
 Note = tuple[int, str]
 Key = tuple[AlertRule, str | None]  # one condition: its rule and subject
+# The webhook's `text` is read by chat tools (Slack, Mattermost), where `<!channel>` pings
+# everybody and `<http://…|…>` is a link: what a unit or a press says must not become markup.
+CHAT_ESCAPES = {"&": "&amp;", "<": "&lt;", ">": "&gt;"}
+CHAT_TEXT_CHARS = 400  # one line for people, however long the reasons in it
+# Control characters (terminal escapes, line breaks, bells) and the invisible direction
+# overrides and line separators that make a line read other than it is: left out.
+_UNSEEN = {*range(0x20), *range(0x7F, 0xA0), 0x2028, 0x2029, *range(0x202A, 0x202F)}
+_UNSEEN |= set(range(0x2066, 0x206A))
 
 
 class Notice(BaseModel):
@@ -376,7 +384,8 @@ class AlertsCore:
                 rule=rule,
                 subject=subject,
                 severity=SEVERITY[rule],
-                text=text,
+                # A unit's reason may fill MAX_TEXT alone: the words around it must still fit.
+                text=text if len(text) <= MAX_TEXT else text[: MAX_TEXT - 1] + "…",
                 raised_at=at,
             )
             self.active[key] = alert
@@ -468,15 +477,33 @@ class AlertsCore:
             line = f"[CLEARED] {alert.text}"
         else:
             line = f"[ACKNOWLEDGED by {alert.acked_by}] {alert.text}"
-        notice = Notice(event=event, at=at, fleet=self.topics.root, text=line, alert=alert)
+        # The line is for chat: markup neutralised; the alert itself goes as the view has it.
+        text = chat_text(line)
+        notice = Notice(event=event, at=at, fleet=self.topics.root, text=text, alert=alert)
         return notice.model_dump_json().encode()
+
+
+def chat_text(line: str, limit: int = CHAT_TEXT_CHARS) -> str:
+    """`line` safe for a chat tool: `&`, `<`, `>` escaped, control characters out, bounded."""
+    pieces: list[str] = []
+    size = 0
+    for char in line:
+        if ord(char) in _UNSEEN:
+            continue
+        piece = CHAT_ESCAPES.get(char, char)
+        if size + len(piece) > limit - 1:  # room for the ellipsis; an entity stays whole
+            pieces.append("…")
+            break
+        pieces.append(piece)
+        size += len(piece)
+    return "".join(pieces)
 
 
 def _reply_address(payload: bytes) -> tuple[str | None, str | None]:
     """(request id, reply_to) of a request that may not decode, each None where unreadable."""
     try:
         data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested too deeply
         return None, None
     if not isinstance(data, dict):
         return None, None

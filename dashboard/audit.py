@@ -7,6 +7,11 @@ and only a dashboard account may send the request (the broker's ACL; the coordin
 role too), so an operator cannot write logins into it. A report is re-sent, the same, until the
 coordinator answers, for up to REPORT_WAIT_S after the event (a restarting coordinator misses
 nothing); after that it is only in the dashboard's log.
+
+Failed logins are anybody's to make, so they are bounded: each address's first FAILURES_REPORTED
+in FAILURE_WINDOW_S are reported one by one, and the rest (and every attempt refused as too many,
+HTTP 429) are counted and reported as one row when the window is over (as found, every one wrote
+a row: 4,027 rows, ~7 MB, in 15 s).
 """
 
 from __future__ import annotations
@@ -17,6 +22,9 @@ import logging
 import queue
 import secrets
 import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
@@ -38,6 +46,11 @@ RETRY_S = 2.0  # the wait for a reply before a report goes again (doubling up to
 RETRY_MOST_S = 10.0
 RECONNECT_S = 2.0  # between attempts to reach the broker
 ADDRESS_CHARS = 64
+FAILURES_REPORTED = 10  # failed logins from one address reported one by one in a window
+FAILURE_WINDOW_S = 60.0
+FAILING_ADDRESSES = 1024  # addresses counted apart at once; more share one count
+FLUSH_CHECK_S = 5.0  # how often the reporting thread looks for a window that is over
+OTHERS = ""  # the count of the addresses beyond FAILING_ADDRESSES
 
 
 def reporting_account(accounts: Accounts) -> Account | None:
@@ -56,6 +69,87 @@ def as_user(name: str) -> str | None:
         return None
 
 
+@dataclass
+class _Window:
+    """One address's failed logins since `start`: reported one by one, and only counted."""
+
+    start: float
+    reported: int = 0
+    counted: int = 0
+    throttled: int = 0  # of those counted, refused as too many (HTTP 429)
+
+
+@dataclass(frozen=True)
+class Tally:
+    """The failed logins from one address (OTHERS: from many) counted, not reported one by one."""
+
+    address: str
+    counted: int
+    throttled: int
+    window_s: float
+
+    def reason(self) -> str:
+        """The summary row's words."""
+        where = (
+            "this address"
+            if self.address != OTHERS
+            else "other addresses (too many to count apart)"
+        )
+        return (
+            f"{self.counted} more failed logins from {where} in {self.window_s:.0f} s, "
+            f"not recorded one by one ({self.throttled} refused as too many)"
+        )
+
+
+class FailureDigest:
+    """Which failed logins the audit gets one by one; the rest are counted (pure: clock in)."""
+
+    def __init__(
+        self,
+        per_window: int = FAILURES_REPORTED,
+        window_s: float = FAILURE_WINDOW_S,
+        clock: Callable[[], float] = time.monotonic,
+        addresses: int = FAILING_ADDRESSES,
+    ) -> None:
+        self.per_window = per_window
+        self.window_s = window_s
+        self.clock = clock
+        self.addresses = addresses
+        self._windows: OrderedDict[str, _Window] = OrderedDict()  # oldest window first
+        self._due: list[Tally] = []
+
+    def admit(self, address: str, *, throttled: bool = False) -> bool:
+        """Whether this failed login from `address` is reported one by one (else it is counted)."""
+        now = self.clock()
+        self._expire(now)
+        if address not in self._windows and len(self._windows) >= self.addresses:
+            address = OTHERS  # many addresses at once: they share one count
+        window = self._windows.get(address)
+        if window is None:
+            window = self._windows[address] = _Window(now)
+        if not throttled and address != OTHERS and window.reported < self.per_window:
+            window.reported += 1
+            return True
+        window.counted += 1
+        window.throttled += throttled
+        return False
+
+    def due(self) -> list[Tally]:
+        """The counts of the windows that are over (each once)."""
+        self._expire(self.clock())
+        due, self._due = self._due, []
+        return due
+
+    def _expire(self, now: float) -> None:
+        while self._windows:
+            address, window = next(iter(self._windows.items()))
+            if now - window.start < self.window_s:
+                return
+            del self._windows[address]
+            if window.counted:
+                self._due.append(Tally(address, window.counted, window.throttled, self.window_s))
+
+
 @dataclass(frozen=True)
 class _Pending:
     """A report waiting for its reply, and when to give up on it."""
@@ -67,13 +161,20 @@ class _Pending:
 class LoginReporter:
     """Reports login events to the coordinator; `report` never blocks the page's request."""
 
-    def __init__(self, url: str, topics: Topics, username: str) -> None:
+    def __init__(
+        self,
+        url: str,
+        topics: Topics,
+        username: str,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.url = url
         self.topics = topics
         self.client_id = owned_client_id(username, f"audit-{secrets.token_hex(3)}")
         self._stamp = HeaderStamper(self.client_id)
         self._lock = threading.Lock()  # the server answers each request in its own thread
         self._count = 0
+        self._failures = FailureDigest(clock=clock)  # used under _lock
         self._queue: queue.Queue[_Pending | None] = queue.Queue()
         self._thread = threading.Thread(target=self._main, name="gridfleet-audit", daemon=True)
         self.sent = 0  # reports the coordinator answered (tests watch it)
@@ -106,6 +207,41 @@ class LoginReporter:
         until = request.header.timestamp + timedelta(seconds=REPORT_WAIT_S)
         self._queue.put(_Pending(request, until))
 
+    def failed(
+        self, user: str | None, address: str, reason: str, *, throttled: bool = False
+    ) -> None:
+        """A failed login: reported one by one while few from `address`, else counted."""
+        with self._lock:
+            due = self._failures.due()
+            alone = self._failures.admit(address, throttled=throttled)
+        self._tell(due)
+        if alone:
+            self.report("login_failed", user, address, reason)
+
+    def flush(self) -> None:
+        """Report the counts of failed logins whose window is over."""
+        with self._lock:
+            due = self._failures.due()
+        self._tell(due)
+
+    def _tell(self, tallies: list[Tally]) -> None:
+        for tally in tallies:
+            address = None if tally.address == OTHERS else tally.address
+            self.report("login_failed", None, address, tally.reason())
+
+    def pending(self) -> list[AuditLogin]:
+        """The reports not sent yet, oldest first (the one being sent not among them)."""
+        with self._queue.mutex:
+            return [p.request for p in self._queue.queue if p is not None]
+
+    def _next(self) -> _Pending | None:
+        """The next report to send (None: stop), flushing counts that are due meanwhile."""
+        while True:
+            try:
+                return self._queue.get(timeout=FLUSH_CHECK_S)
+            except queue.Empty:
+                self.flush()
+
     def _main(self) -> None:
         asyncio.run(self._serve())
 
@@ -122,7 +258,7 @@ class LoginReporter:
                     try:
                         while True:
                             if current is None:
-                                current = await loop.run_in_executor(None, self._queue.get)
+                                current = await loop.run_in_executor(None, self._next)
                             if current is None:
                                 return  # stopped
                             await self._deliver(client, current, replies)

@@ -63,6 +63,8 @@ def session_account(accounts: Accounts, secret: bytes, user: object, tag: object
 
 
 SESSION_S = 12 * 3600.0  # a login lasts a working day at most, then the person logs in again
+# Sessions one account keeps open at once (browsers, machines of a shared control-room account).
+SESSIONS_PER_ACCOUNT = 50
 
 
 class SessionBook:
@@ -70,19 +72,22 @@ class SessionBook:
 
     A signed cookie alone cannot be taken back: one copied before logout still opened the page.
     The cookie names a session here instead; what is not here (closed, expired, or from before
-    a restart) is logged out. At most `max_sessions` are kept, the oldest closed first.
+    a restart) is logged out. At most `per_account` are kept for each account, its oldest
+    closed first: one account's logins never close another's (as found, 10,001 logins as one
+    account closed everybody else's), and the book stays bounded by the accounts file.
     """
 
     def __init__(
         self,
         lifetime_s: float = SESSION_S,
         clock: Callable[[], float] = time.monotonic,
-        max_sessions: int = 10_000,
+        per_account: int = SESSIONS_PER_ACCOUNT,
     ) -> None:
         self.lifetime_s = lifetime_s
         self.clock = clock
-        self.max_sessions = max_sessions
-        self._open: OrderedDict[str, tuple[str, float]] = OrderedDict()  # id: (user, ends at)
+        self.per_account = per_account
+        self._open: dict[str, tuple[str, float]] = {}  # id: (user, ends at)
+        self._by_user: dict[str, OrderedDict[str, None]] = {}  # user: their ids, oldest first
         self._lock = threading.Lock()  # the server answers each request in its own thread
 
     def open(self, user: str) -> str:
@@ -90,9 +95,16 @@ class SessionBook:
         sid = secrets.token_urlsafe(16)
         with self._lock:
             self._open[sid] = (user, self.clock() + self.lifetime_s)
-            while len(self._open) > self.max_sessions:
-                self._open.popitem(last=False)
+            mine = self._by_user.setdefault(user, OrderedDict())
+            mine[sid] = None
+            while len(mine) > self.per_account:
+                oldest, _ = mine.popitem(last=False)
+                self._open.pop(oldest, None)
         return sid
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._open)
 
     def user_of(self, sid: object) -> str | None:
         """The user session `sid` is open for, or None (closed, expired, unknown)."""
@@ -103,7 +115,7 @@ class SessionBook:
             if entry is None:
                 return None
             if self.clock() >= entry[1]:
-                del self._open[sid]
+                self._forget(sid)
                 return None
             return entry[0]
 
@@ -111,4 +123,15 @@ class SessionBook:
         """End session `sid` (nothing when it is not open)."""
         if isinstance(sid, str):
             with self._lock:
-                self._open.pop(sid, None)
+                self._forget(sid)
+
+    def _forget(self, sid: str) -> None:
+        """Drop `sid` from both indexes (the lock held)."""
+        entry = self._open.pop(sid, None)
+        if entry is None:
+            return
+        mine = self._by_user.get(entry[0])
+        if mine is not None:
+            mine.pop(sid, None)
+            if not mine:
+                del self._by_user[entry[0]]

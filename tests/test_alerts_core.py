@@ -501,6 +501,39 @@ def test_the_webhook_body_carries_the_alert_whole() -> None:
     }
 
 
+def test_chat_markup_and_control_characters_in_a_reason_are_neutralised_in_the_webhook_text() -> (
+    None
+):
+    rig = Rig()
+    hostile = "<!channel> see <http://evil.example|the manual> & \x1b[2Jbye\x07\u202e"
+    raised = rig.send(3.0, T.fleet("estop"), f"engaged|operator|{hostile}".encode())
+    (body,) = raised.notices
+    data = json.loads(body)
+    assert data["text"] == (
+        "[CRITICAL] emergency stop engaged by operator: &lt;!channel&gt; see "
+        "&lt;http://evil.example|the manual&gt; &amp; [2Jbye"
+    )
+    # The structured fields stay as the fleet said them: a receiver that builds its own text
+    # from them, and the view fleet/alerts, get the reason whole.
+    assert data["alert"]["text"] == f"emergency stop engaged by operator: {hostile}"
+    assert views(raised)[0].active[0].text == data["alert"]["text"]
+    # A unit's wait_reason goes the same way; the line is bounded, cut on a whole entity.
+    reason = "\r\n[CLEARED] " + "<" * 488
+    long = UnitState.model_validate(
+        {**json.loads(unit_state("unit1", (2, 2), "waiting")), "wait_reason": reason}
+    )
+    rig.send(4.0, T.unit("state", "unit1"), encode(long))
+    (stuck,) = rig.send(65.0, T.unit("state", "unit1"), encode(long)).notices
+    text = json.loads(stuck)["text"]
+    assert text.startswith("[WARNING] unit unit1 waiting on [2, 2] for 61 s: [CLEARED] &lt;&lt;")
+    assert len(text) <= 400 and text.endswith("&lt;…")
+    # The alert's own text keeps the reason as said, as much of it as MAX_TEXT holds.
+    whole = json.loads(stuck)["alert"]["text"]
+    assert "<" not in text and len(whole) == 500
+    assert whole.startswith("unit unit1 waiting on [2, 2] for 61 s: \r\n[CLEARED] <<")
+    assert whole.endswith("<<…")
+
+
 # ---- settings ---------------------------------------------------------------------------------
 
 
