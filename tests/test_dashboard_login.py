@@ -15,6 +15,7 @@ from gridfleet.dashboard.app import create_app
 from gridfleet.dashboard.cli import secret_from, settings_from, tls_from
 from gridfleet.dashboard.login import (
     REFUSED,
+    SESSIONS_PER_ACCOUNT,
     LoginRefused,
     SessionBook,
     check_login,
@@ -182,16 +183,42 @@ def test_logout_revokes_the_session_even_for_a_copy_of_its_cookie(
 
 def test_a_session_ends_after_its_lifetime() -> None:
     now = [0.0]
-    book = SessionBook(lifetime_s=60, clock=lambda: now[0], max_sessions=2)
+    book = SessionBook(lifetime_s=60, clock=lambda: now[0])
     sid = book.open("ann")
     assert book.user_of(sid) == "ann" and book.user_of("forged") is None
     now[0] = 59.9
     assert book.user_of(sid) == "ann"
     now[0] = 60.0
     assert book.user_of(sid) is None
-    first, *_ = [book.open(u) for u in ("a", "b", "c")]  # at most two are kept
-    assert book.user_of(first) is None
     book.close("never opened")  # nothing happens
+
+
+def test_one_accounts_logins_close_only_that_accounts_oldest_sessions() -> None:
+    # As found: 10,001 logins as one account closed every other account's session.
+    book = SessionBook(per_account=2)
+    ann, bob = book.open("ann"), book.open("bob")
+    flood = [book.open("operator") for _ in range(10_001)]
+    assert book.user_of(ann) == "ann" and book.user_of(bob) == "bob"
+    assert [book.user_of(s) for s in flood[-3:]] == [None, "operator", "operator"]
+    assert book.user_of(flood[0]) is None and len(book) == 4  # bounded: 2 per account
+    first = book.open("ann")  # ann's own logins still close ann's oldest
+    book.open("ann")
+    assert (book.user_of(ann), book.user_of(first)) == (None, "ann")
+
+
+def test_a_flood_of_logins_as_one_account_leaves_everybody_elses_page_open(
+    app: Flask, accounts: Accounts
+) -> None:
+    person, flooder = app.test_client(), app.test_client()
+    assert log_in(person, "dashboard", accounts.get("dashboard").password)[0] == 200
+    password = accounts.get("operator").password
+    first = app.test_client()
+    assert log_in(first, "operator", password)[0] == 200
+    for _ in range(SESSIONS_PER_ACCOUNT):
+        assert log_in(flooder, "operator", password)[0] == 200
+        flooder.delete_cookie("gridfleet_session")  # each login a new session, as a script's
+    assert person.get("/api/settings").status_code == 200
+    assert first.get("/api/settings").status_code == 401  # the account's oldest, closed
 
 
 def test_requests_from_other_sites_change_nothing(client: FlaskClient, accounts: Accounts) -> None:
@@ -238,13 +265,15 @@ def test_repeated_failures_are_slowed_down_and_break_nothing(
     res = client.post("/api/login", json={"username": "operator", "password": "x" * 20})
     assert "too many failed logins" in res.get_json()["error"] and int(res.headers["Retry-After"])
     assert client.get("/healthz").status_code == 200  # the server still answers
-    # Guessing the same name from a second address gains nothing: the name waits too.
+    # Another address has budgets of its own (guesses from one never lock out another), and
+    # a success there clears nobody's failures.
     other = client.application.test_client()
     other.environ_base["REMOTE_ADDR"] = "127.0.0.2"
-    assert log_in(other, "operator", "guess from elsewhere")[0] == 429
-    # Another name from another address logs in; its success clears nobody's failures.
-    assert log_in(other, "dashboard", accounts.get("dashboard").password)[0] == 200
+    assert log_in(other, "operator", "guess from elsewhere")[0] == 401
+    assert log_in(other, "operator", accounts.get("operator").password)[0] == 200
     assert log_in(client, "operator", accounts.get("operator").password)[0] == 429
+    # The guessing address's other names still have part of its budget.
+    assert log_in(client, "dashboard", accounts.get("dashboard").password)[0] == 200
 
 
 def test_without_accounts_nothing_changes() -> None:
