@@ -81,7 +81,7 @@ def reply_address(topics: Topics, topic: str, payload: bytes) -> tuple[str | Non
     try:
         kind, _ = topics.parse(topic)
         data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
-    except (ProtocolError, ValueError):
+    except (ProtocolError, ValueError, RecursionError):  # RecursionError: nested too deeply
         return None, None
     if (kind not in _REQUESTS and kind not in _QUERIES) or not isinstance(data, dict):
         return None, None

@@ -24,13 +24,14 @@ from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
 from prometheus_client import CollectorRegistry, make_wsgi_app
 
-from gridfleet.config import is_loopback
+from gridfleet.config import host_of, is_loopback
 from gridfleet.errors import ConfigError
 
 log = logging.getLogger("gridfleet.metrics")
 
 DEFAULT_LISTEN = "127.0.0.1"
 LOOP_WAIT_S = 5.0  # a scrape waits this long for the component's event loop, then fails (500)
+MIN_TOKEN_CHARS = 16  # a shorter token file is refused: a token is only as good as it is long
 T = TypeVar("T")
 StartResponse = Callable[..., Any]
 WsgiApp = Callable[[dict[str, Any], StartResponse], Iterable[bytes]]
@@ -102,16 +103,33 @@ def read_token(path: Path) -> str:
             f"--metrics-token-file {path}: give one token of visible ASCII characters "
             "(e.g. from 'openssl rand -hex 32')"
         )
+    if len(token) < MIN_TOKEN_CHARS:
+        raise ConfigError(
+            f"--metrics-token-file {path}: the token is {len(token)} characters, give at least "
+            f"{MIN_TOKEN_CHARS} (e.g. from 'openssl rand -hex 32')"
+        )
     return token
 
 
-def guarded(app: WsgiApp, token: str | None) -> WsgiApp:
-    """`app`, answering 401 to any request without `Authorization: Bearer <token>` (if set)."""
-    if token is None:
-        return app
-    expected = f"Bearer {token}".encode()
+def guarded(app: WsgiApp, token: str | None, loopback_only: bool = False) -> WsgiApp:
+    """`app`, answering 401 to any request without `Authorization: Bearer <token>` (if set), and,
+    if `loopback_only`, 403 to one whose Host header names no loopback address or `localhost`.
+
+    A page on another site whose name its DNS points at 127.0.0.1 (DNS rebinding) reaches a
+    loopback port as its own origin, and reads what comes back: its Host header is its own name.
+    """
+    expected = None if token is None else f"Bearer {token}".encode()
 
     def check(environ: dict[str, Any], start_response: StartResponse) -> Iterable[bytes]:
+        host = str(environ.get("HTTP_HOST", ""))
+        if loopback_only and not _names_loopback(host):
+            start_response("403 Forbidden", [("Content-Type", "text/plain; charset=utf-8")])
+            return [
+                f"403 Forbidden: Host {host[:100]!r} is not a loopback name or address; these "
+                "metrics answer only at 127.0.0.1, [::1] or localhost\n".encode()
+            ]
+        if expected is None:
+            return app(environ, start_response)
         # WSGI hands headers over as latin-1 strings; compared in constant time all the same.
         given = str(environ.get("HTTP_AUTHORIZATION", "")).encode("latin-1", "replace")
         if hmac.compare_digest(given, expected):
@@ -126,6 +144,14 @@ def guarded(app: WsgiApp, token: str | None) -> WsgiApp:
         return [b"401 Unauthorized: send 'Authorization: Bearer <token>'\n"]
 
     return check
+
+
+def _names_loopback(host: str) -> bool:
+    """Whether a Host header (`127.0.0.1:9464`, `[::1]`, `localhost`) names a loopback address."""
+    try:
+        return is_loopback(host_of(host))
+    except ValueError:  # `[::1` and the like: no host at all
+        return False
 
 
 def read_on_loop(loop: asyncio.AbstractEventLoop | None, read: Callable[[], T]) -> T:
@@ -163,7 +189,8 @@ class MetricsServer:
 
     def __init__(self, registry: CollectorRegistry, options: MetricsOptions) -> None:
         self.options = options
-        self._app = guarded(make_wsgi_app(registry), options.token)
+        loopback = is_loopback(options.listen)
+        self._app = guarded(make_wsgi_app(registry), options.token, loopback_only=loopback)
         self._server: _Server | None = None
         self._thread: threading.Thread | None = None
 

@@ -309,8 +309,8 @@ def test_a_port_in_use_is_one_line() -> None:
 
 def test_a_token_file_must_hold_one_token(tmp_path: Path) -> None:
     good = tmp_path / "good"
-    good.write_text("  abc123\n", encoding="utf-8")
-    assert read_token(good) == "abc123"
+    good.write_text("  abc123-0123456789\n", encoding="utf-8")
+    assert read_token(good) == "abc123-0123456789"
     for bad in ("", "two words", "naïve"):
         (tmp_path / "bad").write_text(bad, encoding="utf-8")
         with pytest.raises(ConfigError, match="give one token"):
