@@ -451,6 +451,14 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             incoming, topic=incoming.will_topic, action=Action.PUBLISH
         ):
             return f"{incoming.username!r} may not publish its will's topic {incoming.will_topic!r}"
+        # Nor what it says: amqtt sends a will past _handle_message_delivery's checks below (as
+        # found: a will naming `operator` was audited as the operator's act, verified).
+        if incoming.will_flag:
+            why = self.gate.refused_will(
+                incoming.username, incoming.will_topic, bytes(incoming.will_message or b"")
+            )
+            if why is not None:
+                return f"its will on {incoming.will_topic!r}: {why}"
         return None
 
     async def _handle_message_delivery(

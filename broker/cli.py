@@ -7,10 +7,12 @@ import asyncio
 import logging
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from gridfleet.accounts import load_accounts
 from gridfleet.broker.embedded import BrokerSettings, EmbeddedBroker, load_settings
+from gridfleet.broker.origins import dashboard_origins
 from gridfleet.heap import freeze_after_start
 from gridfleet.metrics import (
     MetricsOptions,
@@ -42,8 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="URL",
-        help="a web page's origin (https://name:port) that may use the websocket listener, "
-        "besides pages on the host the browser reaches the broker at (repeatable)",
+        help="a web page's origin (scheme://host:port) that may use the websocket listener "
+        "(repeatable; default: the dashboard's on port 5000 of 127.0.0.1 and localhost, https "
+        "with --tls-cert); with --accounts, pages on the host the browser reaches the broker "
+        "at get in too",
     )
     parser.add_argument(
         "--accounts",
@@ -87,6 +91,8 @@ def settings_from(args: argparse.Namespace) -> BrokerSettings:
         changes["accounts"] = load_accounts(args.accounts)
         changes["root"] = args.root
     settings = BrokerSettings(**{**settings.__dict__, **changes})
+    if not settings.ws_origins:  # the default dashboard's page, and no other (broker/origins.py)
+        settings = replace(settings, ws_origins=dashboard_origins(tls=settings.tls))
     if args.no_ws:
         settings = BrokerSettings(**{**settings.__dict__, "ws_port": None})
     return settings

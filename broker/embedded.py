@@ -62,8 +62,9 @@ class BrokerSettings:
     max_packet_bytes: int = MAX_PACKET_BYTES  # a bigger packet disconnects its sender
     max_queued_messages: int = MAX_QUEUED_MESSAGES  # per client; past them, messages are dropped
     max_queued_bytes: int = MAX_QUEUED_BYTES
-    # Web pages (origins, e.g. https://fleet.example:5000) that may use the websocket listener
-    # besides those on the host the browser reached the broker at (broker/origins.py).
+    # Web pages (origins, e.g. http://127.0.0.1:5000) that may use the websocket listener:
+    # without accounts these alone; with, also those on the host the browser reached the
+    # broker at (broker/origins.py). `gridfleet up` and `gridfleet broker` pass the dashboard's.
     ws_origins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
@@ -230,6 +231,13 @@ class EmbeddedBroker:
         log.debug(
             "broker listening on %s%s", self.url, f" and {self.ws_url}" if self.ws_url else ""
         )
+
+    def allow_origins(self, origins: tuple[str, ...]) -> None:
+        """Let the pages of `origins` in from now on, too (a dashboard started after the broker,
+        on a port not known before); call it on the broker's loop."""
+        self.settings = replace(self.settings, ws_origins=(*self.settings.ws_origins, *origins))
+        if self._broker is not None:
+            self._broker.ws_origins = self.settings.ws_origins
 
     def figures(self) -> BrokerFigures | None:
         """Its totals and its state now (None: not running); call it on the broker's loop."""

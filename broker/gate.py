@@ -68,10 +68,13 @@ class Gate:
         self._nobody = self._digest(_NOBODY)
         # A VDA 5050 vehicle's client id is its vendor's to choose: any id no account owns.
         self._vehicles = {a.name for a in accounts.accounts.values() if a.role == "vehicle"}
-        # An address here is where every component of `gridfleet up` comes from too: a generous
-        # burst, so a misconfigured client retrying does not shut the others out for long.
+        # Per address and per name at an address, never per name alone: a stranger's guesses
+        # never keep the operator or the coordinator out. An address here is where every
+        # component of `gridfleet up` comes from too: a generous burst, and one name's failures
+        # spend at most half of it (10, then one per 5 s), so a client retrying a stale password
+        # does not shut the others out.
         self.throttle = throttle or LoginThrottle(
-            name_burst=10, name_per_s=1.0, address_burst=20, address_per_s=1.0, clock=clock
+            pair_burst=10, pair_per_s=0.2, address_burst=20, address_per_s=1.0, clock=clock
         )
 
     def _digest(self, password: str) -> bytes:
@@ -85,7 +88,10 @@ class Gate:
             return "no user name (this broker has accounts)"
         wait = self.throttle.wait_s(username, address)
         if wait > 0:
-            return f"too many failed logins for {username!r} or from {address}: wait {wait:.0f} s"
+            return (
+                f"too many failed logins from {address} (as {username!r}, or as anyone): "
+                f"wait {wait:.0f} s"
+            )
         expected = self._digests.get(username, self._nobody)
         right = hmac.compare_digest(self._digest(password or ""), expected)
         if not right or username not in self._digests:
@@ -111,18 +117,32 @@ class Gate:
         submitted with sender `coordinator` was listed as the coordinator's). Error reports are
         also limited per client. What cannot be read passes: the coordinator refuses it in words.
         """
-        if topic == self._latch:
-            return self._latch_refusal(username, data)
-        if topic not in self._signed:
-            return None
         if topic == self._errors_topic:
             if self.errors.wait_s(client_id) > 0:
                 return f"more than {ERRORS_PER_S:g} error reports a second"
             self.errors.failed(client_id)  # spends one of its budget
-        if username is None or len(data) > MAX_REQUEST_BYTES:
+        return self._content_refusal(username, topic, data)
+
+    def refused_will(self, username: str | None, topic: str, data: bytes) -> str | None:
+        """None to register this CONNECT's last will; otherwise why the CONNECT is refused.
+
+        amqtt sends a will itself, past the checks a publish passes (as found: ann's will on
+        `requests/cancel_job` naming `operator` was audited as the operator's, verified). Its
+        content is fixed at CONNECT, so it is held to the publish rules then; a will is one
+        message, so checking it spends none of the client's error reports.
+        """
+        return self._content_refusal(username, topic, data)
+
+    def _content_refusal(self, username: str | None, topic: str, data: bytes) -> str | None:
+        """Why a message's content is refused: who it says sent it (its header, the latch's)."""
+        if topic == self._latch:
+            return self._latch_refusal(username, data)
+        if topic not in self._signed or username is None or len(data) > MAX_REQUEST_BYTES:
             return None
         try:
             sender = json.loads(data)["header"]["sender"]
+        except RecursionError:  # valid JSON another reader may see a sender in: not passed on
+            return "it is nested too deeply to read its sender"
         except (ValueError, KeyError, TypeError):
             return None
         if not isinstance(sender, str):

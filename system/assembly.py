@@ -18,11 +18,13 @@ from typing import TYPE_CHECKING, Any, Literal, TextIO
 
 from gridfleet.accounts import Accounts, load_accounts
 from gridfleet.broker.embedded import BrokerSettings
+from gridfleet.broker.origins import LOCAL_NAMES, dashboard_origins
 from gridfleet.config import with_ca_file, with_credentials
 from gridfleet.coordinator.audit import Identity
 from gridfleet.coordinator.store import default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.errors import ConfigError
+from gridfleet.ports import free_port
 from gridfleet.protocol.constants import DEFAULT_ROOT
 from gridfleet.scenario import Scenario, with_units
 from gridfleet.system.broker_thread import BrokerThread
@@ -227,6 +229,14 @@ class Assembly:
             [] if cert is None or key is None else ["--tls-cert", str(cert), "--tls-key", str(key)]
         )
 
+    def dashboard_origins(self, port: int) -> tuple[str, ...]:
+        """The origins of the dashboard on `port`: the only pages the broker lets in without
+        accounts (by 127.0.0.1, localhost, and the address it listens on)."""
+        hosts = dict.fromkeys([*LOCAL_NAMES, self.spec.listen])
+        for everywhere in ("0.0.0.0", "::"):
+            hosts.pop(everywhere, None)
+        return dashboard_origins(port, tls=self.spec.tls_cert is not None, hosts=hosts)
+
     def stop(self, timeout: float = 60.0) -> None:
         """Stop every thread in reverse order (units say offline first), then our broker."""
         errors: list[BaseException] = []
@@ -253,8 +263,12 @@ class Assembly:
             system.supervisor = Supervisor()
         sup = system.supervisor
         logins = self.logins
+        dashboard_port = spec.dashboard_port
+        if dashboard_port == 0:  # the broker must know the page's origin before it is served
+            dashboard_port = free_port()
         if spec.broker is None:
-            system.url, system.ws_url = await start_broker_process(sup, spec, logins)
+            pages = () if dashboard_port is None else self.dashboard_origins(dashboard_port)
+            system.url, system.ws_url = await start_broker_process(sup, spec, logins, pages)
             if spec.ca_file is not None:
                 system.url = with_ca_file(system.url, str(spec.ca_file))
         else:
@@ -284,7 +298,7 @@ class Assembly:
             adapter = cli("vda5050", *common, "--vehicles", str(spec.vehicles))
             adapter += ["--scenario", scenario, *step]
             system.children["vda5050"] = await sup.start(ChildSpec("vda5050", adapter))
-        if spec.dashboard_port is not None:
+        if dashboard_port is not None:
             assert system.ws_url is not None
             dashboard = cli(
                 "dashboard",
@@ -295,7 +309,7 @@ class Assembly:
                 "--host",
                 spec.listen,
                 "--port",
-                str(spec.dashboard_port),
+                str(dashboard_port),
                 "--scenario",
                 scenario,
                 *logins,
@@ -372,12 +386,18 @@ class Assembly:
 
 
 async def start_broker_process(
-    supervisor: Supervisor, spec: SystemSpec, logins: list[str] | None = None
+    supervisor: Supervisor,
+    spec: SystemSpec,
+    logins: list[str] | None = None,
+    ws_origins: tuple[str, ...] = (),
 ) -> tuple[str, str | None]:
     """An embedded broker as a supervised child process; the MQTT and websocket URLs its
-    neighbours on this machine use (loopback when it listens on every address)."""
+    neighbours on this machine use (loopback when it listens on every address). `ws_origins`:
+    the web pages its websocket listener lets in (none given: `gridfleet broker`'s default)."""
     argv = ["broker", "--host", spec.listen, "--port", str(spec.mqtt_port), "--root", spec.root]
     argv += ["--no-ws"] if spec.ws_port is None else ["--ws-port", str(spec.ws_port)]
+    for origin in ws_origins:
+        argv += ["--ws-origin", origin]
     if spec.tls_cert is not None and spec.tls_key is not None:
         argv += ["--tls-cert", str(spec.tls_cert), "--tls-key", str(spec.tls_key)]
     argv += logins or []

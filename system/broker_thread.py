@@ -93,6 +93,22 @@ class BrokerThread:
         )
         self._broker = None
 
+    def allow_origins(self, *origins: str, timeout: float = 10.0) -> None:
+        """Let the web pages of `origins` use the websocket listener too, now and after a restart
+        (a dashboard served after the broker started)."""
+        self.settings = replace(self.settings, ws_origins=(*self.settings.ws_origins, *origins))
+        if self._loop is None or self._broker is None:
+            return
+        done: Future[None] = Future()
+        broker = self._broker
+
+        def allow() -> None:
+            broker.allow_origins(origins)
+            done.set_result(None)
+
+        self._loop.call_soon_threadsafe(allow)
+        done.result(timeout)
+
     def restart(self) -> None:
         """Stop and start again on the same ports."""
         self.stop()

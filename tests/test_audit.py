@@ -23,8 +23,8 @@ from gridfleet.dashboard.app import create_app
 from gridfleet.dashboard.audit import LoginReporter
 from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import SubmitJob, Topics, encode
-from gridfleet.protocol.messages import AuditEntry
+from gridfleet.protocol import CancelJob, SubmitJob, Topics, encode
+from gridfleet.protocol.messages import AckAlert, AuditEntry, ErrorReport
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
@@ -190,12 +190,88 @@ def test_a_client_cannot_forge_the_actor(
         # The embedded broker drops a request naming an id its account does not own.
         assert seen(entries) == [("ann", "set_goal", "refused", True)]
     else:
-        # Mosquitto cannot look into payloads: the claims arrive, and are recorded as claims.
-        assert [(e.actor, e.act, e.verified) for e in entries] == [
+        # Mosquitto cannot look into payloads: the claims arrive, and are recorded as claims
+        # (in any order: a goal is answered ahead of new jobs waiting, coordinator/inbox.py).
+        assert sorted((e.actor or "", e.act, e.verified) for e in entries) == [
             ("admin", "submit_job", False),
-            ("operator", "submit_job", False),
             ("ann", "set_goal", False),
+            ("operator", "submit_job", False),
         ]
+
+
+def will_of(url: str, accounts: Accounts, account: str, topic: str, payload: bytes) -> bool:
+    """Connect as `account` with this last will, then lose the link so the will is due; whether
+    the broker refused the CONNECT instead."""
+    client = MqttProbe(login(url, accounts, account)).will(topic, payload, retain=False)
+    try:
+        client.connect(timeout=5)
+    except AssertionError as exc:
+        assert "Not authorized" in str(exc), exc
+        return True
+    client.drop()
+    return False
+
+
+def test_a_last_will_cannot_forge_the_actor(
+    broker: tuple[str, bool], accounts: Accounts, tmp_path: Path
+) -> None:
+    # As found: ann's will naming `operator` was audited as `cancel_job actor operator verified
+    # True`, and the same for the latch: amqtt sent wills past the checks a publish passes.
+    url, vouched = broker
+    cancel = encode(CancelJob(header=header("operator"), request_id="will-1", job_id="j1"))
+    with coordinator(url, accounts, tmp_path / "c.sqlite3", vouched):
+        refused = [
+            will_of(url, accounts, "ann", T.request("cancel_job"), cancel),
+            will_of(url, accounts, "ann", T.fleet("estop"), b"engaged|operator|a will's stop"),
+        ]
+        with peer(url, accounts, "ann", "ann-peer") as ann:
+            ann.set_goal("unit1", Cell(1, 1))  # her own, after the wills
+        entries = wait_for_entries(url, accounts, 1 if vouched else 3)
+    assert [e for e in entries if e.verified and e.actor != "ann"] == []  # nothing forged vouched
+    if vouched:
+        # The embedded broker refuses such a CONNECT: the will never exists.
+        assert refused == [True, True]
+        assert seen(entries) == [("ann", "set_goal", "refused", True)]
+    else:
+        # Mosquitto cannot look into a will either: the claims arrive, recorded as claims.
+        assert refused == [False, False]
+        assert sorted((e.actor or "", e.act, e.verified) for e in entries) == [
+            ("ann", "set_goal", False),
+            ("operator", "cancel_job", False),
+            ("operator", "stop_engage", False),
+        ]
+
+
+def test_a_last_will_cannot_speak_for_another_on_errors_or_ack_alert(
+    broker: tuple[str, bool], accounts: Accounts
+) -> None:
+    # As found: a device's will on `errors` went out as `sender: coordinator`, and ann's will on
+    # `requests/ack_alert` would have the alert acknowledged by `operator`.
+    url, vouched = broker
+    forged_report = ErrorReport(header=header("coordinator"), topic="x", reason="a forged will")
+    own_report = ErrorReport(header=header("device-unit1"), topic="x", reason="its own will")
+    ack = AckAlert(header=header("operator"), request_id="will-ack", alert_id="a-1")
+    with MqttProbe(login(url, accounts, "operator")) as watcher:
+        for topic in (T.fleet("errors"), T.request("ack_alert")):
+            watcher.subscribe(topic)
+        refused = [
+            will_of(url, accounts, "device-unit1", T.fleet("errors"), encode(forged_report)),
+            will_of(url, accounts, "ann", T.request("ack_alert"), encode(ack)),
+        ]
+        # The control: a will naming its own sender is heard (so a forged one had its chance).
+        assert not will_of(url, accounts, "device-unit1", T.fleet("errors"), encode(own_report))
+        watcher.wait(T.fleet("errors"), lambda m: b"its own will" in m.payload)
+        if not vouched:  # Mosquitto: the claim arrives (protocol.md section 10 says so)
+            watcher.wait(T.fleet("errors"), lambda m: b"a forged will" in m.payload)
+            watcher.wait(T.request("ack_alert"))
+        heard = [m.payload for ms in watcher.messages.values() for m in ms]
+    forged = [p for p in heard if b"a forged will" in p or b"will-ack" in p]
+    if vouched:
+        assert refused == [True, True]
+        assert forged == []
+    else:
+        assert refused == [False, False]
+        assert len(forged) == 2
 
 
 def test_a_viewer_can_neither_read_the_audit_nor_overhear_it(

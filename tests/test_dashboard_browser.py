@@ -455,7 +455,7 @@ def test_reconnects_after_broker_restart(
     with MqttProbe(fresh_broker.url) as probe:
         CoordinatorPeer(probe, topics).map(grid)
         UnitPeer(probe, topics, "unit1").state(Cell(0, 0))
-    dash = open_dashboard(broker_ws=fresh_broker.ws_url)
+    dash = open_dashboard(via=fresh_broker)
     expect(row(dash, "unit1").locator(".pos")).to_have_text("[0, 0]")
     fresh_broker.restart()
     with MqttProbe(fresh_broker.url) as probe:
@@ -483,7 +483,7 @@ def test_stop_pressed_while_broker_is_down_is_sent_when_it_returns(
     grid: GridMap,
     topics: Topics,
 ) -> None:
-    dash = open_dashboard(broker_ws=fresh_broker.ws_url, grid=grid)
+    dash = open_dashboard(via=fresh_broker, grid=grid)
     fresh_broker.stop()
     expect(dash.page.locator("#conn")).not_to_have_attribute("data-state", "connected")
     dash.page.locator("#stop").click()

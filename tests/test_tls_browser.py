@@ -64,8 +64,9 @@ def browser(trusted: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator
         launched.close()
 
 
-def exchange(browser: Any, url: str) -> str:
-    """What MQTT.js in a fresh page gets from `url`: `got hi`, or how it failed."""
+def exchange(browser: Any, broker: BrokerThread, url: str) -> str:
+    """What MQTT.js in a fresh page gets from `url` (`broker`'s, told the page's origin): `got
+    hi`, or how it failed."""
     bundle = DashboardSettings().node_modules / "mqtt" / "dist" / "mqtt.min.js"  # global `mqtt`
     if not bundle.exists():
         pytest.fail(f"{bundle} is missing: run 'npm ci' in dashboard/")
@@ -73,6 +74,7 @@ def exchange(browser: Any, url: str) -> str:
     try:
         page = context.new_page()
         with blank_page_server() as port:  # a page of this machine's (the broker checks origins)
+            broker.allow_origins(f"http://127.0.0.1:{port}")
             page.goto(f"http://127.0.0.1:{port}/")
         page.add_script_tag(path=str(bundle))
         return str(page.evaluate(EXCHANGE, url))
@@ -85,9 +87,9 @@ def test_chromium_trusting_the_ca_speaks_mqtt_over_wss(browser: Any, trusted: Pa
     with wss_broker(trusted) as running:
         for url in (running.ws_url, running.ws_url.replace("127.0.0.1", "localhost")):
             assert url.startswith("wss://")
-            assert exchange(browser, url) == "got hi", url
+            assert exchange(browser, running, url) == "got hi", url
 
 
 def test_chromium_refuses_a_broker_its_ca_did_not_sign(browser: Any, tmp_path: Path) -> None:
     with wss_broker(tls_dir(tmp_path)) as running:
-        assert exchange(browser, running.ws_url) == "closed"
+        assert exchange(browser, running, running.ws_url) == "closed"

@@ -164,13 +164,15 @@ def chromium() -> Iterator[Any]:
 def open_dashboard(
     chromium: Any, broker: BrokerThread, root: str
 ) -> Iterator[Callable[..., OpenDashboard]]:
-    """Factory: serve the dashboard for the test's topic root, open it connected to a broker."""
+    """Factory: serve the dashboard for the test's topic root, open it connected to a broker
+    (the suite's, or `via`), which is told the page's origin."""
     opened: list[tuple[Any, DashboardServer]] = []
     test_root = root
 
     def open_(
         root: str = test_root,
         *,
+        via: BrokerThread | None = None,
         broker_ws: str | None = None,
         grid: GridMap | None = None,
         colors: dict[str, str] | None = None,
@@ -179,14 +181,17 @@ def open_dashboard(
         viewport: dict[str, int] | None = None,
         **settings_kw: Any,
     ) -> OpenDashboard:
+        used = via or broker
         settings = DashboardSettings(
-            broker_ws=broker_ws or broker.ws_url,
+            broker_ws=broker_ws or used.ws_url,
             root=root,
             map=grid,
             colors=colors or {},
             **settings_kw,
         )
         server = DashboardServer(create_app(settings)).start()
+        # The broker lets in no page but the dashboard's, whose port is known only now.
+        used.allow_origins(server.url)
         context = chromium.new_context(viewport=viewport or VIEWPORT)
         opened.append((context, server))
         page = context.new_page()

@@ -155,6 +155,9 @@ class MosquittoBroker:
         self.stop()
         self.start()
 
+    def allow_origins(self, *origins: str, timeout: float = 10.0) -> None:
+        """As BrokerThread's; nothing to do: Mosquitto checks no origin (protocol.md section 10)."""
+
     def __enter__(self) -> MosquittoBroker:
         self.start()
         return self
