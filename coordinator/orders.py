@@ -107,6 +107,11 @@ class Orders:
         """The Track of `unit_id`, created on first use."""
         return self.tracks.setdefault(unit_id, Track())
 
+    def reach(self, unit_id: str) -> int:
+        """Squares `unit_id` may be released ahead now: 1 until it ran dry waiting (window.py)."""
+        t = self.tracks.get(unit_id)
+        return 1 if t is None else t.reach
+
     def acked(self, u: UnitRecord) -> bool:
         """Whether the unit has accepted the squares we last released to it."""
         assert u.state is not None

@@ -88,6 +88,10 @@ class JobProgress:
                 continue
             if u.capacity_kg is None or u.capacity_kg < job.mass_kg:
                 continue
+            # And only where the item is: its states first named the job on the pickup (as found:
+            # back from a silence naming its job a square away, a unit "delivered" it unpicked).
+            if u.job_seen_at != job.pickup:
+                continue
             del self.requeued_from[job.id]
             self.jobs.set(job, "loaded", unit=u.id, reason=None)
 
@@ -123,10 +127,11 @@ class JobProgress:
                 continue
             if job.state in ("assigned", "to_pickup"):
                 # Loaded only where the item is: the unit waits there for its next order, so
-                # its states say so until we see one (a claim elsewhere is no pick-up). Only a
-                # job seen loaded can be done: at its dropoff, without the item (moves between
-                # accepted states are at most one square a step, world.py).
-                if st.job_id == job.id and st.position == job.pickup:
+                # its states say so until we see one (a claim elsewhere is no pick-up, nor is
+                # one made elsewhere and carried onto the pickup). Only a job seen loaded can be
+                # done: at its dropoff, without the item (moves between accepted states are at
+                # most what its wheels could drive by the fleet's clock, world.py).
+                if st.job_id == job.id and st.position == job.pickup == rec.job_seen_at:
                     self.jobs.set(job, "loaded", reason=None)
                 elif (
                     any(e.code == "over_capacity" for e in st.errors) and st.position == job.pickup

@@ -13,6 +13,11 @@ from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitStat
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (a move under way)
+# A unit's states may arrive bunched up (a busy host delays a message by up to a second, §4.4
+# rule 7): the squares of that long at its pace are slack in how fast it may seem to drive, but
+# never more than the fleet's loss timeout (silent longer, it is lost and rejoins, REJOIN_SQUARES).
+BUNCHED_S = 1.0
+CATCH_UP_SQUARES = 1  # a unit that fell behind its clock steps again at once (robots/shell.py)
 # Nothing at all heard for longer than this (not even the coordinator's own status, which comes
 # back to it every few seconds, pace.py) is the coordinator's own link, not its units' silence.
 DEAF_AFTER_S = 10.0
@@ -37,6 +42,10 @@ class UnitRecord:
     interval_s: float | None = None  # how far apart its states arrive (moving average)
     rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
     moved_at: float | None = None  # when its state last showed it on a new square
+    # Squares it may still drive at once, by the fleet's clock (World.motion): what is left of
+    # its slack after its latest accepted move; the time until its next state adds to it.
+    allowance: float = 0.0
+    job_seen_at: Cell | None = None  # where its states first showed the job_id they show now
 
     @property
     def position(self) -> Cell | None:
@@ -70,6 +79,9 @@ class World:
         self.heard_itself = False  # its own status came back: the retained factsheets are in
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
+        # Discovered obstacle -> the units whose sensors saw it and have not seen it free since:
+        # a unit's `free` takes back only its own word (protocol.md §8).
+        self._witnesses: dict[Cell, set[str]] = {}
 
     def on_foreign(self, unit_id: str, msg: Factsheet) -> bool:
         """Whether `msg` shows a unit of another map (it is then forgotten, and ignored until a
@@ -151,7 +163,12 @@ class World:
         self.unit(unit_id).factsheet = msg
 
     def on_state(
-        self, unit_id: str, msg: UnitState, now: float, relocatable: bool = False
+        self,
+        unit_id: str,
+        msg: UnitState,
+        now: float,
+        relocatable: bool = False,
+        reach: int = 1,
     ) -> list[Cell]:
         """A unit's state; returns the squares whose obstacle changed (new ones, then cleared).
 
@@ -159,19 +176,22 @@ class World:
         §10). A state raises ProtocolError, and changes nothing, when
         - its square is off the map, on a wall or a known obstacle;
         - another unit still holds that square (its latest state is there, and it did not leave);
-        - it jumps: a unit drives at most one square a step, so it is further from the last
-          state accepted than both the steps between them and the time between them allow (the
-          unit's own step counter alone could be made up);
+        - it jumps: further from the last state accepted than the unit's own steps between them
+          allow, or faster than its wheels could have driven in the time that passed by the
+          fleet's clock (`motion`: `reach` squares, its window, a step period, with a small
+          slack; the unit's step counter and factsheet alone could be made up);
         - it rejoins (after a connection message, or lost) further than REJOIN_SQUARES from where
           it was last seen, unless an operator has it out of service (`relocatable`: moved by hand);
         - it reports an obstacle that is not next to it (here, or where it was last accepted).
-        A sensor reading `free` towards a known obstacle clears it: what is seen free is free.
+        A sensor reading `free` towards a discovered obstacle takes back this unit's own word: the
+        obstacle is cleared once no unit that saw it still does (one unit's `free`, faulty or
+        forged, never erases what another sees; an operator clears any, §6.6). A fixed obstacle
+        of the map is never cleared.
         """
         self.check_square(msg.position, "position")
         rec = self.units.get(unit_id)
         self._check_square_is_free_of_others(unit_id, msg)
-        if not relocatable:
-            self._check_move(rec, msg, now)
+        allowance = None if relocatable else self._check_move(rec, msg, now, reach)
         here = msg.position
         was = None if rec is None else rec.position
         for c in msg.obstacles:
@@ -184,11 +204,8 @@ class World:
         # Besides the obstacles it reports once, every state's sensors show what is next to the
         # unit: a restarted coordinator (or one that missed the report) learns them again there.
         seen = [here.step(d) for d in Direction if getattr(msg.sensors, d.value) == "obstacle"]
-        cleared = [
-            c
-            for d in Direction
-            if getattr(msg.sensors, d.value) == "free" and (c := here.step(d)) in self.obstacles
-        ]
+        free = [here.step(d) for d in Direction if getattr(msg.sensors, d.value) == "free"]
+        cleared = [c for c in free if c in self.obstacles and self._witnesses.get(c) == {unit_id}]
         for c in [*msg.obstacles, *seen]:
             if (
                 self.base.in_bounds(c)
@@ -200,6 +217,12 @@ class World:
             ):
                 new.append(c)
         rec = self.unit(unit_id)
+        if allowance is None:  # first heard of, rejoined or moved by hand: its slack afresh
+            allowance = self.motion(rec, reach)[1]
+        rec.allowance = allowance
+        if rec.state is None or rec.state.job_id != msg.job_id:
+            # A job's item is picked up where the state first naming it puts the unit (progress.py).
+            rec.job_seen_at = None if msg.job_id is None else msg.position
         if rec.state_at is not None and not rec.rejoined:
             # A loaded broker or machine spaces states out: the loss timeout grows with them. One
             # long silence (a real loss) counts only up to the timeout it already had.
@@ -217,7 +240,20 @@ class World:
             self.obstacles.update(new)
             self.obstacles.difference_update(cleared)
             self._grid = self.base.with_blocked(self.obstacles)
+        self._witnessed(unit_id, [*msg.obstacles, *seen], free, cleared)
         return [*new, *cleared]
+
+    def _witnessed(
+        self, unit_id: str, seen: list[Cell], free: list[Cell], cleared: list[Cell]
+    ) -> None:
+        """Note which discovered obstacles `unit_id` now sees, and which it sees free."""
+        for c in free:
+            self._witnesses.get(c, set()).discard(unit_id)
+        for c in cleared:
+            self._witnesses.pop(c, None)
+        for c in seen:
+            if c in self.obstacles:
+                self._witnesses.setdefault(c, set()).add(unit_id)
 
     def clear_obstacles(self, squares: list[Cell] | None = None) -> list[Cell]:
         """An operator's word: these discovered obstacles (None: all) are gone; those cleared."""
@@ -225,6 +261,8 @@ class World:
         if gone:
             self.obstacles.difference_update(gone)
             self._grid = self.base.with_blocked(self.obstacles)
+        for c in gone:
+            self._witnesses.pop(c, None)
         return gone
 
     def _check_square_is_free_of_others(self, unit_id: str, msg: UnitState) -> None:
@@ -236,9 +274,13 @@ class World:
                     "state is there): two units never share a square"
                 )
 
-    def _check_move(self, rec: UnitRecord | None, msg: UnitState, now: float) -> None:
+    def _check_move(
+        self, rec: UnitRecord | None, msg: UnitState, now: float, reach: int
+    ) -> float | None:
+        """Raise ProtocolError for a move the unit could not have made; else its allowance
+        after the move (None: it starts afresh, first heard of or rejoined)."""
         if rec is None or rec.state is None or rec.state_at is None:
-            return  # first heard of (or since this coordinator started): anywhere on the map
+            return None  # first heard of (or since this coordinator started): anywhere on the map
         last = rec.state
         away = last.position.manhattan(msg.position)
         if rec.rejoined or not self.is_active(rec, now):
@@ -248,16 +290,49 @@ class World:
                     f"where unit {rec.id} was last seen: a unit rejoins where it left (an "
                     "operator takes it out of service to move it by hand)"
                 )
-            return
-        # Both the unit's own steps and the time since its last state must allow the distance;
-        # twice the step period's pace, as states may arrive bunched up by the network.
-        by_time = 1 + int(2 * (now - rec.state_at) / self.step_period_s)
-        if away > max(1, min(msg.step - last.step, by_time)):
+            return None
+        elapsed = max(0.0, now - rec.state_at)
+        jump = (
+            f"position {list(msg.position)} at step {msg.step} is {away} square"
+            f"{'' if away == 1 else 's'} from {list(last.position)} at step {last.step}, the "
+            f"last state accepted {elapsed:.2f} s before"
+        )
+        if away > max(1, msg.step - last.step):  # its own steps allow no more
+            raise ProtocolError(jump)
+        # Nor does the fleet's clock: what its wheels could have driven since (the unit's step
+        # counter alone could be made up). Over every run of states, not just the last two:
+        # squares moved <= time passed x rate + slack (the slack left is kept after each move).
+        rate, slack = self.motion(rec, reach)
+        allowance = rec.allowance + elapsed * rate
+        if away > allowance + 1e-9:
+            pace = self.pace_s(rec)
+            own = "the fleet's step period" if pace == self.step_period_s else "the step period"
+            own += "" if pace == self.step_period_s else " of its factsheet"
+            squares = "a square" if reach == 1 else f"{reach} squares (its window)"
             raise ProtocolError(
-                f"position {list(msg.position)} at step {msg.step} is {away} squares from "
-                f"{list(last.position)} at step {last.step}, the last state accepted "
-                f"{now - rec.state_at:.2f} s before"
+                f"{jump}: faster than unit {rec.id} can drive (at most {allowance:.1f} "
+                f"squares by now: {squares} every {pace:.2f} s, {own}, with a slack of "
+                f"{round(slack, 1):g} squares)"
             )
+        return min(slack, allowance - away)
+
+    def pace_s(self, rec: UnitRecord) -> float:
+        """How long a square takes the unit at least: the fleet's step period, or its
+        factsheet's when that is longer (a factsheet may make a unit slower, never faster)."""
+        own = rec.factsheet.step_period_s if rec.factsheet else self.step_period_s
+        return max(self.step_period_s, own)
+
+    def motion(self, rec: UnitRecord, reach: int = 1) -> tuple[float, float]:
+        """(squares a second, slack in squares): how fast the fleet lets `rec` drive.
+
+        A square each `pace_s`, or `reach` when the fleet releases it a window of that many ahead
+        (a VDA 5050 vehicle drives its whole base at its own speed); the slack is one window
+        driven at once, a step caught up, and the squares of the time states may arrive bunched
+        up (BUNCHED_S, at most the fleet's own loss timeout) at the fleet's pace.
+        """
+        loss_s = max(MIN_TIMEOUT_S, STALE_AFTER_STEPS * self.step_period_s)
+        bunched = min(BUNCHED_S, loss_s) / self.step_period_s
+        return reach / self.pace_s(rec), reach + CATCH_UP_SQUARES + bunched
 
     def stale_after_s(self, rec: UnitRecord) -> float:
         """How long a unit's state may be silent before it counts as lost.

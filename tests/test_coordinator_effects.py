@@ -15,7 +15,7 @@ import pytest
 
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
-from gridfleet.coordinator.views import VIEWS_BATCH_S
+from gridfleet.coordinator.views import views_period_s
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound
@@ -318,8 +318,8 @@ def test_a_state_jumping_to_the_dropoff_is_refused_and_finishes_nothing(
     core.step(3.0)
     assert core.jobs.jobs["job-1"].state == "loaded"
     # Driven there square by square, the drop finishes it.
-    assert drive(core, state(Cell(3, 1), seq=4, job_id="job-1", load_kg=1.0)) == [[]]
-    assert drive(core, state(Cell(3, 2), seq=5)) == [[]]
+    assert drive(core, state(Cell(3, 1), seq=4, job_id="job-1", load_kg=1.0), now=3.2) == [[]]
+    assert drive(core, state(Cell(3, 2), seq=5), now=3.4) == [[]]
     core.step(4.0)
     assert core.jobs.jobs["job-1"].state == "done"
 
@@ -378,7 +378,8 @@ def test_a_step_counter_run_ahead_does_not_buy_a_jump(core: CoordinatorCore) -> 
     far = drive(core, state(Cell(3, 2), seq=101), now=1.2)
     assert far[0][0][1]["reason"] == (
         "position [3, 2] at step 101 is 4 squares from [1, 0] at step 1, the last state "
-        "accepted 0.20 s before"
+        "accepted 0.20 s before: faster than unit unit1 can drive (at most 3.2 squares by now: a "
+        "square every 1.00 s, the fleet's step period, with a slack of 3 squares)"
     )
     assert core.world.units["unit1"].position == Cell(1, 0)
 
@@ -943,21 +944,31 @@ def test_a_topic_the_coordinator_does_not_read_is_ignored(
     assert published(effects) == [] and effects.log == () and core.errors_reported == 0
 
 
-def test_a_burst_of_requests_gets_one_queue_view_per_batch_period(core: CoordinatorCore) -> None:
-    first = request(core, "submit_job", submit("r1"), 0.0)
+def test_a_burst_of_requests_gets_one_queue_view_per_period(core: CoordinatorCore) -> None:
+    period = views_period_s(core.world.step_period_s)  # the step's: 1 s
+    first = request(core, "submit_job", submit("r1"), 10.0)
     assert published(first)[-1] == jobs_view(1, job("queued"))
-    second = request(core, "submit_job", submit("r2", job_id="j2"), 0.01)
+    second = request(core, "submit_job", submit("r2", job_id="j2"), 10.01)
     assert published(second) == [reply(1, "r2", True, None, "j2")]
-    assert second.views_at == VIEWS_BATCH_S  # come back at the end of the batch period
-    third = request(core, "submit_job", submit("r3", job_id="j3"), 0.02)
+    assert second.views_at == 10.0 + period  # come back at the end of the period
+    third = request(core, "submit_job", submit("r3", job_id="j3"), 10.5)
     assert published(third) == [reply(2, "r3", True, None, "j3")]
     assert third.views_at is None  # already arranged
-    later = core.views_due(VIEWS_BATCH_S)
+    later = core.views_due(10.0 + period)
     listed = [j["id"] for j in published(later)[0][1]["jobs"]]
     assert (published(later)[0][0], listed) == (JOBS, ["job-1", "j2", "j3"])
-    # A full batch period after that, a request's view goes out at once again.
-    fourth = request(core, "submit_job", submit("r4", job_id="j4"), 2 * VIEWS_BATCH_S)
+    # A full period after that, a request's view goes out at once again.
+    fourth = request(core, "submit_job", submit("r4", job_id="j4"), 10.0 + 2 * period)
     assert [p[0] for p in published(fourth)] == [REPLY, JOBS]
+
+
+def test_a_request_right_after_a_step_waits_for_the_next_period(core: CoordinatorCore) -> None:
+    """The step's views count: the queue view goes out at most once a step, however many ask."""
+    request(core, "submit_job", submit("r1"), 19.0)
+    assert JOBS in [p[0] for p in published(core.step(20.0))]  # unit1 took the job: a new view
+    effects = request(core, "submit_job", submit("r2", job_id="j2"), 20.1)
+    assert JOBS not in [p[0] for p in published(effects)]
+    assert effects.views_at == 20.0 + views_period_s(core.world.step_period_s)
 
 
 # ---- a bug in the coordinator is reported, never fatal ---------------------------------------
