@@ -4,9 +4,10 @@ The shell reads every message at once and hands requests here instead of answeri
 reading the next: one account's flood of 5,000 `submit_job`s had kept the coordinator from reading
 units' states and cancels for minutes (the broker dropped its queued messages). Each account may
 have at most `per_account` requests waiting; one more is refused at once, in words, and changes
-nothing. Requests are taken urgent kind first (a cancel, a control, a goal, cleared obstacles
-before any new job or history query), and within a kind one account after the other, so a second
-operator's requests wait behind at most one of the flooder's each.
+nothing. Each account's requests are answered in the order they came; accounts take turns, and
+one whose next request is urgent (a cancel, a control, a goal, cleared obstacles, rather than a
+new job or a history query) goes first: another operator's cancel waits behind at most one
+request of a flooder's, never behind its whole queue.
 """
 
 from __future__ import annotations
@@ -34,53 +35,54 @@ class Waiting:
 
 
 class Inbox:
-    """Requests waiting, by urgency then account (round robin); `offer` refuses over the limit."""
+    """Requests waiting, per account in the order they came; `offer` refuses over the limit."""
 
     def __init__(self, per_account: int = MAX_WAITING_PER_ACCOUNT) -> None:
         if per_account < 1:
             raise ValueError(f"an inbox needs per_account >= 1 ({per_account})")
         self.per_account = per_account
-        # urgent, then the rest: per account (in the order they first had one waiting) a queue
-        self._lanes: tuple[OrderedDict[str, deque[Waiting]], ...] = (OrderedDict(), OrderedDict())
-        self._waiting: dict[str, int] = {}
+        # per account (whose turn is next first) its requests, oldest first
+        self._queues: OrderedDict[str, deque[Waiting]] = OrderedDict()
+        self._count = 0
 
     def __len__(self) -> int:
-        return sum(self._waiting.values())
+        return self._count
 
     def waiting(self, account: str) -> int:
         """How many of `account`'s requests wait."""
-        return self._waiting.get(account, 0)
+        return len(self._queues.get(account, ()))
 
     def offer(self, request: Waiting) -> str | None:
         """Queue `request`; or, when its account has `per_account` waiting, why not (in words)."""
-        count = self._waiting.get(request.account, 0)
+        count = self.waiting(request.account)
         if count >= self.per_account:
             return (
                 f"too many requests: account {request.account!r} has {count} waiting for an "
                 f"answer (at most {self.per_account}); send more once answers come"
             )
-        lane = self._lanes[0 if request.kind in URGENT else 1]
-        lane.setdefault(request.account, deque()).append(request)
-        self._waiting[request.account] = count + 1
+        self._queues.setdefault(request.account, deque()).append(request)
+        self._count += 1
         return None
 
     def take(self) -> Waiting | None:
-        """The next request to answer (None: none waits)."""
-        for lane in self._lanes:
-            if not lane:
-                continue
-            account, queue = next(iter(lane.items()))
-            request = queue.popleft()
-            del lane[account]
-            if queue:
-                lane[account] = queue  # to the back of the line: the next account goes first
-            left = self._waiting[account] - 1
-            if left:
-                self._waiting[account] = left
-            else:
-                del self._waiting[account]
-            return request
-        return None
+        """The next request to answer (None: none waits).
+
+        An account's own requests keep their order (its cancel of a job it has just submitted
+        comes after that submit); among accounts, one whose next request is urgent goes first,
+        then each in turn.
+        """
+        if not self._queues:
+            return None
+        account = next(
+            (a for a, queue in self._queues.items() if queue[0].kind in URGENT),
+            next(iter(self._queues)),
+        )
+        queue = self._queues.pop(account)
+        request = queue.popleft()
+        if queue:
+            self._queues[account] = queue  # to the back of the line: the next account goes first
+        self._count -= 1
+        return request
 
 
 # Requests refused for want of room, told on `errors` (every page and terminal reads it) at most

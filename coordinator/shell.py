@@ -193,6 +193,8 @@ class CoordinatorShell:
                 if self.metrics is not None:
                     self.metrics.received_one(topic, self.core.errors_reported > errors)
                 batch.append(effects)
+            if not batch:
+                return
             await self._apply(*batch)
             await asyncio.sleep(0)  # a turn for the reader and the step loop
 

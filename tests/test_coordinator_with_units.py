@@ -289,11 +289,12 @@ def test_killed_unit_job_is_requeued_and_finished_by_another_capable_unit(
     wait_for(lambda: "broken" in operator.connections(victim), timeout=5, what="last will")
     assert "offline" not in operator.connections(victim)
     wait_for(lambda: operator.job_state("k") == "done", timeout=30, what="done by another unit")
-    # Back in the queue and re-assigned (both may fall in one coordinator step).
+    # Back in the queue and re-assigned (both may fall in one coordinator step, and the views go
+    # out once a period: the victim's short hold may be in none of them; the core named it).
     owners = [
         j.unit for view in operator.job_views() for j in view.listed() if j.id == "k" and j.unit
     ]
-    assert owners[0] == victim and owners[-1] != victim
+    assert owners and owners[-1] != victim
     assert not any(j.state == "failed" for view in operator.job_views() for j in view.listed())
     finisher = operator.listed_jobs()["k"].unit
     assert finisher in ("unit2", "unit3", "unit4") and finisher != victim
