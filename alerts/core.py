@@ -10,7 +10,6 @@ come from the header stamper's clock, durations from the monotonic `now` the she
 
 from __future__ import annotations
 
-import json
 import logging
 from collections import Counter
 from collections.abc import Mapping
@@ -34,8 +33,8 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
     decode,
-    validate_id,
 )
+from gridfleet.protocol.codec import reply_address
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES, MAX_TEXT
 from gridfleet.protocol.messages import (
     CLEARED_ALERTS_LISTED,
@@ -399,7 +398,7 @@ class AlertsCore:
     # ---- acknowledgements --------------------------------------------------------------------
 
     def _on_ack(self, topic: str, payload: bytes, now: float) -> Effects:
-        request_id, reply_to = _reply_address(payload)
+        request_id, reply_to = reply_address(payload)
         try:
             ack = decode(AckAlert, payload, MAX_REQUEST_BYTES)
             actor = self._actor(ack.header.sender)
@@ -497,20 +496,3 @@ def chat_text(line: str, limit: int = CHAT_TEXT_CHARS) -> str:
         pieces.append(piece)
         size += len(piece)
     return "".join(pieces)
-
-
-def _reply_address(payload: bytes) -> tuple[str | None, str | None]:
-    """(request id, reply_to) of a request that may not decode, each None where unreadable."""
-    try:
-        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
-    except (ValueError, RecursionError):  # RecursionError: nested too deeply
-        return None, None
-    if not isinstance(data, dict):
-        return None, None
-    request_id, reply_to = data.get("request_id"), data.get("reply_to")
-    if not (isinstance(request_id, str) and 0 < len(request_id) <= 64):
-        return None, None
-    try:
-        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
-    except ProtocolError:
-        return request_id, None

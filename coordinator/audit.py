@@ -15,7 +15,6 @@ the entries (protocol.md §6.8). `AuditDesk` answers the audit's two requests: a
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -38,9 +37,9 @@ from gridfleet.protocol import (
     decode,
     decode_estop,
     encode_estop,
-    validate_id,
 )
-from gridfleet.protocol.constants import MAX_ID_CHARS, MAX_REQUEST_BYTES, MAX_TEXT
+from gridfleet.protocol.codec import reply_address
+from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import (
     AuditAct,
     AuditEntry,
@@ -282,7 +281,7 @@ class AuditDesk:
         except ProtocolError as exc:
             # Answered as any request is: on its reply topic too, when that can still be read.
             reason = str(exc)[:MAX_TEXT]
-            request_id, reply_to = _reply_address(payload)
+            request_id, reply_to = reply_address(payload)
             out = [self._error(topic, reason, request_id)]
             if request_id is not None and reply_to is not None:
                 if kind == "audit":
@@ -367,23 +366,6 @@ class AuditDesk:
             header=self.stamp("reply"), request_id=request_id, accepted=False, reason=reason
         )
         return Outbound.of("reply", self.topics.reply(reply_to), reply)
-
-
-def _reply_address(payload: bytes) -> tuple[str | None, str | None]:
-    """(request id, reply_to) of a request that did not decode, each None where unreadable."""
-    try:
-        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
-    except (ValueError, RecursionError):  # RecursionError: nested too deeply
-        return None, None
-    if not isinstance(data, dict):
-        return None, None
-    request_id, reply_to = data.get("request_id"), data.get("reply_to")
-    if not (isinstance(request_id, str) and 0 < len(request_id) <= MAX_ID_CHARS):
-        return None, None  # as Request's own bound
-    try:
-        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
-    except ProtocolError:
-        return request_id, None
 
 
 def login_entry(req: AuditLogin, identity: Identity) -> AuditEntry:

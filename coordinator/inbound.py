@@ -6,7 +6,6 @@ on `errors`); a topic the coordinator does not read is nobody's error here.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 from gridfleet.errors import ProtocolError
@@ -22,8 +21,8 @@ from gridfleet.protocol import (
     SubmitJob,
     Topics,
     UnitState,
+    codec,
     decode,
-    validate_id,
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
@@ -80,18 +79,11 @@ def reply_address(topics: Topics, topic: str, payload: bytes) -> tuple[str | Non
     """(request id, reply_to) of a refused request, each None where it cannot be read."""
     try:
         kind, _ = topics.parse(topic)
-        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
-    except (ProtocolError, ValueError, RecursionError):  # RecursionError: nested too deeply
-        return None, None
-    if (kind not in _REQUESTS and kind not in _QUERIES) or not isinstance(data, dict):
-        return None, None
-    request_id, reply_to = data.get("request_id"), data.get("reply_to")
-    if not (isinstance(request_id, str) and 0 < len(request_id) <= 64):  # as in Request
-        return None, None
-    try:
-        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
     except ProtocolError:
-        return request_id, None
+        return None, None
+    if kind not in _REQUESTS and kind not in _QUERIES:
+        return None, None
+    return codec.reply_address(payload)
 
 
 def read(topics: Topics, topic: str, payload: bytes) -> Arrival | None:

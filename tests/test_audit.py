@@ -15,7 +15,6 @@ from pathlib import Path
 import pytest
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
-from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.console.audit import read_trail
 from gridfleet.coordinator.audit import Identity
 from gridfleet.coordinator.shell import CoordinatorShell
@@ -25,12 +24,11 @@ from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import CancelJob, SubmitJob, Topics, encode
 from gridfleet.protocol.messages import AckAlert, AuditEntry, ErrorReport
-from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
 from support.cli import gridfleet
 from support.effects import header
-from support.mosquitto import mosquitto_with_accounts
+from support.mosquitto import broker_with_accounts
 from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.security import login
@@ -56,14 +54,9 @@ def broker(
     request: pytest.FixtureRequest, accounts: Accounts, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[tuple[str, bool]]:
     """(URL without a login, whether the broker vouches for senders) of a broker with accounts."""
-    if request.param == "amqtt":
-        settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=ROOT)
-        with BrokerThread(settings) as running:
-            yield running.url, True
-    else:
-        directory = tmp_path_factory.mktemp("mosquitto")
-        with mosquitto_with_accounts(accounts, T, directory) as url:
-            yield url, False
+    directory = tmp_path_factory.mktemp("mosquitto")
+    with broker_with_accounts(request.param, accounts, ROOT, directory) as running:
+        yield running
 
 
 @contextmanager

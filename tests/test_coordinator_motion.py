@@ -13,11 +13,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from test_coordinator_effects import state as effects_state
 
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import ErrorReport, Leds, Sensors, SubmitJob, Topics, UnitState, decode
+from gridfleet.protocol import ErrorReport, Sensors, SubmitJob, Topics, UnitState, decode
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.coordinator_drive import from_unit, make_core, meet, request
@@ -31,18 +32,12 @@ ERRORS = "gridfleet/v1/errors"
 STATE = "gridfleet/v1/units/unit1/state"
 
 
+CORRIDOR_SENSORS = Sensors(N="wall", E="free", S="wall", W="free")
+
+
 def state(position: Cell, seq: int = 0, **over: Any) -> UnitState:
-    """unit1's state: idle on `position`, its step counter `seq`."""
-    msg = UnitState(
-        header=header("unit1", seq),
-        step=seq,
-        position=position,
-        direction="-",
-        status="idle",
-        leds=Leds(),
-        sensors=Sensors(N="wall", E="free", S="wall", W="free"),
-    )
-    return msg.model_copy(update=over)
+    """unit1's state: idle on `position` of the corridor, its step counter `seq`."""
+    return effects_state(position, seq, **{"sensors": CORRIDOR_SENSORS, **over})
 
 
 def error(seq: int, reason: str) -> Any:

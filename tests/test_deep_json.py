@@ -12,18 +12,16 @@ import pytest
 from gridfleet.accounts import Accounts, default_accounts
 from gridfleet.alerts.core import AlertsCore
 from gridfleet.alerts.settings import AlertSettings
-from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.broker.gate import Gate
 from gridfleet.coordinator.audit import AuditDesk, Identity
 from gridfleet.grid import GridMap
 from gridfleet.protocol import HeaderStamper, Topics
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.messages import AuditEntry
-from gridfleet.system.broker_thread import BrokerThread
 
 from support.coordinator_drive import make_core
 from support.effects import header_json, published, stamper
-from support.mosquitto import mosquitto_with_accounts
+from support.mosquitto import broker_with_accounts
 from support.probe import MqttProbe
 from support.security import login
 
@@ -88,13 +86,9 @@ def broker_url(
     request: pytest.FixtureRequest, accounts: Accounts, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[tuple[str, bool]]:
     """(URL, whether it reads senders) of a broker with accounts: the embedded amqtt or Mosquitto."""
-    if request.param == "amqtt":
-        settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=ROOT)
-        with BrokerThread(settings) as running:
-            yield running.url, True
-    else:
-        with mosquitto_with_accounts(accounts, T, tmp_path_factory.mktemp("mosquitto")) as url:
-            yield url, False
+    directory = tmp_path_factory.mktemp("mosquitto")
+    with broker_with_accounts(request.param, accounts, ROOT, directory) as running:
+        yield running
 
 
 @pytest.mark.every_broker

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from collections import defaultdict
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -10,7 +11,7 @@ from typing import TypeVar
 from pydantic import ValidationError
 
 from gridfleet.errors import ProtocolError
-from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.constants import MAX_ID_CHARS, MAX_REQUEST_BYTES
 from gridfleet.protocol.messages import Header, Message
 from gridfleet.protocol.topics import validate_id
 
@@ -67,3 +68,20 @@ class HeaderStamper:
         seq = self._seq[kind]
         self._seq[kind] = seq + 1
         return Header(seq=seq, timestamp=self._clock(), sender=self.sender)
+
+
+def reply_address(payload: bytes) -> tuple[str | None, str | None]:
+    """(request id, reply_to) of a request that may not decode, each None where unreadable."""
+    try:
+        data = json.loads(payload) if len(payload) <= MAX_REQUEST_BYTES else None
+    except (ValueError, RecursionError):  # RecursionError: nested too deeply
+        return None, None
+    if not isinstance(data, dict):
+        return None, None
+    request_id, reply_to = data.get("request_id"), data.get("reply_to")
+    if not (isinstance(request_id, str) and 0 < len(request_id) <= MAX_ID_CHARS):
+        return None, None  # as Request's own bound
+    try:
+        return request_id, validate_id(reply_to, "reply_to") if isinstance(reply_to, str) else None
+    except ProtocolError:
+        return request_id, None

@@ -13,9 +13,11 @@ from pathlib import Path
 import pytest
 
 from gridfleet.accounts import Accounts
+from gridfleet.broker.embedded import BrokerSettings
 from gridfleet.broker.mosquitto import mosquitto_conf, write_files
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
+from gridfleet.system.broker_thread import BrokerThread
 
 from support.wait import wait_for
 
@@ -164,3 +166,18 @@ class MosquittoBroker:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+@contextmanager
+def broker_with_accounts(
+    kind: str, accounts: Accounts, root: str, directory: Path
+) -> Iterator[tuple[str, bool]]:
+    """(URL without a login, whether the broker vouches for senders) of a broker with `accounts`
+    under `root`: the embedded amqtt (`kind` "amqtt") or Mosquitto."""
+    if kind == "amqtt":
+        settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=root)
+        with BrokerThread(settings) as running:
+            yield running.url, True
+    else:
+        with mosquitto_with_accounts(accounts, Topics(root), directory) as url:
+            yield url, False
