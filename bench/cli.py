@@ -34,6 +34,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "gridfleet.bench.logins",
         "the stop's latency while strangers flood the broker with wrong passwords",
     ),
+    "flood": (
+        "gridfleet.bench.flood",
+        "one operator account's flood of valid requests: step rate, answers, stop latency",
+    ),
     "history": (
         "gridfleet.bench.history",
         "the job history's store with a year of jobs: how fast its queries are answered",
