@@ -35,6 +35,7 @@ from gridfleet.broker.limits import Limits
 from gridfleet.broker.quiet import GONE, quiet_normal_closes
 from gridfleet.broker.routing import Subscriptions
 from gridfleet.broker.stats import BrokerFigures, BrokerStats
+from gridfleet.session_login import read_session_password
 
 log = logging.getLogger("gridfleet.broker")
 
@@ -261,6 +262,10 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         self.limits = limits or Limits()
         self._backlogs: weakref.WeakKeyDictionary[Any, Backlog] = weakref.WeakKeyDictionary()
         self._ended: weakref.WeakKeyDictionary[Any, asyncio.Event] = weakref.WeakKeyDictionary()
+        # Connections made with a page session's password: hung up on at the session's end.
+        self._session_ends: weakref.WeakKeyDictionary[Any, asyncio.TimerHandle] = (
+            weakref.WeakKeyDictionary()
+        )
         self._prune_at = _PRUNE_FLOOR
         self.stats = BrokerStats()
         self._shutting_down = False
@@ -407,6 +412,13 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
 
         session.attributes["gridfleet.authenticated"] = True  # for _authenticate, next
         self._ended[handler] = asyncio.Event()
+        claim = read_session_password(incoming.password)
+        if claim is not None and self.gate is not None and isinstance(reader, _GuardedReader):
+            # A page session's password ends with the session: so does a connection made with it.
+            left = max(0.0, claim.expires - self.gate.wall())
+            self._session_ends[handler] = asyncio.get_running_loop().call_later(
+                left, reader.hang_up
+            )
         return handler, session
 
     def _keep_alive_expired(self, reader: _GuardedReader, client_id: str, after_s: float) -> None:
@@ -466,6 +478,13 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
     ) -> bool:
         """amqtt's, after the gate's word on what the message claims (its sender, its rate)."""
         message = wait_deliver.result()
+        if (
+            self.gate is not None
+            and message is not None
+            and message.topic == self.gate.revoke_topic
+        ):
+            await self._revoke(client_session, bytes(message.data or b""))
+            return True  # the broker's alone: passed to nobody
         if self.gate is not None and message is not None and message.topic:
             refused = self.gate.refused_publish(
                 client_session.username,
@@ -479,6 +498,29 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
                 self._log_refusal(f"a message of {who} on {message.topic}: {refused}")
                 return True  # dropped; the connection stays
         return bool(await super()._handle_message_delivery(client_session, handler, wait_deliver))
+
+    async def _revoke(self, client_session: Any, data: bytes) -> None:
+        """A dashboard's revocation: its session's password opens nothing more, and every
+        connection that logged in with it is closed now."""
+        assert self.gate is not None
+        revocation = self.gate.revocation(client_session.username, data)
+        if revocation.sid is None:
+            who = f"client {client_session.client_id} ({client_session.username})"
+            self.stats.refused["publish"] += 1
+            self._log_refusal(f"a message of {who} on {self.gate.revoke_topic}: {revocation.words}")
+            return
+        closed = 0
+        for session, handler in list(self._sessions.values()):
+            claim = read_session_password(session.password)
+            if claim is None or claim.sid != revocation.sid:
+                continue
+            if session.transitions.state != "connected" or handler is None:
+                continue
+            closed += 1
+            if isinstance(handler.reader, _GuardedReader):
+                handler.reader.hang_up()
+            await handler.handle_connection_closed()  # as a takeover: amqtt ends its session
+        log.info("broker: %s; %d connection(s) with its password closed", revocation.words, closed)
 
     async def _authenticate(self, session: Any, listener: Any) -> bool:
         """amqtt's check, skipped for the session just authenticated above (Argon2 costs ~30 ms)."""
@@ -566,6 +608,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             ended = self._ended.pop(handler, None)
             if ended is not None:
                 ended.set()
+            timer = self._session_ends.pop(handler, None)
+            if timer is not None:
+                timer.cancel()
 
     # ---- per-client queue ----------------------------------------------------------------------
 

@@ -4,7 +4,9 @@ throttled failures (pure: no I/O, the clock comes in).
 The broker reads the accounts file, which holds the passwords themselves (clients read theirs
 from it): a slow hash of them protects nothing here, and amqtt's Argon2 check cost ~30 ms of the
 broker's one event loop per attempt, so a flood of wrong passwords held up every message (STOP
-took seconds to reach the units). A keyed digest compared in constant time costs microseconds.
+took seconds to reach the units). A keyed digest compared in constant time costs microseconds. A page session's own password
+(gridfleet/session_login.py) is an HMAC keyed by its account's password, checked the same way,
+and refused once the dashboard has revoked its session (`broker/revoke`) or its end has come.
 """
 
 from __future__ import annotations
@@ -15,11 +17,19 @@ import json
 import secrets
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 
 from gridfleet.accounts import Accounts
 from gridfleet.config import names_owned_id
-from gridfleet.protocol import TOPICS, Topics
+from gridfleet.errors import ProtocolError
+from gridfleet.protocol import TOPICS, Topics, decode
 from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
+from gridfleet.protocol.messages import BrokerRevoke
+from gridfleet.session_login import (
+    RevokedSessions,
+    is_session_password,
+    session_password_refusal,
+)
 from gridfleet.throttle import FailureBudget, LoginThrottle
 
 # Error reports a client may send: a burst, then a few a second (a unit stuck in a loop of errors
@@ -41,6 +51,14 @@ def owner_of(client_id: str, names: Iterable[str]) -> str | None:
     return max(owners, key=len, default=None)
 
 
+@dataclass(frozen=True)
+class Revocation:
+    """What the gate made of a message on `broker/revoke`: the session taken back, or why not."""
+
+    sid: str | None  # None: nothing revoked
+    words: str  # for the broker's log
+
+
 class Gate:
     """Checks a CONNECT's credentials and client id; `refusal` says why not, in words."""
 
@@ -50,6 +68,7 @@ class Gate:
         clock: Callable[[], float] = time.monotonic,
         throttle: LoginThrottle | None = None,
         root: str = DEFAULT_ROOT,
+        wall: Callable[[], float] = time.time,
     ) -> None:
         topics = Topics(root)
         # Where a message names who sent it, for people and the fleet to read (protocol.md §10).
@@ -66,6 +85,14 @@ class Gate:
         self._key = secrets.token_bytes(32)
         self._digests = {a.name: self._digest(a.password) for a in accounts.accounts.values()}
         self._nobody = self._digest(_NOBODY)
+        # A page session's password (gridfleet/session_login.py) is checked with the account's
+        # own, against the wall clock (its end is unix seconds); the dashboard accounts alone
+        # take one back, on `broker/revoke`, and a broker restart forgets what they took back.
+        self._passwords = {a.name: a.password for a in accounts.accounts.values()}
+        self.wall = wall
+        self.revoked = RevokedSessions()
+        self.revoke_topic = topics.fleet("revoke")
+        self._revokers = {a.name for a in accounts.accounts.values() if a.role == "dashboard"}
         # A VDA 5050 vehicle's client id is its vendor's to choose: any id no account owns.
         self._vehicles = {a.name for a in accounts.accounts.values() if a.role == "vehicle"}
         # Per address and per name at an address, never per name alone: a stranger's guesses
@@ -92,11 +119,18 @@ class Gate:
                 f"too many failed logins from {address} (as {username!r}, or as anyone): "
                 f"wait {wait:.0f} s"
             )
+        known = username in self._digests
         expected = self._digests.get(username, self._nobody)
-        right = hmac.compare_digest(self._digest(password or ""), expected)
-        if not right or username not in self._digests:
-            self.throttle.failed(username, address, known_name=username in self._digests)
-            return f"wrong user name or password for {username!r}"
+        right = hmac.compare_digest(self._digest(password or ""), expected) and known
+        why = None
+        if not right and is_session_password(password):
+            secret = self._passwords.get(username, _NOBODY)
+            why = session_password_refusal(username, secret, password, self.wall(), self.revoked)
+            right = why is None and known
+        if not right:
+            self.throttle.failed(username, address, known_name=known)
+            said = f" ({why})" if why else ""
+            return f"wrong user name or password for {username!r}{said}"
         if client_id:  # empty: the broker makes up one, which nobody owns
             owner = owner_of(client_id, self._digests)
             if owner != username and not (owner is None and username in self._vehicles):
@@ -131,7 +165,25 @@ class Gate:
         content is fixed at CONNECT, so it is held to the publish rules then; a will is one
         message, so checking it spends none of the client's error reports.
         """
+        if topic == self.revoke_topic:
+            return "a revocation is the dashboard's word at a logout, never a last will"
         return self._content_refusal(username, topic, data)
+
+    def revocation(self, username: str | None, data: bytes) -> Revocation:
+        """Take back the session a message on `broker/revoke` names, if a dashboard account sent it.
+
+        The broker passes such a message to nobody, whoever sent it; another account's is
+        dropped as any refused publish is (the ACL refuses it too).
+        """
+        if username is None or username not in self._revokers:
+            return Revocation(None, f"{username!r} is not a dashboard account: dropped")
+        try:
+            revoke = decode(BrokerRevoke, data, MAX_REQUEST_BYTES)
+        except ProtocolError as exc:
+            return Revocation(None, f"not a revocation ({exc}): dropped")
+        if not self.revoked.revoke(revoke.sid, revoke.expires, self.wall()):
+            return Revocation(None, f"session {revoke.sid} has ended already: nothing to revoke")
+        return Revocation(revoke.sid, f"session {revoke.sid} revoked by {username!r}")
 
     def _content_refusal(self, username: str | None, topic: str, data: bytes) -> str | None:
         """Why a message's content is refused: who it says sent it (its header, the latch's)."""

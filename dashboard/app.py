@@ -7,7 +7,8 @@ from flask import Flask, Response, jsonify, request, send_from_directory
 
 from gridfleet.config import names_this_machine
 from gridfleet.dashboard.audit import login_reporter
-from gridfleet.dashboard.auth import current_user, install_login
+from gridfleet.dashboard.auth import broker_password, current_user, install_login
+from gridfleet.dashboard.revoke import session_revoker
 from gridfleet.dashboard.settings import (
     INSTALL_HINT,
     LOGIN_FIRST,
@@ -28,7 +29,14 @@ def create_app(settings: DashboardSettings) -> Flask:
     # Logins, logouts and failed logins go to the coordinator's audit trail (dashboard/audit.py).
     audit = login_reporter(settings.accounts, settings.audit_broker, settings.root)
     app.extensions["gridfleet_audit"] = audit
-    secret, book = install_login(app, settings, audit)
+    # With session passwords, logouts go to the broker, which then refuses that session's.
+    revoker = (
+        session_revoker(settings.accounts, settings.audit_broker, settings.root)
+        if settings.session_passwords
+        else None
+    )
+    app.extensions["gridfleet_revoker"] = revoker
+    secret, book = install_login(app, settings, audit, revoker)
 
     @app.before_request
     def refuse_rebound_hosts() -> tuple[Response, int] | None:
@@ -67,7 +75,9 @@ def create_app(settings: DashboardSettings) -> Flask:
             body, status = {"error": LOGIN_FIRST, "login": {"required": True, "user": None}}, 401
         else:
             present = settings.mqtt_bundle.is_file()
-            body, status = settings_payload(settings, present, user, request.host), 200
+            password = None if user is None else broker_password(settings, book, user)
+            body = settings_payload(settings, present, user, request.host, password)
+            status = 200
         response = jsonify(body)
         response.headers["Cache-Control"] = "no-store"  # it may hold a password
         return response, status

@@ -17,7 +17,9 @@ from gridfleet.dashboard.login import (
     session_account,
     session_tag,
 )
+from gridfleet.dashboard.revoke import SessionRevoker
 from gridfleet.dashboard.settings import DashboardSettings
+from gridfleet.session_login import make_session_password
 from gridfleet.throttle import LoginThrottle
 
 NOT_JSON = 'send {"username": …, "password": …} as JSON'
@@ -31,6 +33,15 @@ def current_user(settings: DashboardSettings, secret: bytes, book: SessionBook) 
     if user is None or book.user_of(session.get("sid")) != user:
         return None  # logged out, expired, or from before a restart
     return session_account(settings.accounts, secret, user, session.get("tag"))
+
+
+def broker_password(settings: DashboardSettings, book: SessionBook, user: Account) -> str | None:
+    """This session's own broker password, when the broker checks them (None: the account's)."""
+    sid = session.get("sid")
+    expires = book.expires(sid)
+    if not settings.session_passwords or not isinstance(sid, str) or expires is None:
+        return None
+    return make_session_password(user.name, user.password, sid, expires)
 
 
 def cross_site(method: str, origin: str | None, host_url: str, is_json: bool) -> str | None:
@@ -49,12 +60,17 @@ def cross_site(method: str, origin: str | None, host_url: str, is_json: bool) ->
 
 
 def install_login(
-    app: Flask, settings: DashboardSettings, audit: LoginReporter | None = None
+    app: Flask,
+    settings: DashboardSettings,
+    audit: LoginReporter | None = None,
+    revoker: SessionRevoker | None = None,
 ) -> tuple[bytes, SessionBook]:
     """Configure the session cookie and add the login routes; the session secret and book.
 
     With `audit`, every login and logout is reported to the audit trail, and failed logins as
-    `LoginReporter.failed` bounds them: a few from each address one by one, then a count.
+    `LoginReporter.failed` bounds them: a few from each address one by one, then a count. With
+    `revoker`, a session closed before its end (logout, eviction) has its broker password taken
+    back.
     """
     # Random per start unless configured: a restart then logs everybody out (README, Dashboard).
     secret = settings.secret_key or secrets.token_bytes(32)
@@ -67,7 +83,7 @@ def install_login(
         SESSION_COOKIE_SECURE=settings.https,
         PERMANENT_SESSION_LIFETIME=timedelta(seconds=SESSION_S),
     )
-    book = SessionBook()
+    book = SessionBook(closed=None if revoker is None else revoker.revoke)
 
     @app.before_request
     def refuse_cross_site() -> tuple[Response, int] | None:

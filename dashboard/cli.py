@@ -68,8 +68,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--audit-broker",
         metavar="URL",
         help="with --accounts: where the dashboard reports logins, logouts and failed logins "
-        "to the coordinator's audit, as the dashboard account (default: --broker-ws, a 0.0.0.0 "
-        "host read as 127.0.0.1)",
+        "to the coordinator's audit, and (--session-passwords) takes page sessions' broker "
+        "passwords back, as the dashboard account (default: --broker-ws, a 0.0.0.0 host read "
+        "as 127.0.0.1)",
+    )
+    parser.add_argument(
+        "--session-passwords",
+        action="store_true",
+        help="with --accounts, for gridfleet's embedded broker only: hand each page session a "
+        "broker password of its own, made from the account's and taken back at logout (told "
+        "to the broker at --audit-broker, as a dashboard account) instead of the account's "
+        "password; 'gridfleet up' sets it when it runs its own broker with accounts. Mosquitto "
+        "and other brokers cannot check these: leave it out there",
     )
     add_common(parser, broker=False)
 
@@ -106,6 +116,7 @@ def settings_from(
         secret_key=secret_from(environ),
         https=args.tls_cert is not None,
         audit_broker=None if args.accounts is None else audit_broker(args),
+        session_passwords=args.session_passwords,
     )
 
 

@@ -82,24 +82,35 @@ class SessionBook:
         lifetime_s: float = SESSION_S,
         clock: Callable[[], float] = time.monotonic,
         per_account: int = SESSIONS_PER_ACCOUNT,
+        wall: Callable[[], float] = time.time,
+        closed: Callable[[str, int], None] | None = None,
     ) -> None:
         self.lifetime_s = lifetime_s
         self.clock = clock
         self.per_account = per_account
-        self._open: dict[str, tuple[str, float]] = {}  # id: (user, ends at)
+        self.wall = wall
+        # Told of each session closed before its end (logout, a new login, an eviction), with
+        # that end: its broker password is taken back (dashboard/revoke.py).
+        self.closed = closed
+        self._open: dict[str, tuple[str, float, int]] = {}  # id: (user, ends at, its unix end)
         self._by_user: dict[str, OrderedDict[str, None]] = {}  # user: their ids, oldest first
         self._lock = threading.Lock()  # the server answers each request in its own thread
 
     def open(self, user: str) -> str:
         """A new session for `user`; its id (random, 128 bits)."""
         sid = secrets.token_urlsafe(16)
+        evicted: list[tuple[str, int]] = []
         with self._lock:
-            self._open[sid] = (user, self.clock() + self.lifetime_s)
+            ends = int(self.wall() + self.lifetime_s)
+            self._open[sid] = (user, self.clock() + self.lifetime_s, ends)
             mine = self._by_user.setdefault(user, OrderedDict())
             mine[sid] = None
             while len(mine) > self.per_account:
                 oldest, _ = mine.popitem(last=False)
-                self._open.pop(oldest, None)
+                entry = self._open.pop(oldest, None)
+                if entry is not None:
+                    evicted.append((oldest, entry[2]))
+        self._tell(evicted)
         return sid
 
     def __len__(self) -> int:
@@ -119,19 +130,35 @@ class SessionBook:
                 return None
             return entry[0]
 
+    def expires(self, sid: object) -> int | None:
+        """When open session `sid` ends, in unix seconds (None: it is not open)."""
+        if self.user_of(sid) is None:
+            return None
+        with self._lock:
+            entry = self._open.get(sid) if isinstance(sid, str) else None
+            return None if entry is None else entry[2]
+
     def close(self, sid: object) -> None:
         """End session `sid` (nothing when it is not open)."""
         if isinstance(sid, str):
             with self._lock:
-                self._forget(sid)
+                entry = self._forget(sid)
+            self._tell([] if entry is None else [(sid, entry[2])])
 
-    def _forget(self, sid: str) -> None:
-        """Drop `sid` from both indexes (the lock held)."""
+    def _tell(self, ended: list[tuple[str, int]]) -> None:
+        """Tell `closed` of the sessions closed before their end (the lock not held)."""
+        if self.closed is not None:
+            for sid, ends in ended:
+                self.closed(sid, ends)
+
+    def _forget(self, sid: str) -> tuple[str, float, int] | None:
+        """Drop `sid` from both indexes (the lock held); its entry, if it was open."""
         entry = self._open.pop(sid, None)
         if entry is None:
-            return
+            return None
         mine = self._by_user.get(entry[0])
         if mine is not None:
             mine.pop(sid, None)
             if not mine:
                 del self._by_user[entry[0]]
+        return entry

@@ -17,7 +17,10 @@ from gridfleet.protocol import Topics, validate_id
 from gridfleet.protocol.constants import DEFAULT_ROOT
 
 PACKAGE_DIR = Path(__file__).resolve().parent
+NODE_MODULES = PACKAGE_DIR / "node_modules"  # the checkout's (npm ci)
 MQTT_BUNDLE = Path("mqtt") / "dist" / "mqtt.esm.js"
+# An installed wheel's copy: its build takes it from node_modules (setup.py).
+BUILT_BUNDLE = PACKAGE_DIR / "vendor" / "mqtt.esm.js"
 INSTALL_HINT = (
     "MQTT.js is not installed: run 'npm ci' in the dashboard/ folder "
     "(or 'make install' at the top of the repository), then reload the page."
@@ -38,13 +41,16 @@ class DashboardSettings:
     client_prefix: str = "dashboard"
     map: GridMap | None = None
     colors: dict[str, str] = field(default_factory=dict)
-    node_modules: Path = PACKAGE_DIR / "node_modules"
+    node_modules: Path = NODE_MODULES
     # With accounts, people log in before the page gets any broker credentials.
     accounts: Accounts | None = field(default=None, repr=False)
     secret_key: bytes | None = field(default=None, repr=False)  # None: a random one per start
     https: bool = False  # the page is served over HTTPS: its cookie goes over HTTPS only
     # Where the dashboard itself reports logins for the audit (with accounts; None: nowhere).
     audit_broker: str | None = None
+    # The broker checks page sessions' own passwords (the embedded one, with accounts): the page
+    # gets one per session, taken back at logout, instead of the account's (session_login.py).
+    session_passwords: bool = False
 
     def __post_init__(self) -> None:
         url = parse_broker_url(self.broker_ws)
@@ -70,13 +76,34 @@ class DashboardSettings:
                 "the accounts have no operator or dashboard account: nobody could log in "
                 "('gridfleet accounts add NAME --role operator --file FILE')"
             )
+        if self.session_passwords:
+            self._check_session_passwords()
         Topics(self.root)  # raises ProtocolError naming a bad root
         validate_id(self.client_prefix, "client id prefix")
 
+    def _check_session_passwords(self) -> None:
+        """Session passwords need accounts, a dashboard account and a broker to tell logouts."""
+        if self.accounts is None:
+            raise ConfigError(
+                "session passwords are for a dashboard with accounts: give --accounts"
+            )
+        if not any(a.role == "dashboard" for a in self.accounts.accounts.values()):
+            raise ConfigError(
+                "session passwords are taken back at logout by a dashboard account, and the "
+                "accounts have none ('gridfleet accounts add dashboard --role dashboard')"
+            )
+        if self.audit_broker is None:
+            raise ConfigError(
+                "session passwords need the broker the dashboard tells of logouts (--audit-broker)"
+            )
+
     @property
     def mqtt_bundle(self) -> Path:
-        """Path of the MQTT.js browser bundle inside node_modules."""
-        return self.node_modules / MQTT_BUNDLE
+        """Path of the MQTT.js browser bundle: inside node_modules, else the wheel's copy."""
+        bundle = self.node_modules / MQTT_BUNDLE
+        if self.node_modules == NODE_MODULES and not bundle.is_file() and BUILT_BUNDLE.is_file():
+            return BUILT_BUNDLE
+        return bundle
 
 
 def browser_broker_url(broker_ws: str, page_host: str | None) -> str:
@@ -98,12 +125,14 @@ def settings_payload(
     bundle_present: bool,
     user: Account | None = None,
     page_host: str | None = None,
+    broker_password: str | None = None,
 ) -> dict[str, Any]:
     """The JSON body of /api/settings; with accounts, for a logged-in `user` only.
 
     The page connects to the broker as the person who logged in (their own account), not as one
     shared dashboard account: the broker's rules and logs then apply to each person, and removing
     a person's account from the file shuts them out of the broker as well as the page.
+    `broker_password`: this session's own (session_login.py), handed out instead of the account's.
     """
     assert settings.accounts is None or user is not None, "no settings before the login"
     grid = settings.map
@@ -116,7 +145,9 @@ def settings_payload(
         # Whether the page shows the Audit view: the audit is for operator and dashboard accounts
         # (protocol.md §6.8); without accounts anybody may read it.
         "audit": user is None or user.role in AUDIT_ROLES,
-        "mqtt": None if user is None else {"username": user.name, "password": user.password},
+        "mqtt": None
+        if user is None
+        else {"username": user.name, "password": broker_password or user.password},
         "root": settings.root,
         "prefix": Topics(settings.root).prefix,
         "client_prefix": owned_client_id(

@@ -433,7 +433,10 @@ def rules(account: Account, topics: Topics) -> Rules:
     elif account.role == "viewer":
         publish = []  # reads everything, changes nothing
         # Everything but the audit's replies (`audit/replies/+`): the audit is for operators.
-        tops = sorted({spec.pattern.split("/")[0] for spec in TOPICS.values()} - {"audit"})
+        # Nor the dashboard's revocations (`broker/revoke`), which the embedded broker keeps.
+        tops = sorted(
+            {spec.pattern.split("/")[0] for spec in TOPICS.values()} - {"audit", "broker"}
+        )
         subscribe = [f"{t.prefix}/{top}/#" for top in tops]
     else:  # dashboard, operator: the people's side
         publish = [
@@ -443,5 +446,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         ]
         if account.role == "dashboard":
             publish += [t.request(k) for k in DASHBOARD_REQUEST_KINDS]
+            # A page session's broker password taken back at its logout (protocol.md §10).
+            publish.append(t.fleet("revoke"))
         subscribe = [f"{t.prefix}/#"]
     return Rules(tuple(publish), tuple(subscribe))

@@ -315,6 +315,8 @@ class Assembly:
                 *logins,
                 *self.tls_files,
                 *(["--audit-broker", system.url] if logins else []),  # logins, for the audit
+                # Our own broker checks a page session's own password, taken back at logout.
+                *(["--session-passwords"] if logins and spec.broker is None else []),
             )
             child = await sup.start(ChildSpec("dashboard", dashboard, ready=DASHBOARD_READY))
             system.children["dashboard"] = child

@@ -63,16 +63,20 @@ def login_as(secured_broker: BrokerThread, accounts: Accounts) -> Iterator[Any]:
 
 @pytest.fixture
 def dashboard(
-    chromium: Any, secured_broker: BrokerThread, accounts: Accounts
+    request: pytest.FixtureRequest, chromium: Any, secured_broker: BrokerThread, accounts: Accounts
 ) -> Iterator[tuple[OpenDashboard, list[Any]]]:
-    """The page of a dashboard with accounts, opened anonymously, and the websockets it opens."""
+    """The page of a dashboard with accounts, opened anonymously, and the websockets it opens;
+    its param True: the page gets a session's own broker password (`--session-passwords`)."""
     scenario = load_scenario(PLAYFIELD)
+    sessions = bool(getattr(request, "param", False))
     settings = DashboardSettings(
         broker_ws=secured_broker.ws_url,
         root=ROOT,
         map=scenario.grid,
         colors={u.id: u.color for u in scenario.units},
         accounts=accounts,
+        audit_broker=secured_broker.url if sessions else None,
+        session_passwords=sessions,
     )
     server = DashboardServer(create_app(settings)).start()
     context = chromium.new_context(viewport=VIEWPORT)
@@ -116,6 +120,9 @@ def test_anonymous_page_shows_the_login_and_opens_no_mqtt_connection(
     expect(page.locator("#conn")).to_have_attribute("data-state", "connecting")
 
 
+@pytest.mark.parametrize(
+    "dashboard", [False, True], indirect=True, ids=["account-password", "session-password"]
+)
 def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
     dashboard: tuple[OpenDashboard, list[Any]],
     login_as: Any,
@@ -157,6 +164,9 @@ def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
         lambda m: (decode_estop(m.payload).engaged, decode_estop(m.payload).by) == by_page,
     )
     expect(page.locator("body")).to_have_attribute("data-estop", "engaged")
+    handed = page.evaluate("fetch('/api/settings').then(r => r.json()).then(b => b.mqtt)")
+    own = handed["password"] == accounts.get("operator").password
+    assert own != (dash.server.app.extensions["gridfleet_revoker"] is not None)
 
     page.locator("#logout").click()
     expect(page.locator("#login-form")).to_be_visible()
@@ -168,3 +178,16 @@ def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
     assert len(sockets) == 1  # the reloaded page opened none
     status = page.evaluate("fetch('/api/settings').then(r => r.status)")
     assert status == 401
+    if not own:  # a copy of what the page was handed opens nothing now
+        copy = with_credentials(secured_broker.url, handed["username"], handed["password"])
+        wait_for(lambda: refused(copy), timeout=5.0, what="the handed login refused")
+
+
+def refused(url: str) -> bool:
+    """Whether the broker refuses a CONNECT with `url`'s login now."""
+    try:
+        with MqttProbe(url):
+            return False
+    except AssertionError as exc:
+        assert "Not authorized" in str(exc), exc
+        return True

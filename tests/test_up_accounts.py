@@ -9,6 +9,7 @@ import signal
 import ssl
 import subprocess
 import sys
+import time
 import urllib.request
 from http.cookiejar import CookieJar
 from pathlib import Path
@@ -22,6 +23,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import JobsView, Topics, decode
 from gridfleet.scenario import load_scenario
+from gridfleet.session_login import session_password_refusal
 from gridfleet.system.cli import build_parser
 from gridfleet.system.up import spec_from, where_to_open
 
@@ -149,7 +151,14 @@ def test_up_with_accounts_runs_the_playfield_each_component_on_its_own_account(
         assert [c.secure for c in person.cookies] == [with_tls]  # over HTTPS only, with TLS
         status, settings = person.call("/api/settings")
         assert status == 200 and settings["broker_ws"] == ws_url
-        assert settings["mqtt"] == {"username": "operator", "password": operator.password}
+        # Not the account's password: one of this session's own, which logout takes back
+        # (up runs its own broker with accounts, which checks them: session_login.py).
+        handed = settings["mqtt"]
+        assert handed["username"] == "operator" and handed["password"] != operator.password
+        now = time.time()
+        assert (
+            session_password_refusal("operator", operator.password, handed["password"], now) is None
+        )
 
         # Every job of the playfield gets done. The broker's rules let each role publish only
         # its own topics: a unit's state only from its account, orders only from the

@@ -492,6 +492,16 @@ class AuditLogin(Request):
     reason: Text | None = None  # why a login failed
 
 
+class BrokerRevoke(Message):
+    """`broker/revoke`: the dashboard takes a page session's broker password back (its logout).
+
+    Read by the embedded broker alone, which passes it to nobody (protocol.md §10).
+    """
+
+    sid: Annotated[str, StringConstraints(pattern=r"^[A-Za-z0-9_-]{1,64}$")]  # the session's id
+    expires: Annotated[int, Field(ge=0, strict=True)]  # its end, unix seconds: forgotten after
+
+
 # ---- the job history (coordinator/history.py: protocol.md §6.10) -------------------------------
 
 MAX_HISTORY_PAGE = 1000  # entries one history reply carries at most

@@ -146,6 +146,7 @@ TOPICS: dict[str, TopicSpec] = {
             "JobHistoryPage",
             MAX_VIEW_BYTES,
         ),
+        TopicSpec("revoke", "broker/revoke", 1, False, "json", "BrokerRevoke", MAX_REQUEST_BYTES),
         TopicSpec("reply", "replies/{client}", 1, False, "json", "Reply", MAX_REQUEST_BYTES),
         TopicSpec("errors", "errors", 1, False, "json", "ErrorReport", MAX_REQUEST_BYTES),
         TopicSpec(

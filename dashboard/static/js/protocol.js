@@ -51,6 +51,7 @@ export function topicsFor(root) {
     alerts: topicOf(p, "alerts"),
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
+    revoke: topicOf(p, "revoke"), // the dashboard server's word to the broker; the page never reads it
     allUnits: (kind) => topicOf(p, check(UNIT_KINDS, kind, "a per-unit topic kind"), "+"),
     allDevices: (kind) => topicOf(p, check(new Set(DEVICE_KINDS.values()), kind, "a per-device topic kind"), "+"),
     request: (kind) => topicOf(p, check(REQUEST_KINDS, kind, "a request kind")),

@@ -285,6 +285,16 @@ export const TOPICS = freeze({
     "schema": "schemas/JobHistoryPage.json",
     "max_bytes": 8388608
   },
+  "revoke": {
+    "pattern": "broker/revoke",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "BrokerRevoke",
+    "schema": "schemas/BrokerRevoke.json",
+    "max_bytes": 16384
+  },
   "reply": {
     "pattern": "replies/{client}",
     "placeholder": "client",
