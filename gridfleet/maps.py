@@ -6,6 +6,7 @@ from pathlib import Path
 
 from gridfleet.errors import MapError
 from gridfleet.grid import BLOCKED_CHARS, FREE_CHARS, GridMap
+from gridfleet.shipped import resolve
 from gridfleet.textfile import read_text
 
 MAX_MAP_SIDE = 4096
@@ -68,8 +69,9 @@ def _dimension(header: dict[str, str], key: str, source: str) -> int:
 
 
 def load_map(path: str | Path) -> GridMap:
-    """Load a `.map` file; every problem raises MapError naming the file."""
-    p = Path(path)
+    """Load a `.map` file, or a shipped map by name (`playfield`); every problem raises MapError
+    naming the file."""
+    p = resolve(path, ".map", "map", MapError)
     return parse_map(read_text(p, "map", MapError), source=str(p))
 
 

@@ -13,6 +13,7 @@ from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.protocol.constants import ID_PATTERN
+from gridfleet.shipped import resolve
 from gridfleet.textfile import TomlFile
 
 DEFAULT_COLORS = (
@@ -129,8 +130,9 @@ _SQUARES = {"start", "pickup", "dropoff", "target"}
 
 
 def load_scenario(path: str | Path) -> Scenario:
-    """Load and validate a scenario; every problem raises ScenarioError naming file and line."""
-    p = Path(path)
+    """Load and validate a scenario, a file or a shipped one by name (`playfield`); every
+    problem raises ScenarioError naming file and line."""
+    p = resolve(path, ".toml", "scenario", ScenarioError)
     where = TomlFile(p, "scenario", ScenarioError)
     return _build(p, where.data, where)
 

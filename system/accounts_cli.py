@@ -30,7 +30,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Subcommands of `gridfleet accounts`."""
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
     init = sub.add_parser("init", help="write the accounts a scenario's fleet needs")
-    init.add_argument("--scenario", type=Path, required=True, help="scenario file (TOML)")
+    init.add_argument(
+        "--scenario",
+        type=Path,
+        required=True,
+        help="scenario file (TOML), or a shipped scenario by name (playfield)",
+    )
     init.add_argument("--out", type=Path, required=True, help="accounts file to write (mode 600)")
     init.add_argument("--force", action="store_true", help="replace an existing file")
     init.add_argument(

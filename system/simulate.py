@@ -43,7 +43,11 @@ STALL_S = 20.0  # a run whose coordinator publishes no step for this long (plus 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet simulate`."""
-    parser.add_argument("scenario", type=Path, help="scenario file (TOML)")
+    parser.add_argument(
+        "scenario",
+        type=Path,
+        help="scenario file (TOML), or a shipped scenario by name (playfield)",
+    )
     parser.add_argument(
         "--step",
         type=float,

@@ -15,17 +15,18 @@ from gridfleet.options import add_common
 from gridfleet.robots.shards import workers_for
 from gridfleet.robots.vda5050.config import VehicleConfig, load_vehicles
 from gridfleet.scenario import Scenario, load_scenario, with_units
+from gridfleet.shipped import shipped_file
 from gridfleet.system.assembly import LOOPBACK_OF, Assembly, SystemSpec
 from gridfleet.system.supervisor import Supervisor, run_until_signal
 from gridfleet.tasks import stop_on_signals
 from gridfleet.tls import server_context
 
-DEFAULT_SCENARIO = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+DEFAULT_SCENARIO = shipped_file("playfield", ".toml")  # the checkout's maps/, or the wheel's copy
 MAKE_ACCOUNTS = "gridfleet accounts init --scenario FILE --out FILE"
 
 EPILOG = """\
 On loopback (the default) nothing needs setting up. To run on a LAN:
-  gridfleet accounts init --scenario maps/playfield.toml --out fleet-accounts.toml
+  gridfleet accounts init --scenario playfield --out fleet-accounts.toml
   gridfleet up --listen 0.0.0.0 --accounts fleet-accounts.toml
 then open http://THIS-MACHINE:5000 and log in as 'operator' with its password from the file.
 With TLS ('gridfleet accounts tls --out fleet-tls --host 127.0.0.1 --host THIS-MACHINE'):
@@ -41,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--scenario",
         type=Path,
         default=DEFAULT_SCENARIO,
-        help="scenario file (default maps/playfield.toml)",
+        help="scenario file, or a shipped scenario by name (default playfield)",
     )
     parser.add_argument(
         "--step",
