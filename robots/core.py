@@ -11,26 +11,21 @@ stamper it is given, so tests can pin every payload.
 
 from __future__ import annotations
 
-from typing import Literal
-
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
-from gridfleet.outbound import Outbound, error_report
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
-    Connection,
     CoordinatorStatus,
-    Factsheet,
     Goal,
     HeaderStamper,
     Order,
     Topics,
     UnitState,
     decode,
-    encode_direction,
 )
-from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+from gridfleet.robots.fleet_side import Condition, FleetSide
 from gridfleet.robots.unit import Move, Sense, UnitLogic
 
 
@@ -82,10 +77,7 @@ class UnitCore:
         self.model = model  # the factsheet's `model`: what kind of unit this is
         self.id = logic.unit_id
         self.stamp = stamp or HeaderStamper(self.id)
-        self._sent_direction: bytes | None = None  # what `direction` says on this connection
-        # What the last state said (but its header and step), and the ticks since it went out.
-        self._told: tuple[object, ...] | None = None
-        self._quiet_ticks = 0
+        self.side = FleetSide(self.id, topics, self.stamp)  # what it says to the fleet, and when
         self.stop = StopView()  # the latch and the held presses, as this unit read them
         self.map_id = logic.grid.map_id()  # the static map, before any obstacle is found
         self.lateness = Lateness()  # of orders, against this unit's own clock (its stamper's)
@@ -116,26 +108,21 @@ class UnitCore:
 
     def will(self) -> Outbound:
         """The last will of the coming connection: `broken` (stamped before its `online`)."""
-        return self._connection("broken")
+        return self.side.connection("broken")
 
     def on_connect(self, now: float) -> list[Outbound]:
         """Connected and subscribed: `online`, the factsheet, then the state and direction."""
         self.logic.on_connect(now)
         self.lateness.reset()  # a new session: whatever piled up on the old one is gone
-        self._sent_direction = None  # a new connection: say the direction again
-        factsheet = Factsheet(
-            header=self.stamp("factsheet"),
+        self.side.new_connection()  # say the direction again
+        factsheet = self.side.factsheet(
             capacity_kg=self.logic.capacity_kg,
-            step_period_s=self.logic.step_s,
+            step_s=self.logic.step_s,
             color=self.color,
             model=self.model,
             map_id=self.map_id,
         )
-        return [
-            self._connection("online"),
-            Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet),
-            *self.state(),
-        ]
+        return [self.side.connection("online"), factsheet, *self.state()]
 
     def on_disconnect(self, now: float) -> None:
         """Lost the broker: hold still (nothing can be sent until the next connect)."""
@@ -146,20 +133,16 @@ class UnitCore:
 
     def offline(self) -> Outbound:
         """The goodbye of a clean stop."""
-        return self._connection("offline")
-
-    def _connection(self, state: Literal["online", "offline", "broken"]) -> Outbound:
-        message = Connection(header=self.stamp("connection"), state=state)
-        return Outbound.of("connection", self.topics.unit("connection", self.id), message)
+        return self.side.connection("offline")
 
     # ---- what arrives -------------------------------------------------------------------------
 
     def on_message(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
         """React to one inbound message; what to publish because of it."""
-        try:
-            kind, who = self.topics.parse(topic)
-        except ProtocolError:
+        where = self.side.parse(topic)
+        if where is None:
             return []
+        kind, who = where
         if kind in STOP_KINDS:
             return self._on_stop(kind, who, topic, payload, now)
         if kind == "order" and who == self.id:
@@ -198,11 +181,11 @@ class UnitCore:
             # The link is piling orders up, and the stop may be queued behind them. Told on
             # `errors` once a spell, at most every 10 s.
             if self.logic.on_late_order(late, now):
-                return [self._report(topic, self.logic.errors[-1].message), *self.state()]
+                return [self.side.report(topic, self.logic.errors[-1].message), *self.state()]
             return []
         verdict = self.logic.on_order(order, now)
         if verdict.result == "refused":
-            return [self._report(topic, verdict.reason or ""), *self.state()]
+            return [self.side.report(topic, verdict.reason or ""), *self.state()]
         if verdict.result != "accepted":
             return []
         # The order is acknowledged by the next step's state, which usually shows the move it
@@ -217,24 +200,20 @@ class UnitCore:
         target = goal.target
         verdict = self.logic.on_goal(target, now)
         if verdict.result == "refused":
-            return [self._report(topic, verdict.reason or ""), *self.state()]
+            return [self.side.report(topic, verdict.reason or ""), *self.state()]
         return self.state() if verdict.result == "accepted" else []
 
     def _refused(self, topic: str, code: str, reason: str) -> list[Outbound]:
         """A payload that could not be read: an error in the state and a report on `errors`."""
         self.logic.error(code, reason)
-        return [self._report(topic, reason), *self.state()]
-
-    def _report(self, topic: str, reason: str) -> Outbound:
-        payload = error_report(self.stamp("errors"), topic, reason)
-        return Outbound.of("errors", self.topics.fleet("errors"), payload)
+        return [self.side.report(topic, reason), *self.state()]
 
     def peer_position(self, topic: str, payload: bytes) -> tuple[str, Cell] | None:
         """Where another unit says it stands, when this is its state; else None."""
-        try:
-            kind, who = self.topics.parse(topic)
-        except ProtocolError:
+        where = self.side.parse(topic)
+        if where is None:
             return None
+        kind, who = where
         if kind != "state" or who is None or who == self.id:
             return None
         try:
@@ -248,12 +227,11 @@ class UnitCore:
     def tick(self, sense: Sense, move: Move, now: float) -> list[Outbound]:
         """One step in the world `sense` reads and `move` changes; the state (and direction)."""
         self.logic.tick(sense, move, now)
-        self._quiet_ticks += 1
-        if self._quiet_ticks < STATE_HEARTBEAT_STEPS and self._condition() == self._told:
+        if not self.side.due(self._condition()):
             return []  # nothing to tell but the step count: the next change or heartbeat will
         return self.state()
 
-    def _condition(self) -> tuple[object, ...] | None:
+    def _condition(self) -> Condition:
         """What a state would say, but its header and step count; None while news is pending."""
         lg = self.logic
         if lg.new_obstacles or lg.errors:
@@ -281,16 +259,12 @@ class UnitCore:
         """
         if not self.logic.connected:
             return []
-        self._told, self._quiet_ticks = self._condition(), 0
+        told = self._condition()  # before the report forgets the news it tells once
         state = self.logic.report(self.stamp("state"))
-        return [Outbound.of("state", self.topics.unit("state", self.id), state), *self.direction()]
+        return self.side.state(state, told, self.logic.direction)
 
     def direction(self) -> list[Outbound]:
         """The direction, when it changed since it was last sent; nothing while disconnected."""
         if not self.logic.connected:
             return []
-        direction = encode_direction(self.logic.direction)
-        if direction == self._sent_direction:
-            return []
-        self._sent_direction = direction
-        return [Outbound.of("direction", self.topics.unit("direction", self.id), direction)]
+        return self.side.direction(self.logic.direction)

@@ -48,6 +48,7 @@ from gridfleet.protocol.messages import (
 )
 from gridfleet.robots.coordinated import OrderFollower
 from gridfleet.robots.decisions import Intent, Readings, Verdict, sq
+from gridfleet.robots.fleet_side import letter
 from gridfleet.robots.navigation import Navigator
 
 Mode = Literal["coordinated", "standalone"]
@@ -356,7 +357,7 @@ class UnitLogic:
             header=header,
             step=self.step,
             position=self.position,
-            direction="-" if self.direction is None else self.direction.value,
+            direction=letter(self.direction),
             status=self.status,
             wait_reason=self.wait_reason,
             mode=self.mode,

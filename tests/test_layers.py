@@ -18,6 +18,7 @@ COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console
 COMPOSITION = ("system", "bench")  # bench stands on system: system never imports bench
 PARTS = (*COMPONENTS, *COMPOSITION)  # folders at the top of the checkout, installed as gridfleet.*
 PRODUCT = (BASE, *PARTS)
+DATA = {f"{BASE}.scenarios": "maps"}  # installed with the code, as data: the shipped scenarios
 # `python -m gridfleet` is the command line: the base's one file that starts the composition.
 ENTRY = Path(BASE) / "__main__.py"
 TESTS = Path(__file__).resolve().parent
@@ -98,7 +99,9 @@ def test_every_shipped_package_has_a_layer() -> None:
     # A package the layers do not name would never be checked.
     config = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
     shipped = config["tool"]["setuptools"]["package-dir"]
-    assert shipped == {BASE: BASE} | {f"{BASE}.{part}": part for part in PARTS}
+    assert shipped == {BASE: BASE} | {f"{BASE}.{part}": part for part in PARTS} | DATA
+    # A data package holds no code to check.
+    assert not [p for folder in DATA.values() for p in (REPO / folder).rglob("*.py")]
 
 
 @pytest.mark.parametrize(
@@ -161,10 +164,14 @@ CORES = (
     "gridfleet.coordinator.world",
     "gridfleet.robots.unit",
     "gridfleet.robots.core",
+    "gridfleet.robots.fleet_side",
     "gridfleet.device.core",
     "gridfleet.robots.vda5050.orders",
     "gridfleet.robots.vda5050.states",
     "gridfleet.robots.vda5050.core",
+    "gridfleet.robots.vda5050.pause_cancel",
+    "gridfleet.robots.vda5050.resend",
+    "gridfleet.robots.vda5050.refusals",
     "gridfleet.robots.vda5050.virtual",
     "gridfleet.alerts.core",
 )

@@ -18,6 +18,10 @@ and `instantActions` to pause, resume and cancel.
   lost unit, until it is well again: its job goes back to the queue.
 - **Heartbeat**: a vehicle may stay silent for 30 s; the fleet hears the unit every
   `STATE_HEARTBEAT_STEPS` steps anyway, from what the vehicle said last (`tick`).
+
+Its parts: what it says to the fleet, and when, is every unit's (`robots/fleet_side.py`); our
+pause, resume and cancel are one state machine (pause_cancel.py); an order not yet seen is sent
+again (resend.py); orders the vehicle refuses end here (refusals.py).
 """
 
 from __future__ import annotations
@@ -29,12 +33,10 @@ from typing import Any, Literal
 
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.outbound import Outbound, error_report
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
     Action,
-    Connection,
-    Factsheet,
     HeaderStamper,
     Leds,
     Order,
@@ -43,16 +45,19 @@ from gridfleet.protocol import (
     UnitState,
     VehicleCondition,
     decode,
-    encode_direction,
 )
-from gridfleet.protocol.constants import MAX_TEXT, STATE_HEARTBEAT_STEPS
+from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.device import EstopSignal, encode_estop
 from gridfleet.protocol.messages import SensorReading, UnitError, UnitStatus
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
+from gridfleet.robots.fleet_side import Condition, FleetSide, letter
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.inbound import VdaConnection, VdaFactsheet, VdaState, read_vda
 from gridfleet.robots.vda5050.instant import InstantKind, instant_action
 from gridfleet.robots.vda5050.orders import OrderStitcher
+from gridfleet.robots.vda5050.pause_cancel import Cancel, PauseCancel
+from gridfleet.robots.vda5050.refusals import Refusals, refuses
+from gridfleet.robots.vda5050.resend import OrderResend
 from gridfleet.robots.vda5050.states import VehicleView, read_state, reported_square
 from gridfleet.robots.vda5050.wire import Headers, VdaTopic
 
@@ -61,9 +66,6 @@ Link = Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]
 Check = Callable[[VdaTopic, dict[str, Any]], None]
 VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order costs a stop
 MODEL = "vda5050"
-REFUSALS = {"orderUpdateError", "noRouteError"}
-REFUSALS_TO_GIVE_UP = 3
-RESEND_S = 1.0  # an order or a resume not seen taking effect by then is sent again
 
 
 class VehicleCore:
@@ -90,6 +92,7 @@ class VehicleCore:
         self.color = color
         self.stamp = stamp or HeaderStamper(self.id)
         self.check = check
+        self.side = FleetSide(self.id, topics, self.stamp)  # what it says to the fleet, and when
         self.headers = Headers(config.vehicle)
         self.orders = OrderStitcher(
             self.headers, config.frame, f"gf-{run_id}-{self.id}", config.action_parameters
@@ -100,9 +103,8 @@ class VehicleCore:
         self.nodes_left = 0  # nodes of its order still ahead, by its last state
         self.square: Cell | None = None
         self.stop = StopView()
-        self.pause_sent = False
-        self.resume_sent_at: float | None = None  # our stopPause, until it shows unpaused
-        self.unacked_order: tuple[dict[str, Any], float] | None = None  # sent, not yet seen
+        self.instants = PauseCancel()  # our pause, resume and cancel, until the vehicle shows them
+        self.resend = OrderResend()  # the latest order sent, until a state shows it
         self.controlled = False  # an operator paused it or took it out of service
         self.pressed = False  # its own emergency stop pressed on the fleet's behalf
         self.announced = False  # the fleet was told `online` (and not `broken` since)
@@ -112,14 +114,8 @@ class VehicleCore:
         self.job_id: str | None = None
         self.load_kg = 0.0
         self.errors: list[UnitError] = []
-        self.cancelling: str | None = None  # the cancelOrder in flight, by its action id
-        self.cancel_ended = False  # a cancel done under the stop, its order to end on the release
-        self.refused_orders = 0  # new orders refused in a row (noRouteError, orderUpdateError)
-        self.unroutable = False
+        self.refusals = Refusals()  # new orders refused in a row; whether it refuses every route
         self.step = 0
-        self._quiet = 0
-        self._told: tuple[object, ...] | None = None
-        self._sent_direction: bytes | None = None
         self._condition_sent: tuple[object, ...] | None = None
         self._ids = itertools.count(1)
 
@@ -148,7 +144,7 @@ class VehicleCore:
             if name == "state":
                 return self._on_state(read_vda(VdaState, payload, self.vehicle), now)
         except ProtocolError as exc:
-            return [self._report(topic, f"vehicle {self.id}: refused: {exc}")]
+            return [self.side.report(topic, f"vehicle {self.id}: refused: {exc}")]
         return []
 
     def _on_link(self, message: VdaConnection, now: float) -> list[Outbound]:
@@ -157,7 +153,7 @@ class VehicleCore:
             # Whatever it was driving, the fleet hears it as lost (or gone): its job is handled
             # as a lost unit's, and its squares stay reserved as long as the coordinator keeps a
             # lost unit's.
-            self.pause_sent = False
+            self.instants.let_go()
             return self._goodbye("offline" if self.link == "OFFLINE" else "broken")
         outs: list[Outbound] = []
         if self.view is None or not self.announced:
@@ -181,12 +177,7 @@ class VehicleCore:
     def _on_state(self, message: VdaState, now: float) -> list[Outbound]:
         view = read_state(message.model_dump(mode="json"), self.config.frame, self.config.margin_m)
         self.view = view
-        if self.unacked_order is not None:
-            sent = self.unacked_order[0]
-            refused = any(e.errorType in REFUSALS for e in message.errors)
-            follows = (message.orderId, message.orderUpdateId)
-            if refused or follows == (sent["orderId"], sent["orderUpdateId"]):
-                self.unacked_order = None
+        self.resend.seen(message.orderId, message.orderUpdateId, refuses(message))
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
         outs: list[Outbound] = []
         square = reported_square(self.square, view.under, self.orders.base)
@@ -195,25 +186,25 @@ class VehicleCore:
             outs += self._pause(now)  # it is where the fleet did not send it: hold it
         else:
             self.square = square
-        if not self._held() and view.paused and self.resume_sent_at is not None:
-            if now - self.resume_sent_at >= RESEND_S:
-                outs += self._instant("stopPause", now)  # the last one may have been lost
-                self.resume_sent_at = now
-        elif not view.paused:
-            self.resume_sent_at = None
-        if self._held() and not view.paused:
-            # The stop always wins: a vehicle that let go of its pause (a cancel ends a pause
-            # on some; a restart forgets it) is paused again.
-            self.pause_sent = False
-            outs += self._pause(now)
+        if view.paused:
+            if not self._held() and self.instants.resend_resume(now):
+                # The last one may have been lost. (REPAUSED too, as ever: a pause that came over
+                # an unseen resume, off route, is resumed again by it.)
+                outs += self._instant("stopPause", now)
+        else:
+            self.instants.resumed()
+            if self._held():
+                # The stop always wins: a vehicle that let go of its pause (a cancel ends a pause
+                # on some; a restart forgets it) is paused again.
+                self.instants.let_go()
+                outs += self._pause(now)
         self._actions_done(view)
-        if self.cancelling is not None and self.cancelling in view.finished | view.failed:
-            self.cancelling = None
-            if not view.driving and self.nodes_left == 0:
-                # Done, or there was nothing to cancel (noOrderToCancel): it has stopped.
-                outs += self._after_cancel(view, now)
-            # Else it drives on what it was released (reserved still): the next order that
-            # finds the dropped action cancels again.
+        # Our cancel done, or there was nothing to cancel (noOrderToCancel): once it has stopped,
+        # its order ends. Else it drives on what it was released (reserved still): the next
+        # order that finds the dropped action cancels again.
+        cancelled = self.instants.cancel_done(view.finished | view.failed)
+        if cancelled and not view.driving and self.nodes_left == 0:
+            outs += self._after_cancel(view, now)
         self._refusals(message)
         if view.estop and not self.pressed:
             self.pressed = True
@@ -226,7 +217,7 @@ class VehicleCore:
                 "its emergency stop"
                 if view.estop
                 else "it refuses every route"
-                if self.unroutable
+                if self.refusals.unroutable
                 else "not AUTOMATIC"
             )
             if self.announced and not view.estop:
@@ -266,32 +257,18 @@ class VehicleCore:
         still, counts as unable to drive: its unit is lost to the fleet and its job goes to
         another.
         """
-        ours = self.orders.order_id
-        # An error naming another order is about one gone by (a state older than our order).
-        refused = {
-            e.errorType
-            for e in message.errors
-            if e.errorType in REFUSALS and e.about("orderId") in (None, ours)
-        }
+        refused = self.refusals.read(message, self.orders.order_id, self.nodes_left)
         if not refused:
-            if not any(e.errorType in REFUSALS for e in message.errors):
-                self.refused_orders = 0
-                self.unroutable = False
             return
-        if ours is None or message.driving or self.nodes_left:
-            return  # still on what it accepted
-        if message.orderId != ours:
-            self.refused_orders += 1  # it never took the current order
-        self.unroutable = self.refused_orders >= REFUSALS_TO_GIVE_UP
         taken = {a.actionId for a in message.actionStates}
         self.actions = {k: a for k, a in self.actions.items() if k in taken}
         self.errors.append(
-            UnitError(code="order_refused", message=f"the vehicle refused: {sorted(refused)}")
+            UnitError(code="order_refused", message=f"the vehicle refused: {refused}")
         )
         self.orders.end()
 
     def _can_drive(self) -> bool:
-        return self.view is not None and self.view.can_drive and not self.unroutable
+        return self.view is not None and self.view.can_drive and not self.refusals.unroutable
 
     def _off_route(self, view: VehicleView) -> str:
         under = sorted(list(c) for c in view.under)
@@ -316,19 +293,14 @@ class VehicleCore:
 
     def on_fleet(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
         """One message on one of the fleet's topics this unit follows."""
-        try:
-            kind, who = self.topics.parse(topic)
-        except ProtocolError:
-            return []
-        if kind in STOP_KINDS:
+        where = self.side.parse(topic)
+        if where is not None and where[0] in STOP_KINDS:
             try:
-                self.stop.apply(kind, who, topic, payload)
+                self.stop.apply(*where, topic, payload)
             except ProtocolError as exc:
-                return [self._report(topic, str(exc))]  # never a release
+                return [self.side.report(topic, str(exc))]  # never a release
             return self._follow_stop(now) + self.state()
-        if kind == "order" and who == self.id:
-            return self._on_order(topic, payload, now)
-        return []
+        return self._on_order(topic, payload, now) if where == ("order", self.id) else []
 
     def _held(self) -> bool:
         """Whether the vehicle must stay paused: the fleet's stop, or an operator's control."""
@@ -348,18 +320,15 @@ class VehicleCore:
         if self._held():
             return self._pause(now)
         outs: list[Outbound] = []
-        if self.pause_sent:
-            self.pause_sent = False
-            self.resume_sent_at = now
+        if self.instants.resume(now):
             outs += self._instant("stopPause", now)
-        if self.cancel_ended and self.view is not None:
+        if self.instants.cancel_state is Cancel.ENDED and self.view is not None:
             outs += self._after_cancel(self.view, now)
         return outs
 
     def _pause(self, now: float) -> list[Outbound]:
-        if self.pause_sent or self.link != "ONLINE":
+        if self.link != "ONLINE" or not self.instants.pause():
             return []
-        self.pause_sent = True
         return self._instant("startPause", now)
 
     def _on_order(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
@@ -379,15 +348,16 @@ class VehicleCore:
         if problem is not None:
             return self._refuse(topic, problem)
         dropped = self._dropped_actions(order.action)
-        if dropped or self.cancelling is not None:
+        if dropped or self.instants.cancelling:
             # The job of an action already sent was cancelled or went elsewhere: what the
             # vehicle was released cannot be taken back, so its whole order is cancelled (not
             # under the stop: on some vehicles a cancel ends their pause). Until that is done,
             # gridfleet's orders are acknowledged and go nowhere.
             self.order_id, self.update_id = order.order_id, order.update_id
-            if dropped and self.cancelling is None and not self._held():
-                self.cancelling = f"cancelOrder-{next(self._ids)}"
-                return self._instant("cancelOrder", now, self.cancelling) + self.state()
+            if dropped and not self.instants.cancelling and not self._held():
+                action_id = f"cancelOrder-{next(self._ids)}"
+                self.instants.start_cancel(action_id)
+                return self._instant("cancelOrder", now, action_id) + self.state()
             return self.state()
         if released and self._finished_base():
             self.orders.end()  # it stands at the end of its order: the next one is new
@@ -413,9 +383,9 @@ class VehicleCore:
     def _after_cancel(self, view: VehicleView, now: float) -> list[Outbound]:
         """The vehicle's order is cancelled: it ends here, where it stopped."""
         if self._held():
-            self.cancel_ended = True  # under the stop nothing new goes out: on the release
+            self.instants.end_under_stop()  # under the stop nothing new goes out: on the release
             return []
-        self.cancel_ended = False
+        self.instants.ended()
         ahead = self.released()[:1]
         self.actions = {}
         self.orders.end()
@@ -444,7 +414,7 @@ class VehicleCore:
 
     def _refuse(self, topic: str, reason: str) -> list[Outbound]:
         self.errors.append(UnitError(code="bad_order", message=reason[:200]))
-        return [self._report(topic, reason), *self.state()]
+        return [self.side.report(topic, reason), *self.state()]
 
     # ---- what goes out ------------------------------------------------------------------------
 
@@ -466,7 +436,7 @@ class VehicleCore:
         if self.check is not None:
             self.check(name, message)
         if name == "order":
-            self.unacked_order = (message, now)
+            self.resend.sent(message, now)
         payload = json.dumps(message, separators=(",", ":")).encode()
         return Outbound(self.vehicle.topic(name), payload, VDA_QOS[name], False)
 
@@ -477,8 +447,8 @@ class VehicleCore:
         if self.square is None or not self._can_drive():
             return []
         self.announced = True
-        self._sent_direction = None
-        outs = [self._connection("online"), self._factsheet(), *self.state()]
+        self.side.new_connection()
+        outs = [self.side.connection("online"), self._factsheet(), *self.state()]
         if self._held():
             outs = self._pause(now) + outs
         return outs
@@ -487,30 +457,24 @@ class VehicleCore:
         if not self.announced:
             return []
         self.announced = False
-        return [self._connection(state)]
-
-    def _connection(self, state: Literal["online", "offline", "broken"]) -> Outbound:
-        message = Connection(header=self.stamp("connection"), state=state)
-        return Outbound.of("connection", self.topics.unit("connection", self.id), message)
+        return [self.side.connection(state)]
 
     def _factsheet(self) -> Outbound:
         assert self.capacity_kg is not None
-        factsheet = Factsheet(
-            header=self.stamp("factsheet"),
+        return self.side.factsheet(
             capacity_kg=self.capacity_kg,
-            step_period_s=self.step_s,
-            sensors=[],
+            step_s=self.step_s,
             color=self.color,
             model=f"{MODEL}-{self.vehicle.version}",
             map_id=self.grid.map_id(),
+            sensors=[],
         )
-        return Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet)
 
     def on_broker_lost(self) -> None:
         """The adapter lost the broker: all is heard afresh (the retained messages come again)."""
         self.announced = False  # the next word from the vehicle announces the unit again
         self.stop = StopView()  # a press cleared meanwhile is not replayed
-        self._sent_direction = None
+        self.side.new_connection()
         self._condition_sent = None
 
     def offline(self) -> list[Outbound]:
@@ -521,19 +485,18 @@ class VehicleCore:
         """One step of the adapter's clock: the state when it changed or is due again, and an
         order the vehicle has not shown it has, sent again."""
         self.step += 1
-        self._quiet += 1
         outs = self._order_again(now)
-        if self._quiet < STATE_HEARTBEAT_STEPS and self._condition() == self._told:
+        if not self.side.due(self._condition()):
             return outs
         return outs + self.state()
 
     def _order_again(self, now: float) -> list[Outbound]:
         """The latest order again when no state has shown it for RESEND_S (a vehicle takes its
         orders at QoS 0: one can be lost; the same order again is discarded by the spec)."""
-        if self.unacked_order is None or self.link != "ONLINE" or self.cancelling is not None:
+        if self.link != "ONLINE" or self.instants.cancelling:
             return []
-        message, sent_at = self.unacked_order
-        if now - sent_at < RESEND_S:
+        message = self.resend.due(now)
+        if message is None:
             return []
         again = {**message, **self.headers("order", now)}
         return [self._to_vehicle("order", again, now)]
@@ -567,7 +530,7 @@ class VehicleCore:
             return "waiting", "the vehicle has not reported driving on"
         return "idle", None
 
-    def _condition(self) -> tuple[object, ...] | None:
+    def _condition(self) -> Condition:
         if self.errors:
             return None
         return (
@@ -585,7 +548,7 @@ class VehicleCore:
         """The unit's state now (and its direction when that changed); nothing before `online`."""
         if not self.announced or self.square is None:
             return []
-        self._told, self._quiet = self._condition(), 0
+        told = self._condition()
         direction = self.direction()
         status, why = self.status()
         stopped = status == "stopped"
@@ -598,7 +561,7 @@ class VehicleCore:
             header=self.stamp("state"),
             step=self.step,
             position=self.square,
-            direction=direction.value if direction is not None else "-",
+            direction=letter(direction),
             status=status,
             wait_reason=why,
             job_id=self.job_id,
@@ -612,12 +575,7 @@ class VehicleCore:
             errors=self.errors[:16],
         )
         self.errors = []
-        outs = [Outbound.of("state", self.topics.unit("state", self.id), state)]
-        sent = encode_direction(direction)
-        if sent != self._sent_direction:
-            self._sent_direction = sent
-            outs.append(Outbound.of("direction", self.topics.unit("direction", self.id), sent))
-        return outs
+        return self.side.state(state, told, direction)
 
     def _sensors(self) -> Sensors:
         """What the map says lies beside its square (a vehicle has no gridfleet sensors)."""
@@ -631,7 +589,3 @@ class VehicleCore:
                 else ("free" if self.grid.is_free(cell) else "obstacle")
             )
         return Sensors(**seen)
-
-    def _report(self, topic: str, reason: str) -> Outbound:
-        payload = error_report(self.stamp("errors"), topic, reason)
-        return Outbound.of("errors", self.topics.fleet("errors"), payload)
