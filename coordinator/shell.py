@@ -40,6 +40,7 @@ log = logging.getLogger("gridfleet.coordinator")
 # Requests answered in one go: their answers share a round trip to the broker, and between two
 # batches the reader takes what arrived meanwhile.
 SERVE_BATCH = 50
+SERVE_BATCH_S = 0.02  # and at most this long answering them
 
 
 class CoordinatorShell:
@@ -184,7 +185,10 @@ class CoordinatorShell:
         """Answer every request waiting in the inbox (until `shutdown`), a batch at a time."""
         while len(self.core.inbox) and not (shutdown is not None and shutdown.is_set()):
             batch = []
+            began = time.perf_counter()
             for _ in range(SERVE_BATCH):
+                if time.perf_counter() - began > SERVE_BATCH_S:
+                    break  # the reader's turn: what arrives meanwhile is read between batches
                 errors = self.core.errors_reported
                 served = self.core.serve_one(self.clock())
                 if served is None:
@@ -230,10 +234,10 @@ class CoordinatorShell:
         if not self.core.orders.holding_back:
             self._acked.set()
         outs = []
+        self._save(*batch)
         for effects in batch:
             for level, line in effects.log:
                 log.log(level, line)
-            self._save(effects)
             if effects.views_at is not None:
                 self._views_later = asyncio.create_task(self._views_after(effects.views_at))
             # Every message is handed to the client before any acknowledgement is awaited: in
@@ -251,20 +255,26 @@ class CoordinatorShell:
         if sends:
             await asyncio.gather(*sends)
 
-    def _save(self, effects: Effects) -> None:
-        if self.metrics is not None and effects.persist:
-            self.metrics.jobs_changed(effects.persist)
-        if effects.persist or effects.answered:
-            self.store.save(effects.persist, effects.answered)
-        if effects.persist:
+    def _save(self, *batch: Effects) -> None:
+        """Store what `batch` changed, each kind in one transaction (a batch of 50 answers in
+        one, not fifty: the commits had been most of what a flood of requests cost)."""
+        persist = tuple({job.id: job for e in batch for job in e.persist}.values())
+        answered = tuple(a for e in batch for a in e.answered)
+        if self.metrics is not None and persist:
+            self.metrics.jobs_changed(persist)
+        if persist or answered:
+            self.store.save(persist, answered)
+        if persist:
             now = self.core.say.stamp.now()
-            self.history.add(self.job_changes.entries(effects.persist, now), now)
-        if effects.controls:
-            self.store.save_controls(effects.controls)
-        if effects.events:
-            self.store.save_events(effects.events)
-        self.audit_store.add(effects.audit.entries)
-        self.audit_store.save_seen(effects.audit.seen)
+            self.history.add(self.job_changes.entries(persist, now), now)
+        controls = tuple(c for e in batch for c in e.controls)
+        if controls:
+            self.store.save_controls(controls)
+        events = tuple(ev for e in batch for ev in e.events)
+        if events:
+            self.store.save_events(events)
+        self.audit_store.add(entry for e in batch for entry in e.audit.entries)
+        self.audit_store.save_seen(seen for e in batch for seen in e.audit.seen)
         self.audit_store.prune(self.core.say.stamp.now().timestamp())  # about once an hour
 
     async def _views_after(self, at: float) -> None:
