@@ -79,6 +79,21 @@ def _copy_sources(tree: Path, into: Path) -> None:
             shutil.copy2(source, target)
 
 
+# The page's MQTT.js, which a wheel's build takes from npm's folder (setup.py): git ignores it.
+PAGE_BUNDLE = Path("dashboard") / "node_modules" / "mqtt" / "dist" / "mqtt.esm.js"
+
+
+def _copy_page_bundle(tree: Path, into: Path) -> None:
+    """The tree's MQTT.js bundle into `into`, or this checkout's when the tree has none (a git
+    worktree has no node_modules); nothing where neither has one (an older tree needs none)."""
+    here = Path(__file__).resolve().parents[1]
+    for bundle in (tree / PAGE_BUNDLE, here / PAGE_BUNDLE):
+        if bundle.is_file():
+            (into / PAGE_BUNDLE).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(bundle, into / PAGE_BUNDLE)
+            return
+
+
 def wheel_tree(directory: str, work: Path) -> Tree:
     """A wheel of the checkout at `directory`, unzipped under `work`, checked to be what a
     subprocess with its PYTHONPATH imports."""
@@ -90,6 +105,7 @@ def wheel_tree(directory: str, work: Path) -> Tree:
     source, wheels, site = base / "src", base / "wheels", base / "site"
     source.mkdir(parents=True)
     _copy_sources(tree, source)
+    _copy_page_bundle(tree, source)
     pip = [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", str(source), "-w", str(wheels)]
     # Without isolation first, as asked; a venv whose setuptools is too old for the tree's
     # pyproject (license = "MIT" needs setuptools 77) builds it in an isolated environment.
