@@ -3,8 +3,9 @@
 Every decision is the core's (coordinator/core.py): the shell hands it what arrives and the time,
 and does what the returned Effects say: persist, publish, come back for batched views, and pace
 the step loop (one step per period, waiting a while for the last step's acknowledgements while
-more than a few late units owe them). With `metrics`, it also counts what passes through it and
-serves `/metrics` (metrics.py; nothing is counted without).
+more than a third of the units it ordered owe them: core.py, ACK_WAIT_S). With `metrics`,
+it also counts what passes through it and serves `/metrics` (metrics.py; nothing is counted
+without).
 """
 
 from __future__ import annotations

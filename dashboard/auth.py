@@ -72,7 +72,7 @@ def install_login(
     `revoker`, a session closed before its end (logout, eviction) has its broker password taken
     back.
     """
-    # Random per start unless configured: a restart then logs everybody out (README, Dashboard).
+    # Random per start unless configured: a restart then logs everybody out (docs/dashboard.md).
     secret = settings.secret_key or secrets.token_bytes(32)
     app.secret_key = secret
     app.config.update(

@@ -32,8 +32,8 @@ ROOT = "logout"
 T = Topics(ROOT)
 MOSQUITTO_WHY = (
     "Mosquitto checks only its password_file, which cannot verify a per-session password: the "
-    "page is handed the account's own, which logout cannot take back; README, Safety: 'The "
-    "broker login the page is handed'"
+    "page is handed the account's own, which logout cannot take back; docs/operating.md, "
+    "Safety: 'The broker login the page is handed'"
 )
 
 
