@@ -69,6 +69,7 @@ typecheck: $(STAMP)
 	cd build/typecheck/gridfleet && ln -s ../../../gridfleet/*.py ../../../gridfleet/protocol . && \
 		for part in $(PARTS); do ln -s ../../../$$part $$part; done
 	cd build/typecheck && $(PRIORITY) ../../$(BIN)/mypy --config-file ../../pyproject.toml -p gridfleet
+	cd build/typecheck && $(PRIORITY) ../../$(BIN)/mypy --config-file ../../pyproject.toml ../../script/gen_protocol.py
 
 # pytest rewrites each test module's asserts on import and keeps the result beside it, unless
 # PYTHONDONTWRITEBYTECODE is set (it is on these machines): then each test worker rewrote every
@@ -121,8 +122,10 @@ constraints: $(STAMP)
 	{ sed -n '1,2p' constraints.txt; $(BIN)/pip freeze --exclude-editable | grep -v '^gridfleet'; } > constraints.new
 	mv constraints.new constraints.txt
 
+# The protocol's generated files, written from gridfleet/protocol/ (a tool of the checkout, not of
+# the package: script/).
 schemas: $(STAMP)
-	$(BIN)/python -m gridfleet.system.schemas
+	$(BIN)/python script/gen_protocol.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules tests/vda5050_lib/node_modules

@@ -10,7 +10,7 @@ import argparse
 import random
 from pathlib import Path
 
-from gridfleet.bench.system_scenario import CAPACITY_KG, make_scenario
+from gridfleet.bench.system.scenario import CAPACITY_KG, make_scenario
 from gridfleet.scenario import Scenario, load_scenario
 
 

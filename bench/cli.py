@@ -19,7 +19,7 @@ BENCHES: dict[str, tuple[str, str]] = {
         "the planner alone on public MAPF instances (no broker)",
     ),
     "system": (
-        "gridfleet.bench.system_cli",
+        "gridfleet.bench.system.cli",
         "the whole system over a real broker: throughput, stop latency",
     ),
     "page": (
@@ -27,7 +27,7 @@ BENCHES: dict[str, tuple[str, str]] = {
         "the dashboard in Chromium at fleet scale: frame budget, fleet cost",
     ),
     "soak": (
-        "gridfleet.bench.soak_cli",
+        "gridfleet.bench.soak.cli",
         "a chaos soak: faults injected while jobs flow, safety checked",
     ),
     "logins": (

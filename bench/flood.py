@@ -43,7 +43,7 @@ from gridfleet.bench.flood_tree import (
     wait_until,
     wheel_tree,
 )
-from gridfleet.bench.system_scenario import make_scenario
+from gridfleet.bench.system.scenario import make_scenario
 from gridfleet.config import check_step
 from gridfleet.console.feed import random_job
 from gridfleet.errors import ConfigError

@@ -18,8 +18,8 @@ from scipy.sparse.csgraph import connected_components
 
 from gridfleet.bench.anchors import LifelongInstance, ScenAgent
 from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
-from gridfleet.coordinator.planner import AgentSpec, Planner
-from gridfleet.coordinator.validate import validate_step
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.validate import validate_step
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache, adjacency, fields_that_fit
 
@@ -30,7 +30,7 @@ OFFER_EACH = 2  # ...this many for each agent of the batch
 
 
 class StepPlanner(Protocol):
-    """What the runs need of a planner: one step for every agent (coordinator.planner.Planner)."""
+    """What the runs need of a planner: one step for every agent (planning.planner.Planner)."""
 
     def step(self, agents: dict[str, AgentSpec]) -> dict[str, Cell]:
         """Next square of every agent."""

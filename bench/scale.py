@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 from gridfleet.bench.runs import GUIDANCE, CheckedPlanner, Clock, Timing, largest_region
 from gridfleet.coordinator.allocation import JobRequest, UnitSlot, allocate
-from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
 from gridfleet.grid import Cell, GridMap
 
 ALLOCATE_AT_MOST = 256  # idle units given jobs in one tick (the assignment is cubic in this)

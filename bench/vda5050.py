@@ -37,11 +37,12 @@ from gridfleet.robots.vda5050.virtual import VirtualSpec
 from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
 from gridfleet.robots.vda5050.wire import Vehicle
 from gridfleet.scenario import Scenario, UnitSpec, load_scenario
+from gridfleet.shipped import shipped_file
 from gridfleet.system.assembly import Assembly, SystemSpec
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import S, ServiceThread
 
-PLAYFIELD = Path(__file__).resolve().parent.parent / "maps" / "playfield.toml"
+PLAYFIELD = shipped_file("playfield", ".toml")  # the checkout's maps/, or a wheel's
 FRAME = Frame("bench")
 ROOT = "bench-vda5050"
 PAUSED_WAIT_S = 10.0

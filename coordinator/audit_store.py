@@ -8,17 +8,12 @@ from __future__ import annotations
 
 import sqlite3
 from collections.abc import Iterable
-from datetime import UTC, datetime
 from pathlib import Path
 
-from gridfleet.protocol.messages import AuditEntry
+from gridfleet.coordinator.records import RecordQuery, as_utc
+from gridfleet.protocol.messages import AuditEntry, AuditQuery
 
 PRUNE_EVERY_S = 3600.0  # how often old entries are deleted, at most
-
-
-def _epoch(at: datetime) -> float:
-    """`at` in seconds since the epoch; a time without a zone is UTC (as in protocol.md)."""
-    return (at if at.tzinfo is not None else at.replace(tzinfo=UTC)).timestamp()
 
 
 class AuditStore:
@@ -46,20 +41,20 @@ class AuditStore:
 
     def add(self, entries: Iterable[AuditEntry]) -> None:
         """Append `entries` in one transaction."""
-        rows = [(_epoch(e.at), e.actor, e.model_dump_json()) for e in entries]
+        rows = [(as_utc(e.at).timestamp(), e.actor, e.model_dump_json()) for e in entries]
         if rows:
             with self._db:
                 self._db.executemany("INSERT INTO audit (at, actor, data) VALUES (?, ?, ?)", rows)
 
-    def page(
-        self, since: float, until: float, actor: str | None, after: int, limit: int
-    ) -> list[tuple[int, AuditEntry]]:
-        """Up to `limit` entries with since <= at < until (epoch s) and id > `after`, by id."""
+    def rows(self, query: RecordQuery, limit: int) -> list[tuple[int, AuditEntry]]:
+        """Up to `limit` entries of `query` (since <= at < until, its actor) after its cursor's
+        row, by id (records.RecordsDesk)."""
+        assert isinstance(query.query, AuditQuery), "an audit store answers audit queries"
         sql = "SELECT id, data FROM audit WHERE at >= ? AND at < ? AND id > ?"
-        args: list[object] = [since, until, after]
-        if actor is not None:
+        args: list[object] = [query.since, query.until, query.after or 0]
+        if query.query.actor is not None:
             sql += " AND actor = ?"
-            args.append(actor)
+            args.append(query.query.actor)
         sql += " ORDER BY id LIMIT ?"
         args.append(limit)
         rows = self._db.execute(sql, args).fetchall()

@@ -31,19 +31,19 @@ from functools import partial
 
 from gridfleet.coordinator import inbound, requests
 from gridfleet.coordinator.answers import Answers
-from gridfleet.coordinator.audit import AuditLog, Identity
+from gridfleet.coordinator.audit import READ_ROLES, AuditLog, Identity
 from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.effects import Effects, Messages, Status
 from gridfleet.coordinator.events import EventLog
-from gridfleet.coordinator.history import range_problem
 from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
 from gridfleet.coordinator.inbox import Inbox, Refusals, Waiting
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.moves import Moves
-from gridfleet.coordinator.orders import OrderPlan, Orders, heartbeat_s
+from gridfleet.coordinator.orders import OrderPlan, Orders, StepContext, heartbeat_s
 from gridfleet.coordinator.pace import StepRate
-from gridfleet.coordinator.planner import Planner
+from gridfleet.coordinator.planning.planner import Planner
 from gridfleet.coordinator.progress import JobProgress
+from gridfleet.coordinator.records import RecordKind, RecordQuery, range_problem
 from gridfleet.coordinator.stop import FleetStop
 from gridfleet.coordinator.views import Views, views_period_s
 from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
@@ -66,10 +66,9 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
 )
-from gridfleet.protocol.constants import MAX_PLANNED, MIN_TIMEOUT_S
-from gridfleet.protocol.messages import UnitControlState
+from gridfleet.protocol.constants import MIN_TIMEOUT_S
+from gridfleet.protocol.messages import AuditLogin, AuditQuery, UnitControlState
 
-PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
 # period after it, or this long when the period is shorter, and only while more than a third of
 # them are missing: half the shortest hold timeout, so units never hold for want of orders.
@@ -267,7 +266,11 @@ class CoordinatorCore:
         request_id, reply_to = inbound.reply_address(self.topics, topic, payload)
         refused = [self._refuse(topic, reason, request_id, notes)]
         if request_id is not None and reply_to is not None:
-            refused.append(self.say.reply(reply_to, request_id, requests.Outcome(False, reason)))
+            if self.topics.parse(topic)[0] == "audit":  # the audit's answer is its page (§6.8)
+                refused.append(self.say.page("audit", reply_to, request_id, refused=reason))
+            else:
+                outcome = requests.Outcome(False, reason)
+                refused.append(self.say.reply(reply_to, request_id, outcome))
         return refused
 
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
@@ -303,18 +306,44 @@ class CoordinatorCore:
         elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
             return self._on_request(topic, msg, now)
         elif isinstance(msg, JobHistoryQuery):
-            return self._on_history(topic, msg)
+            return self._on_query(topic, "job_history", msg)
+        elif isinstance(msg, AuditQuery):
+            return self._on_query(topic, "audit", msg)
+        elif isinstance(msg, AuditLogin):
+            return self._on_login(topic, msg)
         return self._effects([])
 
-    def _on_history(self, topic: str, query: JobHistoryQuery) -> Effects:
-        """A job history query: the shell answers it from the store, or it is refused here."""
-        problem = range_problem(query, self.say.stamp.now())
-        if problem is None:
-            return replace(self._effects([]), history_queries=(query,))
+    def _on_query(
+        self, topic: str, kind: RecordKind, query: JobHistoryQuery | AuditQuery
+    ) -> Effects:
+        """A record query (records.py): checked here, answered by the shell from its store."""
+        now = self.say.stamp.now()
+        sender = query.header.sender
+        why = (
+            self.identity.refusal(sender, READ_ROLES, "read the audit") if kind == "audit" else None
+        )
+        why = why or range_problem(query.since, query.until, now)
+        if why is None:
+            if query.reply_to is None:
+                return self._effects([])  # nobody to tell
+            return replace(self._effects([]), records=(RecordQuery.of(kind, query, now),))
         notes: list[Note] = []
-        publish = [self._refuse(topic, f"JobHistoryQuery: {problem}", query.request_id, notes)]
-        page = self.say.history_page(query, [], None, refused=problem)
-        return self._effects([*publish, *([page] if page is not None else [])], log=notes)
+        publish = [self._refuse(topic, f"{type(query).__name__}: {why}", query.request_id, notes)]
+        if query.reply_to is not None:
+            publish.append(self.say.page(kind, query.reply_to, query.request_id, refused=why))
+        return self._effects(publish, log=notes)
+
+    def _on_login(self, topic: str, report: AuditLogin) -> Effects:
+        """A dashboard's login report: recorded once by the audit (audit.py), or refused."""
+        why = self.audit.login(report)
+        notes: list[Note] = []
+        publish = []
+        if why is not None:
+            publish.append(self._refuse(topic, f"AuditLogin: {why}", report.request_id, notes))
+        if report.reply_to is not None:
+            outcome = requests.Outcome(why is None, why)
+            publish.append(self.say.reply(report.reply_to, report.request_id, outcome))
+        return self._effects(publish, log=notes)
 
     def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
@@ -337,22 +366,20 @@ class CoordinatorCore:
         controls: tuple[tuple[str, UnitControlState | None], ...] = ()  # to persist
         if known is not None:
             outcome = known
-        elif isinstance(req, SubmitJob):
-            cache = self.planner.cache
-            account = self._open_jobs_of(sender)
-            outcome = requests.submit(
-                req, sender, self.world, self.jobs, self.step_no, cache, account
+        else:
+            ctx = requests.RequestContext(
+                world=self.world,
+                jobs=self.jobs,
+                directives=self.directives,
+                cache=self.planner.cache,
+                step_no=self.step_no,
+                sender=sender,
+                account=partial(self._open_jobs_of, sender),
+                requeue=self.progress.requeue,
             )
-        elif isinstance(req, CancelJob):
-            outcome = requests.cancel(req, sender, self.world, self.jobs, self.step_no)
-        elif isinstance(req, ControlUnit):
-            before = self.directives.controls.get(req.unit)
-            outcome = requests.control(req, self.world, self.jobs, self.directives)
-            after = self.directives.controls.get(req.unit)
-            if after != before:
-                controls = ((req.unit, after),)
-        elif isinstance(req, ClearObstacles):
-            outcome, cleared = requests.clear_obstacles(req, self.world)
+            outcome = requests.HANDLERS[type(req)](req, ctx)
+            controls = tuple(ctx.controls)
+            cleared = ctx.cleared
             if cleared:
                 self.planner.set_grid(self.world.grid)
                 self.views.map_dirty = True
@@ -360,11 +387,6 @@ class CoordinatorCore:
                 more = f" and {len(cleared) - 20} more" if len(cleared) > 20 else ""
                 # In the log, not the events view: its kinds (§5.7) have none for the map.
                 notes.append((logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}"))
-        else:
-            cache = self.planner.cache
-            outcome = requests.set_goal(
-                req, self.world, self.jobs, self.directives, cache, self.progress.requeue
-            )
         if known is None:  # a retry is the same act, recorded once
             self.audit.request(self.say.stamp.now(), req, outcome)
         publish = []
@@ -454,16 +476,52 @@ class CoordinatorCore:
         """Advance jobs, allocate, plan, and make one order per unit that can hear it."""
         self.step_no += 1
         units = [u for u in self.world.units.values() if u.state is not None]
+        active = self._roll_call(now)
+        self.progress.advance(units, active, now, self.step_no)
+        settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
+        self._allocate(units, active, settled)
+        self._explain_waits(now, active)
+        targets = {u.id: self.progress.target(u.id) for u in units}
+        moves = self._moves(units, active, settled, targets)
+        self._park(targets)
+        # While a way out of a livelock is due, searched or followed, no window goes beyond a
+        # unit's next square, so units still driving stop and the search can begin (unjam.py).
+        window = 1 if self.planner.unjam.busy else self.window
+        step = StepContext(
+            step_no=self.step_no,
+            now=now,
+            estop=self.estop,
+            grid=self.world.grid,
+            heartbeat_s=self._heartbeat_s,
+            window=window,
+            settled=settled,
+            moves=moves,
+            targets=targets,
+            actions={u.id: self.progress.action(u.id) for u in units if u.id in active},
+            held=self.directives.controls,
+            router=self.planner,
+            claims=self._claims(units, moves, targets, window),
+        )
+        return self._orders(units, active, step)
+
+    def _roll_call(self, now: float) -> set[str]:
+        """The units active this step; the events tell who went silent and who is heard again."""
         active = self.world.roll_call(now)
         for unit, silent_s in self.world.silenced:
             self.events.unit_silent(self.say.stamp.now(), unit, silent_s)
         for unit in self.world.heard_again:
             self.events.unit_changed(self.say.stamp.now(), unit, "heard")
-        self.progress.advance(units, active, now, self.step_no)
-        settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
-        if not self.estop:
-            self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
-            self.progress.dispatch(units, active)
+        return active
+
+    def _allocate(self, units: list[UnitRecord], active: set[str], settled: set[str]) -> None:
+        """Queued jobs to idle units that can carry them, and assigned ones under way."""
+        if self.estop:
+            return
+        self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
+        self.progress.dispatch(units, active)
+
+    def _explain_waits(self, now: float, active: set[str]) -> None:
+        """Every waiting job's reason (waits.py); the events tell the jobs newly stuck."""
         if self.estop:
             self._free_since = now  # a unit held by the stop is not stuck: count from the release
         after_s = stuck_after_s(self.world.step_period_s)
@@ -480,33 +538,43 @@ class CoordinatorCore:
         for job in self.stuck_news.newly_stuck(self.jobs):
             at = self.say.stamp.now()
             self.events.add(at, "job", f"job {job.id}: {job.wait_reason}", job.id, job.unit)
-        targets = {u.id: self.progress.target(u.id) for u in units}
-        moves: dict[str, Cell] = {}
-        if not self.estop:
-            movable = {
-                u.id
-                for u in units
-                if u.id in settled
-                and u.id not in self.directives.controls  # paused or out of service: holds
-                and u.state is not None
-                and not u.state.estop
-                and u.state.mode == "coordinated"
-            }
-            moves = self.moves.plan(
-                units,
-                movable,
-                self.orders.reserved,
-                targets,
-                self.progress.urgency(units),
-                driving={u.id for u in units if u.id in active and u.id not in settled},
-            )
+
+    def _moves(
+        self,
+        units: list[UnitRecord],
+        active: set[str],
+        settled: set[str],
+        targets: dict[str, Cell | None],
+    ) -> dict[str, Cell]:
+        """This step's collision-free move of every settled unit free to move (moves.py)."""
+        if self.estop:
+            return {}
+        movable = {
+            u.id
+            for u in units
+            if u.id in settled
+            and u.id not in self.directives.controls  # paused or out of service: holds
+            and u.state is not None
+            and not u.state.estop
+            and u.state.mode == "coordinated"
+        }
+        return self.moves.plan(
+            units,
+            movable,
+            self.orders.reserved,
+            targets,
+            self.progress.urgency(units),
+            driving={u.id for u in units if u.id in active and u.id not in settled},
+        )
+
+    def _park(self, targets: dict[str, Cell | None]) -> None:
+        """An idle unit making way for another shows where it goes: its parking square."""
         for uid, target in targets.items():
-            if target is None:  # an idle unit making way for another shows where it goes
+            if target is None:
                 targets[uid] = self.planner.parking(uid)
-        # While a way out of a livelock is due, searched or followed, no window goes beyond a
-        # unit's next square, so units still driving stop and the search can begin (unjam.py).
-        window = 1 if self.planner.unjam.busy else self.window
-        claims = self._claims(units, moves, targets, window)
+
+    def _orders(self, units: list[UnitRecord], active: set[str], step: StepContext) -> StepResult:
+        """One order per unit that can hear it (orders.py), and every unit's route view."""
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:
@@ -515,23 +583,8 @@ class CoordinatorCore:
                 # 3 step periods without orders (protocol.md §8).
                 routes[u.id] = RouteView()
                 continue
-            order = self.orders.order(
-                u,
-                settled=u.id in settled,
-                move=moves.get(u.id),
-                target=targets[u.id],
-                action=self.progress.action(u.id),
-                estop=self.estop,
-                grid=self.world.grid,
-                route=partial(self._route, u.id),
-                step_no=self.step_no,
-                now=now,
-                heartbeat_s=self._heartbeat_s,
-                held=u.id in self.directives.controls,
-                window=window,
-                ahead=partial(self._ahead, claims, u.id, targets[u.id]),
-            )
-            claims.hold(u.id, order.released)
+            order = self.orders.order(u, step)
+            step.claims.hold(u.id, order.released)
             orders[u.id] = order
             routes[u.id] = RouteView(
                 released=order.released,
@@ -565,20 +618,6 @@ class CoordinatorCore:
         for uid, follow in self.moves.following.items():
             claims.hold(uid, [follow.square])
         return claims
-
-    def _ahead(
-        self, claims: Claims, unit: str, target: Cell | None, last: Cell, room: int
-    ) -> list[Cell]:
-        """The squares of `unit`'s way after `last` that its window may take (window.py)."""
-        record = self.world.units[unit]
-        if target is None or last == target or record.state is None:
-            return []
-        way = self.planner.route(last, target, room, unit)
-        return claims.ahead(unit, record.state.position, way, room)
-
-    def _route(self, unit: str, start: Cell, target: Cell) -> list[Cell]:
-        """The way shown for `unit` from `start` to `target`: its guide path where it has one."""
-        return self.planner.route(start, target, PLANNED_SHOWN, unit)
 
     # ---- what every Effects carries ---------------------------------------------------------
 

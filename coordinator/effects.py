@@ -4,6 +4,7 @@ messages they carry, stamped and addressed, with the QoS and retain flag protoco
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -12,6 +13,7 @@ from gridfleet.coordinator.answers import Answer
 from gridfleet.coordinator.audit import AuditNews
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.orders import OrderPlan
+from gridfleet.coordinator.records import Entry, RecordKind, RecordQuery
 from gridfleet.coordinator.requests import Outcome
 from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound, error_report
@@ -19,15 +21,14 @@ from gridfleet.protocol import (
     CoordinatorStatus,
     EventEntry,
     HeaderStamper,
-    JobHistoryEntry,
     JobHistoryPage,
-    JobHistoryQuery,
     Order,
     Reply,
     Routes,
     RouteView,
     Topics,
 )
+from gridfleet.protocol.messages import AuditPage
 
 Status = Literal["online", "offline", "broken"]  # the coordinator's, as on the wire
 
@@ -41,7 +42,7 @@ class Effects:
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
     controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
-    history_queries: tuple[JobHistoryQuery, ...] = ()  # checked: answer each from the store
+    records: tuple[RecordQuery, ...] = ()  # checked queries: answer each from its store
     audit: AuditNews = field(default_factory=AuditNews)  # operators' acts, stop payloads seen
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders
     acks_until: float | None = None  # (a step) the next step waits for `awaiting` until then
@@ -86,25 +87,33 @@ class Messages:
         )
         return Outbound.of("reply", self.topics.reply(reply_to), reply)
 
-    def history_page(
+    def page(
         self,
-        query: JobHistoryQuery,
-        entries: list[JobHistoryEntry],
-        next_cursor: str | None,
+        kind: RecordKind,
+        reply_to: str,
+        request_id: str,
+        entries: Sequence[Entry] = (),
+        next_cursor: str | None = None,
         refused: str | None = None,
-    ) -> Outbound | None:
-        """A page of the job history for `query` (or why not), to its sender if it said where."""
-        if query.reply_to is None:
-            return None
-        page = JobHistoryPage(
-            header=self.stamp("history_reply"),
-            request_id=query.request_id,
-            accepted=refused is None,
-            reason=refused,
-            entries=entries,
-            next_cursor=next_cursor,
+    ) -> Outbound:
+        """A page of the record `kind` (or why not) for request `request_id`, to `reply_to`."""
+        page_kind, cls, topic = (
+            ("audit_reply", AuditPage, self.topics.audit_reply(reply_to))
+            if kind == "audit"
+            else ("history_reply", JobHistoryPage, self.topics.history_reply(reply_to))
         )
-        return Outbound.of("history_reply", self.topics.history_reply(query.reply_to), page)
+        # Validated as a page of its kind: an entry of the other record would be refused here.
+        page = cls.model_validate(
+            {
+                "header": self.stamp(page_kind),
+                "request_id": request_id,
+                "accepted": refused is None,
+                "reason": refused,
+                "entries": list(entries),
+                "next_cursor": next_cursor,
+            }
+        )
+        return Outbound.of(page_kind, topic, page)
 
     def error(self, topic: str, reason: str, request_id: str | None) -> Outbound:
         """A report on `errors` about a message refused on `topic`."""

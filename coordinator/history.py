@@ -1,7 +1,7 @@
 """The job history (protocol.md §6.10): every change in a job's life, with its time.
 
 Pure: the shell hands over the jobs each input changed and the wall-clock time, and stores the
-entries returned; a query is checked here before the store runs it. A change is a new state, a
+entries returned (a query is answered as the audit's is: records.py). A change is a new state, a
 new unit or a new reason to wait: a job that waits for the same reason step after step is one
 entry, not one a step.
 """
@@ -9,17 +9,16 @@ entry, not one a step.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from datetime import datetime, timedelta
+from datetime import datetime
 
 from gridfleet.coordinator.jobs import Job
-from gridfleet.protocol.messages import JobHistoryEntry, JobHistoryQuery
+from gridfleet.protocol.messages import JobHistoryEntry
 
 # What makes an entry: (state, unit, wait code).
 Key = tuple[str, str | None, str | None]
 # A job's last entry and when it was submitted, as the store has them (None: never recorded).
 Lookup = Callable[[str], tuple[Key, datetime] | None]
 DEFAULT_RETENTION_DAYS = 400.0  # a year, and the same weeks of the year before
-MAX_RANGE = timedelta(days=3660)  # ten years: anything longer is a mistake in the dates
 
 
 def key_of(job: Job) -> Key:
@@ -72,20 +71,3 @@ class JobChanges:
             self._known.pop(job.id, None)  # it never changes again
         else:
             self._known[job.id] = known
-
-
-def range_problem(query: JobHistoryQuery, now: datetime) -> str | None:
-    """Why the query's time range cannot be answered, in one line; None when it can."""
-    until = query.until or now
-    for name, at in (("since", query.since), ("until", query.until)):
-        if at is not None and at.tzinfo is None:
-            return f"{name} {at.isoformat()} has no time zone: add one (Z for UTC)"
-    if query.since >= until:
-        return f"since {_iso(query.since)} is not before until {_iso(until)}"
-    if until - query.since > MAX_RANGE:
-        return f"since {_iso(query.since)} to until {_iso(until)} spans more than ten years"
-    return None
-
-
-def _iso(at: datetime) -> str:
-    return at.isoformat().replace("+00:00", "Z")

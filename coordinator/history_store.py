@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, Key
+from gridfleet.coordinator.records import RecordQuery, page_of
 from gridfleet.protocol.messages import JobHistoryEntry, JobHistoryQuery
 
 PRUNE_EVERY = timedelta(hours=1)
@@ -139,30 +140,33 @@ class HistoryStore:
         state, unit, wait = rows[-1][2:]
         return (state, unit, wait), datetime.fromtimestamp(at - since, UTC)
 
-    def query(
-        self, query: JobHistoryQuery, now: datetime
-    ) -> tuple[list[JobHistoryEntry], str | None]:
-        """One page of entries for `query` (until `now` if it gives none), and the next cursor."""
-        until = query.until or now
+    def rows(self, query: RecordQuery, limit: int) -> list[tuple[int, JobHistoryEntry]]:
+        """Up to `limit` entries of `query` (since <= at < until, its filters) after its cursor's
+        row, by time and then row (records.RecordsDesk)."""
+        q = query.query
+        assert isinstance(q, JobHistoryQuery), "a history store answers job history queries"
         where = ["at >= ?", "at < ?"]
-        args: list[object] = [query.since.timestamp(), until.timestamp()]
-        for column, value in (("unit", query.unit), ("job", query.job_id), ("state", query.state)):
+        args: list[object] = [query.since, query.until]
+        for column, value in (("unit", q.unit), ("job", q.job_id), ("state", q.state)):
             if value is not None:
                 where.append(f"{column} = ?")
                 args.append(value)
-        if query.cursor is not None:
+        if query.after is not None:
             # After the cursor's row in (at, id) order; a pruned cursor row starts from `since`.
             where.append(
                 "(at > COALESCE((SELECT at FROM job_history WHERE id = ?), -1e18) OR "
                 "(at = (SELECT at FROM job_history WHERE id = ?) AND id > ?))"
             )
-            args += [int(query.cursor)] * 3
+            args += [query.after] * 3
         rows = self._db.execute(
             f"SELECT id, at, {_NAMES} FROM job_history WHERE {' AND '.join(where)} "
             "ORDER BY at, id LIMIT ?",
-            [*args, query.limit + 1],
+            [*args, limit],
         ).fetchall()
-        more = len(rows) > query.limit
-        rows = rows[: query.limit]
-        entries = [_entry(row[1:]) for row in rows]
-        return entries, (str(rows[-1][0]) if more and rows else None)
+        return [(int(row[0]), _entry(row[1:])) for row in rows]
+
+    def query(
+        self, query: JobHistoryQuery, now: datetime
+    ) -> tuple[list[JobHistoryEntry], str | None]:
+        """One page of entries for `query` (until `now` if it gives none), and the next cursor."""
+        return page_of(self, RecordQuery.of("job_history", query, now))

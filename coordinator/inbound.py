@@ -25,6 +25,7 @@ from gridfleet.protocol import (
     decode,
 )
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
+from gridfleet.protocol.messages import AuditLogin, AuditQuery
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
 Request = SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles
@@ -37,7 +38,8 @@ class StopPayload:
     payload: bytes
 
 
-Message = Connection | Factsheet | UnitState | StopPayload | Request | JobHistoryQuery
+Query = JobHistoryQuery | AuditQuery | AuditLogin
+Message = Connection | Factsheet | UnitState | StopPayload | Request | Query
 
 _FROM_UNITS: dict[str, type[Connection] | type[Factsheet] | type[UnitState]] = {
     "connection": Connection,
@@ -51,8 +53,13 @@ _REQUESTS: dict[str, type[Request]] = {
     "control_unit": ControlUnit,
     "clear_obstacles": ClearObstacles,
 }
-# Queries: answered from the stores, nothing changes, no answer is kept for a retry.
-_QUERIES: dict[str, type[JobHistoryQuery]] = {"job_history": JobHistoryQuery}
+# The records' requests: pages answered from the stores (records.py) and the dashboard's login
+# reports; no job changes, and no answer is kept for a retry.
+_QUERIES: dict[str, type[Query]] = {
+    "job_history": JobHistoryQuery,
+    "audit": AuditQuery,
+    "audit_login": AuditLogin,
+}
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from collections.abc import Callable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 
-from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
 from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import Cell
 

@@ -11,13 +11,15 @@ obstacle.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Container, Mapping
 from dataclasses import dataclass, field
+from typing import Protocol
 
+from gridfleet.coordinator.window import Claims
 from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import Action, UnitState
-from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MIN_TIMEOUT_S
+from gridfleet.protocol.constants import HOLD_AFTER_STEPS, MAX_PLANNED, MIN_TIMEOUT_S
 
 # A step waits for acknowledgements only while more than one in LATE_SHARE of the units ordered
 # still owe one (see Orders.holding_back). A unit acknowledges with the state of its next step,
@@ -27,6 +29,36 @@ LATE_SHARE = 3
 WAIT_BEFORE_HOLD = 3  # coordinator steps a unit may wait on a released square before we re-plan it
 # An order that changes nothing is repeated once this share of a unit's hold time has passed.
 HEARTBEAT_SHARE = 4
+PLANNED_SHOWN = min(MAX_PLANNED, 64)  # squares of the planned rest an order shows
+
+
+class Router(Protocol):
+    """Ways on the map for a unit (the planner's `route`): its window ahead, its planned rest."""
+
+    def route(
+        self, start: Cell, target: Cell, limit: int = 256, unit: str | None = None
+    ) -> list[Cell]:
+        """The way after `start` to `target`, at most `limit` squares (empty: unreachable)."""
+        ...
+
+
+@dataclass(frozen=True)
+class StepContext:
+    """What every unit's order of one step is made from: the core makes it once a step."""
+
+    step_no: int
+    now: float
+    estop: bool  # the fleet is stopped: halt orders
+    grid: GridMap  # with every obstacle known
+    heartbeat_s: float  # an order that changes nothing is repeated after this long
+    window: int  # squares a unit may be released ahead this step (window.py)
+    settled: Container[str]  # units acknowledged with nothing left to drive: they get moves
+    moves: Mapping[str, Cell]  # this step's move of each unit the planner moves
+    targets: Mapping[str, Cell | None]  # where each unit is going
+    actions: Mapping[str, Action | None]  # what each unit does at the end of its route
+    held: Container[str]  # paused or out of service by an operator: a halt order
+    router: Router
+    claims: Claims  # who stands on, holds, enters or intends each square (window.py)
 
 
 def heartbeat_s(step_period_s: float) -> float:
@@ -80,6 +112,14 @@ def follows_unsent(state: UnitState, t: Track) -> bool:
         and state.order_id == t.order_id
         and (state.order_update_id > t.update_id)
     )
+
+
+def _ahead(
+    step: StepContext, unit: str, pos: Cell, target: Cell, last: Cell, room: int
+) -> list[Cell]:
+    """The squares of `unit`'s way after `last` that its window may take (window.py)."""
+    way = step.router.route(last, target, room, unit)
+    return step.claims.ahead(unit, pos, way, room)
 
 
 def _no_return(more: list[Cell], pos: Cell, released: list[Cell]) -> list[Cell]:
@@ -139,35 +179,20 @@ class Orders:
             out |= t.unacked
         return out
 
-    def order(
-        self,
-        u: UnitRecord,
-        *,
-        settled: bool,
-        move: Cell | None,
-        target: Cell | None,
-        action: Action | None,
-        estop: bool,
-        grid: GridMap,
-        route: Callable[[Cell, Cell], list[Cell]],
-        step_no: int,
-        now: float,
-        heartbeat_s: float,
-        held: bool = False,
-        window: int = 1,
-        ahead: Callable[[Cell, int], list[Cell]] | None = None,
-    ) -> OrderPlan:
+    def order(self, u: UnitRecord, step: StepContext) -> OrderPlan:
         """This step's order for an active unit: a new move, its remaining squares, or a halt order.
 
-        `held`: an operator paused it or took it out of service: a halt order. With `window` > 1,
-        a unit whose squares are known exactly (it settled with a move, or acknowledged what it
-        drives) gets its way topped up by `ahead(last, room)` to as many squares as it has needed
-        ahead so far, at most `window` (window.py).
-        Sent when it changes anything, else only once `heartbeat_s` have passed since the last
-        (a repeat costs the broker, the unit and us a round trip, and tells the unit nothing).
+        A unit `held` by an operator gets a halt order. With a `window` > 1, a unit whose squares
+        are known exactly (it settled with a move, or acknowledged what it drives) gets its way
+        topped up (`_ahead`) to as many squares as it has needed ahead so far, at most `window`
+        (window.py). Sent when it changes anything, else only once `heartbeat_s` have passed
+        since the last (a repeat costs the broker, the unit and us a round trip, and tells the
+        unit nothing).
         """
         assert u.state is not None
         st = u.state
+        settled, estop, window = u.id in step.settled, step.estop, step.window
+        target, now = step.targets.get(u.id), step.now
         t = self.track(u.id)
         pos = st.position
         if self.acked(u):
@@ -180,19 +205,21 @@ class Orders:
         elif st.status == "waiting":
             t.waiting += 1
         exact = False  # whether `released` is exactly what the unit will drive
-        if estop or t.forged or held:
+        if estop or t.forged or u.id in step.held:
             released: list[Cell] = []
         elif settled:
+            move = step.moves.get(u.id)
             released = [move] if move is not None and move != pos else []
             exact = True
         else:
             remaining = self._remaining(u, t)
-            blocked = any(not grid.is_free(c) for c in remaining)
+            blocked = any(not step.grid.is_free(c) for c in remaining)
             released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
             exact = self.acked(u) and st.status != "waiting"
         room = min(window, t.reach) - len(released)
-        if exact and released and ahead is not None and room > 0:
-            released = released + _no_return(ahead(released[-1], room), pos, released)
+        if exact and released and room > 0 and target is not None and released[-1] != target:
+            ahead = _ahead(step, u.id, pos, target, released[-1], room)
+            released = released + _no_return(ahead, pos, released)
         t.forged = False
         if target != t.target or t.order_id is None:
             t.route_no += 1
@@ -201,9 +228,9 @@ class Orders:
             t.target = target
             t.content_update = 0
             t.acked_update = 0
-        action = None if estop else action
+        action = None if estop else step.actions.get(u.id)
         content = released != t.sent or t.content_update == 0  # awaits an acknowledgement
-        send = content or action != t.action or now - t.sent_at >= heartbeat_s
+        send = content or action != t.action or now - t.sent_at >= step.heartbeat_s
         if send:
             t.update_id += 1
             t.sent_at, t.action = now, action
@@ -214,11 +241,12 @@ class Orders:
             t.waiting = 0
         planned: list[Cell] = []
         if target is not None and not estop:
-            planned = route(released[-1] if released else pos, target)
+            start = released[-1] if released else pos
+            planned = step.router.route(start, target, PLANNED_SHOWN, u.id)
         return OrderPlan(
             order_id=t.order_id,
             update_id=t.update_id,
-            step=step_no,
+            step=step.step_no,
             released=released,
             planned=planned,
             target=target,

@@ -1,13 +1,17 @@
-"""Operator requests (protocol.md §6): queue a job, cancel one, send a unit to a goal.
+"""Operator requests (protocol.md §6): queue a job, cancel one, send a unit to a goal, pause or
+take a unit out of service, clear obstacles.
 
-Pure: each request is checked against the world and the job book and answered with an Outcome;
-a refused request changes nothing.
+Pure: each request is checked against the world and the job book by its handler in `HANDLERS`,
+`(request, RequestContext) -> Outcome`, and answered with the Outcome; a refused request changes
+nothing. What a handler changed beyond the job book (a unit's control, obstacles cleared) it
+notes in the context, for the core to persist and re-plan around.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
 from gridfleet.coordinator.directives import Directives
@@ -18,6 +22,7 @@ from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
 from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_OPEN_JOBS_PER_ACCOUNT
+from gridfleet.protocol.messages import Request, UnitControlState
 
 
 @dataclass(frozen=True)
@@ -29,19 +34,29 @@ class Outcome:
     job_id: str | None = None
 
 
-def submit(
-    req: SubmitJob,
-    sender: str | None,
-    world: World,
-    jobs: JobBook,
-    step_no: int,
-    cache: DistanceFieldCache,
-    account: tuple[str, int] | None = None,
-) -> Outcome:
-    """Queue a job, or refuse it (nothing changes) with the reason.
+@dataclass
+class RequestContext:
+    """What a request's handler reads and changes, the same for every kind of request."""
 
-    `account`: the sender's account and how many of its jobs are not finished yet.
-    """
+    world: World
+    jobs: JobBook
+    directives: Directives
+    cache: DistanceFieldCache  # distances on the map as it is
+    step_no: int
+    sender: str | None  # the request's header.sender
+    # The sender's account and how many of its jobs are not finished yet (None: no sender),
+    # worked out only when a handler asks (a submit).
+    account: Callable[[], tuple[str, int] | None]
+    requeue: Callable[[Job, str], None]  # a job back to the queue, with the reason
+    # What the handler changed beyond the job book: a unit's control (None: lifted), squares
+    # that are no obstacle any more.
+    controls: list[tuple[str, UnitControlState | None]] = field(default_factory=list)
+    cleared: list[Cell] = field(default_factory=list)
+
+
+def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
+    """Queue a job, or refuse it (nothing changes) with the reason."""
+    world, jobs, sender = ctx.world, ctx.jobs, ctx.sender
     new = req.job_id is None or jobs.get(req.job_id) is None
     if jobs.open_count >= MAX_OPEN_JOBS and new:
         return Outcome(
@@ -49,7 +64,8 @@ def submit(
             f"the queue is full: {jobs.open_count} jobs are not finished yet (at most "
             f"{MAX_OPEN_JOBS}); wait for some to finish, or cancel some",
         )
-    if account is not None and account[1] >= MAX_OPEN_JOBS_PER_ACCOUNT and new:
+    account = ctx.account() if new else None
+    if account is not None and account[1] >= MAX_OPEN_JOBS_PER_ACCOUNT:
         return Outcome(
             False,
             f"too many jobs: account {account[0]!r} has {account[1]} not finished yet (at most "
@@ -77,12 +93,12 @@ def submit(
         mass_kg=req.mass_kg,
         priority=req.priority,
         submitted_by=sender,
-        created_step=step_no,
+        created_step=ctx.step_no,
     )
     reason = None
     if world.fleet_known():  # else queued: allocation rejects it once the fleet is known
         reason = capacity_reason(req.mass_kg, world.capacities()) or reach_reason(
-            cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
+            ctx.cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
         )
     if reason is not None:
         # Listed as rejected (not merely refused) so the queue view shows why.
@@ -105,16 +121,15 @@ def _same_job(job: Job, req: SubmitJob, sender: str | None) -> bool:
     )
 
 
-def cancel(
-    req: CancelJob, sender: str | None, world: World, jobs: JobBook, step_no: int
-) -> Outcome:
+def cancel(req: CancelJob, ctx: RequestContext) -> Outcome:
     """Cancel a queued job or abort an active one; refuse unknown and final jobs."""
+    world, jobs = ctx.world, ctx.jobs
     job = jobs.get(req.job_id)
     if job is None:
         return Outcome(False, f"unknown job {req.job_id!r}", req.job_id)
     if job.final:
         return Outcome(False, f"job {job.id} is already {job.state}", job.id)
-    who = sender or "an operator"
+    who = ctx.sender or "an operator"
     if job.state in CARRYING_STATES and job.unit is not None:
         rec = world.units.get(job.unit)
         if world.grid.is_free(job.pickup):
@@ -126,19 +141,13 @@ def cancel(
         reason = f"cancelled by {who}; unit {job.unit} released"
     else:
         reason = f"cancelled by {who}"
-    jobs.set(job, "cancelled", reason=reason, done_step=step_no)
+    jobs.set(job, "cancelled", reason=reason, done_step=ctx.step_no)
     return Outcome(True, None, job.id)
 
 
-def set_goal(
-    req: SetGoal,
-    world: World,
-    jobs: JobBook,
-    directives: Directives,
-    cache: DistanceFieldCache,
-    requeue: Callable[[Job, str], None],
-) -> Outcome:
+def set_goal(req: SetGoal, ctx: RequestContext) -> Outcome:
     """Pin a unit to a square (or clear its goal); refuse unknown units and bad squares."""
+    world, directives = ctx.world, ctx.directives
     rec = world.units.get(req.unit)
     if rec is None or rec.state is None:
         return Outcome(False, f"unknown unit {req.unit!r}")
@@ -149,19 +158,28 @@ def set_goal(
         world.check_square(req.target, "target")
     except ProtocolError as exc:
         return Outcome(False, str(exc))
-    if rec.position is not None and cache.distance(rec.position, req.target) == UNREACHABLE:
+    if rec.position is not None and ctx.cache.distance(rec.position, req.target) == UNREACHABLE:
         return Outcome(False, f"unit {req.unit} cannot reach {list(req.target)}")
     directives.set_goal(req.unit, req.target)
-    job = jobs.of_unit(req.unit)
+    job = ctx.jobs.of_unit(req.unit)
     if job is not None and job.state not in CARRYING_STATES:
         # The goal pins the unit: its job goes back to the queue for another unit (unless the
         # unit's next state shows it had picked the item up already: progress.py adopts it).
-        requeue(job, f"unit {req.unit} sent to a goal")
+        ctx.requeue(job, f"unit {req.unit} sent to a goal")
     return Outcome(True)
 
 
-def control(req: ControlUnit, world: World, jobs: JobBook, directives: Directives) -> Outcome:
+def control(req: ControlUnit, ctx: RequestContext) -> Outcome:
     """Pause or resume a unit, take it out of service or back (protocol.md §6.4)."""
+    before = ctx.directives.controls.get(req.unit)
+    outcome = _control(req, ctx.world, ctx.jobs, ctx.directives)
+    after = ctx.directives.controls.get(req.unit)
+    if after != before:
+        ctx.controls.append((req.unit, after))
+    return outcome
+
+
+def _control(req: ControlUnit, world: World, jobs: JobBook, directives: Directives) -> Outcome:
     unit = req.unit
     if world.units.get(unit) is None:
         return Outcome(False, f"unknown unit {unit!r}")
@@ -188,18 +206,29 @@ def control(req: ControlUnit, world: World, jobs: JobBook, directives: Directive
     return Outcome(True)
 
 
-def clear_obstacles(req: ClearObstacles, world: World) -> tuple[Outcome, list[Cell]]:
-    """Forget discovered obstacles an operator says are gone: the outcome and the squares cleared.
+def clear_obstacles(req: ClearObstacles, ctx: RequestContext) -> Outcome:
+    """Forget discovered obstacles an operator says are gone (the squares cleared: `ctx.cleared`).
 
     Refused, changing nothing, when a square named is not a discovered obstacle (a typo must not
     pass for done). A unit that still sees one reports it again at its next state.
     """
+    world = ctx.world
     if req.squares is not None:
         unknown = [c for c in req.squares if c not in world.obstacles]
         if unknown:
             known = ", ".join(str(list(c)) for c in sorted(world.obstacles)[:10]) or "none"
-            return (
-                Outcome(False, f"{list(unknown[0])} is not a discovered obstacle (known: {known})"),
-                [],
+            return Outcome(
+                False, f"{list(unknown[0])} is not a discovered obstacle (known: {known})"
             )
-    return Outcome(True), world.clear_obstacles(req.squares)
+    ctx.cleared += world.clear_obstacles(req.squares)
+    return Outcome(True)
+
+
+# Each operator request's handler (each takes its own kind of request).
+HANDLERS: dict[type[Request], Callable[[Any, RequestContext], Outcome]] = {
+    SubmitJob: submit,
+    CancelJob: cancel,
+    SetGoal: set_goal,
+    ControlUnit: control,
+    ClearObstacles: clear_obstacles,
+}

@@ -18,13 +18,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, AuditDesk, Identity
+from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, Identity
 from gridfleet.coordinator.audit_store import AuditStore
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
 from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, JobChanges
 from gridfleet.coordinator.history_store import HistoryStore
 from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.records import Entry, RecordKind, RecordsDesk, answer
 from gridfleet.coordinator.store import JobStore, default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
@@ -80,6 +81,11 @@ class CoordinatorShell:
         # Every change of every job, with its time (coordinator/history.py): the same database.
         self.history = HistoryStore(path, history_days)
         self.job_changes = JobChanges(self.history.last)
+        # Where the record queries the core checked are answered from (records.py).
+        self.desks: dict[RecordKind, RecordsDesk[Entry]] = {
+            "audit": self.audit_store,
+            "job_history": self.history,
+        }
         self.core = CoordinatorCore(
             World(grid, step_period_s=step_s),
             JobBook(self.store.load()),
@@ -92,7 +98,6 @@ class CoordinatorShell:
             identity=identity,
         )
         self.core.audit.restore(self.audit_store.load_seen())
-        self.audit_desk = AuditDesk(self.topics, self.core.say.stamp, identity)
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.events.restore(self.store.load_events())
         self.world = self.core.world
@@ -155,13 +160,6 @@ class CoordinatorShell:
 
     async def handle(self, topic: str, payload: bytes) -> None:
         """One inbound message, to the core; then whatever it says to do."""
-        if self.audit_desk.reads(topic):  # the audit's own requests: answered from its store
-            answer = self.audit_desk.on_message(topic, payload, self.audit_store)
-            for line in answer.log:
-                log.info("%s", line)
-            self.audit_store.add(answer.entries)
-            await asyncio.gather(*(self.endpoint.publish(out) for out in answer.publish))
-            return
         errors = self.core.errors_reported
         effects, waits = self.core.offer(topic, payload, self.clock())
         if waits:
@@ -245,9 +243,8 @@ class CoordinatorShell:
             # the core's order on the wire (paho queues each in the first, synchronous part of a
             # publish), and a step's hundred orders take one round trip to the broker, not 100.
             outs += [out for out in effects.publish if not self.core.withdrawn(out)]
-            for query in effects.history_queries:
-                entries, cursor = self.history.query(query, self.core.say.stamp.now())
-                page = self.core.say.history_page(query, entries, cursor)
+            for record in effects.records:  # checked by the core: read here, from its store
+                page = answer(record, self.desks[record.kind], self.core.say)
                 if page is not None:
                     outs.append(page)
         sends = [asyncio.ensure_future(self.endpoint.publish(out)) for out in outs]

@@ -1,4 +1,4 @@
-"""The audit trail's pure parts: entries made by the coordinator core, the desk's pages and login
+"""The audit trail's pure parts: entries made by the coordinator core, its pages and login
 reports, the store, the broker gate's check of the latch, and the command line's time ranges."""
 
 from __future__ import annotations
@@ -13,16 +13,18 @@ import pytest
 from gridfleet.accounts import Account, Accounts, rules
 from gridfleet.broker.gate import Gate
 from gridfleet.console.audit import parse_time, print_csv, print_table, time_range
-from gridfleet.coordinator.audit import AuditDesk, AuditLog, Identity
+from gridfleet.coordinator.audit import AuditLog, Identity
 from gridfleet.coordinator.audit_store import AuditStore
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.records import RecordQuery
 from gridfleet.coordinator.world import World
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import CancelJob, ControlUnit, SubmitJob, Topics, encode
 from gridfleet.protocol.messages import AuditEntry, AuditLogin, AuditQuery, LoginEvent
 
+from support.coordinator_drive import AuditRows, answered
 from support.effects import FIXED, header, stamper
 
 T = Topics("gridfleet")
@@ -168,23 +170,6 @@ def test_a_restart_replaying_the_retained_stop_records_nothing_new() -> None:
     assert changed["act"] == "stop_release"
 
 
-class Rows:
-    """An in-memory AuditReader over numbered entries."""
-
-    def __init__(self, entries: list[AuditEntry]) -> None:
-        self.rows = list(enumerate(entries, start=1))
-
-    def page(
-        self, since: float, until: float, actor: str | None, after: int, limit: int
-    ) -> list[tuple[int, AuditEntry]]:
-        found = [
-            (i, e)
-            for i, e in self.rows
-            if since <= e.at.timestamp() < until and i > after and actor in (None, e.actor)
-        ]
-        return found[:limit]
-
-
 def entry(minutes: int, actor: str) -> AuditEntry:
     return AuditEntry(
         at=FIXED - timedelta(minutes=minutes),
@@ -196,17 +181,19 @@ def entry(minutes: int, actor: str) -> AuditEntry:
     )
 
 
-def ask(desk: AuditDesk, reader: Rows, sender: str, **fields: Any) -> dict[str, Any]:
+def ask(c: CoordinatorCore, reader: AuditRows, sender: str, **fields: Any) -> dict[str, Any]:
     query = AuditQuery(header=header(sender), request_id="q-1", reply_to=sender, **fields)
-    answer = desk.on_message(T.request("audit"), encode(query), reader)
-    (page,) = [o for o in answer.publish if o.topic == T.audit_reply(sender)]
+    out, _ = answered(c, T.request("audit"), encode(query), reader)
+    (page,) = [o for o in out if o.topic == T.audit_reply(sender)]
     data: dict[str, Any] = json.loads(page.payload)
     return data
 
 
-def test_the_desk_pages_oldest_first_with_a_cursor() -> None:
-    reader = Rows([entry(50, "ann"), entry(40, "operator"), entry(30, "ann"), entry(20, "ann")])
-    desk = AuditDesk(T, stamper("coordinator"), VOUCHED)
+def test_the_audit_pages_oldest_first_with_a_cursor() -> None:
+    reader = AuditRows(
+        [entry(50, "ann"), entry(40, "operator"), entry(30, "ann"), entry(20, "ann")]
+    )
+    desk = core(VOUCHED)
     since = FIXED - timedelta(hours=1)
     first = ask(desk, reader, "ann-cli", since=since, actor="ann", limit=2)
     assert first["accepted"] is True and first["next_cursor"] == "3"
@@ -221,14 +208,22 @@ def test_the_desk_pages_oldest_first_with_a_cursor() -> None:
     assert len(window["entries"]) == 2
 
 
-def test_the_desk_refuses_a_range_backwards_and_a_viewer() -> None:
-    desk = AuditDesk(T, stamper("coordinator"), VOUCHED)
-    backwards = ask(desk, Rows([]), "operator", since=FIXED, until=FIXED - timedelta(seconds=1))
+def test_the_audit_refuses_a_range_backwards_or_empty_and_a_viewer() -> None:
+    # The records' one range rule (records.range_problem), the job history's too.
+    desk = core(VOUCHED)
+    before = FIXED - timedelta(seconds=1)
+    backwards = ask(desk, AuditRows(), "operator", since=FIXED, until=before)
     assert backwards["accepted"] is False
-    assert backwards["reason"] == (
-        "since 2026-11-21T10:00:00+00:00 is after until 2026-11-21T09:59:59+00:00"
+    assert (
+        backwards["reason"] == "since 2026-11-21T10:00:00Z is not before until 2026-11-21T09:59:59Z"
     )
-    viewer = ask(desk, Rows([entry(1, "ann")]), "viewer-x", since=FIXED - timedelta(hours=1))
+    empty = ask(desk, AuditRows([entry(0, "ann")]), "operator", since=FIXED, until=FIXED)
+    assert (empty["accepted"], empty["entries"]) == (False, [])
+    # A time without a zone is UTC (§1), as it always was here.
+    naive_since = (FIXED - timedelta(minutes=2)).replace(tzinfo=None)
+    naive = ask(desk, AuditRows([entry(1, "ann")]), "operator", since=naive_since)
+    assert (naive["accepted"], len(naive["entries"])) == (True, 1)
+    viewer = ask(desk, AuditRows([entry(1, "ann")]), "viewer-x", since=FIXED - timedelta(hours=1))
     assert (viewer["accepted"], viewer["entries"]) == (False, [])
     assert viewer["reason"] == (
         "viewer-x is a viewer account's client: only operator and dashboard accounts may read "
@@ -251,10 +246,10 @@ def login(sender: str, event: LoginEvent, user: str | None, request_id: str = "l
 
 
 def test_only_the_dashboard_reports_logins_and_a_retry_is_stored_once() -> None:
-    desk = AuditDesk(T, stamper("coordinator"), VOUCHED)
+    desk = core(VOUCHED)
     topic = T.request("audit_login")
-    ok = desk.on_message(topic, login("dashboard-audit-1", "login", "ann"), Rows([]))
-    assert [json.loads(e.model_dump_json()) for e in ok.entries] == [
+    ok = desk.on_message(topic, login("dashboard-audit-1", "login", "ann"), 0.0)
+    assert [json.loads(e.model_dump_json()) for e in ok.audit.entries] == [
         {
             "at": AT,
             "actor": "ann",
@@ -267,20 +262,18 @@ def test_only_the_dashboard_reports_logins_and_a_retry_is_stored_once() -> None:
             "reason": None,
         }
     ]
-    again = desk.on_message(topic, login("dashboard-audit-1", "login", "ann"), Rows([]))
-    assert again.entries == () and json.loads(again.publish[0].payload)["accepted"] is True
-    failed = desk.on_message(
-        topic, login("dashboard-audit-1", "login_failed", "bob", "l-2"), Rows([])
-    )
-    (bad,) = failed.entries
+    again = desk.on_message(topic, login("dashboard-audit-1", "login", "ann"), 0.0)
+    assert again.audit.entries == () and json.loads(again.publish[0].payload)["accepted"] is True
+    failed = desk.on_message(topic, login("dashboard-audit-1", "login_failed", "bob", "l-2"), 0.0)
+    (bad,) = failed.audit.entries
     assert (bad.actor, bad.verified, bad.outcome, bad.reason) == (
         "bob",
         False,
         "refused",
         "wrong user name or password",
     )
-    forged = desk.on_message(topic, login("operator", "login", "ann", "l-3"), Rows([]))
-    assert forged.entries == ()
+    forged = desk.on_message(topic, login("operator", "login", "ann", "l-3"), 0.0)
+    assert forged.audit.entries == ()
     assert json.loads(forged.publish[-1].payload)["reason"] == (
         "operator is an operator account's client: only dashboard accounts may report logins"
     )
@@ -294,13 +287,16 @@ def test_the_store_pages_prunes_and_keeps_what_it_has_across_a_reopen(tmp_path: 
     assert store.prune(FIXED.timestamp()) == 1
     store.close()
     again = AuditStore(db, keep_days=1)
-    since, until = (FIXED - timedelta(days=2)).timestamp(), FIXED.timestamp()
-    assert [(i, e.actor) for i, e in again.page(since, until, None, 0, 10)] == [
-        (2, "ann"),
-        (3, "operator"),
-    ]
-    assert [i for i, _ in again.page(since, until, "operator", 0, 10)] == [3]
-    assert again.page(since, until, None, 2, 10)[0][0] == 3
+
+    def span(**fields: Any) -> RecordQuery:
+        query = AuditQuery(
+            header=header("t"), request_id="q", since=FIXED - timedelta(days=2), **fields
+        )
+        return RecordQuery.of("audit", query, FIXED)
+
+    assert [(i, e.actor) for i, e in again.rows(span(), 10)] == [(2, "ann"), (3, "operator")]
+    assert [i for i, _ in again.rows(span(actor="operator"), 10)] == [3]
+    assert again.rows(span(cursor="2"), 10)[0][0] == 3
     assert again.load_seen() == [(T.fleet("estop"), b"engaged|operator|x")]
     again.close()
     with pytest.raises(ValueError, match="give more than 0"):

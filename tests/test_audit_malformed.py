@@ -8,32 +8,23 @@ from typing import Any
 
 import pytest
 
-from gridfleet.coordinator.audit import AuditDesk, Identity
+from gridfleet.grid import GridMap
 from gridfleet.protocol import Topics
-from gridfleet.protocol.messages import AuditEntry
 
-from support.effects import header_json, stamper
+from support.coordinator_drive import answered, make_core
+from support.effects import header_json
 
 T = Topics("gridfleet")
-
-
-class NoRows:
-    """An audit store with nothing in it."""
-
-    def page(
-        self, since: float, until: float, actor: str | None, after: int, limit: int
-    ) -> list[tuple[int, AuditEntry]]:
-        return []
+GRID = GridMap.from_rows(["...."], name="yard")
 
 
 def ask(kind: str, payload: bytes) -> dict[str, list[dict[str, Any]]]:
-    """What the desk publishes for `payload` on `requests/<kind>`, parsed, by topic."""
-    desk = AuditDesk(T, stamper("coordinator"), Identity())
-    answer = desk.on_message(T.request(kind), payload, NoRows())
+    """What the coordinator publishes for `payload` on `requests/<kind>`, parsed, by topic."""
+    published, effects = answered(make_core(GRID), T.request(kind), payload)
     out: dict[str, list[dict[str, Any]]] = {}
-    for o in answer.publish:
+    for o in published:
         out.setdefault(o.topic, []).append(json.loads(o.payload))
-    assert answer.entries == ()
+    assert effects.audit.entries == ()
     return out
 
 

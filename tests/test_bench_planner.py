@@ -27,7 +27,7 @@ from gridfleet.bench.anchors import (
 )
 from gridfleet.bench.runs import random_instance, run_lifelong, run_one_shot
 from gridfleet.bench.scale import run_scale
-from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache

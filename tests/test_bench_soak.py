@@ -15,10 +15,9 @@ from typing import Any
 
 import pytest
 
-from gridfleet.bench import soak_listen
-from gridfleet.bench.soak import Soak, SoakConfig
-from gridfleet.bench.soak_check import Stop
-from gridfleet.bench.soak_faults import (
+from gridfleet.bench.soak import listen as soak_listen
+from gridfleet.bench.soak.check import Stop
+from gridfleet.bench.soak.faults import (
     BRIDGED_HOSTS,
     KEEP_ALIVE_S,
     LOCAL_FAMILIES,
@@ -28,7 +27,9 @@ from gridfleet.bench.soak_faults import (
     parse_families,
     stop_faults,
 )
-from gridfleet.bench.soak_proxy import FaultyProxy
+from gridfleet.bench.soak.proxy import FaultyProxy
+from gridfleet.bench.soak.run import SoakConfig
+from gridfleet.bench.soak.topologies import BridgeSoak, NetworkSoak, PlainSoak, soak_for
 from gridfleet.protocol import Topics
 from gridfleet.robots.truth import write_truth
 from gridfleet.robots.world import WorldSim
@@ -212,7 +213,7 @@ async def test_truth_lines_carry_the_world(tmp_path: Path) -> None:
 
 def test_a_soak_that_injects_nothing_says_where_it_waits(tmp_path: Path) -> None:
     log = io.StringIO()
-    soak = Soak(SoakConfig(minutes=1, units=2), tmp_path, log)
+    soak = PlainSoak(SoakConfig(minutes=1, units=2), tmp_path, log)
     asyncio.run(asyncio.wait_for(soak._watchdog(quiet_s=0.2), 10))
     assert "no progress for 0.2 s; where each task waits:" in log.getvalue()
     assert "_watchdog" in log.getvalue()  # the stacks themselves
@@ -220,7 +221,7 @@ def test_a_soak_that_injects_nothing_says_where_it_waits(tmp_path: Path) -> None
 
 
 def test_a_stalled_soak_is_ended_by_its_watchdog_not_left_hanging(tmp_path: Path) -> None:
-    soak = Soak(SoakConfig(minutes=1, units=2), tmp_path, io.StringIO())
+    soak = PlainSoak(SoakConfig(minutes=1, units=2), tmp_path, io.StringIO())
 
     async def stalled_run() -> bool:
         work = asyncio.create_task(asyncio.Event().wait())  # a lane that waits for ever
@@ -262,3 +263,20 @@ def test_the_listener_keeps_a_stop_the_replay_confirms() -> None:
     listener.settling = False
     listener._note_stop(2.5)
     assert [e for e in listener.events if isinstance(e, Stop)] == [Stop(1.0, True)]
+
+
+def test_each_topology_is_a_soak_of_its_own(tmp_path: Path) -> None:
+    log = io.StringIO()
+    for name in ("plain", "lan", "hall"):
+        (tmp_path / name).mkdir()
+    plain = soak_for(SoakConfig(minutes=1, units=2), tmp_path / "plain", log)
+    network = soak_for(SoakConfig(minutes=1, units=2, network=True), tmp_path / "lan", log)
+    bridge = soak_for(
+        SoakConfig(minutes=1, units=2, network=True, bridge=True), tmp_path / "hall", log
+    )
+    assert (type(plain), type(network), type(bridge)) == (PlainSoak, NetworkSoak, BridgeSoak)
+    assert not plain.NETWORK_FAULTS and network.NETWORK_FAULTS and bridge.NETWORK_FAULTS
+    # The bridge's brokers are Mosquittos the soak does not restart; the others' is embedded.
+    assert plain.RESTARTS_BROKER and network.RESTARTS_BROKER and not bridge.RESTARTS_BROKER
+    assert plain._client_id("x") == f"{plain.root}-x"
+    assert network._client_id("x", device=True) == f"soak-dev-{network.root}-x"

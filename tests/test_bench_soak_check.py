@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gridfleet.bench.soak import hall_stops
-from gridfleet.bench.soak_check import (
+from gridfleet.bench.soak.check import (
     Disturbed,
     Event,
     JobSeen,
@@ -16,6 +15,7 @@ from gridfleet.bench.soak_check import (
     Truth,
     check,
 )
+from gridfleet.bench.soak.run import hall_stops
 from gridfleet.protocol import Topics
 
 LIMITS = SoakLimits(step_s=0.1, stranded_s=5.0)

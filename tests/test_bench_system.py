@@ -11,7 +11,7 @@ from typing import Any
 
 import pytest
 
-from gridfleet.bench.system_scenario import FILL, bench_grid, make_scenario
+from gridfleet.bench.system.scenario import FILL, bench_grid, make_scenario
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.system.broker_thread import BrokerThread
 

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import pytest
 
 from gridfleet.coordinator.core import CoordinatorCore
-from gridfleet.coordinator.validate import validate_windows
+from gridfleet.coordinator.planning.validate import validate_windows
 from gridfleet.coordinator.window import MAX_WINDOW
 from gridfleet.coordinator.world import FLEET_KNOWN_AFTER_S
 from gridfleet.grid import Cell, Direction, GridMap

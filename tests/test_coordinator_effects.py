@@ -774,7 +774,8 @@ def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a
     since = FIXED - timedelta(hours=1)
     good = JobHistoryQuery(header=header("op"), request_id="h1", reply_to="op", since=since)
     effects = request(core, "job_history", good, 0.0)
-    assert (published(effects), effects.history_queries) == ([], (good,))  # the store answers
+    # Checked here, answered by the shell from the store (records.py), as the audit is.
+    assert (published(effects), [r.query for r in effects.records]) == ([], [good])
     bad = good.model_copy(update={"request_id": "h2", "until": since - timedelta(hours=1)})
     effects = request(core, "job_history", bad, 1.0)
     problem = "since 2026-11-21T09:00:00Z is not before until 2026-11-21T08:00:00Z"
@@ -786,7 +787,7 @@ def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a
         "entries": [],
         "next_cursor": None,
     }
-    assert effects.history_queries == ()
+    assert effects.records == ()
     assert published(effects) == [
         error(0, "gridfleet/v1/requests/job_history", f"JobHistoryQuery: {problem}", "h2"),
         ("gridfleet/v1/history/replies/op", page, 1, False),
@@ -798,7 +799,7 @@ def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a
     assert refused[0] == ERRORS and refused[1]["request_id"] == "h3"
     assert "since" in refused[1]["reason"]
     assert answer == reply(0, "h3", False, refused[1]["reason"], None)
-    assert effects.history_queries == () and core.jobs.jobs == {}
+    assert effects.records == () and core.jobs.jobs == {}
 
 
 def test_a_refusal_without_reply_to_goes_to_errors_only(core: CoordinatorCore) -> None:

@@ -7,9 +7,9 @@ import random
 import numpy as np
 import pytest
 
-from gridfleet.coordinator.flow import AGAINST_COST, WITH_COST, lane_costs, lane_directions
-from gridfleet.coordinator.planner import AgentSpec, Planner
-from gridfleet.coordinator.validate import validate_plan
+from gridfleet.coordinator.planning.flow import AGAINST_COST, WITH_COST, lane_costs, lane_directions
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.validate import validate_plan
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.coordinator import guidance as guidance_module
-from gridfleet.coordinator.guidance import MAX_SQUARES, Guidance
-from gridfleet.coordinator.pibt import neighbour_table
-from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning import guidance as guidance_module
+from gridfleet.coordinator.planning.guidance import MAX_SQUARES, Guidance
+from gridfleet.coordinator.planning.pibt import neighbour_table
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 

@@ -10,12 +10,12 @@ from scipy.sparse.csgraph import connected_components
 
 from gridfleet.bench.anchors import ScenAgent
 from gridfleet.bench.runs import run_one_shot
-from gridfleet.coordinator import unjam as unjam_module
-from gridfleet.coordinator.lacam import LaCAM, NoSolution, is_valid_move
-from gridfleet.coordinator.pibt import neighbour_table
-from gridfleet.coordinator.planner import Planner
-from gridfleet.coordinator.unjam import PATIENCE, Unjam
-from gridfleet.coordinator.validate import validate_plan
+from gridfleet.coordinator.planning import unjam as unjam_module
+from gridfleet.coordinator.planning.lacam import LaCAM, NoSolution, is_valid_move
+from gridfleet.coordinator.planning.pibt import neighbour_table
+from gridfleet.coordinator.planning.planner import Planner
+from gridfleet.coordinator.planning.unjam import PATIENCE, Unjam
+from gridfleet.coordinator.planning.validate import validate_plan
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.paths import DistanceFieldCache, adjacency

@@ -5,7 +5,7 @@ that settle at different steps, they did, for ever)."""
 from __future__ import annotations
 
 from gridfleet.coordinator.moves import Moves
-from gridfleet.coordinator.planner import Planner
+from gridfleet.coordinator.planning.planner import Planner
 from gridfleet.coordinator.world import UnitRecord
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper

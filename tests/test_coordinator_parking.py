@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from test_coordinator_planner import assert_clean, parse, run
 
-from gridfleet.coordinator.parking import parking_square
-from gridfleet.coordinator.pibt import neighbour_table
-from gridfleet.coordinator.planner import AgentSpec, Planner
+from gridfleet.coordinator.planning.parking import parking_square
+from gridfleet.coordinator.planning.pibt import neighbour_table
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner
 from gridfleet.grid import Cell
 
 # Found in an hour of `up --demo`: an idle unit at the end of a dead end held another unit's

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.coordinator.pibt import PIBT, neighbour_table
-from gridfleet.coordinator.pibt_swap import swap_partner
-from gridfleet.coordinator.planner import AgentSpec, Planner, plan_step
-from gridfleet.coordinator.validate import validate_plan, validate_step
+from gridfleet.coordinator.planning.pibt import PIBT, neighbour_table
+from gridfleet.coordinator.planning.pibt_swap import swap_partner
+from gridfleet.coordinator.planning.planner import AgentSpec, Planner, plan_step
+from gridfleet.coordinator.planning.validate import validate_plan, validate_step
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import DistanceFieldCache
 

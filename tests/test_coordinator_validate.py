@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gridfleet.coordinator.validate import validate_plan, validate_step, validate_windows
+from gridfleet.coordinator.planning.validate import validate_plan, validate_step, validate_windows
 from gridfleet.grid import Cell, GridMap
 
 GRID = GridMap.from_rows(["....", ".@..", "....", "...."])

@@ -8,8 +8,8 @@ from __future__ import annotations
 import pytest
 
 from gridfleet.coordinator.core import CoordinatorCore
-from gridfleet.coordinator.unjam import Unjam
-from gridfleet.coordinator.validate import validate_windows
+from gridfleet.coordinator.planning.unjam import Unjam
+from gridfleet.coordinator.planning.validate import validate_windows
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import ControlUnit, Order, SetGoal
 from gridfleet.robots.unit import UnitLogic

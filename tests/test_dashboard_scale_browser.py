@@ -12,7 +12,7 @@ import pytest
 from playwright.sync_api import expect
 
 from gridfleet.bench.page import PROBE, READ_PROBE, run_page_bench
-from gridfleet.bench.system_scenario import bench_grid
+from gridfleet.bench.system.scenario import bench_grid
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol import Topics
 

@@ -13,14 +13,12 @@ from gridfleet.accounts import Accounts, default_accounts
 from gridfleet.alerts.core import AlertsCore
 from gridfleet.alerts.settings import AlertSettings
 from gridfleet.broker.gate import Gate
-from gridfleet.coordinator.audit import AuditDesk, Identity
 from gridfleet.grid import GridMap
 from gridfleet.protocol import HeaderStamper, Topics
 from gridfleet.protocol.constants import MAX_REQUEST_BYTES
-from gridfleet.protocol.messages import AuditEntry
 
-from support.coordinator_drive import make_core
-from support.effects import header_json, published, stamper
+from support.coordinator_drive import answered, make_core
+from support.effects import header_json, published
 from support.mosquitto import broker_with_accounts
 from support.probe import MqttProbe
 from support.security import login
@@ -56,24 +54,17 @@ def test_the_coordinator_refuses_a_deeply_nested_request_in_words() -> None:
     assert "ClearObstacles" in errors[0]["reason"] and core.world.obstacles == set()
 
 
-def test_the_audit_desk_refuses_a_deeply_nested_query_in_words() -> None:
-    desk = AuditDesk(T, stamper("coordinator"), Identity())
-    answer = desk.on_message(T.request("audit"), deep("operator-cli"), _NoRows())
-    assert [o.topic for o in answer.publish] == [T.fleet("errors")]
-    assert answer.entries == ()
+def test_the_coordinator_refuses_a_deeply_nested_audit_query_in_words() -> None:
+    topics = Topics("gridfleet")
+    out, effects = answered(make_core(GRID), topics.request("audit"), deep("operator-cli"))
+    assert [o.topic for o in out] == [topics.fleet("errors")]
+    assert effects.audit.entries == ()
 
 
 def test_the_alerts_process_refuses_a_deeply_nested_acknowledgement_in_words() -> None:
     core = AlertsCore(T, AlertSettings(), HeaderStamper("alerts"), nonce="n", now=0.0)
     out = core.on_message(T.request("ack_alert"), deep("operator-cli"), 0.0)
     assert [o.topic for o in out.publish] == [T.fleet("errors")]
-
-
-class _NoRows:
-    def page(
-        self, since: float, until: float, actor: str | None, after: int, limit: int
-    ) -> list[tuple[int, AuditEntry]]:
-        return []
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.coordinator.history import JobChanges, key_of, range_problem
+from gridfleet.coordinator.history import JobChanges, key_of
 from gridfleet.coordinator.history_store import HistoryStore
 from gridfleet.coordinator.jobs import Job
+from gridfleet.coordinator.records import range_problem
 from gridfleet.grid import Cell
 from gridfleet.protocol import JobHistoryEntry, JobHistoryQuery
 from gridfleet.protocol.messages import JobState
@@ -99,7 +100,6 @@ def test_a_job_restored_after_a_restart_goes_on_from_its_stored_entries() -> Non
     [
         (T0, T0 - timedelta(hours=1), "since 2026-11-26T14:00:00Z is not before until 2026-11-26T13:00:00Z"),
         (T0, T0, "since 2026-11-26T14:00:00Z is not before until 2026-11-26T14:00:00Z"),
-        (T0.replace(tzinfo=None), None, "since 2026-11-26T14:00:00 has no time zone: add one (Z for UTC)"),
         (T0 - timedelta(days=4000), None, "since 2015-12-14T14:00:00Z to until 2026-11-27T14:00:00Z spans more than ten years"),
         (T0 + timedelta(days=2), None, "since 2026-11-28T14:00:00Z is not before until 2026-11-27T14:00:00Z"),
     ],
@@ -108,11 +108,17 @@ def test_a_bad_range_is_refused_in_one_line(
     since: datetime, until: datetime | None, problem: str
 ) -> None:
     now = T0 + timedelta(days=1)
-    assert range_problem(query(since=since, until=until), now) == problem
+    assert range_problem(since, until, now) == problem
 
 
-def test_a_good_range_is_answered() -> None:
-    assert range_problem(query(since=T0), T0 + timedelta(seconds=1)) is None
+def test_a_good_range_is_answered_and_a_time_without_a_zone_is_utc() -> None:
+    # The records' one rule (records.range_problem), the audit's too: every timestamp is UTC (§1).
+    assert range_problem(T0, None, T0 + timedelta(seconds=1)) is None
+    assert range_problem(T0.replace(tzinfo=None), None, T0 + timedelta(seconds=1)) is None
+    naive = T0.replace(tzinfo=None)
+    assert range_problem(T0, naive, T0) == (
+        "since 2026-11-26T14:00:00Z is not before until 2026-11-26T14:00:00Z"
+    )
 
 
 # ---- the store ----------------------------------------------------------------------------

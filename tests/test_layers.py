@@ -152,6 +152,39 @@ def test_a_component_may_import_the_base_and_itself(tmp_path: Path) -> None:
     assert crossings(tmp_path) == []
 
 
+# ---- the planning library ---------------------------------------------------------------------
+
+PLANNING = f"{BASE}.coordinator.planning"  # a library: the coordinator and the bench use it
+
+
+def planning_reaches(root: Path = REPO) -> list[str]:
+    """Each import of the rest of the coordinator in the planning library (`file:line: module`)."""
+    bad = []
+    for path in sorted((root / "coordinator" / "planning").rglob("*.py")):
+        for line, module in imports_of(path):
+            inside = module == PLANNING or module.startswith(PLANNING + ".")
+            if layer_of(module) == "coordinator" and not inside:
+                bad.append(f"{path.relative_to(root)}:{line}: {module}")
+    return bad
+
+
+def test_the_planning_library_imports_nothing_else_of_the_coordinator() -> None:
+    assert (REPO / "coordinator" / "planning" / "planner.py").exists()
+    assert planning_reaches() == []
+
+
+def test_the_planning_check_catches_an_import_of_the_coordinator(tmp_path: Path) -> None:
+    (tmp_path / "coordinator" / "planning").mkdir(parents=True)
+    (tmp_path / "coordinator" / "planning" / "bad.py").write_text(
+        "from gridfleet.coordinator.planning.pibt import PIBT\n"
+        "def f():\n    from gridfleet.coordinator.world import World\n",
+        encoding="utf-8",
+    )
+    assert planning_reaches(tmp_path) == [
+        "coordinator/planning/bad.py:3: gridfleet.coordinator.world"
+    ]
+
+
 # ---- the pure cores ----------------------------------------------------------------------------
 
 # What a pure core must never load, directly or through anything it imports.
@@ -159,7 +192,7 @@ IO_MODULES = {"asyncio", "aiomqtt", "paho", "sqlite3", "socket"}
 CORES = (
     "gridfleet.coordinator.core",
     "gridfleet.coordinator.stop",
-    "gridfleet.coordinator.planner",
+    "gridfleet.coordinator.planning.planner",
     "gridfleet.coordinator.allocation",
     "gridfleet.coordinator.world",
     "gridfleet.robots.unit",

@@ -57,10 +57,12 @@ from gridfleet.protocol.constants import (
 )
 from gridfleet.protocol.device import DEVICE_STATES, DEVICE_WILL
 from gridfleet.protocol.messages import FINAL_JOB_STATES, DirectionLetter, Message
-from gridfleet.system.protocol_table import TABLE_PATH, protocol_table
-from gridfleet.system.schemas import REPO
 
-TABLE_FILE = REPO / TABLE_PATH
+from support.paths import REPO
+from support.scripts import gen_protocol
+
+TABLE_FILE = REPO / gen_protocol.TABLE_PATH
+protocol_table = gen_protocol.protocol_table
 
 FIXED = datetime(2026, 11, 21, 10, 0, tzinfo=UTC)
 stamp = HeaderStamper("unit1", clock=lambda: FIXED)

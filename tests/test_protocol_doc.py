@@ -19,8 +19,11 @@ from gridfleet.protocol import (
     decode_press,
     messages,
 )
-from gridfleet.system.schemas import REPO, SCHEMA_DIR, generated, render, schemas
 
+from support.scripts import gen_protocol
+
+REPO, SCHEMA_DIR = gen_protocol.REPO, gen_protocol.SCHEMA_DIR
+generated, render, schemas = gen_protocol.generated, gen_protocol.render, gen_protocol.schemas
 DOC = REPO / "protocol.md"
 BLOCK_RE = re.compile(r"^```(json|text) (\w+)\n(.*?)^```", re.S | re.M)
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from gridfleet.bench.system_scenario import make_scenario
+from gridfleet.bench.system.scenario import make_scenario
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics

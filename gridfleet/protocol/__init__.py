@@ -3,7 +3,7 @@
 protocol.md is the human contract; this package is the same contract as code, and
 protocol/schemas/ the same again as JSON Schema. `make schemas` also writes the topic table and
 constants for other languages (protocol/protocol.json, the dashboard's protocol_table.js, the
-firmware's protocol_table.h; see system/protocol_table.py). Tests keep them all in step.
+firmware's protocol_table.h; see script/gen_protocol.py). Tests keep them all in step.
 """
 
 from gridfleet.protocol.codec import HeaderStamper, decode, encode

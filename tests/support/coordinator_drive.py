@@ -6,12 +6,16 @@ so a test can pin exact payloads with `support.effects.published`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
 from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.records import RecordQuery, answer
 from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.grid import GridMap
+from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     Connection,
     Factsheet,
@@ -22,7 +26,7 @@ from gridfleet.protocol import (
     decode,
     encode,
 )
-from gridfleet.protocol.messages import Message, Request
+from gridfleet.protocol.messages import AuditEntry, AuditQuery, Message, Request
 
 from support.effects import header, stamper
 
@@ -96,3 +100,31 @@ def reply_in(effects: Effects) -> Reply:
     """The one reply among `effects`."""
     (reply,) = [decode(Reply, m.payload) for m in effects.publish if "/replies/" in m.topic]
     return reply
+
+
+class AuditRows:
+    """An in-memory audit store (records.RecordsDesk) over entries numbered from 1."""
+
+    def __init__(self, entries: Sequence[AuditEntry] = ()) -> None:
+        self.numbered = list(enumerate(entries, start=1))
+
+    def rows(self, query: RecordQuery, limit: int) -> list[tuple[int, AuditEntry]]:
+        """Up to `limit` entries in `query`'s range, of its actor, after its cursor, by id."""
+        assert isinstance(query.query, AuditQuery)
+        actor, after = query.query.actor, query.after or 0
+        return [
+            (i, e)
+            for i, e in self.numbered
+            if query.since <= e.at.timestamp() < query.until and i > after
+            if actor in (None, e.actor)
+        ][:limit]
+
+
+def answered(
+    core: CoordinatorCore, topic: str, payload: bytes, desk: AuditRows | None = None
+) -> tuple[list[Outbound], Effects]:
+    """What the core publishes for one message, its record queries answered from `desk` as the
+    shell answers them from its stores; and the core's Effects."""
+    effects = core.on_message(topic, payload, 0.0)
+    pages = [answer(r, desk or AuditRows(), core.say) for r in effects.records]
+    return [*effects.publish, *(p for p in pages if p is not None)], effects

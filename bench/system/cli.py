@@ -10,8 +10,8 @@ import logging
 import sys
 from typing import Any, TextIO
 
-from gridfleet.bench.system import run_system
-from gridfleet.bench.system_result import SystemResult, summarise
+from gridfleet.bench.system.result import SystemResult, summarise
+from gridfleet.bench.system.run import run_system
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
 from gridfleet.errors import ConfigError

@@ -9,7 +9,7 @@ import time
 
 import aiomqtt
 
-from gridfleet.bench.soak_check import Event, JobSeen, StateSeen, Stop
+from gridfleet.bench.soak.check import Event, JobSeen, StateSeen, Stop
 from gridfleet.bus import make_client
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError

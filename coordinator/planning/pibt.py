@@ -5,7 +5,7 @@ stands there (priority inheritance); a pushed agent that cannot move sends its p
 next choice (backtracking). Two rules on top of plain PIBT: an agent may follow one that leaves
 its square but never closes a cycle of such moves (a *rotation*: asynchronous units would each
 wait for the next), and two agents that must pass in a corridor swap places
-(`coordinator.pibt_swap`).
+(`coordinator.planning.pibt_swap`).
 
 Squares are flat indices (y * width + x); agents are indices into the step's lists.
 """
@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from operator import itemgetter
 
-from gridfleet.coordinator.pibt_swap import swap_partner
+from gridfleet.coordinator.planning.pibt_swap import swap_partner
 from gridfleet.grid import GridMap
 
 Index = int  # a square as a flat index: y * width + x

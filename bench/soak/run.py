@@ -1,5 +1,5 @@
 """The chaos soak: the real system in separate processes, faults injected while jobs flow, and
-the checks of `bench.soak_check` over what was recorded.
+the checks of `bench.soak.check` over what was recorded.
 
 Two lanes of faults: the main lane kills (SIGKILL or SIGTERM) and restarts the units process,
 the coordinator and the embedded broker, pauses processes (SIGSTOP/SIGCONT) past the staleness
@@ -8,13 +8,8 @@ each followed by its recovery. The stop lane engages the stop from an operator (
 device (a press) and releases it as an operator; it engages only between main-lane faults (a unit
 cannot obey a stop it cannot read), and main-lane faults then strike while the stop is held.
 
-With `network` the units and the coordinator run on hosts of their own (network namespaces on
-one bridge, `gridfleet.bench.lan`), reaching the broker at this machine's LAN address with
-accounts, and the main lane also cuts a host's link without a word (some cuts past the broker's
-keep-alive: the will must come), stalls it, or narrows it to a thin, lossy link. With `bridge`
-as well, the units' host is a hall with a Mosquitto of its own, bridged to a central Mosquitto
-(the coordinator's, the soak's) through the proxy: every fault of the hall's link and of the
-proxy is then a bridge's.
+`Soak` is one run, whatever its topology; where its parts run (all on loopback, on hosts of a LAN,
+or with a hall's bridged broker) is one of the three classes of `bench.soak.topologies`.
 """
 
 from __future__ import annotations
@@ -22,14 +17,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import os
 import random
-import shlex
 import shutil
 import signal
-import socket
 import statistics
-import tempfile
 import time
 import uuid
 from collections import Counter, defaultdict
@@ -40,9 +31,9 @@ from typing import Any, TextIO
 
 import aiomqtt
 
-from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
-from gridfleet.bench.lan import Host, lan
-from gridfleet.bench.soak_check import (
+from gridfleet.accounts import Accounts
+from gridfleet.bench.lan import Host
+from gridfleet.bench.soak.check import (
     FINAL,
     Disturbed,
     Event,
@@ -53,10 +44,8 @@ from gridfleet.bench.soak_check import (
     Truth,
     check,
 )
-from gridfleet.bench.soak_faults import (
-    BRIDGED_HOSTS,
+from gridfleet.bench.soak.faults import (
     LOCAL_FAMILIES,
-    MOSQUITTO_WILL_SLACK_S,
     NETWORK_FAMILIES,
     NETWORK_HOSTS,
     WILL_SLACK_S,
@@ -64,15 +53,13 @@ from gridfleet.bench.soak_faults import (
     main_faults,
     stop_faults,
 )
-from gridfleet.bench.soak_listen import SoakListener
-from gridfleet.bench.soak_proxy import FaultyProxy
-from gridfleet.bench.soak_scenario import make_soak_scenario
-from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
+from gridfleet.bench.soak.listen import SoakListener
+from gridfleet.bench.soak.proxy import FaultyProxy
+from gridfleet.bench.soak.scenario import make_soak_scenario
 from gridfleet.bus import make_client
-from gridfleet.config import parse_broker_url, with_credentials
+from gridfleet.config import parse_broker_url
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
-from gridfleet.protocol.stop import stop_filters
 from gridfleet.system.assembly import SystemSpec, cli, start_broker_process
 from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 
@@ -190,7 +177,17 @@ def read_truth(path: Path) -> Iterator[Truth]:
 
 
 class Soak:
-    """One soak run in a temporary directory; `run()` returns its result."""
+    """One soak run in a temporary directory; `run()` returns its result.
+
+    The base of the three topologies (`bench.soak.topologies`): the hooks below say where the
+    broker and the processes run and how the soak logs in; the base is every client on loopback.
+    """
+
+    # The hosts the network faults strike, and how late a will may come (a broker's keep-alive).
+    FAULT_HOSTS: tuple[str, ...] = NETWORK_HOSTS
+    WILL_SLACK: tuple[float, float] = WILL_SLACK_S
+    NETWORK_FAULTS = False  # whether the network's faults (cut, stall, narrow a host) can strike
+    RESTARTS_BROKER = True  # whether the broker faults restart an embedded broker
 
     def __init__(self, cfg: SoakConfig, workdir: Path, log: TextIO) -> None:
         self.cfg = cfg
@@ -217,9 +214,8 @@ class Soak:
         self.proxy: FaultyProxy | None = None
         self.listener: SoakListener | None = None
         self.truth = workdir / "truth.jsonl"
-        self.hall_watch = workdir / "hall-stop.txt"  # with `bridge`: the stop at the hall
-        self.network = contextlib.ExitStack()  # the LAN, when cfg.network: removed at the end
-        self.hosts: dict[str, Host] = {}
+        self.listen = "127.0.0.1"  # where the soak's broker and proxy listen
+        self.hosts: dict[str, Host] = {}  # the LAN's hosts, by name, where there is a LAN
         self.detections: list[float] = []
         self.accounts = Accounts({})
         self.operator_url = ""  # how the soak's operator and its device log in
@@ -230,44 +226,25 @@ class Soak:
     async def start(self) -> None:
         """Broker (ours, on a fixed port), proxy, coordinator, units, feed and the listener."""
         cfg = self.cfg
-        listen, logins = "127.0.0.1", list[str]()
-        if cfg.network:
-            listen, logins = self._make_network()
-        if cfg.bridge:
-            self.broker_url = await self._start_central(listen)
-        elif cfg.broker is None:
-            spec = SystemSpec(
-                self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None, listen=listen
-            )
-            self.broker_url, _ = await start_broker_process(self.sup, spec, logins)
-            self.children["broker"] = self.sup.children[-1]
-        else:
-            self.broker_url = cfg.broker
-        self.operator_url = self.device_url = self.broker_url
-        if cfg.network:
-            self.operator_url = self._login("operator")
-            self.device_url = self._login(DEVICE)
+        logins = self._open()
+        self.broker_url = await self._start_broker(logins)
+        self.operator_url = self._login("operator")
+        self.device_url = self._login(DEVICE)
         target = parse_broker_url(self.broker_url)
-        self.proxy = FaultyProxy(target.host, target.port, listen=listen)
+        self.proxy = FaultyProxy(target.host, target.port, listen=self.listen)
         proxy_port = await self.proxy.start()
-        via = f"mqtt://{listen}:{proxy_port}"
-        if cfg.bridge:
-            via = await self._start_hall(listen, proxy_port)  # the bridge through the proxy
+        via = await self._units_broker(proxy_port)
         self.listener = SoakListener(self.operator_url, self.topics, self._client_id("listener"))
         self.tasks.append(asyncio.create_task(self.listener.run()))
         common = ["--root", self.root, "--step", str(cfg.step_s), *logins]
-        # On the LAN the units' host reaches the broker through the proxy (delays, cuts) and the
-        # coordinator's host directly; on loopback every client goes through the proxy.
         proxied = ["--broker", via, *common]
-        direct = ["--broker", self.broker_url, *common] if cfg.network else proxied
+        direct = ["--broker", self._coordinator_broker(via), *common]
         scenario = str(self.scenario.path)
         coordinator = cli("coordinator", *direct, "--map", str(self.scenario.map_path))
         coordinator += ["--db", str(self.dir / "jobs.db")]
         robots = cli("robots", *proxied, "--scenario", scenario)
         robots += ["--state", str(self.dir / "units.sqlite3"), "--truth", str(self.truth)]
-        if cfg.network:
-            coordinator = self.hosts["office"].command(coordinator)
-            robots = self.hosts["hall" if cfg.bridge else "units"].command(robots)
+        coordinator, robots = self._place(coordinator, robots)
         keep = str(max(2, cfg.units // 2))
         feed = cli("feed", *direct, "--scenario", scenario, "--demo", "--keep-active", keep)
         for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
@@ -275,72 +252,49 @@ class Soak:
         await self._wait_flowing(time.time(), "start-up")
         self.progress += 1
 
-    def _make_network(self) -> tuple[str, list[str]]:
-        """The LAN and its two hosts, and the accounts a broker beyond loopback needs; the
-        broker's address and the flags that log each component in."""
-        net = self.network.enter_context(lan())
-        names = BRIDGED_HOSTS if self.cfg.bridge else NETWORK_HOSTS
-        self.hosts = {name: net.host(name) for name in names}
-        # The soak itself (its broker, proxy, listener, operator and feed) lives on the LAN's
-        # first host from now on: the threads and processes it starts follow it there.
-        net.enter()
-        device = Account(DEVICE, new_password(), "device", self.unit_ids[0])
-        self.accounts = default_accounts(self.unit_ids).with_account(device)
-        if self.cfg.bridge:
-            self.accounts = self.accounts.with_account(Account(HALL, new_password(), "bridge"))
-        accounts_file = self.dir / "accounts.toml"
-        write_accounts(self.accounts, accounts_file)
-        print(f"soak: LAN {net.network}, hosts {self.hosts}", file=self.log)
-        return net.address, ["--accounts", str(accounts_file)]
+    # ---- the topology's hooks -----------------------------------------------------------
 
-    async def _start_central(self, listen: str) -> str:
-        """The central Mosquitto (accounts, on the LAN's first host), listening; its URL."""
-        directory = self.dir / "central"
-        passwd, acl = write_files(self.accounts, self.topics, directory)
-        port = free_port()
-        conf = mosquitto_conf(passwd, acl, host=listen, port=port, ws_port=None)
-        self.children["broker"] = await self.sup.start(
-            ChildSpec("broker", [MOSQUITTO, "-c", str(_conf_file(directory, conf))])
+    def _open(self) -> list[str]:
+        """Make what the topology needs before its broker; the flags that log each component in."""
+        return []
+
+    async def _start_broker(self, logins: list[str]) -> str:
+        """The embedded broker (one the soak restarts), or the one given; its URL."""
+        if self.cfg.broker is not None:
+            return self.cfg.broker
+        spec = SystemSpec(
+            self.scenario, root=self.root, mqtt_port=free_port(), ws_port=None, listen=self.listen
         )
-        deadline = time.monotonic() + 10.0
-        while not _connects(listen, port):
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"the central mosquitto is not listening on {listen}:{port}")
-            await asyncio.sleep(0.05)  # polling its port, with a deadline
-        return f"mqtt://{listen}:{port}"
+        url, _ = await start_broker_process(self.sup, spec, logins)
+        self.children["broker"] = self.sup.children[-1]
+        return url
 
-    async def _start_hall(self, central_host: str, central_port: int) -> str:
-        """The hall's Mosquitto on its host, bridged to `central_host:central_port`; the URL its
-        units reach it at (its loopback: only the bridge crosses the hall's link)."""
-        directory = self.dir / "hall"
-        passwd, acl = write_files(self.accounts, self.topics, directory)
-        port = free_port()
-        bridge = bridge_conf(self.accounts.get(HALL), central_host, central_port, self.topics)
-        conf = mosquitto_conf(passwd, acl, host="127.0.0.1", port=port, ws_port=None) + bridge
-        argv = self.hosts["hall"].command([MOSQUITTO, "-c", str(_conf_file(directory, conf))])
-        self.children["hall"] = await self.sup.start(ChildSpec("hall", argv))
-        # What the hall's broker has of the stop, when: its units cannot know it sooner. One
-        # line a message, "<unix time> <topic> <payload>", read after the run (hall_stops).
-        operator = self.accounts.get("operator")
-        watch = [MOSQUITTO_SUB, "-h", "127.0.0.1", "-p", str(port), "-u", "operator"]
-        watch += ["-P", operator.password, "-i", self._client_id("hall-watch"), "-q", "1"]
-        watch += ["-F", "%U %t %p", "-k", "10"]
-        for topic, _ in stop_filters(self.topics):
-            watch += ["-t", topic]
-        script = f"exec {shlex.join(watch)} >> {shlex.quote(str(self.hall_watch))}"
-        argv = self.hosts["hall"].command(["sh", "-c", script])
-        self.children["hall-watch"] = await self.sup.start(ChildSpec("hall-watch", argv))
-        return f"mqtt://127.0.0.1:{port}"  # the units wait for it: they retry until it listens
+    async def _units_broker(self, proxy_port: int) -> str:
+        """The URL the units reach their broker at: through the proxy (delays, cuts)."""
+        return f"mqtt://{self.listen}:{proxy_port}"
+
+    def _coordinator_broker(self, via: str) -> str:
+        """The URL the coordinator and the feed reach the broker at: on loopback, the units'."""
+        return via
+
+    def _place(self, coordinator: list[str], robots: list[str]) -> tuple[list[str], list[str]]:
+        """The coordinator's and the units' commands, run where the topology puts them."""
+        return coordinator, robots
 
     def _login(self, account: str) -> str:
-        """The broker's URL logging in as `account`."""
-        return with_credentials(self.broker_url, account, self.accounts.get(account).password)
+        """The broker's URL for the soak's `account` (operator, device): on loopback, no login."""
+        return self.broker_url
 
     def _client_id(self, what: str, device: bool = False) -> str:
-        """A client id of the soak's own (one its account owns, on the LAN)."""
-        if not self.cfg.network:
-            return f"{self.root}-{what}"
-        return f"{DEVICE if device else 'operator'}-{self.root}-{what}"
+        """A client id of the soak's own."""
+        return f"{self.root}-{what}"
+
+    def _hall_stops(self) -> list[Stop]:
+        """The stop as a hall's broker had it, where there is one."""
+        return []
+
+    def _close(self) -> None:
+        """Remove what `_open` made."""
 
     async def _wait_flowing(self, since: float, what: str) -> float | None:
         """Wait until every unit's state and the coordinator's routes arrived after `since`;
@@ -365,14 +319,13 @@ class Soak:
     async def main_lane(self, deadline: float) -> None:
         """One process or link fault at a time, each with its recovery, until `deadline`."""
         cfg = self.cfg
-        restartable = cfg.broker is None and not cfg.bridge
+        restartable = cfg.broker is None and self.RESTARTS_BROKER
         families = [
             f
             for f in cfg.faults
-            if (f != "broker" or restartable) and (cfg.network or f not in NETWORK_FAMILIES)
+            if (f != "broker" or restartable) and (self.NETWORK_FAULTS or f not in NETWORK_FAMILIES)
         ]
-        hosts = BRIDGED_HOSTS if cfg.bridge else NETWORK_HOSTS
-        slack = MOSQUITTO_WILL_SLACK_S if cfg.bridge else WILL_SLACK_S
+        hosts, slack = self.FAULT_HOSTS, self.WILL_SLACK
         for fault in main_faults(self.rng, families, self.cfg.step_s, hosts, slack):
             await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
             if time.monotonic() >= deadline:
@@ -510,7 +463,7 @@ class Soak:
     async def release(self) -> None:
         """An operator's release on the latch; the coordinator clears the device's press."""
         await self.publish(self.topics.fleet("estop"), "released|operator|soak")
-        # Moves are allowed from a release the listener then sees take (soak_check).
+        # Moves are allowed from a release the listener then sees take (soak.check).
         self.recorded.append(Released(time.time()))
         await self._wait_released()
 
@@ -637,12 +590,12 @@ class Soak:
             await asyncio.gather(*self.tasks, return_exceptions=True)
             if self.proxy is not None:
                 await self.proxy.close()
-            self.network.close()
+            self._close()
         assert self.listener is not None
         for at, report in self.listener.errors:
             print(f"[errors     ] {at:.2f} {report}", file=self.log)
         # The stop as the listener saw it and the releases given, to read a verdict against.
-        hall = hall_stops(self.hall_watch, self.topics) if self.cfg.bridge else []
+        hall = self._hall_stops()
         stops = [
             e
             for e in (*self.listener.events, *self.recorded, *hall)
@@ -681,27 +634,3 @@ class Soak:
             dict(fault_s),
             self.detections,
         )
-
-
-async def run_soak(cfg: SoakConfig, log: TextIO, keep: Path | None = None) -> SoakResult:
-    """One soak run in a temporary directory of its own, or in `keep` (left for a post-mortem)."""
-    if keep is not None:
-        keep.mkdir(parents=True, exist_ok=True)
-        return await Soak(cfg, keep, log).run()
-    with tempfile.TemporaryDirectory(prefix="gridfleet-soak-") as tmp:
-        return await Soak(cfg, Path(tmp), log).run()
-
-
-def _conf_file(directory: Path, conf: str) -> Path:
-    """`conf` written as `directory/mosquitto.conf`."""
-    # Started as root, Mosquitto reads its files as user mosquitto unless told to stay root (the
-    # accounts' files are the owner's only).
-    path = directory / "mosquitto.conf"
-    path.write_text(conf + ("user root\n" if os.geteuid() == 0 else ""))
-    return path
-
-
-def _connects(host: str, port: int) -> bool:
-    """Whether a TCP connection to `host:port` is taken."""
-    with socket.socket() as probe:
-        return probe.connect_ex((host, port)) == 0

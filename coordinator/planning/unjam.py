@@ -4,13 +4,13 @@ PIBT is fast but incomplete: with fixed targets a few agents can push each other
 forever while the rest wait on their targets. `Unjam` notes every configuration the fleet enters
 while the targets stay the same; one entered a third time means going round in circles, and so do
 STALL steps in a row none of which brought the fleet nearer its targets in all. Then
-LaCAM (`coordinator.lacam`) searches a way for everyone from there, a little every step while the
-fleet holds still (so no step takes long), and the planner follows the way it finds a
+LaCAM (`coordinator.planning.lacam`) searches a way for everyone from there, a little every
+step while the fleet holds still (so no step takes long), and the planner follows the way it finds a
 configuration at a time. Units move asynchronously: an agent takes its next square of the plan
 when it stands on its square of the current one, only when whoever holds that square leaves it in
 the same step, and the plan goes on once every agent is where it says.
 
-Pure: flat squares in (y * width + x, as `coordinator.pibt`), next squares out.
+Pure: flat squares in (y * width + x, as `coordinator.planning.pibt`), next squares out.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from gridfleet.coordinator.lacam import Config, LaCAM, NoSolution
-from gridfleet.coordinator.parking import nearest_first
-from gridfleet.coordinator.pibt import NONE, Index
+from gridfleet.coordinator.planning.lacam import Config, LaCAM, NoSolution
+from gridfleet.coordinator.planning.parking import nearest_first
+from gridfleet.coordinator.planning.pibt import NONE, Index
 
 REVISITS = 2  # a configuration entered this many times again means a livelock
 STALL = 64  # ...and so do this many steps in a row without getting nearer the targets

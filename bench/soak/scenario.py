@@ -8,8 +8,9 @@ from pathlib import Path
 
 from gridfleet.grid import Cell
 from gridfleet.scenario import Scenario, load_scenario
+from gridfleet.shipped import shipped_dir
 
-MAPS = Path(__file__).resolve().parent.parent / "maps"
+MAPS = shipped_dir()  # the shipped scenarios: the checkout's maps/, or a wheel's
 
 
 def base_scenario() -> Scenario:

@@ -2,8 +2,8 @@
 
 Pure: a grid, current squares, targets and priorities in; next squares out. Distance fields
 (cached per target) from `gridfleet.paths` are the heuristic: on maps of up to 4096 squares a
-unit's field follows its guide path (`coordinator.guidance`), on larger ones the cheapest cost
-under one-way lanes (`coordinator.flow`). Priority inheritance with
+unit's field follows its guide path (`coordinator.planning.guidance`), on larger ones the
+cheapest cost under one-way lanes (`coordinator.planning.flow`). Priority inheritance with
 backtracking (PIBT, Okumura et al. 2019) lets a high-priority unit push lower ones out of its way.
 
 Units run asynchronously (each enters a released square only when its own sensor sees it free),
@@ -13,8 +13,8 @@ moves away is fine. Priorities grow every step a unit has not reached its target
 arrival, so every unit eventually becomes the most urgent one and gets through.
 
 This module keeps what lasts between steps (grid, distance fields, priorities, the seeded random
-stream) and orders the agents; the search of one step is `coordinator.pibt`, the corridor swap
-`coordinator.pibt_swap`.
+stream) and orders the agents; the search of one step is `coordinator.planning.pibt`, the
+corridor swap `coordinator.planning.pibt_swap`.
 """
 
 from __future__ import annotations
@@ -24,11 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gridfleet.coordinator.flow import lane_costs
-from gridfleet.coordinator.guidance import MAX_SQUARES, Guidance
-from gridfleet.coordinator.parking import parking_square
-from gridfleet.coordinator.pibt import NONE, PIBT, neighbour_table
-from gridfleet.coordinator.unjam import Unjam
+from gridfleet.coordinator.planning.flow import lane_costs
+from gridfleet.coordinator.planning.guidance import MAX_SQUARES, Guidance
+from gridfleet.coordinator.planning.parking import parking_square
+from gridfleet.coordinator.planning.pibt import NONE, PIBT, neighbour_table
+from gridfleet.coordinator.planning.unjam import Unjam
 from gridfleet.grid import Cell, GridMap
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 
@@ -58,8 +58,8 @@ class Planner:
         guided: bool | None = None,
         lanes: bool | None = None,
     ) -> None:
-        """`guided`: traffic-flow guidance (`coordinator.guidance`); None: on for maps of up to
-        `guidance.MAX_SQUARES` squares. `lanes`: one-way lanes (`coordinator.flow`); None: on
+        """`guided`: traffic-flow guidance (`planning.guidance`); None: on for maps of up to
+        `guidance.MAX_SQUARES` squares. `lanes`: one-way lanes (`planning.flow`); None: on
         where guidance is off (a guide path per unit is too much on a large map)."""
         self._rng = np.random.default_rng(seed)
         self._seed = seed

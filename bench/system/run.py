@@ -26,11 +26,11 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from gridfleet.bench.system_broker import check_broker
-from gridfleet.bench.system_monitor import BenchMonitor
-from gridfleet.bench.system_procs import ProcessWatch
-from gridfleet.bench.system_result import SystemResult
-from gridfleet.bench.system_scenario import make_scenario
+from gridfleet.bench.system.broker import check_broker
+from gridfleet.bench.system.monitor import BenchMonitor
+from gridfleet.bench.system.procs import ProcessWatch
+from gridfleet.bench.system.result import SystemResult
+from gridfleet.bench.system.scenario import make_scenario
 from gridfleet.bus import make_client
 from gridfleet.config import check_step
 from gridfleet.console.feed import random_job

@@ -19,7 +19,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from gridfleet.coordinator.pibt import PIBT, Index
+from gridfleet.coordinator.planning.pibt import PIBT, Index
 
 Config = tuple[Index, ...]  # one square per agent
 Field = Sequence[int]  # flat distance field towards one agent's goal

@@ -3,7 +3,7 @@
 Plain PIBT lets the more urgent agent push the other down the corridor ahead of it, possibly to
 its end and back. Instead the one in front backs off and pulls the other along, until a side
 square lets them pass: the swap technique of Okumura's LaCAM3 ("Engineering LaCAM*", 2024).
-`coordinator.pibt` asks `swap_partner` before each agent's move.
+`coordinator.planning.pibt` asks `swap_partner` before each agent's move.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from gridfleet.coordinator.pibt import PIBT, Index
+    from gridfleet.coordinator.planning.pibt import PIBT, Index
 
 
 def swap_partner(s: PIBT, i: int, best: Index) -> int | None:

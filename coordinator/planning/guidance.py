@@ -20,7 +20,7 @@ import heapq
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from gridfleet.coordinator.pibt import Index
+from gridfleet.coordinator.planning.pibt import Index
 
 CONTRAFLOW = 1.0  # extra cost of an edge per guide path taking it the other way
 CROSSING = 0.1  # extra cost of entering a square per guide path entering it too

@@ -11,8 +11,9 @@ import sys
 from pathlib import Path
 
 from gridfleet.bench.lan import can_make_lans
-from gridfleet.bench.soak import MOSQUITTO, SoakConfig, SoakResult, run_soak
-from gridfleet.bench.soak_faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
+from gridfleet.bench.soak.faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
+from gridfleet.bench.soak.run import MOSQUITTO, SoakConfig, SoakResult
+from gridfleet.bench.soak.topologies import run_soak
 from gridfleet.config import check_step, parse_broker_url
 from gridfleet.errors import ConfigError
 

@@ -7,7 +7,7 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from gridfleet.bench.system_procs import ProcessFigures
+from gridfleet.bench.system.procs import ProcessFigures
 
 
 @dataclass(frozen=True)

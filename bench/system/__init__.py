@@ -1,0 +1,1 @@
+"""The whole-system benchmark (`gridfleet bench system`): throughput and stop latency."""
