@@ -96,7 +96,7 @@ test-fast: $(STAMP)
 soak: $(STAMP)
 	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m soak
 
-# The firmware's host tests, built with g++ from the files git tracks alone (tests/test_firmware.py).
+# The firmware's host tests, built with g++ from the files git tracks alone (tests/device/test_firmware.py).
 firmware-checkout: $(STAMP)
 	$(KEEP_BYTECODE) $(PRIORITY) $(BIN)/pytest -q -m firmware
 

@@ -86,7 +86,7 @@ class Notice(BaseModel):
     """The webhook's JSON body: one raise, clear or acknowledgement (docs/monitoring.md)."""
 
     # Built on first use, as the protocol's models: building at import loads pydantic's plugin
-    # machinery, and with it the socket module (tests/test_layers.py).
+    # machinery, and with it the socket module (tests/system/test_layers.py).
     model_config = ConfigDict(frozen=True, extra="forbid", defer_build=True)
 
     event: Event

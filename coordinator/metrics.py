@@ -43,7 +43,7 @@ STOP_BUCKETS = (0.05, 0.1, 0.2, 0.3, 0.5, 1.0, 2.0, 5.0, 10.0)
 
 # Reason kinds of rejected and failed jobs: the core's reasons are sentences naming units and
 # squares (unbounded); a label takes the kind. The phrases are those of allocation.py and
-# progress.py (tests/test_metrics.py builds allocation.py's with its own functions).
+# progress.py (tests/coordinator/test_metrics.py builds allocation.py's with its own functions).
 _REASON_KINDS = (
     ("exceeds every unit's capacity", "over_capacity"),
     ("cannot be reached", "unreachable"),

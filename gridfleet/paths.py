@@ -16,7 +16,7 @@ if TYPE_CHECKING:
 
 # scipy is imported where it is used: it loads numpy.testing, whose importlib.metadata brings in
 # the standard library's email and socket modules, and importing a pure core loads no network
-# module (tests/test_layers.py). Once loaded, an import inside a function is a dict lookup.
+# module (tests/system/test_layers.py). Once loaded, an import inside a function is a dict lookup.
 
 UNREACHABLE = np.iinfo(np.int32).max
 COMPACT_UNREACHABLE = int(np.iinfo(np.uint16).max)  # the same in a compact (uint16) field

@@ -10,7 +10,7 @@
 - `firmware/esp32_unit/src/protocol_table.h`: constexpr values the ESP32 firmware uses.
 
 Everything here is read from the code (gridfleet/protocol/: constants.py, topics.py, the message
-models), never typed again, and `tests/test_protocol_doc.py` fails when a committed file differs
+models), never typed again, and `tests/system/test_protocol_doc.py` fails when a committed file differs
 from a fresh generation. A tool of the checkout, not of the installed package: nothing running
 needs it.
 """

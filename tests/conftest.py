@@ -43,8 +43,10 @@ def _kinds_for(definition: pytest.Item) -> tuple[str, ...]:
         return BROKER_KINDS
     # The fleet's own behaviour over MQTT: running it again on the other broker mostly repeats
     # it, and the suite is bound by the machine's two cores. Its name picks the broker (not a
-    # random draw: a failure comes back on the same one), which spreads them about evenly.
-    name = definition.nodeid.split("[", 1)[0]
+    # random draw: a failure comes back on the same one), which spreads them about evenly. The name
+    # is the one it had before the test modules went into their component's folder
+    # (`tests/test_x.py::test_y`), so each test kept its broker.
+    name = re.sub(r"^tests/[^/]+/", "tests/", definition.nodeid.split("[", 1)[0])
     return (BROKER_KINDS[zlib.crc32(name.encode()) % len(BROKER_KINDS)],)
 
 

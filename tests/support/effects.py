@@ -53,7 +53,7 @@ def published(
     The payload is parsed when it is JSON, else kept as text (the device topics are plain text);
     `root` is cut off the front of every topic, which must start with it. The coordinator's
     history view (`fleet/events`) follows most changes: it is left out unless `events`
-    (tests/test_coordinator_events.py is about it).
+    (tests/coordinator/test_coordinator_events.py is about it).
     """
     sent = []
     for out in outs.publish if isinstance(outs, Carrying) else outs:

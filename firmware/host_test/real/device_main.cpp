@@ -1,5 +1,5 @@
 // The sketch as a host program, against the real PubSubClient and ArduinoCore-API: runs setup()
-// and loop() over real sockets, for tests/test_firmware_real.py. Configured by the environment
+// and loop() over real sockets, for tests/device/test_firmware_real.py. Configured by the environment
 // (host_test/esp32_core/config.h). Reads commands on stdin: `press` (the button goes down and its
 // interrupt fires), `release`, `wifi down`, `wifi up`, `quit`. Writes lines on stdout: `[serial]
 // ...` (what the sketch prints), `leds NESW <ms>` whenever the LED pins change (`.` for off),

@@ -4,7 +4,7 @@ Real broker, real coordinator, real simulated units (threads, `run_system`) and 
 Chromium: nothing between them is faked. The world simulation (`world_of`) is the ground truth the
 page is checked against; a probe only listens.
 
-`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/test_acceptance_dashboard.py -k screenshot` also
+`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/system/test_acceptance_dashboard.py -k screenshot` also
 copies the live screenshot (test-artifacts/dashboard-real-playfield.png) to docs/dashboard.png.
 """
 

@@ -36,7 +36,7 @@ from support.paths import REPO
 
 CORRIDOR = GridMap.from_rows(["....."])
 BAY = GridMap.from_rows([".....", "@@.@@"])  # a corridor with one passing bay
-SHARED_ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors"
+SHARED_ANCHORS = Path(__file__).resolve().parents[3] / "shared" / "anchors"
 
 
 def ticker() -> object:

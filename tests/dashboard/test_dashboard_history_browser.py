@@ -4,7 +4,7 @@ throughput chart's day, from the job history. Real Chromium; the real coordinato
 alerts process answer, but for the paging test, where the test plays the coordinator to hand the
 page pages of its own making.
 
-`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/test_dashboard_history_browser.py -k screenshot`
+`GRIDFLEET_REFRESH_DOCS=1 .venv/bin/pytest tests/dashboard/test_dashboard_history_browser.py -k screenshot`
 also copies the live screenshots to docs/dashboard-history.png and docs/dashboard-alerts.png.
 """
 

@@ -11,7 +11,7 @@ from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import format_map, load_map, parse_map
 from gridfleet.scenario import load_scenario, with_units
 
-ANCHORS = Path(__file__).resolve().parents[2] / "shared" / "anchors" / "maps"
+ANCHORS = Path(__file__).resolve().parents[3] / "shared" / "anchors" / "maps"
 MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@..\n....\n"
 
 

@@ -46,7 +46,7 @@ from support.wait import wait_for
 # they carried their items (the adapter's session there is under investigation).
 pytestmark = [pytest.mark.slow, pytest.mark.amqtt_only]
 
-AGVS = Path(__file__).resolve().parent / "vda5050_lib"
+AGVS = Path(__file__).resolve().parents[1] / "vda5050_lib"
 FRAME = Frame("hall")
 # What vda-5050-lib's virtual pick and drop accept (its own constraints), and a short duration.
 LIB_ACTIONS = {"stationType": "floor", "loadType": "EPAL", "duration": 0.5}

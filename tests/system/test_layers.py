@@ -21,9 +21,11 @@ PRODUCT = (BASE, *PARTS)
 DATA = {f"{BASE}.scenarios": "maps"}  # installed with the code, as data: the shipped scenarios
 # `python -m gridfleet` is the command line: the base's one file that starts the composition.
 ENTRY = Path(BASE) / "__main__.py"
-TESTS = Path(__file__).resolve().parent
-# Test tools, and every module of tests/ (support and its helpers, conftest, the test modules).
+TESTS = REPO / "tests"
+# Test tools, and every module of tests/ (support and its helpers, the conftest files, the test
+# modules of each component's folder).
 TEST_ONLY = ("pytest", "tests", "playwright", "hypothesis", *(p.stem for p in TESTS.glob("*.py")))
+TEST_ONLY += tuple(p.stem for p in TESTS.glob("*/test_*.py"))
 TEST_ONLY += tuple(p.name for p in TESTS.iterdir() if (p / "__init__.py").exists())
 # Optional extras a layer may use: `gridfleet bench page` drives Chromium (pyproject's `bench`).
 EXTRAS = {"bench": {"playwright"}}

@@ -315,7 +315,7 @@ def test_a_shown_route_is_a_shortest_way_square_by_square_and_stops_at_its_limit
                  ["." * 90 if y % 4 else "." + "@" * 88 + "." for y in range(60)]):  # fmt: skip
         grid = GridMap.from_rows(rows)
         # Plain fields: with one-way lanes (on by default above 4096 squares) a route may be
-        # longer by design (tests/test_coordinator_flow.py).
+        # longer by design (tests/coordinator/test_coordinator_flow.py).
         planner, cache = Planner(grid, lanes=False), DistanceFieldCache(grid)
         free = [
             c

@@ -20,7 +20,7 @@ from gridfleet.robots.vda5050.instant import instant_action
 from gridfleet.robots.vda5050.orders import OrderStitcher, node_id
 from gridfleet.robots.vda5050.wire import Headers, Vehicle, timestamp
 
-SCHEMAS = Path(__file__).resolve().parents[2] / "shared" / "vda5050"
+SCHEMAS = Path(__file__).resolve().parents[3] / "shared" / "vda5050"
 needs_schemas = pytest.mark.skipif(
     not SCHEMAS.exists(), reason="../shared/vda5050 not beside the checkout"
 )

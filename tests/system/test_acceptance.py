@@ -3,7 +3,7 @@
 Each run is `gridfleet simulate`'s own code: the real coordinator and simulated units over the
 real broker, with the scenario's jobs and goals submitted over the protocol. Items 5 and 6 (the
 unit's LEDs, the device) and 8 and 9 (the dashboard in Chromium) have files of their own:
-tests/test_acceptance_device.py and tests/test_acceptance_dashboard.py.
+tests/system/test_acceptance_device.py and tests/system/test_acceptance_dashboard.py.
 """
 
 from __future__ import annotations
