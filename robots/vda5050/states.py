@@ -95,7 +95,8 @@ def read_state(state: dict[str, Any], frame: Frame, margin_m: float) -> VehicleV
         estop=state["safetyState"]["eStop"] != "NONE",
         fatal=tuple(described(e) for e in errors if e["errorLevel"] == "FATAL"),
         warnings=tuple(described(e) for e in errors if e["errorLevel"] == "WARNING"),
-        load_kg=sum(float(load.get("weight", 0.0)) for load in state.get("loads", [])),
+        # The schemas' load requires no field: one without a weight adds no known mass.
+        load_kg=sum(float(load.get("weight") or 0.0) for load in state.get("loads") or []),
         battery_pct=float(state["batteryState"]["batteryCharge"]),
         charging=bool(state["batteryState"].get("charging", False)),
         errors=tuple(f"{e['errorLevel']} {described(e)}" for e in errors),

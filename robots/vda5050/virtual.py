@@ -22,7 +22,9 @@ from gridfleet.robots.vda5050.wire import Headers, VdaTopic, Vehicle
 
 REACH_M = 0.11  # how far from an order's first node it may stand and take the order
 Message = tuple[VdaTopic, dict[str, Any]]  # (topic, message) to publish
-Quirk = Literal["reject_updates", "no_route"]
+# What the spec lets a vehicle do that gridfleet's must cope with: refuse order updates, refuse
+# every route, or name its loads without their weight (the schemas' load requires no field).
+Quirk = Literal["reject_updates", "no_route", "weightless_loads"]
 
 
 @dataclass
@@ -305,7 +307,12 @@ class VirtualVehicle:
             "operatingMode": "AUTOMATIC",
             "errors": list(self.errors),
             "safetyState": {"eStop": "NONE", "fieldViolation": False},
-            "loads": [{"loadId": load, "weight": kg} for load, kg in sorted(self.loads.items())],
+            "loads": [
+                {"loadId": load}
+                if "weightless_loads" in self.spec.quirks
+                else {"loadId": load, "weight": kg}
+                for load, kg in sorted(self.loads.items())
+            ],
         }
         return message
 

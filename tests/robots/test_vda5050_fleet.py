@@ -325,6 +325,33 @@ def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(
     assert mixed.judge.faults == []
 
 
+@pytest.mark.timeout(120)
+def test_a_vehicle_whose_loads_carry_no_weight_finishes_its_job(
+    mixed_fleet: Callable[..., Mixed],
+) -> None:
+    # Issue 53: a vehicle written from the spec names its load without a weight once it has
+    # picked; the adapter dropped every state after that (a TypeError) and the job froze.
+    mixed = mixed_fleet(frozenset({"weightless_loads"}))
+    operator = mixed.operator
+    job = _agv1_job(operator, Cell(0, 6))
+    wait_for(
+        lambda: any(m["loads"] for n, m in mixed.agv1.sent if n == "state"),
+        timeout=60,
+        what="agv1 reporting its load, without a weight",
+    )
+    assert all(
+        "weight" not in load for n, m in mixed.agv1.sent if n == "state" for load in m["loads"]
+    )
+    wait_for(
+        lambda: operator.job_state(job) == "done",
+        timeout=90,
+        what="the job done",
+        context=lambda: where(operator, job, ("agv1",)),
+    )
+    assert operator.listed_jobs()[job].unit == "agv1"
+    assert mixed.judge.faults == []
+
+
 JOBS = {
     "light-1": (Cell(1, 8), Cell(8, 8), 1.0),
     "light-2": (Cell(5, 9), Cell(9, 5), 2.5),
