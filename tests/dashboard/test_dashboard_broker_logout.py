@@ -23,7 +23,7 @@ from gridfleet.session_login import make_session_password, read_session_password
 from gridfleet.system.broker_thread import BrokerThread
 
 from support.mosquitto import mosquitto_with_accounts
-from support.probe import MqttProbe
+from support.probe import MqttProbe, login_refused
 from support.wait import wait_for
 
 pytestmark = pytest.mark.every_broker  # whether a login is taken is the broker's to say
@@ -110,16 +110,6 @@ def log_in(web: FlaskClient, broker: Broker, accounts: Accounts) -> str:
     return broker.login(handed["username"], handed["password"])
 
 
-def refused(url: str) -> bool:
-    """Whether the broker refuses a CONNECT with `url`'s login now."""
-    try:
-        with MqttProbe(url):
-            return False
-    except AssertionError as exc:
-        assert "Not authorized" in str(exc), exc
-        return True
-
-
 def test_the_broker_login_handed_to_the_page_stops_working_at_logout(
     broker: Broker, accounts: Accounts, dashboard: Callable[[Broker], FlaskClient]
 ) -> None:
@@ -130,7 +120,7 @@ def test_the_broker_login_handed_to_the_page_stops_working_at_logout(
     assert web.post("/api/logout", json={}).status_code == 200
     # What a copy of the page's settings (a shared machine, a log, a script) holds after logout:
     # refused once the broker has heard of the logout (a moment: the dashboard's own link).
-    wait_for(lambda: refused(url), timeout=5.0, what="the handed login refused after logout")
+    wait_for(lambda: login_refused(url), timeout=5.0, what="the handed login refused after logout")
 
 
 def test_each_page_session_is_handed_its_own_password(
@@ -146,7 +136,7 @@ def test_each_page_session_is_handed_its_own_password(
     assert second != url
     # One browser's logout leaves the other's session, and its login, working.
     assert other.post("/api/logout", json={}).status_code == 200
-    wait_for(lambda: refused(second), timeout=5.0, what="the second session's login refused")
+    wait_for(lambda: login_refused(second), timeout=5.0, what="the second session's login refused")
     with MqttProbe(url):
         pass
     assert web.post("/api/logout", json={}).status_code == 200
@@ -198,7 +188,7 @@ def test_only_a_dashboard_account_revokes_a_session(
     with MqttProbe(url):  # the session's login still works
         pass
     assert web.post("/api/logout", json={}).status_code == 200  # the dashboard's own does revoke
-    wait_for(lambda: refused(url), timeout=5.0, what="the handed login refused after logout")
+    wait_for(lambda: login_refused(url), timeout=5.0, what="the handed login refused after logout")
 
 
 def test_a_restarted_broker_hears_the_revocations_again(accounts: Accounts) -> None:
@@ -215,11 +205,11 @@ def test_a_restarted_broker_hears_the_revocations_again(accounts: Accounts) -> N
         revoker = SessionRevoker(login, T, "dashboard").start()
         try:
             revoker.revoke("s1", 4_000_000_000)
-            wait_for(lambda: refused(copy), timeout=5.0, what="the revoked login refused")
+            wait_for(lambda: login_refused(copy), timeout=5.0, what="the revoked login refused")
             running.stop()  # forgets what it was told
             running.start()
             wait_for(lambda: revoker.sent >= 2, timeout=10.0, what="the revocation said again")
-            wait_for(lambda: refused(copy), timeout=5.0, what="refused after the restart")
+            wait_for(lambda: login_refused(copy), timeout=5.0, what="refused after the restart")
         finally:
             revoker.stop()
 

@@ -23,7 +23,7 @@ from gridfleet.system.broker_thread import BrokerThread
 from support.browser import VIEWPORT, OpenDashboard
 from support.fleet_peer import CoordinatorPeer, UnitPeer, publish
 from support.paths import MAPS
-from support.probe import MqttProbe
+from support.probe import MqttProbe, login_refused
 from support.wait import wait_for
 
 pytestmark = pytest.mark.browser
@@ -180,14 +180,4 @@ def test_logged_in_page_shows_the_fleet_releases_the_stop_and_logs_out(
     assert status == 401
     if not own:  # a copy of what the page was handed opens nothing now
         copy = with_credentials(secured_broker.url, handed["username"], handed["password"])
-        wait_for(lambda: refused(copy), timeout=5.0, what="the handed login refused")
-
-
-def refused(url: str) -> bool:
-    """Whether the broker refuses a CONNECT with `url`'s login now."""
-    try:
-        with MqttProbe(url):
-            return False
-    except AssertionError as exc:
-        assert "Not authorized" in str(exc), exc
-        return True
+        wait_for(lambda: login_refused(copy), timeout=5.0, what="the handed login refused")

@@ -177,3 +177,13 @@ class MqttProbe:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def login_refused(url: str) -> bool:
+    """Whether the broker refuses a CONNECT with `url`'s login now (any other failure raises)."""
+    try:
+        with MqttProbe(url):
+            return False
+    except AssertionError as exc:
+        assert "Not authorized" in str(exc), exc
+        return True
