@@ -3,9 +3,13 @@ and what the embedded broker's gate and the dashboard's session book do with the
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from jsonschema import Draft202012Validator
 
 from gridfleet.accounts import Accounts, default_accounts, rules
 from gridfleet.broker.gate import Gate
@@ -22,6 +26,8 @@ from gridfleet.session_login import (
     session_password_refusal,
 )
 from gridfleet.throttle import LoginThrottle
+
+from support.paths import REPO
 
 ACCOUNTS = default_accounts(["unit1"])
 OPERATOR = ACCOUNTS.get("operator")
@@ -211,3 +217,56 @@ def test_session_passwords_need_accounts_a_dashboard_account_and_its_broker() ->
     with pytest.raises(ConfigError, match="dashboard account"):
         DashboardSettings(accounts=people, audit_broker=BROKER, session_passwords=True)
     DashboardSettings(accounts=ACCOUNTS, audit_broker=BROKER, session_passwords=True)
+
+
+BROKER_REVOKE_SCHEMA = json.loads((REPO / "protocol/schemas/BrokerRevoke.json").read_text("utf-8"))
+HEADERS = st.fixed_dictionaries(
+    {
+        "seq": st.integers(0, 9),
+        "timestamp": st.just("2026-11-21T10:00:00Z"),
+        "sender": st.from_regex(r"\Adashboard-[a-z0-9]{1,8}\Z"),
+    },
+    optional={"version": st.just("1.4")},
+)
+ALLOWED = st.fixed_dictionaries(
+    {
+        "header": HEADERS,
+        "sid": st.from_regex(r"\A[A-Za-z0-9_-]{1,64}\Z"),
+        "expires": st.integers(0, 2 * ENDS),  # ended, or not yet
+    }
+)
+# What the schema allows, and each of those with one field dropped or replaced by a wrong value
+# (a sid of other characters or too long, an end as a float, a string or negative, an extra key).
+WRONG = st.none() | st.integers(-5, -1) | st.floats(0, ENDS) | st.text(max_size=70)
+
+
+@st.composite
+def revocations(draw: st.DrawFn) -> dict[str, object]:
+    message = draw(ALLOWED)
+    change = draw(st.sampled_from(["none", "drop", "replace", "extra"]))
+    key = draw(st.sampled_from(sorted(message)))
+    if change == "drop":
+        del message[key]
+    elif change == "replace":
+        message[key] = draw(WRONG)
+    elif change == "extra":
+        message["extra"] = draw(WRONG)
+    return message
+
+
+REVOCATIONS = revocations()
+
+
+@settings(max_examples=300, deadline=None)
+@given(message=REVOCATIONS)
+def test_a_revocation_is_taken_exactly_when_its_schema_allows_it(
+    message: dict[str, object],
+) -> None:
+    allowed = Draft202012Validator(BROKER_REVOKE_SCHEMA).is_valid(message)
+    taken = gate(Wall()).revocation("dashboard", json.dumps(message).encode())
+    if not allowed:  # refused in words, nothing revoked
+        assert taken.sid is None and "not a revocation" in taken.words, (message, taken)
+        return
+    assert "not a revocation" not in taken.words, (message, taken)
+    ended = int(message["expires"]) <= NOW  # type: ignore[call-overload]
+    assert taken.sid == (None if ended else message["sid"])
