@@ -49,20 +49,38 @@ class Frame:
         # the schemas' bound of pi (3.14159265359).
         return math.trunc(math.atan2(y1 - y0, x1 - x0) * 1e6) / 1e6
 
-    def squares_under(self, x: float, y: float, margin_m: float = 0.0) -> frozenset[Cell]:
+    def squares_under(
+        self, x: float, y: float, margin_m: float = 0.0, within: tuple[int, int] | None = None
+    ) -> frozenset[Cell]:
         """Every square a vehicle whose reference point is at (x, y) may stand on: one at a
         square's centre, both on a boundary, and every square within `margin_m` (its body beyond
-        the point, its position's deviation) more: it holds them all."""
+        the point, its position's deviation) more: it holds them all.
+
+        `within` (width, height): only the squares of a grid that size count, so a point far off
+        the grid (any number a double holds) or a margin wider than it costs no more than the
+        grid's squares; a point beyond what a double holds on the grid's axes is on none.
+        """
         gx, gy = self._grid_coords(x, y)
         reach = 0.5 + margin_m / self.square_m
 
-        def under(g: float) -> list[int]:
+        def under(g: float, size: int | None) -> list[int]:
+            low, high = g - reach, g + reach
+            if size is not None:
+                low, high = max(low, -1.0), min(high, float(size))
+            if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+                return []
             # Overlapping a square counts, touching its edge does not; a point on the boundary
             # between two squares is on both.
-            near = range(math.floor(g - reach), math.ceil(g + reach) + 1)
-            return [i for i in near if abs(g - i) < reach - 1e-9 or abs(g - i) <= 0.5 + 1e-9]
+            near = range(math.floor(low), math.ceil(high) + 1)
+            return [
+                i
+                for i in near
+                if (size is None or 0 <= i < size)
+                and (abs(g - i) < reach - 1e-9 or abs(g - i) <= 0.5 + 1e-9)
+            ]
 
-        return frozenset(Cell(i, j) for i in under(gx) for j in under(gy))
+        width, height = within if within is not None else (None, None)
+        return frozenset(Cell(i, j) for i in under(gx, width) for j in under(gy, height))
 
     def _grid_coords(self, x: float, y: float) -> tuple[float, float]:
         """(x, y) on the map, in squares along the grid's axes (square centres are integers)."""

@@ -11,6 +11,12 @@ it, and only then the next square of its base: between two squares it holds both
 as its square and the one ahead as released. This holds whatever the state interval (30 s is
 allowed) and if states are lost (QoS 0): a square is given up only on a state that shows the
 vehicle off it, never for want of one.
+
+What the schemas leave optional, and what is assumed without it (docs/vda5050.md lists them):
+no `agvPosition`, where it stands is unknown (no square); no `deviationRange`, the position is
+exact, and a negative one is read by its size; no `paused`, not paused; an error without
+`errorDescription` is told by its type alone. A position off the grid, or a deviation reaching
+beyond it, holds only the grid's squares (`within`): no state costs more than the grid.
 """
 
 from __future__ import annotations
@@ -55,7 +61,6 @@ class VehicleView:
     estop: bool  # its own emergency stop (safetyState.eStop other than NONE): a press
     fatal: tuple[str, ...]  # FATAL errors: it cannot run
     warnings: tuple[str, ...]
-    load_kg: float
     battery_pct: float
     charging: bool
     errors: tuple[str, ...]  # every error it reports, as `LEVEL errorType: errorDescription`
@@ -69,8 +74,11 @@ class VehicleView:
         return self.automatic and not self.fatal and not self.estop
 
 
-def read_state(state: dict[str, Any], frame: Frame, margin_m: float) -> VehicleView:
-    """The fleet's view of a (schema-valid) VDA 5050 `state` on `frame`'s map."""
+def read_state(
+    state: dict[str, Any], frame: Frame, margin_m: float, within: tuple[int, int] | None = None
+) -> VehicleView:
+    """The fleet's view of a (schema-valid) VDA 5050 `state` on `frame`'s map (of a grid
+    `within` = (width, height) squares, when given)."""
     position = state.get("agvPosition")
     under: frozenset[Cell] = frozenset()
     if (
@@ -78,8 +86,8 @@ def read_state(state: dict[str, Any], frame: Frame, margin_m: float) -> VehicleV
         and position["positionInitialized"]
         and position["mapId"] == frame.map_id
     ):
-        doubt = float(position.get("deviationRange", 0.0))
-        under = frame.squares_under(position["x"], position["y"], margin_m + doubt)
+        doubt = abs(float(position.get("deviationRange", 0.0)))
+        under = frame.squares_under(position["x"], position["y"], margin_m + doubt, within)
 
     def described(error: dict[str, Any]) -> str:
         text = error.get("errorDescription")
@@ -95,8 +103,6 @@ def read_state(state: dict[str, Any], frame: Frame, margin_m: float) -> VehicleV
         estop=state["safetyState"]["eStop"] != "NONE",
         fatal=tuple(described(e) for e in errors if e["errorLevel"] == "FATAL"),
         warnings=tuple(described(e) for e in errors if e["errorLevel"] == "WARNING"),
-        # The schemas' load requires no field: one without a weight adds no known mass.
-        load_kg=sum(float(load.get("weight") or 0.0) for load in state.get("loads") or []),
         battery_pct=float(state["batteryState"]["batteryCharge"]),
         charging=bool(state["batteryState"].get("charging", False)),
         errors=tuple(f"{e['errorLevel']} {described(e)}" for e in errors),

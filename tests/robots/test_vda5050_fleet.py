@@ -1,6 +1,6 @@
 """VDA 5050 vehicles in a real fleet: the coordinator and simulated units of gridfleet, the adapter,
-and a vehicle of our own (VDA 5050 2.1.0) on one broker, every message of the vehicle's, both
-ways, held to the official schema; safety judged from every state seen on the bus."""
+and vehicles of our own (VDA 5050 2.1.0, and 2.0.0) on one broker, every message of the vehicles',
+both ways, held to the official schema; safety judged from every state seen on the bus."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.shell import AdapterShell
 from gridfleet.robots.vda5050.virtual import Quirk, VirtualSpec
 from gridfleet.robots.vda5050.virtual_shell import VirtualVehicleShell
-from gridfleet.robots.vda5050.wire import Vehicle
+from gridfleet.robots.vda5050.wire import Vehicle, Version
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
@@ -59,6 +59,20 @@ def scenario(tmp_path: Path) -> Path:
     return path
 
 
+@dataclass(frozen=True)
+class Agv:
+    """A virtual vehicle of the fleet: its unit, serial number, square, capacity and version."""
+
+    unit: str
+    serial: str
+    at: Cell
+    capacity_kg: float
+    version: Version = "2.1.0"
+
+
+AGV1 = Agv("agv1", "v-1", Cell(0, 9), 3.0)
+
+
 class Vehicles:
     """The adapter and its virtual vehicles, each in a thread of its own."""
 
@@ -68,11 +82,12 @@ class Vehicles:
         self.threads: list[ServiceThread[Any]] = []
         self.broker, self.root, self.grid = broker, root, grid
 
-    def add(
-        self, unit: str, serial: str, at: Cell, capacity_kg: float, speed: float = 1.0, **spec: Any
-    ) -> None:
-        vehicle = Vehicle(unit, "gridfleet", serial, "2.1.0")
-        self.configs.append(VehicleConfig(vehicle, FRAME, None, 0.0, False))
+    def add(self, agv: Agv, speed: float = 1.0, **spec: Any) -> None:
+        unit, at, capacity_kg = agv.unit, agv.at, agv.capacity_kg
+        vehicle = Vehicle(unit, "gridfleet", agv.serial, agv.version)
+        # A 2.1 vehicle's capacity comes from its factsheet; a 2.0 one's from the vehicles file.
+        configured = capacity_kg if agv.version == "2.0.0" else None
+        self.configs.append(VehicleConfig(vehicle, FRAME, configured, 0.0, False))
         start = FRAME.position(at)
         self.virtual[unit] = VirtualVehicleShell(
             vehicle,
@@ -164,11 +179,14 @@ def mixed_fleet(
     topics: Topics,
     tmp_path: Path,
 ) -> Iterator[Callable[..., Mixed]]:
-    """Factory: unit1 (2 kg) and unit2 (5 kg) of gridfleet's and a 2.1.0 vehicle agv1 (3 kg by
-    its factsheet, with `quirks`) at (0, 9) on the playfield, known to the coordinator."""
+    """Factory: unit1 (2 kg) and unit2 (5 kg) of gridfleet's and the vehicles `agvs` (by default
+    a 2.1.0 vehicle agv1 of 3 kg by its factsheet at (0, 9)), each with `quirks`, on the
+    playfield, known to the coordinator."""
     made: list[Mixed] = []
 
-    def start(quirks: frozenset[Quirk] = frozenset(), speed: float = 1.0) -> Mixed:
+    def start(
+        quirks: frozenset[Quirk] = frozenset(), speed: float = 1.0, agvs: tuple[Agv, ...] = (AGV1,)
+    ) -> Mixed:
         judge = Judge()
         probe = probe_factory()
         probe.client.message_callback_add(
@@ -179,13 +197,15 @@ def mixed_fleet(
         operator = OperatorPeer(probe_factory(), topics, "tester")
         coordinator, _ = run_system(scenario(tmp_path), step_s=STEP)
         fleet = vehicles()
-        fleet.add("agv1", "v-1", Cell(0, 9), capacity_kg=3.0, speed=speed, quirks=quirks)
+        for agv in agvs:
+            fleet.add(agv, speed=speed, quirks=quirks)
         fleet.start()
         world = coordinator.service.world
+        capacities = sorted([2.0, 5.0, *(agv.capacity_kg for agv in agvs)])
         wait_for(
-            lambda: coordinator.call(lambda: sorted(world.capacities())) == [2.0, 3.0, 5.0],
+            lambda: coordinator.call(lambda: sorted(world.capacities())) == capacities,
             timeout=20,
-            what="the coordinator knows both units and the vehicle, its capacity by its factsheet",
+            what="the coordinator knows the units and the vehicles (a 2.1 one by its factsheet)",
         )
         made.append(Mixed(operator, judge, coordinator, fleet))
         return made[-1]
@@ -325,31 +345,52 @@ def test_a_vehicle_that_dies_is_lost_and_its_job_goes_to_another_unit(
     assert mixed.judge.faults == []
 
 
-@pytest.mark.timeout(120)
-def test_a_vehicle_whose_loads_carry_no_weight_finishes_its_job(
+# Heavier than any of gridfleet's units carries (2 and 5 kg): only the vehicles can take them.
+HEAVY_KG = 25.0
+WEIGHTLESS = (
+    Agv("agv1", "v-1", Cell(0, 9), HEAVY_KG, "2.1.0"),
+    Agv("agv2", "v-2", Cell(9, 9), HEAVY_KG, "2.0.0"),
+)
+HEAVY_JOBS = {
+    "heavy-1": ("agv1", Cell(0, 6), Cell(2, 9)),  # by agv1: a few squares up its column
+    "heavy-2": ("agv2", Cell(9, 6), Cell(7, 9)),  # by agv2, as far from agv1 as the map allows
+}
+
+
+@pytest.mark.timeout(180)
+def test_vehicles_whose_loads_carry_no_weight_finish_heavy_jobs_only_they_can_carry(
     mixed_fleet: Callable[..., Mixed],
 ) -> None:
-    # Issue 53: a vehicle written from the spec names its load without a weight once it has
-    # picked; the adapter dropped every state after that (a TypeError) and the job froze.
-    mixed = mixed_fleet(frozenset({"weightless_loads"}))
+    # Issue 53: vehicles written from the spec (2.0.0 and 2.1.0) name their load without a weight
+    # once they have picked (the schemas' load requires no field); the adapter dropped every
+    # state after that (a TypeError) and their jobs froze at the pickup.
+    mixed = mixed_fleet(frozenset({"weightless_loads"}), agvs=WEIGHTLESS)
     operator = mixed.operator
-    job = _agv1_job(operator, Cell(0, 6))
+    for job_id, (_, pickup, dropoff) in HEAVY_JOBS.items():
+        assert operator.submit_job(pickup, dropoff, HEAVY_KG, job_id=job_id).accepted
     wait_for(
-        lambda: any(m["loads"] for n, m in mixed.agv1.sent if n == "state"),
-        timeout=60,
-        what="agv1 reporting its load, without a weight",
+        lambda: operator.all_final(list(HEAVY_JOBS)),
+        timeout=120,
+        what="both heavy jobs final",
+        context=lambda: where(operator, "heavy-1", ("agv1", "agv2")),
     )
-    assert all(
-        "weight" not in load for n, m in mixed.agv1.sent if n == "state" for load in m["loads"]
-    )
-    wait_for(
-        lambda: operator.job_state(job) == "done",
-        timeout=90,
-        what="the job done",
-        context=lambda: where(operator, job, ("agv1",)),
-    )
-    assert operator.listed_jobs()[job].unit == "agv1"
+    listed = operator.listed_jobs()
+    assert {j: (listed[j].state, listed[j].unit) for j in HEAVY_JOBS} == {
+        j: ("done", unit) for j, (unit, _, _) in HEAVY_JOBS.items()
+    }
+    for job_id, (unit, _, _) in HEAVY_JOBS.items():
+        virtual = mixed.vehicles.virtual[unit]
+        loads = [load for n, m in virtual.sent if n == "state" for load in m["loads"]]
+        assert loads and all("weight" not in load for load in loads), (unit, loads)
+        # The fleet knows the job: from the pick to the drop the unit carries the job's mass.
+        carried = {s.load_kg for s in operator.states(unit) if s.job_id == job_id}
+        assert carried == {HEAVY_KG}, (unit, carried)
     assert mixed.judge.faults == []
+    schemas = official_if_here()
+    for agv in WEIGHTLESS if schemas is not None else ():
+        virtual = mixed.vehicles.virtual[agv.unit]
+        for name, message in [*virtual.received, *virtual.sent]:
+            assert schemas.problems(agv.version, name, message) == [], (agv.unit, name, message)
 
 
 JOBS = {
