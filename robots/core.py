@@ -150,10 +150,14 @@ class UnitCore:
         if kind == "goal" and who == self.id:
             return self._on_goal(topic, payload, now)
         if kind == "coordinator":
+            if not payload:
+                return []  # the retained status cleared (`gridfleet clean`): nothing to read
             try:
                 status = decode(CoordinatorStatus, payload)
-            except ProtocolError:
-                return []  # the coordinator's own problem; nothing for a unit to change
+            except ProtocolError as exc:
+                # Nothing changes (the hold timeout stays), and the unit says why (§7); not in
+                # its state's errors: the fault is the coordinator's, not the unit's.
+                return [self.side.report(topic, str(exc))]
             if status.header.seq == 0:
                 self.lateness.reset()  # a coordinator (re)started: its clock may be another's
             self.logic.on_coordinator(status.step_period_s)

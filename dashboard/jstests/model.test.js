@@ -69,9 +69,10 @@ test("obstacles are highlighted while new, then plain", () => {
 
 test("the queue view: jobs under way indexed by unit, the latest finished, the chart's counts; silent units", () => {
   const v = new FleetView();
+  const squares = { pickup: [0, 0], dropoff: [1, 1] }; // a job without them is refused whole
   v.apply("jobs", null, JSON.stringify({
-    jobs: [{ id: "a", state: "queued" }, { id: "k", state: "to_pickup", unit: "u1" }],
-    finished: [{ id: "b", state: "done" }, { id: "c", state: "failed" }],
+    jobs: [{ id: "a", state: "queued", ...squares }, { id: "k", state: "to_pickup", unit: "u1", ...squares }],
+    finished: [{ id: "b", state: "done", ...squares }, { id: "c", state: "failed", ...squares }],
     counts: { done: 7 }, done_per_minute: [0, 2, 5],
   }), 0);
   assert.deepEqual(v.activeJobs().map((j) => j.id), ["a", "k"]);
@@ -80,7 +81,7 @@ test("the queue view: jobs under way indexed by unit, the latest finished, the c
   assert.equal(v.jobById.get("k").state, "to_pickup");
   assert.deepEqual(v.donePerMinute, [0, 2, 5]);
   // A finished job listed among the jobs (a view from elsewhere) still counts as finished.
-  v.apply("jobs", null, JSON.stringify({ jobs: [{ id: "a", state: "queued" }, { id: "d", state: "done" }] }), 0);
+  v.apply("jobs", null, JSON.stringify({ jobs: [{ id: "a", state: "queued", ...squares }, { id: "d", state: "done", ...squares }] }), 0);
   assert.deepEqual([v.activeJobs().map((j) => j.id), v.finishedJobs().map((j) => j.id)], [["a"], ["d"]]);
   assert.deepEqual([v.jobOfUnit.size, v.donePerMinute], [0, []]);
   v.apply("factsheet", "u1", JSON.stringify({ capacity_kg: 1, step_period_s: 0.2 }), 0);
@@ -137,4 +138,28 @@ test("the unit on a square is found by its last state", () => {
   v.apply("state", "u1", state([0, 0]), 1);
   assert.equal(v.unitAt(1, 0), null);
   assert.equal(v.unitAt(0, 0).id, "u1");
+});
+
+test("a view the page cannot draw is refused whole, in words, and the last good one stays", () => {
+  const v = new FleetView();
+  v.apply("map", null, JSON.stringify(MAP), 0);
+  v.apply("state", "u1", state([1, 0]), 0);
+  const good = { step: 2, routes: { u1: { released: [[1, 1]], planned: [], target: [1, 1] } } };
+  assert.equal(v.apply("routes", null, JSON.stringify(good), 0), null);
+  for (const routes of [{ u1: null }, { u1: { released: 5 } }, { u1: { target: ["a", 1] } }, []]) {
+    assert.match(v.apply("routes", null, JSON.stringify({ step: 3, routes }), 0), /malformed route/);
+  }
+  assert.deepEqual(v.routes, good.routes);
+  for (const position of [[1e20, 0], [-1, 0], [1.5, 0], null]) {
+    assert.match(v.apply("state", "u1", state(position), 0), /without a position/);
+  }
+  assert.deepEqual(v.units.get("u1").state.position, [1, 0]);
+  const job = { id: "j", state: "queued", pickup: [0, 0], dropoff: [2, 1] };
+  assert.equal(v.apply("jobs", null, JSON.stringify({ jobs: [job] }), 0), null);
+  assert.match(v.apply("jobs", null, JSON.stringify({ jobs: [{ ...job, pickup: null }] }), 0), /malformed queue/);
+  assert.deepEqual(v.activeJobs().map((j) => j.id), ["j"]);
+  assert.match(v.apply("errors", null, JSON.stringify({ topic: 5, reason: "x" }), 0), /malformed error/);
+  // A square its rows leave out is a wall (the schema ties the rows to neither width nor height).
+  v.apply("map", null, JSON.stringify({ ...MAP, height: 3 }), 0);
+  assert.equal(v.isFree(0, 2), false);
 });

@@ -34,7 +34,25 @@ def decode(
     try:
         return model.model_validate_json(payload, strict=True)  # "1.5" is no number on the wire
     except ValidationError as exc:
+        if not any(e["type"] == "int_type" and isinstance(e["input"], float) for e in exc.errors()):
+            raise ProtocolError(f"{name}: {describe(exc)}") from None
+        first = exc
+    # JSON has one kind of number: 3.0 is the integer 3 (JSON Schema says so too), which pydantic's
+    # strict reading refuses. Read again with whole numbers written as integers (a float field
+    # takes them), as JSON still: strict reading from Python would refuse times and arrays.
+    try:
+        whole = json.dumps(json.loads(payload, parse_float=_whole_as_int))
+        return model.model_validate_json(whole, strict=True)
+    except ValidationError as exc:
         raise ProtocolError(f"{name}: {describe(exc)}") from None
+    except (ValueError, RecursionError):
+        raise ProtocolError(f"{name}: {describe(first)}") from None
+
+
+def _whole_as_int(text: str) -> int | float:
+    """A JSON number's text as an int when it is a whole number (`3.0`, `1e2`), else a float."""
+    number = float(text)
+    return int(number) if number.is_integer() else number
 
 
 def describe(exc: ValidationError) -> str:

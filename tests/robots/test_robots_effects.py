@@ -482,13 +482,17 @@ def test_a_press_that_is_no_press_is_reported_and_changes_nothing(
 # ---- the coordinator's status, goals, other units ---------------------------------------------
 
 
-def test_the_coordinators_status_sizes_the_hold_timeout_and_publishes_nothing() -> None:
+def test_the_coordinators_status_sizes_the_hold_timeout_and_a_bad_one_is_refused() -> None:
     core = ready()
     status = CoordinatorStatus(header=COORDINATOR("coordinator"), state="online", step_period_s=1.0)
     assert core.on_message(ROOT + "coordinator/status", encode(status), 0.3) == []
     assert core.logic.hold_timeout_s == 3.0
-    assert core.on_message(ROOT + "coordinator/status", b"{broken", 0.3) == []
+    ((topic, report, _, _),) = published(
+        core.on_message(ROOT + "coordinator/status", b"{broken", 0.3), ROOT
+    )
+    assert topic == "errors" and report["reason"].startswith("CoordinatorStatus: malformed JSON")
     assert core.logic.hold_timeout_s == 3.0
+    assert core.on_message(ROOT + "coordinator/status", b"", 0.3) == []  # cleared: nothing to read
 
 
 def test_an_accepted_goal_shows_the_first_move_of_the_route() -> None:

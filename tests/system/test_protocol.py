@@ -221,6 +221,19 @@ def test_bad_job_requests_are_refused_naming_the_field(field: str, value: Any) -
         decode(SubmitJob, json.dumps(data).encode())
 
 
+def test_whole_numbers_written_with_a_fraction_are_integers_as_json_schema_says() -> None:
+    # JSON has one kind of number: 3.0 is the integer 3 (JSON Schema's "integer" takes it).
+    data = json.loads(encode(samples()[8]))
+    data |= {"priority": 7.0, "pickup": [1.0, 2e0]}
+    data["header"]["seq"] = 3.0
+    job = decode(SubmitJob, json.dumps(data).encode())
+    assert (job.priority, job.pickup, job.header.seq) == (7, Cell(1, 2), 3)
+    assert type(job.priority) is int and type(job.mass_kg) is float
+    data["priority"] = 7.5  # still no integer, and named as before
+    with pytest.raises(ProtocolError, match="priority"):
+        decode(SubmitJob, json.dumps(data).encode())
+
+
 def test_oversized_payloads_are_refused_before_parsing() -> None:
     with pytest.raises(ProtocolError, match="exceeds the limit"):
         decode(SubmitJob, b"{" + b" " * 20000 + b"}")

@@ -300,7 +300,7 @@ function baseLayer(map, L, dpr) {
   const x0 = Math.max(0, Math.floor(-L.ox / c)), x1 = Math.min(map.width, Math.ceil((L.w - L.ox) / c));
   const y0 = Math.max(0, Math.floor(-L.oy / c)), y1 = Math.min(map.height, Math.ceil((L.h - L.oy) / c));
   for (let y = y0; y < y1; y++) {
-    const row = map.rows[y];
+    const row = map.rows[y] ?? ""; // a row the map leaves out (or cuts short) is walls
     for (let x = x0; x < x1; x++) {
       if (row[x] !== ".") g.fillRect(L.ox + x * c, L.oy + y * c, c, c);
     }

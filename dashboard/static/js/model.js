@@ -2,6 +2,7 @@
 // (callers pass `now` in milliseconds).
 
 import { decodeEstop, decodePress, FINAL_JOB_STATES } from "./protocol.js";
+import { LIMITS } from "./protocol_table.js";
 import { JobNumbers, Utilisation } from "./story.js";
 
 // What the page keeps of a unit, each from its retained topic; a unit with none of them is gone.
@@ -9,6 +10,19 @@ const UNIT_PARTS = ["state", "connection", "factsheet", "vehicle"];
 
 export const HIGHLIGHT_MS = 4000; // how long a newly discovered obstacle stays highlighted
 const key = (sq) => `${sq[0]},${sq[1]}`;
+// A square as the protocol writes one, [x, y] of whole numbers 0 to max_coord; and a list of
+// them (absent: none).
+const isCoord = (v) => Number.isInteger(v) && v >= 0 && v <= LIMITS.max_coord;
+const isSquare = (sq) => Array.isArray(sq) && sq.length === 2 && sq.every(isCoord);
+const areSquares = (list) => list === undefined || (Array.isArray(list) && list.every(isSquare));
+const isObject = (v) => typeof v === "object" && v !== null && !Array.isArray(v);
+/** Whether every job of a queue view can be listed and drawn: an id, a state, its two squares. */
+const jobsDrawable = (msg) => [msg.jobs, msg.finished ?? []].every((list) => Array.isArray(list)
+  && list.every((j) => isObject(j) && typeof j.id === "string" && typeof j.state === "string"
+    && isSquare(j.pickup) && isSquare(j.dropoff)));
+/** Whether every route of a routes view is drawable: its squares squares, its target one or null. */
+const routesDrawable = (routes) => isObject(routes) && Object.values(routes).every((r) => isObject(r)
+  && areSquares(r.released) && areSquares(r.planned) && (r.target == null || isSquare(r.target)));
 
 export class FleetView {
   constructor(initialMap = null, colors = {}) {
@@ -88,7 +102,8 @@ export class FleetView {
       // A VDA 5050 vehicle's battery and own errors (protocol.md §4.7).
       case "vehicle": this.unit(id).vehicle = msg; break;
       case "state": {
-        if (!Array.isArray(msg.position)) return `ignored a state of ${id} without a position`;
+        if (!isSquare(msg.position)) return `ignored a state of ${id} without a position`;
+        if (!areSquares(msg.obstacles)) return `ignored a state of ${id} with malformed obstacles`;
         const u = this.unit(id);
         u.state = msg;
         u.lastSeen = now;
@@ -97,17 +112,27 @@ export class FleetView {
       }
       case "map": {
         if (!Array.isArray(msg.rows)) return "ignored a map without rows";
+        if (!Number.isInteger(msg.width) || !Number.isInteger(msg.height) || !areSquares(msg.obstacles)) {
+          return "ignored a map without its size or with malformed obstacles";
+        }
         this.map = msg;
         for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
         break;
       }
-      case "jobs": this.takeJobs(msg); break;
+      case "jobs":
+        if (!jobsDrawable(msg)) return "ignored a malformed queue view";
+        this.takeJobs(msg);
+        break;
       case "routes":
-        this.routes = msg.routes ?? {};
+        if (!routesDrawable(msg.routes)) return "ignored routes with a malformed route";
+        this.routes = msg.routes;
         if (Number.isInteger(msg.step)) this.routesStep = msg.step;
         break;
       case "coordinator": this.coordinator = msg; break;
-      case "errors": this.lastError = msg; break;
+      case "errors":
+        if (typeof msg.topic !== "string" || typeof msg.reason !== "string") return "ignored a malformed error report";
+        this.lastError = msg;
+        break;
       case "events": this.events = Array.isArray(msg.events) ? msg.events : []; break;
       default: break;
     }
@@ -196,7 +221,8 @@ export class FleetView {
   isFree(x, y) {
     const m = this.map;
     if (!m || x < 0 || y < 0 || x >= m.width || y >= m.height) return false;
-    return m.rows[y][x] === "." && !this.obstacles.has(`${x},${y}`);
+    // A square the rows leave out (the schema does not tie them to width and height) is a wall.
+    return m.rows[y]?.[x] === "." && !this.obstacles.has(`${x},${y}`);
   }
 
   onMap(x, y) {

@@ -55,8 +55,9 @@ export class JobNumbers {
 
 /** Seconds job `j` took from submission to its end, from the coordinator's steps; null if unknown. */
 export function tookSeconds(j, periodS) {
-  if (!Number.isInteger(j.done_step) || !Number.isInteger(j.created_step) || !(periodS > 0)) return null;
-  return Math.max(0, j.done_step - j.created_step) * periodS;
+  const created = j.created_step ?? 0; // the schema's default: left out, it is step 0
+  if (!Number.isInteger(j.done_step) || !Number.isInteger(created) || !(periodS > 0)) return null;
+  return Math.max(0, j.done_step - created) * periodS;
 }
 
 /** "8.5 s", "2 min 05 s", "1 h 02 min". */
