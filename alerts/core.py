@@ -22,11 +22,13 @@ from pydantic import BaseModel, ConfigDict
 from gridfleet.alerts.settings import AlertSettings
 from gridfleet.config import names_owned_id
 from gridfleet.errors import ProtocolError
+from gridfleet.failures import parse_failure
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     TOPICS,
     Connection,
     CoordinatorStatus,
+    ErrorReport,
     HeaderStamper,
     JobsView,
     Reply,
@@ -57,6 +59,7 @@ SEVERITY: dict[AlertRule, AlertSeverity] = {
     "step_rate_low": "warning",
     "coordinator_down": "critical",
     "broker_down": "critical",
+    "handler_failures": "warning",
 }
 # A restarted alerts process takes over the alerts in force from the retained view: each stays as
 # it was (its id, its acknowledgement) while its condition can still be found again, which takes
@@ -117,6 +120,16 @@ class _Unit:
     still_since: float | None = None  # waiting or holding on one square since
 
 
+@dataclass
+class _Failing:
+    """A component's failed handlers, as its reports on `errors` told them."""
+
+    last_at: float  # the latest report arrived then
+    topic: str  # the topic of the first of this spell, and its exception's class
+    error: str
+    count: int = 0  # failures told of since the spell began
+
+
 class AlertsCore:
     """Rules over the fleet's messages: `on_message`, `tick`, `connected`, `disconnected`."""
 
@@ -143,6 +156,7 @@ class AlertsCore:
         self.cleared_total: Counter[str] = Counter()
         self._count = 0
         self._units: dict[str, _Unit] = {}
+        self._failing: dict[str, _Failing] = {}  # component kind -> its failures of late
         self._queued: dict[str, tuple[float, str | None]] = {}  # job -> (queued since, why)
         self._stop = StopView()
         self._status: CoordinatorStatus | None = None
@@ -166,6 +180,7 @@ class AlertsCore:
             *stop_filters(t),
             (t.request("ack_alert"), TOPICS["ack_alert"].qos),
             (t.fleet("alerts"), TOPICS["alerts"].qos),  # the last run's view, to take over
+            (t.fleet("errors"), TOPICS["errors"].qos),  # components' failed handlers
         ]
 
     def connected(self, now: float) -> Effects:
@@ -201,6 +216,8 @@ class AlertsCore:
             kind, ident = self.topics.parse(topic)
         except ProtocolError:
             return Effects()  # not ours to judge
+        if kind == "errors":
+            return self._on_error_report(payload, now)
         try:
             if kind == "ack_alert":
                 return self._on_ack(topic, payload, now)
@@ -259,6 +276,9 @@ class AlertsCore:
         return seconds or 0.0
 
     def _read(self, kind: str, ident: str | None, topic: str, payload: bytes, now: float) -> None:
+        if kind in ("state", "connection") and ident is not None and not payload:
+            self._units.pop(ident, None)  # cleared: a unit removed for good (protocol.md §6.11)
+            return
         if kind == "state" and ident is not None:
             self._on_state(ident, decode(UnitState, payload), now)
         elif kind == "connection" and ident is not None:
@@ -285,6 +305,23 @@ class AlertsCore:
         unit.status = state.status
         unit.wait_reason = state.wait_reason
 
+    def _on_error_report(self, payload: bytes, now: float) -> Effects:
+        """A report on `errors`: a component's failed handler counts (a refusal does not, and a
+        bad report is dropped unanswered: an answer on `errors` to `errors` would echo junk)."""
+        try:
+            report = decode(ErrorReport, payload, TOPICS["errors"].max_bytes)
+        except ProtocolError:
+            return Effects()
+        failure = parse_failure(report.reason)
+        if failure is None:
+            return Effects()
+        failing = self._failing.get(failure.component)
+        if failing is None:
+            failing = self._failing[failure.component] = _Failing(now, report.topic, failure.error)
+        failing.last_at = now
+        failing.count += failure.count
+        return self._evaluate(now)
+
     def _on_jobs(self, view: JobsView, now: float) -> None:
         queued = {job.id: job.wait_reason for job in view.jobs if job.state == "queued"}
         self._queued = {
@@ -303,6 +340,15 @@ class AlertsCore:
             if gone > s.broker_down_s:
                 found["broker_down", None] = (
                     f"the alerts process has had no broker for {gone:.0f} s"
+                )
+        window = s.handler_failures_s
+        for component, failing in list(self._failing.items()):
+            if window is None or now - failing.last_at > window:
+                del self._failing[component]  # quiet for the window: the spell is over
+            else:
+                found["handler_failures", component] = (
+                    f"{component} failed handling a message on {failing.topic} "
+                    f"({failing.error}); its log has the details"
                 )
         if not self._online:
             # Deaf, it cannot judge the rest: what was raised stays, nothing new is raised.
@@ -464,6 +510,10 @@ class AlertsCore:
             header=self.stamp("reply"), request_id=request_id, accepted=accepted, reason=reason
         )
         return Outbound.of("reply", self.topics.reply(reply_to), reply)
+
+    def report(self, topic: str, reason: str) -> Outbound:
+        """A report on `errors` about a message on `topic` (the shell's failed handlers)."""
+        return self._error(topic, reason, None)
 
     def _error(self, topic: str, reason: str, request_id: str | None) -> Outbound:
         payload = error_report(self.stamp("errors"), topic, reason, request_id)

@@ -32,11 +32,19 @@ class AlertSettings:
     step_rate_below: float | None = 0.5  # achieved step rate under this share of the nominal
     coordinator_down_s: float | None = 15.0  # no coordinator online (or no status) this long
     broker_down_s: float | None = 10.0  # the alerts process cut off from the broker this long
+    # A component told of a failed handler on `errors` (at once); cleared when none for this long.
+    handler_failures_s: float | None = 300.0
     webhook: str | None = None  # where each raise, clear and acknowledgement is POSTed
     webhook_queue: str | None = None  # SQLite file keeping undelivered notices (None: memory)
 
     def __post_init__(self) -> None:
-        for name in ("unit_lost_s", "unit_stuck_s", "job_queued_s", "broker_down_s"):
+        for name in (
+            "unit_lost_s",
+            "unit_stuck_s",
+            "job_queued_s",
+            "broker_down_s",
+            "handler_failures_s",
+        ):
             _check_seconds(name, getattr(self, name))
         _check_seconds("coordinator_down_s", self.coordinator_down_s)
         if self.coordinator_down_s is not None and self.coordinator_down_s < MIN_COORDINATOR_DOWN_S:

@@ -69,6 +69,8 @@ class AlertsShell:
             name="alerts",
             subscriptions=self.core.subscriptions,
             backoff=Backoff(0.1, 2.0),
+            component="alerts",
+            report=lambda topic, reason: self.core.report(topic, reason),
         )
         self.ready = asyncio.Event()
         self.metrics_server: MetricsServer | None = None

@@ -5,7 +5,8 @@ Shell side only: the core stays free of clocks and HTTP. Two halves:
   stop, the achieved step period), read by a Collector through a snapshot taken on the
   coordinator's own event loop, so a scrape never sees a dict half-way through a change;
 - what passes through the shell (step and planner time, messages in and out, refusals, job state
-  transitions, units lost and recovered, the stop's latency), counted as it happens.
+  transitions, units lost and recovered, the stop's latency), counted as it happens;
+- every component's failed handlers, as their reports on `errors` tell them (gridfleet/failures.py).
 Labels are bounded: topic kinds, states, reason kinds. No job or unit ids.
 """
 
@@ -26,7 +27,10 @@ from gridfleet import __version__
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.jobs import Job
 from gridfleet.errors import ProtocolError
+from gridfleet.failures import COMPONENTS, parse_failure
+from gridfleet.failures import OTHER as OTHER_COMPONENT
 from gridfleet.metrics import read_on_loop
+from gridfleet.protocol import TOPICS, ErrorReport, decode
 from gridfleet.protocol.messages import JobState, UnitStatus
 from gridfleet.protocol.stop import LATCH
 
@@ -233,6 +237,13 @@ class CoordinatorMetrics:
             ["kind"],
             registry=r,
         )
+        self.handler_failures = Counter(
+            "gridfleet_handler_failures",
+            "Messages a component's handler failed on (a bug), as its reports on `errors` tell, "
+            "by the kind of component.",
+            ["component"],
+            registry=r,
+        )
         self.jobs_done = Counter("gridfleet_jobs_done", "Jobs done.", registry=r)
         self.jobs_rejected = Counter(
             "gridfleet_jobs_rejected",
@@ -280,6 +291,8 @@ class CoordinatorMetrics:
             self.jobs_failed.labels(reason)
         for state in ("done", "cancelled", "failed"):
             self.job_duration.labels(state)
+        for component in (*COMPONENTS, OTHER_COMPONENT):
+            self.handler_failures.labels(component)
         r.register(StateCollector(self._snapshot))
         self._kinds: dict[str, str] = {}
         self._jobs = {
@@ -317,6 +330,16 @@ class CoordinatorMetrics:
         if refused:
             self.refused.labels(kind).inc()
         self._check_stop()
+
+    def error_reported(self, payload: bytes) -> None:
+        """A report on `errors`: the failures it tells of counted (a refusal, or junk, is not)."""
+        try:
+            report = decode(ErrorReport, payload, TOPICS["errors"].max_bytes)
+        except ProtocolError:
+            return
+        failure = parse_failure(report.reason)
+        if failure is not None:
+            self.handler_failures.labels(failure.component).inc(failure.count)
 
     def sent_some(self, topics: Sequence[str]) -> None:
         """Messages handed to the broker."""

@@ -94,8 +94,12 @@ class DeviceCore:
         if refusal is None:
             return []
         self.refused.append(refusal)
-        report = error_report(self._stamp("errors"), refusal.topic, refusal.reason)
-        return [Outbound.of("errors", self.topics.fleet("errors"), report)]
+        return [self.report(refusal.topic, refusal.reason)]
+
+    def report(self, topic: str, reason: str) -> Outbound:
+        """A report on `errors` about a message on `topic`."""
+        payload = error_report(self._stamp("errors"), topic, reason)
+        return Outbound.of("errors", self.topics.fleet("errors"), payload)
 
     def due(self, now: float) -> list[Outbound]:
         """What to publish at `now`: the pending stop, at once on a new session, then every retry."""

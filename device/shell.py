@@ -51,6 +51,8 @@ class DeviceShell:
             offline=lambda: core.connection("offline"),
             backoff=BACKOFF,
             ack_s=PRESS_ACK_S,
+            component="device",
+            report=core.report,  # a failed handler, told on `errors`
         )
         self.on_change = on_change
         self.clock = clock

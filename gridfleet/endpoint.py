@@ -4,6 +4,11 @@ A component hands its endpoint what to say when it connects and leaves (last wil
 `offline`), what to follow, and a handler for what arrives; the endpoint does the rest: connect,
 subscribe, greet, receive, reconnect with back-off, and say goodbye on a clean stop. Decisions stay
 in the component's core; this module only moves bytes.
+
+A handler that raises (a bug) never takes the component off the broker, nor goes unheard: each
+failure is counted (`handler_failures`), its traceback logged, and told on `errors` through the
+component's `report` (the topic, and the exception's class alone: gridfleet/failures.py), the
+first at once and then at most once a second per topic, with the count of those in between.
 """
 
 from __future__ import annotations
@@ -12,6 +17,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import time
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -20,6 +26,7 @@ import aiomqtt
 
 from gridfleet.bus import make_client
 from gridfleet.config import parse_broker_url
+from gridfleet.failures import OTHER, FailureReports
 from gridfleet.outbound import Outbound
 from gridfleet.tasks import cancel_and_wait
 
@@ -34,6 +41,9 @@ ACK_S = 10.0
 
 Handler = Callable[[str, bytes], Awaitable[None]]
 Hook = Callable[[], Awaitable[None]]
+# A failure report: (the topic of the message a handler failed on, the reason) -> what to send
+# on `errors` (stamped by the component, as its other reports).
+Report = Callable[[str, str], Outbound]
 
 
 def as_will(out: Outbound) -> aiomqtt.Will:
@@ -81,6 +91,8 @@ class Endpoint:
         offline: Callable[[], Outbound] | None = None,
         backoff: Backoff = Backoff(),
         ack_s: float = ACK_S,
+        component: str | None = None,
+        report: Report | None = None,
     ) -> None:
         self.url = url
         # A send not acknowledged within this ends the session (then it is sent again on the next).
@@ -98,6 +110,12 @@ class Endpoint:
         self.killed = False
         self._client: aiomqtt.Client | None = None
         self._broken: asyncio.Event | None = None  # set when a send finds the session dead
+        # Failed handlers: told on `errors` by `report` (None: counted and logged only), as
+        # `component` (its kind: coordinator, unit, vda5050, device, alerts).
+        self._report = report
+        self.failures = FailureReports(component or OTHER)
+        self._reporting: set[asyncio.Task[None]] = set()
+        self._flushing: asyncio.Task[None] | None = None
 
     async def run(
         self,
@@ -116,21 +134,26 @@ class Endpoint:
         stop just before `offline`.
         """
         delay = self.backoff.first
-        while not shutdown.is_set() and not self.killed:
-            try:
-                await self._session(shutdown, handle, on_connect, during, on_stop)
-                delay = self.backoff.first
-            except aiomqtt.MqttError as exc:
-                if self.killed:
-                    return
-                if self._client is not None or delay == self.backoff.first:
-                    log.warning("%s: broker %s: %s; retrying", self.name, self.where, exc)
-                self._lose()
-                if on_disconnect is not None:
-                    on_disconnect(str(exc))
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(shutdown.wait(), delay)
-                delay = min(delay * 2, self.backoff.most)
+        try:
+            while not shutdown.is_set() and not self.killed:
+                try:
+                    await self._session(shutdown, handle, on_connect, during, on_stop)
+                    delay = self.backoff.first
+                except aiomqtt.MqttError as exc:
+                    if self.killed:
+                        return
+                    if self._client is not None or delay == self.backoff.first:
+                        log.warning("%s: broker %s: %s; retrying", self.name, self.where, exc)
+                    self._lose()
+                    if on_disconnect is not None:
+                        on_disconnect(str(exc))
+                    with contextlib.suppress(TimeoutError):
+                        await asyncio.wait_for(shutdown.wait(), delay)
+                    delay = min(delay * 2, self.backoff.most)
+        finally:
+            for task in (*self._reporting, self._flushing):
+                if task is not None:
+                    await cancel_and_wait(task)
 
     async def _session(
         self,
@@ -187,9 +210,56 @@ class Endpoint:
                 await handle(message.topic.value, payload_of(message))
             except aiomqtt.MqttError:
                 raise
-            except Exception:  # a bug must not take the component off the broker: log, carry on
-                log.exception("%s: failed to handle a message on %s", self.name, message.topic)
+            except Exception as exc:  # a bug must not take the component off the broker
+                self._failed(message.topic.value, exc)
         raise aiomqtt.MqttError("message stream ended")
+
+    @property
+    def handler_failures(self) -> int:
+        """Messages its handler raised on, since it started (told on `errors` or not)."""
+        return self.failures.failures
+
+    def _failed(self, topic: str, exc: Exception) -> None:
+        """A handler raised on a message on `topic`: counted, logged, told on `errors` (soon)."""
+        try:
+            reason = self.failures.failed(topic, type(exc).__name__, time.monotonic())
+            if reason is None:  # told with the next report on this topic
+                log.debug("%s: failed again on %s", self.name, topic, exc_info=exc)
+                self._flush_later()
+                return
+            log.error("%s: failed to handle a message on %s", self.name, topic, exc_info=exc)
+            self._tell(topic, reason)
+        except Exception:  # reporting must never take the receiver down
+            log.exception("%s: could not report a failure on %s", self.name, topic)
+
+    def _tell(self, topic: str, reason: str) -> None:
+        """Send the report about `topic` on `errors`, without holding up the receiver."""
+        if self._report is None:
+            return
+        task = asyncio.create_task(self._send_report(topic, reason))
+        self._reporting.add(task)
+        task.add_done_callback(self._reporting.discard)
+
+    async def _send_report(self, topic: str, reason: str) -> None:
+        try:
+            assert self._report is not None
+            await self.publish(self._report(topic, reason))
+        except Exception:  # a report that cannot be made or sent is lost, never raised
+            log.exception("%s: could not report a failure on %s", self.name, topic)
+
+    def _flush_later(self) -> None:
+        """Tell the failures held back once their time comes (one timer for all topics)."""
+        if self._report is not None and (self._flushing is None or self._flushing.done()):
+            self._flushing = asyncio.create_task(self._flush())
+
+    async def _flush(self) -> None:
+        try:
+            while (at := self.failures.next_due(time.monotonic())) is not None:
+                await asyncio.sleep(max(0.0, at - time.monotonic()) + 0.001)  # the report's time
+                for topic, reason in self.failures.due(time.monotonic()):
+                    self._tell(topic, reason)
+        except Exception:  # never raised: the count stays, the next failure tries again
+            log.exception("%s: could not report the failures held back", self.name)
 
     def _lose(self) -> None:
         self._client = None

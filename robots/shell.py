@@ -54,6 +54,8 @@ class UnitShell:
             will=self.core.will,
             offline=self.core.offline,
             backoff=Backoff(reconnect_s, max_reconnect_s),
+            component="unit",
+            report=self.core.side.report,  # a failed handler, told on `errors`
         )
 
     @property

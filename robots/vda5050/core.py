@@ -62,9 +62,11 @@ from gridfleet.robots.vda5050.states import VehicleView, read_state, reported_sq
 from gridfleet.robots.vda5050.wire import Headers, VdaTopic
 
 Link = Literal["ONLINE", "OFFLINE", "CONNECTIONBROKEN"]
-# Checks a message about to go to the vehicle (the official schema, when the shell has it).
+# Checks a message to or from the vehicle (the official schema, when the shell has it).
 Check = Callable[[VdaTopic, dict[str, Any]], None]
 VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order costs a stop
+# The vehicle's states in a row the adapter failed on (a bug) before its unit is `broken`.
+UNREADABLE_STATES = 3
 MODEL = "vda5050"
 
 
@@ -115,6 +117,7 @@ class VehicleCore:
         self.load_kg = 0.0
         self.errors: list[UnitError] = []
         self.refusals = Refusals()  # new orders refused in a row; whether it refuses every route
+        self.unreadable = 0  # the vehicle's states in a row the adapter failed on (`on_failure`)
         self.step = 0
         self._condition_sent: tuple[object, ...] | None = None
         self._ids = itertools.count(1)
@@ -136,16 +139,46 @@ class VehicleCore:
     def on_vehicle(self, name: VdaTopic, payload: bytes, now: float) -> list[Outbound]:
         """One message on one of the vehicle's topics; what to publish because of it."""
         topic = self.vehicle.topic(name)
+        held = self._held_to_schema(name)
         try:
             if name == "connection":
-                return self._on_link(read_vda(VdaConnection, payload, self.vehicle), now)
+                return self._on_link(read_vda(VdaConnection, payload, self.vehicle, held), now)
             if name == "factsheet":
-                return self._on_factsheet(read_vda(VdaFactsheet, payload, self.vehicle), now)
+                return self._on_factsheet(read_vda(VdaFactsheet, payload, self.vehicle, held), now)
             if name == "state":
-                return self._on_state(read_vda(VdaState, payload, self.vehicle), now)
+                outs = self._on_state(read_vda(VdaState, payload, self.vehicle, held), now)
+                self.unreadable = 0  # read again: a unit broken by unreadable states is back
+                return outs
         except ProtocolError as exc:
             return [self.side.report(topic, f"vehicle {self.id}: refused: {exc}")]
         return []
+
+    def _held_to_schema(self, name: VdaTopic) -> Callable[[Any], None] | None:
+        """The official schema's check of what comes on `name`, when the shell has the schemas
+        (`--schemas`); without, what the adapter reads is checked alone (inbound.py)."""
+        check = self.check
+        return None if check is None else lambda data: check(name, data)
+
+    def on_failure(self, name: VdaTopic, error: str) -> list[Outbound]:
+        """Handling the vehicle's `name` raised `error` (its class: a bug of the adapter's).
+
+        The unit's state says so at once (`unreadable_state`, or `unreadable_message` for its
+        connection or factsheet), never frozen on what it said last; after UNREADABLE_STATES
+        such states in a row the unit is `broken` (lost to the fleet, its job back in the
+        queue), its last state first, until a state of the vehicle is handled again.
+        """
+        topic = self.vehicle.topic(name)
+        code = "unreadable_state" if name == "state" else "unreadable_message"
+        words = f"the adapter failed on the vehicle's {name} on {topic} ({error}); see its log"
+        error_ = UnitError(code=code, message=words[:200])
+        if error_ not in self.errors:  # one of each while no state goes out (not announced)
+            self.errors.append(error_)
+        if name != "state":
+            return self.state()
+        self.unreadable += 1
+        if self.unreadable < UNREADABLE_STATES or not self.announced:
+            return self.state()
+        return self.state() + self._goodbye("broken")
 
     def _on_link(self, message: VdaConnection, now: float) -> list[Outbound]:
         self.link = message.connectionState
@@ -175,7 +208,10 @@ class VehicleCore:
         return self._announce(now)
 
     def _on_state(self, message: VdaState, now: float) -> list[Outbound]:
-        view = read_state(message.model_dump(mode="json"), self.config.frame, self.config.margin_m)
+        grid = (self.grid.width, self.grid.height)  # off the grid is on none of its squares
+        view = read_state(
+            message.model_dump(mode="json"), self.config.frame, self.config.margin_m, grid
+        )
         self.view = view
         self.resend.seen(message.orderId, message.orderUpdateId, refuses(message))
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
@@ -271,6 +307,8 @@ class VehicleCore:
         return self.view is not None and self.view.can_drive and not self.refusals.unroutable
 
     def _off_route(self, view: VehicleView) -> str:
+        if not view.under:
+            return "the vehicle gives no position on the map (none, not initialised, or off it)"
         under = sorted(list(c) for c in view.under)
         return f"the vehicle is on {under[:4]}, off the squares the fleet sent it"[:200]
 

@@ -72,6 +72,8 @@ class AdapterShell:
             name="vda5050",
             subscriptions=self.subscriptions,
             backoff=Backoff(reconnect_s, max_reconnect_s),
+            component="vda5050",
+            report=self._report,  # a failed handler, told on `errors`
         )
         self.ready = self.endpoint.online  # set while connected and subscribed
 
@@ -111,7 +113,12 @@ class AdapterShell:
         found = self._by_vda.get(topic)
         if found is not None:
             core, name = found
-            await self._send(core.on_vehicle(name, payload, now))
+            try:
+                outs = core.on_vehicle(name, payload, now)
+            except Exception as exc:  # the unit shows it; the endpoint reports it on `errors`
+                await self._send(core.on_failure(name, type(exc).__name__))
+                raise
+            await self._send(outs)
             return
         try:
             kind, who = self.topics.parse(topic)
@@ -123,6 +130,18 @@ class AdapterShell:
             await self._send(self._controls(payload, now))
         elif who in self._by_unit:
             await self._send(self._by_unit[who].on_fleet(topic, payload, now))
+
+    def _report(self, topic: str, reason: str) -> Outbound:
+        """A report on `errors` about `topic`, in the name of the unit it concerns (else the
+        first: the adapter's account owns every unit's name)."""
+        found = self._by_vda.get(topic)
+        core = found[0] if found is not None else None
+        if core is None:
+            try:
+                core = self._by_unit.get(self.topics.parse(topic)[1] or "")
+            except ProtocolError:
+                core = None
+        return (core or self.cores[0]).side.report(topic, reason)
 
     def _controls(self, payload: bytes, now: float) -> list[Outbound]:
         """Operators' controls of the units, from the coordinator's routes (read once for all)."""

@@ -220,6 +220,22 @@ def test_a_unit_silent_longer_than_its_threshold_raises_and_clears_when_heard_ag
     assert rig.core.raised_total["unit_lost"] == rig.core.cleared_total["unit_lost"] == 1
 
 
+def test_a_lost_unit_removed_for_good_clears_its_alert_without_an_error() -> None:
+    # The coordinator clears a removed unit's retained topics (protocol.md §6.11): an empty
+    # state and connection say it is gone, not a malformed message.
+    rig = Rig()
+    rig.send(1.0, T.unit("connection", "unit1"), connection("unit1", "online"))
+    rig.state(2.0, "unit1", (3, 4))
+    assert notices(rig.tick(32.5))[0][0] == "raised"
+    cleared = rig.send(33.0, T.unit("state", "unit1"), b"")
+    assert notices(cleared) == [
+        ("cleared", "n1-1", "[CLEARED] unit unit1 lost: no state, nothing heard for 30 s")
+    ]
+    assert [out.topic for out in cleared.publish] == [T.fleet("alerts")]  # no error report
+    assert rig.send(33.0, T.unit("connection", "unit1"), b"").publish == []
+    assert rig.tick(100.0) == Effects()  # gone: nothing is raised for it again
+
+
 def test_a_broken_connection_is_named_and_a_clean_goodbye_raises_nothing() -> None:
     rig = Rig()
     rig.state(0.0, "unit1", (0, 0))
@@ -702,3 +718,43 @@ def test_an_unreadable_retained_view_is_reported_and_the_good_one_after_it_is_st
     assert not rig.core.settled and rig.core.active == {}  # still waiting for a view to read
     (view,) = views(rig.send(0.2, T.fleet("alerts"), last_runs_view()))
     assert [a.id for a in view.active] == ["old-1", "old-2"]
+
+
+def failure_report(sender: str, topic: str, reason: str) -> bytes:
+    header = HeaderStamper(sender)("errors")
+    return encode(ErrorReport(header=header, topic=topic, reason=reason))
+
+
+def test_a_components_failed_handler_raises_handler_failures_until_a_quiet_window() -> None:
+    from gridfleet.failures import failure_reason
+
+    rig = Rig(replace(SETTINGS, handler_failures_s=60.0))
+    state = "uagv/v2/acme/sn-7/state"
+    # A refusal on `errors` is no failure of anybody's; junk there is dropped unanswered.
+    refusal = failure_report("coordinator", T.request("submit_job"), "SubmitJob: malformed JSON")
+    assert rig.send(1.0, T.fleet("errors"), refusal).notices == []
+    assert rig.send(1.5, T.fleet("errors"), b"not json") == Effects()
+    raised = rig.send(
+        2.0,
+        T.fleet("errors"),
+        failure_report("agv1", state, failure_reason("vda5050", "TypeError")),
+    )
+    assert notices(raised) == [
+        (
+            "raised",
+            "n1-1",
+            f"[WARNING] vda5050 failed handling a message on {state} (TypeError); its log has "
+            "the details",
+        )
+    ]
+    (alert,) = rig.core.active.values()
+    assert (alert.rule, alert.subject, alert.severity) == ("handler_failures", "vda5050", "warning")
+    many = failure_reason("vda5050", "TypeError", 12)
+    assert rig.send(50.0, T.fleet("errors"), failure_report("agv1", state, many)).notices == []
+    assert rig.tick(110.0).notices == []  # 60 s after the latest: still within the window
+    assert [n[0] for n in notices(rig.tick(110.5))] == ["cleared"]
+    # Off: never raised.
+    off = Rig(replace(SETTINGS, handler_failures_s=None))
+    again = failure_report("unit1", T.unit("order", "unit1"), failure_reason("unit", "KeyError"))
+    assert off.send(1.0, T.fleet("errors"), again).notices == []
+    assert (T.fleet("errors"), 1) in rig.core.subscriptions()

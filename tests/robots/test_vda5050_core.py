@@ -191,7 +191,16 @@ def test_released_squares_become_the_base_and_the_square_behind_is_held_until_le
     assert kinds(outs) == ["units/agv1/state"] and unit_state(outs).order_update_id == 2
 
 
-def test_a_pick_the_vehicle_finished_loads_the_unit() -> None:
+@pytest.mark.parametrize(
+    "loads",
+    [None, [], [{"loadId": "job-1"}], [{"loadId": "job-1", "weight": 2.4}], [{}]],
+    ids=["cannot-tell", "says-none", "no-weight", "weighed", "nothing-named"],
+)
+def test_a_pick_the_vehicle_finished_loads_the_unit_with_the_jobs_mass(
+    loads: list[dict[str, Any]] | None,
+) -> None:
+    # The fleet knows the job: from the pick to the drop the unit carries its mass, whatever the
+    # vehicle says of its loads (the schemas' `loads`, and each load's `weight`, are optional).
     c = core()
     online(c)
     pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
@@ -201,6 +210,7 @@ def test_a_pick_the_vehicle_finished_loads_the_unit() -> None:
     done = state(
         agvPosition=at(1, 0),
         actionStates=[{"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "FINISHED"}],
+        **({} if loads is None else {"loads": loads}),
     )
     st = unit_state(c.on_vehicle("state", vda(done), T0 + 1))
     assert (st.position, st.job_id, st.load_kg) == ((1, 0), "job-1", 2.5)
@@ -507,3 +517,40 @@ def test_after_the_adapter_lost_the_broker_the_unit_is_back_at_once_and_the_vehi
     assert kinds(outs)[:3] == ["instantActions", "units/agv1/connection", "units/agv1/factsheet"]
     assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stateRequest"
     assert decode(Connection, outs[1].payload).state == "online"
+
+
+def test_states_the_adapter_fails_on_show_on_the_unit_then_break_it_until_one_is_read(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from gridfleet.robots.vda5050.core import UNREADABLE_STATES
+
+    c = core()
+    online(c)
+    good = vda(state(agvPosition=at(0, 0)))
+
+    def broken(*_: object) -> list[Outbound]:
+        raise TypeError("a bug")
+
+    monkeypatch.setattr(c, "_on_state", broken)
+    for _ in range(UNREADABLE_STATES - 1):  # shown at once, the unit still usable
+        with pytest.raises(TypeError):
+            c.on_vehicle("state", good, T0 + 1)
+        outs = c.on_failure("state", "TypeError")
+        assert kinds(outs) == ["units/agv1/state"]
+        (error,) = unit_state(outs).errors
+        assert error.code == "unreadable_state" and f"{VDA}state" in error.message
+        assert "TypeError" in error.message and "a bug" not in error.message
+    with pytest.raises(TypeError):
+        c.on_vehicle("state", good, T0 + 2)
+    broken_outs = c.on_failure("state", "TypeError")  # the last state first, then broken
+    assert kinds(broken_outs) == ["units/agv1/state", "units/agv1/connection"]
+    assert decode(Connection, broken_outs[1].payload).state == "broken"
+    assert c.tick(T0 + 3) == [] and c.on_failure("state", "TypeError") == []  # no unit: silent
+    monkeypatch.undo()
+    back = c.on_vehicle("state", good, T0 + 4)  # read again: the unit is back
+    assert kinds(back)[:2] == ["units/agv1/connection", "units/agv1/factsheet"]
+    assert decode(Connection, back[0].payload).state == "online" and c.unreadable == 0
+    assert unit_state(c.on_vehicle("state", good, T0 + 5) or c.state()).errors == []
+    # Its connection or factsheet failing is shown too, and breaks nothing.
+    outs = c.on_failure("factsheet", "KeyError")
+    assert [e.code for e in unit_state(outs).errors] == ["unreadable_message"]
