@@ -266,6 +266,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         self._session_ends: weakref.WeakKeyDictionary[Any, asyncio.TimerHandle] = (
             weakref.WeakKeyDictionary()
         )
+        # Client id -> the accounts of CONNECTs taking it over now (from the gate's look until
+        # their session is amqtt's): no other account's slips in while one waits in _displace.
+        self._claims: dict[str, list[str | None]] = {}
         self._prune_at = _PRUNE_FLOOR
         self.stats = BrokerStats()
         self._shutting_down = False
@@ -357,6 +360,10 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
                 await writer.close()
             raise MQTTError(f"{peer}: no valid CONNECT ({exc!r})") from None
         refusal = await self._refusal(incoming, remote_address)
+        if refusal is None and self.gate is not None and incoming.client_id:
+            # Nothing is awaited from this look to the claim below: no CONNECT comes between.
+            holder = self._holder(incoming.client_id)
+            refusal = self.gate.takeover_refusal(incoming.username, incoming.client_id, holder)
         if refusal is not None:
             self.stats.refused["connect"] += 1
             self._log_refusal(f"{peer} (client id {incoming.client_id!r}): {refusal}")
@@ -367,9 +374,21 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
             raise MQTTError(f"{peer}: client id {incoming.client_id!r} not authorized")
         if isinstance(reader, _GuardedReader):
             reader.client_id = incoming.client_id
-        if incoming.client_id:
-            await self._displace(incoming.client_id)
+        claimed = incoming.client_id or None
+        if claimed is not None:
+            self._claims.setdefault(claimed, []).append(incoming.username)
+        try:
+            if claimed is not None:
+                await self._displace(claimed)
+            # The claim ends as this returns; amqtt's _handle_client_session then takes the
+            # session in before it awaits anything.
+            return await self._adopt_session(handler, incoming, reader)
+        finally:
+            if claimed is not None:
+                self._unclaim(claimed, incoming.username)
 
+    async def _adopt_session(self, handler: Any, incoming: Any, reader: Any) -> tuple[Any, Any]:
+        """The session a CONNECT let in continues or starts, as amqtt 0.12.1 makes it."""
         # amqtt 0.12.1 from here on (plus will_retain and is_anonymous, which it did not carry
         # over to a resumed session).
         session = incoming
@@ -527,6 +546,28 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         if session.attributes.pop("gridfleet.authenticated", False):
             return True
         return bool(await super()._authenticate(session, listener))
+
+    def _holder(self, client_id: str) -> str | None:
+        """The account holding `client_id`: a CONNECT taking it over now, a connected session, or
+        a persistent one kept for its client (None: nobody; an ended clean session is nobody's)."""
+        claims = self._claims.get(client_id)
+        if claims:
+            return claims[0]
+        entry = self._sessions.get(client_id)
+        if entry is None:
+            return None
+        session = entry[0]
+        if session.transitions.state == "connected" or not session.clean_session:
+            return None if session.username is None else str(session.username)
+        return None
+
+    def _unclaim(self, client_id: str, username: str | None) -> None:
+        """A CONNECT's claim on `client_id` ends: its session is amqtt's now, or it failed."""
+        claims = self._claims.get(client_id, [])
+        if username in claims:
+            claims.remove(username)
+        if not claims:
+            self._claims.pop(client_id, None)
 
     async def _displace(self, client_id: str) -> None:
         """Disconnect the connection holding `client_id` and wait until amqtt has let it go."""

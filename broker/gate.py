@@ -1,5 +1,6 @@
-"""Who the embedded broker lets in, with accounts: passwords, the client ids each account owns, and
-throttled failures (pure: no I/O, the clock comes in).
+"""Who the embedded broker lets in, with accounts: passwords, the client ids each account owns (by
+its name, by a vehicle's bound `client_id`, by a session it holds), and throttled failures (pure:
+no I/O, the clock comes in).
 
 The broker reads the accounts file, which holds the passwords themselves (clients read theirs
 from it): a slow hash of them protects nothing here, and amqtt's Argon2 check cost ~30 ms of the
@@ -16,14 +17,14 @@ import hmac
 import json
 import secrets
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from gridfleet.accounts import Accounts
-from gridfleet.config import names_owned_id
+from gridfleet.config import owner_of
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import TOPICS, Topics, decode
-from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES
+from gridfleet.protocol.constants import DEFAULT_ROOT, MAX_REQUEST_BYTES, REMOVED_UNIT_KINDS
 from gridfleet.protocol.messages import BrokerRevoke
 from gridfleet.session_login import (
     RevokedSessions,
@@ -41,14 +42,7 @@ ERRORS_PER_S = 5.0
 _NOBODY = "\0unknown"
 
 
-def owner_of(client_id: str, names: Iterable[str]) -> str | None:
-    """The account that owns `client_id`: the longest name it is, or starts with plus '-' or '@'.
-
-    `unit1-3fa2c1d0` and `coordinator@hall.b` belong to `unit1` and `coordinator`; `unit10-x`
-    belongs to `unit10`, not `unit1`.
-    """
-    owners = [name for name in names if names_owned_id(name, client_id)]
-    return max(owners, key=len, default=None)
+__all__ = ["Gate", "Revocation", "owner_of"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +65,7 @@ class Gate:
         wall: Callable[[], float] = time.time,
     ) -> None:
         topics = Topics(root)
+        self._topics = topics
         # Where a message names who sent it, for people and the fleet to read (protocol.md §10).
         # Every request kind, the dashboard's login reports for the audit among them.
         requests = [k for k, spec in TOPICS.items() if spec.pattern.startswith("requests/")]
@@ -93,8 +88,11 @@ class Gate:
         self.revoked = RevokedSessions()
         self.revoke_topic = topics.fleet("revoke")
         self._revokers = {a.name for a in accounts.accounts.values() if a.role == "dashboard"}
-        # A VDA 5050 vehicle's client id is its vendor's to choose: any id no account owns.
+        # A VDA 5050 vehicle's client id is its vendor's to choose: any id no account owns, by
+        # its name or by a vehicle's `client_id` (bound to that vehicle's account, connected or
+        # not), and none another account's session holds (`takeover_refusal`).
         self._vehicles = {a.name for a in accounts.accounts.values() if a.role == "vehicle"}
+        self._bound = accounts.bound_client_ids()
         # Per address and per name at an address, never per name alone: a stranger's guesses
         # never keep the operator or the coordinator out. An address here is where every
         # component of `gridfleet up` comes from too: a generous burst, and one name's failures
@@ -131,7 +129,13 @@ class Gate:
             self.throttle.failed(username, address, known_name=known)
             said = f" ({why})" if why else ""
             return f"wrong user name or password for {username!r}{said}"
-        if client_id:  # empty: the broker makes up one, which nobody owns
+        bound = self._bound.get(client_id)
+        if bound is not None and bound != username:
+            return (
+                f"client id {client_id!r} is bound to vehicle account {bound!r} (the client_id "
+                f"of its vehicle): {username!r} may not use it"
+            )
+        if client_id and bound is None:  # empty: the broker makes up one, which nobody owns
             owner = owner_of(client_id, self._digests)
             if owner != username and not (owner is None and username in self._vehicles):
                 whose = f"account {owner!r}" if owner else "no account"
@@ -140,6 +144,23 @@ class Gate:
                     f"{username!r} or ids starting '{username}-' or '{username}@'"
                 )
         return None
+
+    def takeover_refusal(
+        self, username: str | None, client_id: str, holder: str | None
+    ) -> str | None:
+        """None to let `username`'s CONNECT take over the session held under `client_id` by
+        account `holder` (None: no session holds it); otherwise why not (for the broker's log).
+
+        An account takes over its own sessions (a unit back after a silent cut must win), never
+        another account's, whatever the id: one vehicle knocked another off by connecting under
+        the unowned id that vehicle had chosen.
+        """
+        if holder is None or holder == username:
+            return None
+        return (
+            f"client id {client_id!r} is in use by account {holder!r} (a session it holds): "
+            f"{username!r} may not take it over"
+        )
 
     def refused_publish(
         self, username: str | None, client_id: str, topic: str, data: bytes
@@ -189,6 +210,8 @@ class Gate:
         """Why a message's content is refused: who it says sent it (its header, the latch's)."""
         if topic == self._latch:
             return self._latch_refusal(username, data)
+        if data and username in self._copies_latch and self._is_removed_unit_topic(topic):
+            return "the coordinator clears a removed unit's retained topics, never writes them"
         if topic not in self._signed or username is None or len(data) > MAX_REQUEST_BYTES:
             return None
         try:
@@ -203,6 +226,18 @@ class Gate:
         if owner != username:
             return f"its header names sender {sender!r}, an id account {username!r} does not own"
         return None
+
+    def _is_removed_unit_topic(self, topic: str) -> bool:
+        """Whether `topic` is one of a unit's own that the coordinator clears at its removal."""
+        try:
+            kind, ident = self._topics.parse(topic)
+        except ProtocolError:
+            return False
+        return (
+            ident is not None
+            and kind in REMOVED_UNIT_KINDS
+            and topic == self._topics.unit(kind, ident)
+        )
 
     def _latch_refusal(self, username: str | None, data: bytes) -> str | None:
         """Why a latch payload is dropped: its `by` is an id the publishing account does not own.

@@ -82,6 +82,9 @@ def mosquitto_conf(
         "# Started as root, Mosquitto reads these as user mosquitto: let that user read them.",
         f"password_file {password_file}",
         f"acl_file {acl_file}",
+        "# Client ids: these files cannot bind them to accounts, so any account may take over any",
+        "# client's connection (the embedded broker refuses it). use_username_as_clientid would",
+        "# stop that, but an account's several clients would then kick each other (docs/brokers.md).",
         "",
     ]
     listeners: list[tuple[int, list[str]]] = [(port, [])]

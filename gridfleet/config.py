@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import re
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from urllib.parse import parse_qs, quote, unquote, urlsplit
 
@@ -127,6 +129,20 @@ def names_owned_id(name: str, client_id: str) -> bool:
     """Whether `client_id` is one account `name` may use: `name`, or `name` followed by '-' or '@'
     and more (protocol.md §10). Where several account names fit, the longest owns it."""
     return client_id == name or client_id.startswith((f"{name}-", f"{name}@"))
+
+
+# A vehicle's own MQTT client id, as its vendor set it: printable ASCII without spaces.
+CLIENT_ID = re.compile(r"[!-~]{1,64}")
+
+
+def owner_of(client_id: str, names: Iterable[str]) -> str | None:
+    """The account that owns `client_id`: the longest name it is, or starts with plus '-' or '@'.
+
+    `unit1-3fa2c1d0` and `coordinator@hall.b` belong to `unit1` and `coordinator`; `unit10-x`
+    belongs to `unit10`, not `unit1`.
+    """
+    owners = [name for name in names if names_owned_id(name, client_id)]
+    return max(owners, key=len, default=None)
 
 
 def owned_client_id(username: str | None, wanted: str) -> str:

@@ -4,6 +4,7 @@ the broker's TLS certificate."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import get_args
 
@@ -144,7 +145,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _links(path: Path) -> tuple[VehicleLink, ...]:
     """Every vehicle of a vehicles file, as accounts name them."""
-    return tuple(VehicleLink(c.vehicle.unit, c.vehicle.prefix) for c in load_vehicles(path))
+    return tuple(
+        VehicleLink(c.vehicle.unit, c.vehicle.prefix, c.client_id) for c in load_vehicles(path)
+    )
 
 
 def _vehicles_of(role: str, unit: str | None, path: Path | None) -> tuple[VehicleLink, ...]:
@@ -197,6 +200,14 @@ def _mosquitto(args: argparse.Namespace) -> int:
         f"wrote {passwd}, {acl} and {conf} (allow_anonymous false): run 'mosquitto -c {conf}'; "
         "started as root, Mosquitto reads passwd and acl as user mosquitto: chown them to it"
     )
+    bound = sorted(accounts.bound_client_ids())
+    if bound:
+        print(
+            f"note: Mosquitto cannot bind client ids to accounts: the client_id of "
+            f"{', '.join(bound)} is not enforced there, and any account can take over any "
+            "client's id (docs/brokers.md, 'Client ids on Mosquitto')",
+            file=sys.stderr,
+        )
     return 0
 
 

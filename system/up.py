@@ -150,18 +150,29 @@ def check_accounts(path: Path, scenario: Scenario) -> Accounts:
 def check_adapter_account(
     accounts: Accounts, path: Path, vehicles_file: Path, vehicles: Sequence[VehicleConfig]
 ) -> None:
-    """The VDA 5050 adapter's account speaks for every vehicle of the file; else ConfigError."""
+    """The VDA 5050 adapter's account speaks for every vehicle of the file, and the client id a
+    vehicle of the file names is bound to that vehicle's account; else ConfigError."""
     made = f"gridfleet accounts add vda5050 --role vda5050 --vehicles {vehicles_file} --file {path}"
     adapter = accounts.accounts.get("vda5050")
     if adapter is None or adapter.role != "vda5050":
         raise ConfigError(f"{path}: no vda5050 account, which --vehicles needs: {made}")
     links = {(v.unit, v.topic) for v in adapter.vehicles}
+    bound = accounts.bound_client_ids()
     for config in vehicles:
         v = config.vehicle
         if (v.unit, v.prefix) not in links:
             raise ConfigError(
                 f"{path}: account vda5050 does not speak for vehicle {v.unit} of {vehicles_file}:"
                 f' add {{ unit = "{v.unit}", topic = "{v.prefix}" }} to its vehicles'
+            )
+        binder = bound.get(config.client_id) if config.client_id is not None else None
+        if config.client_id is not None and (
+            binder is None or accounts.accounts[binder].unit != v.unit
+        ):
+            raise ConfigError(
+                f"{path}: no vehicle account of unit {v.unit} binds its client_id "
+                f"{config.client_id!r} ({vehicles_file}): add client_id = "
+                f'"{config.client_id}" to that account\'s vehicles entry'
             )
 
 

@@ -17,6 +17,7 @@ capacity_kg = 20.0        # 2.0 vehicles; a 2.1 vehicle's factsheet says it
 margin_m = 0.04           # its body beyond its reference point (states.py: it holds every square that reaches)
 legacy_actions_key = true # vda-5050-lib 1.4.0: the instant actions under `instantActions` too
 action_parameters = {stationType = "floor", loadType = "EPAL"}  # added to every pick and drop
+client_id = "acme-sn-7"   # optional: its MQTT client id, bound to its vehicle account (no other may use it)
 ```
 
 Every problem is refused in one line naming the file, the line and the key.
@@ -24,7 +25,7 @@ Every problem is refused in one line naming the file, the line and the key.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Any
@@ -41,6 +42,7 @@ from pydantic import (
 )
 from pydantic_core import ErrorDetails
 
+from gridfleet.config import CLIENT_ID, owner_of
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.wire import Vehicle, Version
@@ -73,6 +75,8 @@ class _VehicleTable(_Table):
     legacy_actions_key: bool = False
     # Extra parameters of every pick and drop (the vehicle's station and load types, say).
     action_parameters: dict[str, StrictStr | StrictFloat | StrictInt | StrictBool] = {}
+    # The MQTT client id the vehicle connects with, if its vendor fixed one: bound to its account.
+    client_id: str | None = None
 
 
 class _VehiclesFile(_Table):
@@ -90,6 +94,7 @@ class VehicleConfig:
     margin_m: float
     legacy_actions_key: bool
     action_parameters: Mapping[str, str | float | bool] = field(default_factory=dict)
+    client_id: str | None = None  # bound to the vehicle's account (gridfleet/accounts.py)
 
 
 def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
@@ -148,9 +153,30 @@ def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
                 float(v.margin_m),
                 v.legacy_actions_key,
                 dict(v.action_parameters),
+                v.client_id,
             )
         )
+    for i, c in enumerate(configs):
+        problem = _client_id_problem(c, configs)
+        if problem is not None:
+            raise where.error(where.table("vehicles", i), f"vehicle {c.vehicle.unit!r}: {problem}")
     return tuple(configs)
+
+
+def _client_id_problem(config: VehicleConfig, configs: Sequence[VehicleConfig]) -> str | None:
+    """What is wrong with `config`'s client_id among the file's vehicles (None: nothing)."""
+    client_id = config.client_id
+    if client_id is None:
+        return None
+    if not CLIENT_ID.fullmatch(client_id):
+        return f"client_id {client_id!r} is not 1-64 printable ASCII characters without spaces"
+    twice = [c.vehicle.unit for c in configs if c is not config and c.client_id == client_id]
+    if twice:
+        return f"client_id {client_id!r} is vehicle {twice[0]!r}'s too"
+    owner = owner_of(client_id, [c.vehicle.unit for c in configs])
+    if owner is not None and owner != config.vehicle.unit:
+        return f"client_id {client_id!r} belongs to vehicle {owner!r}'s account (its name)"
+    return None
 
 
 def _shape_error(error: ErrorDetails, where: TomlFile[ConfigError]) -> GridfleetError:

@@ -233,3 +233,18 @@ def test_a_will_is_held_to_every_rule_a_publish_is_without_spending_the_error_bu
         gate.refused_publish("unit1", "unit1", errors, signed("unit1")) is None for _ in range(21)
     ]
     assert passed == [True] * 20 + [False]
+
+
+def test_the_coordinator_may_only_clear_a_removed_units_own_topics_never_write_them() -> None:
+    # The coordinator's account publishes on units/+/{state,factsheet,vehicle,connection} to
+    # clear a removed unit's retained copies (protocol.md §6.11): an empty payload, nothing else.
+    gate = Gate(ACCOUNTS)
+    for kind in ("state", "factsheet", "vehicle", "connection"):
+        topic = f"gridfleet/v1/units/unit1/{kind}"
+        assert gate.refused_publish("coordinator", "coordinator", topic, b"") is None
+        refused = gate.refused_publish("coordinator", "coordinator", topic, b'{"status": "idle"}')
+        assert refused is not None and "never writes them" in refused
+        # The unit itself writes its own, as ever.
+        assert gate.refused_publish("unit1", "unit1", topic, b'{"status": "idle"}') is None
+    order = "gridfleet/v1/units/unit1/order"
+    assert gate.refused_publish("coordinator", "coordinator", order, b'{"x": 1}') is None
