@@ -1,4 +1,5 @@
-"""`gridfleet job`: an operator's command line: submit, cancel and list jobs, goals, the stop."""
+"""`gridfleet job`: an operator's command line: submit, cancel and list jobs, goals, units'
+controls and removal, the stop."""
 
 from __future__ import annotations
 
@@ -120,6 +121,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     for name, command in UNIT_ACTIONS.items():
         control = sub.add_parser(name, help=UNIT_HELP[command])
         control.add_argument("unit", type=identifier("unit id"))
+    remove = sub.add_parser(
+        "remove",
+        help="forget a lost unit that is off the floor for good: its squares freed, its job "
+        "re-queued (failed if it carried the item)",
+        description="Remove a unit that is gone for good (protocol.md §6.11). Only a lost unit "
+        "(offline, broken or silent) can be removed: confirm first that it is physically off "
+        "the floor. Its squares are freed at once, its job goes back to the queue (or fails, "
+        "when the item left with it), its retained topics are cleared and the act is audited. "
+        "Should it come back, it joins as a new unit: with a new 'online' on its connection, "
+        "its square checked as any unit's, none of its old job or squares.",
+    )
+    remove.add_argument("unit", type=identifier("unit id"))
+    remove.add_argument(
+        "--reason", type=reason, default=None, help="one line, for the audit and the events"
+    )
     clear = sub.add_parser(
         "clear-obstacles", help="forget discovered obstacles that are gone (X,Y ... or --all)"
     )
@@ -405,6 +421,11 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
         elif args.action == "clear-obstacles":
             squares = None if args.all else args.squares
             reply = await operator.clear_obstacles(squares, args.timeout)
+        elif args.action == "remove":
+            reply = await operator.remove_unit(args.unit, args.reason, args.timeout)
+            if reply.accepted:  # its reason says what became of the unit's job
+                print(f"accepted: {reply.reason or f'unit {args.unit} removed'}", file=out)
+                return 0
         elif args.action in UNIT_ACTIONS:
             command = UNIT_ACTIONS[args.action]
             reply = await operator.control_unit(args.unit, command, args.timeout)

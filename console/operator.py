@@ -35,6 +35,7 @@ from gridfleet.protocol import (
     JobHistoryPage,
     JobHistoryQuery,
     JobsView,
+    RemoveUnit,
     Reply,
     Routes,
     SetGoal,
@@ -257,6 +258,12 @@ class Operator:
     async def control_unit(self, unit: str, command: str, timeout: float = WAIT_S) -> Reply:
         """Pause or resume one unit, or take it out of service or back (protocol.md §6.4)."""
         return await self._request("control_unit", ControlUnit, timeout, unit=unit, command=command)
+
+    async def remove_unit(
+        self, unit: str, reason: str | None = None, timeout: float = WAIT_S
+    ) -> Reply:
+        """Remove a lost unit that is off the floor for good (protocol.md §6.11)."""
+        return await self._request("remove_unit", RemoveUnit, timeout, unit=unit, reason=reason)
 
     async def clear_obstacles(self, squares: list[Cell] | None, timeout: float = WAIT_S) -> Reply:
         """Forget discovered obstacles that are gone (None: all of them; protocol.md §6.6)."""

@@ -28,6 +28,7 @@ from gridfleet.protocol import (
     ClearObstacles,
     ControlUnit,
     EstopSignal,
+    RemoveUnit,
     SetGoal,
     SubmitJob,
     decode_estop,
@@ -123,6 +124,8 @@ def request_act(req: Request) -> tuple[AuditAct, str | None, str | None]:
         return "set_goal", req.unit, f"to {list(req.target)}"
     if isinstance(req, ControlUnit):
         return req.command, req.unit, None
+    if isinstance(req, RemoveUnit):
+        return "remove_unit", req.unit, req.reason
     if isinstance(req, ClearObstacles):
         if req.squares is None:
             return "clear_obstacles", "all", None
@@ -152,6 +155,8 @@ class AuditLog:
     def request(self, at: datetime, req: Request, outcome: Outcome) -> None:
         """A new request the core answered (a retry is the same act: not passed in again)."""
         act, target, detail = request_act(req)
+        if isinstance(req, RemoveUnit) and outcome.accepted:  # and what became of its job
+            detail = "; ".join(d for d in (outcome.reason, detail) if d)
         actor, verified = self.identity.actor(req.header.sender)
         self._fresh.append(
             AuditEntry(
@@ -163,7 +168,7 @@ class AuditLog:
                 target=target if target is not None else outcome.job_id,
                 detail=detail,
                 outcome="accepted" if outcome.accepted else "refused",
-                reason=outcome.reason,
+                reason=None if outcome.accepted else outcome.reason,
             )
         )
 

@@ -19,12 +19,14 @@ batched views. Safety rules (protocol.md §4.4, §8), each in the module named:
 
 Lost units (connection offline/broken or state silent for 5 step periods): their squares stay
 reserved; a job not yet picked up goes back to the queue; a job whose item the unit had already
-picked up becomes `failed` (progress.py).
+picked up becomes `failed` (progress.py). An operator who knows one is gone for good removes it
+(`remove_unit`, removals.py): forgotten at once, its squares free, its word ignored until it rejoins.
 """
 
 from __future__ import annotations
 
 import logging
+import traceback
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
@@ -44,12 +46,14 @@ from gridfleet.coordinator.pace import StepRate
 from gridfleet.coordinator.planning.planner import Planner
 from gridfleet.coordinator.progress import JobProgress
 from gridfleet.coordinator.records import RecordKind, RecordQuery, range_problem
+from gridfleet.coordinator.removals import Removal, Removals
 from gridfleet.coordinator.stop import FleetStop
 from gridfleet.coordinator.views import Views, views_period_s
 from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, Claims
 from gridfleet.coordinator.world import UnitRecord, World
 from gridfleet.errors import ProtocolError
+from gridfleet.failures import FailureReports
 from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
@@ -60,13 +64,14 @@ from gridfleet.protocol import (
     Factsheet,
     HeaderStamper,
     JobHistoryQuery,
+    RemoveUnit,
     RouteView,
     SetGoal,
     SubmitJob,
     Topics,
     UnitState,
 )
-from gridfleet.protocol.constants import MIN_TIMEOUT_S
+from gridfleet.protocol.constants import MIN_TIMEOUT_S, REMOVED_UNIT_KINDS
 from gridfleet.protocol.messages import AuditLogin, AuditQuery, UnitControlState
 
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
@@ -76,7 +81,9 @@ ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
 Note = tuple[int, str]  # a line for the shell's log: (logging level, text)
 # Requests the inbox takes (answered by `serve`, urgent kinds and each account in turn).
-QUEUED = (SubmitJob, CancelJob, SetGoal, ControlUnit, ClearObstacles, JobHistoryQuery)
+QUEUED = (SubmitJob, CancelJob, SetGoal, ControlUnit, ClearObstacles, RemoveUnit, JobHistoryQuery)
+# What the coordinator reads of a unit: none of it counts from a unit removed until it rejoins.
+UNIT_WORD = ("connection", "factsheet", "state")
 
 
 @dataclass(frozen=True)
@@ -103,6 +110,7 @@ class CoordinatorCore:
         controls: Mapping[str, UnitControlState] | None = None,
         window: int = DEFAULT_WINDOW,
         identity: Identity | None = None,
+        removals: Mapping[str, Removal] | None = None,
     ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window {window}: give 1 to {MAX_WINDOW} squares")
@@ -132,6 +140,11 @@ class CoordinatorCore:
         self.audit = AuditLog(self.identity)  # who did what: operators' requests and the stop
         self.inbox = Inbox()  # requests waiting for `serve` (the shell's; tests answer at once)
         self.inbox_refusals = Refusals()
+        # Units an operator removed for good (kept across restarts): ignored until they rejoin.
+        self.removals = Removals(removals)
+        # Its own failures on messages (bugs): told on `errors` by the class alone, at most once
+        # a second per topic (gridfleet/failures.py); those held back go out with the steps.
+        self.failures = FailureReports("coordinator")
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
 
@@ -156,13 +169,15 @@ class CoordinatorCore:
         return self.say.status(state, self.step_no, period, self.estop, self.pace.achieved_step_s)
 
     def on_connect(self, now: float = 0.0) -> Effects:
-        """Connected (and `online` said): every view goes out again."""
+        """Connected (and `online` said): every view goes out again, and the clears of removed
+        units whose clear has not come back yet."""
         self.stop.connected(now)
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
         persist = self._persist()
         notes: list[Note] = []
-        return self._effects(self._views(notes), persist, log=notes)
+        clears = [out for unit in self.removals.uncleared() for out in self._clears(unit)]
+        return self._effects([*clears, *self._views(notes)], persist, log=notes)
 
     def halt_orders(self) -> Effects:
         """A halt order for every unit now (a clean stop; the emergency stop does the same)."""
@@ -226,6 +241,10 @@ class CoordinatorCore:
     def _read(self, topic: str, payload: bytes, now: float) -> Arrival | Effects:
         """The message decoded; or, for one to ignore or refuse, the Effects of that."""
         self.world.heard(now)  # whatever it says, the coordinator can hear
+        if not payload and self.removals.units:
+            cleared = self._cleared_of_removed(topic)
+            if cleared is not None:
+                return cleared
         if topic == self._own_status:
             self.world.heard_itself = True  # and every retained factsheet has arrived
         try:
@@ -235,7 +254,7 @@ class CoordinatorCore:
             refused = self._refuse_unreadable(topic, payload, str(exc), notes)
             return self._effects([*refused, *self.stop.heal(topic)], log=notes)
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
-            return self._failed(topic, exc)
+            return self._failed(topic, exc, now)
         return self._effects([]) if arrival is None else arrival
 
     def _guarded(self, topic: str, arrival: Arrival, now: float) -> Effects:
@@ -252,11 +271,20 @@ class CoordinatorCore:
                 refused.append(self.say.reply(reply_to, request_id, outcome))
             return self._effects([*refused, *self.stop.heal(topic)], log=notes)
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
-            return self._failed(topic, exc)
+            return self._failed(topic, exc, now)
 
-    def _failed(self, topic: str, exc: Exception) -> Effects:
-        notes: list[Note] = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}")]
-        report = self._refuse(topic, f"internal error: {exc!r}", None, notes)
+    def _failed(self, topic: str, exc: Exception, now: float) -> Effects:
+        """A fault of its own on a message: logged with its traceback, told by its class alone.
+
+        What the message changed before the fault stays (nothing of it is stored or published
+        now; the next step plans from the world as it is); nothing else is undone.
+        """
+        reason = self.failures.failed(topic, type(exc).__name__, now)
+        if reason is None:  # told with the next report on this topic (`step`)
+            return self._effects([], log=[(logging.DEBUG, f"failed again on {topic}: {exc!r}")])
+        trace = "".join(traceback.format_exception(exc)).rstrip()
+        notes: list[Note] = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}\n{trace}")]
+        report = self._refuse(topic, reason, None, notes)
         return self._effects([report], log=notes)
 
     def _refuse_unreadable(
@@ -276,6 +304,10 @@ class CoordinatorCore:
     def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
         msg = arrival.message
         unit = arrival.unit
+        if unit is not None and unit in self.removals and arrival.kind in UNIT_WORD:
+            ignored = self._from_removed(unit, arrival.kind, msg)
+            if ignored is not None:
+                return ignored
         if isinstance(msg, Factsheet) and unit is not None and self.world.on_foreign(unit, msg):
             # Left on the broker by a run on another map (same root): not part of this fleet.
             line = f"unit {unit} drives on another map ({msg.map_id}, ours {self.world.map_id}): ignored"
@@ -303,7 +335,9 @@ class CoordinatorCore:
                 return self._effects([error], log=((logging.WARNING, forged),))
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
-        elif isinstance(msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles):
+        elif isinstance(
+            msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles | RemoveUnit
+        ):
             return self._on_request(topic, msg, now)
         elif isinstance(msg, JobHistoryQuery):
             return self._on_query(topic, "job_history", msg)
@@ -364,6 +398,7 @@ class CoordinatorCore:
         known = self.answers.recall(req)  # a retry gets its first answer and changes nothing
         notes: list[Note] = []
         controls: tuple[tuple[str, UnitControlState | None], ...] = ()  # to persist
+        publish: list[Outbound] = []  # a removed unit's topics cleared go out before the reply
         if known is not None:
             outcome = known
         else:
@@ -376,9 +411,14 @@ class CoordinatorCore:
                 sender=sender,
                 account=partial(self._open_jobs_of, sender),
                 requeue=self.progress.requeue,
+                now=now,
             )
             outcome = requests.HANDLERS[type(req)](req, ctx)
             controls = tuple(ctx.controls)
+            for unit in ctx.removed:
+                clears, lifted = self._forget(unit, sender, getattr(req, "reason", None))
+                publish += clears
+                controls += lifted
             cleared = ctx.cleared
             if cleared:
                 self.planner.set_grid(self.world.grid)
@@ -389,7 +429,6 @@ class CoordinatorCore:
                 notes.append((logging.WARNING, f"obstacles cleared by {sender}: {squares}{more}"))
         if known is None:  # a retry is the same act, recorded once
             self.audit.request(self.say.stamp.now(), req, outcome)
-        publish = []
         if not outcome.accepted:
             what = f"refused {self.topics.parse(topic)[0]} from {sender}: {outcome.reason}"
             about = (outcome.job_id, getattr(req, "unit", None))  # the job, the unit it concerns
@@ -409,6 +448,73 @@ class CoordinatorCore:
         if known is None:  # a new request: its answer is kept
             effects = replace(effects, answered=(self.answers.remember(req, outcome),))
         return effects
+
+    # ---- units removed for good (protocol.md §6.11) -------------------------------------------
+
+    def _forget(
+        self, unit: str, by: str, reason: str | None
+    ) -> tuple[list[Outbound], tuple[tuple[str, UnitControlState | None], ...]]:
+        """Forget a removed unit everywhere: its squares are free from the next step on, its
+        goal and control go; the clears of its retained topics, and the control lifted."""
+        self.world.forget(unit)
+        self.orders.forget(unit)
+        self.progress.forget(unit)
+        self.planner.forget(unit)
+        self.directives.set_goal(unit, None)
+        lifted: tuple[tuple[str, UnitControlState | None], ...] = ()
+        if self.directives.controls.get(unit) is not None:
+            self.directives.set_control(unit, None)
+            lifted = ((unit, None),)
+        at = self.say.stamp.now()
+        self.removals.remove(unit, at, by)
+        why = f": {reason}" if reason else ""
+        self.events.add(at, "unit", f"unit {unit} removed by {by}{why}", unit=unit)
+        return self._clears(unit), lifted
+
+    def _clears(self, unit: str) -> list[Outbound]:
+        """Empty retained messages on a removed unit's topics, its connection last."""
+        return [Outbound.of(k, self.topics.unit(k, unit), b"") for k in REMOVED_UNIT_KINDS]
+
+    def _cleared_of_removed(self, topic: str) -> Effects | None:
+        """A cleared topic of a removed unit (its clear come back): None for any other topic."""
+        try:
+            kind, unit = self.topics.parse(topic)
+        except ProtocolError:
+            return None
+        if unit is None or unit not in self.removals or kind not in UNIT_WORD:
+            return None
+        if kind == "connection":  # cleared last: every older retained word of it is gone
+            self.removals.clear_heard(unit)
+        return self._effects([])
+
+    def _from_removed(self, unit: str, kind: str, msg: object) -> Effects | None:
+        """A removed unit's word: None when it rejoins (as a new unit), else ignored (logged once).
+
+        Its `offline` or `broken` (a last will the broker sends once the dead link's keep-alive
+        runs out, after the removal) is cleared again: the page and the status would list it.
+        """
+        if isinstance(msg, Connection) and self.removals.rejoins(unit, msg):
+            at = self.say.stamp.now()
+            self.events.add(
+                at, "unit", f"unit {unit} joins again after its removal, as new", unit=unit
+            )
+            return None
+        again = []
+        if isinstance(msg, Connection) and msg.state != "online":
+            again.append(Outbound.of("connection", self.topics.unit("connection", unit), b""))
+        if not self.removals.first_ignored(unit):
+            return self._effects(again)
+        removal = self.removals.units[unit]
+        line = (
+            f"ignored the {kind} of unit {unit}: removed by {removal.by}, it joins again only "
+            "with a new `online` on its connection"
+        )
+        if not removal.cleared:
+            line += (
+                " (its retained topics are not cleared yet: may the coordinator's account "
+                "write them? protocol.md §10)"
+            )
+        return self._effects(again, log=((logging.WARNING, line),))
 
     def _open_jobs_of(self, sender: str | None) -> tuple[str, int] | None:
         """The account of `sender` and how many jobs its senders have not finished."""
@@ -460,6 +566,8 @@ class CoordinatorCore:
                 f"{self.inbox_refusals.every_s:g} s; the latest: {untold.reason}"
             )
             publish.append(self._refuse(untold.topic, told, None, notes))
+        for topic, reason in self.failures.due(now):  # its own failures held back
+            publish.append(self._refuse(topic, reason, None, notes))
         if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
             publish.append(self.status("online"))
         # Back-pressure: when states come back late (an overloaded broker), a step before the
@@ -672,6 +780,7 @@ class CoordinatorCore:
             persist=persist,
             events=self.events.take_fresh(),
             controls=controls,
+            removals=self.removals.take(),
             audit=self.audit.take(),
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,

@@ -14,6 +14,7 @@ from gridfleet.coordinator.audit import AuditNews
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.orders import OrderPlan
 from gridfleet.coordinator.records import Entry, RecordKind, RecordQuery
+from gridfleet.coordinator.removals import Removal
 from gridfleet.coordinator.requests import Outcome
 from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound, error_report
@@ -42,6 +43,8 @@ class Effects:
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
     controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
+    # Units removed for good, or (None) forgotten as removed once they rejoined: store them.
+    removals: tuple[tuple[str, Removal | None], ...] = ()
     records: tuple[RecordQuery, ...] = ()  # checked queries: answer each from its store
     audit: AuditNews = field(default_factory=AuditNews)  # operators' acts, stop payloads seen
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders

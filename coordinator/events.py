@@ -26,8 +26,9 @@ _HEARD = "heard again"
 
 
 def _is_safety(entry: EventEntry) -> bool:
-    """A stop engaged or released, or a unit lost: what a person asks about afterwards."""
-    return entry.kind == "stop" or (entry.kind == "unit" and " lost (" in entry.text)
+    """A stop engaged or released, a unit lost or removed: what a person asks about afterwards."""
+    lost = " lost (" in entry.text or " removed by " in entry.text
+    return entry.kind == "stop" or (entry.kind == "unit" and lost)
 
 
 def _kg(mass: float) -> str:

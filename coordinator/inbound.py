@@ -17,6 +17,7 @@ from gridfleet.protocol import (
     ControlUnit,
     Factsheet,
     JobHistoryQuery,
+    RemoveUnit,
     SetGoal,
     SubmitJob,
     Topics,
@@ -28,7 +29,7 @@ from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.messages import AuditLogin, AuditQuery
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
-Request = SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles
+Request = SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles | RemoveUnit
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,7 @@ _REQUESTS: dict[str, type[Request]] = {
     "set_goal": SetGoal,
     "control_unit": ControlUnit,
     "clear_obstacles": ClearObstacles,
+    "remove_unit": RemoveUnit,
 }
 # The records' requests: pages answered from the stores (records.py) and the dashboard's login
 # reports; no job changes, and no answer is kept for a retry.

@@ -147,6 +147,14 @@ class Orders:
         """The Track of `unit_id`, created on first use."""
         return self.tracks.setdefault(unit_id, Track())
 
+    def forget(self, unit_id: str) -> None:
+        """Nothing sent to `unit_id` counts any more (removed, §6.11); its next order is a new
+        route, never an id it may still hold as accepted."""
+        t = self.tracks.pop(unit_id, None)
+        if t is not None:
+            self.tracks[unit_id] = Track(route_no=t.route_no)
+        self.awaiting.pop(unit_id, None)
+
     def reach(self, unit_id: str) -> int:
         """Squares `unit_id` may be released ahead now: 1 until it ran dry waiting (window.py)."""
         t = self.tracks.get(unit_id)

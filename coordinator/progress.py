@@ -56,6 +56,12 @@ class JobProgress:
             self.requeued_from[job.id] = job.unit
         self.jobs.set(job, "queued", unit=None, reason=reason)
 
+    def forget(self, unit_id: str) -> None:
+        """A removed unit (§6.11) adopts none of the jobs once re-queued from it, and puts nothing back."""
+        for job_id in [j for j, u in self.requeued_from.items() if u == unit_id]:
+            del self.requeued_from[job_id]
+        self.returns.pop(unit_id, None)
+
     def advance(self, units: list[UnitRecord], active: set[str], now: float, step_no: int) -> None:
         """Pick-ups, drop-offs, refusals, lost units and goals reached, from the latest states."""
         self._adopt_carried(units, active)

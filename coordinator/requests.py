@@ -1,5 +1,5 @@
 """Operator requests (protocol.md §6): queue a job, cancel one, send a unit to a goal, pause or
-take a unit out of service, clear obstacles.
+take a unit out of service, clear obstacles, remove a lost unit for good.
 
 Pure: each request is checked against the world and the job book by its handler in `HANDLERS`,
 `(request, RequestContext) -> Outcome`, and answered with the Outcome; a refused request changes
@@ -20,14 +20,22 @@ from gridfleet.coordinator.world import World
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
-from gridfleet.protocol import CancelJob, ClearObstacles, ControlUnit, SetGoal, SubmitJob
+from gridfleet.protocol import (
+    CancelJob,
+    ClearObstacles,
+    ControlUnit,
+    RemoveUnit,
+    SetGoal,
+    SubmitJob,
+)
 from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_OPEN_JOBS_PER_ACCOUNT
 from gridfleet.protocol.messages import Request, UnitControlState
 
 
 @dataclass(frozen=True)
 class Outcome:
-    """The answer to a request: accepted or not, why, and the job it concerns."""
+    """The answer to a request: accepted or not, why (or, for an accepted `remove_unit`, what
+    became of its job), and the job it concerns."""
 
     accepted: bool
     reason: str | None = None
@@ -52,6 +60,8 @@ class RequestContext:
     # that are no obstacle any more.
     controls: list[tuple[str, UnitControlState | None]] = field(default_factory=list)
     cleared: list[Cell] = field(default_factory=list)
+    now: float = 0.0  # the core's clock (monotonic seconds): whether a unit is heard from
+    removed: list[str] = field(default_factory=list)  # units removed for good: to forget
 
 
 def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
@@ -224,6 +234,36 @@ def clear_obstacles(req: ClearObstacles, ctx: RequestContext) -> Outcome:
     return Outcome(True)
 
 
+def remove(req: RemoveUnit, ctx: RequestContext) -> Outcome:
+    """Forget a lost unit an operator says is off the floor (protocol.md §6.11); its job goes
+    back to the queue, or fails when the item left with the unit. Refused for a unit heard from."""
+    world, jobs, unit = ctx.world, ctx.jobs, req.unit
+    rec = world.units.get(unit)
+    if rec is None:
+        return Outcome(False, f"unknown unit {unit!r}")
+    if world.is_active(rec, ctx.now):
+        return Outcome(
+            False,
+            f"unit {unit} is online and heard from: only a lost unit (offline, broken or "
+            "silent) can be removed; take it out of service and switch it off first",
+        )
+    who = ctx.sender or "an operator"
+    job = jobs.of_unit(unit)
+    where = f", last seen at {list(rec.position)}" if rec.position is not None else ""
+    if job is None:
+        fate = f"unit {unit} removed; it had no job"
+    elif job.state in CARRYING_STATES:
+        reason = f"unit {unit} was removed by {who} carrying the item{where}: the item left with it"
+        jobs.set(job, "failed", reason=reason, done_step=ctx.step_no)
+        fate = f"unit {unit} removed; job {job.id} failed: the item left with it"
+    else:
+        # Not through ctx.requeue: a removed unit never adopts its old job again (§6.11).
+        jobs.set(job, "queued", unit=None, reason=f"unit {unit} removed by {who}; re-queued")
+        fate = f"unit {unit} removed; job {job.id} back in the queue"
+    ctx.removed.append(unit)
+    return Outcome(True, fate, None if job is None else job.id)
+
+
 # Each operator request's handler (each takes its own kind of request).
 HANDLERS: dict[type[Request], Callable[[Any, RequestContext], Outcome]] = {
     SubmitJob: submit,
@@ -231,4 +271,5 @@ HANDLERS: dict[type[Request], Callable[[Any, RequestContext], Outcome]] = {
     SetGoal: set_goal,
     ControlUnit: control,
     ClearObstacles: clear_obstacles,
+    RemoveUnit: remove,
 }

@@ -5,7 +5,7 @@ and does what the returned Effects say: persist, publish, come back for batched 
 the step loop (one step per period, waiting a while for the last step's acknowledgements while
 more than a third of the units it ordered owe them: core.py, ACK_WAIT_S). With `metrics`,
 it also counts what passes through it and serves `/metrics` (metrics.py; nothing is counted
-without).
+without), and follows `errors` for every component's failed handlers (`handler_failures`).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
-from gridfleet.protocol import HeaderStamper, Topics
+from gridfleet.protocol import TOPICS, HeaderStamper, Topics
 from gridfleet.tasks import cancel_and_wait, first_of
 
 if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
@@ -94,6 +94,7 @@ class CoordinatorShell:
             topics=self.topics,
             stamp=HeaderStamper(sender),
             controls=self.store.load_controls(),
+            removals=self.store.load_removals(),
             window=window,
             identity=identity,
         )
@@ -101,11 +102,14 @@ class CoordinatorShell:
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.events.restore(self.store.load_events())
         self.world = self.core.world
+        self._errors = self.topics.fleet("errors")
         self.endpoint = Endpoint(
             broker,
             client_id,
             name="coordinator",
-            subscriptions=self.core.subscriptions,
+            subscriptions=self._subscriptions,
+            component="coordinator",
+            report=lambda topic, reason: self.core.say.error(topic, reason, None),
             will=lambda: self.core.status("broken"),
             online=lambda: self.core.status("online"),
             offline=lambda: self.core.status("offline"),
@@ -125,6 +129,13 @@ class CoordinatorShell:
             self.metrics = CoordinatorMetrics(self.core, connected=self.ready.is_set, clock=clock)
             self.metrics_server = MetricsServer(self.metrics.registry, metrics)
         self._save(self.core.restored())
+
+    def _subscriptions(self) -> list[tuple[str, int]]:
+        """The core's, and with metrics `errors`, where every component tells its failures."""
+        followed = list(self.core.subscriptions())
+        if self.metrics is not None:
+            followed.append((self._errors, TOPICS["errors"].qos))
+        return followed
 
     @property
     def errors_sent(self) -> int:
@@ -160,6 +171,10 @@ class CoordinatorShell:
 
     async def handle(self, topic: str, payload: bytes) -> None:
         """One inbound message, to the core; then whatever it says to do."""
+        if topic == self._errors:  # followed for the metrics alone (its own reports too)
+            if self.metrics is not None:
+                self.metrics.error_reported(payload)
+            return
         errors = self.core.errors_reported
         effects, waits = self.core.offer(topic, payload, self.clock())
         if waits:
@@ -268,6 +283,9 @@ class CoordinatorShell:
         controls = tuple(c for e in batch for c in e.controls)
         if controls:
             self.store.save_controls(controls)
+        removals = tuple(r for e in batch for r in e.removals)
+        if removals:
+            self.store.save_removals(removals)
         events = tuple(ev for e in batch for ev in e.events)
         if events:
             self.store.save_events(events)

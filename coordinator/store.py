@@ -1,4 +1,5 @@
-"""SQLite persistence of jobs and of the answers to requests (stdlib sqlite3).
+"""SQLite persistence of jobs, of the answers to requests, of operators' controls and removals
+of units, and of the recent history (stdlib sqlite3).
 
 A restarted coordinator loses no job, and still recognises a request retried across the restart.
 """
@@ -15,6 +16,7 @@ import platformdirs
 
 from gridfleet.coordinator.answers import ANSWERS_KEPT, Answer
 from gridfleet.coordinator.jobs import Job
+from gridfleet.coordinator.removals import Removal
 from gridfleet.protocol import EventEntry
 from gridfleet.protocol.messages import MAX_EVENTS, UnitControlState
 
@@ -49,6 +51,10 @@ class JobStore:
         # An operator's control of a unit (paused, out of service) outlives a restart too.
         self._db.execute(
             "CREATE TABLE IF NOT EXISTS controls (unit TEXT PRIMARY KEY, state TEXT NOT NULL)"
+        )
+        # Units an operator removed for good (protocol.md §6.11): ignored until they rejoin.
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS removed_units (unit TEXT PRIMARY KEY, data TEXT NOT NULL)"
         )
         # The recent history (fleet/events), newest last by rowid.
         self._db.execute("CREATE TABLE IF NOT EXISTS events (data TEXT NOT NULL)")
@@ -90,6 +96,29 @@ class JobStore:
                 else:
                     self._db.execute(
                         "INSERT OR REPLACE INTO controls (unit, state) VALUES (?, ?)", (unit, state)
+                    )
+
+    def load_removals(self) -> dict[str, Removal]:
+        """Unit -> its removal; a row of another version's is skipped."""
+        rows = self._db.execute("SELECT unit, data FROM removed_units").fetchall()
+        out = {}
+        for unit, data in rows:
+            try:
+                out[unit] = Removal.from_json(data)
+            except (ValueError, KeyError, TypeError):
+                continue
+        return out
+
+    def save_removals(self, changes: Iterable[tuple[str, Removal | None]]) -> None:
+        """Store units' removals, or (None) forget them (they rejoined), in one transaction."""
+        with self._db:
+            for unit, removal in changes:
+                if removal is None:
+                    self._db.execute("DELETE FROM removed_units WHERE unit = ?", (unit,))
+                else:
+                    self._db.execute(
+                        "INSERT OR REPLACE INTO removed_units (unit, data) VALUES (?, ?)",
+                        (unit, removal.to_json()),
                     )
 
     def load(self) -> list[Job]:

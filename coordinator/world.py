@@ -96,6 +96,16 @@ class World:
         self.foreign.add(unit_id)
         return first
 
+    def forget(self, unit_id: str) -> None:
+        """An operator removed `unit_id` for good (protocol.md §6.11): its square, its word on
+        obstacles and everything else known of it go; heard of again, it is a new unit."""
+        gone = self.units.pop(unit_id, None)
+        if gone is not None and gone.position is not None:
+            self._holders.get(gone.position, set()).discard(unit_id)
+        for witnesses in self._witnesses.values():
+            witnesses.discard(unit_id)
+        self.foreign.discard(unit_id)
+
     @property
     def grid(self) -> GridMap:
         """Static map with every discovered obstacle blocked."""

@@ -11,7 +11,7 @@ An accounts file is TOML, readable by its owner only, one table per account:
     password = "…"
     role = "vehicle"
     unit = "agv1"
-    vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7" }]
+    vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7", client_id = "acme-sn-7" }]
 
     [accounts.vda5050]          # the adapter: the vehicles' orders, and their units' topics
     password = "…"
@@ -19,7 +19,8 @@ An accounts file is TOML, readable by its owner only, one table per account:
     vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7" }]
 
 The broker hashes the passwords it checks; clients read theirs from this file (`--accounts FILE
---account NAME`). `rules()` derives each account's topic rules from the protocol's topic table, so
+--account NAME`). A vehicle's `client_id` (optional, from the vehicles file) is bound to its vehicle
+account: the embedded broker lets no other account use it. `rules()` derives each account's topic rules from the protocol's topic table, so
 an ACL never drifts from protocol.md.
 """
 
@@ -39,8 +40,10 @@ from typing import Literal, get_args
 from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import ErrorDetails
 
+from gridfleet.config import CLIENT_ID, owner_of
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.protocol import TOPICS, Topics, validate_id
+from gridfleet.protocol.constants import REMOVED_UNIT_KINDS
 from gridfleet.textfile import read_text
 
 Role = Literal[
@@ -62,6 +65,7 @@ REQUEST_KINDS = (
     "set_goal",
     "control_unit",
     "clear_obstacles",
+    "remove_unit",  # a lost unit off the floor for good (protocol.md §6.11)
     "ack_alert",  # answered by the alerts process, not the coordinator
     "audit",  # a page of the audit trail (protocol.md §6.8): people, not viewers
     "job_history",  # a page of the job history (protocol.md §6.10)
@@ -82,10 +86,12 @@ VDA_TO_VEHICLE = ("order", "instantActions")
 
 @dataclass(frozen=True)
 class VehicleLink:
-    """A VDA 5050 vehicle an account speaks for: its gridfleet unit and its topics' prefix."""
+    """A VDA 5050 vehicle an account speaks for: its gridfleet unit, its topics' prefix and,
+    if its vehicles file names one, the MQTT client id bound to its vehicle account."""
 
     unit: str
     topic: str  # interfaceName/majorVersion/manufacturer/serialNumber
+    client_id: str | None = None
 
     def __post_init__(self) -> None:
         validate_id(self.unit, "vehicle unit")
@@ -93,6 +99,11 @@ class VehicleLink:
             raise ConfigError(
                 f"vehicle {self.unit}: topic {self.topic!r} is not "
                 "interfaceName/vN/manufacturer/serialNumber"
+            )
+        if self.client_id is not None and not CLIENT_ID.fullmatch(self.client_id):
+            raise ConfigError(
+                f"vehicle {self.unit}: client_id {self.client_id!r} is not 1-64 printable "
+                "ASCII characters without spaces"
             )
 
 
@@ -134,8 +145,8 @@ class Account:
             raise ConfigError(f"account {self.name}: a vda5050 account names its vehicles")
         if self.role not in ("vehicle", "vda5050") and links:
             raise ConfigError(f"account {self.name}: a {self.role} account has no vehicles")
-        for what in ("unit", "topic"):
-            twice = _repeated([getattr(v, what) for v in links])
+        for what in ("unit", "topic", "client_id"):
+            twice = _repeated([getattr(v, what) for v in links if getattr(v, what) is not None])
             if twice is not None:
                 raise ConfigError(f"account {self.name}: vehicle {what} {twice!r} twice")
 
@@ -150,6 +161,36 @@ class Accounts:
     """Every account, by name."""
 
     accounts: dict[str, Account] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.bound_client_ids()  # ConfigError when two accounts would own one client id
+
+    def bound_client_ids(self) -> dict[str, str]:
+        """Each client id a vehicle account's `client_id` binds, and that account's name.
+
+        ConfigError when two vehicle accounts bind one, or when it is an id another account's
+        name owns (`coordinator`, `unit1-x`): a client id has one owner.
+        """
+        bound: dict[str, str] = {}
+        for account in self.accounts.values():
+            if account.role != "vehicle":
+                continue
+            for v in account.vehicles:
+                if v.client_id is None:
+                    continue
+                if v.client_id in bound:
+                    raise ConfigError(
+                        f"accounts {bound[v.client_id]} and {account.name} both bind client id "
+                        f"{v.client_id!r}"
+                    )
+                owner = owner_of(v.client_id, self.accounts)
+                if owner is not None and owner != account.name:
+                    raise ConfigError(
+                        f"account {account.name}: client id {v.client_id!r} is account "
+                        f"{owner!r}'s (its name)"
+                    )
+                bound[v.client_id] = account.name
+        return bound
 
     def get(self, name: str) -> Account:
         """The account called `name`; ConfigError naming the known ones when there is none."""
@@ -203,6 +244,7 @@ class _VehicleTable(BaseModel):
 
     unit: str
     topic: str
+    client_id: str | None = None
 
 
 class _AccountTable(BaseModel):
@@ -237,7 +279,10 @@ def _shape_problem(error: ErrorDetails) -> str:
     if error["type"] == "literal_error":
         return f"account {name}: role {error['input']!r} is not one of {ROLES}"
     if loc[2] == "vehicles":
-        return f'accounts.{name}: vehicles is a list of {{ unit = "…", topic = "…" }}'
+        return (
+            f'accounts.{name}: vehicles is a list of {{ unit = "…", topic = "…" }}'
+            ' (and optionally client_id = "…")'
+        )
     return f"accounts.{name}: password, role and unit are strings"
 
 
@@ -262,11 +307,14 @@ def load_accounts(path: str | Path) -> Accounts:
         if entry.password is None or entry.role is None:
             raise ConfigError(f"{p}: accounts.{name}: needs a password and a role")
         try:
-            links = tuple(VehicleLink(v.unit, v.topic) for v in entry.vehicles)
+            links = tuple(VehicleLink(v.unit, v.topic, v.client_id) for v in entry.vehicles)
             accounts[name] = Account(name, entry.password, entry.role, entry.unit, links)
         except (ConfigError, ProtocolError) as exc:
             raise ConfigError(f"{p}: {exc}") from None
-    return Accounts(accounts)
+    try:
+        return Accounts(accounts)
+    except ConfigError as exc:
+        raise ConfigError(f"{p}: {exc}") from None
 
 
 def dump_accounts(accounts: Accounts) -> str:
@@ -281,7 +329,10 @@ def dump_accounts(accounts: Accounts) -> str:
         if a.vehicles:
             lines.append("vehicles = [")
             for v in a.vehicles:
-                lines.append(f"    {{ unit = {_string(v.unit)}, topic = {_string(v.topic)} }},")
+                bound = "" if v.client_id is None else f", client_id = {_string(v.client_id)}"
+                lines.append(
+                    f"    {{ unit = {_string(v.unit)}, topic = {_string(v.topic)}{bound} }},"
+                )
             lines.append("]")
         lines.append("")
     return "\n".join(lines)
@@ -369,11 +420,14 @@ def rules(account: Account, topics: Topics) -> Rules:
             f"{t.prefix}/audit/replies/+",  # pages of the audit trail (protocol.md §6.8)
             f"{t.prefix}/history/replies/+",  # pages of the job history (protocol.md §6.10)
             *presses,  # cleared after an operator's release
+            # A removed unit's retained topics, cleared (protocol.md §6.11).
+            *(t.all_units(k) for k in REMOVED_UNIT_KINDS),
         ]
         subscribe = [
             *(t.all_units(k) for k in ("connection", "factsheet", "state")),
             t.fleet("estop"),
             t.fleet("coordinator"),  # its own status, heard back: it can hear (world.py)
+            t.fleet("errors"),  # components' failed handlers, for its metrics
             *presses,
             t.all_requests,
         ]
@@ -429,6 +483,7 @@ def rules(account: Account, topics: Topics) -> Rules:
             t.fleet("estop"),
             t.request("ack_alert"),
             t.fleet("alerts"),  # its own view: a restarted process takes over what it says
+            t.fleet("errors"),  # components' failed handlers (handler_failures)
         ]
     elif account.role == "viewer":
         publish = []  # reads everything, changes nothing

@@ -166,6 +166,11 @@ class Planner:
         guided = self.guidance.field(agent, here.y * w + here.x, target.y * w + target.x)
         return self.cache.flat(target) if guided is None else guided
 
+    def forget(self, agent: str) -> None:
+        """A unit removed for good: its priority and parking square go (back, it starts anew)."""
+        self._priority.pop(agent, None)
+        self._parking.pop(agent, None)
+
     def parking(self, agent: str) -> Cell | None:
         """Where idle `agent` is going to make way for another unit, if it is."""
         return self._parking.get(agent)

@@ -2,7 +2,7 @@
 import assert from "node:assert/strict";
 import { test } from "node:test";
 import {
-  cancelRequest, goalRequest, jobRequest, pickedDropoff, pickedPickup, readJobForm,
+  cancelRequest, goalRequest, jobRequest, pickedDropoff, pickedPickup, readJobForm, removeQuestion, removeRequest,
 } from "../static/js/forms.js";
 import { FleetView } from "../static/js/model.js";
 
@@ -54,4 +54,10 @@ test("delete, and the words for squares picked on the map", () => {
   assert.deepEqual(cancelRequest("job-4"), { what: "delete job job-4", body: { job_id: "job-4" } });
   assert.equal(pickedPickup([5, 0]), "pickup [5, 0]: now click the dropoff square");
   assert.equal(pickedDropoff([5, 9]), "dropoff [5, 9]: set the mass and press “queue job”");
+});
+
+test("a lost unit's removal is the protocol's remove_unit, asked for in words first", () => {
+  assert.deepEqual(removeRequest("hv1"), { what: "remove hv1", body: { unit: "hv1", reason: null } });
+  assert.match(removeQuestion("hv1"), /^Remove hv1 for good\?/);
+  assert.match(removeQuestion("hv1"), /physically off the floor/);
 });

@@ -149,3 +149,13 @@ test("a page answered on a topic of its own settles its request; an acknowledgem
     text: `acknowledge estop a-1: no reply from the alerts process to ack_alert ${ack.request_id} after 1 try over 10 s: is it running?`,
   }]);
 });
+
+test("an accepted removal says what became of the unit's job", () => {
+  const r = requests();
+  const { request_id } = r.create("remove_unit", "unit", "remove hv1", { unit: "hv1", reason: null });
+  const said = r.reply(reply({ request_id, accepted: true, reason: "unit hv1 removed; job job-7 back in the queue", job_id: "job-7" }));
+  assert.deepEqual(said.feedback, { form: "unit", kind: "ok", text: "remove hv1: accepted — unit hv1 removed; job job-7 back in the queue" });
+  const refused = r.create("remove_unit", "unit", "remove u2", { unit: "u2", reason: null });
+  const no = r.reply(reply({ request_id: refused.request_id, accepted: false, reason: "unit u2 is online and heard from" }));
+  assert.equal(no.feedback.text, "remove u2: refused — unit u2 is online and heard from");
+});

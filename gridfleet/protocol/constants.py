@@ -40,6 +40,10 @@ MAX_DEVICE_CONNECTION_BYTES = 16  # online, offline or broken (gridfleet.protoco
 DEFAULT_STEP_S = 1.0  # the course's step period
 HOLD_AFTER_STEPS = 3  # a unit holds still after this many step periods without an order
 STALE_AFTER_STEPS = 5  # the coordinator treats a unit as lost after this many silent periods
+# A unit's retained topics the coordinator clears (an empty retained message) when an operator
+# removes it (protocol.md §6.11), the connection last: its echo says the others are cleared too.
+# Not its `direction`: that is its device's alone to read, and a device takes no empty one.
+REMOVED_UNIT_KINDS = ("state", "factsheet", "vehicle", "connection")
 # A unit whose state has not changed but for its step count sends it at least this often (steps);
 # well inside STALE_AFTER_STEPS, so a quiet unit is never taken for a lost one.
 STATE_HEARTBEAT_STEPS = 3

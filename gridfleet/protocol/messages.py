@@ -340,6 +340,13 @@ class ClearObstacles(Request):
     squares: Annotated[list[Square], Field(min_length=1, max_length=1024)] | None
 
 
+class RemoveUnit(Request):
+    """`requests/remove_unit`: a lost unit an operator knows is off the floor, forgotten for good."""
+
+    unit: Id
+    reason: Text | None = None  # why, in words, for the audit and the events
+
+
 class Reply(Message):
     """`replies/<client>`: the answer to one request."""
 
@@ -380,6 +387,7 @@ AlertRule = Literal[
     "step_rate_low",
     "coordinator_down",
     "broker_down",
+    "handler_failures",
 ]
 AlertSeverity = Literal["warning", "critical"]
 CLEARED_ALERTS_LISTED = 20  # the alerts view's latest cleared alerts
@@ -431,6 +439,7 @@ AuditAct = Literal[
     "out_of_service",
     "in_service",
     "clear_obstacles",
+    "remove_unit",
     "login",
     "logout",
     "login_failed",

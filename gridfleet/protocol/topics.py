@@ -112,6 +112,15 @@ TOPICS: dict[str, TopicSpec] = {
             MAX_REQUEST_BYTES,
         ),
         TopicSpec(
+            "remove_unit",
+            "requests/remove_unit",
+            1,
+            False,
+            "json",
+            "RemoveUnit",
+            MAX_REQUEST_BYTES,
+        ),
+        TopicSpec(
             "ack_alert", "requests/ack_alert", 1, False, "json", "AckAlert", MAX_REQUEST_BYTES
         ),
         TopicSpec("alerts", "fleet/alerts", 1, True, "json", "AlertsView", MAX_VIEW_BYTES),

@@ -302,9 +302,12 @@ def test_a_vehicle_and_the_adapter_may_use_only_their_vda_5050_topics() -> None:
     assert T.unit("state", "agv2") in adapter.publish and T.unit("stop", "agv1") in adapter.publish
     # A vehicle's condition (protocol.md §4.7): the adapter's to say, for its vehicles only.
     assert T.unit("vehicle", "agv1") in adapter.publish
-    for name in ("unit1", "device-unit1", "agv1", "coordinator", "operator", "dashboard"):
+    for name in ("unit1", "device-unit1", "agv1", "operator", "dashboard"):
         allowed = rules(accounts.get(name), T).publish
         assert not any(topic.endswith("/vehicle") for topic in allowed), name
+    # The coordinator only clears it, with the rest of a unit an operator removed (§6.11).
+    coordinator = rules(accounts.get("coordinator"), T).publish
+    assert [t for t in coordinator if t.endswith("/vehicle")] == [T.all_units("vehicle")]
     assert not any("unit1" in topic or "+" in topic for topic in adapter.publish)
     assert (
         T.fleet("estop") not in adapter.publish and T.unit("order", "agv1") not in adapter.publish

@@ -985,10 +985,17 @@ def test_a_failure_on_one_message_is_reported_and_the_next_is_handled(
     msg = Factsheet(header=header("unit1", seq=1), capacity_kg=3.0, step_period_s=0.5)
     effects = from_unit(core, "factsheet", "unit1", msg, 0.5)
     topic = TOPICS.unit("factsheet", "unit1")
-    assert published(effects) == [error(0, topic, "internal error: KeyError('a bug')")]
-    assert effects.log[0][0] == logging.ERROR
+    reason = "internal error in coordinator: KeyError while handling a message on this topic"
+    assert published(effects) == [error(0, topic, reason)]  # the class alone: not 'a bug'
+    assert effects.log[0][0] == logging.ERROR and "a bug" in effects.log[0][1]  # the log has it
+    # Again within the second: held back, told with the next step once the second has passed.
+    assert published(from_unit(core, "factsheet", "unit1", msg, 0.7)) == []
+    assert published(from_unit(core, "factsheet", "unit1", msg, 0.8)) == []
+    told = [p for p in published(core.step(1.6)) if p[0] == TOPICS.fleet("errors")]
+    many = "internal error in coordinator: 2 failures (the latest KeyError) while handling"
+    assert len(told) == 1 and many in told[0][1]["reason"] and topic in str(told[0][1])
     monkeypatch.undo()
-    assert published(from_unit(core, "factsheet", "unit1", msg, 0.6)) == []
+    assert published(from_unit(core, "factsheet", "unit1", msg, 2.0)) == []
 
 
 def test_a_failing_step_holds_every_unit_reports_it_and_the_next_step_runs(

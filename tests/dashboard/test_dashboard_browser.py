@@ -15,6 +15,7 @@ from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.protocol import (
     CancelJob,
     JobView,
+    RemoveUnit,
     RouteView,
     SetGoal,
     SubmitJob,
@@ -527,3 +528,43 @@ def test_rows_survive_renders_so_clicks_are_not_lost(
     expect(dash.page.locator("#jobs tbody tr")).to_have_count(1)
     assert not kept_button.evaluate("b => b.isConnected")
     assert dash.errors == []
+
+
+def test_a_lost_unit_is_removed_from_its_row_after_a_confirmation(
+    dash: OpenDashboard,
+    probe: MqttProbe,
+    coordinator: CoordinatorPeer,
+    units: dict[str, UnitPeer],
+    topics: Topics,
+) -> None:
+    # Only a lost unit offers "remove"; the page asks first, and a "no" sends nothing.
+    expect(row(dash, "unit2").locator("button[data-remove]")).to_have_count(0)
+    units["unit2"].connection("broken")
+    remove = row(dash, "unit2").locator("button[data-remove=unit2]")
+    expect(remove).to_have_text("remove")
+    request_topic = topics.request("remove_unit")
+    probe.subscribe(request_topic)
+    asked: list[str] = []
+
+    def answer(dialog: Any) -> None:
+        asked.append(dialog.message)
+        if len(asked) == 1:
+            dialog.dismiss()
+        else:
+            dialog.accept()
+
+    dash.page.on("dialog", answer)
+    remove.click()
+    remove.click()
+    request = decode(RemoveUnit, probe.wait(request_topic).payload)
+    assert (request.unit, request.reply_to) == ("unit2", dash.client_id)
+    assert len(asked) == 2 and asked[0].startswith("Remove unit2 for good?")
+    sent = {decode(RemoveUnit, m.payload).request_id for m in probe.received(request_topic)}
+    assert sent == {request.request_id}  # the first, dismissed, sent nothing (retries: the same)
+    said = "unit unit2 removed; it had no job"
+    coordinator.reply(dash.client_id, request.request_id, True, said)
+    expect(dash.page.locator("#unit-feedback")).to_have_text(f"remove unit2: accepted — {said}")
+    for kind in ("state", "factsheet", "vehicle", "connection"):  # as it clears them
+        probe.publish(topics.unit(kind, "unit2"), b"", retain=True)
+    expect(row(dash, "unit2")).to_have_count(0)
+    expect(dash.page.locator("#units-count")).to_have_text("(3)")

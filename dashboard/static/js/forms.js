@@ -52,6 +52,18 @@ export function controlRequest(unit, command) {
   return { what: `${COMMAND_WORDS[command] ?? command} ${unit}`, body: { unit, command } };
 }
 
+/** A remove_unit request for a lost unit's "remove" button (protocol.md §6.11). */
+export function removeRequest(unit) {
+  return { what: `remove ${unit}`, body: { unit, reason: null } };
+}
+
+/** What the page asks before it removes a unit: the operator confirms it is off the floor. */
+export function removeQuestion(unit) {
+  return `Remove ${unit} for good?\n\nOnly for a lost unit you have made sure is physically off the floor: ` +
+    "its squares are freed, its job goes back to the queue (or fails, if it carried the item), and it is audited. " +
+    "Should it come back, it joins the fleet as a new unit.";
+}
+
 export const FEEDBACK_MS = 10000; // how long an answer stays under its form: then it is stale
 
 /** A cancel_job request for the queue's "delete" button. */
@@ -108,6 +120,11 @@ export class Forms {
   controlUnit(unit, command) {
     const req = controlRequest(unit, command);
     this.send("control_unit", "unit", req.what, req.body);
+  }
+
+  removeUnit(unit) {
+    const req = removeRequest(unit);
+    this.send("remove_unit", "unit", req.what, req.body);
   }
 
   sendGoal(unit, target) {

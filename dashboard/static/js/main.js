@@ -21,7 +21,7 @@ import { AuditView } from "./audit_view.js";
 import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
 import { drawDayChart, layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
-import { Forms } from "./forms.js";
+import { Forms, removeQuestion } from "./forms.js";
 import { brokerBadge, newsPeriodS } from "./hearing.js";
 import { HistoryView } from "./history_view.js";
 import { loadSettings, logIn, logOut, mqttLogin } from "./login.js";
@@ -178,6 +178,9 @@ class Dashboard {
       this.touched();
     }).observe($("#canvas-wrap"));
     const frame = () => {
+      // The next frame first: a drawing that throws (reported as the page's error) must not
+      // stop every later one, or the page would show the fleet of that moment for good.
+      requestAnimationFrame(frame);
       const now = Date.now();
       // The map when something changed (and while a fresh obstacle flashes), at most every
       // MAP_MS unless the operator is at it; the tables at most every PANEL_MS: a fleet sends
@@ -194,7 +197,6 @@ class Dashboard {
         this.panelDirty = this.panelUrgent = false;
         this.panelAt = now;
       }
-      requestAnimationFrame(frame);
     };
     requestAnimationFrame(frame);
     setInterval(() => {
@@ -389,6 +391,11 @@ class Dashboard {
     $("#units tbody").addEventListener("click", (ev) => {
       const btn = ev.target.closest("button[data-command]");
       if (btn) { this.forms.controlUnit(btn.dataset.unit, btn.dataset.command); return; }
+      const gone = ev.target.closest("button[data-remove]");
+      if (gone) { // for good: the operator confirms it is off the floor first (protocol.md §6.11)
+        if (window.confirm(removeQuestion(gone.dataset.remove))) this.forms.removeUnit(gone.dataset.remove);
+        return;
+      }
       const row = ev.target.closest("tr[data-unit]");
       if (row) this.selectUnit(row.dataset.unit);
     });

@@ -215,6 +215,16 @@ export const TOPICS = freeze({
     "schema": "schemas/ClearObstacles.json",
     "max_bytes": 16384
   },
+  "remove_unit": {
+    "pattern": "requests/remove_unit",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "RemoveUnit",
+    "schema": "schemas/RemoveUnit.json",
+    "max_bytes": 16384
+  },
   "ack_alert": {
     "pattern": "requests/ack_alert",
     "placeholder": null,

@@ -80,6 +80,9 @@ export class Requests {
     const req = this.pending.get(reply.request_id);
     if (!req) return { feedback: null, log: null };
     this.pending.delete(reply.request_id);
+    if (reply.accepted && req.kind === "remove_unit") { // its reason: what became of its job (§6.11)
+      return { feedback: { form: req.form, kind: "ok", text: `${req.what}: accepted — ${reply.reason ?? "removed"}` }, log: null };
+    }
     if (reply.accepted) {
       // "(job id)" tells which id a new job got; a delete already names its job.
       const extra = reply.job_id && req.form !== "cancel" ? ` (job ${reply.job_id})` : "";

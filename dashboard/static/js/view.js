@@ -3,6 +3,7 @@
 // puts it on the page.
 
 import { drawChart, drawFleet } from "./draw.js";
+import { TIMING } from "./protocol_table.js";
 import { syncRows } from "./rows.js";
 import { CHART_MINUTES, durationText, eventLines, latestFinished, tookSeconds, unitJob } from "./story.js";
 import { phaseText, shownUnits, unitState, visibleSlice } from "./units.js";
@@ -102,7 +103,12 @@ export function coordinatorBadge(c, step) {
 export function stepPace(c) {
   if (typeof c?.achieved_step_s !== "number") return "";
   const time = (s) => (s < 1 ? `${+(s * 1000).toFixed(1)} ms` : `${+s.toFixed(2)} s`);
-  return ` · ${time(c.achieved_step_s)} a step (set ${time(c.step_period_s)})`;
+  return ` · ${time(c.achieved_step_s)} a step (set ${time(stepPeriodS(c))})`;
+}
+
+/** The coordinator's step period in seconds: its status's, or the schema's default when absent. */
+export function stepPeriodS(c) {
+  return typeof c?.step_period_s === "number" ? c.step_period_s : TIMING.default_step_s;
 }
 
 // ---- on the page ----
@@ -237,7 +243,7 @@ export class PageView {
           control.className = "control";
           tr.append(seen, control);
         }
-        this.controls(tr.querySelector("td.control"), id);
+        this.controls(tr.querySelector("td.control"), id, r.state === "away");
         tr.dataset.link = u.connection ?? "unknown";
         tr.dataset.state = r.state; // moving, idle, … away: what the filter and the map's colours say
         tr.classList.toggle("selected", id === ui.selectedUnit);
@@ -251,12 +257,16 @@ export class PageView {
     this.seen(now);
   }
 
-  /** A unit's pause / out-of-service buttons, rebuilt only when its control changes. */
-  controls(td, id) {
+  /**
+   * A unit's pause / out-of-service buttons, and "remove" for a lost one (`away`): rebuilt only
+   * when its control or whether it is lost changes.
+   */
+  controls(td, id, away = false) {
     const control = this.view.routes[id]?.control ?? "";
-    if (td.dataset.control === control && td.children.length) return;
-    td.dataset.control = control;
-    td.replaceChildren(...controlButtons(control || null).map(([label, command, what]) => {
+    const key = `${control}${away ? "|away" : ""}`;
+    if (td.dataset.control === key && td.children.length) return;
+    td.dataset.control = key;
+    const buttons = controlButtons(control || null).map(([label, command, what]) => {
       const b = document.createElement("button");
       b.type = "button";
       b.dataset.unit = id;
@@ -264,7 +274,16 @@ export class PageView {
       b.textContent = label;
       b.title = `${what}: ${id}`;
       return b;
-    }));
+    });
+    if (away) {
+      const b = document.createElement("button");
+      b.type = "button";
+      b.dataset.remove = id;
+      b.textContent = "remove";
+      b.title = `remove ${id} for good: only once it is physically off the floor`;
+      buttons.push(b);
+    }
+    td.replaceChildren(...buttons);
   }
 
   /** The "seen" column and the silent mark: they change with the clock alone. */
@@ -304,7 +323,7 @@ export class PageView {
     }, slice);
     $("#queue-count").textContent = `(${active.length})`;
     const finished = this.view.finishedJobs();
-    const period = this.view.coordinator?.step_period_s;
+    const period = this.view.coordinator ? stepPeriodS(this.view.coordinator) : undefined;
     syncRows($("#finished tbody"), latestFinished(finished), {
       keyName: "job",
       key: (j) => j.id,
