@@ -380,8 +380,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         try:
             if claimed is not None:
                 await self._displace(claimed)
-            # The claim ends as this returns; amqtt's _handle_client_session then takes the
-            # session in before it awaits anything.
+            # The claim ends as this returns; amqtt's _handle_client_session then awaits only
+            # _authenticate (below: it returns at once for this session, never suspending)
+            # before it takes the session in.
             return await self._adopt_session(handler, incoming, reader)
         finally:
             if claimed is not None:
@@ -392,6 +393,13 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         # amqtt 0.12.1 from here on (plus will_retain and is_anonymous, which it did not carry
         # over to a resumed session).
         session = incoming
+        kept = self._sessions.get(incoming.client_id) if incoming.client_id else None
+        if kept is not None and kept[0].username != incoming.username and self.gate is not None:
+            # Another account's session, kept while its client is away (an id no account owns:
+            # the gate let this one in): never inherited, its subscriptions and queued orders
+            # thrown away, and a fresh session starts. Kept for it, it would lock that id out
+            # for good (amqtt never expires a session); binding the id protects it (accounts.py).
+            await self._delete_session(incoming.client_id)
         if incoming.clean_session:
             if incoming.client_id:
                 await self._delete_session(incoming.client_id)
@@ -548,8 +556,8 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         return bool(await super()._authenticate(session, listener))
 
     def _holder(self, client_id: str) -> str | None:
-        """The account holding `client_id`: a CONNECT taking it over now, a connected session, or
-        a persistent one kept for its client (None: nobody; an ended clean session is nobody's)."""
+        """The account holding `client_id`: a CONNECT taking it over now, or a connected session
+        (None: nobody; a session kept while its client is away holds nothing)."""
         claims = self._claims.get(client_id)
         if claims:
             return claims[0]
@@ -557,9 +565,9 @@ class GridfleetBroker(Broker):  # type: ignore[misc]
         if entry is None:
             return None
         session = entry[0]
-        if session.transitions.state == "connected" or not session.clean_session:
+        if session.transitions.state == "connected":
             return None if session.username is None else str(session.username)
-        return None
+        return None  # away: another account starts afresh over it (_adopt_session)
 
     def _unclaim(self, client_id: str, username: str | None) -> None:
         """A CONNECT's claim on `client_id` ends: its session is amqtt's now, or it failed."""

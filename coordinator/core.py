@@ -241,8 +241,8 @@ class CoordinatorCore:
     def _read(self, topic: str, payload: bytes, now: float) -> Arrival | Effects:
         """The message decoded; or, for one to ignore or refuse, the Effects of that."""
         self.world.heard(now)  # whatever it says, the coordinator can hear
-        if not payload and self.removals.units:
-            cleared = self._cleared_of_removed(topic)
+        if not payload:
+            cleared = self._cleared(topic)
             if cleared is not None:
                 return cleared
         if topic == self._own_status:
@@ -456,7 +456,10 @@ class CoordinatorCore:
     ) -> tuple[list[Outbound], tuple[tuple[str, UnitControlState | None], ...]]:
         """Forget a removed unit everywhere: its squares are free from the next step on, its
         goal and control go; the clears of its retained topics, and the control lifted."""
+        at = self.say.stamp.now()
+        self.removals.remove(unit, at, by)  # first: a fault below leaves it removed, not new
         self.world.forget(unit)
+        self.moves.following.pop(unit, None)  # a square it was to follow into, held under a stop
         self.orders.forget(unit)
         self.progress.forget(unit)
         self.planner.forget(unit)
@@ -465,8 +468,6 @@ class CoordinatorCore:
         if self.directives.controls.get(unit) is not None:
             self.directives.set_control(unit, None)
             lifted = ((unit, None),)
-        at = self.say.stamp.now()
-        self.removals.remove(unit, at, by)
         why = f": {reason}" if reason else ""
         self.events.add(at, "unit", f"unit {unit} removed by {by}{why}", unit=unit)
         return self._clears(unit), lifted
@@ -475,15 +476,16 @@ class CoordinatorCore:
         """Empty retained messages on a removed unit's topics, its connection last."""
         return [Outbound.of(k, self.topics.unit(k, unit), b"") for k in REMOVED_UNIT_KINDS]
 
-    def _cleared_of_removed(self, topic: str) -> Effects | None:
-        """A cleared topic of a removed unit (its clear come back): None for any other topic."""
+    def _cleared(self, topic: str) -> Effects | None:
+        """A unit's retained topic cleared (empty): nothing to read or refuse, whoever cleared it
+        (`gridfleet clean`, or its removal's clear come back); None for any other topic."""
         try:
             kind, unit = self.topics.parse(topic)
         except ProtocolError:
             return None
-        if unit is None or unit not in self.removals or kind not in UNIT_WORD:
+        if unit is None or kind not in UNIT_WORD:
             return None
-        if kind == "connection":  # cleared last: every older retained word of it is gone
+        if kind == "connection" and unit in self.removals:  # cleared last: the older word is gone
             self.removals.clear_heard(unit)
         return self._effects([])
 
@@ -493,7 +495,7 @@ class CoordinatorCore:
         Its `offline` or `broken` (a last will the broker sends once the dead link's keep-alive
         runs out, after the removal) is cleared again: the page and the status would list it.
         """
-        if isinstance(msg, Connection) and self.removals.rejoins(unit, msg):
+        if isinstance(msg, Connection | UnitState) and self.removals.rejoins(unit, msg):
             at = self.say.stamp.now()
             self.events.add(
                 at, "unit", f"unit {unit} joins again after its removal, as new", unit=unit
@@ -506,8 +508,8 @@ class CoordinatorCore:
             return self._effects(again)
         removal = self.removals.units[unit]
         line = (
-            f"ignored the {kind} of unit {unit}: removed by {removal.by}, it joins again only "
-            "with a new `online` on its connection"
+            f"ignored the {kind} of unit {unit}: removed by {removal.by}, it joins again with a "
+            "new `online` on its connection, or a state once its clear has come back"
         )
         if not removal.cleared:
             line += (
@@ -541,11 +543,18 @@ class CoordinatorCore:
         try:
             result = self._decide(now)
         except Exception as exc:  # a bug must not take the coordinator down: halt everyone
-            notes.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}"))
+            trace = "".join(traceback.format_exception(exc)).rstrip()
+            notes.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}\n{trace}"))
+            # Told as any handler's failure (its class alone, counted by the metric and the
+            # alert), on the coordinator's status topic; a storm of them at most once a second.
             status = self.topics.fleet("coordinator")
-            why = f"internal error in step {self.step_no}: {exc!r}"
-            report = self._refuse(status, why, None, notes)
-            return self._effects([*publish, *self._halt_orders(), report], log=notes)
+            failed = [*publish, *self._halt_orders()]
+            for topic, held in self.failures.due(now):
+                failed.append(self._refuse(topic, held, None, notes))
+            told = self.failures.failed(status, type(exc).__name__, now)
+            if told is not None:
+                failed.append(self._refuse(status, told, None, notes))
+            return self._effects(failed, log=notes)
         persist = self._persist()
         self.orders.expect(result.orders)
         releasing = set()

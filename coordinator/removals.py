@@ -6,7 +6,8 @@ that clear of its connection comes back, everything later on its topics is newer
 Until a unit rejoins, whatever it (or the broker's retained copy of it) says is ignored: an old
 state must never reserve its squares again. It rejoins with a `connection` `online` heard after
 that clear, or stamped after the removal (where the clear cannot come back: an account that may
-not write the unit's topics); its first state is then judged as any new unit's.
+not write the unit's topics), or with a state heard after that clear (it was on the floor after
+all); its first state is then judged as any new unit's.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from typing import Any
 
-from gridfleet.protocol import Connection
+from gridfleet.protocol import Connection, UnitState
 
 
 @dataclass(frozen=True)
@@ -68,20 +69,36 @@ class Removals:
         if removal is not None and not removal.cleared:
             self.units[unit] = self.changed[unit] = replace(removal, cleared=True)
 
-    def rejoins(self, unit: str, msg: Connection) -> bool:
-        """Whether `msg` is `unit` joining again after its removal (it is then forgotten here)."""
+    def rejoins(self, unit: str, msg: Connection | UnitState) -> bool:
+        """Whether `msg` is `unit` joining again after its removal (it is then forgotten here).
+
+        A state heard after the clear came back is newer than the removal: the unit is on the
+        floor after all (its link came back without a new session), and it is taken as a new
+        one rather than ignored while it stands there.
+        """
         removal = self.units.get(unit)
-        if removal is None or msg.state != "online":
+        if removal is None:
+            return False
+        if isinstance(msg, UnitState):
+            if not removal.cleared:
+                return False
+            self._forget(unit)
+            return True
+        if msg.state != "online":
             return False
         stamped = msg.header.timestamp
         if stamped.tzinfo is None:  # a time without a zone is UTC (protocol.md §1)
             stamped = stamped.replace(tzinfo=UTC)
         if not removal.cleared and stamped <= removal.at:
             return False
+        self._forget(unit)
+        return True
+
+    def _forget(self, unit: str) -> None:
+        """`unit` is no longer removed: it joined again."""
         del self.units[unit]
         self.changed[unit] = None
         self._told.discard(unit)
-        return True
 
     def first_ignored(self, unit: str) -> bool:
         """Whether this is the first message of removed `unit` ignored (the log says so once)."""

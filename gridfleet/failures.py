@@ -23,11 +23,14 @@ EVERY_S = 1.0  # a topic's failures are told at most once a second (the first on
 BURST = 10  # reports a component may tell at once (on as many topics)
 PER_S = 2.0  # and then a second
 MAX_TOPICS = 256  # topics remembered (the oldest told first out)
+# What one report may add to the count read back: a second's failures of a busy topic are far
+# fewer; a report claiming more (anyone who may write on `errors` can) adds no more than this.
+MAX_COUNT = 10_000
 # The kinds of component that tell their failures: a metric's label takes one of these.
 COMPONENTS = ("coordinator", "unit", "vda5050", "device", "alerts")
 OTHER = "other"
 _REPORT = re.compile(
-    r"internal error in (?P<component>[a-z0-9_]+): (?:(?P<count>\d+) failures \(the latest "
+    r"internal error in (?P<component>[a-z0-9_]+): (?:(?P<count>\d{1,9}) failures \(the latest "
     r"(?P<latest>[A-Za-z_][\w.]*)\)|(?P<one>[A-Za-z_][\w.]*)) while handling"
 )
 
@@ -58,7 +61,7 @@ def parse_failure(reason: str) -> Failure | None:
         return None
     component = found["component"] if found["component"] in COMPONENTS else OTHER
     if found["count"] is not None:
-        return Failure(component, max(1, int(found["count"])), found["latest"])
+        return Failure(component, min(MAX_COUNT, max(1, int(found["count"]))), found["latest"])
     return Failure(component, 1, found["one"])
 
 

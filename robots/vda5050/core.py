@@ -173,12 +173,16 @@ class VehicleCore:
         error_ = UnitError(code=code, message=words[:200])
         if error_ not in self.errors:  # one of each while no state goes out (not announced)
             self.errors.append(error_)
+        try:
+            last = self.state()
+        except Exception:  # its state cannot even be made: lost to the fleet at once
+            return self._goodbye("broken")
         if name != "state":
-            return self.state()
+            return last
         self.unreadable += 1
         if self.unreadable < UNREADABLE_STATES or not self.announced:
-            return self.state()
-        return self.state() + self._goodbye("broken")
+            return last
+        return last + self._goodbye("broken")
 
     def _on_link(self, message: VdaConnection, now: float) -> list[Outbound]:
         self.link = message.connectionState

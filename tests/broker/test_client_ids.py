@@ -12,6 +12,7 @@ import threading
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import paho.mqtt.client as mqtt
 import pytest
@@ -144,17 +145,21 @@ def test_a_bound_client_id_is_its_vehicles_alone_even_while_it_is_away(
     assert not refused(login(url, accounts, "agv3"), BOUND.client_id)
 
 
-def persistent_session(url: str, client_id: str, subscribe: str | None = None) -> mqtt.Client:
+def persistent_session(
+    url: str, client_id: str, subscribe: str | None = None
+) -> tuple[mqtt.Client, bool]:
     """A connected paho client with a persistent session (clean session off), `subscribe`d at
-    QoS 1; raises AssertionError when the broker refuses it."""
+    QoS 1, and whether the broker had a session for it; AssertionError when it is refused."""
     broker = parse_broker_url(url)
     client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=False)
     client.username_pw_set(broker.username, broker.password)
     answered, subscribed = threading.Event(), threading.Event()
     codes: list[object] = []
+    present: list[bool] = []
 
-    def on_connect(c: object, u: object, flags: object, rc: object, p: object) -> None:
+    def on_connect(c: object, u: object, flags: Any, rc: object, p: object) -> None:
         codes.append(rc)
+        present.append(bool(flags.session_present))
         answered.set()
 
     client.on_connect = on_connect
@@ -171,7 +176,7 @@ def persistent_session(url: str, client_id: str, subscribe: str | None = None) -
     except BaseException:
         client.loop_stop()
         raise
-    return client
+    return client, present[0]
 
 
 def ended(client: mqtt.Client) -> None:
@@ -181,20 +186,38 @@ def ended(client: mqtt.Client) -> None:
 
 
 @pytest.mark.every_broker
-def test_a_persistent_session_is_its_accounts_while_its_client_is_away(
+def test_a_session_kept_for_one_account_is_never_inherited_by_another(
     broker: tuple[str, str], accounts: Accounts, request: pytest.FixtureRequest
 ) -> None:
-    # Another account resuming it would inherit its subscriptions and queued orders; a clean
-    # CONNECT would throw them away.
+    # Another account resuming it would inherit its subscriptions and queued orders. Nor does
+    # it lock the id: kept for its client, it would shut that id to everyone else for good (the
+    # embedded broker never expires a session); an id bound in the vehicles file is protected.
     url, kind = broker
-    on_mosquitto_expect_failure(request, kind)
+    if (
+        kind == "mosquitto"
+    ):  # measured: 2.0.11 resumes it for agv2 (its ACL still reads per message)
+        request.applymarker(pytest.mark.xfail(strict=True, reason="Mosquitto resumes the session"))
     vendor_id = "acme_sn-1-kept"
     order = f"{VEHICLES[0].topic}/order"
-    ended(persistent_session(login(url, accounts, "agv1"), vendor_id, subscribe=order))
-    with pytest.raises(AssertionError, match="refused"):
-        ended(persistent_session(login(url, accounts, "agv2"), vendor_id))
-    assert refused(login(url, accounts, "agv2"), vendor_id)  # nor a clean session over it
-    ended(persistent_session(login(url, accounts, "agv1"), vendor_id))  # its own: back in
+    client, _ = persistent_session(login(url, accounts, "agv1"), vendor_id, subscribe=order)
+    ended(client)
+    client, present = persistent_session(login(url, accounts, "agv1"), vendor_id)
+    assert present  # its own: resumed
+    ended(client)
+    # Until the broker has seen agv1's DISCONNECT its session is live, and refused to agv2.
+    got: list[tuple[mqtt.Client, bool]] = []
+
+    def agv2_in() -> bool:
+        try:
+            got.append(persistent_session(login(url, accounts, "agv2"), vendor_id))
+        except AssertionError:
+            return False
+        return True
+
+    wait_for(agv2_in, 15, what="agv2 let in once agv1's session ended")
+    client, present = got[0]
+    assert not present, "agv2 inherited agv1's session"
+    ended(client)
 
 
 @pytest.mark.amqtt_only

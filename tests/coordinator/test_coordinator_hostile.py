@@ -225,7 +225,7 @@ async def test_service_keeps_running_and_answers_after_garbage(
         garbage = [b"", b"{", b"\xff" * 10, b"x" * 70000, b'{"header": null}']
         sent = 0
         for kind in ("connection", "factsheet", "state"):
-            for g in garbage:
+            for g in garbage[1:]:  # an empty one there is a clear: no message, nothing refused
                 probe.publish(topics.unit(kind, "unit1"), g)
                 sent += 1
         for kind in ("submit_job", "cancel_job", "set_goal"):

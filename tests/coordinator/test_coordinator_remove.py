@@ -15,6 +15,7 @@ from test_coordinator_effects import GRID, error, reply, state, submit
 
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.jobs import JobBook
+from gridfleet.coordinator.moves import Follow
 from gridfleet.coordinator.removals import Removal
 from gridfleet.coordinator.store import JobStore
 from gridfleet.coordinator.world import World
@@ -307,3 +308,37 @@ def test_a_removed_units_late_last_will_is_cleared_again() -> None:
     late = from_unit(core, "connection", "unit1", connection("unit1", "broken"), 15.0)
     assert published(late) == [CLEARED[-1]]
     assert "unit1" not in core.world.units and core.errors_reported == 0
+
+
+def test_a_removed_unit_still_on_the_floor_joins_as_new_with_its_next_state() -> None:
+    # Removed while only silent (its session never ended): once the clear has come back, a state
+    # of it is newer than the removal, and the unit is taken as a new one, not ignored where it
+    # stands (other units would be routed through it).
+    core = lost_core()
+    request(core, "remove_unit", remove("r1"), 0.5)
+    assert published(from_unit(core, "state", "unit1", state(Cell(3, 2), seq=9), 0.6)) == []
+    assert "unit1" not in core.world.units  # before the clear came back: maybe a retained copy
+    core.on_message(CLEARED[-1][0], b"", 0.7)
+    effects = from_unit(core, "state", "unit1", state(Cell(3, 2), seq=10), 0.8)
+    assert published(effects) == [] and "unit1" not in core.removals
+    assert [e.text for e in effects.events][:1] == [
+        "unit unit1 joins again after its removal, as new"
+    ]
+    assert core.world.units["unit1"].position == Cell(3, 2)
+
+
+def test_an_empty_payload_on_a_units_topic_is_a_clear_never_refused() -> None:
+    # `gridfleet clean`, or a removal's clears coming back after the unit rejoined.
+    core = lost_core()
+    for topic, *_ in CLEARED:
+        assert published(core.on_message(topic, b"", 0.5)) == []
+    assert core.errors_reported == 0
+
+
+def test_a_square_a_removed_unit_was_to_follow_into_under_the_stop_is_not_kept() -> None:
+    # Under the stop no step plans, so no step drops it: the removal must (else the square is
+    # claimed for the removed id, and released to it when it rejoins, wherever it then is).
+    core = lost_core()
+    core.moves.following["unit1"] = Follow(Cell(0, 1), 3)
+    request(core, "remove_unit", remove("r1"), 0.5)
+    assert "unit1" not in core.moves.following

@@ -136,6 +136,9 @@ def check(core: CoordinatorCore, kind: str, topic: str, payload: bytes) -> None:
     model = getattr(models, SPECS[kind].model or "")
     if not valid:
         assert snapshot(core) == before, (kind, payload)
+        if not payload and kind in ("connection", "factsheet", "state"):
+            assert not reports  # a retained message cleared (protocol.md §6.11): no message
+            return
         assert len(reports) == 1, (kind, payload, reports)
         assert reports[0].reason.startswith((f"{model.__name__}: ", "malformed")), reports[0]
         return

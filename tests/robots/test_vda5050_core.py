@@ -554,3 +554,20 @@ def test_states_the_adapter_fails_on_show_on_the_unit_then_break_it_until_one_is
     # Its connection or factsheet failing is shown too, and breaks nothing.
     outs = c.on_failure("factsheet", "KeyError")
     assert [e.code for e in unit_state(outs).errors] == ["unreadable_message"]
+
+
+def test_a_unit_whose_state_cannot_even_be_made_is_broken_at_once(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # The fault is in making the unit's state (its view was already taken in): no state can say
+    # so, so the unit leaves the fleet (broken) rather than going silent until it is found lost.
+    c = core()
+    online(c)
+
+    def broken(*_: object) -> list[Outbound]:
+        raise TypeError("a bug")
+
+    monkeypatch.setattr(c, "state", broken)
+    outs = c.on_failure("state", "TypeError")
+    assert kinds(outs) == ["units/agv1/connection"]
+    assert decode(Connection, outs[0].payload).state == "broken"
