@@ -16,7 +16,7 @@ import copy
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_alerts_core import ACCOUNTS, WATCHING_COORDINATOR, Rig, T
 
@@ -25,7 +25,7 @@ from gridfleet.protocol import TOPICS as SPECS
 from gridfleet.protocol import ErrorReport, decode
 from gridfleet.protocol import messages as models
 
-from support.schema_inputs import allowed, parsed, payloads
+from support.schema_inputs import allowed, edge_settings, parsed, payloads
 
 READ = {
     "connection": lambda unit: T.unit("connection", unit),
@@ -45,13 +45,7 @@ NARROW: dict[str, dict[tuple[str, ...], Any]] = {
         ("properties", "alert_id"): {"enum": ["n1-1", "n1-2", "nope"]},
     },
 }
-SETTINGS = settings(
-    max_examples=70,
-    deadline=None,
-    database=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+SETTINGS = edge_settings(70)
 
 
 def rig(kind: str) -> Rig:

@@ -16,7 +16,7 @@ import json
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from gridfleet.coordinator.core import CoordinatorCore
@@ -30,7 +30,7 @@ from gridfleet.protocol import messages as models
 from support.coordinator_drive import TOPICS, make_core, request
 from support.coordinator_fakes import ROOM_ROWS
 from support.effects import header
-from support.schema_inputs import allowed, parsed, payloads
+from support.schema_inputs import allowed, edge_settings, parsed, payloads
 
 GRID = GridMap.from_rows(ROOM_ROWS)
 EDGE = max(GRID.width, GRID.height) + 1  # squares on the map, on walls, and just off it
@@ -70,13 +70,7 @@ NARROW: dict[str, dict[tuple[str, ...], Any]] = {
     },
 }
 
-SETTINGS = settings(
-    max_examples=60,
-    deadline=None,
-    database=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+SETTINGS = edge_settings(60)
 
 
 def seeded() -> CoordinatorCore:

@@ -15,14 +15,14 @@ import re
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
 
 from gridfleet.device.core import DeviceCore
 from gridfleet.protocol import ErrorReport, Topics, decode
 
-from support.schema_inputs import TABLE
+from support.schema_inputs import TABLE, edge_settings
 
 T = Topics("t/edges")
 DEVICE = "dev1"
@@ -116,13 +116,7 @@ def shown(device: DeviceCore) -> Any:
     return device.direction, device.estop, device.pressed, device.pending_stop, device.leds
 
 
-SETTINGS = settings(
-    max_examples=150,
-    deadline=None,
-    database=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
-)
+SETTINGS = edge_settings(150)
 
 
 @pytest.mark.parametrize("kind", sorted(SCHEMAS))

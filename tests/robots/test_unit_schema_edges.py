@@ -15,7 +15,7 @@ import json
 from typing import Any
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 
 from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound
@@ -26,7 +26,7 @@ from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import Mode, UnitLogic
 
 from support.effects import STAMP, stamper
-from support.schema_inputs import allowed, messages, parsed, payloads
+from support.schema_inputs import allowed, edge_settings, messages, parsed, payloads
 
 TOPICS = Topics("gf")
 GRID = GridMap.from_rows(["......", "..@...", "......", "......"])
@@ -34,13 +34,7 @@ EDGE = max(GRID.width, GRID.height) + 1  # squares on the map, on its wall, and 
 # Headers of the coordinator's clock (the unit's own, support.effects.FIXED) as well as any other.
 NEAR_FIXED = {"enum": [STAMP, "2026-11-21T09:59:59.75Z", "2026-11-21T11:00:00.2+01:00"]}
 ON_TIME = {("$defs", "Header", "properties", "timestamp"): NEAR_FIXED}
-SETTINGS = settings(
-    max_examples=80,
-    deadline=None,
-    database=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+SETTINGS = edge_settings(80)
 # The kind, the mode the unit reads it in, and the topic it comes on.
 READ: dict[str, tuple[Mode, str]] = {
     "order": ("coordinated", TOPICS.unit("order", "u1")),

@@ -38,7 +38,7 @@ from types import NoneType, UnionType
 from typing import Any, Union, get_args, get_origin
 
 import pytest
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import event, given
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
 from jsonschema import Draft202012Validator
@@ -54,6 +54,7 @@ from gridfleet.robots.vda5050.inbound import VdaConnection, VdaFactsheet, VdaSta
 from gridfleet.robots.vda5050.virtual import VirtualSpec, VirtualVehicle
 from gridfleet.robots.vda5050.wire import VERSIONS, Vehicle, Version
 
+from support.schema_inputs import edge_settings
 from support.vda import SCHEMAS, needs_schemas, official, state
 
 pytestmark = needs_schemas
@@ -74,13 +75,7 @@ UNREAD_FACTSHEET_PARTS = ("protocolLimits", "protocolFeatures", "agvGeometry")
 OPTIONAL_UNREAD = ("vehicleConfig", "localizationParameters")
 # Outside what the published 2.0.0 factsheet schema names as its own (its `properties`).
 SCHEMA_KEYWORDS = {"$schema", "title", "description", "required", "subtopic", "type"}
-SETTINGS = settings(
-    max_examples=30,
-    deadline=None,
-    database=None,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-)
+SETTINGS = edge_settings(30)
 
 
 # ---- the schemas ------------------------------------------------------------------------------

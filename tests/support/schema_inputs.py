@@ -24,11 +24,29 @@ from datetime import datetime
 from functools import cache
 from typing import Any
 
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis_jsonschema import from_schema
 from jsonschema import Draft202012Validator, FormatChecker
 
 from support.paths import REPO
+
+
+def edge_settings(examples: int) -> settings:
+    """How every schema-edge test draws: `examples` messages, the same ones on every run (CI
+    sees what a developer saw), no deadline (a loaded machine), no example database."""
+    return settings(
+        max_examples=examples,
+        deadline=None,
+        database=None,
+        derandomize=True,
+        suppress_health_check=[
+            HealthCheck.too_slow,
+            HealthCheck.data_too_large,
+            HealthCheck.filter_too_much,
+        ],
+    )
+
 
 Json = Any
 TABLE: dict[str, Any] = json.loads((REPO / "protocol" / "protocol.json").read_text("utf-8"))
