@@ -429,7 +429,8 @@ def test_a_deviation_wider_than_the_map_holds_the_map_and_costs_no_more(doubt: f
     message = state("2.0.0", agvPosition=position(deviationRange=doubt))
     started = time.monotonic()
     outs = c.on_vehicle("state", json.dumps(message).encode(), T0)
-    assert time.monotonic() - started < 1.0
+    # No speed claim (microseconds here): a hang's guard, generous for a loaded machine.
+    assert time.monotonic() - started < 10.0
     assert refusals(outs) == [] and c.view is not None
     assert c.view.under == {Cell(x, y) for x in range(GRID.width) for y in range(GRID.height)}
     assert c.square == Cell(0, 0)  # it may still be on its square: it keeps it

@@ -7,6 +7,7 @@ process raises `handler_failures`, and a VDA 5050 unit whose states its adapter 
 from __future__ import annotations
 
 import asyncio
+import time
 import zlib
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
@@ -19,7 +20,7 @@ from gridfleet.alerts.settings import AlertSettings
 from gridfleet.alerts.shell import AlertsShell
 from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.endpoint import Backoff, Endpoint
-from gridfleet.failures import FailureReports, failure_reason, parse_failure
+from gridfleet.failures import EVERY_S, FailureReports, failure_reason, parse_failure
 from gridfleet.maps import load_map
 from gridfleet.metrics import MetricsOptions
 from gridfleet.outbound import Outbound, error_report
@@ -140,6 +141,7 @@ async def test_a_handler_that_raises_is_counted_and_told_on_errors_without_its_w
     with MqttProbe(broker.url) as probe:
         probe.subscribe(topics.fleet("errors"))
         async with running(endpoint, handle):
+            began = time.monotonic()
             for _ in range(20):  # a storm: far more than one a second
                 probe.publish(bad, b"{}", qos=1)
             probe.publish(good, b"{}", qos=1)
@@ -152,8 +154,10 @@ async def test_a_handler_that_raises_is_counted_and_told_on_errors_without_its_w
 
             # The first at once, the rest (with their count) once its second has passed.
             await async_wait_for(lambda: told() == 20, 30, what="every failure told")
+            took_s = time.monotonic() - began
         reports = reports_on(probe, topics)
-        assert 2 <= len(reports) <= 3, [r.reason for r in reports]  # not 20
+        # Not 20: the first at once, then at most one a second (however slow the machine).
+        assert 2 <= len(reports) <= 2 + took_s / EVERY_S, ([r.reason for r in reports], took_s)
         first = reports[0]
         assert first.topic == bad and first.header.sender == "unit1"
         assert first.reason == (
