@@ -39,10 +39,17 @@ def letter(direction: Direction | None) -> DirectionLetter:
 class FleetSide:
     """One unit's messages to the fleet: connection, factsheet, reports, state and direction."""
 
-    def __init__(self, unit_id: str, topics: Topics, stamp: HeaderStamper) -> None:
+    def __init__(
+        self,
+        unit_id: str,
+        topics: Topics,
+        stamp: HeaderStamper,
+        reporter: HeaderStamper | None = None,
+    ) -> None:
         self.id = unit_id
         self.topics = topics
         self.stamp = stamp
+        self.reporter = reporter or stamp  # who signs its reports on `errors`
         self._told: Condition = None  # what the last state said
         self._quiet = 0  # steps since the last state went out
         self._sent_direction: bytes | None = None  # what `direction` says on this connection
@@ -83,7 +90,7 @@ class FleetSide:
 
     def report(self, topic: str, reason: str) -> Outbound:
         """An error report on `errors` about a message on `topic`."""
-        payload = error_report(self.stamp("errors"), topic, reason)
+        payload = error_report(self.reporter("errors"), topic, reason)
         return Outbound.of("errors", self.topics.fleet("errors"), payload)
 
     def new_connection(self) -> None:

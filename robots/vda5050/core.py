@@ -83,6 +83,7 @@ class VehicleCore:
         step_s: float = 0.5,
         color: str = "#795548",
         stamp: HeaderStamper | None = None,
+        reporter: HeaderStamper | None = None,
         check: Check | None = None,
     ) -> None:
         self.config = config
@@ -94,13 +95,18 @@ class VehicleCore:
         self.color = color
         self.stamp = stamp or HeaderStamper(self.id)
         self.check = check
-        self.side = FleetSide(self.id, topics, self.stamp)  # what it says to the fleet, and when
+        # What it says to the fleet, and when; its reports on `errors` in the name of whoever
+        # sends them (the adapter: a broker with accounts passes a report only from an id its
+        # sender's account owns, and a vehicle's unit is its vehicle account's name).
+        self.side = FleetSide(self.id, topics, self.stamp, reporter)
         self.headers = Headers(config.vehicle)
         self.orders = OrderStitcher(
             self.headers, config.frame, f"gf-{run_id}-{self.id}", config.action_parameters
         )
         self.capacity_kg = config.capacity_kg  # a 2.1 vehicle's factsheet may tell it
         self.link: Link | None = None  # the vehicle's own `connection`
+        # Back on line after it was not: its next state says whether it still has its order.
+        self.reconnected = False
         self.view: VehicleView | None = None
         self.nodes_left = 0  # nodes of its order still ahead, by its last state
         self.square: Cell | None = None
@@ -185,7 +191,12 @@ class VehicleCore:
         return last + self._goodbye("broken")
 
     def _on_link(self, message: VdaConnection, now: float) -> list[Outbound]:
-        self.link = message.connectionState
+        was, self.link = self.link, message.connectionState
+        if self.link == "ONLINE" and was is not None and was != "ONLINE":
+            # What it said before it went may be long past (it may have restarted elsewhere):
+            # its unit is announced from its next state, never from the last one before.
+            self.reconnected = True
+            self.view = None
         if self.link != "ONLINE":
             # Whatever it was driving, the fleet hears it as lost (or gone): its job is handled
             # as a lost unit's, and its squares stay reserved as long as the coordinator keeps a
@@ -217,6 +228,10 @@ class VehicleCore:
             message.model_dump(mode="json"), self.config.frame, self.config.margin_m, grid
         )
         self.view = view
+        if self.reconnected:
+            self.reconnected = False
+            if message.orderId != self.orders.order_id:
+                self._lost_order()
         self.resend.seen(message.orderId, message.orderUpdateId, refuses(message))
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
         outs: list[Outbound] = []
@@ -422,6 +437,13 @@ class VehicleCore:
             for a in self.actions.values()
         )
 
+    def _lost_order(self) -> None:
+        """Back on line without the order it had (it restarted): none of that order's squares
+        are its any more, and where it stands is read afresh from its state."""
+        self.orders.end()
+        self.actions = {}
+        self.square = None
+
     def _after_cancel(self, view: VehicleView, now: float) -> list[Outbound]:
         """The vehicle's order is cancelled: it ends here, where it stopped."""
         if self._held():
@@ -568,6 +590,9 @@ class VehicleCore:
             return "holding", "the vehicle is paused"
         if view is not None and view.driving:
             return "moving", None
+        doing = [a for k, a in self.actions.items() if view is not None and k in view.running]
+        if doing:
+            return "waiting", f"the vehicle is doing its {doing[0].kind} of {doing[0].job_id}"
         if self.released() or self.actions:
             return "waiting", "the vehicle has not reported driving on"
         return "idle", None

@@ -17,11 +17,12 @@ import time
 import uuid
 from collections.abc import Sequence
 
+from gridfleet.config import owned_client_id, parse_broker_url
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import TOPICS, Routes, Topics, decode
+from gridfleet.protocol import TOPICS, HeaderStamper, Routes, Topics, decode
 from gridfleet.protocol.stop import STOP_KINDS
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.core import Check, VehicleCore
@@ -51,6 +52,10 @@ class AdapterShell:
         run_id = uuid.uuid4().hex[:6]  # order ids are new in every run of the adapter
         self.topics = topics
         self.step_s = step_s
+        client_id = f"vda5050-{run_id}"
+        # Its reports on `errors` are signed with its own client id, as the broker sees it (one
+        # its account owns: a vehicle's unit id is that vehicle's account's, not the adapter's).
+        reporter = HeaderStamper(owned_client_id(parse_broker_url(broker_url).username, client_id))
         self.cores = [
             VehicleCore(
                 config,
@@ -58,6 +63,7 @@ class AdapterShell:
                 topics,
                 run_id=run_id,
                 step_s=step_s,
+                reporter=reporter,
                 check=_checker(schemas, config) if schemas is not None else None,
             )
             for config in vehicles
@@ -68,7 +74,7 @@ class AdapterShell:
         self._by_unit = {core.id: core for core in self.cores}
         self.endpoint = Endpoint(
             broker_url,
-            f"vda5050-{run_id}",
+            client_id,
             name="vda5050",
             subscriptions=self.subscriptions,
             backoff=Backoff(reconnect_s, max_reconnect_s),
@@ -132,8 +138,8 @@ class AdapterShell:
             await self._send(self._by_unit[who].on_fleet(topic, payload, now))
 
     def _report(self, topic: str, reason: str) -> Outbound:
-        """A report on `errors` about `topic`, in the name of the unit it concerns (else the
-        first: the adapter's account owns every unit's name)."""
+        """A report on `errors` about `topic`, made by the unit it concerns (else the first),
+        signed by the adapter."""
         found = self._by_vda.get(topic)
         core = found[0] if found is not None else None
         if core is None:

@@ -67,6 +67,7 @@ class VehicleView:
     last_node: tuple[str, int]  # lastNodeId, lastNodeSequenceId
     finished: frozenset[str]  # action ids FINISHED
     failed: frozenset[str]  # action ids FAILED
+    running: frozenset[str] = frozenset()  # action ids INITIALIZING or RUNNING
 
     @property
     def can_drive(self) -> bool:
@@ -109,4 +110,7 @@ def read_state(
         last_node=(state["lastNodeId"], state["lastNodeSequenceId"]),
         finished=frozenset(a["actionId"] for a in actions if a["actionStatus"] == "FINISHED"),
         failed=frozenset(a["actionId"] for a in actions if a["actionStatus"] == "FAILED"),
+        running=frozenset(
+            a["actionId"] for a in actions if a["actionStatus"] in ("INITIALIZING", "RUNNING")
+        ),
     )

@@ -571,3 +571,47 @@ def test_a_unit_whose_state_cannot_even_be_made_is_broken_at_once(
     outs = c.on_failure("state", "TypeError")
     assert kinds(outs) == ["units/agv1/connection"]
     assert decode(Connection, outs[0].payload).state == "broken"
+
+
+@pytest.mark.parametrize("restarted", [True, False], ids=["restarted", "link-lost"])
+def test_a_vehicle_back_on_line_is_announced_from_its_next_state_and_keeps_only_its_own_order(
+    restarted: bool,
+) -> None:
+    # As found: a vehicle killed on its way and restarted elsewhere was announced from its last
+    # state before (its old square, its old order's squares released); the coordinator took the
+    # stale square, refused every real one, and kept the old route reserved for good.
+    c = core()
+    online(c)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0), Cell(2, 0)]), T0)
+    sent = json.loads(outs[0].payload)
+    moving = state(agvPosition={**at(0, 0), "x": 0.05}, driving=True, orderId=sent["orderId"])
+    assert unit_state(c.on_vehicle("state", vda(moving), T0 + 1)).released == [(1, 0), (2, 0)]
+    assert kinds(c.on_vehicle("connection", connection("CONNECTIONBROKEN"), T0 + 2)) == [
+        "units/agv1/connection"
+    ]
+    back = c.on_vehicle("connection", connection(), T0 + 30)
+    assert "units/agv1/state" not in kinds(back) and "stateRequest" in back[0].payload.decode()
+    if restarted:  # elsewhere, with no order: nothing of the old one is its any more
+        fresh = state(agvPosition=at(3, 2), orderId="", lastNodeId="", lastNodeSequenceId=0)
+        st = unit_state(c.on_vehicle("state", vda(fresh), T0 + 31))
+        assert (st.position, st.released) == ((3, 2), [])
+    else:  # its link came back; it still has its order, and its squares stay released
+        st = unit_state(c.on_vehicle("state", vda(moving), T0 + 31))
+        assert (st.position, st.released) == ((0, 0), [(1, 0), (2, 0)])
+
+
+def test_a_vehicle_doing_its_pick_says_so_not_that_it_has_not_driven_on() -> None:
+    # As found: every VDA unit standing at its pickup read "the vehicle has not reported driving
+    # on" while it was doing its pick, as if stuck.
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
+    c.on_fleet(
+        TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], target=Cell(1, 0), action=pick), T0
+    )
+    running = state(
+        agvPosition=at(1, 0),
+        actionStates=[{"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "RUNNING"}],
+    )
+    st = unit_state(c.on_vehicle("state", vda(running), T0 + 1))
+    assert (st.status, st.wait_reason) == ("waiting", "the vehicle is doing its pick of job-1")
