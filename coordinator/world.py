@@ -23,8 +23,9 @@ CATCH_UP_SQUARES = 1  # a unit that fell behind its clock steps again at once (r
 DEAF_AFTER_S = 10.0
 # Until the retained factsheets have all arrived, "no unit could carry it" only means "none heard
 # yet". They have once the coordinator hears its own status back (subscribed to last: a broker
-# sends a subscription's retained messages before it handles the next one), or, should that
-# never come back (a bridge in between), this long after it first heard anything.
+# sends a subscription's retained messages before it handles the next one, mostly) and has the
+# factsheet of every unit whose state it heard, or, should that never be (a bridge in between,
+# a unit that sends none), this long after it first heard anything.
 FLEET_KNOWN_AFTER_S = 5.0
 
 
@@ -147,11 +148,18 @@ class World:
 
     def fleet_known(self) -> bool:
         """Whether the coordinator has listened long enough to know every unit's factsheet."""
-        if self.heard_itself or self.fleet_known_after_s <= 0:
+        if self.fleet_known_after_s <= 0:
             return True
         if self.first_heard_at is None or self.heard_at is None:
             return False
-        return self.heard_at - self.first_heard_at >= self.fleet_known_after_s
+        if self.heard_at - self.first_heard_at >= self.fleet_known_after_s:
+            return True
+        # Its own status back, and no unit heard without its factsheet: that one is on its way
+        # (as found on amqtt, a retained factsheet may come after the next subscription's
+        # messages: a heavy job only that unit could carry was rejected just after a restart).
+        return self.heard_itself and all(
+            u.factsheet is not None for u in self.units.values() if u.state is not None
+        )
 
     def away_s(self, rec: UnitRecord, now: float) -> float:
         """How long `rec` has been lost, counted while the coordinator could hear (0: active)."""

@@ -478,6 +478,26 @@ def test_its_own_status_heard_back_the_coordinator_knows_the_fleet_at_once() -> 
     )
 
 
+def test_its_own_status_back_the_fleet_is_known_only_with_the_factsheet_of_every_unit_heard() -> (
+    None
+):
+    # The known flake (a heavy job rejected just after a restart): a unit's state was heard, its
+    # retained factsheet not yet, and the coordinator's own status came back first.
+    core, _ = one_unit(5.0)
+    core.world.fleet_known_after_s = FLEET_KNOWN_AFTER_S
+    core.world.first_heard_at = core.world.heard_at = 0.0
+    strong = UnitLogic("strong", core.world.grid, Cell(9, 9), 10.0, 1.0)
+    from_unit(core, "state", "strong", strong.report(header("strong")), 0.2)
+    own = core.status("online")
+    core.on_message(own.topic, own.payload, 0.5)
+    assert not core.world.fleet_known()
+    heavy = _ask_submit(core, "r1", Cell(9, 1), Cell(0, 0), 8.0, 0.6)
+    assert heavy.accepted  # queued: "strong" may carry it
+    fs = Factsheet(header=header("strong"), capacity_kg=10.0, step_period_s=1.0)
+    from_unit(core, "factsheet", "strong", fs, 0.7)
+    assert core.world.fleet_known()
+
+
 def _wait(job_id: str, core: CoordinatorCore) -> tuple[str | None, str | None]:
     view = core.jobs.jobs[job_id].view()
     return view.wait, view.wait_reason
