@@ -596,7 +596,7 @@ class CoordinatorCore:
         active = self._roll_call(now)
         self.progress.advance(units, active, now, self.step_no)
         settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
-        self._allocate(units, active, settled)
+        self._allocate(units, active, settled, now)
         self._explain_waits(now, active)
         targets = {u.id: self.progress.target(u.id) for u in units}
         moves = self._moves(units, active, settled, targets)
@@ -630,11 +630,13 @@ class CoordinatorCore:
             self.events.unit_changed(self.say.stamp.now(), unit, "heard")
         return active
 
-    def _allocate(self, units: list[UnitRecord], active: set[str], settled: set[str]) -> None:
+    def _allocate(
+        self, units: list[UnitRecord], active: set[str], settled: set[str], now: float
+    ) -> None:
         """Queued jobs to idle units that can carry them, and assigned ones under way."""
         if self.estop:
             return
-        self.progress.allocate(units, active, settled, self.planner.cache, self.step_no)
+        self.progress.allocate(units, active, settled, self.planner.cache, self.step_no, now)
         self.progress.dispatch(units, active)
 
     def _explain_waits(self, now: float, active: set[str]) -> None:

@@ -169,6 +169,7 @@ class JobProgress:
         settled: set[str],
         cache: DistanceFieldCache,
         step_no: int,
+        now: float,
     ) -> None:
         """Reject what no unit can carry any more; assign queued jobs to idle, settled units."""
         # Just after a restart, the units heard so far may be only some of the fleet: a queued
@@ -204,6 +205,9 @@ class JobProgress:
         for job_id, unit_id in allocate(cache, slots, requests).items():
             job = self.jobs.jobs[job_id]
             self.jobs.set(job, "assigned", unit=unit_id, reason=None)
+            # Standing still counts from here: idle before it, it was not stuck on this job.
+            rec = self.world.unit(unit_id)
+            rec.moved_at = now if rec.moved_at is None else max(rec.moved_at, now)
 
     def _fail_unreachable(self, cache: DistanceFieldCache, step_no: int) -> None:
         # Discovered obstacles can wall a job's squares off for good (the map only gains them).

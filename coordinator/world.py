@@ -42,7 +42,9 @@ class UnitRecord:
     fell_silent: bool = False  # lost because its states stopped, its connection still `online`
     interval_s: float | None = None  # how far apart its states arrive (moving average)
     rejoined: bool = True  # its next state may be anywhere (first, or after a connection message)
-    moved_at: float | None = None  # when its state last showed it on a new square
+    # When its state last showed it on a new square, or it was given a job (progress.py): a unit
+    # with a job standing still since longer is stuck (waits.py).
+    moved_at: float | None = None
     # Squares it may still drive at once, by the fleet's clock (World.motion): what is left of
     # its slack after its latest accepted move; the time until its next state adds to it.
     allowance: float = 0.0

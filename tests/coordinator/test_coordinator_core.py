@@ -647,6 +647,18 @@ def test_a_view_that_cannot_be_built_is_reported_and_the_orders_still_go(
     assert len(errors) == 1 and b"internal error in the views" in errors[0].payload
 
 
+def test_a_unit_idle_for_long_is_not_stuck_the_moment_it_is_given_a_job() -> None:
+    # As found: a job just given to a vehicle idle for minutes read "its unit ... has not moved
+    # for over a minute" (its stillness was counted from its last move, before the job).
+    core, yard = one_unit(5.0)
+    for now in range(1, 100):  # idle, heard, standing still for over a minute
+        step_one(core, yard, float(now))
+    _submit(core, "r", Cell(9, 1), Cell(0, 0))
+    (job,) = core.jobs.jobs.values()
+    core.step(100.0)  # given the job: the wait is told in the same step
+    assert job.unit == "u" and _wait(job.id, core)[0] != "unit_stuck", _wait(job.id, core)
+
+
 def test_a_unit_with_a_job_that_stops_making_progress_says_it_is_stuck_and_who_blocks() -> None:
     # The hour-long warehouse demo: a loaded unit sat behind an idle one in a dead end for 21
     # minutes, and its job's "waiting for" stayed empty. (Steps of 1 s: stuck after 30 s.)
@@ -669,7 +681,8 @@ def test_a_unit_with_a_job_that_stops_making_progress_says_it_is_stuck_and_who_b
         step_at(float(now))
     assert _wait(job.id, core)[0] != "unit_stuck"  # 29 s: traffic, not yet a jam
     effects = core.step(31.0)
-    stuck = "its unit u has not moved for 31 s at [0, 0]; b stands where it must go"
+    # Counted from the job given to it (the first step, at 1 s), not from when it was met.
+    stuck = "its unit u has not moved for 30 s at [0, 0]; b stands where it must go"
     assert _wait(job.id, core) == ("unit_stuck", stuck)
     assert [e.text for e in effects.events] == [f"job {job.id}: {stuck}"]  # told once
     from_unit(core, "state", "u", u.report(header("u")), 31.0)
