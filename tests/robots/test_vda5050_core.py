@@ -107,6 +107,22 @@ def order(update: int, released: list[Cell], planned: tuple[Cell, ...] = (), **m
     )
 
 
+def sent_to_pick() -> VehicleCore:
+    """A vehicle on line at (0, 0), sent to pick job-1 (2.5 kg) at (1, 0)."""
+    c = core()
+    online(c)
+    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
+    c.on_fleet(
+        TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], target=Cell(1, 0), action=pick), T0
+    )
+    return c
+
+
+def pick_state(status: str) -> dict[str, str]:
+    """The action state of job-1's pick."""
+    return {"actionId": "pick-job-1", "actionType": "pick", "actionStatus": status}
+
+
 def test_the_unit_comes_online_once_the_vehicle_is_and_says_where_it_stands() -> None:
     c = core()
     asked = c.on_vehicle("connection", connection(), T0)  # not yet: where is it? it is asked
@@ -201,15 +217,10 @@ def test_a_pick_the_vehicle_finished_loads_the_unit_with_the_jobs_mass(
 ) -> None:
     # The fleet knows the job: from the pick to the drop the unit carries its mass, whatever the
     # vehicle says of its loads (the schemas' `loads`, and each load's `weight`, are optional).
-    c = core()
-    online(c)
-    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
-    c.on_fleet(
-        TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], target=Cell(1, 0), action=pick), T0
-    )
+    c = sent_to_pick()
     done = state(
         agvPosition=at(1, 0),
-        actionStates=[{"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "FINISHED"}],
+        actionStates=[pick_state("FINISHED")],
         **({} if loads is None else {"loads": loads}),
     )
     st = unit_state(c.on_vehicle("state", vda(done), T0 + 1))
@@ -603,15 +614,7 @@ def test_a_vehicle_back_on_line_is_announced_from_its_next_state_and_keeps_only_
 def test_a_vehicle_doing_its_pick_says_so_not_that_it_has_not_driven_on() -> None:
     # As found: every VDA unit standing at its pickup read "the vehicle has not reported driving
     # on" while it was doing its pick, as if stuck.
-    c = core()
-    online(c)
-    pick = Action(kind="pick", job_id="job-1", square=Cell(1, 0), mass_kg=2.5)
-    c.on_fleet(
-        TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0)], target=Cell(1, 0), action=pick), T0
-    )
-    running = state(
-        agvPosition=at(1, 0),
-        actionStates=[{"actionId": "pick-job-1", "actionType": "pick", "actionStatus": "RUNNING"}],
-    )
+    c = sent_to_pick()
+    running = state(agvPosition=at(1, 0), actionStates=[pick_state("RUNNING")])
     st = unit_state(c.on_vehicle("state", vda(running), T0 + 1))
     assert (st.status, st.wait_reason) == ("waiting", "the vehicle is doing its pick of job-1")
