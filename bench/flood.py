@@ -58,6 +58,7 @@ STOP_WAIT_S = 20.0  # a stop not shown by every unit within this counts as never
 FIRST_STOP_S = 3.0  # into a phase, the first stop; then one every STOP_GAP_S
 STOP_GAP_S = 5.0
 FEEDER_INFLIGHT = 8  # the feeder's requests unanswered at most (as bench system's)
+PROBE_ANSWER_S = 15.0  # how long past its phase an answer to operator2's last probe may come
 WINDOW_S = 10.0  # the worst window of the fleet's moves
 
 
@@ -358,6 +359,12 @@ def _phase(
     t1 = time.monotonic()
     window.end = time.time()
     loop.probing(False)
+    count, size = clients.views.count - views0[0], clients.views.bytes - views0[1]
+    largest = clients.views.largest
+    # A probe sent just before the end has its answer on the way: it counts (a while at most;
+    # its time is its own, the phase's figures stop at t1).
+    mine = loop.probes[probes0:]
+    loop.run_until(t1 + PROBE_ANSWER_S, lambda: all(p.answered is not None for p in mine))
     figures: dict[str, Any] = {"duration_s": round(t1 - t0, 1)}
     figures |= _step_figures(sampler, t0, t1, clients.watch)
     if flood:
@@ -367,10 +374,9 @@ def _phase(
         figures[f"operator2_{kind}"] = _answers([p for p in probes if p.kind == kind])
     figures["stop_ms"] = stops
     figures["stop_ms_median"] = _median(stops)
-    count, size = clients.views.count - views0[0], clients.views.bytes - views0[1]
     figures["jobs_views"] = count
     figures["jobs_views_mb"] = round(size / 1e6, 1)
-    figures["jobs_view_largest_kb"] = round(clients.views.largest / 1e3, 1)
+    figures["jobs_view_largest_kb"] = round(largest / 1e3, 1)
     return figures, window
 
 
