@@ -282,10 +282,13 @@ class CoordinatorCore:
         reason = self.failures.failed(topic, type(exc).__name__, now)
         if reason is None:  # told with the next report on this topic (`step`)
             return self._effects([], log=[(logging.DEBUG, f"failed again on {topic}: {exc!r}")])
-        trace = "".join(traceback.format_exception(exc)).rstrip()
-        notes: list[Note] = [(logging.ERROR, f"failed on a message on {topic}: {exc!r}\n{trace}")]
+        notes: list[Note] = [(logging.ERROR, f"failed on a message on {topic}: {_traced(exc)}")]
         report = self._refuse(topic, reason, None, notes)
         return self._effects([report], log=notes)
+
+    def _held_failures(self, now: float, notes: list[Note]) -> list[Outbound]:
+        """The reports of its own failures held back (one a second per topic) that are due."""
+        return [self._refuse(topic, held, None, notes) for topic, held in self.failures.due(now)]
 
     def _refuse_unreadable(
         self, topic: str, payload: bytes, reason: str, notes: list[Note]
@@ -543,14 +546,11 @@ class CoordinatorCore:
         try:
             result = self._decide(now)
         except Exception as exc:  # a bug must not take the coordinator down: halt everyone
-            trace = "".join(traceback.format_exception(exc)).rstrip()
-            notes.append((logging.ERROR, f"step {self.step_no} failed: {exc!r}\n{trace}"))
+            notes.append((logging.ERROR, f"step {self.step_no} failed: {_traced(exc)}"))
             # Told as any handler's failure (its class alone, counted by the metric and the
             # alert), on the coordinator's status topic; a storm of them at most once a second.
             status = self.topics.fleet("coordinator")
-            failed = [*publish, *self._halt_orders()]
-            for topic, held in self.failures.due(now):
-                failed.append(self._refuse(topic, held, None, notes))
+            failed = [*publish, *self._halt_orders(), *self._held_failures(now, notes)]
             told = self.failures.failed(status, type(exc).__name__, now)
             if told is not None:
                 failed.append(self._refuse(status, told, None, notes))
@@ -575,8 +575,7 @@ class CoordinatorCore:
                 f"{self.inbox_refusals.every_s:g} s; the latest: {untold.reason}"
             )
             publish.append(self._refuse(untold.topic, told, None, notes))
-        for topic, reason in self.failures.due(now):  # its own failures held back
-            publish.append(self._refuse(topic, reason, None, notes))
+        publish += self._held_failures(now, notes)
         if self.pace.stepped(self.step_no, now):  # the achieved step rate, every few seconds
             publish.append(self.status("online"))
         # Back-pressure: when states come back late (an overloaded broker), a step before the
@@ -798,3 +797,8 @@ class CoordinatorCore:
             views_at=views_at,
             log=tuple(log),
         )
+
+
+def _traced(exc: BaseException) -> str:
+    """An exception and its traceback, for the coordinator's log (never for `errors`)."""
+    return f"{exc!r}\n" + "".join(traceback.format_exception(exc)).rstrip()
