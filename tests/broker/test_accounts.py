@@ -273,9 +273,11 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert T.all_units("order") in coordinator.publish
     assert T.fleet("events") in coordinator.publish  # the history the page shows
     operator = rules(accounts.get("operator"), T)
-    for kind in ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles"):
+    people = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
+    for kind in (*people, "remove_unit"):
         assert T.request(kind) in operator.publish, kind
         assert T.request(kind) not in device.publish, kind
+        assert T.request(kind) not in unit1.publish, kind
     assert T.all_units("order") not in operator.publish and T.fleet("map") not in operator.publish
     # The alerts view: the alerts process's alone (a restarted one takes over what it says).
     alerts = rules(accounts.get("alerts"), T)

@@ -44,6 +44,7 @@ REQUESTS = [
     "set_goal",
     "control_unit",
     "clear_obstacles",
+    "remove_unit",
     "job_history",
     "audit",
     "audit_login",

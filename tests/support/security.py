@@ -52,6 +52,7 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         unit1.publish(t.unit("order", "unit2"), b'{"forged": true}')
         unit1.publish(t.request("clear_obstacles"), b'{"forged": "a cleared map"}')  # people only
         unit1.publish(t.request("job_history"), b'{"forged": "a page of the history"}')
+        unit1.publish(t.request("remove_unit"), b'{"forged": "unit2 removed"}')  # people only
         unit1.publish(t.unit("state", "unit1"), b'{"own": true}', retain=True)
         # Its own state arrives, at each listener; published after the forgeries on the same
         # connection, and a broker keeps one client's messages in order for each subscriber, so
@@ -64,6 +65,7 @@ def check_a_unit_cannot_forge(url: str, accounts: Accounts, topics: Topics) -> N
         assert unit2.received(t.unit("order", "unit2")) == []
         assert coordinator.received(t.request("clear_obstacles")) == []
         assert coordinator.received(t.request("job_history")) == []
+        assert coordinator.received(t.request("remove_unit")) == []
     with MqttProbe(login(url, accounts, "coordinator")) as late:
         late.subscribe(t.all_units("state"))
         wait_for(lambda: late.received(t.unit("state", "unit1")), what="the retained own state")
