@@ -1,10 +1,10 @@
-"""Scenario files (TOML): a map plus hidden obstacles, units, jobs and goals."""
+"""Scenario files (TOML): a map plus hidden obstacles, units, jobs, goals, batteries and chargers."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
 from pydantic_core import ErrorDetails
@@ -29,13 +29,43 @@ DEFAULT_COLORS = (
 
 
 @dataclass(frozen=True)
+class BatterySpec:
+    """A unit's battery: its charge at the start and its energy model, in % of a full charge."""
+
+    start_pct: float = 100.0
+    move_pct: float = 0.5  # one move (one square)
+    idle_pct_per_s: float = 0.01  # a second standing
+    charge_pct_per_s: float = 2.0  # a second on a charger
+
+
+@dataclass(frozen=True)
 class UnitSpec:
-    """A unit of a scenario: id, start square, capacity (kg) and display colour."""
+    """A unit of a scenario: id, start square, capacity (kg), display colour and battery."""
 
     id: str
     start: Cell
     capacity: float
     color: str
+    battery: BatterySpec | None = None  # None: it never runs down (it reports no energy)
+
+
+@dataclass(frozen=True)
+class ChargerSpec:
+    """A charger of a scenario: its name and square (one unit at a time)."""
+
+    name: str
+    square: Cell
+
+
+@dataclass(frozen=True)
+class ChargingSpec:
+    """The coordinator's charge thresholds for a scenario (openTCS's four; protocol.md §5.9)."""
+
+    critical_pct: float = 20.0
+    good_pct: float = 50.0
+    sufficient_pct: float = 80.0
+    full_pct: float = 95.0
+    available_from: str = "sufficient"  # or "full": when a charging unit takes jobs again
 
 
 @dataclass(frozen=True)
@@ -71,6 +101,8 @@ class Scenario:
     goals: tuple[GoalSpec, ...] = ()
     description: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
+    chargers: tuple[ChargerSpec, ...] = ()
+    charging: ChargingSpec = ChargingSpec()  # the thresholds ([charging]; defaults without it)
 
     def unit(self, unit_id: str) -> UnitSpec:
         """The unit with `unit_id`; KeyError when there is none."""
@@ -83,6 +115,9 @@ class Scenario:
 Square = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
 Id = Annotated[str, Field(pattern=ID_PATTERN)]
 Kg = Annotated[StrictFloat | StrictInt, Field(gt=0, allow_inf_nan=False)]
+Pct = Annotated[StrictFloat | StrictInt, Field(ge=0, le=100, allow_inf_nan=False)]
+Rate = Annotated[StrictFloat | StrictInt, Field(ge=0, le=100, allow_inf_nan=False)]
+ChargeRate = Annotated[StrictFloat | StrictInt, Field(gt=0, le=100, allow_inf_nan=False)]
 
 
 class _Table(BaseModel):
@@ -91,11 +126,32 @@ class _Table(BaseModel):
     model_config = ConfigDict(extra="forbid", strict=True)
 
 
+class _BatteryTable(_Table):
+    start_pct: Pct | None = None
+    move_pct: Rate | None = None
+    idle_pct_per_s: Rate | None = None
+    charge_pct_per_s: ChargeRate | None = None
+
+
 class _UnitTable(_Table):
     id: Id
     start: Square
     capacity: Kg
     color: Annotated[str, Field(pattern=r"^#[0-9a-fA-F]{6}$")] | None = None
+    battery: _BatteryTable | None = None
+
+
+class _ChargerTable(_Table):
+    square: Square
+    name: Id | None = None
+
+
+class _ChargingTable(_Table):
+    critical_pct: Pct = 20.0
+    good_pct: Pct = 50.0
+    sufficient_pct: Pct = 80.0
+    full_pct: Pct = 95.0
+    available_from: Literal["sufficient", "full"] = "sufficient"
 
 
 class _JobTable(_Table):
@@ -119,14 +175,21 @@ class _ScenarioFile(_Table):
     units: list[_UnitTable] = []
     jobs: list[_JobTable] = []
     goals: list[_GoalTable] = []
+    battery: _BatteryTable | None = None
+    chargers: list[_ChargerTable] = []
+    charging: _ChargingTable | None = None
 
 
 _TABLES: dict[str, tuple[str, type[_Table]]] = {
     "units": ("unit", _UnitTable),
     "jobs": ("job", _JobTable),
     "goals": ("goal", _GoalTable),
+    "chargers": ("charger", _ChargerTable),
 }
-_SQUARES = {"start", "pickup", "dropoff", "target"}
+_SECTIONS: dict[str, type[_Table]] = {"battery": _BatteryTable, "charging": _ChargingTable}
+_SQUARES = {"start", "pickup", "dropoff", "target", "square"}
+_PERCENTS = {"start_pct", "critical_pct", "good_pct", "sufficient_pct", "full_pct"}
+_RATES = {"move_pct", "idle_pct_per_s", "charge_pct_per_s"}
 
 
 def load_scenario(path: str | Path) -> Scenario:
@@ -151,6 +214,19 @@ def _words(field: str, kind: str, value: Any) -> str:
         return f"color {value!r} is not #rrggbb"
     if field == "priority":
         return f"priority must be a whole number 0..100, got {value!r}"
+    if field in _PERCENTS:
+        return f"'{field}' must be a number from 0 to 100 (% of a full charge), got {value!r}"
+    if field in _RATES:
+        low = "greater than 0" if field == "charge_pct_per_s" else "0 or more"
+        return (
+            f"'{field}' must be a number {low} and at most 100 (% of a full charge), got {value!r}"
+        )
+    if field == "available_from":
+        return f'\'available_from\' must be "sufficient" or "full", got {value!r}'
+    if field == "battery":
+        return "'battery' must be a table, e.g. battery = { start_pct = 40.0 }"
+    if field == "name":
+        return f"name {value!r} is not a valid id (letters, digits, '_', '.', '-')"
     return f"unknown unit {value!r}"  # a goal's unit
 
 
@@ -174,12 +250,30 @@ def _shape_error(
         what = (
             f"unit {uid!r}" if noun == "unit" and isinstance(uid, str) else f"{noun} #{index + 1}"
         )
+        if field == "battery" and len(loc) > 3 and isinstance(table.get("battery"), dict):
+            inner, battery = str(loc[3]), table["battery"]
+            if kind == "extra_forbidden":
+                known = ", ".join(sorted(_BatteryTable.model_fields))
+                problem = f"battery: unknown key {inner!r} (known: {known})"
+            else:
+                problem = f"battery: {_words(inner, kind, battery.get(inner))}"
+            return where.error(where.table(top, index), f"{what}: {problem}")
         if kind == "extra_forbidden":
             known = ", ".join(sorted(model.model_fields))
             problem = f"unknown key {field!r} (known: {known})"
         else:
             problem = _words(field, kind, table.get(field))
         return where.error(where.table(top, index), f"{what}: {problem}")
+    if top in _SECTIONS:
+        line = where.section(top)
+        section = data[top]
+        if len(loc) < 2 or not isinstance(section, dict):
+            return where.error(line, f"'{top}' must be a table ([{top}])")
+        field = str(loc[1])
+        if kind == "extra_forbidden":
+            known = ", ".join(sorted(_SECTIONS[top].model_fields))
+            return where.error(line, f"[{top}]: unknown key {field!r} (known: {known})")
+        return where.error(line, f"[{top}]: {_words(field, kind, section.get(field))}")
     if top == "hidden_obstacles":
         if len(loc) == 1:
             return where.error(
@@ -236,7 +330,8 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
             raise where.error(line, f"unit {u.id!r}: start {list(start)} is a hidden obstacle")
         taken[start] = u.id
         color = u.color or DEFAULT_COLORS[i % len(DEFAULT_COLORS)]
-        units.append(UnitSpec(u.id, start, float(u.capacity), color))
+        battery = _battery(shape.battery, u.battery)
+        units.append(UnitSpec(u.id, start, float(u.capacity), color, battery))
 
     jobs: list[JobSpec] = []
     for i, j in enumerate(shape.jobs):
@@ -263,6 +358,23 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
             raise where.error(line, f"goal #{i + 1}: target {list(target)} is a hidden obstacle")
         goals.append(GoalSpec(g.unit, target))
 
+    chargers: list[ChargerSpec] = []
+    for i, c in enumerate(shape.chargers):
+        line = where.table("chargers", i)
+        name = c.name if c.name is not None else f"C{i + 1}"
+        what = f"charger {name!r}"
+        at = square(c.square, line, f"{what}: square")
+        if at in hidden:
+            raise where.error(line, f"{what}: square {list(at)} is a hidden obstacle")
+        for known in chargers:
+            if known.name == name:
+                raise where.error(line, f"{what}: name used twice")
+            if known.square == at:
+                raise where.error(
+                    line, f"{what}: square {list(at)} is charger {known.name!r}'s already"
+                )
+        chargers.append(ChargerSpec(name, at))
+
     return Scenario(
         path=path,
         map_path=map_path,
@@ -273,7 +385,48 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
         jobs=tuple(jobs),
         goals=tuple(goals),
         description=shape.description,
+        chargers=tuple(chargers),
+        charging=_charging(shape.charging, where),
     )
+
+
+def _battery(default: _BatteryTable | None, own: _BatteryTable | None) -> BatterySpec | None:
+    """A unit's battery: the scenario's [battery], with the keys the unit gives its own."""
+    if default is None and own is None:
+        return None  # it never runs down: today's units
+    merged = {
+        **(default.model_dump(exclude_none=True) if default is not None else {}),
+        **(own.model_dump(exclude_none=True) if own is not None else {}),
+    }
+    return BatterySpec(**{k: float(v) for k, v in merged.items()})
+
+
+def _charging(table: _ChargingTable | None, where: TomlFile[ScenarioError]) -> ChargingSpec:
+    """The thresholds of [charging], which must rise: critical < good <= sufficient <= full."""
+    if table is None:
+        return ChargingSpec()
+    spec = ChargingSpec(
+        float(table.critical_pct),
+        float(table.good_pct),
+        float(table.sufficient_pct),
+        float(table.full_pct),
+        table.available_from,
+    )
+    problem = thresholds_problem(spec)
+    if problem is not None:
+        raise where.error(where.section("charging"), f"[charging]: {problem}")
+    return spec
+
+
+def thresholds_problem(spec: ChargingSpec) -> str | None:
+    """Why these thresholds cannot work together, or None when they can."""
+    c, g, s, f = spec.critical_pct, spec.good_pct, spec.sufficient_pct, spec.full_pct
+    if not c < g <= s <= f:
+        return (
+            "thresholds must rise: critical_pct < good_pct <= sufficient_pct <= full_pct, "
+            f"got {c:g} < {g:g} <= {s:g} <= {f:g}"
+        )
+    return None
 
 
 def with_units(scenario: Scenario) -> Scenario:

@@ -45,6 +45,12 @@ class TomlFile(Generic[E]):
         pattern = re.compile(rf"^\s*{re.escape(key)}\s*=")
         return next((i for i, line in enumerate(self.lines, 1) if pattern.match(line)), 1)
 
+    def section(self, name: str) -> int:
+        """The line of `[name]` (else of `name = …`)."""
+        pattern = re.compile(rf"^\s*\[\s*{re.escape(name)}\s*\]")
+        hit = next((i for i, line in enumerate(self.lines, 1) if pattern.match(line)), None)
+        return hit if hit is not None else self.key(name)
+
     def table(self, name: str, index: int) -> int:
         """The line of the `index`-th `[[name]]` (else of `name = …`)."""
         pattern = re.compile(rf"^\s*\[\[\s*{re.escape(name)}\s*\]\]")

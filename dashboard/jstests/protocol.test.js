@@ -62,7 +62,7 @@ test("headers count per kind; client ids are valid ids", () => {
   assert.equal(s.header("submit_job").seq, 1);
   const h = s.header("set_goal");
   assert.equal(h.seq, 0);
-  assert.equal(h.version, "1.4");
+  assert.equal(h.version, "1.5");
   assert.equal(h.sender, "dash-1");
   assert.match(h.timestamp, /^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$/);
   const id = makeClientId("dashboard");

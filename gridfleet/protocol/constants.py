@@ -5,7 +5,7 @@ them, and `make schemas` copies them into protocol/protocol.json, the dashboard'
 protocol_table.js and the firmware's protocol_table.h.
 """
 
-PROTOCOL_VERSION = "1.4"  # header.version of every JSON message (protocol.md §3, §9)
+PROTOCOL_VERSION = "1.5"  # header.version of every JSON message (protocol.md §3, §9)
 TOPIC_VERSION = "v1"  # the topic level after the root; changes only with a new major version
 DEFAULT_ROOT = "gridfleet"
 
@@ -25,6 +25,8 @@ MAX_OPEN_JOBS_PER_ACCOUNT = 2500
 MAX_RELEASED = 64  # squares one order may release
 MAX_PLANNED = 8192  # squares of the planned rest shown for display
 MAX_TEXT = 500  # characters of a reason or error message
+MAX_CHARGERS = 1024  # chargers one map may have
+MAX_ENERGY_UNITS = 20000  # units the energy view may list (each a few dozen bytes)
 
 # The plain-text device payloads (protocol.md §4.6, §5.1, §5.6).
 DIRECTION_NONE = "-"  # the direction payload when no move is intended; else N, E, S or W

@@ -9,7 +9,9 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstra
 
 from gridfleet.protocol.constants import (
     ID_PATTERN,
+    MAX_CHARGERS,
     MAX_COORD,
+    MAX_ENERGY_UNITS,
     MAX_PLANNED,
     MAX_RELEASED,
     MAX_TEXT,
@@ -46,6 +48,8 @@ Version = Annotated[
 """The one protocol version this code speaks (constants.PROTOCOL_VERSION); others are refused."""
 
 Kg = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+Pct = Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]
+"""A share of a full battery, 0 to 100."""
 PositiveKg = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 DirectionLetter = Literal["N", "E", "S", "W", "-"]
 SensorReading = Literal["free", "wall", "obstacle", "unit"]
@@ -72,11 +76,13 @@ WaitCode = Literal[
     "unit_stuck",
     "unit_paused",
     "unit_out_of_service",
+    "unit_charging",
+    "battery_low",
 ]
 # An operator's control of one unit (protocol.md §6.4): paused keeps its job, out of service gives
 # up a job not picked up yet and takes no new one.
 UnitControlState = Literal["paused", "out_of_service"]
-UnitCommand = Literal["pause", "resume", "out_of_service", "in_service"]
+UnitCommand = Literal["pause", "resume", "out_of_service", "in_service", "charge"]
 
 
 Side = Literal["N", "E", "S", "W"]
@@ -116,6 +122,14 @@ class Connection(Message):
     state: Literal["online", "offline", "broken"]
 
 
+class EnergyModel(Model):
+    """What a unit's battery does (protocol.md §4.2): the coordinator plans its charges by it."""
+
+    move_pct: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]  # one move (one square)
+    idle_pct_per_s: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]  # standing
+    charge_pct_per_s: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)]  # on a charger
+
+
 class Factsheet(Message):
     """`units/<id>/factsheet`: what a unit can do, read by allocation and the dashboard."""
 
@@ -126,6 +140,9 @@ class Factsheet(Message):
     model: Annotated[str, StringConstraints(max_length=64)] = "gridfleet-sim"
     # The map the unit drives on (GridMap.map_id); a coordinator on another map ignores the unit.
     map_id: Annotated[str, StringConstraints(pattern=r"^[0-9a-f]{12}$")] | None = None
+    # Its battery's model; null: it does not report energy (it never runs down, as far as the
+    # coordinator knows).
+    energy: EnergyModel | None = None
 
 
 class VehicleCondition(Message):
@@ -181,6 +198,8 @@ class UnitState(Message):
     goal: Square | None = None
     estop: bool = False
     errors: Annotated[list[UnitError], Field(max_length=16)] = Field(default_factory=list)
+    battery_pct: Pct | None = None  # its charge; null: it does not report energy
+    charging: bool = False  # on a charger, charging
 
 
 class Action(Model):
@@ -202,6 +221,9 @@ class Order(Message):
     planned: Annotated[list[Square], Field(max_length=MAX_PLANNED)] = Field(default_factory=list)
     target: Square | None = None
     action: Action | None = None
+    # The charger square where it charges once it stands there with nothing left to drive;
+    # null: it does not charge (a unit charging stops).
+    charge: Square | None = None
 
 
 class Goal(Message):
@@ -210,14 +232,67 @@ class Goal(Message):
     target: Square | None
 
 
+class Charger(Model):
+    """A charger on the map: its square and its name."""
+
+    name: Id
+    square: Square
+
+
 class FleetMap(Message):
-    """`fleet/map`: the static map and the obstacles units have discovered."""
+    """`fleet/map`: the static map, its chargers and the obstacles units have discovered."""
 
     name: Annotated[str, StringConstraints(max_length=128)]
     width: Annotated[int, Field(ge=1, le=MAX_COORD + 1, strict=True)]
     height: Annotated[int, Field(ge=1, le=MAX_COORD + 1, strict=True)]
     rows: list[Annotated[str, StringConstraints(pattern=r"^[.@]+$")]]
     obstacles: list[Square] = Field(default_factory=list)
+    chargers: Annotated[list[Charger], Field(max_length=MAX_CHARGERS)] = Field(default_factory=list)
+
+
+# ---- energy (coordinator/energy.py: protocol.md §5.9) -------------------------------------------
+
+EnergyPlan = Literal["to_charger", "queued", "charging", "stranded"]
+AvailableFrom = Literal["sufficient", "full"]
+
+
+class Thresholds(Model):
+    """The coordinator's charge thresholds, openTCS's four (protocol.md §5.9)."""
+
+    critical_pct: Pct  # at or below: no job, to a charger at once
+    good_pct: Pct  # below, and idle: to a charger
+    sufficient_pct: Pct  # a charging unit takes jobs again from here (when `available_from`)
+    full_pct: Pct  # a charging unit with nothing to do charges up to here
+    available_from: AvailableFrom = "sufficient"
+
+
+class ChargerView(Model):
+    """A charger as the energy view shows it: who is on it (or on the way) and who waits."""
+
+    name: Id
+    square: Square
+    unit: Id | None = None  # the unit it is given to: charging there, or on its way
+    queue: Annotated[list[Id], Field(max_length=MAX_ENERGY_UNITS)] = Field(default_factory=list)
+
+
+class UnitEnergy(Model):
+    """What the energy policy does with one unit, when it does anything."""
+
+    plan: EnergyPlan
+    charger: Id | None = None  # the charger it goes to or charges at
+    reason: Text | None = None  # in words, e.g. "charging: 62 % of 80 %"
+
+
+class EnergyView(Message):
+    """`fleet/energy`: the thresholds, the chargers and the units the energy policy moves."""
+
+    thresholds: Thresholds
+    chargers: Annotated[list[ChargerView], Field(max_length=MAX_CHARGERS)] = Field(
+        default_factory=list
+    )
+    units: Annotated[dict[Id, UnitEnergy], Field(max_length=MAX_ENERGY_UNITS)] = Field(
+        default_factory=dict
+    )  # only units the policy sends to, holds at or queues for a charger, or cannot help
 
 
 class JobView(Model):
@@ -388,6 +463,9 @@ AlertRule = Literal[
     "coordinator_down",
     "broker_down",
     "handler_failures",
+    "battery_low",
+    "battery_critical",
+    "cannot_reach_charger",
 ]
 AlertSeverity = Literal["warning", "critical"]
 CLEARED_ALERTS_LISTED = 20  # the alerts view's latest cleared alerts
@@ -438,6 +516,7 @@ AuditAct = Literal[
     "resume",
     "out_of_service",
     "in_service",
+    "charge",
     "clear_obstacles",
     "remove_unit",
     "login",
@@ -533,9 +612,24 @@ class JobHistoryEntry(Model):
     submitted_by: Id | None = None
 
 
-class JobHistoryQuery(Request):
-    """`requests/job_history`: a page of the job history, oldest first."""
+ChargeEvent = Literal["started", "ended"]
 
+
+class ChargeEntry(Model):
+    """A charge started or ended: which unit, at which charger, its battery then, and why."""
+
+    at: datetime
+    unit: Id
+    charger: Id
+    event: ChargeEvent
+    battery_pct: Pct
+    reason: Text | None = None  # why it started or ended, in words
+
+
+class JobHistoryQuery(Request):
+    """`requests/job_history`: a page of the job history (or of the charges), oldest first."""
+
+    kind: Literal["jobs", "charges"] = "jobs"  # charges: the charges' starts and ends instead
     since: datetime
     until: datetime | None = None  # null: now
     unit: Id | None = None  # only changes of jobs while this unit had them
@@ -549,5 +643,9 @@ class JobHistoryPage(Page):
     """`history/replies/<client>`: the answer to a JobHistoryQuery: a page of entries, or why not."""
 
     entries: Annotated[list[JobHistoryEntry], Field(max_length=MAX_HISTORY_PAGE)] = Field(
+        default_factory=list
+    )
+    # The answer to a query of kind "charges" (its `entries` are then empty).
+    charges: Annotated[list[ChargeEntry], Field(max_length=MAX_HISTORY_PAGE)] = Field(
         default_factory=list
     )

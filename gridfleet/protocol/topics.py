@@ -86,6 +86,7 @@ TOPICS: dict[str, TopicSpec] = {
         TopicSpec("jobs", "fleet/jobs", 1, True, "json", "JobsView", MAX_VIEW_BYTES),
         TopicSpec("routes", "fleet/routes", 0, True, "json", "Routes", MAX_VIEW_BYTES),
         TopicSpec("events", "fleet/events", 1, True, "json", "EventsView", MAX_VIEW_BYTES),
+        TopicSpec("energy", "fleet/energy", 1, True, "json", "EnergyView", MAX_VIEW_BYTES),
         TopicSpec(
             "submit_job", "requests/submit_job", 1, False, "json", "SubmitJob", MAX_REQUEST_BYTES
         ),

@@ -244,7 +244,7 @@ def test_the_history_pages_through_the_cursor_and_the_csv_takes_every_page(
 
         query = wait_for(ours, 20.0, what=f"the history request at cursor {cursor}")
         page = JobHistoryPage.model_validate(
-            {"header": {"version": "1.4", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
+            {"header": {"version": "1.5", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
              "request_id": query["request_id"], "accepted": True, "entries": entries,
              "next_cursor": next_cursor}
         )  # fmt: skip

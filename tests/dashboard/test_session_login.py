@@ -16,7 +16,7 @@ from gridfleet.broker.gate import Gate
 from gridfleet.dashboard.login import SessionBook
 from gridfleet.dashboard.settings import DashboardSettings
 from gridfleet.errors import ConfigError
-from gridfleet.protocol import HeaderStamper, Topics, encode
+from gridfleet.protocol import PROTOCOL_VERSION, HeaderStamper, Topics, encode
 from gridfleet.protocol.messages import BrokerRevoke
 from gridfleet.session_login import (
     MAX_REVOKED,
@@ -226,7 +226,7 @@ HEADERS = st.fixed_dictionaries(
         "timestamp": st.just("2026-11-21T10:00:00Z"),
         "sender": st.from_regex(r"\Adashboard-[a-z0-9]{1,8}\Z"),
     },
-    optional={"version": st.just("1.4")},
+    optional={"version": st.just(PROTOCOL_VERSION)},
 )
 ALLOWED = st.fixed_dictionaries(
     {

@@ -11,7 +11,7 @@ const freeze = (value) => {
   return value;
 };
 
-export const PROTOCOL_VERSION = "1.4";
+export const PROTOCOL_VERSION = "1.5";
 export const TOPIC_VERSION = "v1";
 export const DEFAULT_ROOT = "gridfleet";
 export const IDS = freeze({
@@ -163,6 +163,16 @@ export const TOPICS = freeze({
     "payload": "json",
     "model": "EventsView",
     "schema": "schemas/EventsView.json",
+    "max_bytes": 8388608
+  },
+  "energy": {
+    "pattern": "fleet/energy",
+    "placeholder": null,
+    "qos": 1,
+    "retained": true,
+    "payload": "json",
+    "model": "EnergyView",
+    "schema": "schemas/EnergyView.json",
     "max_bytes": 8388608
   },
   "submit_job": {
