@@ -371,7 +371,7 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                 raise where.error(line, f"{what}: name used twice")
             if known.square == at:
                 raise where.error(
-                    line, f"{what}: square {list(at)} is charger {known.name!r}'s already"
+                    line, f"{what}: square {list(at)} already has charger {known.name!r}"
                 )
         chargers.append(ChargerSpec(name, at))
 
