@@ -9,6 +9,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
 from pydantic_core import ErrorDetails
 
+from gridfleet.energy import BatterySpec, ChargingSpec, thresholds_problem
 from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
@@ -29,16 +30,6 @@ DEFAULT_COLORS = (
 
 
 @dataclass(frozen=True)
-class BatterySpec:
-    """A unit's battery: its charge at the start and its energy model, in % of a full charge."""
-
-    start_pct: float = 100.0
-    move_pct: float = 0.5  # one move (one square)
-    idle_pct_per_s: float = 0.01  # a second standing
-    charge_pct_per_s: float = 2.0  # a second on a charger
-
-
-@dataclass(frozen=True)
 class UnitSpec:
     """A unit of a scenario: id, start square, capacity (kg), display colour and battery."""
 
@@ -55,17 +46,6 @@ class ChargerSpec:
 
     name: str
     square: Cell
-
-
-@dataclass(frozen=True)
-class ChargingSpec:
-    """The coordinator's charge thresholds for a scenario (openTCS's four; protocol.md §5.9)."""
-
-    critical_pct: float = 20.0
-    good_pct: float = 50.0
-    sufficient_pct: float = 80.0
-    full_pct: float = 95.0
-    available_from: str = "sufficient"  # or "full": when a charging unit takes jobs again
 
 
 @dataclass(frozen=True)
@@ -102,7 +82,7 @@ class Scenario:
     description: str = ""
     extra: dict[str, Any] = field(default_factory=dict)
     chargers: tuple[ChargerSpec, ...] = ()
-    charging: ChargingSpec = ChargingSpec()  # the thresholds ([charging]; defaults without it)
+    charging: ChargingSpec = field(default_factory=ChargingSpec)  # [charging]; else defaults
 
     def unit(self, unit_id: str) -> UnitSpec:
         """The unit with `unit_id`; KeyError when there is none."""
@@ -416,17 +396,6 @@ def _charging(table: _ChargingTable | None, where: TomlFile[ScenarioError]) -> C
     if problem is not None:
         raise where.error(where.section("charging"), f"[charging]: {problem}")
     return spec
-
-
-def thresholds_problem(spec: ChargingSpec) -> str | None:
-    """Why these thresholds cannot work together, or None when they can."""
-    c, g, s, f = spec.critical_pct, spec.good_pct, spec.sufficient_pct, spec.full_pct
-    if not c < g <= s <= f:
-        return (
-            "thresholds must rise: critical_pct < good_pct <= sufficient_pct <= full_pct, "
-            f"got {c:g} < {g:g} <= {s:g} <= {f:g}"
-        )
-    return None
 
 
 def with_units(scenario: Scenario) -> Scenario:

@@ -48,8 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--state",
         type=Path,
         metavar="FILE",
-        help="keep where the units stand and what they carry in this SQLite file, and resume "
-        "from it after a restart (default: start from the scenario)",
+        help="keep where the units stand, what they carry and their charge in this SQLite file, "
+        "and resume from it after a restart (default: start from the scenario)",
     )
     parser.add_argument(
         "--truth",

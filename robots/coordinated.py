@@ -22,7 +22,7 @@ def check_route(grid: GridMap, here: Cell, released: list[Cell]) -> str | None:
 
 
 class OrderFollower:
-    """The order a coordinated unit follows: its ids, the released squares not yet driven, its action."""
+    """The order a coordinated unit follows: ids, released squares not yet driven, action, charger."""
 
     def __init__(self, grid: GridMap) -> None:
         self.grid = grid
@@ -30,6 +30,7 @@ class OrderFollower:
         self.update_id = 0
         self.released: list[Cell] = []
         self.action: Action | None = None
+        self.charge: Cell | None = None  # where the current order has it charge (rule 8)
         self._acted: tuple[str | None, str] | None = None  # (order, action) done last
 
     def take(self, order: Order, position: Cell) -> Verdict:
@@ -54,10 +55,15 @@ class OrderFollower:
         self.update_id = order.update_id
         self.released = released
         self.action = order.action
+        self.charge = order.charge
         return Verdict("accepted")
 
     def drop(self) -> None:
-        """Forget the released squares not yet driven (holding, the stop); the next order releases."""
+        """Forget the released squares not yet driven (holding, the stop); the next order releases.
+
+        The charger is kept: standing where it stands, the unit may charge on (not while stopped:
+        `UnitLogic.charging`), and the next order says again whether it is to.
+        """
         self.released = []
 
     def next_move(self, position: Cell, sensors: Readings) -> Intent:

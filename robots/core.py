@@ -121,6 +121,7 @@ class UnitCore:
             color=self.color,
             model=self.model,
             map_id=self.map_id,
+            energy=None if self.logic.battery is None else self.logic.battery.model,
         )
         return [self.side.connection("online"), factsheet, *self.state()]
 
@@ -240,6 +241,12 @@ class UnitCore:
         lg = self.logic
         if lg.new_obstacles or lg.errors:
             return None
+        # The battery only by its whole percent: its exact figure changes nearly every step (a
+        # move costs 0.5 %, standing a few thousandths), and a unit that sent a state for each
+        # would send one every step, every unit, for news nobody acts on. A whole percent is finer
+        # than any threshold is set; every state (the heartbeat at least every 3 steps) carries
+        # the exact figure anyway, and `charging` goes out the step it changes.
+        battery = None if lg.battery is None else lg.battery.whole_pct
         return (
             lg.position,
             lg.direction,
@@ -253,6 +260,8 @@ class UnitCore:
             tuple(lg.released),
             lg.goal,
             lg.estop,
+            battery,
+            lg.charging,
         )
 
     def state(self) -> list[Outbound]:

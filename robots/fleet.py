@@ -13,6 +13,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
+from gridfleet.robots.battery import Battery
 from gridfleet.robots.saved import Saved, SavedUnits
 from gridfleet.robots.shell import UnitShell
 from gridfleet.robots.unit import Mode, UnitLogic
@@ -76,10 +77,14 @@ class Fleet:
         wanted.update(goals or {})
         self.shells: dict[str, UnitShell] = {}
         groups = -(-len(local) // STEP_GROUP)
+        chargers = frozenset(c.square for c in scenario.chargers)  # where this world charges
         for spec in scenario.units:
             if spec.id not in local:
                 continue
             was = resumed.get(spec.id, Saved(spec.start))
+            battery = None if spec.battery is None else Battery.from_spec(spec.battery, step)
+            if battery is not None and was.battery_pct is not None:
+                battery = Battery(battery.model, was.battery_pct)  # as it was when it stopped
             logic = UnitLogic(
                 spec.id,
                 scenario.grid,
@@ -88,6 +93,8 @@ class Fleet:
                 step,
                 mode=mode,
                 goal=wanted.get(spec.id),
+                battery=battery,
+                chargers=chargers,
             )
             logic.job_id, logic.load_kg = was.job_id, was.load_kg
             url = broker_url
@@ -111,7 +118,9 @@ class Fleet:
 
     def _save(self, logic: UnitLogic) -> None:
         assert self.saved is not None
-        self.saved.save(logic.unit_id, Saved(logic.position, logic.job_id, logic.load_kg))
+        # The charge to a tenth: a unit standing still writes a row every few hundred steps.
+        battery = None if logic.battery is None else logic.battery.shown_pct
+        self.saved.save(logic.unit_id, Saved(logic.position, logic.job_id, logic.load_kg, battery))
 
     @property
     def logic(self) -> dict[str, UnitLogic]:

@@ -17,6 +17,7 @@ from gridfleet.grid import Direction
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     Connection,
+    EnergyModel,
     Factsheet,
     HeaderStamper,
     Topics,
@@ -75,8 +76,12 @@ class FleetSide:
         model: str,
         map_id: str,
         sensors: list[Side] | None = None,
+        energy: EnergyModel | None = None,
     ) -> Outbound:
-        """The unit's factsheet (every side's sensor unless `sensors` says otherwise)."""
+        """The unit's factsheet (every side's sensor unless `sensors` says otherwise).
+
+        `energy`: its battery's model; None: it reports no energy.
+        """
         factsheet = Factsheet(
             header=self.stamp("factsheet"),
             capacity_kg=capacity_kg,
@@ -85,6 +90,7 @@ class FleetSide:
             color=color,
             model=model,
             map_id=map_id,
+            energy=energy,
         )
         return Outbound.of("factsheet", self.topics.unit("factsheet", self.id), factsheet)
 

@@ -14,7 +14,12 @@ Public surface, for shells and simulations:
 - outputs: `report` (the state message), `leds`, and these fields, read-only for callers:
   `position`, `step`, `status`, `wait_reason`, `direction`, `sensors`, `estop`, `estop_known`,
   `connected`, `job_id`, `load_kg`, `order_id`, `order_update_id`, `released`, `action`, `goal`,
-  `known_obstacles`, `errors`, `hold_timeout_s`.
+  `known_obstacles`, `errors`, `hold_timeout_s`, `battery` (None: it reports no energy),
+  `charging`.
+
+A unit with a battery (`robots/battery.py`) drains by its model each step, charges while it stands
+on its order's `charge` square with nothing released left when that square is one of its world's
+`chargers` (protocol.md §4.4 rule 8), and at 0 % cannot move.
 
 In a pure simulation, per unit and step::
 
@@ -25,7 +30,7 @@ In a pure simulation, per unit and step::
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Container
 from typing import Literal
 
 from gridfleet.grid import Cell, Direction, GridMap
@@ -46,6 +51,7 @@ from gridfleet.protocol.messages import (
     UnitState,
     UnitStatus,
 )
+from gridfleet.robots.battery import Battery
 from gridfleet.robots.coordinated import OrderFollower
 from gridfleet.robots.decisions import Intent, Readings, Verdict, sq
 from gridfleet.robots.fleet_side import letter
@@ -56,6 +62,7 @@ LATE_TOLD_EVERY_S = 10.0  # a unit tells of late orders at most this often (prot
 MAX_ERRORS = 16
 ESTOP_WAIT_MIN_S = 0.2  # after connecting, hold at least this long for the retained stop
 ESTOP_WAIT_MAX_S = 1.0  # and at most this long (protocol.md §5.1)
+BATTERY_EMPTY = "battery empty: cannot move"
 
 Sense = Callable[[], Readings]
 """Reads the unit's four sensors now."""
@@ -75,6 +82,9 @@ class UnitLogic:
         step_s: float,
         mode: Mode = "coordinated",
         goal: Cell | None = None,
+        *,
+        battery: Battery | None = None,
+        chargers: Container[Cell] = frozenset(),
     ) -> None:
         self.unit_id = unit_id
         self.grid = grid
@@ -103,6 +113,9 @@ class UnitLogic:
         self._estop_wait_until: float | None = None
         self.late_by_s: float | None = None  # how late the last order came, while that is too late
         self._late_told_at: float | None = None
+        self.battery = battery  # None: no energy, it never runs down (and reports none)
+        self.chargers = chargers  # the squares its world charges it on (a scenario's chargers)
+        self._no_charger_told: Cell | None = None  # the non-charger it was last told to charge on
 
     # ---- what it follows ----------------------------------------------------------------------
 
@@ -141,6 +154,19 @@ class UnitLogic:
         """How late an order may come and still be driven (protocol §4.4 rule 7)."""
         return max(LATE_ORDER_MIN_S, self.hold_timeout_s)
 
+    @property
+    def charging(self) -> bool:
+        """It charges: on its order's charger with nothing released left, and not stopped."""
+        here = self.orders.charge
+        return (
+            self.battery is not None
+            and here is not None
+            and here == self.position
+            and not self.released
+            and not self.estop
+            and here in self.chargers
+        )
+
     def since_order_s(self, now: float) -> float:
         """Seconds since the last valid order (or since `start`)."""
         return now - (self._last_order if self._last_order is not None else self._started)
@@ -166,9 +192,19 @@ class UnitLogic:
             self._last_order = now  # even a repeated order shows the coordinator is there
         if verdict.result == "refused":
             self.error("bad_order", verdict.reason or "")
+        if verdict.result == "accepted":
+            self._check_charger(self.orders.charge)
         if verdict.result != "stale":
             self._refresh(now)
         return verdict
+
+    def _check_charger(self, square: Cell | None) -> None:
+        """Ordered to charge where no charger is: said once (not again for each heartbeat)."""
+        if square is None or square in self.chargers:
+            self._no_charger_told = None
+        elif square != self._no_charger_told:
+            self._no_charger_told = square
+            self.error("no_charger", f"ordered to charge on {sq(square)}, which is no charger")
 
     def on_late_order(self, late_by_s: float, now: float) -> bool:
         """An order that came too late to drive (protocol §4.4 rule 7): drop what is left, hold.
@@ -267,6 +303,10 @@ class UnitLogic:
 
     def end_step(self, moved: Direction | None, readings: Readings, now: float) -> None:
         """Finish a step: `moved` is the move the world performed (None if none or refused)."""
+        if self.battery is not None:
+            # Charging is judged where it stood this step: a move onto the charger is a move.
+            charged = moved is None and self.charging
+            self.battery.step(moved=moved is not None, charging=charged, step_s=self.step_s)
         if moved is not None:
             self.position = self.position.step(moved)
             self.status, self.wait_reason = "moving", None
@@ -297,10 +337,23 @@ class UnitLogic:
         elif self.status == "idle" and intent.move is not None:
             # A new order between steps: the LEDs show the move now, so the state must not say idle.
             self.status, self.wait_reason = "waiting", "moves at the next step"
-        elif self.status == "waiting" and intent.status == "idle":
-            self.status, self.wait_reason = "idle", None  # what it waited for went away
+        elif self.status in ("waiting", "idle") and intent.status == "idle":
+            # What it waited for went away; an empty battery says why it stays idle.
+            self.status, self.wait_reason = "idle", intent.reason
 
     def _intent(self, now: float, waiting_counts: bool) -> Intent:
+        """What it wants now: the order's or the goal's move, unless it cannot move at all."""
+        intent = self._wanted(now, waiting_counts)
+        if (
+            self.battery is None
+            or not self.battery.empty
+            or intent.status in ("stopped", "holding")
+        ):
+            return intent
+        # At 0 % it stays where it stands, and says why (it can still charge there).
+        return Intent(None, "idle" if intent.status == "idle" else "waiting", BATTERY_EMPTY)
+
+    def _wanted(self, now: float, waiting_counts: bool) -> Intent:
         # The emergency stop wins over everything, then not knowing it, then the broker.
         if self.estop:
             return Intent(None, "stopped", "emergency stop engaged")
@@ -372,6 +425,8 @@ class UnitLogic:
             goal=self.goal,
             estop=self.estop,
             errors=self.errors,
+            battery_pct=None if self.battery is None else self.battery.shown_pct,
+            charging=self.charging,
         )
         self.new_obstacles = self.new_obstacles[4:]
         self.errors = []

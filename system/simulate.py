@@ -35,6 +35,9 @@ from gridfleet.system.assembly import Assembly, SystemSpec
 from gridfleet.system.threads import world_of
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from gridfleet.robots.battery import Battery
     from gridfleet.robots.world import WorldSim
 
 log = logging.getLogger("gridfleet.simulate")
@@ -103,6 +106,7 @@ class SimulationResult:
     wall_time_s: float = 0.0
     requests_resent: int = 0  # requests sent again for want of a reply (a loaded broker)
     units: list[dict[str, Any]] = field(default_factory=list)
+    units_empty: int = 0  # units whose battery ever reached 0 %
     jobs: list[dict[str, Any]] = field(default_factory=list)
     goals: list[dict[str, Any]] = field(default_factory=list)
     monitor: FleetMonitor | None = field(default=None, repr=False)  # for tests; not in the JSON
@@ -120,6 +124,7 @@ class SimulationResult:
             "collisions": self.collisions,
             "prevented": self.prevented,
             "units": self.units,
+            "units_empty": self.units_empty,
             "jobs": self.jobs,
             "goals": self.goals,
             "messages": self.messages,
@@ -171,6 +176,8 @@ async def simulate(
         system = await stack.enter_async_context(Assembly(spec, "threads"))
         services = list(system.threads.values())
         world = world_of(system.fleet)
+        # Read once the run is over: each battery is its unit's, in the fleet's thread.
+        batteries = {uid: lg.battery for uid, lg in system.fleet.service.logic.items()}
         broker_url = system.url
         login = parse_broker_url(broker_url).username
         client_id = owned_client_id(login, f"simulate-{uuid.uuid4().hex[:6]}")
@@ -230,7 +237,8 @@ async def simulate(
     outcome.collisions = world.collisions
     outcome.prevented = world.prevented
     outcome.messages = monitor.messages
-    outcome.units = units_json(scenario, world)
+    outcome.units = units_json(scenario, world, batteries)
+    outcome.units_empty = sum(u["reached_empty"] for u in outcome.units)
     # Some refusals are also kept in the queue view (as `rejected`): list each job once. Any
     # other refusal (e.g. an id the coordinator's store already holds) is listed from its reply.
     jobs = list(monitor.every_job.values())
@@ -267,17 +275,27 @@ def job_json(j: JobView) -> dict[str, Any]:
     }
 
 
-def units_json(scenario: Scenario, world: WorldSim) -> list[dict[str, Any]]:
-    """Every unit of the scenario as the result lists it: where it ended, how far it went."""
-    return [
-        {
-            "id": u.id,
-            "capacity": u.capacity,
-            "position": list(world.position(u.id)),
-            "moves": world.moves[u.id],
-        }
-        for u in scenario.units
-    ]
+def units_json(
+    scenario: Scenario, world: WorldSim, batteries: Mapping[str, Battery | None]
+) -> list[dict[str, Any]]:
+    """Every unit as the result lists it: where it ended, its moves, what its battery went through."""
+    listed = []
+    for u in scenario.units:
+        b = batteries.get(u.id)
+        listed.append(
+            {
+                "id": u.id,
+                "capacity": u.capacity,
+                "position": list(world.position(u.id)),
+                "moves": world.moves[u.id],
+                "battery_pct": None if b is None else b.shown_pct,
+                "lowest_battery_pct": None if b is None else round(b.lowest_pct, 1),
+                "charges": 0 if b is None else b.charges,
+                "charging_steps": 0 if b is None else b.charging_steps,
+                "reached_empty": b is not None and b.reached_empty,
+            }
+        )
+    return listed
 
 
 def summary(outcome: SimulationResult, scenario: Scenario) -> str:
@@ -290,6 +308,14 @@ def summary(outcome: SimulationResult, scenario: Scenario) -> str:
         f" {outcome.requests_resent} requests re-sent",
         f"jobs: {done} done of {len(outcome.jobs)}",
     ]
+    powered = [u for u in outcome.units if u["battery_pct"] is not None]
+    if powered:
+        low = min(powered, key=lambda u: u["lowest_battery_pct"])
+        lines.append(
+            f"batteries: lowest {low['lowest_battery_pct']:.1f} % ({low['id']}), "
+            f"{sum(u['charges'] for u in powered)} charges, "
+            + (f"{outcome.units_empty} ran empty" if outcome.units_empty else "none ran empty")
+        )
     for job in outcome.jobs:
         if job["state"] != "done":
             lines.append(

@@ -12,6 +12,7 @@ import asyncio
 
 from gridfleet.endpoint import Endpoint
 from gridfleet.protocol import Topics
+from gridfleet.robots.battery import Battery
 from gridfleet.robots.shell import UnitShell
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.webots.adapter import WebotsWorld
@@ -37,6 +38,8 @@ class WebotsUnit:
             settings.start,
             settings.capacity_kg,
             settings.step_s,
+            battery=None if settings.battery is None else Battery.from_spec(settings.battery),
+            chargers=settings.chargers,
         )
         try:
             self.world = WebotsWorld(

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from typing import TypeVar
 
 from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_broker_url
+from gridfleet.energy import BatterySpec
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import FREE_CHARS, Cell, GridMap
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -21,7 +22,7 @@ T = TypeVar("T")
 
 @dataclass(frozen=True)
 class UnitSettings:
-    """Who the unit is and where it joins: its id, start, capacity, colour, step, map, broker."""
+    """Who the unit is and where it joins: id, start, capacity, colour, step, map, broker, energy."""
 
     unit_id: str
     start: Cell
@@ -32,6 +33,8 @@ class UnitSettings:
     broker: str
     root: str
     mirror: bool = False  # the unit runs elsewhere: this one shows where its state says it is
+    battery: BatterySpec | None = None  # None: it never runs down (it reports no energy)
+    chargers: frozenset[Cell] = frozenset()  # the squares where it charges
 
 
 def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> UnitSettings:
@@ -78,6 +81,13 @@ def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> U
         raise ConfigError(f"{where}: {source}: {exc}") from None
     root = field("root").getSFString() or DEFAULT_ROOT
     checked("root", lambda: Topics(root))
+
+    def percent(name: str) -> float:
+        return checked(name, lambda: _pct(field(name).getSFFloat(), name))
+
+    has_battery = field("battery").getSFBool()
+    battery = BatterySpec(*(percent(n) for n in BATTERY_FIELDS)) if has_battery else None
+    chargers = checked("chargers", lambda: _squares(field("chargers"), grid))
     return UnitSettings(
         unit_id=unit_id,
         start=start,
@@ -88,7 +98,33 @@ def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> U
         broker=broker,
         root=root,
         mirror=bool(field("mirror").getSFBool()),
+        battery=battery,
+        chargers=chargers,
     )
+
+
+BATTERY_FIELDS = ("batteryPct", "movePct", "idlePctPerS", "chargePctPerS")  # BatterySpec's order
+
+
+def _pct(value: float, name: str) -> float:
+    """A battery field's value: % of a full charge, 0 to 100 (a charge rate above 0)."""
+    low_ok = name != "chargePctPerS"
+    if not (0.0 <= value <= 100.0 and (low_ok or value > 0.0)):
+        low = "0" if low_ok else "above 0"
+        raise ValueError(f"{value:g}: give a number from {low} to 100 (% of a full charge)")
+    return value
+
+
+def _squares(found: Field, grid: GridMap) -> frozenset[Cell]:
+    """The squares an MFVec2f field lists, each a free square of the map (ValueError if not)."""
+    squares = set()
+    for i in range(found.getCount()):
+        x, y = found.getMFVec2f(i)
+        cell = Cell(round(x), round(y))
+        if (cell.x, cell.y) != (x, y) or not grid.is_free(cell):
+            raise ValueError(f"square {x:g} {y:g} is not a free square of the map")
+        squares.add(cell)
+    return frozenset(squares)
 
 
 def _grid(rows: list[str], name: str) -> GridMap:

@@ -6,7 +6,8 @@ is the course's: a RectangleArena whose floor holds every square of the map, its
 square (0, 0) is the origin (`geometry`). Blocked squares of the map and the scenario's hidden
 obstacles stand as `GridObstacle`s (the fleet still has to sense the hidden ones: only their
 colour differs here), and each unit of the scenario as a `GridUnit` on its start square, in its
-colour, with its capacity, the map and where to find the broker in its fields. A world may run
+colour, with its capacity, the map, its battery, the chargers and where to find the broker in its
+fields. A world may run
 some units only: the others are there as mirrors, following their state (they run elsewhere:
 in another Webots, or as simulated units), so that this world shows them and its units' sensors
 see them.
@@ -29,6 +30,7 @@ from gridfleet.robots.webots.geometry import (
     metres,
     sf_color,
 )
+from gridfleet.robots.webots.settings import BATTERY_FIELDS
 from gridfleet.scenario import Scenario
 
 WEBOTS_VERSION = "R2023b"
@@ -110,6 +112,7 @@ def world_text(scenario: Scenario, options: WorldOptions = WorldOptions()) -> st
     for cell in sorted(hidden, key=lambda c: (c.y, c.x)):
         lines += _obstacle(cell, f"hidden obstacle {cell.x},{cell.y}", HIDDEN_COLOR)
     rows = grid.rows()
+    chargers = [f"{c.square.x} {c.square.y}" for c in scenario.chargers]
     for unit in scenario.units:
         fields: list[tuple[str, str | list[str]]] = [
             ("translation", _vec(*metres(unit.start), UNIT_SIZE_M / 2)),
@@ -126,6 +129,17 @@ def world_text(scenario: Scenario, options: WorldOptions = WorldOptions()) -> st
             fields.append(("root", _string(options.root)))
         if unit.id not in chosen:
             fields.append(("mirror", "TRUE"))
+        b = unit.battery
+        if b is not None:
+            fields.append(("battery", "TRUE"))
+            for name, value in zip(
+                BATTERY_FIELDS,
+                (b.start_pct, b.move_pct, b.idle_pct_per_s, b.charge_pct_per_s),
+                strict=True,
+            ):
+                fields.append((name, f"{value:.10g}"))  # a rate may be a small fraction
+        if chargers:
+            fields.append(("chargers", chargers))
         lines += _node("GridUnit", fields)
     return "\n".join(lines) + "\n"
 

@@ -20,7 +20,8 @@ from gridfleet.protocol import (
     Topics,
     encode,
 )
-from gridfleet.protocol.messages import SensorReading
+from gridfleet.protocol.messages import EnergyModel, SensorReading
+from gridfleet.robots.battery import Battery
 from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import Mode, UnitLogic
 
@@ -88,6 +89,8 @@ def state(seq: int, **fields: Any) -> Published:
         "goal": None,
         "estop": False,
         "errors": [],
+        "battery_pct": None,
+        "charging": False,
     }
     assert set(fields) <= set(payload), set(fields) - set(payload)
     return ("units/u1/state", payload | fields, 0, True)
@@ -129,6 +132,7 @@ def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_sto
         "color": "#d32f2f",
         "model": "gridfleet-sim",
         "map_id": core.logic.grid.map_id(),  # the coordinator ignores units of another map
+        "energy": None,  # no battery: it never runs down
     }
     assert published(core.on_connect(0.0), ROOT) == [
         ("units/u1/connection", {"header": header_json("u1", 1), "state": "online"}, 1, True),
@@ -547,3 +551,135 @@ def test_another_units_state_tells_where_it_stands_and_publishes_nothing() -> No
     assert core.peer_position(ROOT + "units/u1/state", theirs) is None
     assert core.peer_position(ROOT + "units/u2/state", b"{") is None
     assert core.on_message(ROOT + "units/u2/state", theirs, 0.3) == []
+
+
+# ---- energy -----------------------------------------------------------------------------------
+
+# Per step of 0.1 s: standing costs 0.2 %, charging adds 0.1 %; u1 starts on the charger (0, 1).
+ENERGY = EnergyModel(move_pct=1.0, idle_pct_per_s=2.0, charge_pct_per_s=1.0)
+CHARGER = Cell(0, 1)
+
+
+def powered(start_pct: float) -> UnitCore:
+    """u1 as `ready` makes it, with a battery at `start_pct` (before its first step's drain)."""
+    logic = UnitLogic(
+        "u1",
+        GridMap.from_rows(OPEN),
+        Cell(0, 1),
+        5.0,
+        0.1,
+        battery=Battery(ENERGY, start_pct),
+        chargers=frozenset({CHARGER}),
+    )
+    core = UnitCore(logic, Topics("gf"), color="#d32f2f", stamp=stamper("u1"))
+    core.start(0.0)
+    core.will()
+    core.on_connect(0.0)
+    core.tick(lambda: FREE, refuse, 0.2)
+    return core
+
+
+def charge_order(update: int, charge: Cell | None) -> bytes:
+    return encode(
+        Order(
+            header=COORDINATOR("order"), order_id="o1", update_id=update, released=[], charge=charge
+        )
+    )
+
+
+def test_the_factsheet_says_the_energy_model_and_every_state_the_exact_charge() -> None:
+    logic = UnitLogic(
+        "u1", GridMap.from_rows(OPEN), Cell(0, 1), 5.0, 0.1, battery=Battery(ENERGY, 83.46)
+    )
+    core = UnitCore(logic, Topics("gf"), color="#d32f2f", stamp=stamper("u1"))
+    core.start(0.0)
+    factsheet, told = published(core.on_connect(0.0), ROOT)[1:3]
+    assert factsheet[1]["energy"] == {
+        "move_pct": 1.0,
+        "idle_pct_per_s": 2.0,
+        "charge_pct_per_s": 1.0,
+    }
+    assert (told[1]["battery_pct"], told[1]["charging"]) == (83.5, False)
+
+
+def test_a_draining_unit_sends_its_state_when_the_whole_percent_changes_or_for_the_heartbeat() -> (
+    None
+):
+    core = powered(50.5)  # 50.3 after its first step, whose state went out
+    # Its steps drain it, not the clock: every step at the same `now`, 0.2 % a step all the same.
+    sent = [published(core.tick(lambda: FREE, refuse, 0.2), ROOT) for _ in range(6)]
+    # 50.1, 49.9 (a new whole percent), 49.7, 49.5, 49.3 (the heartbeat), 49.1
+    assert [bool(s) for s in sent] == [False, True, False, False, True, False]
+    assert sent[1] == [state(2, step=3, battery_pct=49.9)]
+    assert sent[4] == [state(3, step=6, battery_pct=49.3)]  # the exact figure, every time
+
+
+def test_charging_goes_out_with_the_next_step_and_its_end_too() -> None:
+    core = powered(50.3)  # 50.1 after its first step
+    assert core.on_message(ROOT + "units/u1/order", charge_order(1, CHARGER), 0.25) == []
+    assert published(core.tick(lambda: FREE, refuse, 0.3), ROOT) == [
+        state(2, step=2, order_id="o1", order_update_id=1, battery_pct=50.2, charging=True)
+    ]
+    assert core.tick(lambda: FREE, refuse, 0.4) == []  # 50.3: nothing new
+    assert core.on_message(ROOT + "units/u1/order", charge_order(2, None), 0.45) == []
+    assert published(core.tick(lambda: FREE, refuse, 0.5), ROOT) == [
+        state(3, step=4, order_id="o1", order_update_id=2, battery_pct=50.1)
+    ]
+
+
+def test_ordered_to_charge_where_no_charger_is_the_next_state_says_so_once() -> None:
+    core = powered(50.3)
+    elsewhere = encode(
+        Order(
+            header=COORDINATOR("order"),
+            order_id="o1",
+            update_id=1,
+            released=[Cell(1, 1)],
+            charge=Cell(1, 1),
+        )
+    )
+    assert published(core.on_message(ROOT + "units/u1/order", elsewhere, 0.25), ROOT) == [
+        direction("E")
+    ]
+    no_charger = {
+        "code": "no_charger",
+        "message": "ordered to charge on [1, 1], which is no charger",
+    }
+    assert published(core.tick(lambda: FREE, allow, 0.3), ROOT) == [
+        state(
+            2,
+            step=2,
+            position=[1, 1],
+            direction="-",
+            status="moving",
+            order_id="o1",
+            order_update_id=1,
+            battery_pct=49.1,
+            errors=[no_charger],
+        ),
+        direction("-"),
+    ]
+    assert core.tick(lambda: FREE, refuse, 0.4) != []  # no longer moving: news, but no error
+    assert core.logic.errors == [] and not core.logic.charging
+
+
+def test_an_empty_unit_says_why_it_stays() -> None:
+    core = powered(0.1)  # 0.0 after its first step
+    assert (
+        published(
+            core.on_message(ROOT + "units/u1/order", order_bytes("o1", 1, [Cell(1, 1)]), 0.25), ROOT
+        )
+        == []
+    )
+    assert published(core.tick(lambda: FREE, refuse, 0.3), ROOT) == [
+        state(
+            2,
+            step=2,
+            status="waiting",
+            wait_reason="battery empty: cannot move",
+            order_id="o1",
+            order_update_id=1,
+            released=[[1, 1]],
+            battery_pct=0.0,
+        )
+    ]

@@ -1,5 +1,6 @@
 """A units process killed mid-job resumes where its units stood, with what they carried
-(`gridfleet robots --state FILE`), and the job completes; bad state files are refused."""
+(`gridfleet robots --state FILE`) and the charge their batteries had, and the job completes;
+bad state files are refused."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ import sqlite3
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from gridfleet.bench.system.scenario import make_scenario
+from gridfleet.energy import BatterySpec
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -102,7 +105,11 @@ def test_a_fresh_state_file_starts_from_the_scenario_and_keeps_each_step(tmp_pat
 def write_row(state: Path, *row: object) -> None:
     SavedUnits(state).close()  # the table
     with sqlite3.connect(state) as db:
-        db.execute("INSERT OR REPLACE INTO units VALUES (?, ?, ?, ?, ?)", row)
+        db.execute(
+            "INSERT OR REPLACE INTO units (id, x, y, job_id, load_kg, battery_pct)"
+            " VALUES (?, ?, ?, ?, ?, ?)",
+            row if len(row) == 6 else (*row, None),  # no battery unless the row gives one
+        )
 
 
 @pytest.mark.parametrize(
@@ -148,3 +155,44 @@ def test_a_process_s_units_step_in_groups_of_at_most_twelve_spread_over_the_step
     assert all(phases.count(p) == 10 for p in set(phases))
     few = Fleet(scenario, "mqtt://127.0.0.1:1", step=0.2, units=[u.id for u in scenario.units[:12]])
     assert {r.phase_s for r in few.shells.values()} == {0.0}  # a dozen step together
+
+
+def test_a_restarted_fleet_resumes_each_battery_where_it_was(tmp_path: Path) -> None:
+    scenario = load_scenario(PLAYFIELD)
+    powered = replace(
+        scenario,
+        units=tuple(replace(u, battery=BatterySpec(start_pct=90.0)) for u in scenario.units),
+    )
+    state = tmp_path / "units.sqlite3"
+    first = Fleet(powered, "mqtt://127.0.0.1:1", step=STEP_S, state_path=state)
+    saved = SavedUnits(state).load(powered.grid, ["unit1"])
+    assert saved["unit1"].battery_pct == 90.0  # kept from the start
+    first.saved.close()  # type: ignore[union-attr]
+    write_row(state, "unit1", 0, 0, None, 0.0, 37.5)
+    again = Fleet(powered, "mqtt://127.0.0.1:1", step=STEP_S, state_path=state)
+    battery = again.logic["unit1"].battery
+    assert battery is not None and battery.pct == 37.5 and battery.model.move_pct == 0.5
+    unit2 = again.logic["unit2"].battery
+    assert unit2 is not None and unit2.pct == 90.0
+    # A scenario without batteries ignores a saved charge.
+    plain = Fleet(scenario, "mqtt://127.0.0.1:1", step=STEP_S, state_path=state)
+    assert plain.logic["unit1"].battery is None
+
+
+def test_a_saved_charge_that_is_no_percent_is_refused(tmp_path: Path) -> None:
+    state = tmp_path / "units.sqlite3"
+    write_row(state, "unit1", 0, 0, None, 0.0, 120.0)
+    with pytest.raises(ConfigError, match=r"battery 120\.0 is not a charge of 0 to 100 %"):
+        Fleet(load_scenario(PLAYFIELD), "mqtt://127.0.0.1:1", state_path=state)
+
+
+def test_a_state_file_from_before_batteries_is_read_and_kept(tmp_path: Path) -> None:
+    state = tmp_path / "units.sqlite3"
+    with sqlite3.connect(state) as db:
+        db.execute(
+            "CREATE TABLE units (id TEXT PRIMARY KEY, x INTEGER NOT NULL, y INTEGER NOT NULL,"
+            " job_id TEXT, load_kg REAL NOT NULL)"
+        )
+        db.execute("INSERT INTO units VALUES ('unit1', 1, 0, NULL, 0.0)")
+    saved = SavedUnits(state).load(load_scenario(PLAYFIELD).grid, ["unit1"])
+    assert saved == {"unit1": Saved(Cell(1, 0))}

@@ -2,17 +2,21 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 
+from gridfleet.energy import BatterySpec
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell, Direction
 from gridfleet.protocol.messages import Leds
 from gridfleet.robots.webots.adapter import WebotsWorld
+from gridfleet.robots.webots.host import MODEL, WebotsUnit
 from gridfleet.robots.webots.settings import BROKER_ENV, read_settings
 from gridfleet.robots.webots.world_file import WorldOptions, world_text
-from gridfleet.scenario import Scenario, load_scenario
+from gridfleet.scenario import ChargerSpec, Scenario, load_scenario
 
 from support.paths import MAPS
 from support.webots_double import SceneDouble, SharedTruth, SupervisorDouble, WebotsExited
@@ -338,6 +342,14 @@ def test_an_empty_broker_field_takes_the_environment_then_the_default(make: Make
         ({"root": ("a/#",)}, "field 'root': topic root 'a/#'"),
         ({"color": (2.0, 0.0, 0.0)}, "field 'color': a colour is three numbers"),
         ({"capacity": None}, "no field 'capacity' (is it a GridUnit from gridfleet?)"),
+        (
+            {"battery": (True,), "batteryPct": (101.0,)},
+            "field 'batteryPct': 101: give a number from 0 to 100 (% of a full charge)",
+        ),
+        ({"battery": (True,), "movePct": (-0.5,)}, "field 'movePct': -0.5: give a number from 0"),
+        ({"battery": (True,), "chargePctPerS": (0.0,)}, "field 'chargePctPerS': 0: give a number"),
+        ({"chargers": (0.5, 2.0)}, "field 'chargers': square 0.5 2 is not a free square"),
+        ({"chargers": (12.0, 2.0)}, "field 'chargers': square 12 2 is not a free square"),
     ],
 )
 def test_bad_fields_are_refused_in_one_line(
@@ -356,3 +368,35 @@ def test_bad_fields_are_refused_in_one_line(
     text = str(caught.value)
     assert "\n" not in text and text.startswith("grid unit "), text
     assert message in text, text
+
+
+def test_the_battery_and_the_chargers_come_from_the_world_file(scenario: Scenario) -> None:
+    battery = BatterySpec(start_pct=40.0, move_pct=0.25, idle_pct_per_s=0.0, charge_pct_per_s=3.0)
+    units = (replace(scenario.units[0], battery=battery), *scenario.units[1:])
+    chargers = (ChargerSpec("C1", Cell(0, 9)), ChargerSpec("dock", Cell(9, 0)))
+    powered = replace(scenario, units=units, chargers=chargers)
+    scene = SceneDouble(world_text(powered), SharedTruth.from_scenario(powered))
+    settings = read_settings(scene.robot("unit1"), environ={})
+    assert settings.battery == battery
+    assert settings.chargers == {Cell(0, 9), Cell(9, 0)}
+    other = read_settings(scene.robot("unit2"), environ={})
+    assert other.battery is None and other.chargers == settings.chargers
+    unit = WebotsUnit(scene.robot("unit1"), settings)
+    try:
+        logic = unit.logic
+        assert logic.battery is not None and logic.battery.pct == 40.0
+        assert logic.chargers == settings.chargers
+        factsheet = json.loads(unit.runner.core.on_connect(0.0)[1].payload)
+        assert factsheet["model"] == MODEL and factsheet["energy"] == {
+            "move_pct": 0.25,
+            "idle_pct_per_s": 0.0,
+            "charge_pct_per_s": 3.0,
+        }
+    finally:
+        unit.webots.close()
+
+
+def test_a_world_without_batteries_gives_units_that_never_run_down(make: Make) -> None:
+    _, robot, _ = make()
+    settings = read_settings(robot, environ={})
+    assert settings.battery is None and settings.chargers == frozenset()

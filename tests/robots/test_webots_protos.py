@@ -86,6 +86,12 @@ def test_the_grid_units_controller_fields_are_unconnected_and_keep_their_default
         "broker": ("SFString", ("",)),
         "root": ("SFString", ("gridfleet",)),
         "mirror": ("SFBool", (False,)),
+        "battery": ("SFBool", (False,)),
+        "batteryPct": ("SFFloat", (100.0,)),
+        "movePct": ("SFFloat", (0.5,)),
+        "idlePctPerS": ("SFFloat", (0.01,)),
+        "chargePctPerS": ("SFFloat", (2.0,)),
+        "chargers": ("MFVec2f", []),
     }
     for name, declared in controller_only.items():
         assert proto.keywords[name] == "unconnectedField", name

@@ -61,9 +61,11 @@ class FieldDouble:
         robot: SupervisorDouble,
         value: Value | list[NodeDouble],
         live: SupervisorDouble | None = None,
+        kind: str = "",
     ) -> None:
         self.robot = robot  # the controller that holds this field (its calls are checked)
         self.value = value
+        self.kind = kind  # its PROTO type when it matters (an MFVec2f counts pairs)
         self.live = live  # set for a grid unit's translation: read from and set in the truth
 
     def _items(self) -> list[Scalar | Node | NodeDouble]:
@@ -107,7 +109,14 @@ class FieldDouble:
 
     def getCount(self) -> int:
         self.robot.api("Field.getCount")
+        if self.kind == "MFVec2f":  # the reader gives its numbers in one flat list
+            return len(numbers(self.value)) // 2
         return len(self._items())
+
+    def getMFVec2f(self, index: int) -> list[float]:
+        self.robot.api("Field.getMFVec2f")
+        assert self.kind == "MFVec2f", self.kind
+        return numbers(self.value)[2 * index : 2 * index + 2]
 
     def getMFString(self, index: int) -> str:
         self.robot.api("Field.getMFString")
@@ -199,8 +208,8 @@ class SupervisorDouble:
         self.applied: list[Applied] = []
         self.z = numbers(scene.field_value(node, "translation"))[2]
         fields = {
-            name: FieldDouble(self, scene.field_value(node, name))
-            for name in scene.unit_proto.interface
+            name: FieldDouble(self, scene.field_value(node, name), kind=kind)
+            for name, (kind, _) in scene.unit_proto.interface.items()
         }
         fields["translation"] = FieldDouble(self, (), live=self)
         self.node = NodeDouble(self, "GridUnit", fields)
@@ -218,7 +227,9 @@ class SupervisorDouble:
 
     def seen_by(self, robot: SupervisorDouble) -> NodeDouble:
         """This unit's node as another robot's controller finds it in the scene tree."""
-        fields = {n: FieldDouble(robot, f.value, f.live) for n, f in self.node.fields.items()}
+        fields = {
+            n: FieldDouble(robot, f.value, f.live, f.kind) for n, f in self.node.fields.items()
+        }
         return NodeDouble(robot, "GridUnit", fields)
 
     # -- the API ---------------------------------------------------------------------------------

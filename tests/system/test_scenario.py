@@ -9,7 +9,13 @@ import pytest
 from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import format_map, load_map, parse_map
-from gridfleet.scenario import load_scenario, with_units
+from gridfleet.scenario import (
+    BatterySpec,
+    ChargerSpec,
+    ChargingSpec,
+    load_scenario,
+    with_units,
+)
 
 ANCHORS = Path(__file__).resolve().parents[3] / "shared" / "anchors" / "maps"
 MAP = "type octile\nheight 3\nwidth 4\nmap\n....\n.@..\n....\n"
@@ -175,3 +181,76 @@ def test_with_units_passes_a_fleet_and_refuses_a_map_only_scenario(tmp_path: Pat
     with pytest.raises(ScenarioError, match="no units to run") as info:
         with_units(load_scenario(tmp_path / "empty.toml"))
     assert str(tmp_path / "empty.toml") in str(info.value)
+
+
+# ---- energy: [battery], a unit's battery, [[chargers]], [charging] -----------------------------
+
+
+def test_batteries_chargers_and_thresholds_load_with_their_defaults(tmp_path: Path) -> None:
+    (tmp_path / "m.map").write_text(MAP)
+    path = tmp_path / "energy.toml"
+    path.write_text(
+        'map = "m.map"\n'
+        "[battery]\nstart_pct = 90\nmove_pct = 0.25\n"
+        + UNIT
+        + "battery = { start_pct = 40.0 }\n"
+        + UNIT.replace('"u1"', '"u2"').replace("[0, 0]", "[3, 0]")
+        + '[[chargers]]\nsquare = [0, 2]\n[[chargers]]\nsquare = [3, 2]\nname = "dock"\n'
+        + '[charging]\ncritical_pct = 15\navailable_from = "full"\n'
+    )
+    s = load_scenario(path)
+    assert s.unit("u1").battery == BatterySpec(start_pct=40.0, move_pct=0.25)
+    assert s.unit("u2").battery == BatterySpec(start_pct=90.0, move_pct=0.25)
+    assert s.chargers == (ChargerSpec("C1", Cell(0, 2)), ChargerSpec("dock", Cell(3, 2)))
+    assert s.charging == ChargingSpec(critical_pct=15.0, available_from="full")
+
+
+def test_without_a_battery_table_units_never_run_down(tmp_path: Path) -> None:
+    (tmp_path / "m.map").write_text(MAP)
+    path = tmp_path / "plain.toml"
+    path.write_text('map = "m.map"\n' + UNIT)
+    s = load_scenario(path)
+    assert s.unit("u1").battery is None and s.chargers == () and s.charging == ChargingSpec()
+    path.write_text('map = "m.map"\n' + UNIT + "battery = { move_pct = 1 }\n")
+    assert load_scenario(path).unit("u1").battery == BatterySpec(move_pct=1.0)
+
+
+CHARGER = "[[chargers]]\nsquare = [0, 2]\n"
+
+
+@pytest.mark.parametrize(
+    ("body", "line", "problem"),
+    [
+        ("[battery]\nstart_pct = 101\n", 2, "[battery]: 'start_pct' must be a number from 0 to"),
+        ("[battery]\nmove_pct = -1\n", 2, "'move_pct' must be a number 0 or more and at most"),
+        ('[battery]\nidle_pct_per_s = "a"\n', 2, "'idle_pct_per_s' must be a number 0 or more"),
+        ("[battery]\ncharge_pct_per_s = 0\n", 2, "'charge_pct_per_s' must be a number greater"),
+        ("[battery]\nvolts = 12\n", 2, "[battery]: unknown key 'volts'"),
+        (UNIT + "battery = { start_pct = -5 }\n", 2, "unit 'u1': battery: 'start_pct' must be"),
+        (UNIT + "battery = { amps = 1 }\n", 2, "unit 'u1': battery: unknown key 'amps'"),
+        (UNIT + "battery = 40\n", 2, "unit 'u1': 'battery' must be a table"),
+        (CHARGER.replace("[0, 2]", "[4, 2]"), 2, "charger 'C1': square [4, 2] is off the 4x3 map"),
+        (CHARGER.replace("[0, 2]", "[1, 1]"), 2, "charger 'C1': square [1, 1] is on a wall"),
+        ("hidden_obstacles = [[0, 2]]\n" + CHARGER, 3, "square [0, 2] is a hidden obstacle"),
+        (CHARGER * 2, 4, "charger 'C2': square [0, 2] already has charger 'C1'"),
+        (
+            CHARGER + CHARGER.replace("[0, 2]", "[3, 2]") + 'name = "C1"\n',
+            4,
+            "charger 'C1': name used twice",
+        ),
+        ("[charging]\ngood_pct = 10\n", 2, "thresholds must rise"),
+        ('[charging]\navailable_from = "half"\n', 2, "'available_from' must be \"sufficient\""),
+    ],
+)
+def test_bad_energy_keys_fail_with_one_clear_line(
+    tmp_path: Path, body: str, line: int, problem: str
+) -> None:
+    (tmp_path / "m.map").write_text(MAP)
+    path = tmp_path / "bad.toml"
+    path.write_text('map = "m.map"\n' + body)
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert message.startswith(f"{path}:{line}:"), message
+    assert problem in message, message

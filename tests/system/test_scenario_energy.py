@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.energy import BatterySpec, ChargingSpec
 from gridfleet.errors import ScenarioError
 from gridfleet.grid import Cell
-from gridfleet.scenario import BatterySpec, ChargingSpec, load_scenario
+from gridfleet.scenario import load_scenario
 
 MAP = "type octile\nheight 3\nwidth 5\nmap\n.....\n.@...\n.....\n"
 UNITS = """

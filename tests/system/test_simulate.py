@@ -187,3 +187,70 @@ def test_an_idle_unit_in_a_pocket_makes_way_for_a_job_ending_there(tmp_path: Pat
     assert result["collisions"] == 0
     assert [(j["state"], j["unit"]) for j in result["jobs"]] == [("done", "runner")]
     assert {u["id"]: u["position"] for u in result["units"]}["runner"] == [0, 0]
+
+
+ENERGY_MAP = "type octile\nheight 3\nwidth 6\nmap\n......\n......\n......\n"
+ENERGY_SCENARIO = (
+    'map = "energy.map"\n'
+    '[[units]]\nid = "runner"\nstart = [0, 0]\ncapacity = 5.0\n'
+    "battery = { start_pct = 90.0, move_pct = 1.0, idle_pct_per_s = 0.1 }\n"
+    '[[units]]\nid = "flat"\nstart = [5, 2]\ncapacity = 5.0\nbattery = { start_pct = 0.0 }\n'
+    '[[units]]\nid = "mains"\nstart = [5, 0]\ncapacity = 1.0\n'  # no battery table: none
+    "[[chargers]]\nsquare = [0, 2]\n"
+    '[[jobs]]\nid = "near"\npickup = [1, 0]\ndropoff = [3, 1]\nmass = 2.0\n'
+)
+
+
+def _energy_scenario(tmp_path: Path) -> Path:
+    (tmp_path / "energy.map").write_text(ENERGY_MAP)
+    path = tmp_path / "energy.toml"
+    path.write_text(ENERGY_SCENARIO)
+    return path
+
+
+def _check_energy_figures(result: dict[str, Any]) -> None:
+    """What each unit's battery went through, as its moves and the run's steps say it must."""
+    units = {u["id"]: u for u in result["units"]}
+    assert [(j["id"], j["state"], j["unit"]) for j in result["jobs"]] == [
+        ("near", "done", "runner")
+    ]
+    runner, flat, mains = units["runner"], units["flat"], units["mains"]
+    assert runner["moves"] >= 4 and runner["charges"] == 0 and runner["charging_steps"] == 0
+    # A move costs 1 %, a step standing 0.1 %: a simulated step is a second of a battery's life
+    # at any step period (the units' steps over MQTT are their own: a few more than the
+    # coordinator's, while the run shuts down).
+    assert runner["lowest_battery_pct"] == runner["battery_pct"]  # it only ever drained
+    assert 90.0 - runner["moves"] - 0.1 * result["steps"] - 1.0 <= runner["battery_pct"]
+    assert runner["battery_pct"] <= 90.0 - runner["moves"]
+    assert runner["reached_empty"] is False
+    # At 0 % from the start: it never moved, and it is counted as having been empty.
+    assert (flat["moves"], flat["battery_pct"], flat["lowest_battery_pct"]) == (0, 0.0, 0.0)
+    assert flat["reached_empty"] is True and flat["position"] == [5, 2]
+    # A unit without a battery: nulls.
+    assert (mains["battery_pct"], mains["lowest_battery_pct"], mains["charges"]) == (None, None, 0)
+    assert mains["reached_empty"] is False
+    assert result["units_empty"] == 1 and result["collisions"] == 0
+
+
+def test_a_deterministic_run_reports_each_units_battery_charges_and_moves(tmp_path: Path) -> None:
+    path = _energy_scenario(tmp_path)
+    out = simulate(str(path), "--deterministic", "--step", "0.1", "--max-steps", "300", "--json")
+    result = _without_wall_time(out)
+    _check_energy_figures(result)
+    runner = next(u for u in result["units"] if u["id"] == "runner")
+    # In lockstep every unit steps once a coordinator step: the exact figure.
+    standing = result["steps"] - runner["moves"]
+    assert runner["battery_pct"] == round(90.0 - runner["moves"] - 0.1 * standing, 1)
+    again = _without_wall_time(
+        simulate(str(path), "--deterministic", "--step", "0.1", "--max-steps", "300", "--json")
+    )
+    assert again == result
+    human = simulate(str(path), "--deterministic", "--step", "0.1", "--max-steps", "300")
+    assert "batteries: lowest 0.0 % (flat), 0 charges, 1 ran empty" in human.stdout
+
+
+def test_a_run_over_mqtt_reports_the_same_battery_figures(tmp_path: Path) -> None:
+    path = _energy_scenario(tmp_path)
+    out = simulate(str(path), "--step", "0.05", "--max-steps", "600", "--json")
+    assert out.returncode == 0, failure_report(out)
+    _check_energy_figures(json.loads(out.stdout))
