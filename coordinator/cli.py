@@ -8,23 +8,34 @@ import math
 
 from gridfleet.config import check_step
 from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, Identity
+from gridfleet.coordinator.energy import POLICIES, EnergySettings
 from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS
 from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
-from gridfleet.errors import ConfigError
+from gridfleet.energy import ChargingSpec
+from gridfleet.errors import ConfigError, ScenarioError
+from gridfleet.grid import GridMap
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.metrics import add_metrics_arguments, metrics_options
 from gridfleet.options import accounts_of, add_common, broker_url
+from gridfleet.protocol import Charger
 from gridfleet.protocol.constants import DEFAULT_STEP_S
+from gridfleet.scenario import load_scenario
 from gridfleet.tasks import stop_on_signals
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet coordinator`."""
     add_common(parser)
-    parser.add_argument("--map", required=True, metavar="FILE", help="Moving AI .map file")
+    parser.add_argument(
+        "--map",
+        required=True,
+        metavar="FILE",
+        help="Moving AI .map file, or a scenario .toml: its map, its [[chargers]] and its "
+        "[charging] thresholds (its units and jobs are not the coordinator's: they come over MQTT)",
+    )
     parser.add_argument(
         "--step",
         type=float,
@@ -70,7 +81,72 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(gridfleet broker with --accounts does; Mosquitto does not): with --accounts, the "
         "audit marks the accounts it names verified",
     )
+    energy = parser.add_argument_group(
+        "energy (protocol.md §5.9; each flag overrides the scenario's [charging])"
+    )
+    for name, what in (
+        ("critical", "at or below: no job, to a charger at once"),
+        ("good", "below, and idle: to a charger"),
+        ("sufficient", "a charging unit takes jobs again from here"),
+        ("full", "a charging unit with nothing to do charges up to here"),
+    ):
+        energy.add_argument(
+            f"--{name}-pct",
+            type=float,
+            default=None,
+            metavar="PCT",
+            help=f"{what} (default {getattr(ChargingSpec(), f'{name}_pct'):g})",
+        )
+    energy.add_argument(
+        "--available-from",
+        choices=("sufficient", "full"),
+        default=None,
+        help="from which threshold a charging unit takes jobs again (default sufficient)",
+    )
+    energy.add_argument(
+        "--energy-policy",
+        choices=POLICIES,
+        default="gridfleet",
+        help="gridfleet (default): the thresholds above with margins; naive: to the nearest "
+        "charger only at critical, no check that a job can be finished, charged to full "
+        "(a baseline to compare against)",
+    )
     add_metrics_arguments(parser, "the coordinator")
+
+
+def energy_settings(args: argparse.Namespace, charging: ChargingSpec) -> EnergySettings:
+    """The thresholds: the scenario's [charging] (or the defaults), each flag given over it;
+    ConfigError in one line when they cannot work."""
+
+    def pick(name: str, own: float) -> float:
+        given = getattr(args, f"{name}_pct")
+        return own if given is None else float(given)
+
+    spec = ChargingSpec(
+        pick("critical", charging.critical_pct),
+        pick("good", charging.good_pct),
+        pick("sufficient", charging.sufficient_pct),
+        pick("full", charging.full_pct),
+        args.available_from or charging.available_from,
+    )
+    settings = EnergySettings.of(spec, args.energy_policy)
+    problem = settings.problem()
+    if problem is not None:
+        raise ConfigError(f"charging thresholds: {problem}")
+    return settings
+
+
+def map_and_chargers(path: str) -> tuple[GridMap, tuple[Charger, ...], ChargingSpec]:
+    """A .map (no chargers, default thresholds), or a scenario .toml's map, chargers and
+    [charging]."""
+    if not path.endswith(".toml"):
+        return load_map(path), (), ChargingSpec()
+    try:
+        scenario = load_scenario(path)
+    except ScenarioError as exc:
+        raise ConfigError(str(exc)) from exc
+    chargers = tuple(Charger(name=c.name, square=c.square) for c in scenario.chargers)
+    return scenario.grid, chargers, scenario.charging
 
 
 def run(args: argparse.Namespace) -> int:
@@ -83,7 +159,8 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.history_days < math.inf:
         raise ConfigError(f"--history-days {args.history_days:g}: give more than 0 days")
     identity = Identity(accounts_of(args), vouched=args.vouched_senders)
-    grid = load_map(args.map)
+    grid, chargers, charging = map_and_chargers(args.map)
+    energy = energy_settings(args, charging)
     coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),
         grid,
@@ -96,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
         identity=identity,
         audit_days=args.audit_days,
         history_days=args.history_days,
+        chargers=chargers,
+        energy=energy,
     )
 
     async def main() -> None:

@@ -34,12 +34,20 @@ from functools import partial
 from gridfleet.coordinator import inbound, requests
 from gridfleet.coordinator.answers import Answers
 from gridfleet.coordinator.audit import READ_ROLES, AuditLog, Identity
+from gridfleet.coordinator.chargers import ChargerBook
 from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.effects import Effects, Messages, Status
+from gridfleet.coordinator.energy import (
+    Battery,
+    ChargeNews,
+    EnergyPolicy,
+    EnergySettings,
+    EnergyStep,
+)
 from gridfleet.coordinator.events import EventLog
 from gridfleet.coordinator.inbound import Arrival, Request, StopPayload
 from gridfleet.coordinator.inbox import Inbox, Refusals, Waiting
-from gridfleet.coordinator.jobs import Job, JobBook
+from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
 from gridfleet.coordinator.moves import Moves
 from gridfleet.coordinator.orders import OrderPlan, Orders, StepContext, heartbeat_s
 from gridfleet.coordinator.pace import StepRate
@@ -72,7 +80,7 @@ from gridfleet.protocol import (
     UnitState,
 )
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, REMOVED_UNIT_KINDS
-from gridfleet.protocol.messages import AuditLogin, AuditQuery, UnitControlState
+from gridfleet.protocol.messages import AuditLogin, AuditQuery, ChargeEntry, UnitControlState
 
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
 # period after it, or this long when the period is shorter, and only while more than a third of
@@ -111,9 +119,14 @@ class CoordinatorCore:
         window: int = DEFAULT_WINDOW,
         identity: Identity | None = None,
         removals: Mapping[str, Removal] | None = None,
+        energy: EnergySettings | None = None,
     ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window {window}: give 1 to {MAX_WINDOW} squares")
+        settings = energy or EnergySettings()
+        problem = settings.problem()
+        if problem is not None:
+            raise ValueError(f"charging thresholds: {problem}")
         self.window = window  # squares a unit may be released ahead (window.py)
         self.world = world
         self.jobs = jobs
@@ -145,6 +158,9 @@ class CoordinatorCore:
         # Its own failures on messages (bugs): told on `errors` by the class alone, at most once
         # a second per topic (gridfleet/failures.py); those held back go out with the steps.
         self.failures = FailureReports("coordinator")
+        # Who charges where, and how far each unit may still drive (energy.py, chargers.py).
+        self.energy = EnergyPolicy(settings, ChargerBook(world.chargers), world.step_period_s)
+        self._charges: list[ChargeEntry] = []  # charges started and ended, for the history
         self.events.know(jobs.jobs.values())
         self.progress.requeue_on_restart()
 
@@ -174,6 +190,7 @@ class CoordinatorCore:
         self.stop.connected(now)
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
+        self.energy.dirty = True
         persist = self._persist()
         notes: list[Note] = []
         clears = [out for unit in self.removals.uncleared() for out in self._clears(unit)]
@@ -415,6 +432,7 @@ class CoordinatorCore:
                 account=partial(self._open_jobs_of, sender),
                 requeue=self.progress.requeue,
                 now=now,
+                energy=self.energy,
             )
             outcome = requests.HANDLERS[type(req)](req, ctx)
             controls = tuple(ctx.controls)
@@ -466,6 +484,7 @@ class CoordinatorCore:
         self.orders.forget(unit)
         self.progress.forget(unit)
         self.planner.forget(unit)
+        self.energy.forget(unit)
         self.directives.set_goal(unit, None)
         lifted: tuple[tuple[str, UnitControlState | None], ...] = ()
         if self.directives.controls.get(unit) is not None:
@@ -595,10 +614,16 @@ class CoordinatorCore:
         active = self._roll_call(now)
         self.progress.advance(units, active, now, self.step_no)
         settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
-        self._allocate(units, active, settled, now)
+        energy = self._energy(units, active, now)
+        self._allocate(units, active, settled, now, energy)
         self._explain_waits(now, active)
         targets = {u.id: self.progress.target(u.id) for u in units}
-        moves = self._moves(units, active, settled, targets)
+        for uid, square in energy.targets.items():
+            if targets.get(uid) is None:  # a job, a goal or an item to put back goes first
+                targets[uid] = square
+        charges = {uid: sq for uid, sq in energy.targets.items() if targets.get(uid) == sq}
+        self._tell_charges(self.energy.take_news())
+        moves = self._moves(units, active, settled, targets, energy.standing)
         self._park(targets)
         # While a way out of a livelock is due, searched or followed, no window goes beyond a
         # unit's next square, so units still driving stop and the search can begin (unjam.py).
@@ -617,6 +642,7 @@ class CoordinatorCore:
             held=self.directives.controls,
             router=self.planner,
             claims=self._claims(units, moves, targets, window),
+            charges=charges,
         )
         return self._orders(units, active, step)
 
@@ -629,14 +655,114 @@ class CoordinatorCore:
             self.events.unit_changed(self.say.stamp.now(), unit, "heard")
         return active
 
+    def _energy(self, units: list[UnitRecord], active: set[str], now: float) -> EnergyStep:
+        """The energy policy's step (energy.py): every active unit that reports its charge in;
+        the jobs of units that must charge at once go back to the queue."""
+        batteries = []
+        for u in units:
+            st, fs = u.state, u.factsheet
+            if st is None or fs is None or fs.energy is None or st.battery_pct is None:
+                continue
+            if u.id not in active:
+                continue
+            job = self.jobs.of_unit(u.id)
+            carrying = (job is not None and job.state in CARRYING_STATES) or (
+                u.id in self.progress.returns
+            )
+            control = self.directives.controls.get(u.id)
+            goal = u.id in self.directives.goals
+            free = (
+                job is None
+                and not goal
+                and control is None
+                and st.job_id is None
+                and st.mode == "coordinated"
+                and not st.estop
+            )
+            batteries.append(
+                Battery(
+                    id=u.id,
+                    position=st.position,
+                    pct=st.battery_pct,
+                    model=fs.energy,
+                    charging=st.charging,
+                    free=free,
+                    job=job is not None and not carrying,
+                    carrying=carrying,
+                    held=control == "paused",
+                    goal=goal,
+                    out_of_service=control == "out_of_service",
+                )
+            )
+        step = self.energy.plan(batteries, self.planner.cache.distance, now)
+        for uid, why in step.requeue.items():
+            job = self.jobs.of_unit(uid)
+            if job is not None and job.state not in CARRYING_STATES:
+                self.progress.requeue(job, why)
+        return step
+
+    def _to_charger(self, square: Cell) -> int | None:
+        """Squares from `square` to its nearest charger (None: none can be reached)."""
+        near = self.energy.chargers.nearest(square, self.planner.cache.distance)
+        return None if near is None else near[1]
+
     def _allocate(
-        self, units: list[UnitRecord], active: set[str], settled: set[str], now: float
+        self,
+        units: list[UnitRecord],
+        active: set[str],
+        settled: set[str],
+        now: float,
+        energy: EnergyStep,
     ) -> None:
-        """Queued jobs to idle units that can carry them, and assigned ones under way."""
+        """Queued jobs to idle units that can carry them (and finish them on their charge), and
+        assigned ones under way; a unit charging that is given one leaves its charger."""
         if self.estop:
             return
-        self.progress.allocate(units, active, settled, self.planner.cache, self.step_no, now)
+        pcts = self.energy.pcts if self.energy.settings.policy == "gridfleet" else None
+        given = self.progress.allocate(
+            units,
+            active,
+            settled,
+            self.planner.cache,
+            self.step_no,
+            now,
+            energy=energy,
+            to_charger=self._to_charger,
+            charge_pcts=pcts,
+        )
+        if given:
+            by_unit = {unit: job for job, unit in given.items()}
+            self.energy.given_jobs(by_unit, now, by_unit)
         self.progress.dispatch(units, active)
+
+    def _tell_charges(self, news: list[ChargeNews]) -> None:
+        """Each charge sent, started and ended, in the events; started and ended in the history."""
+        for n in news:
+            at = self.say.stamp.now()
+            where = f"at {n.charger}"
+            if n.event == "sent":
+                text = f"unit {n.unit} sent to charge {where} ({n.pct:.0f} %: {n.reason})"
+            elif n.event == "started":
+                text = f"unit {n.unit} charging {where} ({n.pct:.0f} %)"
+            elif n.event == "cancelled":
+                text = f"unit {n.unit} no longer sent to charge {where}: {n.reason}"
+            else:
+                took = "" if n.seconds is None else f" in {n.seconds:.1f} s"
+                text = (
+                    f"unit {n.unit} charged {where}: {n.from_pct or 0.0:.0f} % to {n.pct:.0f} %"
+                    f"{took} ({n.reason})"
+                )
+            self.events.add(at, "unit", text, unit=n.unit)
+            if n.event in ("started", "ended"):
+                entry = ChargeEntry(
+                    at=at,
+                    unit=n.unit,
+                    charger=n.charger,
+                    event="started" if n.event == "started" else "ended",
+                    battery_pct=max(0.0, min(100.0, n.pct)),
+                    reason=n.reason,
+                )
+                self._charges.append(entry)
 
     def _explain_waits(self, now: float, active: set[str]) -> None:
         """Every waiting job's reason (waits.py); the events tell the jobs newly stuck."""
@@ -652,6 +778,7 @@ class CoordinatorCore:
             self.directives.goals,
             self.directives.controls,
             stuck,
+            self.energy.words(self.planner.cache.distance) if self.energy.active else None,
         )
         for job in self.stuck_news.newly_stuck(self.jobs):
             at = self.say.stamp.now()
@@ -663,8 +790,10 @@ class CoordinatorCore:
         active: set[str],
         settled: set[str],
         targets: dict[str, Cell | None],
+        standing: set[str],
     ) -> dict[str, Cell]:
-        """This step's collision-free move of every settled unit free to move (moves.py)."""
+        """This step's collision-free move of every settled unit free to move (moves.py); a
+        unit charging on its charger stands, and the others go round it."""
         if self.estop:
             return {}
         movable = {
@@ -672,6 +801,7 @@ class CoordinatorCore:
             for u in units
             if u.id in settled
             and u.id not in self.directives.controls  # paused or out of service: holds
+            and u.id not in standing
             and u.state is not None
             and not u.state.estop
             and u.state.mode == "coordinated"
@@ -756,6 +886,9 @@ class CoordinatorCore:
                 out.append(self.say.fleet_map(self.world))
             if send_jobs:
                 out.append(self.say.jobs(self.jobs, self.step_no, self.world.step_period_s))
+            if self.energy.active and self.energy.changed():
+                energy = self.energy.view(self.say.stamp("energy"))
+                out.append(Outbound.of("energy", self.topics.fleet("energy"), energy))
             if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
                 view = self.events.take(self.say.stamp("events"))
                 out.append(Outbound.of("events", self.topics.fleet("events"), view))
@@ -785,10 +918,12 @@ class CoordinatorCore:
         controls: tuple[tuple[str, UnitControlState | None], ...] = (),
     ) -> Effects:
         """Everything one call of the core decided: each part handed in by the call itself."""
+        charges, self._charges = tuple(self._charges), []
         return Effects(
             publish=tuple(publish),
             persist=persist,
             events=self.events.take_fresh(),
+            charges=charges,
             controls=controls,
             removals=self.removals.take(),
             audit=self.audit.take(),

@@ -29,7 +29,7 @@ from gridfleet.protocol import (
     RouteView,
     Topics,
 )
-from gridfleet.protocol.messages import AuditPage
+from gridfleet.protocol.messages import AuditPage, ChargeEntry
 
 Status = Literal["online", "offline", "broken"]  # the coordinator's, as on the wire
 
@@ -42,6 +42,7 @@ class Effects:
     persist: tuple[Job, ...] = ()  # jobs changed: store them before publishing
     answered: tuple[Answer, ...] = ()  # answers to new requests: store them with the jobs
     events: tuple[EventEntry, ...] = ()  # new entries of the history: store them
+    charges: tuple[ChargeEntry, ...] = ()  # charges started and ended: to the job history store
     controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
     # Units removed for good, or (None) forgotten as removed once they rejoined: store them.
     removals: tuple[tuple[str, Removal | None], ...] = ()
@@ -71,6 +72,7 @@ class Messages:
             planned=plan.planned,
             target=plan.target,
             action=plan.action,
+            charge=plan.charge,
         )
         return Outbound.of("order", self.topics.unit("order", unit_id), order)
 
@@ -106,16 +108,19 @@ class Messages:
             else ("history_reply", JobHistoryPage, self.topics.history_reply(reply_to))
         )
         # Validated as a page of its kind: an entry of the other record would be refused here.
-        page = cls.model_validate(
-            {
-                "header": self.stamp(page_kind),
-                "request_id": request_id,
-                "accepted": refused is None,
-                "reason": refused,
-                "entries": list(entries),
-                "next_cursor": next_cursor,
-            }
-        )
+        # Charges (a history query of kind "charges") go in the page's `charges`.
+        charges = [e for e in entries if isinstance(e, ChargeEntry)]
+        body = {
+            "header": self.stamp(page_kind),
+            "request_id": request_id,
+            "accepted": refused is None,
+            "reason": refused,
+            "entries": [e for e in entries if not isinstance(e, ChargeEntry)],
+            "next_cursor": next_cursor,
+        }
+        if charges:
+            body["charges"] = charges
+        page = cls.model_validate(body)
         return Outbound.of(page_kind, topic, page)
 
     def error(self, topic: str, reason: str, request_id: str | None) -> Outbound:

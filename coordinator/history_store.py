@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, Key
-from gridfleet.coordinator.records import RecordQuery, page_of
-from gridfleet.protocol.messages import JobHistoryEntry, JobHistoryQuery
+from gridfleet.coordinator.records import Entry, RecordQuery, page_of
+from gridfleet.protocol.messages import ChargeEntry, JobHistoryEntry, JobHistoryQuery
 
 PRUNE_EVERY = timedelta(hours=1)
 # An entry's fields as columns (a year of a busy hall is millions of rows: no JSON keys in each).
@@ -35,6 +35,29 @@ COLUMNS = (
     ("submitted_by", "TEXT"),
 )
 _NAMES = ", ".join(c for c, _ in COLUMNS)
+# Each charge started or ended (protocol.md §6.10, query kind "charges"), in a table of its own.
+CHARGE_COLUMNS = (
+    ("unit", "TEXT NOT NULL"),
+    ("charger", "TEXT NOT NULL"),
+    ("event", "TEXT NOT NULL"),
+    ("battery_pct", "REAL NOT NULL"),
+    ("reason", "TEXT"),
+)
+_CHARGE_NAMES = ", ".join(c for c, _ in CHARGE_COLUMNS)
+
+
+def _charge(row: tuple[Any, ...]) -> ChargeEntry:
+    at, unit, charger, event, pct, reason = row
+    return ChargeEntry.model_validate(
+        {
+            "at": at,
+            "unit": unit,
+            "charger": charger,
+            "event": event,
+            "battery_pct": pct,
+            "reason": reason,
+        }
+    )
 
 
 def _row(e: JobHistoryEntry) -> tuple[object, ...]:
@@ -98,6 +121,15 @@ class HistoryStore:
                 self._db.execute(
                     f"CREATE INDEX IF NOT EXISTS job_history_{name} ON job_history ({columns})"
                 )
+            self._db.execute(
+                "CREATE TABLE IF NOT EXISTS charge_history (id INTEGER PRIMARY KEY AUTOINCREMENT, "
+                f"at REAL NOT NULL, {', '.join(f'{c} {t}' for c, t in CHARGE_COLUMNS)})"
+            )
+            for name, columns in (("at", "at"), ("unit", "unit, at")):
+                self._db.execute(
+                    f"CREATE INDEX IF NOT EXISTS charge_history_{name} "
+                    f"ON charge_history ({columns})"
+                )
         self._pruned_at: datetime | None = None
         self.prune(datetime.now(UTC))
 
@@ -118,12 +150,24 @@ class HistoryStore:
         if self._pruned_at is None or now - self._pruned_at >= PRUNE_EVERY:
             self.prune(now)
 
+    def add_charges(self, entries: Iterable[ChargeEntry]) -> None:
+        """Store charges started and ended (pruned with the job history)."""
+        rows = [
+            (e.at.timestamp(), e.unit, e.charger, e.event, e.battery_pct, e.reason) for e in entries
+        ]
+        if rows:
+            with self._db:
+                self._db.executemany(
+                    f"INSERT INTO charge_history (at, {_CHARGE_NAMES}) VALUES (?, ?, ?, ?, ?, ?)",
+                    rows,
+                )
+
     def prune(self, now: datetime) -> int:
-        """Drop the entries older than the retention; how many went."""
+        """Drop the entries (and charges) older than the retention; how many went."""
         with self._db:
-            gone = self._db.execute(
-                "DELETE FROM job_history WHERE at < ?", ((now - self.retention).timestamp(),)
-            ).rowcount
+            cut = ((now - self.retention).timestamp(),)
+            gone = self._db.execute("DELETE FROM job_history WHERE at < ?", cut).rowcount
+            gone += self._db.execute("DELETE FROM charge_history WHERE at < ?", cut).rowcount
         self._pruned_at = now
         return gone
 
@@ -140,11 +184,15 @@ class HistoryStore:
         state, unit, wait = rows[-1][2:]
         return (state, unit, wait), datetime.fromtimestamp(at - since, UTC)
 
-    def rows(self, query: RecordQuery, limit: int) -> list[tuple[int, JobHistoryEntry]]:
+    def rows(
+        self, query: RecordQuery, limit: int
+    ) -> list[tuple[int, JobHistoryEntry]] | list[tuple[int, ChargeEntry]]:
         """Up to `limit` entries of `query` (since <= at < until, its filters) after its cursor's
-        row, by time and then row (records.RecordsDesk)."""
+        row, by time and then row (records.RecordsDesk); of kind "charges", charges."""
         q = query.query
         assert isinstance(q, JobHistoryQuery), "a history store answers job history queries"
+        if q.kind == "charges":
+            return self._charge_rows(query, q, limit)
         where = ["at >= ?", "at < ?"]
         args: list[object] = [query.since, query.until]
         for column, value in (("unit", q.unit), ("job", q.job_id), ("state", q.state)):
@@ -165,8 +213,28 @@ class HistoryStore:
         ).fetchall()
         return [(int(row[0]), _entry(row[1:])) for row in rows]
 
-    def query(
-        self, query: JobHistoryQuery, now: datetime
-    ) -> tuple[list[JobHistoryEntry], str | None]:
+    def _charge_rows(
+        self, query: RecordQuery, q: JobHistoryQuery, limit: int
+    ) -> list[tuple[int, ChargeEntry]]:
+        """The charges of `query` (its unit filter; job_id and state do not apply)."""
+        where = ["at >= ?", "at < ?"]
+        args: list[object] = [query.since, query.until]
+        if q.unit is not None:
+            where.append("unit = ?")
+            args.append(q.unit)
+        if query.after is not None:
+            where.append(
+                "(at > COALESCE((SELECT at FROM charge_history WHERE id = ?), -1e18) OR "
+                "(at = (SELECT at FROM charge_history WHERE id = ?) AND id > ?))"
+            )
+            args += [query.after] * 3
+        rows = self._db.execute(
+            f"SELECT id, at, {_CHARGE_NAMES} FROM charge_history WHERE {' AND '.join(where)} "
+            "ORDER BY at, id LIMIT ?",
+            [*args, limit],
+        ).fetchall()
+        return [(int(row[0]), _charge(row[1:])) for row in rows]
+
+    def query(self, query: JobHistoryQuery, now: datetime) -> tuple[list[Entry], str | None]:
         """One page of entries for `query` (until `now` if it gives none), and the next cursor."""
         return page_of(self, RecordQuery.of("job_history", query, now))

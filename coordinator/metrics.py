@@ -7,7 +7,8 @@ Shell side only: the core stays free of clocks and HTTP. Two halves:
 - what passes through the shell (step and planner time, messages in and out, refusals, job state
   transitions, units lost and recovered, the stop's latency), counted as it happens;
 - every component's failed handlers, as their reports on `errors` tell them (gridfleet/failures.py).
-Labels are bounded: topic kinds, states, reason kinds. No job or unit ids.
+Labels are bounded: topic kinds, states, reason kinds, energy plans. No job ids; unit ids
+only on the battery gauge (one series per unit that reports energy: bounded by the fleet).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import asyncio
 import time
 from collections import Counter as Tally
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import wraps
 from typing import Any, get_args
 
@@ -31,12 +32,13 @@ from gridfleet.failures import COMPONENTS, parse_failure
 from gridfleet.failures import OTHER as OTHER_COMPONENT
 from gridfleet.metrics import read_on_loop
 from gridfleet.protocol import TOPICS, ErrorReport, decode
-from gridfleet.protocol.messages import JobState, UnitStatus
+from gridfleet.protocol.messages import EnergyPlan, JobState, UnitStatus
 from gridfleet.protocol.stop import LATCH
 
 CONNECTIONS = ("online", "offline", "broken", "unknown")  # unknown: not heard yet
 STATUSES = (*get_args(UnitStatus), "unknown")  # unknown: no state yet
 JOB_STATES: tuple[str, ...] = get_args(JobState)
+ENERGY_PLANS: tuple[str, ...] = get_args(EnergyPlan)
 STOP_SOURCES = {LATCH: "latch", "stop": "unit", "device_stop": "device"}  # topic kind -> label
 OTHER = "other"
 _TOPIC_CACHE = 4096  # topics whose kind is remembered (units x kinds; cleared when full)
@@ -80,6 +82,10 @@ class Snapshot:
     achieved_step_s: float | None
     obstacles: int
     connected: bool
+    battery: Mapping[str, float] = field(default_factory=dict)  # unit -> its charge (%)
+    plans: Mapping[str, int] = field(default_factory=dict)  # energy plan -> units
+    charges_started: int = 0
+    charged_s: float = 0.0
 
 
 def snapshot(core: CoordinatorCore, connected: bool) -> Snapshot:
@@ -105,6 +111,14 @@ def snapshot(core: CoordinatorCore, connected: bool) -> Snapshot:
         achieved_step_s=core.pace.achieved_step_s,
         obstacles=len(core.world.obstacles),
         connected=connected,
+        battery={
+            rec.id: rec.state.battery_pct
+            for rec in core.world.units.values()
+            if rec.state is not None and rec.state.battery_pct is not None
+        },
+        plans=Tally(u.plan for u in core.energy.units_view().values()),
+        charges_started=core.energy.started,
+        charged_s=core.energy.charged_s,
     )
 
 
@@ -174,6 +188,32 @@ class StateCollector:
             "gridfleet_coordinator_connected",
             "1 while the coordinator is connected to its broker.",
             value=s.connected,
+        )
+        battery = GaugeMetricFamily(
+            "gridfleet_unit_battery_percent",
+            "Each unit's charge as its latest state reports it (units that report energy).",
+            labels=["unit"],
+        )
+        for unit, pct in sorted(s.battery.items()):
+            battery.add_metric([unit], pct)
+        yield battery
+        plans = GaugeMetricFamily(
+            "gridfleet_units_energy_plan",
+            "Units the energy policy sends to, holds at or queues for a charger, or cannot help.",
+            labels=["plan"],
+        )
+        for plan in ENERGY_PLANS:
+            plans.add_metric([plan], s.plans.get(plan, 0))
+        yield plans
+        yield CounterMetricFamily(
+            "gridfleet_charges_started",
+            "Charges started (a unit's state said it charges).",
+            value=s.charges_started,
+        )
+        yield CounterMetricFamily(
+            "gridfleet_charging_seconds",
+            "Seconds units charged, over the charges ended.",
+            value=s.charged_s,
         )
         info = GaugeMetricFamily(
             "gridfleet_coordinator_info", "The coordinator's version.", labels=["version"]

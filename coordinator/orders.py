@@ -59,6 +59,8 @@ class StepContext:
     held: Container[str]  # paused or out of service by an operator: a halt order
     router: Router
     claims: Claims  # who stands on, holds, enters or intends each square (window.py)
+    # The charger square each unit sent to charge (or charging) charges on (energy.py).
+    charges: Mapping[str, Cell] = field(default_factory=dict)
 
 
 def heartbeat_s(step_period_s: float) -> float:
@@ -79,6 +81,7 @@ class OrderPlan:
     target: Cell | None
     action: Action | None
     send: bool = True  # False: nothing changed and the last one is recent; shown, not sent
+    charge: Cell | None = None  # the charger square it charges on (protocol.md §4.4, §5.9)
 
 
 @dataclass
@@ -97,6 +100,7 @@ class Track:
     forged: bool = False  # the unit follows an update we never sent: halt it, then a new order
     sent_at: float = float("-inf")  # when the latest update went out
     action: Action | None = None  # the action of the latest update
+    charge: Cell | None = None  # the charger square of the latest update
     reach: int = 1  # squares it may be released ahead: grows each time it ran dry (window.py)
 
 
@@ -237,11 +241,17 @@ class Orders:
             t.content_update = 0
             t.acked_update = 0
         action = None if estop else step.actions.get(u.id)
+        charge = None if estop else step.charges.get(u.id)  # a heartbeat repeats it
         content = released != t.sent or t.content_update == 0  # awaits an acknowledgement
-        send = content or action != t.action or now - t.sent_at >= step.heartbeat_s
+        send = (
+            content
+            or action != t.action
+            or charge != t.charge
+            or now - t.sent_at >= step.heartbeat_s
+        )
         if send:
             t.update_id += 1
-            t.sent_at, t.action = now, action
+            t.sent_at, t.action, t.charge = now, action, charge
         if content:
             t.content_update = t.update_id
             t.unacked |= set(released)
@@ -260,6 +270,7 @@ class Orders:
             target=target,
             action=action,
             send=send,
+            charge=charge,
         )
 
     def _remaining(self, u: UnitRecord, t: Track) -> list[Cell]:
@@ -333,5 +344,6 @@ class Orders:
             t.update_id += 1
             t.content_update = t.update_id
             t.sent = []
+            t.charge = None  # halt orders carry none
             out[unit_id] = OrderPlan(t.order_id, t.update_id, step_no, [], [], None, None)
         return out

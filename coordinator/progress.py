@@ -9,6 +9,8 @@ last seen. A unit that comes back with an item of a job that is over puts it bac
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
+
 from gridfleet.coordinator.allocation import (
     JobRequest,
     UnitSlot,
@@ -17,6 +19,7 @@ from gridfleet.coordinator.allocation import (
     reach_reason,
 )
 from gridfleet.coordinator.directives import Directives
+from gridfleet.coordinator.energy import EnergyStep
 from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
 from gridfleet.coordinator.returns import stray_items
 from gridfleet.coordinator.world import UnitRecord, World
@@ -170,8 +173,16 @@ class JobProgress:
         cache: DistanceFieldCache,
         step_no: int,
         now: float,
-    ) -> None:
-        """Reject what no unit can carry any more; assign queued jobs to idle, settled units."""
+        energy: EnergyStep | None = None,
+        to_charger: Callable[[Cell], int | None] = lambda _: 0,
+        charge_pcts: Mapping[str, float] | None = None,
+    ) -> dict[str, str]:
+        """Reject what no unit can carry any more; assign queued jobs to idle, settled units.
+
+        With `energy`, the units it holds back get none and the others only jobs they can finish
+        (their limits; `to_charger`: squares from a dropoff to its nearest charger). The jobs
+        given: job id -> unit id.
+        """
         # Just after a restart, the units heard so far may be only some of the fleet: a queued
         # job that only an unheard unit can carry must wait for it, not be rejected.
         if self.world.fleet_known():
@@ -197,17 +208,31 @@ class JobProgress:
                 and not u.state.estop
             ):
                 free = u.factsheet.capacity_kg - u.state.load_kg
-                slots.append(UnitSlot(u.id, u.state.position, free))
+                if energy is not None and u.id in energy.unavailable:
+                    continue
+                limit = None if energy is None else energy.limits.get(u.id)
+                pct = (charge_pcts or {}).get(u.id, 100.0)
+                if limit is None:
+                    slots.append(UnitSlot(u.id, u.state.position, free))
+                else:
+                    slots.append(
+                        UnitSlot(u.id, u.state.position, free, limit.moves, limit.stranded, pct)
+                    )
         queued = self.jobs.queued()
         if not slots or not queued:
-            return
-        requests = [JobRequest(j.id, j.pickup, j.dropoff, j.mass_kg, j.priority) for j in queued]
-        for job_id, unit_id in allocate(cache, slots, requests).items():
+            return {}
+        requests = [
+            JobRequest(j.id, j.pickup, j.dropoff, j.mass_kg, j.priority, to_charger(j.dropoff))
+            for j in queued
+        ]
+        given = allocate(cache, slots, requests)
+        for job_id, unit_id in given.items():
             job = self.jobs.jobs[job_id]
             self.jobs.set(job, "assigned", unit=unit_id, reason=None)
             # Standing still counts from here: idle before it, it was not stuck on this job.
             rec = self.world.unit(unit_id)
             rec.moved_at = now if rec.moved_at is None else max(rec.moved_at, now)
+        return given
 
     def _fail_unreachable(self, cache: DistanceFieldCache, step_no: int) -> None:
         # Discovered obstacles can wall a job's squares off for good (the map only gains them).

@@ -14,7 +14,13 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Literal, Protocol, TypeVar
 
-from gridfleet.protocol.messages import AuditEntry, AuditQuery, JobHistoryEntry, JobHistoryQuery
+from gridfleet.protocol.messages import (
+    AuditEntry,
+    AuditQuery,
+    ChargeEntry,
+    JobHistoryEntry,
+    JobHistoryQuery,
+)
 
 if TYPE_CHECKING:  # effects.py imports this module
     from gridfleet.coordinator.effects import Messages
@@ -22,7 +28,7 @@ if TYPE_CHECKING:  # effects.py imports this module
 
 RecordKind = Literal["audit", "job_history"]  # each a request kind and a store
 Query = AuditQuery | JobHistoryQuery
-Entry = AuditEntry | JobHistoryEntry
+Entry = AuditEntry | JobHistoryEntry | ChargeEntry  # charges: a history query of kind "charges"
 E = TypeVar("E", bound=Entry)
 E_co = TypeVar("E_co", bound=Entry, covariant=True)
 MAX_RANGE = timedelta(days=3660)  # ten years: anything longer is a mistake in the dates

@@ -1,5 +1,5 @@
 """Operator requests (protocol.md §6): queue a job, cancel one, send a unit to a goal, pause or
-take a unit out of service, clear obstacles, remove a lost unit for good.
+take a unit out of service or send it to charge, clear obstacles, remove a lost unit for good.
 
 Pure: each request is checked against the world and the job book by its handler in `HANDLERS`,
 `(request, RequestContext) -> Outcome`, and answered with the Outcome; a refused request changes
@@ -15,6 +15,7 @@ from typing import Any
 
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
 from gridfleet.coordinator.directives import Directives
+from gridfleet.coordinator.energy import EnergyPolicy
 from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
 from gridfleet.coordinator.world import World
 from gridfleet.errors import ProtocolError
@@ -62,6 +63,7 @@ class RequestContext:
     cleared: list[Cell] = field(default_factory=list)
     now: float = 0.0  # the core's clock (monotonic seconds): whether a unit is heard from
     removed: list[str] = field(default_factory=list)  # units removed for good: to forget
+    energy: EnergyPolicy | None = None  # who charges where: `charge` asks it (energy.py)
 
 
 def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
@@ -181,12 +183,39 @@ def set_goal(req: SetGoal, ctx: RequestContext) -> Outcome:
 
 def control(req: ControlUnit, ctx: RequestContext) -> Outcome:
     """Pause or resume a unit, take it out of service or back (protocol.md §6.4)."""
+    if req.command == "charge":
+        return _charge(req, ctx)
     before = ctx.directives.controls.get(req.unit)
     outcome = _control(req, ctx.world, ctx.jobs, ctx.directives)
     after = ctx.directives.controls.get(req.unit)
     if after != before:
         ctx.controls.append((req.unit, after))
     return outcome
+
+
+def _charge(req: ControlUnit, ctx: RequestContext) -> Outcome:
+    """Send a unit to charge (protocol.md §6.4): as soon as it carries nothing (a job not picked
+    up yet goes back to the queue), to full_pct, then it works again."""
+    unit, energy = req.unit, ctx.energy
+    rec = ctx.world.units.get(unit)
+    if rec is None:
+        return Outcome(False, f"unknown unit {unit!r}")
+    if (
+        rec.factsheet is None
+        or rec.factsheet.energy is None
+        or rec.state is None
+        or rec.state.battery_pct is None
+    ):
+        return Outcome(False, f"unit {unit} reports no energy: it has nothing to charge")
+    if energy is None or not energy.chargers.chargers:
+        return Outcome(False, "the map has no chargers")
+    if ctx.directives.controls.get(unit) == "out_of_service":
+        return Outcome(False, f"unit {unit} is out of service: put it back in service first")
+    job = ctx.jobs.of_unit(unit)
+    if job is not None and job.state not in CARRYING_STATES:
+        ctx.requeue(job, f"unit {unit} sent to charge by {ctx.sender or 'an operator'}")
+    energy.force(unit)
+    return Outcome(True)
 
 
 def _control(req: ControlUnit, world: World, jobs: JobBook, directives: Directives) -> Outcome:

@@ -14,7 +14,7 @@ import asyncio
 import logging
 import secrets
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -22,6 +22,7 @@ from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, Identity
 from gridfleet.coordinator.audit_store import AuditStore
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
+from gridfleet.coordinator.energy import EnergySettings
 from gridfleet.coordinator.history import DEFAULT_RETENTION_DAYS, JobChanges
 from gridfleet.coordinator.history_store import HistoryStore
 from gridfleet.coordinator.jobs import JobBook
@@ -31,7 +32,7 @@ from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
-from gridfleet.protocol import TOPICS, HeaderStamper, Topics
+from gridfleet.protocol import TOPICS, Charger, HeaderStamper, Topics
 from gridfleet.tasks import cancel_and_wait, first_of
 
 if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
@@ -64,6 +65,8 @@ class CoordinatorShell:
         identity: Identity | None = None,
         audit_days: float = DEFAULT_AUDIT_DAYS,
         history_days: float = DEFAULT_RETENTION_DAYS,
+        chargers: Sequence[Charger] = (),
+        energy: EnergySettings | None = None,
     ) -> None:
         self.broker = broker
         self.topics = Topics(root)
@@ -87,7 +90,7 @@ class CoordinatorShell:
             "job_history": self.history,
         }
         self.core = CoordinatorCore(
-            World(grid, step_period_s=step_s),
+            World(grid, step_period_s=step_s, chargers=tuple(chargers)),
             JobBook(self.store.load()),
             nonce=secrets.token_hex(3),
             seed=seed,
@@ -97,6 +100,7 @@ class CoordinatorShell:
             removals=self.store.load_removals(),
             window=window,
             identity=identity,
+            energy=energy,
         )
         self.core.audit.restore(self.audit_store.load_seen())
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
@@ -286,6 +290,9 @@ class CoordinatorShell:
         removals = tuple(r for e in batch for r in e.removals)
         if removals:
             self.store.save_removals(removals)
+        charges = tuple(c for e in batch for c in e.charges)
+        if charges:
+            self.history.add_charges(charges)
         events = tuple(ev for e in batch for ev in e.events)
         if events:
             self.store.save_events(events)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 from gridfleet.coordinator.jobs import Job, JobBook
 from gridfleet.coordinator.world import UnitRecord, World
@@ -30,6 +31,18 @@ def _named(items: list[str]) -> str:
     if len(items) <= NAMED:
         return ", ".join(items)
     return f"{', '.join(items[:NAMED])} and {len(items) - NAMED} more"
+
+
+class EnergyWords(Protocol):
+    """What the energy policy says of a unit that takes no job for want of charge (energy.py)."""
+
+    def charging_words(self, unit: str) -> str | None:
+        """Why `unit` takes no job now for its charge ("charging: 62 % of 80 %"), or None."""
+        ...
+
+    def short_of(self, unit: str, pickup: Cell, dropoff: Cell) -> tuple[float, float] | None:
+        """(its charge, the charge the job needs) when `unit` could not finish it, else None."""
+        ...
 
 
 # A unit with a job that has not moved for this long (steps, and at least seconds) is stuck, and
@@ -109,22 +122,24 @@ def explain_waits(
     goals: Collection[str] = (),
     controls: Mapping[str, str] | None = None,
     stuck: Stuck | None = None,
+    energy: EnergyWords | None = None,
 ) -> None:
     """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
     controls = controls or {}
     # A queued job's wait depends on its mass alone (which units could carry it, and are they
     # free): worked out once a mass, not once a job (5,000 queued jobs each listing the active
-    # ones stretched the step to half a second).
-    queued_by_mass: dict[float, Wait | None] = {}
+    # ones stretched the step to half a second). With energy, on its squares too (how far).
+    queued_by: dict[tuple[float, Cell | None, Cell | None], Wait | None] = {}
     for job in [*jobs.queued(), *jobs.active()]:
         if stopped:
             jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
         elif job.state == "queued":
-            if job.mass_kg not in queued_by_mass:
-                queued_by_mass[job.mass_kg] = _clipped(
-                    _why_queued(job, jobs, units, active, goals, controls)
+            key = (job.mass_kg, *((job.pickup, job.dropoff) if energy else (None, None)))
+            if key not in queued_by:
+                queued_by[key] = _clipped(
+                    _why_queued(job, jobs, units, active, goals, controls, energy)
                 )
-            jobs.explain(job, queued_by_mass[job.mass_kg])
+            jobs.explain(job, queued_by[key])
         else:
             why = why_waiting(job, jobs, units, active, goals, controls, stuck)
             jobs.explain(job, _clipped(why))
@@ -138,11 +153,12 @@ def why_waiting(
     goals: Collection[str] = (),
     controls: Mapping[str, str] | None = None,
     stuck: Stuck | None = None,
+    energy: EnergyWords | None = None,
 ) -> Wait | None:
     """Why `job` is not moving on now, or None when nothing holds it up."""
     controls = controls or {}
     if job.state == "queued":
-        return _why_queued(job, jobs, units, active, goals, controls)
+        return _why_queued(job, jobs, units, active, goals, controls, energy)
     held = controls.get(job.unit or "")
     if held is not None:
         return (_CONTROL_CODES[held], f"its unit {job.unit} is {_CONTROL_WORDS[held]}")
@@ -174,6 +190,7 @@ def _why_queued(
     active: Collection[str],
     goals: Collection[str],
     controls: Mapping[str, str],
+    energy: EnergyWords | None = None,
 ) -> Wait | None:
     capable = sorted(
         u.id
@@ -186,6 +203,8 @@ def _why_queued(
         return ("no_capable_unit", f"no unit that can carry {job.mass_kg} kg is online ({away})")
     busy = jobs.busy_units()
     why_not = {}
+    charging: dict[str, str] = {}  # unit -> "charging: 62 % of 80 %"
+    short: dict[str, tuple[float, float]] = {}  # unit -> (its charge, the charge the job needs)
     for u in online:
         if u in controls:
             why_not[u] = _CONTROL_WORDS[controls[u]]
@@ -193,10 +212,31 @@ def _why_queued(
             why_not[u] = "sent to a goal"
         elif u in busy or not _takes_jobs(units[u]):
             why_not[u] = "busy"
+        elif energy is not None:
+            words = energy.charging_words(u)
+            lacks = None if words is not None else energy.short_of(u, job.pickup, job.dropoff)
+            if words is not None:
+                charging[u] = why_not[u] = words
+            elif lacks is not None:
+                short[u] = lacks
+                why_not[u] = f"battery too low ({lacks[0]:.0f} %, needs {lacks[1]:.0f} %)"
     if len(why_not) < len(online):
         return None  # a free one gets it at the next allocation
     if all(why == "busy" for why in why_not.values()):
         words = f"every unit that can carry {job.mass_kg} kg is busy ({_named(online)})"
+    elif len(charging) + len(short) == len(why_not):
+        if charging:
+            each = _named([f"{u} {why}" for u, why in charging.items()])
+            return (
+                "unit_charging",
+                f"every unit that can carry {job.mass_kg} kg is charging ({each})",
+            )
+        best = max(short, key=lambda u: (short[u][0], u))
+        has, needs = short[best]
+        return (
+            "battery_low",
+            f"battery too low for this job ({best} has {has:.0f} %, needs {needs:.0f} %)",
+        )
     else:
         each = _named([f"{u} {why}" for u, why in why_not.items()])
         words = f"no unit that can carry {job.mass_kg} kg is free ({each})"

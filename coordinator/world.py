@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.protocol import Connection, Factsheet, FleetMap, Header, UnitState
+from gridfleet.protocol import Charger, Connection, Factsheet, FleetMap, Header, UnitState
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (a move under way)
@@ -70,8 +70,12 @@ class World:
     fleet_known_after_s: float = FLEET_KNOWN_AFTER_S  # 0 where every unit is there from the start
     obstacles: set[Cell] = field(default_factory=set)
     units: dict[str, UnitRecord] = field(default_factory=dict)
+    chargers: tuple[Charger, ...] = ()  # the map's chargers (protocol.md §5.2, §5.9)
 
     def __post_init__(self) -> None:
+        for c in self.chargers:
+            if not self.base.is_free(c.square):
+                raise ValueError(f"charger {c.name} at {list(c.square)} is off the map or a wall")
         self._grid = self.base.with_blocked(self.obstacles)
         self.map_id = self.base.map_id()
         self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
@@ -421,4 +425,5 @@ class World:
             height=self.base.height,
             rows=self.base.rows(),
             obstacles=self._sorted_obstacles(),
+            chargers=list(self.chargers),
         )

@@ -414,7 +414,16 @@ def rules(account: Account, topics: Topics) -> Rules:
             t.all_units("order"),
             *(
                 t.fleet(k)
-                for k in ("map", "jobs", "routes", "events", "errors", "coordinator", "estop")
+                for k in (
+                    "map",
+                    "jobs",
+                    "routes",
+                    "events",
+                    "energy",
+                    "errors",
+                    "coordinator",
+                    "estop",
+                )
             ),
             f"{t.prefix}/replies/+",
             f"{t.prefix}/audit/replies/+",  # pages of the audit trail (protocol.md §6.8)
@@ -478,7 +487,8 @@ def rules(account: Account, topics: Topics) -> Rules:
         publish = [t.fleet("alerts"), t.fleet("errors"), f"{t.prefix}/replies/+"]
         subscribe = [
             *(t.all_units(k) for k in ("connection", "state")),
-            *(t.fleet(k) for k in ("jobs", "coordinator")),
+            # The energy view: its thresholds and plans (battery_low, cannot_reach_charger).
+            *(t.fleet(k) for k in ("jobs", "coordinator", "energy")),
             *presses,
             t.fleet("estop"),
             t.request("ack_alert"),

@@ -18,11 +18,22 @@ from paho.mqtt.client import topic_matches_sub
 
 from gridfleet.console.feed import scenario_job_id
 from gridfleet.coordinator.core import CoordinatorCore
+from gridfleet.coordinator.energy import EnergySettings
 from gridfleet.coordinator.jobs import JobBook
 from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import HeaderStamper, Reply, SetGoal, SubmitJob, Topics, decode, encode
+from gridfleet.protocol import (
+    Charger,
+    HeaderStamper,
+    Reply,
+    SetGoal,
+    SubmitJob,
+    Topics,
+    decode,
+    encode,
+)
+from gridfleet.robots.battery import Battery
 from gridfleet.robots.core import UnitCore
 from gridfleet.robots.unit import UnitLogic
 from gridfleet.robots.world import WorldSim
@@ -81,6 +92,7 @@ class Lockstep:
         seed: int = 0,
         root: str = "sim",
         window: int = DEFAULT_WINDOW,
+        policy: str = "gridfleet",  # the coordinator's energy policy (coordinator/energy.py)
     ) -> None:
         self.scenario = scenario
         self.step_s = step_s
@@ -91,16 +103,35 @@ class Lockstep:
         self.world = WorldSim(grid, scenario.hidden_obstacles, starts)
         self.core = CoordinatorCore(
             # Every unit is here before the first step: none can be heard late.
-            World(grid, step_period_s=step_s, fleet_known_after_s=0.0),
+            World(
+                grid,
+                step_period_s=step_s,
+                fleet_known_after_s=0.0,
+                chargers=tuple(Charger(name=c.name, square=c.square) for c in scenario.chargers),
+            ),
             JobBook(),
             nonce=f"seed{seed}",
             seed=seed,
             topics=self.topics,
             stamp=HeaderStamper("coordinator"),
             window=window,
+            energy=EnergySettings.of(scenario.charging, policy),
         )
+        chargers = frozenset(c.square for c in scenario.chargers)
         self.units = [
-            UnitCore(UnitLogic(u.id, grid, u.start, u.capacity, step_s), self.topics, color=u.color)
+            UnitCore(
+                UnitLogic(
+                    u.id,
+                    grid,
+                    u.start,
+                    u.capacity,
+                    step_s,
+                    battery=None if u.battery is None else Battery.from_spec(u.battery, step_s),
+                    chargers=chargers,
+                ),
+                self.topics,
+                color=u.color,
+            )
             for u in sorted(scenario.units, key=lambda u: u.id)
         ]
         self.replies: dict[str, Reply] = {}
@@ -204,7 +235,8 @@ def run_lockstep(
         prevented=sim.world.prevented,
         messages=sim.bus.messages,
     )
-    outcome.units = units_json(scenario, sim.world)
+    outcome.units = units_json(scenario, sim.world, {u.id: u.logic.battery for u in sim.units})
+    outcome.units_empty = sum(u["reached_empty"] for u in outcome.units)
     outcome.jobs = [job_json(j.view()) for j in sim.core.jobs.jobs.values()]
     outcome.goals = [goal_json(g) for g in goals]
     return outcome

@@ -128,12 +128,24 @@ class ServiceThread(Generic[S]):
 def coordinator_thread(
     scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
 ) -> ServiceThread[CoordinatorShell]:
-    """The real coordinator for a scenario's map, with its job store at `db_path`."""
+    """The real coordinator for a scenario's map, chargers and [charging], with its job store at
+    `db_path`."""
     from gridfleet.coordinator.shell import CoordinatorShell
 
     def make() -> CoordinatorShell:
+        from gridfleet.coordinator.energy import EnergySettings
+        from gridfleet.protocol import Charger
+
+        chargers = [Charger(name=c.name, square=c.square) for c in scenario.chargers]
+        kw.setdefault("energy", EnergySettings.of(scenario.charging))
         return CoordinatorShell(
-            broker_url, scenario.grid, root=root, step_s=step_s, db_path=db_path, **kw
+            broker_url,
+            scenario.grid,
+            root=root,
+            step_s=step_s,
+            db_path=db_path,
+            chargers=chargers,
+            **kw,
         )
 
     return ServiceThread(make, "gridfleet-coordinator")

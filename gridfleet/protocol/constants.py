@@ -26,6 +26,8 @@ MAX_RELEASED = 64  # squares one order may release
 MAX_PLANNED = 8192  # squares of the planned rest shown for display
 MAX_TEXT = 500  # characters of a reason or error message
 MAX_CHARGERS = 1024  # chargers one map may have
+# A factsheet's energy rates a second at most (a run 1,000 times faster than life).
+MAX_PCT_PER_S = 100_000.0
 MAX_ENERGY_UNITS = 20000  # units the energy view may list (each a few dozen bytes)
 
 # The plain-text device payloads (protocol.md §4.6, §5.1, §5.6).

@@ -12,6 +12,7 @@ from gridfleet.protocol.constants import (
     MAX_CHARGERS,
     MAX_COORD,
     MAX_ENERGY_UNITS,
+    MAX_PCT_PER_S,
     MAX_PLANNED,
     MAX_RELEASED,
     MAX_TEXT,
@@ -126,8 +127,10 @@ class EnergyModel(Model):
     """What a unit's battery does (protocol.md §4.2): the coordinator plans its charges by it."""
 
     move_pct: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]  # one move (one square)
-    idle_pct_per_s: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)]  # standing
-    charge_pct_per_s: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)]  # on a charger
+    # A second standing, a second on a charger: up to MAX_PCT_PER_S, for a simulation run faster
+    # than life states its rates per second of the run (robots/battery.py).
+    idle_pct_per_s: Annotated[float, Field(ge=0, le=MAX_PCT_PER_S, allow_inf_nan=False)]
+    charge_pct_per_s: Annotated[float, Field(gt=0, le=MAX_PCT_PER_S, allow_inf_nan=False)]
 
 
 class Factsheet(Message):

@@ -272,6 +272,8 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     coordinator = rules(accounts.get("coordinator"), T)
     assert T.all_units("order") in coordinator.publish
     assert T.fleet("events") in coordinator.publish  # the history the page shows
+    assert T.fleet("energy") in coordinator.publish  # the energy view (protocol.md §5.9)
+    assert T.fleet("energy") not in unit1.publish and T.fleet("energy") not in device.publish
     operator = rules(accounts.get("operator"), T)
     people = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
     for kind in (*people, "remove_unit"):

@@ -124,6 +124,7 @@ def hold(seq: int, update_id: int, step: int = 1) -> dict[str, Any]:
         "planned": [],
         "target": None,
         "action": None,
+        "charge": None,
     }
 
 
@@ -203,6 +204,7 @@ def test_connecting_publishes_the_map_and_the_queue_view() -> None:
                 "height": 3,
                 "rows": ["....", ".@..", "...."],
                 "obstacles": [],
+                "chargers": [],
             },
             1,
             True,
@@ -423,6 +425,7 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
                 "height": 3,
                 "rows": ["....", ".@..", "...."],
                 "obstacles": [[0, 1]],
+                "chargers": [],
             },
             1,
             True,
@@ -481,6 +484,7 @@ def test_a_step_orders_the_move_shows_the_route_and_the_changed_queue(
                 "planned": [[2, 0], [3, 0]],
                 "target": [3, 0],
                 "action": {"kind": "pick", "job_id": "job-1", "square": [3, 0], "mass_kg": 1.0},
+                "charge": None,
             },
             1,
             False,
@@ -787,6 +791,7 @@ def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a
         "reason": problem,
         "entries": [],
         "next_cursor": None,
+        "charges": [],
     }
     assert effects.records == ()
     assert published(effects) == [

@@ -57,7 +57,7 @@ def test_an_unknown_name_is_refused_naming_the_shipped_ones() -> None:
         load_scenario("nowhere")
     assert str(scenario.value) == (
         "nowhere: no such scenario file, and no shipped scenario of that name "
-        "(corridor, crossing, heavy, maze, playfield, warehouse)"
+        "(corridor, crossing, heavy, maze, playfield, playfield-energy, warehouse, warehouse-energy)"
     )
     with pytest.raises(MapError) as grid:
         load_map("nowhere")
