@@ -18,6 +18,9 @@ margin_m = 0.04           # its body beyond its reference point (states.py: it h
 legacy_actions_key = true # vda-5050-lib 1.4.0: the instant actions under `instantActions` too
 action_parameters = {stationType = "floor", loadType = "EPAL"}  # added to every pick and drop
 client_id = "acme-sn-7"   # optional: its MQTT client id, bound to its vehicle account (no other may use it)
+# optional: its battery's model (% of a full charge), the unit's factsheet `energy`; without it
+# the factsheet says `energy: null` and the coordinator does not manage its energy
+energy = { move_pct = 0.5, idle_pct_per_s = 0.01, charge_pct_per_s = 2.0 }
 ```
 
 Every problem is refused in one line naming the file, the line and the key.
@@ -44,12 +47,14 @@ from pydantic_core import ErrorDetails
 
 from gridfleet.config import CLIENT_ID, owner_of
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
+from gridfleet.protocol import EnergyModel
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.wire import Vehicle, Version
 from gridfleet.textfile import TomlFile
 
 Metres = Annotated[StrictFloat | StrictInt, Field(allow_inf_nan=False)]
 Axis = Annotated[list[StrictInt], Field(min_length=2, max_length=2)]
+Pct = Annotated[StrictFloat | StrictInt, Field(ge=0, le=100, allow_inf_nan=False)]
 
 
 class _Table(BaseModel):
@@ -61,6 +66,12 @@ class _MapTable(_Table):
     x_axis: Axis = [1, 0]
     y_axis: Axis = [0, -1]
     square_m: Annotated[StrictFloat | StrictInt, Field(gt=0, allow_inf_nan=False)] = 0.1
+
+
+class _EnergyTable(_Table):
+    move_pct: Pct  # one square driven
+    idle_pct_per_s: Pct  # a second standing
+    charge_pct_per_s: Annotated[StrictFloat | StrictInt, Field(gt=0, le=100, allow_inf_nan=False)]
 
 
 class _VehicleTable(_Table):
@@ -77,6 +88,8 @@ class _VehicleTable(_Table):
     action_parameters: dict[str, StrictStr | StrictFloat | StrictInt | StrictBool] = {}
     # The MQTT client id the vehicle connects with, if its vendor fixed one: bound to its account.
     client_id: str | None = None
+    # Its battery's model, the unit's factsheet `energy`; absent: the fleet manages no energy.
+    energy: _EnergyTable | None = None
 
 
 class _VehiclesFile(_Table):
@@ -95,6 +108,7 @@ class VehicleConfig:
     legacy_actions_key: bool
     action_parameters: Mapping[str, str | float | bool] = field(default_factory=dict)
     client_id: str | None = None  # bound to the vehicle's account (gridfleet/accounts.py)
+    energy: EnergyModel | None = None  # its battery's model; None: the fleet manages no energy
 
 
 def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
@@ -154,6 +168,13 @@ def load_vehicles(path: str | Path) -> tuple[VehicleConfig, ...]:
                 v.legacy_actions_key,
                 dict(v.action_parameters),
                 v.client_id,
+                None
+                if v.energy is None
+                else EnergyModel(
+                    move_pct=float(v.energy.move_pct),
+                    idle_pct_per_s=float(v.energy.idle_pct_per_s),
+                    charge_pct_per_s=float(v.energy.charge_pct_per_s),
+                ),
             )
         )
     for i, c in enumerate(configs):
@@ -190,7 +211,8 @@ def _shape_error(error: ErrorDetails, where: TomlFile[ConfigError]) -> Gridfleet
         return where.error(line, f"{'.'.join(loc[:-1])}: unknown key {loc[-1]!r}")
     if top == "vehicles" and len(loc) >= 3:
         line = where.table("vehicles", int(loc[1]))
-        return where.error(line, f"vehicles #{int(loc[1]) + 1}: {loc[2]}: {_words(error)}")
+        key = ".".join(loc[2:4]) if loc[2] == "energy" else loc[2]  # energy.move_pct
+        return where.error(line, f"vehicles #{int(loc[1]) + 1}: {key}: {_words(error)}")
     if top == "maps" and len(loc) >= 3:
         return where.error(where.key(loc[2]), f"maps.{loc[1]}: {loc[2]}: {_words(error)}")
     return where.error(where.key(top), f"{top}: {_words(error)}")
@@ -200,4 +222,6 @@ def _words(error: ErrorDetails) -> str:
     value: Any = error.get("input")
     if error["type"] == "missing":
         return "missing"
+    if error["type"] == "model_type":
+        return f"should be a table, got {value!r}"
     return f"{error['msg'].lower()}, got {value!r}"

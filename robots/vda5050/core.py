@@ -16,6 +16,11 @@ and `instantActions` to pause, resume and cancel.
   (`stopPause`); the squares left on its base stay reserved meanwhile. Its own emergency stop is a
   press. A `FATAL` error or a mode other than AUTOMATIC makes the unit `broken` to the fleet, as a
   lost unit, until it is well again: its job goes back to the queue.
+- **Charging** (charging.py): an order whose `charge` is the square the vehicle stands on, with
+  nothing left to drive, sends `startCharging`; an order taking it elsewhere (or naming no charge)
+  sends `stopCharging` and goes nowhere until the vehicle reports `charging` false. Its
+  `batteryState` is the unit's `battery_pct` and `charging` when its vehicles file gives it an
+  `energy` model (else the unit reports no energy).
 - **Heartbeat**: a vehicle may stay silent for 30 s; the fleet hears the unit every
   `STATE_HEARTBEAT_STEPS` steps anyway, from what the vehicle said last (`tick`).
 
@@ -51,6 +56,7 @@ from gridfleet.protocol.device import EstopSignal, encode_estop
 from gridfleet.protocol.messages import SensorReading, UnitError, UnitStatus
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.robots.fleet_side import Condition, FleetSide, letter
+from gridfleet.robots.vda5050.charging import Charge, Charging
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.inbound import VdaConnection, VdaFactsheet, VdaState, read_vda
 from gridfleet.robots.vda5050.instant import InstantKind, instant_action
@@ -68,6 +74,10 @@ VDA_QOS = {"order": 1, "instantActions": 1}  # the spec allows 0; a lost order c
 # The vehicle's states in a row the adapter failed on (a bug) before its unit is `broken`.
 UNREADABLE_STATES = 3
 MODEL = "vda5050"
+# A charge the vehicle ended itself at this battery or more ended because it was full: its unit
+# still says `charging` while its order names that charger (protocol.md §4.3: true at 100 %).
+FULL_PCT = 99.0
+EMPTY = "battery empty: cannot move"
 
 
 class VehicleCore:
@@ -108,7 +118,8 @@ class VehicleCore:
         # Back on line after it was not: its next state says whether it still has its order.
         self.reconnected = False
         self.view: VehicleView | None = None
-        self.nodes_left = 0  # nodes of its order still ahead, by its last state
+        self.nodes_left = 0  # released nodes of its order still ahead, by its last state
+        self.horizon_left = 0  # and nodes of its horizon (not released)
         self.square: Cell | None = None
         self.stop = StopView()
         self.instants = PauseCancel()  # our pause, resume and cancel, until the vehicle shows them
@@ -123,6 +134,10 @@ class VehicleCore:
         self.load_kg = 0.0
         self.errors: list[UnitError] = []
         self.refusals = Refusals()  # new orders refused in a row; whether it refuses every route
+        self.charging = Charging()  # our startCharging / stopCharging, until its state shows them
+        self.charge_at: Cell | None = None  # the charger gridfleet's latest order names
+        # An order held back for the charge would move it: no new charge until the next order.
+        self.charge_leave = False
         self.unreadable = 0  # the vehicle's states in a row the adapter failed on (`on_failure`)
         self.step = 0
         self._condition_sent: tuple[object, ...] | None = None
@@ -202,6 +217,7 @@ class VehicleCore:
             # as a lost unit's, and its squares stay reserved as long as the coordinator keeps a
             # lost unit's.
             self.instants.let_go()
+            self.charging.let_go()
             return self._goodbye("offline" if self.link == "OFFLINE" else "broken")
         outs: list[Outbound] = []
         if self.view is None or not self.announced:
@@ -234,6 +250,7 @@ class VehicleCore:
                 self._lost_order()
         self.resend.seen(message.orderId, message.orderUpdateId, refuses(message))
         self.nodes_left = sum(1 for n in message.nodeStates if n.released)
+        self.horizon_left = len(message.nodeStates) - self.nodes_left
         outs: list[Outbound] = []
         square = reported_square(self.square, view.under, self.orders.base)
         if square is None:
@@ -260,6 +277,7 @@ class VehicleCore:
         cancelled = self.instants.cancel_done(view.finished | view.failed)
         if cancelled and not view.driving and self.nodes_left == 0:
             outs += self._after_cancel(view, now)
+        outs += self._charge_seen(message, view) + self._follow_charge(now)
         self._refusals(message)
         if view.estop and not self.pressed:
             self.pressed = True
@@ -381,7 +399,7 @@ class VehicleCore:
             outs += self._instant("stopPause", now)
         if self.instants.cancel_state is Cancel.ENDED and self.view is not None:
             outs += self._after_cancel(self.view, now)
-        return outs
+        return outs + self._follow_charge(now)
 
     def _pause(self, now: float) -> list[Outbound]:
         if self.link != "ONLINE" or not self.instants.pause():
@@ -416,19 +434,149 @@ class VehicleCore:
                 self.instants.start_cancel(action_id)
                 return self._instant("cancelOrder", now, action_id) + self.state()
             return self.state()
+        self._charge_ordered(order, released)
         if released and self._finished_base():
             self.orders.end()  # it stands at the end of its order: the next one is new
+        if self._charge_holds() and self.orders.adds(self.square, released, planned, order.action):
+            # A charging vehicle takes no order (VDA 5050: it reports charging false only once
+            # it is ready for one): acknowledged, it goes nowhere; one that would move it stops
+            # the charge, and the coordinator's next order after that goes to the vehicle.
+            self.order_id, self.update_id = order.order_id, order.update_id
+            if released or order.action is not None:
+                self.charge_leave = True
+            return self._follow_charge(now) + self.state()
         try:
             message = self.orders.order(self.square, released, planned, order.action, now)
         except ValueError as exc:
             return self._refuse(topic, str(exc))
         self.order_id, self.update_id = order.order_id, order.update_id
+        self.charge_leave = False
         outs: list[Outbound] = []
         if message is not None:
             if order.action is not None:
                 self.actions[f"{order.action.kind}-{order.action.job_id}"] = order.action
             outs.append(self._to_vehicle("order", message, now))
-        return outs + self.state()
+        return outs + self._follow_charge(now) + self.state()
+
+    # ---- charging -----------------------------------------------------------------------------
+
+    def _charge_ordered(self, order: Order, released: list[Cell]) -> None:
+        """The charger gridfleet's order names (a halt order under the stop or an operator's
+        control names none, and changes nothing: the paused vehicle charges on)."""
+        charge = None if order.charge is None else Cell(*order.charge)
+        if charge is None and not released and self._held():
+            return
+        self.charge_at = charge
+
+    def _charge_holds(self) -> bool:
+        """Whether no order may go to the vehicle: it charges, or our start or stop is in flight."""
+        return self.charging.busy or (self.view is not None and self.view.charging)
+
+    def _stands_done(self, view: VehicleView) -> bool:
+        """Whether the vehicle stands with nothing left to drive or do, its orders all seen."""
+        return (
+            not view.driving
+            and not view.paused
+            and self.nodes_left == 0
+            and self.horizon_left == 0  # its order done: no horizon either
+            and not self.released()
+            and not self.actions
+            and not self.instants.cancelling
+            and not self.resend.pending
+        )
+
+    def _follow_charge(self, now: float) -> list[Outbound]:
+        """Start or stop the vehicle's charge as gridfleet's latest order says.
+
+        It starts once the vehicle stands on the order's `charge` square with nothing left to
+        drive (at most once there: a failed or ended charge is not started again until the
+        charge is ordered afresh); it stops when the order names another square or none, or an
+        order held back for the charge would move it. Never under the stop (the vehicle is
+        paused; on the release the coordinator's orders say again).
+        """
+        view, c = self.view, self.charging
+        if view is None or self.link != "ONLINE" or not self.announced or self.square is None:
+            return []
+        if self._held() or not view.can_drive:
+            return []
+        here = self.charge_at is not None and self.square == self.charge_at
+        if c.state in (Charge.FAILED, Charge.ENDED) and (not here or c.square != self.square):
+            c.forget()
+        if self.charge_leave or not here:
+            if c.state is Charge.CHARGING:
+                action_id = f"stopCharging-{next(self._ids)}"
+                c.stop(action_id, now)
+                return self._instant("stopCharging", now, action_id)
+            return []
+        if c.state is Charge.NONE and not view.charging and self._stands_done(view):
+            action_id = f"startCharging-{next(self._ids)}"
+            c.start(action_id, self.square, now)
+            return self._instant("startCharging", now, action_id)
+        return []
+
+    def _charge_seen(self, message: VdaState, view: VehicleView) -> list[Outbound]:
+        """What a state says of the charge: a failed start or stop is told (the unit's errors
+        and the fleet's `errors`), once; a charge the vehicle ended itself below FULL_PCT too."""
+        self.charging.heard(view.listed)
+        ours = self.charging.action_id
+        at = self.charging.square
+        event = self.charging.seen(view.charging, view.finished, view.failed, self.square)
+        battery = _pct(view.battery_pct)
+        if event == "failed":
+            where = "" if at is None else f" at {list(at)}"
+            words = (
+                f"the vehicle did not start charging{where}: startCharging failed "
+                f"({_why(message, ours)}); not tried again until it is sent to charge afresh"
+            )
+            return self._charge_problem("no_charger", words)
+        if event == "stop_failed":
+            words = (
+                f"the vehicle failed stopCharging ({_why(message, ours)}): it charges on, and "
+                "takes no order until it reports charging false"
+            )
+            return self._charge_problem("charge_not_stopped", words)
+        if event == "ended" and battery < FULL_PCT:
+            self.errors.append(
+                UnitError(
+                    code="charge_ended",
+                    message=f"the vehicle ended its charge itself at {battery:.0f} %",
+                )
+            )
+        return []
+
+    def _charge_problem(self, code: str, words: str) -> list[Outbound]:
+        self.errors.append(UnitError(code=code, message=words[:200]))
+        return [self.side.report(self.vehicle.topic("state"), f"vehicle {self.id}: {words}")]
+
+    def _charge_again(self, now: float) -> list[Outbound]:
+        """Our startCharging or stopCharging again when no state has listed it (QoS 0)."""
+        if self.link != "ONLINE" or self.view is None:
+            return []
+        again = self.charging.resend(self.view.listed, now)
+        if again is None:
+            return []
+        kind: InstantKind = (
+            "startCharging" if self.charging.state is Charge.STARTING else "stopCharging"
+        )
+        return self._instant(kind, now, again)
+
+    def battery(self) -> tuple[float | None, bool]:
+        """The unit's `battery_pct` and `charging`: None and False without an energy model.
+
+        `charging` is the vehicle's, and true still after the vehicle ended a charge itself at
+        FULL_PCT or more while its order names that charger (full, it stays there charged).
+        """
+        view = self.view
+        if view is None or self.config.energy is None:
+            return None, False
+        pct = _pct(view.battery_pct)
+        full = (
+            self.charging.state is Charge.ENDED
+            and pct >= FULL_PCT
+            and self.square is not None
+            and self.square == self.charge_at
+        )
+        return round(pct, 2), view.charging or full
 
     def _dropped_actions(self, wanted: Action | None) -> bool:
         """Whether an action sent to the vehicle, not done yet, is no longer gridfleet's."""
@@ -443,6 +591,7 @@ class VehicleCore:
         self.orders.end()
         self.actions = {}
         self.square = None
+        self.charging.let_go()
 
     def _after_cancel(self, view: VehicleView, now: float) -> list[Outbound]:
         """The vehicle's order is cancelled: it ends here, where it stopped."""
@@ -474,7 +623,15 @@ class VehicleCore:
     def _finished_base(self) -> bool:
         """Whether the vehicle has driven its whole order and done its actions."""
         base = self.orders.base
-        return bool(base) and self.square == base[-1] and self.nodes_left == 0 and not self.actions
+        # A horizon still ahead keeps its order under way (VDA 5050 §6.6: the vehicle waits for
+        # an update; vda-5050-lib takes no new order then but one stitching onto its base).
+        return (
+            bool(base)
+            and self.square == base[-1]
+            and self.nodes_left == 0
+            and self.horizon_left == 0
+            and not self.actions
+        )
 
     def _refuse(self, topic: str, reason: str) -> list[Outbound]:
         self.errors.append(UnitError(code="bad_order", message=reason[:200]))
@@ -532,6 +689,7 @@ class VehicleCore:
             model=f"{MODEL}-{self.vehicle.version}",
             map_id=self.grid.map_id(),
             sensors=[],
+            energy=self.config.energy,
         )
 
     def on_broker_lost(self) -> None:
@@ -549,7 +707,7 @@ class VehicleCore:
         """One step of the adapter's clock: the state when it changed or is due again, and an
         order the vehicle has not shown it has, sent again."""
         self.step += 1
-        outs = self._order_again(now)
+        outs = self._order_again(now) + self._charge_again(now)
         if not self.side.due(self._condition()):
             return outs
         return outs + self.state()
@@ -590,6 +748,9 @@ class VehicleCore:
             return "holding", "the vehicle is paused"
         if view is not None and view.driving:
             return "moving", None
+        battery, charging = self.battery()
+        if battery is not None and battery <= 0 and not charging:
+            return ("waiting" if self.released() or self.actions else "idle"), EMPTY
         doing = [a for k, a in self.actions.items() if view is not None and k in view.running]
         if doing:
             return "waiting", f"the vehicle is doing its {doing[0].kind} of {doing[0].job_id}"
@@ -600,7 +761,10 @@ class VehicleCore:
     def _condition(self) -> Condition:
         if self.errors:
             return None
+        battery, charging = self.battery()
         return (
+            None if battery is None else int(battery),  # by whole percent, as every unit's
+            charging,
             self.square,
             self.direction(),
             self.status(),
@@ -618,6 +782,7 @@ class VehicleCore:
         told = self._condition()
         direction = self.direction()
         status, why = self.status()
+        battery, charging = self.battery()
         stopped = status == "stopped"
         leds = (
             Leds(N=True, E=True, S=True, W=True)
@@ -640,6 +805,8 @@ class VehicleCore:
             released=self.released(),
             estop=stopped,
             errors=self.errors[:16],
+            battery_pct=battery,
+            charging=charging,
         )
         self.errors = []
         return self.side.state(state, told, direction)
@@ -656,3 +823,21 @@ class VehicleCore:
                 else ("free" if self.grid.is_free(cell) else "obstacle")
             )
         return Sensors(**seen)
+
+
+def _pct(value: float) -> float:
+    """A vehicle's batteryCharge as a share of a full battery: within 0 and 100."""
+    return min(100.0, max(0.0, value))
+
+
+def _why(message: VdaState, action_id: str | None) -> str:
+    """Why the vehicle failed action `action_id`: its errors naming it, else its result."""
+    told = [
+        e.errorDescription or e.errorType
+        for e in message.errors
+        if action_id is not None and e.about("actionId") == action_id
+    ]
+    result = next(
+        (a.resultDescription for a in message.actionStates if a.actionId == action_id), None
+    )
+    return "; ".join(told) or result or "no reason given"

@@ -91,6 +91,7 @@ class _Error(_Part):
 class _ActionState(_Part):
     actionId: str
     actionStatus: Literal["WAITING", "INITIALIZING", "RUNNING", "PAUSED", "FINISHED", "FAILED"]
+    resultDescription: str | None = None  # absent: the action's outcome is told by its status
 
 
 class _Battery(_Part):

@@ -1,10 +1,12 @@
 """VDA 5050 instant actions the fleet sends a vehicle: pause, resume, cancel, factsheet request,
-state request.
+state request, start and stop charging.
 
 The fleet's emergency stop (any source), and an operator's pause or out-of-service of the unit,
 pause the vehicle (`startPause`) until the release (`stopPause`); a cancelled job cancels the
 order (`cancelOrder`). A vehicle heard on line before any state of its is asked for one
-(`stateRequest`: it may otherwise stay silent for 30 s). `factsheetRequest` exists from 2.1 on; a 2.0 vehicle's capacity and speed
+(`stateRequest`: it may otherwise stay silent for 30 s). A unit whose order says `charge` and that stands
+there with nothing left to drive is told `startCharging`; an order taking it elsewhere is held
+back until `stopCharging` has ended the charge (charging.py). `factsheetRequest` exists from 2.1 on; a 2.0 vehicle's capacity and speed
 are configured by hand.
 
 vda-5050-lib 1.4.0 in 2.0 mode reads the actions under 1.1's key `instantActions` instead of the
@@ -21,7 +23,15 @@ from typing import Any, Literal
 from gridfleet.errors import ConfigError
 from gridfleet.robots.vda5050.wire import Headers
 
-InstantKind = Literal["startPause", "stopPause", "cancelOrder", "factsheetRequest", "stateRequest"]
+InstantKind = Literal[
+    "startPause",
+    "stopPause",
+    "cancelOrder",
+    "factsheetRequest",
+    "stateRequest",
+    "startCharging",
+    "stopCharging",
+]
 
 
 def instant_action(

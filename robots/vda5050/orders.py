@@ -74,6 +74,18 @@ class OrderStitcher:
         """The squares released so far on the current order, from its first node."""
         return () if self._base is None else tuple(self._base.cells)
 
+    def adds(
+        self, position: Cell, released: list[Cell], planned: list[Cell], action: Action | None
+    ) -> bool:
+        """Whether `order` would send the vehicle anything for this release (changing nothing)."""
+        if self._base is None:
+            return True
+        try:
+            new = self._beyond_base(position, released)
+        except ValueError:
+            return True  # refused by `order` then
+        return bool(new) or planned != self._base.horizon or action != self._base.action
+
     def end(self) -> None:
         """The current order is over (done, cancelled, or the vehicle lost it): the next is new."""
         self._base = None

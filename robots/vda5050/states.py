@@ -68,6 +68,7 @@ class VehicleView:
     finished: frozenset[str]  # action ids FINISHED
     failed: frozenset[str]  # action ids FAILED
     running: frozenset[str] = frozenset()  # action ids INITIALIZING or RUNNING
+    listed: frozenset[str] = frozenset()  # every action id it lists, in any status
 
     @property
     def can_drive(self) -> bool:
@@ -113,4 +114,5 @@ def read_state(
         running=frozenset(
             a["actionId"] for a in actions if a["actionStatus"] in ("INITIALIZING", "RUNNING")
         ),
+        listed=frozenset(a["actionId"] for a in actions),
     )

@@ -9,6 +9,15 @@ no order.
 It drives its released nodes in order at `speed` (m/s) along straight edges, stops at once when
 paused (a stopping distance of 0), does a node's `pick`/`drop` standing still for `action_s`, and
 takes an update only if it starts at the last base node it has (§6.6 of the specification).
+
+Its battery (VDA 5050 `batteryState`): `node_pct` for every node it drives to, `idle_pct_per_s`
+while it stands and does not charge, `charge_pct_per_s` while it charges, within 0 and 100.
+`startCharging` starts a charge where it stands, standing with no order under way (FAILED
+otherwise, or, with `chargers` given, off its charging stations: "not aligned to charger", as
+the spec's example of a failed start says, with a `chargingError`); it charges on at 100 % (its
+own overcharge protection) until `stopCharging`. While it charges it takes no order (the spec:
+charging is false only once it is ready for orders; an `orderError` says so); at 0 % it drives
+no further (a `batteryLowError` WARNING while it has nodes to drive) until it has charged.
 """
 
 from __future__ import annotations
@@ -20,7 +29,7 @@ from typing import Any, Literal
 
 from gridfleet.robots.vda5050.wire import Headers, VdaTopic, Vehicle
 
-REACH_M = 0.11  # how far from an order's first node it may stand and take the order
+REACH_M = 0.11  # how far from an order's first node (or a charging station) it may stand
 Message = tuple[VdaTopic, dict[str, Any]]  # (topic, message) to publish
 # What the spec lets a vehicle do that gridfleet's must cope with: refuse order updates, refuse
 # every route, or name its loads without their weight (the schemas' load requires no field).
@@ -48,6 +57,12 @@ class VirtualSpec:
     action_s: float = 0.5  # a pick or a drop
     state_every_s: float = 30.0  # a state at least this often, besides every event
     quirks: frozenset[Quirk] = frozenset()
+    battery_pct: float = 90.0  # its charge at the start
+    node_pct: float = 0.0  # what driving to one node costs
+    idle_pct_per_s: float = 0.0  # what a second standing (not charging) costs
+    charge_pct_per_s: float = 2.0  # what a second charging adds
+    # Where it can charge (its reference point within REACH_M of one); None: wherever it stands.
+    chargers: tuple[tuple[float, float], ...] | None = None
 
 
 @dataclass
@@ -78,10 +93,13 @@ class VirtualVehicle:
     errors: list[dict[str, Any]] = field(default_factory=list)
     busy_until: float | None = None  # doing a node's action until then
     last_state_at: float | None = None
+    battery: float = field(init=False)  # its charge, %
+    charging: bool = False
 
     def __post_init__(self) -> None:
         self.headers = Headers(self.vehicle)
         self.x, self.y = self.spec.start
+        self.battery = min(100.0, max(0.0, self.spec.battery_pct))
         self._ids = itertools.count()
 
     # ---- what arrives -------------------------------------------------------------------------
@@ -89,11 +107,16 @@ class VirtualVehicle:
     def on_order(self, order: dict[str, Any], now: float) -> list[Message]:
         """An `order`: a new one, an update stitched onto the current base, or a refusal."""
         self.errors = [
-            e for e in self.errors if e["errorType"] not in ("orderUpdateError", "noRouteError")
+            e
+            for e in self.errors
+            if e["errorType"] not in ("orderUpdateError", "noRouteError", "orderError")
         ]
         same = order["orderId"] == self.order_id
         if same and order["orderUpdateId"] == self.update_id:
             return []  # the same again: nothing to do
+        if self.charging:
+            why = "order is not executable while charging"
+            return self._refuse("orderError", why, order, now)
         nodes = sorted(order["nodes"], key=lambda n: n["sequenceId"])
         if "no_route" in self.spec.quirks:
             return self._refuse("noRouteError", "no route to the order's nodes", order, now)
@@ -196,9 +219,42 @@ class VirtualVehicle:
                     self._cancel()
             elif kind == "factsheetRequest":
                 out.append(("factsheet", self.factsheet(now)))
+            elif kind == "startCharging":
+                self._start_charging(done)
+            elif kind == "stopCharging":
+                if self.charging:
+                    self.charging = False
+                else:
+                    done.status, done.description = "FAILED", "charging not in progress"
             else:
                 done.status, done.description = "FAILED", f"{kind} is not supported"
         return [*out, ("state", self.state(now))]
+
+    def _start_charging(self, done: _Action) -> None:
+        """Charge where it stands, if it may (else the action FAILED, and why)."""
+        self.errors = [e for e in self.errors if e["errorType"] != "chargingError"]
+        if self.charging:
+            return  # charging already: idempotent, as the spec's table says
+        if self.driving or any(n.released for n in self.nodes) or self._running():
+            done.status, done.description = "FAILED", "charging denied: an order is under way"
+            return
+        stations = self.spec.chargers
+        if stations is not None and not any(
+            math.dist(at, (self.x, self.y)) <= REACH_M for at in stations
+        ):
+            done.status, done.description = "FAILED", "not aligned to charger"
+            self.errors.append(
+                {
+                    "errorType": "chargingError",
+                    "errorLevel": "WARNING",
+                    "errorDescription": "not aligned to charger: no charging station here",
+                    "errorReferences": [
+                        {"referenceKey": "actionId", "referenceValue": done.action["actionId"]}
+                    ],
+                }
+            )
+            return
+        self.charging = True
 
     def _running(self) -> bool:
         return any(a.status in ("WAITING", "RUNNING") for a in self.actions.values())
@@ -217,17 +273,28 @@ class VirtualVehicle:
     def advance(self, now: float, dt: float) -> list[Message]:
         """`dt` seconds of driving up to `now`; a state on every event and when one is due."""
         events = False
+        percent = int(self.battery)
         if self.busy_until is not None and now >= self.busy_until:
             self._finish_actions()
             self.busy_until = None
             events = True
         moving = (
-            not self.paused and self.busy_until is None and self.nodes and self.nodes[0].released
+            not self.paused
+            and not self.charging
+            and self.battery > 0
+            and self.busy_until is None
+            and self.nodes
+            and self.nodes[0].released
         )
         if moving:
             events |= self._drive(now, dt)
         elif self.driving:
             self.driving, events = False, True
+        if self.charging:
+            self.battery = min(100.0, self.battery + self.spec.charge_pct_per_s * dt)
+        elif not self.driving:
+            self.battery = max(0.0, self.battery - self.spec.idle_pct_per_s * dt)
+        events |= self._empty() or int(self.battery) != percent  # its battery by whole percents
         due = self.last_state_at is None or now - self.last_state_at >= self.spec.state_every_s
         return [("state", self.state(now))] if events or due else []
 
@@ -245,10 +312,31 @@ class VirtualVehicle:
         self.x, self.y = node.x, node.y
         self.last_node = (node.node_id, node.sequence_id)
         self.nodes.pop(0)
+        self.battery = max(0.0, self.battery - self.spec.node_pct)
         if node.actions:
             self._start_actions(node.actions, now)
         elif not (self.nodes and self.nodes[0].released):
             self.driving = False
+        return True
+
+    def _empty(self) -> bool:
+        """A `batteryLowError` while it has nodes to drive at 0 %, gone once it has charged;
+        whether that changed."""
+        empty = self.battery <= 0 and any(n.released for n in self.nodes)
+        told = any(e["errorType"] == "batteryLowError" for e in self.errors)
+        if empty == told:
+            return False
+        if empty:
+            self.driving = False
+            self.errors.append(
+                {
+                    "errorType": "batteryLowError",
+                    "errorLevel": "WARNING",
+                    "errorDescription": "battery empty: cannot drive",
+                }
+            )
+        else:
+            self.errors = [e for e in self.errors if e["errorType"] != "batteryLowError"]
         return True
 
     def _finish_actions(self) -> None:
@@ -303,7 +391,7 @@ class VirtualVehicle:
                 }
                 for a in self.actions.values()
             ],
-            "batteryState": {"batteryCharge": 90.0, "charging": False},
+            "batteryState": {"batteryCharge": round(self.battery, 2), "charging": self.charging},
             "operatingMode": "AUTOMATIC",
             "errors": list(self.errors),
             "safetyState": {"eStop": "NONE", "fieldViolation": False},
@@ -327,6 +415,8 @@ class VirtualVehicle:
                 ("stopPause", ["INSTANT"]),
                 ("cancelOrder", ["INSTANT"]),
                 ("factsheetRequest", ["INSTANT"]),
+                ("startCharging", ["INSTANT"]),
+                ("stopCharging", ["INSTANT"]),
             )
         ]
         return {

@@ -8,6 +8,7 @@ import pytest
 
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
+from gridfleet.protocol import EnergyModel
 from gridfleet.robots.vda5050.config import load_vehicles
 
 MAP = "[maps.hall]\norigin = [1.0, 2.0]\nx_axis = [1, 0]\ny_axis = [0, -1]\nsquare_m = 0.5\n"
@@ -56,6 +57,34 @@ def test_a_vehicles_file_loads(tmp_path: Path) -> None:
         (MAP + AGV.replace('"agv1"', '"agv 1"'), 6, "agv 1"),
         (MAP.replace("y_axis = [0, -1]", "y_axis = [1, 0]") + AGV, 3, "at right angles"),
         (MAP.replace("[1.0, 2.0]", '["a", 2.0]') + AGV, 2, "maps.hall: origin"),
+        (
+            MAP + AGV + "energy = { move_pct = 0.5, idle_pct_per_s = 0.01 }\n",
+            6,
+            "vehicles #1: energy.charge_pct_per_s: missing",
+        ),
+        (
+            MAP + AGV + "energy = { move_pct = 120, idle_pct_per_s = 0, charge_pct_per_s = 2 }\n",
+            6,
+            "vehicles #1: energy.move_pct: input should be less than or equal to 100, got 120",
+        ),
+        (
+            MAP + AGV + "energy = { move_pct = 1, idle_pct_per_s = 0, charge_pct_per_s = 0 }\n",
+            6,
+            "energy.charge_pct_per_s: input should be greater than 0",
+        ),
+        (
+            MAP + AGV + 'energy = { move_pct = "1", idle_pct_per_s = 0, charge_pct_per_s = 1 }\n',
+            6,
+            "energy.move_pct: input should be a valid",
+        ),
+        (
+            MAP
+            + AGV
+            + "energy = { move_pct = 1, idle_pct_per_s = 0, charge_pct_per_s = 1, x = 1 }\n",
+            6,
+            "vehicles.0.energy: unknown key 'x'",
+        ),
+        (MAP + AGV + "energy = 3\n", 6, "vehicles #1: energy: should be a table, got 3"),
         ("vehicle = 3\n", 1, "unknown key 'vehicle' (known: maps, vehicles)"),
         ("[[vehicles]\n", 1, "not valid TOML"),
     ],
@@ -70,6 +99,20 @@ def test_a_bad_vehicles_file_is_one_line_naming_file_and_line(
     message = str(info.value)
     assert "\n" not in message and message.startswith(f"{path}:{line}:"), message
     assert problem in message, message
+
+
+def test_a_vehicles_energy_model_is_its_units_and_without_one_it_has_none(tmp_path: Path) -> None:
+    path = tmp_path / "vehicles.toml"
+    second = AGV.replace('"agv1"', '"agv2"').replace('"sn-7"', '"sn-8"')
+    path.write_text(
+        MAP
+        + AGV
+        + "energy = { move_pct = 0.5, idle_pct_per_s = 0, charge_pct_per_s = 2 }\n"
+        + second
+    )
+    managed, unmanaged = load_vehicles(path)
+    assert managed.energy == EnergyModel(move_pct=0.5, idle_pct_per_s=0.0, charge_pct_per_s=2.0)
+    assert unmanaged.energy is None
 
 
 def test_a_missing_vehicles_file_is_named(tmp_path: Path) -> None:

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from gridfleet.grid import Cell
-from gridfleet.protocol import Topics, UnitState, VehicleCondition, decode
+from gridfleet.protocol import EnergyModel, Topics, UnitState, VehicleCondition, decode
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.frame import Frame
 from gridfleet.robots.vda5050.shell import AdapterShell
@@ -82,12 +82,15 @@ class Vehicles:
         self.threads: list[ServiceThread[Any]] = []
         self.broker, self.root, self.grid = broker, root, grid
 
-    def add(self, agv: Agv, speed: float = 1.0, **spec: Any) -> None:
+    def add(
+        self, agv: Agv, speed: float = 1.0, energy: EnergyModel | None = None, **spec: Any
+    ) -> None:
+        """A virtual vehicle (`spec`: its VirtualSpec's fields); `energy`: its vehicles file's."""
         unit, at, capacity_kg = agv.unit, agv.at, agv.capacity_kg
         vehicle = Vehicle(unit, "gridfleet", agv.serial, agv.version)
         # A 2.1 vehicle's capacity comes from its factsheet; a 2.0 one's from the vehicles file.
         configured = capacity_kg if agv.version == "2.0.0" else None
-        self.configs.append(VehicleConfig(vehicle, FRAME, configured, 0.0, False))
+        self.configs.append(VehicleConfig(vehicle, FRAME, configured, 0.0, False, energy=energy))
         start = FRAME.position(at)
         self.virtual[unit] = VirtualVehicleShell(
             vehicle,

@@ -55,7 +55,14 @@ LIB_ACTIONS = {"stationType": "floor", "loadType": "EPAL", "duration": 0.5}
 class LibAgvs:
     """vda-5050-lib's virtual AGVs in a Node.js process of their own."""
 
-    def __init__(self, broker_url: str, agvs: dict[str, Cell], speed_m_s: float) -> None:
+    def __init__(
+        self,
+        broker_url: str,
+        agvs: dict[str, Cell],
+        speed_m_s: float,
+        options: dict[str, dict[str, float]] | None = None,
+    ) -> None:
+        """`options`: per serial number, its VirtualAgvAdapter's own (its battery's, say)."""
         spec = {
             "brokerUrl": broker_url,
             "speed": speed_m_s,
@@ -68,6 +75,7 @@ class LibAgvs:
                     "y": FRAME.position(at)[1],
                     "mapId": FRAME.map_id,
                     "lastNodeId": node_id(at),
+                    "adapterOptions": (options or {}).get(serial, {}),
                 }
                 for serial, at in agvs.items()
             ],

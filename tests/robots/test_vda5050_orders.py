@@ -154,7 +154,7 @@ def test_instant_actions_are_valid_with_or_without_the_legacy_key(
     check = validator(version, "instantActions")
     vehicle = Vehicle("agv1", "acme", "sn-7", version)  # type: ignore[arg-type]
     headers = Headers(vehicle)
-    kinds = ["startPause", "stopPause", "cancelOrder"] + (
+    kinds = ["startPause", "stopPause", "cancelOrder", "startCharging", "stopCharging"] + (
         ["factsheetRequest"] if version == "2.1.0" else []
     )
     for n, kind in enumerate(kinds):

@@ -136,3 +136,70 @@ def test_it_reports_on_events_and_otherwise_only_every_state_interval() -> None:
     quiet = [m for m in (v.advance(T0 + t, 1.0) for t in range(1, 30)) if m]
     assert quiet == []
     assert [n for n, _ in v.advance(T0 + 30, 1.0)] == ["state"]
+
+
+def battery(**spec: Any) -> tuple[VirtualVehicle, OrderStitcher, Headers]:
+    """A 2.1.0 vehicle at (0, 0) with a battery that drains and charges."""
+    vehicle = Vehicle("agv1", "acme", "sn-7", "2.1.0")
+    master = Headers(vehicle)
+    fields = {"speed": 1.0, "node_pct": 2.0, "idle_pct_per_s": 1.0, "charge_pct_per_s": 10.0}
+    v = VirtualVehicle(vehicle, VirtualSpec((0.0, 0.0), "hall", **{**fields, **spec}))
+    return v, OrderStitcher(master, FRAME, "gf-t"), master
+
+
+def charge(v: VirtualVehicle, master: Headers, kind: str, action_id: str) -> dict[str, Any]:
+    """The state after instant action `kind`; the action's state in it."""
+    message = instant_action(master, kind, action_id, T0)  # type: ignore[arg-type]
+    state = valid("2.1.0", v.on_instant_actions(message, T0))[-1][1]
+    return {a["actionId"]: a for a in state["actionStates"]}[action_id]
+
+
+def test_its_battery_drains_per_node_and_standing_and_rises_while_it_charges() -> None:
+    v, s, master = battery(battery_pct=50.0)
+    order = s.order(Cell(0, 0), [Cell(1, 0), Cell(2, 0)], [], None, T0)
+    assert order is not None
+    v.on_order(order, T0)
+    run(v, 0.5)  # 0.2 m at 1 m/s: both nodes, 2 % each, then standing
+    assert v.last_node == ("sq-2-0", 4)
+    assert 45.0 < v.battery < 46.0  # 4 % for the nodes, a little for standing
+    assert charge(v, master, "startCharging", "sc1")["actionStatus"] == "FINISHED"
+    states = run(v, 1.0)
+    assert states[-1]["batteryState"]["charging"] is True
+    assert 55.0 < states[-1]["batteryState"]["batteryCharge"] < 56.5  # 10 % a second, no drain
+    run(v, 10.0)
+    assert v.battery == 100.0 and v.charging  # it charges on, at full, until told to stop
+    assert charge(v, master, "stopCharging", "sc2")["actionStatus"] == "FINISHED"
+    assert not v.charging
+    assert charge(v, master, "stopCharging", "sc3")["actionStatus"] == "FAILED"  # nothing to stop
+
+
+def test_charging_it_takes_no_order_and_at_zero_it_drives_no_further() -> None:
+    v, s, master = battery(battery_pct=3.0, idle_pct_per_s=0.0)
+    charge(v, master, "startCharging", "sc1")
+    order = s.order(Cell(0, 0), [Cell(1, 0), Cell(2, 0), Cell(3, 0)], [], None, T0)
+    assert order is not None
+    ((_, refused),) = valid("2.1.0", v.on_order(order, T0))
+    assert [e["errorType"] for e in refused["errors"]] == ["orderError"]  # while charging
+    assert refused["orderId"] == ""
+    charge(v, master, "stopCharging", "sc2")
+    v.on_order(order, T0)
+    states = run(v, 1.0)
+    # 2 % a node: (1, 0) leaves it 1 %, (2, 0) empty; there it stands, saying why.
+    assert (v.last_node, v.battery, v.driving) == (("sq-2-0", 4), 0.0, False)
+    assert [e["errorType"] for e in states[-1]["errors"]] == ["batteryLowError"]
+    assert charge(v, master, "startCharging", "sc3")["actionStatus"] == "FAILED"  # order under way
+
+
+def test_with_charging_stations_it_charges_only_on_one() -> None:
+    v, _, master = battery(chargers=((0.3, 0.0),))
+    failed = charge(v, master, "startCharging", "sc1")
+    assert (failed["actionStatus"], failed["resultDescription"]) == (
+        "FAILED",
+        "not aligned to charger",
+    )
+    (error,) = v.errors
+    assert error["errorType"] == "chargingError"
+    assert error["errorReferences"] == [{"referenceKey": "actionId", "referenceValue": "sc1"}]
+    v.x = 0.3
+    assert charge(v, master, "startCharging", "sc2")["actionStatus"] == "FINISHED"
+    assert v.charging and v.errors == []

@@ -3,7 +3,12 @@
 //
 //   node agvs.mjs '{"brokerUrl": "mqtt://127.0.0.1:PORT", "speed": 0.5,
 //                   "agvs": [{"manufacturer": "m", "serialNumber": "s", "x": 0, "y": 0,
-//                             "mapId": "hall", "lastNodeId": "sq-0-0"}]}'
+//                             "mapId": "hall", "lastNodeId": "sq-0-0",
+//                             "adapterOptions": {"initialBatteryCharge": 30}}]}'
+//
+// `adapterOptions` (optional) go to its VirtualAgvAdapter as they are: its battery's
+// `initialBatteryCharge` (%), `batteryMaxReach` (metres on a full charge) and
+// `fullBatteryChargeTime` (hours from 0 to 100 %), say.
 //
 // Prints "ready <serial>" for each vehicle once it is on line; SIGTERM stops them cleanly
 // (OFFLINE), SIGKILL leaves their last wills (CONNECTIONBROKEN) to the broker.
@@ -21,6 +26,7 @@ for (const agv of spec.agvs) {
     {
       initialPosition: { mapId: agv.mapId, x: agv.x, y: agv.y, theta: 0, lastNodeId: agv.lastNodeId },
       vehicleSpeed: spec.speed ?? 0.5,
+      ...(agv.adapterOptions ?? {}),
     },
   );
   await controller.start();
