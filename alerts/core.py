@@ -28,6 +28,7 @@ from gridfleet.protocol import (
     TOPICS,
     Connection,
     CoordinatorStatus,
+    EnergyView,
     ErrorReport,
     HeaderStamper,
     JobsView,
@@ -60,7 +61,12 @@ SEVERITY: dict[AlertRule, AlertSeverity] = {
     "coordinator_down": "critical",
     "broker_down": "critical",
     "handler_failures": "warning",
+    "battery_low": "warning",
+    "battery_critical": "critical",
+    "cannot_reach_charger": "critical",
 }
+# Plans of the energy view (fleet/energy) that mean the coordinator has a low unit in hand.
+IN_HAND = ("to_charger", "queued", "charging")
 # A restarted alerts process takes over the alerts in force from the retained view: each stays as
 # it was (its id, its acknowledgement) while its condition can still be found again, which takes
 # the rule's threshold (its clock starts when the new process first hears the subject) and the
@@ -118,6 +124,8 @@ class _Unit:
     status: str | None = None
     wait_reason: str | None = None
     still_since: float | None = None  # waiting or holding on one square since
+    battery_pct: float | None = None  # its charge (None: it reports no energy)
+    charging: bool = False
 
 
 @dataclass
@@ -159,6 +167,8 @@ class AlertsCore:
         self._failing: dict[str, _Failing] = {}  # component kind -> its failures of late
         self._queued: dict[str, tuple[float, str | None]] = {}  # job -> (queued since, why)
         self._stop = StopView()
+        self._energy: EnergyView | None = None  # the coordinator's thresholds and plans
+        self._since: dict[Key, float] = {}  # an energy condition -> since when it holds
         self._status: CoordinatorStatus | None = None
         self._status_at = now  # no status yet: the coordinator counts as down from the start
         self._online = False  # the broker connection, as the shell reports it
@@ -177,6 +187,7 @@ class AlertsCore:
             (t.all_units("state"), TOPICS["state"].qos),
             (t.fleet("jobs"), TOPICS["jobs"].qos),
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),
+            (t.fleet("energy"), TOPICS["energy"].qos),  # thresholds and plans: battery rules
             *stop_filters(t),
             (t.request("ack_alert"), TOPICS["ack_alert"].qos),
             (t.fleet("alerts"), TOPICS["alerts"].qos),  # the last run's view, to take over
@@ -272,6 +283,9 @@ class AlertsCore:
             "unit_stuck": s.unit_stuck_s,
             "job_queued": s.job_queued_s,
             "coordinator_down": s.coordinator_down_s,
+            "battery_low": s.battery_low_s,
+            "battery_critical": s.battery_critical_s,
+            "cannot_reach_charger": s.cannot_reach_charger_s,
         }.get(rule)
         return seconds or 0.0
 
@@ -291,6 +305,11 @@ class AlertsCore:
             self._stop.apply(kind, ident, topic, payload)
         elif kind == "jobs":
             self._on_jobs(decode(JobsView, payload, TOPICS["jobs"].max_bytes), now)
+        elif kind == "energy":
+            # Cleared (`gridfleet clean`): no thresholds known, so no battery rule holds.
+            self._energy = (
+                decode(EnergyView, payload, TOPICS["energy"].max_bytes) if payload else None
+            )
         elif kind == "coordinator":
             self._status = decode(CoordinatorStatus, payload)
             self._status_at = now
@@ -304,6 +323,8 @@ class AlertsCore:
         unit.position = state.position
         unit.status = state.status
         unit.wait_reason = state.wait_reason
+        unit.battery_pct = state.battery_pct
+        unit.charging = state.charging
 
     def _on_error_report(self, payload: bytes, now: float) -> Effects:
         """A report on `errors`: a component's failed handler counts (a refusal does not, and a
@@ -381,6 +402,7 @@ class AlertsCore:
                     found["job_queued", job] = (
                         f"job {job} queued for {waited / 60:.1f} min{because}"
                     )
+        found.update(self._energy_conditions(now))
         cause = self._stop.cause
         if s.estop and cause is not None and cause.engaged:
             because = f": {cause.reason}" if cause.reason else ""
@@ -402,6 +424,49 @@ class AlertsCore:
                     f"{100 * status.step_period_s / achieved:.0f} % of its "
                     f"{1 / status.step_period_s:.2f}"
                 )
+        return found
+
+    def _energy_conditions(self, now: float) -> dict[Key, str]:
+        """The battery rules, against the thresholds and plans of the energy view: each
+        condition counted from when it began to hold (what holds no more starts afresh)."""
+        s = self.settings
+        energy = self._energy
+        holding: dict[Key, str] = {}
+        if energy is not None:
+            t = energy.thresholds
+            for name, unit in self._units.items():
+                pct = unit.battery_pct
+                plan = energy.units.get(name)
+                if unit.connection == "offline":
+                    continue  # it said goodbye: its last charge is nobody's emergency
+                if plan is not None and plan.plan == "stranded":
+                    why = f": {plan.reason}" if plan.reason else ""
+                    holding["cannot_reach_charger", name] = (
+                        f"unit {name} cannot reach any charger{why}"
+                    )
+                if pct is None or unit.charging:
+                    continue
+                if pct <= t.critical_pct:
+                    holding["battery_critical", name] = (
+                        f"unit {name} battery critical: {pct:.0f} % (at or below "
+                        f"{t.critical_pct:g} %), not charging"
+                    )
+                elif pct < t.good_pct and (plan is None or plan.plan not in IN_HAND):
+                    holding["battery_low", name] = (
+                        f"unit {name} battery low: {pct:.0f} % (below {t.good_pct:g} %), "
+                        "neither charging nor on its way to a charger"
+                    )
+        self._since = {key: self._since.get(key, now) for key in holding}
+        found: dict[Key, str] = {}
+        for key, text in holding.items():
+            threshold = {
+                "battery_low": s.battery_low_s,
+                "battery_critical": s.battery_critical_s,
+                "cannot_reach_charger": s.cannot_reach_charger_s,
+            }[key[0]]
+            lasted = now - self._since[key]
+            if threshold is not None and lasted > threshold:
+                found[key] = f"{text} for {lasted:.0f} s"
         return found
 
     def _evaluate(self, now: float, *, view: bool = False) -> Effects:

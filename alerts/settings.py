@@ -34,6 +34,12 @@ class AlertSettings:
     broker_down_s: float | None = 10.0  # the alerts process cut off from the broker this long
     # A component told of a failed handler on `errors` (at once); cleared when none for this long.
     handler_failures_s: float | None = 300.0
+    # Energy (read against the coordinator's thresholds in `fleet/energy`): a unit below "good"
+    # that neither charges nor is on its way to a charger, at or below "critical" and not
+    # charging, or one the energy view says cannot reach any charger ("stranded"), this long.
+    battery_low_s: float | None = 60.0
+    battery_critical_s: float | None = 10.0
+    cannot_reach_charger_s: float | None = 5.0
     webhook: str | None = None  # where each raise, clear and acknowledgement is POSTed
     webhook_queue: str | None = None  # SQLite file keeping undelivered notices (None: memory)
 
@@ -44,6 +50,9 @@ class AlertSettings:
             "job_queued_s",
             "broker_down_s",
             "handler_failures_s",
+            "battery_low_s",
+            "battery_critical_s",
+            "cannot_reach_charger_s",
         ):
             _check_seconds(name, getattr(self, name))
         _check_seconds("coordinator_down_s", self.coordinator_down_s)

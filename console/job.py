@@ -1,5 +1,5 @@
 """`gridfleet job`: an operator's command line: submit, cancel and list jobs, goals, units'
-controls and removal, the stop."""
+controls (pause, out of service, charge) and removal, the stop."""
 
 from __future__ import annotations
 
@@ -181,12 +181,14 @@ UNIT_ACTIONS = {
     "resume": "resume",
     "out-of-service": "out_of_service",
     "in-service": "in_service",
+    "charge": "charge",
 }
 UNIT_HELP = {
     "pause": "hold one unit where it is; its job waits",
     "resume": "let a paused unit go on",
     "out_of_service": "take one unit out of service: no jobs, its unstarted job re-queued",
     "in_service": "bring a unit back into service",
+    "charge": "send one unit to charge (once it carries nothing), to full, then back to work",
 }
 
 

@@ -256,7 +256,8 @@ class Operator:
         return await self._request("cancel_job", CancelJob, timeout, job_id=job_id)
 
     async def control_unit(self, unit: str, command: str, timeout: float = WAIT_S) -> Reply:
-        """Pause or resume one unit, or take it out of service or back (protocol.md §6.4)."""
+        """Pause or resume one unit, take it out of service or back, or send it to charge
+        (protocol.md §6.4)."""
         return await self._request("control_unit", ControlUnit, timeout, unit=unit, command=command)
 
     async def remove_unit(

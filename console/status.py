@@ -1,7 +1,7 @@
 """`gridfleet status`: the fleet at a glance in a terminal, from the broker's retained topics.
 
 The stop (latched or pressed, by whom), the coordinator (online or not, its step), every unit
-(connection, position, status, job, load, why it waits) and the jobs (counts per state, the ones
+(connection, position, status, job, load, battery, why it waits), the chargers and the jobs (counts per state, the ones
 not final listed). `--once` prints it once; otherwise it is drawn again every second.
 """
 
@@ -31,6 +31,7 @@ from gridfleet.protocol import (
     TOPICS,
     Connection,
     CoordinatorStatus,
+    EnergyView,
     EstopSignal,
     Factsheet,
     JobsView,
@@ -41,7 +42,7 @@ from gridfleet.protocol import (
     VehicleCondition,
     decode,
 )
-from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
+from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState, UnitEnergy
 from gridfleet.protocol.stop import LATCH, STOP_KINDS, stop_filters
 from gridfleet.tasks import cancel_and_wait, stop_on_signals, until_stopped
 
@@ -66,6 +67,7 @@ class FleetStatus:
     # unit -> a VDA 5050 vehicle's own battery and errors (protocol.md §4.7)
     vehicles: dict[str, VehicleCondition] = field(default_factory=dict)
     jobs: JobsView | None = None
+    energy: EnergyView | None = None  # the energy policy's view: chargers, whom it moves
 
     def apply(self, kind: str, source: str | None, topic: str, payload: bytes) -> None:
         """Read one message; a bad one raises ProtocolError and changes nothing."""
@@ -79,6 +81,10 @@ class FleetStatus:
             self.coordinator = None if cleared else decode(CoordinatorStatus, payload)
         elif kind == "jobs":
             self.jobs = None if cleared else decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+        elif kind == "energy":
+            self.energy = (
+                None if cleared else decode(EnergyView, payload, TOPICS["energy"].max_bytes)
+            )
         elif kind == "routes" and not cleared:
             routes = decode(Routes, payload, TOPICS["routes"].max_bytes).routes
             self.controls = {u: r.control for u, r in routes.items() if r.control is not None}
@@ -149,12 +155,40 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], indent: str = "
     ]
 
 
+PLAN_WORDS = {
+    "to_charger": "to charger",
+    "queued": "waiting for charger",
+    "charging": "charging at",
+}
+
+
+def plan_words(plan: UnitEnergy) -> str:
+    """What the energy policy does with a unit: its reason, else "to charger C1", "stranded"."""
+    if plan.reason:
+        return plan.reason
+    if plan.plan == "stranded":
+        return "stranded: it cannot reach a charger"
+    if plan.charger is None:
+        return "waiting for a charger" if plan.plan == "queued" else PLAN_WORDS[plan.plan]
+    return f"{PLAN_WORDS[plan.plan]} {plan.charger}"
+
+
+def battery_cell(state: UnitState | None) -> str:
+    """ "62 %", "62 % charging", or "-" for a unit that reports no energy."""
+    if state is None or state.battery_pct is None:
+        return "-"
+    return f"{state.battery_pct:.0f} %" + (" charging" if state.charging else "")
+
+
 def unit_lines(fleet: FleetStatus) -> list[str]:
-    """One line per unit: connection, position, status, job, load, why it waits."""
+    """One line per unit: connection, position, status, job, load, battery (when any unit
+    reports one), why it waits and what the energy policy does with it."""
     units = sorted(set(fleet.connections) | set(fleet.states) | set(fleet.vehicles))
     if not units:
         return ["units: none on the broker"]
     online = sum(1 for u in units if fleet.connections.get(u) == "online")
+    batteries = any(s.battery_pct is not None for s in fleet.states.values())
+    plans = {} if fleet.energy is None else fleet.energy.units
     rows = []
     for unit in units:
         state = fleet.states.get(unit)
@@ -175,19 +209,52 @@ def unit_lines(fleet: FleetStatus) -> list[str]:
             if own.errors:  # what the vehicle itself says is wrong, after why it waits
                 says = "vehicle: " + "; ".join(own.errors)
                 waits = f"{waits}; {says}" if waits else says
-        rows.append(
-            (
-                unit,
-                link,
-                "-" if state is None else f"{state.position.x},{state.position.y}",
-                status,
-                "-" if state is None or state.job_id is None else state.job_id,
-                "-" if state is None else f"{state.load_kg:g}",
-                waits,
-            )
-        )
-    header = ("unit", "connection", "square", "status", "job", "load kg", "waiting for")
-    return [f"units: {len(units)}, {online} online", *_table(header, rows)]
+        plan = plans.get(unit)
+        said = "" if plan is None else plan_words(plan)  # to a charger, queued, stranded...
+        if said and said not in waits:
+            waits = f"{waits}; {said}" if waits else said
+        cells = [
+            unit,
+            link,
+            "-" if state is None else f"{state.position.x},{state.position.y}",
+            status,
+            "-" if state is None or state.job_id is None else state.job_id,
+            "-" if state is None else f"{state.load_kg:g}",
+        ]
+        if batteries:
+            cells.append(battery_cell(state))
+        rows.append((*cells, waits))
+    header = ["unit", "connection", "square", "status", "job", "load kg"]
+    if batteries:
+        header.append("battery")
+    return [f"units: {len(units)}, {online} online", *_table((*header, "waiting for"), rows)]
+
+
+def charger_lines(fleet: FleetStatus) -> list[str]:
+    """The chargers (from the energy view): who is on each or on its way, who waits."""
+    energy = fleet.energy
+    if energy is None or not energy.chargers:
+        return []
+    rows = []
+    for charger in energy.chargers:
+        state = None if charger.unit is None else fleet.states.get(charger.unit)
+        if charger.unit is None:
+            who = "free"
+        elif state is not None and state.charging:
+            who = f"{charger.unit} charging"
+        else:
+            who = f"{charger.unit} on its way"
+        square = f"{charger.square.x},{charger.square.y}"
+        rows.append((charger.name, square, who, ", ".join(charger.queue) or "-"))
+    t = energy.thresholds
+    levels = (
+        f"critical {t.critical_pct:g} %, good {t.good_pct:g} %, sufficient "
+        f"{t.sufficient_pct:g} %, full {t.full_pct:g} %"
+    )
+    return [
+        f"chargers: {len(rows)} ({levels})",
+        *_table(("charger", "square", "unit", "queue"), rows),
+    ]
 
 
 def job_lines(jobs: JobsView | None, most: int = MAX_JOBS) -> list[str]:
@@ -209,12 +276,15 @@ def job_lines(jobs: JobsView | None, most: int = MAX_JOBS) -> list[str]:
 
 
 def render(fleet: FleetStatus, most_jobs: int = MAX_JOBS) -> list[str]:
-    """The whole view as lines of text: the stop, the coordinator, the units, the jobs."""
+    """The whole view as lines of text: the stop, the coordinator, the units, the chargers (when
+    the coordinator has any), the jobs."""
+    chargers = charger_lines(fleet)
     return [
         stop_line(fleet),
         coordinator_line(fleet.coordinator),
         "",
         *unit_lines(fleet),
+        *(["", *chargers] if chargers else []),
         "",
         *job_lines(fleet.jobs, most_jobs),
     ]
@@ -243,6 +313,7 @@ class StatusReader:
             (t.all_units("vehicle"), TOPICS["vehicle"].qos),
             (t.fleet("jobs"), TOPICS["jobs"].qos),
             (t.fleet("routes"), TOPICS["routes"].qos),
+            (t.fleet("energy"), TOPICS["energy"].qos),
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),
         ]:
             await self.client.subscribe(topic, qos=qos)

@@ -113,9 +113,10 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  // 15, and every unit's and device's stop press: the fleet's views (alerts among them), the
-  // units' topics, and the answers to this page (its replies, history and audit pages).
-  assert.equal(Object.keys(subs).length, 17);
+  // 16, and every unit's and device's stop press: the fleet's views (alerts and energy among
+  // them), the units' topics, and the answers to this page (its replies, history and audit pages).
+  assert.equal(Object.keys(subs).length, 18);
+  assert.equal(subs["lab/a/v1/fleet/energy"].qos, TABLE.topics.energy.qos);
   const viewer = subscriptions(T, "dash-1", { audit: false });
   assert.ok(!(T.auditReply("dash-1") in viewer), "an account that may not read the audit does not ask for it");
   assert.ok(T.historyReply("dash-1") in viewer);

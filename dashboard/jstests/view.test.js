@@ -29,7 +29,7 @@ test("a VDA 5050 vehicle's row shows its battery and its own errors", () => {
   const condition = { battery_pct: 41.6, charging: true, errors: ["FATAL motorFault: left wheel", "WARNING lowBattery"] };
   v.apply("vehicle", "agv1", JSON.stringify(condition), 0);
   const [, link, , status] = unitCells(v.units.get("agv1"));
-  assert.deepEqual(link, ["broken · VDA 5050 2.1.0 · battery 42 % charging", "link vda"]);
+  assert.deepEqual(link, ["42 % ⚡ · broken · VDA 5050 2.1.0", "link vda"]);
   assert.equal(status[0], "— · vehicle: FATAL motorFault: left wheel; WARNING lowBattery");
   v.apply("vehicle", "agv1", JSON.stringify({ battery_pct: null, charging: false, errors: [] }), 0);
   assert.deepEqual(text(unitCells(v.units.get("agv1"))).slice(1, 4), ["broken · VDA 5050 2.1.0", "—", "—"]);

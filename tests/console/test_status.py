@@ -15,15 +15,19 @@ import pytest
 from gridfleet.console.status import CLEAR, FleetStatus, render, unit_lines
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
+    ChargerView,
     Connection,
     CoordinatorStatus,
+    EnergyView,
     JobsView,
     JobView,
     Leds,
     Routes,
     RouteView,
     Sensors,
+    Thresholds,
     Topics,
+    UnitEnergy,
     UnitState,
     encode,
 )
@@ -300,3 +304,58 @@ def test_a_vda_5050_vehicle_shows_its_battery_and_its_own_errors() -> None:
     assert row.endswith("vehicle: FATAL motorFault: left wheel; WARNING lowBattery")
     fleet.apply("vehicle", "agv1", T.unit("vehicle", "agv1"), b"")  # cleared
     assert "battery" not in unit_lines(fleet)[2]
+
+
+def test_batteries_plans_and_chargers_in_lines() -> None:
+    # The battery column comes with the first unit that reports one; a unit without shows "-".
+    thresholds = Thresholds(critical_pct=20, good_pct=50, sufficient_pct=80, full_pct=95)
+    energy = EnergyView(
+        header=header("coordinator"),
+        thresholds=thresholds,
+        chargers=[
+            ChargerView(name="C1", square=Cell(0, 0), unit="unit1", queue=["unit3"]),
+            ChargerView(name="C2", square=Cell(9, 0), unit="unit2"),
+            ChargerView(name="C3", square=Cell(9, 9)),
+        ],
+        units={
+            "unit1": UnitEnergy(plan="charging", charger="C1", reason="charging: 62 % of 80 %"),
+            "unit2": UnitEnergy(plan="to_charger", charger="C2"),
+            "unit3": UnitEnergy(plan="queued", charger="C1"),
+            "unit4": UnitEnergy(plan="stranded"),
+        },
+    )
+    fleet = fed(
+        (T.unit("state", "unit1"), state("unit1", 0, 0, battery_pct=61.6, charging=True)),
+        (T.unit("state", "unit2"), state("unit2", 4, 4, status="moving", battery_pct=38.0)),
+        (T.unit("state", "unit3"), state("unit3", 0, 9, status="waiting", battery_pct=19.0,
+                                         wait_reason="waiting for charger C1")),
+        (T.unit("state", "unit4"), state("unit4", 9, 8, battery_pct=3.0)),
+        (T.unit("state", "unit5"), state("unit5", 5, 5)),
+        (T.fleet("energy"), energy),
+    )  # fmt: skip
+    assert unit_lines(fleet) == [
+        "units: 5, 0 online",
+        "  unit   connection  square  status   job  load kg  battery        waiting for",
+        "  unit1  -           0,0     idle     -    0        62 % charging  charging: 62 % of 80 %",
+        "  unit2  -           4,4     moving   -    0        38 %           to charger C2",
+        "  unit3  -           0,9     waiting  -    0        19 %           waiting for charger C1",
+        "  unit4  -           9,8     idle     -    0        3 %            stranded: it cannot "
+        "reach a charger",
+        "  unit5  -           5,5     idle     -    0        -",
+    ]  # the plan said once when the unit says it too (unit3)
+    lines = render(fleet)
+    at = lines.index("chargers: 3 (critical 20 %, good 50 %, sufficient 80 %, full 95 %)")
+    assert lines[at + 1 : at + 6] == [
+        "  charger  square  unit              queue",
+        "  C1       0,0     unit1 charging    unit3",
+        "  C2       9,0     unit2 on its way  -",
+        "  C3       9,9     free              -",
+        "",
+    ]
+    # A fleet without energy: no battery column, no chargers (as before 1.5).
+    plain = fed((T.unit("state", "unit5"), state("unit5", 5, 5)))
+    assert "battery" not in unit_lines(plain)[1]
+    assert not any(line.startswith("chargers") for line in render(plain))
+    # The view cleared (`gridfleet clean`): its chargers go.
+    cleared = fed((T.fleet("energy"), energy), (T.fleet("energy"), b""))
+    assert cleared.energy is None

@@ -102,6 +102,8 @@ export function drawFleet(canvas, view, now, ui, box = null) {
       g.strokeRect(sx + 2, sy + 2, c - 4, c - 4);
     }
   }
+  const chargers = view.chargers();
+  drawChargers(g, canvas, chargers, L);
   // Pickup and dropoff markers of jobs still in play: redrawn only when the queue, the view or
   // the chosen job changed (hundreds of jobs, drawn on every frame, were most of a frame).
   const layer = markerLayer(view, L, dpr, ui.selectedJob, byState);
@@ -191,6 +193,7 @@ export function drawFleet(canvas, view, now, ui, box = null) {
     labelled.push({ id: u.id, cx, cy, r: c * 0.4 });
     drawn.push(`${u.id}@${x},${y}`);
   }
+  labelChargers(g, chargers, L);
   // Names last, where they overlap no other name and no unit (placeLabels).
   const size = Math.max(10, Math.min(14, Math.floor(c * 0.35)));
   g.font = `${size}px sans-serif`;
@@ -220,6 +223,73 @@ export function drawFleet(canvas, view, now, ui, box = null) {
   canvas.dataset.ox = String(L.ox);
   canvas.dataset.oy = String(L.oy);
   return L;
+}
+
+/**
+ * The chargers: a square mark each (amber frame, lightning bolt), its name above it when the
+ * squares are big enough, and "+2" for the units queued for it; a charger given to a unit (on it
+ * or on its way) has a solid frame. `data-chargers` says it all in words, for tests and tools.
+ */
+function drawChargers(g, canvas, chargers, L) {
+  const c = L.cell;
+  const said = [];
+  for (const ch of chargers) {
+    const [x, y] = ch.square;
+    if (x >= L.cols || y >= L.rows) continue; // off this map: nothing to draw it on
+    const sx = L.ox + x * c, sy = L.oy + y * c;
+    g.fillStyle = "#fff8e1";
+    g.fillRect(sx + 1, sy + 1, c - 2, c - 2);
+    g.strokeStyle = "#f57f17";
+    g.lineWidth = Math.max(2, c * 0.1);
+    g.setLineDash(ch.unit ? [] : [Math.max(2, c * 0.15), Math.max(2, c * 0.1)]);
+    g.strokeRect(sx + c * 0.06, sy + c * 0.06, c * 0.88, c * 0.88);
+    g.setLineDash([]);
+    if (c >= 10) {
+      // A lightning bolt in the square's corner: the unit on it covers its middle.
+      g.fillStyle = "#f57f17";
+      g.beginPath();
+      g.moveTo(sx + c * 0.3, sy + c * 0.1);
+      g.lineTo(sx + c * 0.14, sy + c * 0.32);
+      g.lineTo(sx + c * 0.24, sy + c * 0.32);
+      g.lineTo(sx + c * 0.16, sy + c * 0.5);
+      g.lineTo(sx + c * 0.34, sy + c * 0.26);
+      g.lineTo(sx + c * 0.24, sy + c * 0.26);
+      g.closePath();
+      g.fill();
+    }
+    said.push(`${ch.name}@${x},${y}:${ch.unit ?? "-"}${ch.queue.length ? `+${ch.queue.join(",")}` : ""}`);
+  }
+  const text = said.sort().join(" ");
+  if (canvas.dataset.chargers !== text) canvas.dataset.chargers = text;
+}
+
+/**
+ * The chargers' names (top right inside the square) and how many units wait for each ("+2",
+ * bottom right): drawn over the units, so the unit charging there does not hide them.
+ */
+function labelChargers(g, chargers, L) {
+  const c = L.cell;
+  if (c < 14) return;
+  g.font = `bold ${Math.max(9, Math.floor(c * 0.24))}px sans-serif`;
+  g.textAlign = "right";
+  g.lineWidth = 3;
+  g.lineJoin = "round";
+  for (const ch of chargers) {
+    const [x, y] = ch.square;
+    if (x >= L.cols || y >= L.rows) continue;
+    const sx = L.ox + x * c, sy = L.oy + y * c;
+    const words = [[ch.name, "top", sy + c * 0.08]];
+    if (ch.queue.length) words.push([`+${ch.queue.length}`, "bottom", sy + c * 0.94]);
+    for (const [word, baseline, at] of words) {
+      g.textBaseline = baseline;
+      g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+      g.strokeText(word, sx + c * 0.94, at, c * 0.8);
+      g.fillStyle = "#e65100";
+      g.fillText(word, sx + c * 0.94, at, c * 0.8);
+    }
+  }
+  g.textAlign = "left";
+  g.textBaseline = "alphabetic";
 }
 
 /** An off-screen canvas the size of the view (`canvas` again, or a new one), cleared. */

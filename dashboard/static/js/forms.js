@@ -45,7 +45,10 @@ export function jobRequest(view, { pickup, dropoff, mass, priority, jobId }) {
   };
 }
 
-const COMMAND_WORDS = { pause: "pause", resume: "resume", out_of_service: "take out of service", in_service: "bring into service" };
+const COMMAND_WORDS = {
+  pause: "pause", resume: "resume", out_of_service: "take out of service", in_service: "bring into service",
+  charge: "send to charge",
+};
 
 /** A control_unit request for a unit row's buttons (protocol.md §6.4). */
 export function controlRequest(unit, command) {

@@ -1,7 +1,7 @@
 // The fleet as the page knows it, built only from MQTT messages. Pure: no DOM, no network, no clock
 // (callers pass `now` in milliseconds).
 
-import { decodeEstop, decodePress, FINAL_JOB_STATES } from "./protocol.js";
+import { decodeEstop, decodePress, FINAL_JOB_STATES, ID_RE } from "./protocol.js";
 import { LIMITS } from "./protocol_table.js";
 import { JobNumbers, Utilisation } from "./story.js";
 
@@ -16,6 +16,47 @@ const isCoord = (v) => Number.isInteger(v) && v >= 0 && v <= LIMITS.max_coord;
 const isSquare = (sq) => Array.isArray(sq) && sq.length === 2 && sq.every(isCoord);
 const areSquares = (list) => list === undefined || (Array.isArray(list) && list.every(isSquare));
 const isObject = (v) => typeof v === "object" && v !== null && !Array.isArray(v);
+const isId = (v) => typeof v === "string" && ID_RE.test(v);
+const isPct = (v) => typeof v === "number" && Number.isFinite(v) && v >= 0 && v <= 100;
+export const ENERGY_PLANS = new Set(["to_charger", "queued", "charging", "stranded"]);
+const isCharger = (c) => isObject(c) && isId(c.name) && isSquare(c.square);
+
+/** A unit state's battery: {battery_pct, charging}, each null/false unless well formed. */
+function batteryOf(msg) {
+  const ok = (msg.battery_pct == null || isPct(msg.battery_pct)) && (msg.charging == null || typeof msg.charging === "boolean");
+  return { ok, battery_pct: isPct(msg.battery_pct) ? msg.battery_pct : null, charging: msg.charging === true };
+}
+
+/**
+ * The energy view (fleet/energy) as the page keeps it: its thresholds when well formed, its
+ * chargers and its units' plans, each entry that is not left out. `dropped`: how many were.
+ */
+export function readEnergy(msg) {
+  let dropped = 0;
+  const t = msg.thresholds;
+  const thresholds = isObject(t) && ["critical_pct", "good_pct", "sufficient_pct", "full_pct"].every((k) => isPct(t[k]))
+    ? { critical_pct: t.critical_pct, good_pct: t.good_pct, sufficient_pct: t.sufficient_pct, full_pct: t.full_pct }
+    : null;
+  if (!thresholds) dropped += 1;
+  const chargers = [];
+  for (const c of Array.isArray(msg.chargers) ? msg.chargers : []) {
+    const queue = c?.queue ?? [];
+    if (isCharger(c) && (c.unit == null || isId(c.unit)) && Array.isArray(queue) && queue.every(isId)) {
+      chargers.push({ name: c.name, square: c.square, unit: c.unit ?? null, queue });
+    } else dropped += 1;
+  }
+  const units = new Map();
+  for (const [id, e] of Object.entries(isObject(msg.units) ? msg.units : {})) {
+    if (isId(id) && isObject(e) && ENERGY_PLANS.has(e.plan) && (e.charger == null || isId(e.charger))
+      && (e.reason == null || typeof e.reason === "string")) {
+      units.set(id, { plan: e.plan, charger: e.charger ?? null, reason: e.reason ?? null });
+    } else dropped += 1;
+  }
+  if (msg.chargers !== undefined && !Array.isArray(msg.chargers)) dropped += 1;
+  if (msg.units !== undefined && !isObject(msg.units)) dropped += 1;
+  return { energy: { thresholds, chargers, units }, dropped };
+}
+
 /** Whether every job of a queue view can be listed and drawn: an id, a state, its two squares. */
 const jobsDrawable = (msg) => [msg.jobs, msg.finished ?? []].every((list) => Array.isArray(list)
   && list.every((j) => isObject(j) && typeof j.id === "string" && typeof j.state === "string"
@@ -43,6 +84,9 @@ export class FleetView {
     this.obstacles = new Map(); // "x,y" -> first seen (ms); -Infinity: known before the page was
     this.lastError = null;
     this.events = []; // the coordinator's recent history (fleet/events), oldest first
+    // The energy policy's view (fleet/energy): thresholds, chargers with who is on them and who
+    // waits, and the units it moves; null before it is heard (a fleet without energy).
+    this.energy = null;
     this.jobNumbers = new JobNumbers(); // P3 on the map goes with D3 and row 3
     this.utilisation = new Utilisation(); // sampled by the page (utilisation.sample)
     this.heardAt = null; // when the page last heard anything at all (ms), null before it has
@@ -105,9 +149,12 @@ export class FleetView {
         if (!isSquare(msg.position)) return `ignored a state of ${id} without a position`;
         if (!areSquares(msg.obstacles)) return `ignored a state of ${id} with malformed obstacles`;
         const u = this.unit(id);
-        u.state = msg;
+        const battery = batteryOf(msg);
+        // A bad battery is left out (the unit shows none), the rest of its state kept.
+        u.state = battery.ok ? msg : { ...msg, battery_pct: battery.battery_pct, charging: battery.charging };
         u.lastSeen = now;
         for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
+        if (!battery.ok) return `ignored a malformed battery in a state of ${id}`;
         break;
       }
       case "map": {
@@ -115,8 +162,13 @@ export class FleetView {
         if (!Number.isInteger(msg.width) || !Number.isInteger(msg.height) || !areSquares(msg.obstacles)) {
           return "ignored a map without its size or with malformed obstacles";
         }
-        this.map = msg;
+        // Chargers that cannot be drawn are left out; the map stays.
+        const listed = Array.isArray(msg.chargers) ? msg.chargers : [];
+        const chargers = listed.filter(isCharger);
+        this.map = { ...msg, chargers };
         for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
+        const bad = listed.length - chargers.length + (msg.chargers !== undefined && !Array.isArray(msg.chargers) ? 1 : 0);
+        if (bad) return `ignored ${bad} malformed charger${bad === 1 ? "" : "s"} on the map`;
         break;
       }
       case "jobs":
@@ -134,6 +186,13 @@ export class FleetView {
         this.lastError = msg;
         break;
       case "events": this.events = Array.isArray(msg.events) ? msg.events : []; break;
+      case "energy": {
+        if (Array.isArray(msg)) return "ignored a malformed energy view";
+        const { energy, dropped } = readEnergy(msg);
+        this.energy = energy;
+        if (dropped) return `ignored ${dropped} malformed part${dropped === 1 ? "" : "s"} of the energy view`;
+        break;
+      }
       default: break;
     }
     return null;
@@ -208,6 +267,36 @@ export class FleetView {
       if (u.state && u.state.position[0] === x && u.state.position[1] === y) return u;
     }
     return null;
+  }
+
+  /** Unit `id`'s battery from its state: {pct, charging}, or null when it reports no energy. */
+  battery(id) {
+    const s = this.units.get(id)?.state;
+    return isPct(s?.battery_pct) ? { pct: s.battery_pct, charging: s.charging === true } : null;
+  }
+
+  /** Whether unit `id` reports energy (its factsheet's model, or a battery in its state). */
+  hasEnergy(id) {
+    const u = this.units.get(id);
+    return isObject(u?.factsheet?.energy) || this.battery(id) != null;
+  }
+
+  /** What the energy policy does with unit `id` ({plan, charger, reason}), or null. */
+  energyPlan(id) {
+    return this.energy?.units.get(id) ?? null;
+  }
+
+  /**
+   * The chargers to draw: the map's, each with who is on it (or on the way) and who waits,
+   * from the energy view; the view's own when the map lists none.
+   */
+  chargers() {
+    const live = new Map((this.energy?.chargers ?? []).map((c) => [c.name, c]));
+    const mapped = this.map?.chargers ?? [];
+    const base = mapped.length ? mapped : [...live.values()];
+    return base.map((c) => ({
+      name: c.name, square: c.square, unit: live.get(c.name)?.unit ?? null, queue: live.get(c.name)?.queue ?? [],
+    }));
   }
 
   activeJobs() { return this.jobs; }

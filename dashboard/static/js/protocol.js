@@ -48,6 +48,7 @@ export function topicsFor(root) {
     jobs: topicOf(p, "jobs"),
     routes: topicOf(p, "routes"),
     events: topicOf(p, "events"),
+    energy: topicOf(p, "energy"),
     alerts: topicOf(p, "alerts"),
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
@@ -62,9 +63,9 @@ export function topicsFor(root) {
 }
 
 // What the page reads: every unit's connection, factsheet, state and (a VDA 5050 vehicle's) own
-// condition, the fleet views, its replies and the history's pages.
+// condition, the fleet views (the energy policy's too), its replies and the history's pages.
 const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state", "vehicle"];
-const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events", "alerts"];
+const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events", "alerts", "energy"];
 
 /**
  * What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0).

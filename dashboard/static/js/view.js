@@ -20,13 +20,34 @@ export function mapTitle(map) {
 
 const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
 
+const PLAN_WORDS = { to_charger: "to charger", queued: "waiting for charger", charging: "charging at" };
+
+/**
+ * What the energy policy does with a unit, in words: its own reason ("charging: 62 % of 80 %")
+ * when the coordinator gives one, else "to charger C1", "waiting for charger C2", "stranded".
+ */
+export function planText(plan) {
+  if (!plan) return null;
+  if (plan.reason) return plan.reason;
+  if (plan.plan === "stranded") return "stranded: it cannot reach a charger";
+  const words = PLAN_WORDS[plan.plan] ?? plan.plan;
+  return plan.charger ? `${words} ${plan.charger}` : (plan.plan === "queued" ? "waiting for a charger" : words);
+}
+
+/** "62 %", with " ⚡" while it charges; null for a unit without energy. */
+export function batteryText(pct, charging) {
+  if (typeof pct !== "number" || !Number.isFinite(pct)) return null;
+  return `${Math.round(pct)} %${charging ? " ⚡" : ""}`;
+}
+
 /**
  * The units table's cells for unit `u` (a FleetView unit): [text, className] each. `job`: the job
  * it works on (its own, or the queue's before pickup); `control`: an operator's control of it (paused, out of service);
  * `jobWait`: why that job waits, in the coordinator's words (a unit between orders says "idle"
- * while its job is stuck: the job's words say what holds it).
+ * while its job is stuck: the job's words say what holds it); `plan`: what the energy policy
+ * does with it (fleet/energy), or null.
  */
-export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null, phase = null) {
+export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null, phase = null, plan = null) {
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
   let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
@@ -42,9 +63,12 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
   const vda = /^vda5050-(.+)$/.exec(u.factsheet?.model ?? "");
   const own = u.vehicle;
   let link = (u.connection ?? "?") + (vda ? ` · VDA 5050 ${vda[1]}` : "");
-  if (own?.battery_pct != null) {
-    link += ` · battery ${Math.round(own.battery_pct)} %${own.charging ? " charging" : ""}`;
-  }
+  // Its battery from its state (protocol.md §4.3), else a VDA 5050 vehicle's own condition.
+  const battery = s?.battery_pct != null ? batteryText(s.battery_pct, s.charging)
+    : batteryText(own?.battery_pct, own?.charging);
+  if (battery) link = `${battery} · ${link}`; // first: the column is narrow, the colour says the link
+  const energy = planText(plan);
+  if (energy && !status.includes(energy)) status += ` · ${energy}`; // once, if the unit says it too
   if (own?.errors?.length) status += ` · vehicle: ${own.errors.join("; ")}`;
   return [
     [u.id, "id"], [link, vda || own ? "link vda" : "link"],
@@ -53,12 +77,30 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
   ];
 }
 
-/** The unit row's control buttons for `control` (null, paused, out_of_service): [label, command]. */
-export function controlButtons(control) {
+/**
+ * The unit row's control buttons for `control` (null, paused, out_of_service): [label, command];
+ * `energy`: the unit reports energy, so it can be sent to charge.
+ */
+export function controlButtons(control, energy = false) {
   if (control === "out_of_service") return [["in service", "in_service", "bring back into service"]];
   const out = ["out", "out_of_service", "take out of service"];
-  if (control === "paused") return [["resume", "resume", "resume"], out];
-  return [["pause", "pause", "pause"], out];
+  const charge = energy ? [["⚡", "charge", "send to charge (to full, then back to work)"]] : [];
+  if (control === "paused") return [["resume", "resume", "resume"], out, ...charge];
+  return [["pause", "pause", "pause"], out, ...charge];
+}
+
+/**
+ * The chargers in words, one line each: "C1 [0, 2]: u03 on it or on its way · queue u04, u05"
+ * (`chargers` from FleetView.chargers; `battery(id)` says whether its unit is charging there).
+ */
+export function chargerLines(chargers, battery = () => null) {
+  return chargers.map((c) => {
+    const [x, y] = c.square;
+    let who = "free";
+    if (c.unit) who = battery(c.unit)?.charging ? `${c.unit} charging` : `${c.unit} on its way`;
+    const queue = c.queue.length ? ` · queue ${c.queue.join(", ")}` : "";
+    return `${c.name} [${x}, ${y}]: ${who}${queue}`;
+  });
 }
 
 /** When unit `u` was last heard of, at `now` (ms). */
@@ -139,6 +181,7 @@ export class PageView {
     const name = $("#map-name");
     name.textContent = name.title = mapTitle(this.view.map);
     this.units(now, ui);
+    this.chargers();
     this.jobs(ui);
     this.coordinator();
     this.events();
@@ -206,9 +249,25 @@ export class PageView {
     const queued = this.view.jobById.get(job);
     const control = this.view.routes[id]?.control ?? null;
     const phase = phaseText(queued, queued ? this.view.jobNumbers.of(queued.id) : null);
-    const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase);
+    const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase, this.view.energyPlan(id));
     const state = unitState(u, control, !!job, this.view.isSilent(u, now));
     return { id, cells, state, status: cells[3][0], job, load: u.state?.load_kg ?? 0 };
+  }
+
+  /** The chargers under the units table: who is on each and who waits (hidden without any). */
+  chargers() {
+    const el = $("#chargers");
+    if (!el) return;
+    const lines = chargerLines(this.view.chargers(), (id) => this.view.battery(id));
+    const key = lines.join("\n");
+    if (el.dataset.key === key) return;
+    el.dataset.key = key;
+    el.hidden = !lines.length;
+    $("#chargers-list").replaceChildren(...lines.map((line) => {
+      const li = document.createElement("li");
+      li.textContent = line;
+      return li;
+    }));
   }
 
   units(now, ui) {
@@ -245,9 +304,21 @@ export class PageView {
         }
         this.controls(tr.querySelector("td.control"), id, r.state === "away");
         tr.dataset.link = u.connection ?? "unknown";
+        // Its battery as a bar behind the link cell (style.css), and its charge for tests.
+        const battery = this.view.battery(id);
+        const link = tr.children[1];
+        const pct = battery ? String(Math.round(battery.pct)) : "";
+        if ((link.dataset.battery ?? "") !== pct) {
+          if (battery) link.dataset.battery = pct; else delete link.dataset.battery;
+          link.style.setProperty("--battery", battery ? `${battery.pct}%` : "");
+        }
+        link.classList.toggle("charging", !!battery?.charging);
         tr.dataset.state = r.state; // moving, idle, … away: what the filter and the map's colours say
         tr.classList.toggle("selected", id === ui.selectedUnit);
         tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
+        // The whole cell in words, when it is cut short: "battery 62 %, charging · online".
+        const said = tr.children[1].textContent;
+        tr.children[1].title = battery ? `battery ${said.replace(" ⚡", ", charging")}` : said;
         tr.children[3].title = tr.children[3].textContent; // the whole of a long status
         tr.children[4].title = tr.children[4].textContent;
       },
@@ -258,15 +329,16 @@ export class PageView {
   }
 
   /**
-   * A unit's pause / out-of-service buttons, and "remove" for a lost one (`away`): rebuilt only
-   * when its control or whether it is lost changes.
+   * A unit's pause / out-of-service (and, with energy, charge) buttons, and "remove" for a lost
+   * one (`away`): rebuilt only when its control, its energy or whether it is lost changes.
    */
   controls(td, id, away = false) {
     const control = this.view.routes[id]?.control ?? "";
-    const key = `${control}${away ? "|away" : ""}`;
+    const energy = this.view.hasEnergy(id);
+    const key = `${control}${away ? "|away" : ""}${energy ? "|energy" : ""}`;
     if (td.dataset.control === key && td.children.length) return;
     td.dataset.control = key;
-    const buttons = controlButtons(control || null).map(([label, command, what]) => {
+    const buttons = controlButtons(control || null, energy).map(([label, command, what]) => {
       const b = document.createElement("button");
       b.type = "button";
       b.dataset.unit = id;
