@@ -70,6 +70,12 @@ def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
                 == (goal["target"])
             )
     assert result["messages"] > 0 and result["steps"] > 0
+    # On batteries (the *-energy scenarios): no unit ever ran empty, and each charged.
+    for unit, spec in zip(result["units"], scenario.units, strict=True):
+        if spec.battery is not None:
+            assert unit["reached_empty"] is False and unit["lowest_battery_pct"] > 0, unit
+            assert unit["charges"] >= 1, unit
+    assert result["units_empty"] == 0
 
 
 def test_a_run_that_cannot_finish_in_time_says_so_and_exits_1() -> None:
