@@ -14,7 +14,7 @@ from gridfleet.coordinator.shell import CoordinatorShell
 from gridfleet.coordinator.store import default_db_path
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
 from gridfleet.energy import ChargingSpec
-from gridfleet.errors import ConfigError, ScenarioError
+from gridfleet.errors import ConfigError, MapError, ScenarioError
 from gridfleet.grid import GridMap
 from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
@@ -23,6 +23,7 @@ from gridfleet.options import accounts_of, add_common, broker_url
 from gridfleet.protocol import Charger
 from gridfleet.protocol.constants import DEFAULT_STEP_S
 from gridfleet.scenario import load_scenario
+from gridfleet.shipped import is_name, shipped_file
 from gridfleet.tasks import stop_on_signals
 
 
@@ -138,9 +139,13 @@ def energy_settings(args: argparse.Namespace, charging: ChargingSpec) -> EnergyS
 
 def map_and_chargers(path: str) -> tuple[GridMap, tuple[Charger, ...], ChargingSpec]:
     """A .map (no chargers, default thresholds), or a scenario .toml's map, chargers and
-    [charging]."""
+    [charging]; a bare name is a shipped map, else a shipped scenario (`warehouse-energy`)."""
     if not path.endswith(".toml"):
-        return load_map(path), (), ChargingSpec()
+        try:
+            return load_map(path), (), ChargingSpec()
+        except MapError:
+            if not is_name(path) or not shipped_file(path, ".toml").is_file():
+                raise  # a file, or no shipped scenario of that name either: the map's error
     try:
         scenario = load_scenario(path)
     except ScenarioError as exc:

@@ -278,7 +278,8 @@ class Assembly:
         common = ["--broker", system.url, "--root", spec.root, *logins]
         step = ["--step", str(spec.step_s)]
         scenario = str(spec.scenario.path)
-        coordinator = ["coordinator", *common, "--map", str(spec.scenario.map_path), *step]
+        # The scenario itself, not only its map: the coordinator takes its chargers and [charging].
+        coordinator = ["coordinator", *common, "--map", scenario, *step]
         coordinator += ["--window", str(spec.window)]
         if spec.db_path is not None:
             coordinator += ["--db", str(spec.db_path)]

@@ -554,3 +554,14 @@ def test_the_command_line_takes_a_scenario_and_refuses_thresholds_that_do_not_ri
     args = parser.parse_args(["--map", "x.toml", "--full-pct", "100"])
     assert energy_settings(args, charging) == EnergySettings(full_pct=100.0)
     assert map_and_chargers(str(MAPS / "playfield.map"))[1] == ()
+
+
+def test_a_shipped_scenario_by_name_gives_the_coordinator_its_chargers() -> None:
+    from gridfleet.coordinator.cli import map_and_chargers
+    from gridfleet.errors import MapError
+
+    grid, chargers, _ = map_and_chargers("warehouse-energy")  # no such map: the scenario
+    assert (grid.width, [c.name for c in chargers]) == (16, ["C1", "C2", "C3"])
+    assert map_and_chargers("warehouse")[1] == ()  # the map of that name wins
+    with pytest.raises(MapError, match="no shipped map of that name"):
+        map_and_chargers("nowhere")
