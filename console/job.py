@@ -19,7 +19,7 @@ from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_actions, add_common, broker_url, moment, square
 from gridfleet.protocol import EstopSignal, JobHistoryEntry, JobsView, Reply, validate_id
 from gridfleet.protocol.constants import MAX_ESTOP_REASON
-from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState
+from gridfleet.protocol.messages import FINAL_JOB_STATES, ChargeEntry, JobState
 from gridfleet.protocol.topics import Topics
 
 WAIT_S = 10.0
@@ -162,6 +162,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     history.add_argument(
         "--state", choices=get_args(JobState), help="only the changes into this state"
     )
+    history.add_argument(
+        "--charges",
+        action="store_true",
+        help="the charges' starts and ends instead of the jobs' changes (--unit applies; --job "
+        "and --state do not)",
+    )
     form = history.add_mutually_exclusive_group()
     form.add_argument("--csv", action="store_true", help="comma-separated values, with a header")
     form.add_argument("--json", action="store_true", help="a JSON array of entries")
@@ -225,8 +231,65 @@ def history_row(entry: JobHistoryEntry) -> list[str]:
     return ["" if c is None else str(c) for c in cells]
 
 
+CHARGE_COLUMNS = ("at", "unit", "charger", "event", "battery_pct", "reason")
+
+
+def charge_row(entry: ChargeEntry) -> list[str]:
+    """One charge entry as the CSV's cells, in CHARGE_COLUMNS' order."""
+    at = entry.at.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    cells = [at, entry.unit, entry.charger, entry.event, entry.battery_pct, entry.reason]
+    return ["" if c is None else str(c) for c in cells]
+
+
+async def print_charges(operator: Operator, args: argparse.Namespace, out: TextIO) -> int:
+    """`job history --charges`: every charge's start and end in the range; 1 when refused."""
+    if args.job_id is not None or args.state is not None:
+        print("refused: --job and --state select jobs, not charges", file=sys.stderr)
+        return 2
+    query = {"kind": "charges", "since": args.since, "until": args.until, "unit": args.unit}
+    writer = csv.writer(out, lineterminator="\n") if args.csv else None
+    if writer is not None:
+        writer.writerow(CHARGE_COLUMNS)
+    elif args.json:
+        print("[", file=out)
+    else:
+        print(
+            f"{'at (UTC)':<24} {'unit':<10} {'charger':<10} {'event':<8} {'battery':>8}  why",
+            file=out,
+        )
+    cursor: str | None = None
+    count = 0
+    while True:
+        page = await operator.job_history(args.timeout, **query, cursor=cursor)
+        if isinstance(page, Reply) or not page.accepted:
+            print(f"refused: {page.reason}", file=sys.stderr)
+            return 1
+        for entry in page.charges:
+            if writer is not None:
+                writer.writerow(charge_row(entry))
+            elif args.json:
+                comma = "," if count else " "
+                print(f"{comma}{entry.model_dump_json(exclude_none=True)}", file=out)
+            else:
+                at = charge_row(entry)[0]
+                pct = f"{entry.battery_pct:.1f} %"
+                line = f"{at:<24} {entry.unit:<10} {entry.charger:<10} {entry.event:<8} {pct:>8}"
+                print(f"{line}  {entry.reason or ''}".rstrip(), file=out)
+            count += 1
+        cursor = page.next_cursor
+        if cursor is None:
+            break
+    if args.json:
+        print("]", file=out)
+    elif writer is None:
+        print(f"{count} charge entr{'y' if count == 1 else 'ies'}", file=out)
+    return 0
+
+
 async def print_history(operator: Operator, args: argparse.Namespace, out: TextIO) -> int:
     """`job history`: every page of the query, printed as it arrives; 1 when it is refused."""
+    if args.charges:
+        return await print_charges(operator, args, out)
     query = {
         "since": args.since,
         "until": args.until,
