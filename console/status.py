@@ -163,14 +163,20 @@ PLAN_WORDS = {
 
 
 def plan_words(plan: UnitEnergy) -> str:
-    """What the energy policy does with a unit: its reason, else "to charger C1", "stranded"."""
-    if plan.reason:
-        return plan.reason
+    """What the energy policy does with a unit: its plan and charger ("to charger C1",
+    "stranded"), then the coordinator's reason (alone when it names them already)."""
     if plan.plan == "stranded":
-        return "stranded: it cannot reach a charger"
-    if plan.charger is None:
-        return "waiting for a charger" if plan.plan == "queued" else PLAN_WORDS[plan.plan]
-    return f"{PLAN_WORDS[plan.plan]} {plan.charger}"
+        head = "stranded"
+    elif plan.charger is None:
+        head = "waiting for a charger" if plan.plan == "queued" else PLAN_WORDS[plan.plan]
+    else:
+        head = f"{PLAN_WORDS[plan.plan]} {plan.charger}"
+    reason = plan.reason
+    if not reason:
+        return "stranded: it cannot reach a charger" if plan.plan == "stranded" else head
+    # A reason that names the charger or the plan already says it all.
+    named = plan.charger is not None and plan.charger in reason
+    return reason if named or reason.startswith(head.split()[0]) else f"{head}: {reason}"
 
 
 def battery_cell(state: UnitState | None) -> str:

@@ -80,6 +80,11 @@ test("the energy view says who is on each charger, who waits, and each unit's pl
   assert.equal(planText(v.energyPlan("u2")), "waiting for charger C1");
   assert.equal(planText(v.energyPlan("u4")), "to charger C2");
   assert.equal(planText(v.energyPlan("u5")), "stranded: it cannot reach a charger");
+  assert.equal(
+    planText({ plan: "to_charger", charger: "C1", reason: "below good 50 %; charges up to 80 %" }),
+    "to charger C1: below good 50 %; charges up to 80 %",
+  );
+  assert.equal(planText({ plan: "stranded", reason: "no charger can be reached from [3, 3]" }), "stranded: no charger can be reached from [3, 3]");
   assert.equal(planText(v.energyPlan("u9")), null);
   assert.equal(text(unitCells(v.units.get("u1"), null, null, null, null, v.energyPlan("u1")))[3],
     "idle · charging: 62 % of 80 %");

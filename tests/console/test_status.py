@@ -359,3 +359,18 @@ def test_batteries_plans_and_chargers_in_lines() -> None:
     # The view cleared (`gridfleet clean`): its chargers go.
     cleared = fed((T.fleet("energy"), energy), (T.fleet("energy"), b""))
     assert cleared.energy is None
+
+
+def test_a_plan_says_where_then_why_unless_its_reason_says_both() -> None:
+    from gridfleet.console.status import plan_words
+    from gridfleet.protocol import UnitEnergy
+
+    sent = UnitEnergy(plan="to_charger", charger="C1", reason="below good 50 %; charges up to 80 %")
+    assert plan_words(sent) == "to charger C1: below good 50 %; charges up to 80 %"
+    assert plan_words(
+        UnitEnergy(plan="charging", charger="C1", reason="charging: 62 % of 80 %")
+    ) == ("charging: 62 % of 80 %")
+    assert plan_words(UnitEnergy(plan="queued", charger="C2")) == "waiting for charger C2"
+    assert plan_words(UnitEnergy(plan="stranded")) == "stranded: it cannot reach a charger"
+    far = UnitEnergy(plan="stranded", reason="no charger can be reached from [3, 3]")
+    assert plan_words(far) == "stranded: no charger can be reached from [3, 3]"

@@ -23,15 +23,22 @@ const CONTROL_WORDS = { paused: "paused", out_of_service: "out of service" };
 const PLAN_WORDS = { to_charger: "to charger", queued: "waiting for charger", charging: "charging at" };
 
 /**
- * What the energy policy does with a unit, in words: its own reason ("charging: 62 % of 80 %")
- * when the coordinator gives one, else "to charger C1", "waiting for charger C2", "stranded".
+ * What the energy policy does with a unit, in words: the plan and its charger ("to charger C1",
+ * "waiting for charger C2", "stranded"), then the coordinator's reason, when it gives one (alone
+ * when it names them already: "charging: 62 % of 80 %").
  */
 export function planText(plan) {
   if (!plan) return null;
-  if (plan.reason) return plan.reason;
-  if (plan.plan === "stranded") return "stranded: it cannot reach a charger";
-  const words = PLAN_WORDS[plan.plan] ?? plan.plan;
-  return plan.charger ? `${words} ${plan.charger}` : (plan.plan === "queued" ? "waiting for a charger" : words);
+  let head;
+  if (plan.plan === "stranded") head = "stranded";
+  else {
+    const words = PLAN_WORDS[plan.plan] ?? plan.plan;
+    head = plan.charger ? `${words} ${plan.charger}` : (plan.plan === "queued" ? "waiting for a charger" : words);
+  }
+  if (!plan.reason) return plan.plan === "stranded" ? "stranded: it cannot reach a charger" : head;
+  // A reason that names the charger or the plan already says it all.
+  const says = (plan.charger && plan.reason.includes(plan.charger)) || plan.reason.startsWith(head.split(" ")[0]);
+  return says ? plan.reason : `${head}: ${plan.reason}`;
 }
 
 /** "62 %", with " ⚡" while it charges; null for a unit without energy. */
