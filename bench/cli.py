@@ -46,6 +46,10 @@ BENCHES: dict[str, tuple[str, str]] = {
         "gridfleet.bench.vda5050",
         "a mixed fleet with VDA 5050 vehicles: jobs a minute, stop to every vehicle paused",
     ),
+    "energy": (
+        "gridfleet.bench.energy",
+        "throughput on batteries: our energy policy, a naive one and endless batteries",
+    ),
 }
 
 
