@@ -451,7 +451,9 @@ class AlertsCore:
                         f"unit {name} battery critical: {pct:.0f} % (at or below "
                         f"{t.critical_pct:g} %), not charging"
                     )
-                elif pct < t.good_pct and (plan is None or plan.plan not in IN_HAND):
+                # Low holds on below critical too (both in force): it clears only once the unit
+                # charges, the policy has it in hand or it is back at good.
+                if pct < t.good_pct and (plan is None or plan.plan not in IN_HAND):
                     holding["battery_low", name] = (
                         f"unit {name} battery low: {pct:.0f} % (below {t.good_pct:g} %), "
                         "neither charging nor on its way to a charger"

@@ -55,6 +55,7 @@ class SystemSpec:
     window: int = DEFAULT_WINDOW  # squares a unit may be released ahead (coordinator.window)
     db_path: Path | None = None  # the coordinator's job store (None: per user, as a service)
     seed: int = 0
+    energy_policy: str = "gridfleet"  # the coordinator's (coordinator/energy.py POLICIES)
     coordinator_id: str | None = None  # default: 'coordinator', its client id per root
     sensors_see_units: bool = True  # threads only: sensors blind to units test the orders alone
     own_broker: Mode = "threads"  # where an embedded broker runs when the services are threads
@@ -186,6 +187,7 @@ class Assembly:
                 step_s=spec.step_s,
                 db_path=db_path,
                 seed=spec.seed,
+                energy_policy=spec.energy_policy,
                 client_id=spec.coordinator_id,
                 window=spec.window,
                 metrics=metrics,
@@ -280,7 +282,7 @@ class Assembly:
         scenario = str(spec.scenario.path)
         # The scenario itself, not only its map: the coordinator takes its chargers and [charging].
         coordinator = ["coordinator", *common, "--map", scenario, *step]
-        coordinator += ["--window", str(spec.window)]
+        coordinator += ["--window", str(spec.window), "--energy-policy", spec.energy_policy]
         if spec.db_path is not None:
             coordinator += ["--db", str(spec.db_path)]
         if spec.metrics_port is not None:

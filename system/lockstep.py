@@ -212,10 +212,16 @@ class Lockstep:
 
 
 def run_lockstep(
-    scenario: Scenario, step_s: float, max_steps: int, seed: int, window: int = DEFAULT_WINDOW
+    scenario: Scenario,
+    step_s: float,
+    max_steps: int,
+    seed: int,
+    window: int = DEFAULT_WINDOW,
+    policy: str = "gridfleet",
 ) -> SimulationResult:
-    """The scenario to the end (or `max_steps`), deterministically; the same result as ever."""
-    sim = Lockstep(scenario, step_s, seed, window=window)
+    """The scenario to the end (or `max_steps`), deterministically, under the coordinator's
+    energy `policy`; the same result as ever."""
+    sim = Lockstep(scenario, step_s, seed, window=window, policy=policy)
     sim.start()
     replies = sim.submit_scenario()
     goals = [

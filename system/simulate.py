@@ -22,6 +22,7 @@ from gridfleet.console.clean import clean_root
 from gridfleet.console.feed import scenario_job_id, submit_scenario
 from gridfleet.console.monitor import FleetMonitor
 from gridfleet.console.operator import Operator
+from gridfleet.coordinator.energy import POLICIES
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, check_window
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import Cell
@@ -79,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="the coordinator's and units' cores in lockstep, without a broker: the same run "
         "every time (steps, every job's done step), for comparing scenarios or planners",
+    )
+    parser.add_argument(
+        "--energy-policy",
+        default="gridfleet",
+        metavar="|".join(POLICIES),
+        help="the coordinator's energy policy (as `gridfleet coordinator --energy-policy`): "
+        "gridfleet (default): the scenario's [charging] thresholds with margins; naive: to the "
+        "nearest charger only at critical, no check that a job can be finished (a baseline)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object as the result")
     add_common(parser, own_broker="an embedded broker on a free port")
@@ -152,6 +161,7 @@ async def simulate(
     sensors_see_units: bool = True,
     seed: int = 0,
     window: int = DEFAULT_WINDOW,
+    energy_policy: str = "gridfleet",
 ) -> SimulationResult:
     """Run coordinator and units in this process (an own broker in a child) until done."""
     started = time.monotonic()
@@ -168,6 +178,7 @@ async def simulate(
         sensors_see_units=sensors_see_units,
         seed=seed,
         window=window,
+        energy_policy=energy_policy,
         # Its own process: in this one, amqtt shares the interpreter with the coordinator and
         # every unit, and at short steps its queue grew without bound (bench/README.md).
         own_broker="processes",
@@ -272,6 +283,9 @@ def job_json(j: JobView) -> dict[str, Any]:
         "unit": j.unit,
         "done_step": j.done_step,
         "reason": j.reason,
+        # Why a job not final waits (the coordinator's code and words, protocol.md §5.3).
+        "wait": j.wait,
+        "wait_reason": j.wait_reason,
     }
 
 
@@ -318,9 +332,7 @@ def summary(outcome: SimulationResult, scenario: Scenario) -> str:
         )
     for job in outcome.jobs:
         if job["state"] != "done":
-            lines.append(
-                f"  {job['id']}: {job['state']}" + (f" ({job['reason']})" if job["reason"] else "")
-            )
+            lines.append(f"  {job['id']}: {job['state']}{job_words(job)}")
     for goal in outcome.goals:
         lines.append(
             f"goal {goal['unit']} -> {goal['target']}: "
@@ -329,12 +341,28 @@ def summary(outcome: SimulationResult, scenario: Scenario) -> str:
     return "\n".join(lines)
 
 
+def job_words(job: Mapping[str, Any]) -> str:
+    """What a job not done says after its state: its reason, and why it waits."""
+    words = f" ({job['reason']})" if job["reason"] else ""
+    wait, said = job.get("wait"), job.get("wait_reason")
+    if wait:
+        words += f", waiting: {said} [{wait}]" if said else f", waiting: {wait}"
+    return words
+
+
+def check_energy_policy(policy: str) -> None:
+    """ConfigError in one line unless `policy` is one the coordinator has."""
+    if policy not in POLICIES:
+        raise ConfigError(f"--energy-policy {policy}: give {' or '.join(POLICIES)}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Entry point of `gridfleet simulate`."""
     check_step(args.step)
     if args.max_steps < 1:
         raise ConfigError(f"--max-steps {args.max_steps}: give at least 1")
     check_window(args.window)
+    check_energy_policy(args.energy_policy)
     scenario = with_units(load_scenario(args.scenario))
     if args.json:
         # Keep stdout for the one JSON object.
@@ -347,7 +375,9 @@ def run(args: argparse.Namespace) -> int:
         )
 
         started = time.monotonic()
-        outcome = run_lockstep(scenario, args.step, args.max_steps, args.seed, args.window)
+        outcome = run_lockstep(
+            scenario, args.step, args.max_steps, args.seed, args.window, args.energy_policy
+        )
         outcome.wall_time_s = round(time.monotonic() - started, 3)
     else:
         root = args.root
@@ -366,6 +396,7 @@ def run(args: argparse.Namespace) -> int:
                     args.broker,
                     seed=args.seed,
                     window=args.window,
+                    energy_policy=args.energy_policy,
                 )
             )
         finally:

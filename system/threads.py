@@ -126,10 +126,17 @@ class ServiceThread(Generic[S]):
 
 
 def coordinator_thread(
-    scenario: Scenario, broker_url: str, *, root: str, step_s: float, db_path: Path, **kw: Any
+    scenario: Scenario,
+    broker_url: str,
+    *,
+    root: str,
+    step_s: float,
+    db_path: Path,
+    energy_policy: str = "gridfleet",
+    **kw: Any,
 ) -> ServiceThread[CoordinatorShell]:
-    """The real coordinator for a scenario's map, chargers and [charging], with its job store at
-    `db_path`."""
+    """The real coordinator for a scenario's map, chargers and [charging] (under its energy
+    policy, unless `energy` is given), with its job store at `db_path`."""
     from gridfleet.coordinator.shell import CoordinatorShell
 
     def make() -> CoordinatorShell:
@@ -137,7 +144,7 @@ def coordinator_thread(
         from gridfleet.protocol import Charger
 
         chargers = [Charger(name=c.name, square=c.square) for c in scenario.chargers]
-        kw.setdefault("energy", EnergySettings.of(scenario.charging))
+        kw.setdefault("energy", EnergySettings.of(scenario.charging, energy_policy))
         return CoordinatorShell(
             broker_url,
             scenario.grid,

@@ -4,7 +4,9 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 import { controlRequest } from "../static/js/forms.js";
 import { FleetView, readEnergy } from "../static/js/model.js";
-import { batteryText, chargerLines, controlButtons, planText, unitCells } from "../static/js/view.js";
+import {
+  DEFAULT_THRESHOLDS, batteryLevel, batteryText, chargerLines, controlButtons, linkTitle, planText, unitCells,
+} from "../static/js/view.js";
 
 const state = (extra = {}) => JSON.stringify({ position: [1, 0], status: "idle", load_kg: 0, ...extra });
 const MAP = { name: "m", width: 4, height: 2, rows: ["....", "...."], obstacles: [] };
@@ -117,9 +119,43 @@ test("a malformed energy view: its bad parts left out, the good ones kept, the p
 test("the charge button: for units with energy, beside pause and out of service", () => {
   const commands = (control, energy) => controlButtons(control, energy).map(([, c]) => c);
   assert.deepEqual(commands(null, true), ["pause", "out_of_service", "charge"]);
-  assert.equal(controlButtons(null, true)[2][0], "⚡", "a bolt, as on the chargers: the row has little room");
+  assert.deepEqual(controlButtons(null, true)[2], ["charge", "charge", "send to charge (to full, then back to work)"],
+    "a word, as on its neighbours");
   assert.deepEqual(commands("paused", true), ["resume", "out_of_service", "charge"]);
   assert.deepEqual(commands("out_of_service", true), ["in_service"]);
   assert.deepEqual(commands(null, false), ["pause", "out_of_service"]);
   assert.deepEqual(controlRequest("u3", "charge"), { what: "send to charge u3", body: { unit: "u3", command: "charge" } });
+});
+
+test("a battery's level by the coordinator's thresholds: amber at or below good, red at or below critical", () => {
+  const t = { critical_pct: 25, good_pct: 60, sufficient_pct: 80, full_pct: 95 };
+  const level = (pct, thresholds = t) => batteryLevel(pct, thresholds)?.level ?? null;
+  assert.deepEqual([61, 60.4, 60, 25.1, 25, 0.4, 0].map((p) => level(p)), ["ok", "ok", "low", "low", "critical", "critical", "empty"]);
+  assert.equal(batteryLevel(60, t).words, "low (at or below 60 %)");
+  assert.equal(batteryLevel(25, t).words, "critical (at or below 25 %)");
+  assert.equal(batteryLevel(0, t).words, "empty: it cannot move");
+  assert.equal(batteryLevel(61, t).words, null);
+  // Without the energy view: the coordinator's defaults (20 % and 50 %).
+  assert.deepEqual(DEFAULT_THRESHOLDS, { critical_pct: 20, good_pct: 50 });
+  assert.deepEqual([51, 50, 21, 20, 0].map((p) => level(p, null)), ["ok", "low", "low", "critical", "empty"]);
+  assert.equal(batteryLevel(null, t), null);
+  assert.equal(batteryLevel(Number.NaN), null);
+});
+
+test("an empty battery says so in words; charging keeps its own mark", () => {
+  assert.equal(batteryText(0, false), "0 % empty");
+  assert.equal(batteryText(0, true), "0 % ⚡");
+  assert.equal(batteryText(0.4, false), "0 %", "nearly, not yet: it can still move");
+  const v = new FleetView();
+  v.apply("connection", "u1", JSON.stringify({ state: "online" }), 0);
+  v.apply("state", "u1", state({ battery_pct: 0, charging: false, status: "waiting", wait_reason: "battery empty: cannot move" }), 0);
+  const [, [link]] = unitCells(v.units.get("u1"));
+  assert.equal(link, "0 % empty · online");
+  assert.equal(linkTitle(link, v.battery("u1"), batteryLevel(0)), "battery 0 %, empty: it cannot move · online");
+  assert.equal(linkTitle("62 % ⚡ · VDA 5050 x", { pct: 61.6, charging: true }, batteryLevel(61.6)),
+    "battery 62 %, charging · VDA 5050 x");
+  assert.equal(linkTitle("19 % · online", { pct: 19, charging: false }, batteryLevel(19, THRESHOLDS)),
+    "battery 19 %, critical (at or below 20 %) · online");
+  assert.equal(linkTitle("80 % · online", { pct: 80, charging: false }, batteryLevel(80)), "battery 80 % · online");
+  assert.equal(linkTitle("online", null, null), "online");
 });

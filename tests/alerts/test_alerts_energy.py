@@ -118,7 +118,7 @@ def test_a_low_spell_that_ends_starts_afresh() -> None:
     assert [n[0] for n in notices(r.tick(111.5))] == ["raised"]
 
 
-def test_a_critical_battery_raises_critical_and_not_low_too() -> None:
+def test_a_critical_battery_raises_critical_after_its_own_threshold() -> None:
     r = rig()
     r.send(1.0, T.unit("state", "unit1"), battery("unit1", 20.0))  # at critical
     raised = r.tick(11.5)
@@ -134,6 +134,66 @@ def test_a_critical_battery_raises_critical_and_not_low_too() -> None:
     # Charged above critical and off the charger below good, in hand: nothing more.
     r.send(40.0, T.unit("state", "unit1"), battery("unit1", 45.0))
     assert r.tick(200.0).notices == []
+
+
+LOW_38 = (
+    "unit unit1 battery low: 38 % (below 50 %), neither charging nor on its way to a charger "
+    "for 60 s"
+)
+
+
+def test_a_low_battery_falling_to_critical_keeps_low_in_force_beside_critical() -> None:
+    # The walkthrough's unit: low at 38 %, left alone, falls on to 19 %. battery_low cleared
+    # then (its cleared entry still said 38 %) and nothing was in force for 10 s: it read as if
+    # the battery had recovered.
+    r = rig()
+    r.send(1.0, T.unit("state", "unit1"), battery("unit1", 38.0))
+    assert notices(r.tick(61.5)) == [("raised", "n1-1", f"[WARNING] {LOW_38}")]
+    fell = r.send(62.0, T.unit("state", "unit1"), battery("unit1", 19.0))
+    assert fell.notices == []  # nothing cleared: still low, and critical from now
+    assert r.tick(72.0).notices == []  # critical for 10 s, not more
+    critical = r.tick(72.5)
+    critical_text = "unit unit1 battery critical: 19 % (at or below 20 %), not charging for 10 s"
+    assert notices(critical) == [("raised", "n1-2", f"[CRITICAL] {critical_text}")]
+    (view,) = views(critical)
+    assert [(a.id, a.rule) for a in view.active] == [
+        ("n1-1", "battery_low"),
+        ("n1-2", "battery_critical"),
+    ]
+    # At 0 % too, both hold; nothing more is raised.
+    assert r.send(80.0, T.unit("state", "unit1"), battery("unit1", 0.0)).notices == []
+    assert r.tick(200.0).notices == []
+    # Sent to a charger: the policy has it in hand, so it is no longer "low and left alone";
+    # critical it still is, on its way.
+    on_its_way = r.send(201.0, T.fleet("energy"), energy({"unit1": ("to_charger", None)}))
+    assert notices(on_its_way) == [("cleared", "n1-1", f"[CLEARED] {LOW_38}")]
+    assert r.tick(300.0).notices == []
+    charging = r.send(301.0, T.unit("state", "unit1"), battery("unit1", 1.0, charging=True))
+    assert notices(charging) == [("cleared", "n1-2", f"[CLEARED] {critical_text}")]
+    assert r.core.raised_total["battery_low"] == r.core.cleared_total["battery_low"] == 1
+
+
+@pytest.mark.parametrize(
+    ("plan", "pct", "charging"),
+    [("queued", 15.0, False), (None, 15.0, True), (None, 50.0, False)],
+    ids=["queued", "charging", "back at good"],
+)
+def test_low_and_critical_clear_as_each_rule_says(
+    plan: EnergyPlan | None, pct: float, charging: bool
+) -> None:
+    r = rig()
+    r.send(1.0, T.unit("state", "unit1"), battery("unit1", 38.0))
+    r.tick(61.5)
+    r.send(62.0, T.unit("state", "unit1"), battery("unit1", 15.0))
+    (view,) = views(r.tick(73.0))
+    assert [a.rule for a in view.active] == ["battery_low", "battery_critical"]
+    if plan is not None:
+        r.send(74.0, T.fleet("energy"), energy({"unit1": (plan, None)}))
+    r.send(75.0, T.unit("state", "unit1"), battery("unit1", pct, charging=charging))
+    r.tick(76.0)
+    # Queued for a charger: no longer low and left alone, still critical until it charges.
+    assert [rule for rule, _ in r.core.active] == (["battery_critical"] if plan else [])
+    assert r.core.cleared_total["battery_low"] == 1
 
 
 def test_a_stranded_unit_raises_cannot_reach_charger_with_the_coordinators_words() -> None:

@@ -88,15 +88,9 @@ def energy_view(
     publish(probe, "energy", topics.fleet("energy"), view)
 
 
-@pytest.fixture
-def dash(
-    open_dashboard: Callable[..., OpenDashboard],
-    probe: MqttProbe,
-    topics: Topics,
-    coordinator: CoordinatorPeer,
-) -> OpenDashboard:
-    """The playfield with two chargers; unit1 charging on C1, unit2 on its way to C2, unit3
-    queued for C1, unit4 without energy."""
+def energy_fleet(probe: MqttProbe, topics: Topics) -> None:
+    """The playfield with two chargers; unit1 charging on C1, unit2 on its way to C2 (low),
+    unit3 queued for C1 (critical), unit4 without energy."""
     grid: GridMap = load_scenario(PLAYFIELD).grid
     stamp = HeaderStamper("coordinator-energy")
     fleet_map = FleetMap(
@@ -128,10 +122,23 @@ def dash(
         ],
         {
             "unit1": UnitEnergy(plan="charging", charger="C1", reason="charging: 62 % of 80 %"),
-            "unit2": UnitEnergy(plan="to_charger", charger="C2"),
+            "unit2": UnitEnergy(
+                plan="to_charger", charger="C2", reason="below good 50 %; charges up to 80 %"
+            ),
             "unit3": UnitEnergy(plan="queued", charger="C1"),
         },
     )
+
+
+@pytest.fixture
+def dash(
+    open_dashboard: Callable[..., OpenDashboard],
+    probe: MqttProbe,
+    topics: Topics,
+    coordinator: CoordinatorPeer,
+) -> OpenDashboard:
+    """The energy fleet on a page of the usual size."""
+    energy_fleet(probe, topics)
     dash = open_dashboard()
     expect(dash.page.locator("#units-count")).to_have_text("(4)")
     return dash
@@ -150,6 +157,15 @@ def test_batteries_chargers_and_plans_are_shown(dash: OpenDashboard) -> None:
     expect(link).to_have_attribute("title", "battery 62 %, charging · online")
     expect(link).to_have_class("link charging")
     expect(page.locator("#units tr[data-unit='unit2'] .link")).to_have_text("38 % · online")
+    # Coloured by the coordinator's thresholds (good 50 %, critical 20 %), charging or not.
+    levels = {"unit1": "ok", "unit2": "low", "unit3": "critical"}
+    for unit, level in levels.items():
+        expect(page.locator(f"#units tr[data-unit='{unit}'] .link")).to_have_attribute(
+            "data-level", level
+        )
+    expect(page.locator("#units tr[data-unit='unit3'] .link")).to_have_attribute(
+        "title", "battery 19 %, critical (at or below 20 %) · online"
+    )
     # A unit that reports no energy shows nothing new: no battery, no plan, no charge button.
     unit4 = page.locator("#units tr[data-unit='unit4']")
     expect(unit4.locator(".link")).to_have_text("online")
@@ -161,7 +177,7 @@ def test_batteries_chargers_and_plans_are_shown(dash: OpenDashboard) -> None:
         "idle · charging: 62 % of 80 %"
     )
     expect(page.locator("#units tr[data-unit='unit2'] .status")).to_have_text(
-        "idle · to charger C2"
+        "idle · to charger C2: below good 50 %; charges up to 80 %"
     )
     expect(page.locator("#units tr[data-unit='unit3'] .status")).to_have_text(
         "idle · waiting for charger C1"
@@ -178,11 +194,56 @@ def test_batteries_chargers_and_plans_are_shown(dash: OpenDashboard) -> None:
     assert dash.errors == []
 
 
+@pytest.mark.parametrize(
+    "viewport",
+    [{"width": 1280, "height": 800}, {"width": 1920, "height": 1080}],
+    ids=lambda v: str(v["width"]),
+)
+def test_status_plan_and_battery_are_readable_without_hovering(
+    open_dashboard: Callable[..., OpenDashboard],
+    probe: MqttProbe,
+    topics: Topics,
+    coordinator: CoordinatorPeer,
+    viewport: dict[str, int],
+) -> None:
+    energy_fleet(probe, topics)
+    dash = open_dashboard(viewport=viewport)
+    page = dash.page
+    expect(page.locator("#units-count")).to_have_text("(4)")
+    status = page.locator("#units tr[data-unit='unit2'] .status")
+    expect(status).to_have_text("idle · to charger C2: below good 50 %; charges up to 80 %")
+    expect(status).to_be_visible()
+    dash.screenshot(f"dashboard-energy-{viewport['width']}")
+    # No cell of any unit is cut short: its whole text is on the page, not only in its title.
+    clipped = page.evaluate(
+        """() => [...document.querySelectorAll('#units tbody tr[data-unit] td')]
+            .filter((td) => td.scrollWidth > td.clientWidth)
+            .map((td) => `${td.parentElement.dataset.unit} ${td.className}: ${td.textContent}`)"""
+    )
+    assert clipped == []
+    # The charge button: a button of a normal size with its word, beside (not over) the status.
+    charge = page.locator("#units tr[data-unit='unit2'] button[data-command=charge]")
+    expect(charge).to_have_text("charge")
+    expect(charge).to_be_visible()
+    size = charge.evaluate("b => parseFloat(getComputedStyle(b).fontSize)")
+    box, said = charge.bounding_box(), status.bounding_box()
+    assert box is not None and said is not None
+    assert size >= 12 and box["height"] >= 18 and box["width"] >= 44, (size, box)
+    assert said["x"] + said["width"] <= box["x"], (said, box)
+    # A unit at 0 %: red, and "empty" in words.
+    peer = UnitPeer(probe, topics, "unit2")
+    charged_state(probe, topics, peer.stamp, "unit2", Cell(4, 4), 0.0)
+    link = page.locator("#units tr[data-unit='unit2'] .link")
+    expect(link).to_have_text("0 % empty · online")
+    expect(link).to_have_attribute("data-level", "empty")
+    assert dash.errors == []
+
+
 def test_the_charge_button_sends_control_unit_charge(
     dash: OpenDashboard, probe: MqttProbe, topics: Topics, coordinator: CoordinatorPeer
 ) -> None:
     charge = dash.page.locator("#units tr[data-unit='unit2'] button[data-command=charge]")
-    expect(charge).to_have_text("⚡")
+    expect(charge).to_have_text("charge")
     expect(charge).to_have_attribute("title", "send to charge (to full, then back to work): unit2")
     charge.click()
     request = decode(ControlUnit, probe.wait(topics.request("control_unit")).payload)

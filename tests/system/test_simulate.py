@@ -100,6 +100,10 @@ def test_human_summary() -> None:
         ([str(MAPS / "corridor.toml"), "--step", "0"], "step"),
         ([str(MAPS / "corridor.toml"), "--max-steps", "0"], "max-steps"),
         ([str(MAPS / "corridor.toml"), "--window", "0"], "--window 0: give 1 to 32 squares"),
+        (
+            [str(MAPS / "corridor.toml"), "--energy-policy", "eager"],
+            "--energy-policy eager: give gridfleet or naive",
+        ),
     ],
 )
 def test_bad_input_is_one_clear_line(args: list[str], message: str) -> None:
@@ -260,3 +264,64 @@ def test_a_run_over_mqtt_reports_the_same_battery_figures(tmp_path: Path) -> Non
     out = simulate(str(path), "--step", "0.05", "--max-steps", "600", "--json")
     assert out.returncode == 0, failure_report(out)
     _check_energy_figures(json.loads(out.stdout))
+
+
+def test_the_naive_energy_policy_is_chosen_and_runs_units_empty() -> None:
+    # The same deterministic run under the coordinator's two policies: the naive baseline sends a
+    # unit to charge only at critical and never checks that a job can be finished.
+    runs = {
+        policy: json.loads(
+            simulate(
+                str(MAPS / "playfield-energy.toml"),
+                "--deterministic",
+                "--energy-policy",
+                policy,
+                "--json",
+                timeout=120,
+            ).stdout
+        )
+        for policy in ("gridfleet", "naive")
+    }
+    ours, naive = runs["gridfleet"], runs["naive"]
+    assert ours["finished"] and ours["units_empty"] == 0
+    assert naive["units_empty"] >= 1
+    lowest = {p: min(u["lowest_battery_pct"] for u in r["units"]) for p, r in runs.items()}
+    assert lowest["naive"] == 0.0 < lowest["gridfleet"], lowest
+
+
+# One unit at 60 %, a move 4 %: the job (12 moves with the way on to the charger) needs 80 %.
+# Above good (50 %) the unit is not sent to charge; charging would take hours at 0.01 % a second.
+WAIT_SCENARIO = (
+    'map = "energy.map"\n'
+    '[[units]]\nid = "low"\nstart = [0, 0]\ncapacity = 5.0\n'
+    "battery = { start_pct = 60.0, move_pct = 4.0, idle_pct_per_s = 0.0, "
+    "charge_pct_per_s = 0.01 }\n"
+    "[[chargers]]\nsquare = [0, 2]\n"
+    '[[jobs]]\nid = "far"\npickup = [5, 0]\ndropoff = [5, 2]\nmass = 2.0\n'
+)
+FAR_WAITS = "battery too low for this job (low has 60 %, needs 80 %)"
+
+
+@pytest.mark.parametrize("mode", [["--deterministic"], []], ids=["deterministic", "mqtt"])
+def test_a_job_not_done_says_why_it_waits(tmp_path: Path, mode: list[str]) -> None:
+    (tmp_path / "energy.map").write_text(ENERGY_MAP)
+    path = tmp_path / "wait.toml"
+    path.write_text(WAIT_SCENARIO)
+    args = (str(path), *mode, "--step", "0.05", "--max-steps", "40")
+    out = simulate(*args, "--json")
+    assert out.returncode == 1, failure_report(out)
+    (job,) = json.loads(out.stdout)["jobs"]
+    assert (job["state"], job["wait"], job["wait_reason"]) == ("queued", "battery_low", FAR_WAITS)
+    human = simulate(*args)
+    assert f"  far: queued, waiting: {FAR_WAITS} [battery_low]" in human.stdout.splitlines()
+    # Under the naive policy (chosen for the coordinator in lockstep or in its thread) the same
+    # unit takes the job at once, and a job done waits for nothing.
+    naive = simulate(*args, "--energy-policy", "naive", "--json")
+    assert naive.returncode == 0, failure_report(naive)
+    (done,) = json.loads(naive.stdout)["jobs"]
+    assert (done["state"], done["unit"], done["wait"], done["wait_reason"]) == (
+        "done",
+        "low",
+        None,
+        None,
+    )

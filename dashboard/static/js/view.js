@@ -9,7 +9,9 @@ import { CHART_MINUTES, durationText, eventLines, latestFinished, tookSeconds, u
 import { phaseText, shownUnits, unitState, visibleSlice } from "./units.js";
 
 const $ = (sel) => document.querySelector(sel);
-const ROW_H = 25; // px of a units or jobs row (style.css): the tables show only the rows in view
+// px of a jobs row and of a units row (two lines: style.css): the tables show only the rows in view
+const ROW_H = 25;
+const UNIT_ROW_H = 46;
 const FINAL_COUNTED = ["done", "cancelled", "rejected", "failed"];
 
 // ---- what the page says (pure) ----
@@ -41,10 +43,36 @@ export function planText(plan) {
   return says ? plan.reason : `${head}: ${plan.reason}`;
 }
 
-/** "62 %", with " ⚡" while it charges; null for a unit without energy. */
+/** "62 %", with " ⚡" while it charges, " empty" at 0 % (it cannot move); null without energy. */
 export function batteryText(pct, charging) {
   if (typeof pct !== "number" || !Number.isFinite(pct)) return null;
-  return `${Math.round(pct)} %${charging ? " ⚡" : ""}`;
+  return `${Math.round(pct)} %${charging ? " ⚡" : (pct <= 0 ? " empty" : "")}`;
+}
+
+// The coordinator's default thresholds (gridfleet/energy.py ChargingSpec), for a page that has not
+// heard its energy view (fleet/energy) yet.
+export const DEFAULT_THRESHOLDS = { critical_pct: 20, good_pct: 50 };
+
+/**
+ * How low a battery at `pct` is against the coordinator's thresholds (the energy view's, else the
+ * defaults): {level, words}; level "ok", "low" (at or below good_pct), "critical" (at or below
+ * critical_pct) or "empty" (0 %); words say so for its title (null when ok). Null without energy.
+ */
+export function batteryLevel(pct, thresholds = null) {
+  if (typeof pct !== "number" || !Number.isFinite(pct)) return null;
+  const t = thresholds ?? DEFAULT_THRESHOLDS;
+  if (pct <= 0) return { level: "empty", words: "empty: it cannot move" };
+  if (pct <= t.critical_pct) return { level: "critical", words: `critical (at or below ${t.critical_pct} %)` };
+  if (pct <= t.good_pct) return { level: "low", words: `low (at or below ${t.good_pct} %)` };
+  return { level: "ok", words: null };
+}
+
+/** The link cell's title: "battery 62 %, charging · online", "battery 19 %, critical (…) · online". */
+export function linkTitle(said, battery, level) {
+  if (!battery) return said;
+  const rest = said.replace(/^\S+ %( ⚡| empty)?/, "").replace(/^ · /, "");
+  const how = battery.charging ? "charging" : level?.words;
+  return `battery ${Math.round(battery.pct)} %${how ? `, ${how}` : ""}${rest ? ` · ${rest}` : ""}`;
 }
 
 /**
@@ -91,7 +119,7 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
 export function controlButtons(control, energy = false) {
   if (control === "out_of_service") return [["in service", "in_service", "bring back into service"]];
   const out = ["out", "out_of_service", "take out of service"];
-  const charge = energy ? [["⚡", "charge", "send to charge (to full, then back to work)"]] : [];
+  const charge = energy ? [["charge", "charge", "send to charge (to full, then back to work)"]] : [];
   if (control === "paused") return [["resume", "resume", "resume"], out, ...charge];
   return [["pause", "pause", "pause"], out, ...charge];
 }
@@ -291,10 +319,10 @@ export class PageView {
         shown = pick();
         at = shown.findIndex((r) => r.id === this.revealing);
       }
-      if (at >= 0) scrollTop = Math.max(0, at * ROW_H - (box.clientHeight || 400) / 2);
+      if (at >= 0) scrollTop = Math.max(0, at * UNIT_ROW_H - (box.clientHeight || 400) / 2);
       this.revealing = null;
     }
-    const slice = visibleSlice(shown.length, ROW_H, scrollTop, box.clientHeight || 400);
+    const slice = visibleSlice(shown.length, UNIT_ROW_H, scrollTop, box.clientHeight || 400);
     syncRows($("#units tbody"), shown.slice(slice.first, slice.last), {
       keyName: "unit",
       key: (r) => r.id,
@@ -311,21 +339,23 @@ export class PageView {
         }
         this.controls(tr.querySelector("td.control"), id, r.state === "away");
         tr.dataset.link = u.connection ?? "unknown";
-        // Its battery as a bar behind the link cell (style.css), and its charge for tests.
+        // Its battery as a bar behind the link cell, coloured by the coordinator's thresholds
+        // (style.css: amber low, red critical or empty), and its charge for tests.
         const battery = this.view.battery(id);
+        const level = battery ? batteryLevel(battery.pct, this.view.energy?.thresholds) : null;
         const link = tr.children[1];
         const pct = battery ? String(Math.round(battery.pct)) : "";
         if ((link.dataset.battery ?? "") !== pct) {
           if (battery) link.dataset.battery = pct; else delete link.dataset.battery;
           link.style.setProperty("--battery", battery ? `${battery.pct}%` : "");
         }
+        if (level) link.dataset.level = level.level; else delete link.dataset.level;
         link.classList.toggle("charging", !!battery?.charging);
         tr.dataset.state = r.state; // moving, idle, … away: what the filter and the map's colours say
         tr.classList.toggle("selected", id === ui.selectedUnit);
-        tr.children[0].style.borderLeft = `6px solid ${this.view.colorOf(id)}`;
-        // The whole cell in words, when it is cut short: "battery 62 %, charging · online".
-        const said = tr.children[1].textContent;
-        tr.children[1].title = battery ? `battery ${said.replace(" ⚡", ", charging")}` : said;
+        tr.style.setProperty("--unit-color", this.view.colorOf(id)); // its stripe (style.css)
+        // The whole cell in words: "battery 62 %, charging · online".
+        link.title = linkTitle(link.textContent, battery, level);
         tr.children[3].title = tr.children[3].textContent; // the whole of a long status
         tr.children[4].title = tr.children[4].textContent;
       },
