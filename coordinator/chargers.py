@@ -5,7 +5,7 @@ Pure: the map's chargers in, the nearest (free) one of a square out, by the dist
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE
@@ -46,9 +46,16 @@ class ChargerBook:
         *,
         free_only: bool = False,
         held_by: Collection[str] | None = None,
+        within: float | None = None,
+        skip: Collection[str] = (),
+        blocked: Mapping[Cell, str] | None = None,
+        unit: str | None = None,
     ) -> tuple[str, int] | None:
         """(name, squares) of the nearest charger reachable from `square`: any, a free one, or one
-        held by a unit of `held_by`; None when there is none. Ties go to the first listed."""
+        held by a unit of `held_by`; None when there is none. Left out: chargers farther than
+        `within` squares, those named in `skip`, and those on a square of `blocked` (square ->
+        the unit standing there that cannot make way) unless that unit is `unit`. Ties go to the
+        first listed."""
         best: tuple[str, int] | None = None
         for c in self.chargers:
             holder = self._holder.get(c.name)
@@ -56,8 +63,12 @@ class ChargerBook:
                 continue
             if held_by is not None and holder not in held_by:
                 continue
+            if c.name in skip:
+                continue
+            if blocked is not None and blocked.get(c.square) not in (None, unit):
+                continue
             d = distance(square, c.square)
-            if d == UNREACHABLE:
+            if d == UNREACHABLE or (within is not None and d > within):
                 continue
             if best is None or d < best[1]:
                 best = (c.name, int(d))

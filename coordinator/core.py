@@ -656,20 +656,35 @@ class CoordinatorCore:
         return active
 
     def _energy(self, units: list[UnitRecord], active: set[str], now: float) -> EnergyStep:
-        """The energy policy's step (energy.py): every active unit that reports its charge in;
-        the jobs of units that must charge at once go back to the queue."""
+        """The energy policy's step (energy.py): every active unit that reports its charge in,
+        with the squares of units that cannot make way (lost, paused, out of service, stopped,
+        not coordinated, empty) and the units whose factsheet has energy but whose state has no
+        charge yet; the jobs of units that must charge at once go back to the queue."""
         batteries = []
+        blocked: dict[Cell, str] = {}
+        unknown: list[str] = []
         for u in units:
             st, fs = u.state, u.factsheet
-            if st is None or fs is None or fs.energy is None or st.battery_pct is None:
+            if st is None:
                 continue
-            if u.id not in active:
+            control = self.directives.controls.get(u.id)
+            if (
+                u.id not in active
+                or control is not None
+                or st.estop
+                or st.mode != "coordinated"
+                or (st.battery_pct is not None and st.battery_pct <= 0)
+            ):
+                blocked[st.position] = u.id
+            if fs is None or fs.energy is None or u.id not in active:
+                continue
+            if st.battery_pct is None:
+                unknown.append(u.id)
                 continue
             job = self.jobs.of_unit(u.id)
             carrying = (job is not None and job.state in CARRYING_STATES) or (
                 u.id in self.progress.returns
             )
-            control = self.directives.controls.get(u.id)
             goal = u.id in self.directives.goals
             free = (
                 job is None
@@ -694,7 +709,7 @@ class CoordinatorCore:
                     out_of_service=control == "out_of_service",
                 )
             )
-        step = self.energy.plan(batteries, self.planner.cache.distance, now)
+        step = self.energy.plan(batteries, self.planner.cache.distance, now, blocked, unknown)
         for uid, why in step.requeue.items():
             job = self.jobs.of_unit(uid)
             if job is not None and job.state not in CARRYING_STATES:
@@ -732,7 +747,7 @@ class CoordinatorCore:
         )
         if given:
             by_unit = {unit: job for job, unit in given.items()}
-            self.energy.given_jobs(by_unit, now, by_unit)
+            self.energy.given_jobs(by_unit, now)
         self.progress.dispatch(units, active)
 
     def _tell_charges(self, news: list[ChargeNews]) -> None:

@@ -2,17 +2,21 @@
 unit may still drive, by openTCS's four thresholds.
 
 Pure: each step the core hands in every unit's battery (its charge, its energy model, its square,
-what it is doing), the chargers (chargers.py) and the distances on the map; the decisions come out
-(`EnergyStep`): the charger square each unit is sent to, the units that charge standing, the jobs
-to give back, how many squares each unit may still be given, and what happened (`ChargeNews`, for
-the events and the history). Units that report no energy are never looked at.
+what it is doing), the squares of units that cannot make way, the chargers (chargers.py) and the
+distances on the map; the decisions come out (`EnergyStep`): the charger square each unit is sent
+to, the units that charge standing, the jobs to give back, how many squares each unit may still be
+given, and what happened (`ChargeNews`, for the events and the history). Units that report no
+energy are never looked at; a unit whose factsheet has energy but whose state has no charge yet
+takes no job until it says.
 
 The margins (the safety argument is in protocol.md §5.9): a way of n squares is predicted to cost
 `need_pct(n)` = n x move_pct x MOVE_SAFETY plus standing for WAIT_FACTOR x as long as the drive and
 WAIT_STEPS step periods more, at idle_pct_per_s. A job goes only to a unit that, by that prediction, still has
 `critical_pct` when it reaches the charger nearest the job's dropoff; a unit goes to charge at
 once when its charge is at or below its own critical level, `critical_pct` raised to cover the way
-to its nearest charger (plus DETECT_MOVES: the step its state takes to tell us).
+to its nearest charger with the lag of its state (`to_charger_pct`: DETECT_MOVES more moves and
+DETECT_PCT more). It is sent only to a charger whose way its charge covers: the nearest, or one
+farther that it still reaches with `critical_pct` (`reach`).
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Literal, get_args
 
 from gridfleet.coordinator.chargers import ChargerBook
@@ -27,6 +32,7 @@ from gridfleet.energy import ChargingSpec, thresholds_problem
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE
 from gridfleet.protocol import ChargerView, EnergyModel, EnergyView, Header, Thresholds, UnitEnergy
+from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
 from gridfleet.protocol.messages import AvailableFrom, ChargeEvent, EnergyPlan
 
 Policy = Literal["gridfleet", "naive"]
@@ -37,7 +43,15 @@ WAIT_FACTOR = 1.0  # and a unit may stand waiting as long again as it drives
 # unit's waits are, so a run faster than life (whose rates a second are faster too) is judged
 # as the same run in life
 WAIT_STEPS = 60
-DETECT_MOVES = 1  # a unit's state tells its charge a step late: one move more to cover
+# A unit's state tells its charge late: a moving unit sends one each move, but a standing one only
+# when its whole percent changes or on the heartbeat (STATE_HEARTBEAT_STEPS steps), and it is read a
+# step later. So its charge may be up to a heartbeat's moves and a whole percent below what it said.
+DETECT_MOVES = STATE_HEARTBEAT_STEPS
+DETECT_PCT = 1.0
+# A unit standing on its charger that does not say it charges (a charger that failed, a vehicle that
+# ended its charge itself) holds it this many steps, and at least this long, then its charge ends.
+CHARGE_START_STEPS = 20
+CHARGE_START_MIN_S = 30.0
 # Allocation prefers the unit with more charge among near-equal ways: each % of charge a unit has
 # less counts as this many squares more of travel (0 % to 100 %: five squares).
 CHARGE_PREFERENCE = 0.05
@@ -121,6 +135,12 @@ def max_moves(model: EnergyModel, pct: float, floor: float, step_s: float) -> fl
     return math.inf if per == 0 else spare / per
 
 
+def to_charger_pct(model: EnergyModel, moves: float, step_s: float) -> float:
+    """The charge a unit needs to reach a charger `moves` squares off, as its state tells it:
+    the way with the margins, DETECT_MOVES more of it and DETECT_PCT more (its state's lag)."""
+    return need_pct(model, moves + DETECT_MOVES, step_s) + DETECT_PCT
+
+
 @dataclass(frozen=True)
 class Battery:
     """One unit that reports energy, as the policy sees it this step."""
@@ -166,10 +186,13 @@ class Charge:
     charger: str
     why: str  # in words, e.g. "below good 50 %"
     until_pct: float  # it takes jobs again from here (full: `forced` or naive)
+    pct: float  # its latest charge (what its end says, should it be lost on the way)
     forced: bool = False  # an operator's `charge`: to full, no job before
     standing: bool = False  # on its charger square
     started_at: float | None = None  # when its state first said it charges
     started_pct: float = 0.0
+    idle_steps: int = 0  # steps in a row on its charger without charging
+    idle_since: float | None = None  # since when
 
 
 @dataclass
@@ -187,6 +210,10 @@ def _pct(value: float) -> str:
     return f"{value:.0f} %"
 
 
+# A candidate for a charger: (urgency, the unit, why, urgent, its nearest charger).
+_Need = tuple[tuple[int, float], Battery, str, bool, tuple[str, int]]
+
+
 class EnergyPolicy:
     """The charges under way, the queue, the stranded units, and what the view shows."""
 
@@ -198,6 +225,10 @@ class EnergyPolicy:
         self.queued: dict[str, str] = {}  # unit -> the charger it waits for, most urgent first
         self.stranded: dict[str, str] = {}  # unit -> why no charger can help
         self.forced: set[str] = set()  # an operator's `charge` not under way yet
+        self.refused: dict[str, set[str]] = {}  # unit -> the chargers that did not charge it
+        # Units a waiting job needs more charge of (the last waits', waits.py): unit -> the %.
+        self.wanted: dict[str, float] = {}
+        self._wanting: dict[str, float] = {}  # this step's: a charge for one goes up to its %
         self.news: list[ChargeNews] = []
         self.heard_energy = False  # a unit reported energy: the view goes out from then on
         self.dirty = True
@@ -206,8 +237,11 @@ class EnergyPolicy:
         self._pcts: dict[str, float] = {}  # each unit's latest charge, for the waits' words
         self._models: dict[str, EnergyModel] = {}
         self._positions: dict[str, Cell] = {}
+        self._unknown: set[str] = set()  # energy in its factsheet, no charge in its state yet
+        self._blocked: Mapping[Cell, str] = {}  # squares of units that cannot make way
+        self._now = 0.0  # the latest step's time
         self.started = 0  # charges started since the coordinator started (metrics)
-        self.charged_s = 0.0  # seconds of the charges ended so far
+        self._ended_s = 0.0  # seconds of the charges ended so far
 
     # ---- what the policy knows ---------------------------------------------------------------
 
@@ -216,20 +250,35 @@ class EnergyPolicy:
         """Whether there is anything to say: chargers, or a unit that reports energy."""
         return bool(self.chargers.chargers) or self.heard_energy
 
-    def critical_of(self, b: Battery, distance: Distance) -> float:
-        """`b`'s own critical level: critical_pct, raised to cover the way to its nearest charger."""
-        if self.settings.policy == "naive":
-            return self.settings.critical_pct
-        near = self.chargers.nearest(b.position, distance)
-        if near is None:
-            return self.settings.critical_pct
-        return max(
-            self.settings.critical_pct, need_pct(b.model, near[1] + DETECT_MOVES, self.step_s)
+    @property
+    def pcts(self) -> Mapping[str, float]:
+        """Each active unit's latest charge, of those that report energy."""
+        return MappingProxyType(self._pcts)
+
+    @property
+    def models(self) -> Mapping[str, EnergyModel]:
+        """Each active unit's energy model, of those that report energy."""
+        return MappingProxyType(self._models)
+
+    @property
+    def positions(self) -> Mapping[str, Cell]:
+        """Each active unit's square, of those that report energy."""
+        return MappingProxyType(self._positions)
+
+    @property
+    def charged_s(self) -> float:
+        """Seconds units charged since the coordinator started: the charges ended and those
+        under way (up to the latest step)."""
+        running = sum(
+            max(0.0, self._now - c.started_at)
+            for c in self.charges.values()
+            if c.started_at is not None
         )
+        return self._ended_s + running
 
     def charging_words(self, unit: str) -> str | None:
         """Why `unit` takes no job now because of its charge ("charging: 62 % of 80 %"), or None."""
-        if unit not in self.last.unavailable:
+        if unit not in self.last.unavailable or unit in self._unknown:
             return None
         pct = self._pcts.get(unit)
         charge = self.charges.get(unit)
@@ -241,10 +290,23 @@ class EnergyPolicy:
             return f"on its way to charge at {charge.charger} ({_pct(pct)})"
         return f"battery critical: {_pct(pct)}, waiting for a charger"
 
-    @property
-    def pcts(self) -> Mapping[str, float]:
-        """Each active unit's latest charge, of those that report energy."""
-        return self._pcts
+    def unknown_words(self, unit: str) -> str | None:
+        """Why `unit`, whose factsheet has energy, takes no job: its charge is not known yet."""
+        if unit in self._unknown:
+            return "its charge is not known: its state reports none"
+        return None
+
+    def cannot_charge(
+        self, unit: str, position: Cell, pct: float, distance: Distance
+    ) -> str | None:
+        """Why `unit` on `position` with `pct` could not be sent to charge, in words (as its
+        stranded plan says); None when it could. The chargers that did not charge it count:
+        an operator's `charge` tries them again (`force`)."""
+        blocked = self._blocked
+        near = self.chargers.nearest(position, distance, blocked=blocked, unit=unit)
+        if near is not None and (pct > 0 or near[1] == 0):
+            return None
+        return self._stranded_words(unit, position, near, distance, blocked, ())
 
     def words(self, distance: Distance) -> EnergyWaits:
         """What the waits say of units without the charge for a job (waits.EnergyWords)."""
@@ -253,7 +315,10 @@ class EnergyPolicy:
     # ---- operators ---------------------------------------------------------------------------
 
     def force(self, unit: str) -> None:
-        """An operator's `charge`: to a charger once it carries nothing, to full, then work."""
+        """An operator's `charge`: to a charger once it carries nothing, to full, then work (a
+        unit not heard this step goes once it is); the chargers that did not charge it are
+        tried again."""
+        self.refused.pop(unit, None)
         charge = self.charges.get(unit)
         if charge is not None:  # charging already (or on its way): to full now
             charge.forced, charge.until_pct = True, self.settings.full_pct
@@ -267,45 +332,64 @@ class EnergyPolicy:
         charge = self.charges.pop(unit, None)
         if charge is not None:
             self.chargers.release(charge.charger, unit)
-        for book in (self.queued, self.stranded):
+        for book in (self.queued, self.stranded, self.refused):
             book.pop(unit, None)
         self.forced.discard(unit)
+        self._unknown.discard(unit)
         self._pcts.pop(unit, None)
         self.dirty = True
 
     # ---- the step ----------------------------------------------------------------------------
 
-    def plan(self, batteries: Sequence[Battery], distance: Distance, now: float) -> EnergyStep:
-        """This step's decisions for every unit that reports energy (see the module's words)."""
+    def plan(
+        self,
+        batteries: Sequence[Battery],
+        distance: Distance,
+        now: float,
+        blocked: Mapping[Cell, str] | None = None,
+        unknown: Collection[str] = (),
+    ) -> EnergyStep:
+        """This step's decisions for every unit that reports energy (see the module's words).
+
+        `blocked`: the squares of units that cannot make way (lost, paused, stopped, out of
+        service, empty): a charger there is given to no other unit. `unknown`: units whose
+        factsheet has energy but whose state has no charge yet: no job for them.
+        """
         s = self.settings
         out = EnergyStep()
-        seen = {b.id for b in batteries}
+        blocked = {} if blocked is None else blocked
+        by_id = {b.id: b for b in batteries}
+        self._now, self._blocked = now, blocked
         self._pcts = {b.id: b.pct for b in batteries}
         self._models = {b.id: b.model for b in batteries}
         self._positions = {b.id: b.position for b in batteries}
-        if batteries:
+        self._unknown = set(unknown) - by_id.keys()
+        out.unavailable |= self._unknown
+        if batteries or self._unknown:
             self.heard_energy = True
-        for unit in [u for u in self.charges if u not in seen]:
-            self._end(unit, 0.0, now, "it no longer reports its charge")
-        self.forced &= seen
+        for unit in [u for u in self.charges if u not in by_id]:
+            self._end(unit, self.charges[unit].pct, now, "it no longer reports its charge")
+        self._occupied(batteries, blocked, now)
         stranded: dict[str, str] = {}
-        needs: list[tuple[tuple[int, float], Battery, str, float]] = []
+        needs: list[_Need] = []
+        wanted, self.wanted = self.wanted, {}  # told by the last step's waits, told again
+        self._wanting = wanted
         for b in batteries:
-            crit = self.critical_of(b, distance)
-            near = self.chargers.nearest(b.position, distance)
-            urgent = b.pct <= (crit if s.policy == "gridfleet" else s.critical_pct)
             charge = self.charges.get(b.id)
             if b.out_of_service or b.goal:
                 if charge is not None:
                     why = "out of service" if b.out_of_service else "sent to a goal"
                     self._end(b.id, b.pct, now, why)
+                self._limit(b, False, out)  # (allocation gives such a unit no job anyway)
                 continue
-            if charge is not None:
-                self._follow(b, charge, distance, now, out)
+            if charge is not None and self._follow(b, charge, distance, now, out):
                 continue
             if b.held:
                 out.unavailable.add(b.id)
                 continue
+            near = self._nearest(b.id, b.position, distance, blocked)
+            crit = self._critical(b, near)
+            urgent = b.pct <= crit
             if b.job and (urgent or b.id in self.forced) and s.policy == "gridfleet":
                 why = (
                     "an operator asked it to charge"
@@ -322,48 +406,180 @@ class EnergyPolicy:
                 why, rank = f"at or below its critical level {_pct(crit)}", 0
             elif s.policy == "gridfleet" and b.pct < s.good_pct:
                 why, rank = f"below good {_pct(s.good_pct)}", 1
+            elif s.policy == "gridfleet" and b.id in wanted:
+                # Idle above good, but a job waits that it alone could do with more charge: it
+                # would idle down to good first, and the job with it (a playfield run took
+                # 1,670 steps, not 300, that way).
+                why, rank = f"a job waits for it to have {_pct(wanted[b.id])}", 2
             else:
                 self._limit(b, near is None, out)
                 continue
-            if near is None or (b.pct <= 0 and b.position not in self.chargers.squares):
-                stranded[b.id] = (
-                    f"no charger can be reached from {list(b.position)}"
-                    if near is None
-                    else f"battery empty at {list(b.position)}: cannot move; bring it to a charger"
-                )
+            if near is None or (b.pct <= 0 and near[1] > 0):
+                refused = self.refused.get(b.id, set())
+                words = self._stranded_words(b.id, b.position, near, distance, blocked, refused)
+                stranded[b.id] = words
                 self._limit(b, True, out)
                 continue
-            needs.append(((rank, b.pct - crit), b, why, crit))
+            needs.append(((rank, b.pct - crit), b, why, urgent, near))
         self.queued = {}
-        for _, b, why, crit in sorted(needs, key=lambda n: (n[0], n[1].id)):
-            self._send(b, why, b.pct <= crit, distance, now, out)
-        if stranded != self.stranded:
-            self.stranded = stranded
+        for _, b, why, urgent, near in sorted(needs, key=lambda n: (n[0], n[1].id)):
+            self._send(b, why, urgent, near, distance, now, out, by_id)
+        self.stranded = stranded
         for unit in stranded:
             out.unavailable.discard(unit)
         self.last = out
         return out
 
+    def _nearest(
+        self, unit: str, square: Cell, distance: Distance, blocked: Mapping[Cell, str]
+    ) -> tuple[str, int] | None:
+        """The nearest charger `unit` may use from `square`: reachable, not one that did not
+        charge it, not one a unit that cannot make way stands on."""
+        skip = self.refused.get(unit, set())
+        return self.chargers.nearest(square, distance, skip=skip, blocked=blocked, unit=unit)
+
+    def _critical(self, b: Battery, near: tuple[str, int] | None) -> float:
+        """`b`'s own critical level: critical_pct, raised to cover the way to its nearest
+        charger `near` with its state's lag."""
+        if self.settings.policy == "naive" or near is None:
+            return self.settings.critical_pct
+        return max(self.settings.critical_pct, to_charger_pct(b.model, near[1], self.step_s))
+
+    def _reach(self, b: Battery, near: tuple[str, int]) -> float | None:
+        """The farthest charger, in squares, `b` may be sent to (None: any): one whose way its
+        charge covers with critical_pct left, or one as near as its nearest, `near`."""
+        if self.settings.policy == "naive":
+            return None
+        model = b.model
+        allowance = max(
+            b.pct - self.settings.critical_pct, to_charger_pct(model, near[1], self.step_s)
+        )
+        per = model.move_pct * MOVE_SAFETY + model.idle_pct_per_s * self.step_s * WAIT_FACTOR
+        if per == 0:
+            return None
+        fixed = model.idle_pct_per_s * self.step_s * WAIT_STEPS + DETECT_PCT
+        return (allowance - fixed) / per - DETECT_MOVES + 1e-9
+
+    def _stranded_words(
+        self,
+        unit: str,
+        square: Cell,
+        near: tuple[str, int] | None,
+        distance: Distance,
+        blocked: Mapping[Cell, str],
+        refused: Collection[str],
+    ) -> str:
+        """Why no charger can help `unit` on `square` (`near`: the nearest it may use; `refused`:
+        those that did not charge it), in words."""
+        here = list(square)
+        if near is not None:
+            return f"battery empty at {here}: cannot move; bring it to a charger"
+        reachable = [
+            c
+            for c in self.chargers.chargers
+            if c.name not in refused and distance(square, c.square) != UNREACHABLE
+        ]
+        taken = [
+            f"{c.name} is taken by {blocked[c.square]}, which cannot make way"
+            for c in reachable
+            if blocked.get(c.square) not in (None, unit)
+        ]
+        if refused:
+            names = ", ".join(sorted(refused))
+            which = f"charger {names} does" if len(refused) == 1 else f"chargers {names} do"
+            rest = f"; {'; '.join(taken)}" if taken else ""
+            return f"{which} not charge it; no other charger can be reached from {here}{rest}"
+        if taken:
+            return f"no charger is free to reach from {here}: {'; '.join(taken)}"
+        return f"no charger can be reached from {here}"
+
+    def _occupied(
+        self, batteries: Sequence[Battery], blocked: Mapping[Cell, str], now: float
+    ) -> None:
+        """Chargers a unit stands on and keeps: one that charges there (and holds no charge of
+        ours: after a restart) is given it, before any unit is sent anywhere; a unit sent to a
+        charger another unit charges on, or one that cannot make way stands on, goes elsewhere."""
+        on = {b.position: b for b in batteries}
+        for c in self.chargers.chargers:
+            holder = self.chargers.holder(c.name)
+            b = on.get(c.square)
+            adopt = (
+                b is not None
+                and b.charging
+                and b.id not in self.charges
+                and not (b.job or b.carrying or b.goal or b.out_of_service)
+            )
+            occupant = b.id if adopt and b is not None else blocked.get(c.square)
+            if occupant is None or occupant == holder:
+                continue
+            if holder is not None:
+                how = "charges there" if adopt else "cannot make way"
+                why = f"charger {c.name} is taken: {occupant} stands on it and {how}"
+                self._end(holder, self.charges[holder].pct, now, why)
+            if adopt and b is not None:
+                forced = b.id in self.forced
+                self.forced.discard(b.id)
+                until = self.settings.full_pct if forced else self.settings.available_pct
+                why = "an operator asked it to charge" if forced else "found charging there"
+                self.chargers.take(c.name, b.id)
+                self.charges[b.id] = Charge(
+                    c.name,
+                    why,
+                    until,
+                    b.pct,
+                    forced=forced,
+                    standing=True,
+                    started_at=now,
+                    started_pct=b.pct,
+                )
+                self.started += 1
+                self.news.append(ChargeNews("started", b.id, c.name, b.pct, why))
+                self.dirty = True
+
     def _follow(
         self, b: Battery, charge: Charge, distance: Distance, now: float, out: EnergyStep
-    ) -> None:
-        """A unit sent or charging: arrived, charging, full, or its charger out of reach."""
-        square = self.chargers.square(charge.charger)
+    ) -> bool:
+        """A unit sent or charging: arrived, charging, full, or its charge over. False when its
+        charge ended: the unit is planned as any other this step."""
+        charge.pct = b.pct
+        name = charge.charger
+        square = self.chargers.square(name)
         if square is None or distance(b.position, square) == UNREACHABLE:
-            self._end(b.id, b.pct, now, f"charger {charge.charger} cannot be reached any more")
-            return
+            self._end(b.id, b.pct, now, f"charger {name} cannot be reached any more")
+            return False
         standing = b.position == square
+        if b.pct <= 0 and not standing:
+            self._end(b.id, b.pct, now, f"battery empty on its way to {name}")
+            return False
         if standing != charge.standing:
             charge.standing = standing
             self.dirty = True
-        if standing and b.charging and charge.started_at is None:
-            charge.started_at, charge.started_pct = now, b.pct
-            self.started += 1
-            self.news.append(ChargeNews("started", b.id, charge.charger, b.pct, charge.why))
+        if standing and b.charging:
+            charge.idle_steps, charge.idle_since = 0, None
+            self.refused.pop(b.id, None)
+            if charge.started_at is None:
+                charge.started_at, charge.started_pct = now, b.pct
+                self.started += 1
+                self.news.append(ChargeNews("started", b.id, name, b.pct, charge.why))
+        elif standing and not b.held:  # on its charger, not charging: for a while at most
+            charge.idle_steps += 1
+            charge.idle_since = now if charge.idle_since is None else charge.idle_since
+            if (
+                charge.idle_steps > CHARGE_START_STEPS
+                and now - charge.idle_since >= CHARGE_START_MIN_S
+            ):
+                if charge.started_at is None:
+                    self.refused.setdefault(b.id, set()).add(name)
+                    why = f"charger {name} does not charge it"
+                else:
+                    why = f"it stopped charging by itself at {_pct(b.pct)}"
+                self._end(b.id, b.pct, now, why)
+                return False
+        else:
+            charge.idle_steps, charge.idle_since = 0, None
         if standing and b.pct >= self.settings.full_pct and not b.held:
             self._end(b.id, b.pct, now, f"full ({_pct(self.settings.full_pct)})")
-            self._limit(b, False, out)
-            return
+            return False
         out.targets[b.id] = square
         if standing:
             out.standing.add(b.id)
@@ -371,34 +587,60 @@ class EnergyPolicy:
             out.unavailable.add(b.id)
         else:
             self._limit(b, False, out)  # available again: a job it can finish takes it away
+        return True
 
     def _send(
-        self, b: Battery, why: str, urgent: bool, distance: Distance, now: float, out: EnergyStep
+        self,
+        b: Battery,
+        why: str,
+        urgent: bool,
+        near: tuple[str, int],
+        distance: Distance,
+        now: float,
+        out: EnergyStep,
+        by_id: Mapping[str, Battery],
     ) -> None:
-        """To the nearest free charger; else, when critical, in place of a unit charged enough;
-        else in the queue of its nearest charger."""
+        """To the nearest free charger its charge reaches (`_reach`); else, when critical, in
+        place of a unit charged enough; else in the queue of its nearest charger `near`."""
         s = self.settings
         forced = b.id in self.forced
         until = s.full_pct if forced else s.available_pct
-        free = self.chargers.nearest(b.position, distance, free_only=True)
+        if b.id in self._wanting:  # enough for the job that waits for it, with a point spare
+            until = max(until, min(s.full_pct, self._wanting[b.id] + 1.0))
+        reach = self._reach(b, near)
+        skip = self.refused.get(b.id, set())
+        free = self.chargers.nearest(
+            b.position,
+            distance,
+            free_only=True,
+            within=reach,
+            skip=skip,
+            blocked=self._blocked,
+            unit=b.id,
+        )
         if free is None and urgent and s.policy == "gridfleet":
             enough = {
                 u
                 for u, c in self.charges.items()
-                if c.standing and not c.forced and self._pcts.get(u, 0.0) > s.sufficient_pct
+                if c.standing
+                and not c.forced
+                and u in by_id
+                and by_id[u].pct > s.sufficient_pct
+                and by_id[u].position not in self._blocked  # paused, stopped: it cannot leave
             }
-            taken = self.chargers.nearest(b.position, distance, held_by=enough)
+            taken = self.chargers.nearest(
+                b.position, distance, held_by=enough, within=reach, skip=skip
+            )
             if taken is not None:
                 other = self.chargers.holder(taken[0])
                 if other is not None:
-                    self._end(other, self._pcts.get(other, 0.0), now, f"made way for {b.id}")
+                    self._end(other, by_id[other].pct, now, f"made way for {b.id}")
                     out.targets.pop(other, None)
                     out.standing.discard(other)
                     out.unavailable.discard(other)
+                    self._limit(by_id[other], False, out)
                 free = taken
         if free is None:
-            near = self.chargers.nearest(b.position, distance)
-            assert near is not None  # checked by the caller
             self.queued[b.id] = near[0]
             if urgent or forced:
                 out.unavailable.add(b.id)
@@ -408,26 +650,28 @@ class EnergyPolicy:
         name = free[0]
         self.chargers.take(name, b.id)
         self.forced.discard(b.id)
-        self.charges[b.id] = Charge(name, why, until, forced=forced)
+        self.charges[b.id] = Charge(name, why, until, b.pct, forced=forced)
         self.news.append(ChargeNews("sent", b.id, name, b.pct, why))
         self.dirty = True
         square = self.chargers.square(name)
         assert square is not None
         out.targets[b.id] = square
         out.unavailable.add(b.id)
+        out.limits.pop(b.id, None)
         if b.position == square:
             self.charges[b.id].standing = True
             out.standing.add(b.id)
 
     def _limit(self, b: Battery, stranded: bool, out: EnergyStep) -> None:
         """How far `b` may be sent on a job (the naive policy: no limit)."""
+        out.unavailable.discard(b.id)
         if self.settings.policy == "naive":
             out.limits[b.id] = Limit(math.inf)
             return
         moves = max_moves(b.model, b.pct, self.settings.critical_pct, self.step_s)
         out.limits[b.id] = Limit(moves, stranded)
 
-    def _end(self, unit: str, pct: float, now: float | None, reason: str) -> None:
+    def _end(self, unit: str, pct: float, now: float, reason: str) -> None:
         """`unit`'s charge is over (or never began): its charger is free."""
         charge = self.charges.pop(unit, None)
         if charge is None:
@@ -437,18 +681,18 @@ class EnergyPolicy:
         if charge.started_at is None:
             self.news.append(ChargeNews("cancelled", unit, charge.charger, pct, reason))
             return
-        took = None if now is None else max(0.0, now - charge.started_at)
-        self.charged_s += took or 0.0
+        took = max(0.0, now - charge.started_at)
+        self._ended_s += took
         self.news.append(
             ChargeNews("ended", unit, charge.charger, pct, reason, charge.started_pct, took)
         )
 
-    def given_jobs(self, units: Collection[str], now: float, jobs: Mapping[str, str]) -> None:
+    def given_jobs(self, jobs: Mapping[str, str], now: float) -> None:
         """Units just given a job (`jobs`: unit -> job id): their charge ends, they leave."""
-        for unit in units:
-            if unit in self.charges:
-                why = f"left for job {jobs[unit]}" if unit in jobs else "left for a job"
-                self._end(unit, self._pcts.get(unit, 0.0), now, why)
+        for unit, job_id in jobs.items():
+            charge = self.charges.get(unit)
+            if charge is not None:
+                self._end(unit, charge.pct, now, f"left for job {job_id}")
                 self.last.targets.pop(unit, None)
                 self.last.standing.discard(unit)
             if self.queued.pop(unit, None) is not None:
@@ -513,11 +757,22 @@ class EnergyWaits:
         """Why `unit` takes no job now for its charge, or None."""
         return self.policy.charging_words(unit)
 
+    def unknown_words(self, unit: str) -> str | None:
+        """Why `unit` takes no job while its charge is not known, or None."""
+        return self.policy.unknown_words(unit)
+
+    def wanted(self, unit: str, needs_pct: float) -> None:
+        """A job waits for `unit` to have `needs_pct` (its charge to reach it: `plan`)."""
+        if needs_pct > self.policy.settings.full_pct:
+            return  # more than a charge gives: no charge would let it do the job
+        wanted = self.policy.wanted
+        wanted[unit] = min(wanted.get(unit, needs_pct), needs_pct)
+
     def short_of(self, unit: str, pickup: Cell, dropoff: Cell) -> tuple[float, float] | None:
         """(its charge, the charge the job needs) when `unit` could not finish the job."""
         p = self.policy
-        limit, model = p.last.limits.get(unit), p._models.get(unit)
-        here, pct = p._positions.get(unit), p._pcts.get(unit)
+        limit, model = p.last.limits.get(unit), p.models.get(unit)
+        here, pct = p.positions.get(unit), p.pcts.get(unit)
         if limit is None or model is None or here is None or pct is None:
             return None
         legs = [self.distance(here, pickup), self.distance(dropoff, pickup)]

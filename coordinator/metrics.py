@@ -212,7 +212,7 @@ class StateCollector:
         )
         yield CounterMetricFamily(
             "gridfleet_charging_seconds",
-            "Seconds units charged, over the charges ended.",
+            "Seconds units charged: the charges ended and those under way.",
             value=s.charged_s,
         )
         info = GaugeMetricFamily(

@@ -88,6 +88,9 @@ def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
         world.check_square(req.dropoff, "dropoff")
     except ProtocolError as exc:
         return Outcome(False, str(exc))
+    on_charger = _on_charger(req, ctx)
+    if on_charger is not None:
+        return Outcome(False, on_charger)
     taken = jobs.get(req.job_id) if req.job_id is not None else None
     if taken is not None:
         if not _same_job(taken, req, sender):
@@ -120,6 +123,16 @@ def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
         return Outcome(False, reason, job_id)
     jobs.add(job)
     return Outcome(True, None, job_id)
+
+
+def _on_charger(req: SubmitJob, ctx: RequestContext) -> str | None:
+    """Why a job whose pickup or dropoff is a charger's square is refused, or None."""
+    chargers = {c.square: c.name for c in ctx.world.chargers}
+    for what, square in (("pickup", req.pickup), ("dropoff", req.dropoff)):
+        name = chargers.get(square)
+        if name is not None:
+            return f"{what} {list(square)} is charger {name}: a unit charging there would block it"
+    return None
 
 
 def _same_job(job: Job, req: SubmitJob, sender: str | None) -> bool:
@@ -211,6 +224,13 @@ def _charge(req: ControlUnit, ctx: RequestContext) -> Outcome:
         return Outcome(False, "the map has no chargers")
     if ctx.directives.controls.get(unit) == "out_of_service":
         return Outcome(False, f"unit {unit} is out of service: put it back in service first")
+    if not ctx.world.is_active(rec, ctx.now):
+        return Outcome(False, f"unit {unit} is not heard from")
+    stranded = energy.cannot_charge(
+        unit, rec.state.position, rec.state.battery_pct, ctx.cache.distance
+    )
+    if stranded is not None:
+        return Outcome(False, f"unit {unit} cannot be sent to charge: {stranded}")
     job = ctx.jobs.of_unit(unit)
     if job is not None and job.state not in CARRYING_STATES:
         ctx.requeue(job, f"unit {unit} sent to charge by {ctx.sender or 'an operator'}")

@@ -40,8 +40,16 @@ class EnergyWords(Protocol):
         """Why `unit` takes no job now for its charge ("charging: 62 % of 80 %"), or None."""
         ...
 
+    def unknown_words(self, unit: str) -> str | None:
+        """Why `unit` takes no job while its charge is not known yet, or None."""
+        ...
+
     def short_of(self, unit: str, pickup: Cell, dropoff: Cell) -> tuple[float, float] | None:
         """(its charge, the charge the job needs) when `unit` could not finish it, else None."""
+        ...
+
+    def wanted(self, unit: str, needs_pct: float) -> None:
+        """A job waits for `unit` to have `needs_pct`: it is to charge for it (energy.py)."""
         ...
 
 
@@ -212,6 +220,8 @@ def _why_queued(
             why_not[u] = "sent to a goal"
         elif u in busy or not _takes_jobs(units[u]):
             why_not[u] = "busy"
+        elif energy is not None and (unknown := energy.unknown_words(u)) is not None:
+            why_not[u] = unknown
         elif energy is not None:
             words = energy.charging_words(u)
             lacks = None if words is not None else energy.short_of(u, job.pickup, job.dropoff)
@@ -233,6 +243,8 @@ def _why_queued(
             )
         best = max(short, key=lambda u: (short[u][0], u))
         has, needs = short[best]
+        if energy is not None:
+            energy.wanted(best, needs)  # the unit nearest to it charges for it
         return (
             "battery_low",
             f"battery too low for this job ({best} has {has:.0f} %, needs {needs:.0f} %)",

@@ -34,4 +34,9 @@ def thresholds_problem(spec: ChargingSpec) -> str | None:
             "thresholds must rise: critical_pct < good_pct <= sufficient_pct <= full_pct, "
             f"got {c:g} < {g:g} <= {s:g} <= {f:g}"
         )
+    if not g < f:  # a unit charged to full and below good at once would go again at once
+        return (
+            "good_pct must be below full_pct (a unit charged to full would be sent again at "
+            f"once), got good_pct {g:g} and full_pct {f:g}"
+        )
     return None

@@ -354,6 +354,15 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                     line, f"{what}: square {list(at)} already has charger {known.name!r}"
                 )
         chargers.append(ChargerSpec(name, at))
+    at_charger = {c.square: c.name for c in chargers}  # a unit may start on one; a job may not
+    for i, job in enumerate(jobs):
+        for what, cell in (("pickup", job.pickup), ("dropoff", job.dropoff)):
+            if cell in at_charger:
+                raise where.error(
+                    where.table("jobs", i),
+                    f"job #{i + 1}: {what} {list(cell)} is charger {at_charger[cell]!r}: "
+                    "a unit charging there would block it",
+                )
 
     return Scenario(
         path=path,

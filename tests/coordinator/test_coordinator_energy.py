@@ -1,9 +1,8 @@
 """The coordinator's energy policy (coordinator/energy.py, protocol.md §5.9), by what it publishes.
 
 Each test injects units' states with their charge into the pure core and reads the orders, the
-energy view, the waits, the events and the charges it returns. The energy model of every unit
-here: a move costs 10 %, standing costs nothing, so a way of n squares is predicted to cost
-12.5 x n % (MOVE_SAFETY 1.25).
+energy view, the waits, the events and the charges it returns (support/energy_drive.py: the
+units' energy model and the map).
 """
 
 from __future__ import annotations
@@ -16,114 +15,34 @@ import pytest
 from gridfleet.coordinator.core import CoordinatorCore
 from gridfleet.coordinator.effects import Effects
 from gridfleet.coordinator.energy import (
+    DETECT_MOVES,
+    DETECT_PCT,
     MOVE_SAFETY,
     EnergySettings,
     max_moves,
     need_pct,
+    to_charger_pct,
 )
-from gridfleet.coordinator.jobs import JobBook
-from gridfleet.coordinator.world import World
 from gridfleet.grid import Cell, GridMap
-from gridfleet.protocol import (
-    Charger,
-    Connection,
-    ControlUnit,
-    EnergyModel,
-    Factsheet,
-    Leds,
-    Sensors,
-    SubmitJob,
-    UnitState,
+from gridfleet.protocol import Charger, ControlUnit, EnergyModel
+from gridfleet.protocol.constants import STATE_HEARTBEAT_STEPS
+
+from support.coordinator_drive import from_unit, orders_in, request
+from support.effects import header, header_json, published
+from support.energy_drive import (
+    C1,
+    ENERGY,
+    THRESHOLDS,
+    acked,
+    control,
+    energy_view,
+    events,
+    make,
+    meet,
+    plans,
+    state,
+    submit,
 )
-
-from support.coordinator_drive import TOPICS, from_unit, orders_in, request
-from support.effects import header, header_json, published, stamper
-
-OPEN = GridMap.from_rows(["......", "......"])
-C1, C2 = Charger(name="C1", square=Cell(0, 0)), Charger(name="C2", square=Cell(5, 0))
-MODEL = EnergyModel(move_pct=10.0, idle_pct_per_s=0.0, charge_pct_per_s=5.0)
-ENERGY = "gridfleet/v1/fleet/energy"
-THRESHOLDS = {
-    "critical_pct": 20.0,
-    "good_pct": 50.0,
-    "sufficient_pct": 80.0,
-    "full_pct": 95.0,
-    "available_from": "sufficient",
-}
-
-
-def make(
-    chargers: tuple[Charger, ...] = (C1, C2),
-    grid: GridMap = OPEN,
-    settings: EnergySettings | None = None,
-) -> CoordinatorCore:
-    """A core on `grid` with `chargers`, every header at FIXED."""
-    return CoordinatorCore(
-        World(grid, step_period_s=1.0, fleet_known_after_s=0.0, chargers=chargers),
-        JobBook(),
-        nonce="n",
-        topics=TOPICS,
-        stamp=stamper("coordinator"),
-        energy=settings,
-    )
-
-
-def acked(core: CoordinatorCore, unit: str) -> dict[str, Any]:
-    """The fields of a state that acknowledge the latest order `unit` was sent."""
-    track = core.orders.tracks[unit]
-    return {"order_id": track.order_id, "order_update_id": track.update_id}
-
-
-def state(unit: str, at: Cell, pct: float | None, seq: int = 0, **over: Any) -> UnitState:
-    """`unit` idle on `at` with `pct` % of charge (None: it reports no energy)."""
-    msg = UnitState(
-        header=header(unit, seq),
-        step=seq,
-        position=at,
-        direction="-",
-        status="idle",
-        leds=Leds(),
-        sensors=Sensors(N="free", E="free", S="free", W="free"),
-        battery_pct=pct,
-    )
-    return msg.model_copy(update=over)
-
-
-def meet(core: CoordinatorCore, unit: str, at: Cell, pct: float | None) -> None:
-    """`unit` comes online on `at` with `pct` % (and the energy model when it reports energy)."""
-    from_unit(core, "connection", unit, Connection(header=header(unit), state="online"), 0.0)
-    energy = None if pct is None else MODEL
-    fs = Factsheet(header=header(unit), capacity_kg=5.0, step_period_s=1.0, energy=energy)
-    from_unit(core, "factsheet", unit, fs, 0.0)
-    from_unit(core, "state", unit, state(unit, at, pct), 0.0)
-
-
-def submit(core: CoordinatorCore, pickup: Cell, dropoff: Cell, job_id: str = "j1") -> None:
-    req = SubmitJob(
-        header=header("op"),
-        request_id=f"r-{job_id}",
-        reply_to="op",
-        pickup=pickup,
-        dropoff=dropoff,
-        mass_kg=1.0,
-        job_id=job_id,
-    )
-    request(core, "submit_job", req, 0.0)
-
-
-def energy_view(effects: Effects) -> Any:
-    """The one energy view among `effects` (its header left out)."""
-    (view,) = [p for topic, p, qos, retain in published(effects) if topic == ENERGY]
-    assert view.pop("header")["sender"] == "coordinator"
-    return view
-
-
-def events(effects: Effects) -> list[str]:
-    return [e.text for e in effects.events]
-
-
-def plans(core: CoordinatorCore) -> dict[str, str]:
-    return {u: e.plan for u, e in core.energy.units_view().items()}
 
 
 def test_the_margins_are_the_ones_protocol_md_states() -> None:
@@ -133,6 +52,9 @@ def test_the_margins_are_the_ones_protocol_md_states() -> None:
     assert need_pct(model, 10, 1.0) == pytest.approx(6.25 + 0.7)
     assert max_moves(model, 26.95, 20.0, 1.0) == pytest.approx(10.0)
     assert max_moves(model, 20.5, 20.0, 1.0) == -1.0  # not even the minute's allowance
+    # A state may be a heartbeat old (its moves) and a standing unit's a whole percent high.
+    assert (DETECT_MOVES, DETECT_PCT) == (STATE_HEARTBEAT_STEPS, 1.0) == (3, 1.0)
+    assert to_charger_pct(model, 10, 1.0) == pytest.approx(need_pct(model, 13, 1.0) + 1.0)
 
 
 def test_an_idle_unit_below_good_goes_to_the_nearest_free_charger_with_charge_set() -> None:
@@ -167,8 +89,10 @@ def test_two_low_units_are_never_sent_to_one_charger() -> None:
     meet(core, "u1", Cell(1, 1), 40.0)
     meet(core, "u2", Cell(2, 1), 40.0)
     orders = orders_in(core.step(1.0))
-    # u2 is the more urgent (its critical level covers 3 squares to C1): it goes first.
-    assert (orders["u1"].charge, orders["u2"].charge) == (C2.square, C1.square)
+    # u2 is the more urgent (its critical level covers 3 squares to C1): it goes first; u1's
+    # 40 % would not keep critical 20 % on the 5 squares to C2: it waits for C1.
+    assert (orders["u1"].charge, orders["u2"].charge) == (None, C1.square)
+    assert core.energy.queued == {"u1": "C1"}
 
 
 def test_with_every_charger_taken_a_low_unit_waits_in_the_queue() -> None:
@@ -218,22 +142,22 @@ def test_a_job_given_but_not_picked_up_goes_back_when_its_unit_falls_to_critical
 
 def test_the_critical_level_is_raised_to_cover_the_way_to_the_nearest_charger() -> None:
     core = make(chargers=(C1,))
-    meet(core, "u1", Cell(5, 1), 60.0)  # 6 squares from C1: 7 x 12.5 = 87.5 % with the margins
+    meet(core, "u1", Cell(5, 1), 55.0)  # 6 squares from C1: 9 x 6.25 + 1 = 57.25 % with the lag
     submit(core, Cell(4, 1), Cell(3, 1))
     effects = core.step(1.0)
     order = orders_in(effects)["u1"]
     assert (order.charge, order.action) == (C1.square, None)
     assert events(effects)[0] == (
-        "unit u1 sent to charge at C1 (60 %: at or below its critical level 88 %)"
+        "unit u1 sent to charge at C1 (55 %: at or below its critical level 57 %)"
     )
 
 
 def test_a_job_goes_to_the_unit_that_can_finish_it_not_to_the_nearer_one() -> None:
     core = make()
-    # u1 is nearer, but 1 + 1 + 1 squares to C1 after the dropoff need 20 + 37.5 = 57.5 %.
+    # u1 is nearer, but 2 + 4 + 2 squares to C2 after the dropoff need 20 + 50 = 70 %.
     meet(core, "u1", Cell(2, 1), 55.0)
-    meet(core, "u2", Cell(4, 1), 95.0)
-    submit(core, Cell(1, 1), Cell(1, 0))
+    meet(core, "u2", Cell(4, 1), 95.0)  # 4 + 4 + 2: 82.5 %
+    submit(core, Cell(0, 1), Cell(3, 0))
     orders = orders_in(core.step(1.0))
     assert orders["u2"].action is not None and orders["u2"].action.job_id == "j1"
     assert orders["u1"].action is None and orders["u1"].charge is None
@@ -249,8 +173,23 @@ def test_a_job_no_unit_has_the_charge_for_waits_battery_low() -> None:
     assert (job.state, job.wait, job.wait_reason) == (
         "queued",
         "battery_low",
-        "battery too low for this job (u1 has 70 %, needs 158 %)",
+        "battery too low for this job (u1 has 70 %, needs 89 %)",
     )
+
+
+def test_an_idle_unit_above_good_too_low_for_the_job_that_waits_for_it_charges_for_it() -> None:
+    core = make(chargers=(C1,))
+    meet(core, "u1", Cell(1, 0), 70.0)  # above good (50 %): alone it would idle
+    submit(core, Cell(5, 1), Cell(5, 0))
+    core.step(1.0)  # the job waits: battery too low (needs 89 %)
+    effects = core.step(2.0)
+    orders = orders_in(effects)
+    assert orders["u1"].charge == C1.square and orders["u1"].target == C1.square
+    assert orders["u1"].action is None
+    view = energy_view(effects)
+    assert view["units"]["u1"]["plan"] == "to_charger"
+    assert "a job waits for it to have 89 %" in view["units"]["u1"]["reason"]
+    assert "charges up to 90 %" in view["units"]["u1"]["reason"]  # its need, a point spare
 
 
 def charging_on_c1(core: CoordinatorCore, pct: float, seq: int = 1, now: float = 1.5) -> Effects:
@@ -320,7 +259,7 @@ def test_a_charging_unit_stays_for_a_job_it_could_not_finish() -> None:
     charging_on_c1(core, 40.0)
     st = state("u1", C1.square, 85.0, seq=2, charging=True, **acked(core, "u1"))
     from_unit(core, "state", "u1", st, 3.0)
-    submit(core, Cell(5, 1), Cell(5, 0))  # 6 + 1 + 5 squares: 170 % with the margins
+    submit(core, Cell(5, 1), Cell(5, 0))  # 6 + 1 + 5 squares: 95 % with the margins
     order = orders_in(core.step(4.0))["u1"]
     assert (order.charge, order.action) == (C1.square, None)
     assert core.jobs.jobs["j1"].wait == "battery_low"
@@ -356,7 +295,7 @@ def test_a_unit_that_cannot_reach_a_charger_is_stranded_and_given_no_job_it_cann
     grid = GridMap.from_rows(["..@...", "..@..."])
     core = make(chargers=(C1,), grid=grid)
     meet(core, "u1", Cell(4, 1), 30.0)
-    submit(core, Cell(5, 1), Cell(3, 0))  # 1 + 3 squares: 50 % + 20 %, it has 30 %
+    submit(core, Cell(5, 1), Cell(3, 0))  # 1 + 3 squares: 25 % + 20 %, it has 30 %
     effects = core.step(1.0)
     assert energy_view(effects)["units"] == {
         "u1": {
@@ -367,15 +306,6 @@ def test_a_unit_that_cannot_reach_a_charger_is_stranded_and_given_no_job_it_cann
     }
     assert orders_in(effects)["u1"].action is None
     assert core.jobs.jobs["j1"].wait == "battery_low"
-
-
-def control(core: CoordinatorCore, unit: str) -> Any:
-    req = ControlUnit(
-        header=header("op"), request_id=f"c-{unit}", reply_to="op", unit=unit, command="charge"
-    )
-    effects = request(core, "control_unit", req, 0.5)
-    (reply,) = [p for t, p, *_ in published(effects) if t == "gridfleet/v1/replies/op"]
-    return reply["accepted"], reply["reason"]
 
 
 def test_control_unit_charge_sends_a_unit_to_charge_to_full_and_refuses_in_words() -> None:
@@ -426,7 +356,7 @@ def test_without_chargers_or_energy_no_energy_view_goes_out() -> None:
 def test_the_naive_policy_charges_only_at_critical_and_checks_no_job() -> None:
     core = make(settings=EnergySettings(policy="naive"))
     meet(core, "u1", Cell(2, 1), 40.0)  # below good: the gridfleet policy would send it
-    submit(core, Cell(5, 1), Cell(5, 0))  # more than its charge can drive
+    submit(core, Cell(5, 1), Cell(4, 0))  # more than its charge can drive
     order = orders_in(core.step(1.0))["u1"]
     assert order.action is not None and order.charge is None
     naive = make(settings=EnergySettings(policy="naive"))

@@ -140,6 +140,18 @@ def test_charging_thresholds_are_read(tmp_path: Path) -> None:
         ),
         ("[charging]\ngood_pct = 10\n", "", "", "[charging]: thresholds must rise"),
         (
+            "[charging]\ngood_pct = 90\nsufficient_pct = 90\nfull_pct = 90\n",
+            "",
+            "",
+            "[charging]: good_pct must be below full_pct",
+        ),
+        (
+            "",
+            "",
+            "[[chargers]]\nsquare = [0, 2]\n[[jobs]]\npickup = [0, 2]\ndropoff = [3, 2]\nmass = 1.0\n",
+            "job #1: pickup [0, 2] is charger 'C1': a unit charging there would block it",
+        ),
+        (
             "[charging]\nfull_pct = 101\n",
             "",
             "",
