@@ -10,8 +10,9 @@ import math
 import sys
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import TextIO, get_args
+from typing import Any, TextIO, get_args
 
 from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
@@ -241,71 +242,67 @@ def charge_row(entry: ChargeEntry) -> list[str]:
     return ["" if c is None else str(c) for c in cells]
 
 
-async def print_charges(operator: Operator, args: argparse.Namespace, out: TextIO) -> int:
-    """`job history --charges`: every charge's start and end in the range; 1 when refused."""
-    if args.job_id is not None or args.state is not None:
-        print("refused: --job and --state select jobs, not charges", file=sys.stderr)
-        return 2
-    query = {"kind": "charges", "since": args.since, "until": args.until, "unit": args.unit}
-    writer = csv.writer(out, lineterminator="\n") if args.csv else None
-    if writer is not None:
-        writer.writerow(CHARGE_COLUMNS)
-    elif args.json:
-        print("[", file=out)
-    else:
-        print(
-            f"{'at (UTC)':<24} {'unit':<10} {'charger':<10} {'event':<8} {'battery':>8}  why",
-            file=out,
-        )
-    cursor: str | None = None
-    count = 0
-    while True:
-        page = await operator.job_history(args.timeout, **query, cursor=cursor)
-        if isinstance(page, Reply) or not page.accepted:
-            print(f"refused: {page.reason}", file=sys.stderr)
-            return 1
-        for entry in page.charges:
-            if writer is not None:
-                writer.writerow(charge_row(entry))
-            elif args.json:
-                comma = "," if count else " "
-                print(f"{comma}{entry.model_dump_json(exclude_none=True)}", file=out)
-            else:
-                at = charge_row(entry)[0]
-                pct = f"{entry.battery_pct:.1f} %"
-                line = f"{at:<24} {entry.unit:<10} {entry.charger:<10} {entry.event:<8} {pct:>8}"
-                print(f"{line}  {entry.reason or ''}".rstrip(), file=out)
-            count += 1
-        cursor = page.next_cursor
-        if cursor is None:
-            break
-    if args.json:
-        print("]", file=out)
-    elif writer is None:
-        print(f"{count} charge entr{'y' if count == 1 else 'ies'}", file=out)
-    return 0
+def history_line(entry: JobHistoryEntry) -> str:
+    """One job change as the table's line."""
+    at, after = history_row(entry)[0], f"{entry.since_submitted_s:.1f}s"
+    line = f"{at:<24} {entry.job:<24} {entry.state:<11} {entry.unit or '-':<10}"
+    return f"{line} {after:>9}  {entry.reason or ''}".rstrip()
+
+
+def charge_line(entry: ChargeEntry) -> str:
+    """One charge entry as the table's line."""
+    at, pct = charge_row(entry)[0], f"{entry.battery_pct:.1f} %"
+    line = f"{at:<24} {entry.unit:<10} {entry.charger:<10} {entry.event:<8} {pct:>8}"
+    return f"{line}  {entry.reason or ''}".rstrip()
+
+
+@dataclass(frozen=True)
+class HistoryShape:
+    """How one kind of history entry is printed: its CSV columns and row, its table's head and
+    line, and what the count at the end calls them (singular, plural)."""
+
+    columns: tuple[str, ...]
+    row: Callable[[Any], list[str]]
+    head: str
+    line: Callable[[Any], str]
+    nouns: tuple[str, str]
+
+
+JOB_CHANGES = HistoryShape(
+    HISTORY_COLUMNS,
+    history_row,
+    f"{'at (UTC)':<24} {'job':<24} {'state':<11} {'unit':<10} {'after':>9}  why",
+    history_line,
+    ("change", "changes"),
+)
+CHARGES = HistoryShape(
+    CHARGE_COLUMNS,
+    charge_row,
+    f"{'at (UTC)':<24} {'unit':<10} {'charger':<10} {'event':<8} {'battery':>8}  why",
+    charge_line,
+    ("charge entry", "charge entries"),
+)
 
 
 async def print_history(operator: Operator, args: argparse.Namespace, out: TextIO) -> int:
-    """`job history`: every page of the query, printed as it arrives; 1 when it is refused."""
+    """`job history` (or its `--charges`): every page of the query, printed as it arrives; 1
+    when it is refused."""
+    query: dict[str, object] = {"since": args.since, "until": args.until, "unit": args.unit}
     if args.charges:
-        return await print_charges(operator, args, out)
-    query = {
-        "since": args.since,
-        "until": args.until,
-        "unit": args.unit,
-        "job_id": args.job_id,
-        "state": args.state,
-    }
+        if args.job_id is not None or args.state is not None:
+            print("refused: --job and --state select jobs, not charges", file=sys.stderr)
+            return 2
+        query["kind"], shape = "charges", CHARGES
+    else:
+        query |= {"job_id": args.job_id, "state": args.state}
+        shape = JOB_CHANGES
     writer = csv.writer(out, lineterminator="\n") if args.csv else None
     if writer is not None:
-        writer.writerow(HISTORY_COLUMNS)
+        writer.writerow(shape.columns)
     elif args.json:
         print("[", file=out)
     else:
-        print(
-            f"{'at (UTC)':<24} {'job':<24} {'state':<11} {'unit':<10} {'after':>9}  why", file=out
-        )
+        print(shape.head, file=out)
     cursor: str | None = None
     count = 0
     while True:
@@ -313,18 +310,17 @@ async def print_history(operator: Operator, args: argparse.Namespace, out: TextI
         if isinstance(page, Reply) or not page.accepted:
             print(f"refused: {page.reason}", file=sys.stderr)
             return 1
-        for entry in page.entries:
+        entries: list[JobHistoryEntry] | list[ChargeEntry] = (
+            page.charges if args.charges else page.entries
+        )
+        for entry in entries:
             if writer is not None:
-                writer.writerow(history_row(entry))
+                writer.writerow(shape.row(entry))
             elif args.json:
                 comma = "," if count else " "
                 print(f"{comma}{entry.model_dump_json(exclude_none=True)}", file=out)
             else:
-                at = history_row(entry)[0]
-                after = f"{entry.since_submitted_s:.1f}s"
-                why = entry.reason or ""
-                line = f"{at:<24} {entry.job:<24} {entry.state:<11} {entry.unit or '-':<10}"
-                print(f"{line} {after:>9}  {why}".rstrip(), file=out)
+                print(shape.line(entry), file=out)
             count += 1
         cursor = page.next_cursor
         if cursor is None:
@@ -332,7 +328,7 @@ async def print_history(operator: Operator, args: argparse.Namespace, out: TextI
     if args.json:
         print("]", file=out)
     elif writer is None:
-        print(f"{count} change{'' if count == 1 else 's'}", file=out)
+        print(f"{count} {shape.nouns[count != 1]}", file=out)
     return 0
 
 
