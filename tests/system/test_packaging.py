@@ -153,7 +153,8 @@ def test_the_installed_wheel_simulates_a_shipped_scenario_by_name_outside_the_ch
     assert unknown.returncode == 2 and unknown.stdout == ""
     assert unknown.stderr == (
         "gridfleet simulate: error: nowhere: no such scenario file, and no shipped scenario of "
-        "that name (corridor, crossing, heavy, maze, playfield, warehouse)\n"
+        "that name (corridor, crossing, heavy, maze, playfield, playfield-energy, warehouse, "
+        "warehouse-energy)\n"
     )
 
 

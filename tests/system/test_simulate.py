@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -290,7 +291,8 @@ def test_the_naive_energy_policy_is_chosen_and_runs_units_empty() -> None:
 
 
 # One unit at 60 %, a move 4 %: the job (12 moves with the way on to the charger) needs 80 %.
-# Above good (50 %) the unit is not sent to charge; charging would take hours at 0.01 % a second.
+# Above good (50 %), the unit goes to charge for it (up to 81 %) all the same, as the job waits
+# for it alone; charging takes hours at 0.01 % a second, so the job still waits at the end.
 WAIT_SCENARIO = (
     'map = "energy.map"\n'
     '[[units]]\nid = "low"\nstart = [0, 0]\ncapacity = 5.0\n'
@@ -299,7 +301,9 @@ WAIT_SCENARIO = (
     "[[chargers]]\nsquare = [0, 2]\n"
     '[[jobs]]\nid = "far"\npickup = [5, 0]\ndropoff = [5, 2]\nmass = 2.0\n'
 )
-FAR_WAITS = "battery too low for this job (low has 60 %, needs 80 %)"
+FAR_WAITS = re.compile(
+    r"every unit that can carry 2\.0 kg is charging \(low charging: \d+ % of 81 %\)"
+)
 
 
 @pytest.mark.parametrize("mode", [["--deterministic"], []], ids=["deterministic", "mqtt"])
@@ -311,9 +315,14 @@ def test_a_job_not_done_says_why_it_waits(tmp_path: Path, mode: list[str]) -> No
     out = simulate(*args, "--json")
     assert out.returncode == 1, failure_report(out)
     (job,) = json.loads(out.stdout)["jobs"]
-    assert (job["state"], job["wait"], job["wait_reason"]) == ("queued", "battery_low", FAR_WAITS)
+    assert (job["state"], job["wait"]) == ("queued", "unit_charging")
+    assert FAR_WAITS.fullmatch(job["wait_reason"]), job
     human = simulate(*args)
-    assert f"  far: queued, waiting: {FAR_WAITS} [battery_low]" in human.stdout.splitlines()
+    listed = [line for line in human.stdout.splitlines() if line.startswith("  far: ")]
+    assert len(listed) == 1 and listed[0].endswith(" [unit_charging]"), listed
+    assert FAR_WAITS.fullmatch(
+        listed[0][len("  far: queued, waiting: ") : -len(" [unit_charging]")]
+    )
     # Under the naive policy (chosen for the coordinator in lockstep or in its thread) the same
     # unit takes the job at once, and a job done waits for nothing.
     naive = simulate(*args, "--energy-policy", "naive", "--json")
