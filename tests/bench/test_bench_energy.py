@@ -47,6 +47,7 @@ def figures() -> dict[str, Any]:
     return parsed
 
 
+@pytest.mark.slow  # the bench's own runs: make test, not test-fast
 def test_one_seed_on_the_energy_playfield_reports_each_arm_from_its_run(
     figures: dict[str, Any],
 ) -> None:
@@ -124,6 +125,7 @@ def test_endless_takes_out_every_battery_and_nothing_else() -> None:
     )
 
 
+@pytest.mark.slow  # the bench's own runs: make test, not test-fast
 def test_a_unit_of_ours_that_starts_empty_makes_the_bench_exit_1(tmp_path: Path) -> None:
     scenario = tmp_path / "empty.toml"
     scenario.write_text(
@@ -142,6 +144,7 @@ def test_a_unit_of_ours_that_starts_empty_makes_the_bench_exit_1(tmp_path: Path)
     assert not ours["finished"] and ours["steps"] == 30
 
 
+@pytest.mark.slow  # the bench's own runs: make test, not test-fast
 def test_the_command_prints_the_runs_figures_and_ratios(figures: dict[str, Any]) -> None:
     done = subprocess.run(
         [sys.executable, "-m", "gridfleet", "bench", "energy", *FLAGS],

@@ -260,6 +260,7 @@ def test_a_deterministic_run_reports_each_units_battery_charges_and_moves(tmp_pa
     assert "batteries: lowest 0.0 % (flat), 0 charges, 1 ran empty" in human.stdout
 
 
+@pytest.mark.slow  # over MQTT: make test, not test-fast
 def test_a_run_over_mqtt_reports_the_same_battery_figures(tmp_path: Path) -> None:
     path = _energy_scenario(tmp_path)
     out = simulate(str(path), "--step", "0.05", "--max-steps", "600", "--json")
@@ -306,7 +307,13 @@ FAR_WAITS = re.compile(
 )
 
 
-@pytest.mark.parametrize("mode", [["--deterministic"], []], ids=["deterministic", "mqtt"])
+@pytest.mark.parametrize(
+    "mode",
+    [
+        pytest.param(["--deterministic"], id="deterministic"),
+        pytest.param([], id="mqtt", marks=pytest.mark.slow),
+    ],
+)
 def test_a_job_not_done_says_why_it_waits(tmp_path: Path, mode: list[str]) -> None:
     (tmp_path / "energy.map").write_text(ENERGY_MAP)
     path = tmp_path / "wait.toml"
