@@ -474,6 +474,8 @@ class EnergyPolicy:
         here = list(square)
         if near is not None:
             return f"battery empty at {here}: cannot move; bring it to a charger"
+        if not self.chargers.chargers:
+            return "the map has no chargers: add [[chargers]] to the scenario"
         reachable = [
             c
             for c in self.chargers.chargers

@@ -364,6 +364,15 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                     "a unit charging there would block it",
                 )
 
+    starts = [u.start for u in units]
+    for i, c in enumerate(chargers):
+        if starts and not _reachable(grid, c.square, set(starts)):
+            raise where.error(
+                where.table("chargers", i),
+                f"charger {c.name!r}: square {list(c.square)} cannot be reached from any unit's "
+                "start (walled in)",
+            )
+
     return Scenario(
         path=path,
         map_path=map_path,
@@ -377,6 +386,20 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
         chargers=tuple(chargers),
         charging=_charging(shape.charging, where),
     )
+
+
+def _reachable(grid: GridMap, square: Cell, starts: set[Cell]) -> bool:
+    """Whether any of `starts` can drive to `square` on the static map."""
+    seen, todo = {square}, [square]
+    while todo:
+        cell = todo.pop()
+        if cell in starts:
+            return True
+        for nxt in grid.free_neighbours(cell):
+            if nxt not in seen:
+                seen.add(nxt)
+                todo.append(nxt)
+    return False
 
 
 def _battery(default: _BatteryTable | None, own: _BatteryTable | None) -> BatterySpec | None:

@@ -495,3 +495,15 @@ def test_a_shipped_scenario_by_name_gives_the_coordinator_its_chargers() -> None
     assert map_and_chargers("warehouse")[1] == ()  # the map of that name wins
     with pytest.raises(MapError, match="no shipped map of that name"):
         map_and_chargers("nowhere")
+
+
+def test_units_on_batteries_on_a_map_without_chargers_are_stranded_saying_so() -> None:
+    core = make(chargers=())
+    meet(core, "u1", Cell(1, 0), 30.0)  # below good: it would go to charge
+    view = energy_view(core.step(1.0))
+    assert view["chargers"] == []
+    assert view["units"]["u1"] == {
+        "plan": "stranded",
+        "charger": None,
+        "reason": "the map has no chargers: add [[chargers]] to the scenario",
+    }

@@ -180,3 +180,19 @@ def test_bad_energy_values_fail_with_one_clear_line(
     message = str(info.value)
     assert problem in message, message
     assert "\n" not in message and str(path) in message
+
+
+def test_a_charger_no_unit_can_drive_to_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "walled.map").write_text("type octile\nheight 2\nwidth 6\nmap\n....@.\n....@.\n")
+    path = tmp_path / "s.toml"
+    path.write_text(
+        'map = "walled.map"\n[[units]]\nid = "u1"\nstart = [0, 0]\ncapacity = 5.0\n'
+        "[[chargers]]\nsquare = [3, 1]\n[[chargers]]\nsquare = [5, 0]\n"
+    )
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    assert str(info.value) == (
+        f"{path}:8: charger 'C2': square [5, 0] cannot be reached from any unit's start (walled in)"
+    )
+    path.write_text('map = "walled.map"\n[[chargers]]\nsquare = [5, 0]\n')  # no units: a map
+    assert [c.name for c in load_scenario(path).chargers] == ["C1"]
