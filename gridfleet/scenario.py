@@ -365,12 +365,12 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                 )
 
     starts = [u.start for u in units]
-    for i, c in enumerate(chargers):
-        if starts and not _reachable(grid, c.square, set(starts)):
+    for i, placed in enumerate(chargers):
+        if starts and not _reachable(grid, placed.square, set(starts)):
             raise where.error(
                 where.table("chargers", i),
-                f"charger {c.name!r}: square {list(c.square)} cannot be reached from any unit's "
-                "start (walled in)",
+                f"charger {placed.name!r}: square {list(placed.square)} cannot be reached from "
+                "any unit's start (walled in)",
             )
 
     return Scenario(
