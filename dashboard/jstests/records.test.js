@@ -21,7 +21,7 @@ test("the history's filters make the request, and a mistake is told before anyth
   const local = localInputValue(NOW - 3600000);
   const { body } = historyQuery({ since: local, until: "", unit: " unit2 ", job: "", state: "done" }, NOW);
   assert.deepEqual(body, {
-    since: new Date(local).toISOString(), until: null, unit: "unit2", job_id: null, state: "done", limit: 200, cursor: null,
+    kind: "jobs", since: new Date(local).toISOString(), until: null, unit: "unit2", job_id: null, state: "done", limit: 200, cursor: null,
   });
   // An empty since is the last day; a time with its zone is taken as it says.
   assert.equal(historyQuery({ since: "" }, NOW).body.since, new Date(NOW - DAY_MS).toISOString());

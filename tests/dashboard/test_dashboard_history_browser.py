@@ -28,9 +28,9 @@ from playwright.sync_api import expect
 
 from gridfleet.alerts.settings import AlertSettings
 from gridfleet.alerts.shell import AlertsShell
-from gridfleet.console.job import HISTORY_COLUMNS
+from gridfleet.console.job import CHARGE_COLUMNS, HISTORY_COLUMNS
 from gridfleet.protocol import Topics, encode
-from gridfleet.protocol.messages import JobHistoryEntry, JobHistoryPage
+from gridfleet.protocol.messages import ChargeEntry, JobHistoryEntry, JobHistoryPage
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
 
@@ -278,6 +278,99 @@ def test_the_history_pages_through_the_cursor_and_the_csv_takes_every_page(
     assert rows[0]["at"] == "2026-11-26T08:00:00.000Z"  # as the command writes it
     expect(more).to_be_hidden()
     expect(table).to_have_attribute("data-rows", "6")
+    assert not dash.errors
+
+
+def charge(unit: str, minute: int, event: str, pct: float) -> dict[str, Any]:
+    """A made-up charge entry (as JSON), `minute` minutes into a day, checked by the model."""
+    at = datetime(2026, 11, 26, 8, 0, tzinfo=UTC) + timedelta(minutes=minute)
+    entry = {"at": at, "unit": unit, "charger": "C1", "event": event, "battery_pct": pct,
+             "reason": f"test {event}"}  # fmt: skip
+    return ChargeEntry.model_validate(entry).model_dump(mode="json")
+
+
+def test_the_history_shows_the_charges_checked_entry_by_entry_page_by_page(
+    open_dashboard: Callable[..., OpenDashboard],
+    probe_factory: Callable[..., MqttProbe],
+    topics: Topics,
+) -> None:
+    probe = probe_factory()
+    asked = topics.request("job_history")
+    probe.subscribe(asked)
+    dash = open_dashboard()
+    answered: set[str] = set()
+
+    def answer(
+        kind: str, cursor: str | None, key: str, entries: list[Any], more: str | None
+    ) -> Any:
+        """Wait for the page's next history request of `kind` at `cursor`; answer with `entries`."""
+
+        def ours() -> dict[str, Any] | None:
+            for seen in probe.received(asked):
+                query = json.loads(seen.payload)
+                new = query["request_id"] not in answered and query["state"] is None
+                if new and query.get("kind") == kind and query["cursor"] == cursor:
+                    answered.add(query["request_id"])
+                    return dict(query)
+            return None
+
+        query = wait_for(ours, 20.0, what=f"the {kind} history request at cursor {cursor}")
+        page = json.loads(encode(JobHistoryPage.model_validate(
+            {"header": {"version": "1.5", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
+             "request_id": query["request_id"], "accepted": True, "next_cursor": more}
+        )))  # fmt: skip
+        page[key] = entries  # as given: a bad entry too, as a faulty coordinator might send it
+        probe.publish(topics.history_reply(dash.client_id), json.dumps(page).encode())
+        return query
+
+    open_tab(dash, "history")
+    answer("jobs", None, "entries", [entry("j1", 0).model_dump(mode="json")], None)
+    table = dash.page.locator("#history")
+    expect(table).to_have_attribute("data-rows", "1")
+    form = dash.page.locator("#history-form")
+    job, state = form.locator("input[name=job]"), form.locator("select[name=state]")
+    expect(job).to_be_enabled()
+    # The switch asks for the charges at once: the unit filter applies, the jobs' filters do not.
+    form.locator("input[name=unit]").fill("u03")
+    job.fill("j1")
+    form.locator("select[name=kind]").select_option("charges")
+    expect(job).to_be_disabled()
+    expect(state).to_be_disabled()
+    bad = {**charge("u03", 1, "ended", 50.0), "battery_pct": 250}
+    first = answer("charges", None, "charges",
+                   [charge("u03", 0, "started", 35.0), bad, charge("u03", 2, "ended", 82.5)], "3")  # fmt: skip
+    assert (first["unit"], first["job_id"], first["state"]) == ("u03", None, None)
+    expect(table).to_have_attribute("data-rows", "2")
+    expect(table).to_have_attribute("data-dropped", "1")
+    expect(dash.page.locator("#history-feedback")).to_contain_text("left out 1 malformed entry")
+    expect(dash.page.locator("#history thead tr[data-kind=charges]")).to_be_visible()
+    expect(dash.page.locator("#history thead tr[data-kind=jobs]")).to_be_hidden()
+    rows = history_rows(dash)
+    assert [(r["charger"], r["event"], r["battery"]) for r in rows] == [
+        ("C1", "started", "35.0 %"), ("C1", "ended", "82.5 %"),
+    ]  # fmt: skip
+    expect(dash.page.locator("#history-summary")).to_contain_text("2 charge entries (more to load)")
+    # The CSV fetches the remaining pages and has the command's charge columns.
+    with dash.page.expect_download() as info:
+        dash.page.locator("#history-csv").click()
+        third = answer("charges", "3", "charges", [charge("u03", 5, "started", 20.0)], None)
+    assert third["limit"] == 1000
+    assert info.value.suggested_filename.startswith("gridfleet-charges-")
+    reader = csv.DictReader(io.StringIO(Path(info.value.path()).read_text(encoding="utf-8")))
+    got = list(reader)
+    assert list(reader.fieldnames or []) == list(CHARGE_COLUMNS)
+    assert [(r["event"], float(r["battery_pct"])) for r in got] == [
+        ("started", 35.0), ("ended", 82.5), ("started", 20.0),
+    ]  # fmt: skip
+    assert got[0]["at"] == "2026-11-26T08:00:00.000Z"
+    expect(table).to_have_attribute("data-rows", "3")
+    # Back to the jobs: their filters again, their header.
+    form.locator("select[name=kind]").select_option("jobs")
+    expect(job).to_be_enabled()
+    again = answer("jobs", None, "entries", [], None)
+    assert (again["unit"], again["job_id"]) == ("u03", "j1")
+    expect(table).to_have_attribute("data-rows", "0")
+    expect(dash.page.locator("#history thead tr[data-kind=jobs]")).to_be_visible()
     assert not dash.errors
 
 

@@ -1,6 +1,6 @@
 // The History view's words and figures: the query its filters make, the table's cells, each job's
-// duration, and the CSV a person downloads. Pure: no DOM, no network, no clock (callers pass `now`
-// in ms). protocol.md §6.10 says what the coordinator answers.
+// duration, the charges' starts and ends, and the CSV a person downloads. Pure: no DOM, no
+// network, no clock (callers pass `now` in ms). protocol.md §6.10 says what the coordinator answers.
 
 import { FINAL_JOB_STATES, ID_RE } from "./protocol.js";
 import { JOB_STATES } from "./protocol_table.js";
@@ -12,6 +12,10 @@ export const HISTORY_COLUMNS = [
   "at", "job", "state", "unit", "wait", "reason", "since_submitted_s", "pickup_x",
   "pickup_y", "dropoff_x", "dropoff_y", "mass_kg", "priority", "submitted_by",
 ];
+// The columns of `gridfleet job history --charges --csv` (console/job.py CHARGE_COLUMNS).
+export const CHARGE_COLUMNS = ["at", "unit", "charger", "event", "battery_pct", "reason"];
+export const HISTORY_KINDS = ["jobs", "charges"]; // what a query asks for (its `kind`)
+export const CHARGE_EVENTS = ["started", "ended"];
 export const TABLE_PAGE = 200; // entries a page of the table asks for (the coordinator's default)
 export const EXPORT_PAGE = 1000; // entries a page of a download asks for (the most it gives)
 export const DAY_MS = 24 * 3600 * 1000;
@@ -40,9 +44,10 @@ export function localInputValue(ms) {
 }
 
 /**
- * The job_history request the filters make ({since, until, unit, job, state}: the fields' text),
- * checked here first so a mistake is told at once: {body} or {error} in words. An empty `since`
- * is a day before `now` (ms).
+ * The job_history request the filters make ({kind, since, until, unit, job, state}: the fields'
+ * text), checked here first so a mistake is told at once: {body} or {error} in words. An empty
+ * `since` is a day before `now` (ms); an empty `kind` is the jobs'. The charges' query takes the
+ * range and the unit only: the job and state filters are the jobs', and left out of it.
  */
 export function historyQuery(fields, now, limit = TABLE_PAGE) {
   let since, until;
@@ -54,15 +59,18 @@ export function historyQuery(fields, now, limit = TABLE_PAGE) {
   }
   since ??= new Date(now - DAY_MS);
   if (until && since >= until) return { error: `since ${fields.since} is not before until ${fields.until}` };
+  const kind = (fields.kind ?? "").trim() || "jobs";
+  if (!HISTORY_KINDS.includes(kind)) return { error: `"${kind}" is neither jobs nor charges` };
+  const charges = kind === "charges";
   const unit = (fields.unit ?? "").trim() || null;
-  const job = (fields.job ?? "").trim() || null;
-  const state = (fields.state ?? "").trim() || null;
+  const job = charges ? null : (fields.job ?? "").trim() || null;
+  const state = charges ? null : (fields.state ?? "").trim() || null;
   if (unit && !ID_RE.test(unit)) return { error: `unit "${unit}": letters, digits, _ . - only (max 64)` };
   if (job && !ID_RE.test(job)) return { error: `job "${job}": letters, digits, _ . - only (max 64)` };
   if (state && !JOB_STATES.includes(state)) return { error: `state "${state}" is not one of ${JOB_STATES.join(", ")}` };
   return {
     body: {
-      since: since.toISOString(), until: until ? until.toISOString() : null,
+      kind, since: since.toISOString(), until: until ? until.toISOString() : null,
       unit, job_id: job, state, limit, cursor: null,
     },
   };
@@ -88,22 +96,78 @@ export function historyRow(e) {
   return cells.map((c) => (c == null ? "" : String(c)));
 }
 
+/** One charge entry as the CSV's cells, in CHARGE_COLUMNS' order (empty for null, as the command). */
+export function chargeRow(e) {
+  const cells = [utcStamp(e.at), e.unit, e.charger, e.event, e.battery_pct, e.reason];
+  return cells.map((c) => (c == null ? "" : String(c)));
+}
+
 /** A cell quoted as Python's csv module does (QUOTE_MINIMAL): only when it must be. */
 export function csvCell(text) {
   return /[",\r\n]/.test(text) ? `"${text.replace(/"/g, '""')}"` : text;
 }
 
-/** The whole CSV of `entries`: a header line, then one line per entry, each ending in \n. */
-export function historyCsv(entries) {
-  const lines = [HISTORY_COLUMNS, ...entries.map(historyRow)];
+/**
+ * The whole CSV of `entries` of a query of `kind` ("jobs", or "charges": the command's columns of
+ * each): a header line, then one line per entry, each ending in \n.
+ */
+export function historyCsv(entries, kind = "jobs") {
+  const [columns, row] = kind === "charges" ? [CHARGE_COLUMNS, chargeRow] : [HISTORY_COLUMNS, historyRow];
+  const lines = [columns, ...entries.map(row)];
   return lines.map((cells) => cells.map(csvCell).join(",") + "\n").join("");
 }
 
-/** The file name of a download: the range it covers, in UTC (`gridfleet-history-…Z.csv`). */
+/** The file name of a download: the range it covers, in UTC (`gridfleet-history-…Z.csv`, `gridfleet-charges-…`). */
 export function csvName(body, now) {
   const stamp = (iso) => iso.replace(/\.\d+Z$/, "Z").replace(/:/g, "");
   const until = body.until ?? new Date(now).toISOString();
-  return `gridfleet-history-${stamp(body.since)}-${stamp(until)}.csv`;
+  const what = body.kind === "charges" ? "charges" : "history";
+  return `gridfleet-${what}-${stamp(body.since)}-${stamp(until)}.csv`;
+}
+
+const isTime = (v) => typeof v === "string" && !Number.isNaN(Date.parse(v));
+const isId = (v) => typeof v === "string" && ID_RE.test(v);
+const isWords = (v) => v == null || typeof v === "string";
+const isObject = (v) => typeof v === "object" && v !== null && !Array.isArray(v);
+
+/** True for a job entry the table and the CSV can show (§6.10): its time, job and state at least. */
+export function isJobEntry(e) {
+  return isObject(e) && isTime(e.at) && isId(e.job) && JOB_STATES.includes(e.state)
+    && (e.unit == null || isId(e.unit)) && isWords(e.reason)
+    && (e.since_submitted_s == null || Number.isFinite(e.since_submitted_s));
+}
+
+/** True for a charge entry as §6.10 has it: time, unit, charger, event, battery 0–100, words or null. */
+export function isChargeEntry(e) {
+  return isObject(e) && isTime(e.at) && isId(e.unit) && isId(e.charger) && CHARGE_EVENTS.includes(e.event)
+    && Number.isFinite(e.battery_pct) && e.battery_pct >= 0 && e.battery_pct <= 100 && isWords(e.reason);
+}
+
+/** The list a page of the query `body` carries: `charges` for the charges' query, else `entries`. */
+export function historyEntriesOf(page, body) {
+  return body?.kind === "charges" ? page.charges : page.entries;
+}
+
+/** Whether an entry of a page of the query `body` may be shown (the check of its kind). */
+export function isHistoryEntry(e, body) {
+  return body?.kind === "charges" ? isChargeEntry(e) : isJobEntry(e);
+}
+
+/** The table's cells of one charge entry: [text, className] each (its battery as the command: "35.0 %"). */
+export function chargeCells(e, clock) {
+  return [
+    [clock(e.at), "at"], [e.unit, "unit"], [e.charger, "charger"], [e.event, "event"],
+    [`${e.battery_pct.toFixed(1)} %`, "battery"], [e.reason ?? "", "reason"],
+  ];
+}
+
+/** What the loaded charge entries say in one line: how many, how many started and ended, of how many units. */
+export function chargeSummary(entries, more) {
+  if (!entries.length) return "no charge started or ended in this range";
+  const count = (event) => entries.filter((e) => e.event === event).length;
+  const units = new Set(entries.map((e) => e.unit)).size;
+  return `${entries.length} charge ${entries.length === 1 ? "entry" : "entries"}${more ? " (more to load)" : ""} — `
+    + `started ${count("started")} · ended ${count("ended")} — ${units} unit${units === 1 ? "" : "s"}`;
 }
 
 /** The table's cells of one entry: [text, className] each; a final entry shows the job's duration. */

@@ -10,10 +10,11 @@ export class PagedView {
   /**
    * `name`: the view ("history", "audit"): its form `#<name>-form`, table `#<name>`, button
    * `#<name>-more` and feedback `#<name>-feedback`. `kind`: the request kind. `makeQuery(fields,
-   * now)` → {body} or {error}; `cells(entry)` → [text, className] per cell. `send(kind, form,
-   * what, body)` publishes a request and returns its id; `feedback(form, kind, text)` shows words.
+   * now)` → {body} or {error}; `cells(entry, body)` → [text, className] per cell of an entry of the
+   * query `body`. `send(kind, form, what, body)` publishes a request and returns its id;
+   * `feedback(form, kind, text)` shows words. `entriesOf` and `valid` as PagedQuery's.
    */
-  constructor({ name, kind, what, makeQuery, cells, send, feedback }) {
+  constructor({ name, kind, what, makeQuery, cells, send, feedback, entriesOf, valid }) {
     this.name = name;
     this.kind = kind;
     this.what = what;
@@ -21,7 +22,7 @@ export class PagedView {
     this.cells = cells;
     this.send = send;
     this.feedback = feedback;
-    this.query = new PagedQuery();
+    this.query = new PagedQuery({ entriesOf, valid });
     this.opened = false;
     this.form = document.querySelector(`#${name}-form`);
     this.tbody = document.querySelector(`#${name} tbody`);
@@ -69,8 +70,11 @@ export class PagedView {
 
   /** A page from the reply topic (parsed): true when it was ours. */
   onPage(page) {
+    const dropped = this.query.dropped;
     if (!this.query.take(page)) return false;
+    const bad = this.query.dropped - dropped;
     if (this.query.error) this.feedback(this.name, "refused", `${this.what}: refused — ${this.query.error}`);
+    else if (bad) this.feedback(this.name, "refused", `${this.what}: left out ${bad} malformed ${bad === 1 ? "entry" : "entries"} of the coordinator's`);
     else this.feedback(this.name, "", "");
     this.addRows();
     this.update();
@@ -89,7 +93,7 @@ export class PagedView {
   addRows() {
     const rows = this.query.entries.slice(this.shown).map((e) => {
       const tr = document.createElement("tr");
-      for (const [text, className] of this.cells(e)) {
+      for (const [text, className] of this.cells(e, this.query.body)) {
         const td = document.createElement("td");
         td.className = className;
         td.textContent = text;
@@ -115,6 +119,7 @@ export class PagedView {
     this.moreButton.disabled = this.query.busy;
     const table = this.tbody.closest("table");
     table.dataset.rows = String(this.query.entries.length);
+    table.dataset.dropped = String(this.query.dropped);
     table.dataset.state = this.query.busy ? "loading" : this.query.error ? "refused" : this.query.next ? "more" : "complete";
   }
 }

@@ -4,9 +4,17 @@
 // pages that come back to `take`.
 
 export class PagedQuery {
-  constructor() {
+  /**
+   * `entriesOf(page, body)`: the list a page of the query `body` carries its entries in (a page's
+   * `entries` unless told); `valid(entry, body)`: whether an entry read from the wire may be kept
+   * (the others are left out and counted in `dropped`, so one bad entry does not break a view).
+   */
+  constructor({ entriesOf = (page) => page.entries, valid = () => true } = {}) {
+    this.entriesOf = entriesOf;
+    this.valid = valid;
     this.body = null; // the query, cursor left out
     this.entries = [];
+    this.dropped = 0; // entries of this query's pages left out as malformed
     this.next = null; // the next page's cursor; null: no more
     this.waiting = null; // the request id whose page has not come yet
     this.error = null; // why the coordinator refused it, in its words
@@ -17,6 +25,7 @@ export class PagedQuery {
   begin(body) {
     this.body = { ...body, cursor: null };
     this.entries = [];
+    this.dropped = 0;
     this.next = null;
     this.waiting = null;
     this.error = null;
@@ -53,7 +62,11 @@ export class PagedQuery {
       this.next = null;
       return true;
     }
-    if (Array.isArray(page.entries)) this.entries.push(...page.entries);
+    const got = this.entriesOf(page, this.body);
+    for (const e of Array.isArray(got) ? got : []) {
+      if (this.valid(e, this.body)) this.entries.push(e);
+      else this.dropped += 1;
+    }
     this.next = page.next_cursor ?? null;
     return true;
   }
