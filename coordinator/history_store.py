@@ -8,7 +8,7 @@ exactly after them.
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -191,49 +191,41 @@ class HistoryStore:
         row, by time and then row (records.RecordsDesk); of kind "charges", charges."""
         q = query.query
         assert isinstance(q, JobHistoryQuery), "a history store answers job history queries"
-        if q.kind == "charges":
-            return self._charge_rows(query, q, limit)
+        if q.kind == "charges":  # the unit filter applies; job_id and state do not
+            rows = self._page("charge_history", _CHARGE_NAMES, {"unit": q.unit}, query, limit)
+            return [(int(row[0]), _charge(row[1:])) for row in rows]
+        filters = {"unit": q.unit, "job": q.job_id, "state": q.state}
+        rows = self._page("job_history", _NAMES, filters, query, limit)
+        return [(int(row[0]), _entry(row[1:])) for row in rows]
+
+    def _page(
+        self,
+        table: str,
+        names: str,
+        filters: Mapping[str, object],
+        query: RecordQuery,
+        limit: int,
+    ) -> list[Any]:
+        """Up to `limit` rows (id, at, `names`) of `table` in `query`'s range, equal to the
+        `filters` given (None: any), after its cursor's row, by time and then row."""
         where = ["at >= ?", "at < ?"]
         args: list[object] = [query.since, query.until]
-        for column, value in (("unit", q.unit), ("job", q.job_id), ("state", q.state)):
+        for column, value in filters.items():
             if value is not None:
                 where.append(f"{column} = ?")
                 args.append(value)
         if query.after is not None:
             # After the cursor's row in (at, id) order; a pruned cursor row starts from `since`.
             where.append(
-                "(at > COALESCE((SELECT at FROM job_history WHERE id = ?), -1e18) OR "
-                "(at = (SELECT at FROM job_history WHERE id = ?) AND id > ?))"
+                f"(at > COALESCE((SELECT at FROM {table} WHERE id = ?), -1e18) OR "
+                f"(at = (SELECT at FROM {table} WHERE id = ?) AND id > ?))"
             )
             args += [query.after] * 3
-        rows = self._db.execute(
-            f"SELECT id, at, {_NAMES} FROM job_history WHERE {' AND '.join(where)} "
+        return self._db.execute(
+            f"SELECT id, at, {names} FROM {table} WHERE {' AND '.join(where)} "
             "ORDER BY at, id LIMIT ?",
             [*args, limit],
         ).fetchall()
-        return [(int(row[0]), _entry(row[1:])) for row in rows]
-
-    def _charge_rows(
-        self, query: RecordQuery, q: JobHistoryQuery, limit: int
-    ) -> list[tuple[int, ChargeEntry]]:
-        """The charges of `query` (its unit filter; job_id and state do not apply)."""
-        where = ["at >= ?", "at < ?"]
-        args: list[object] = [query.since, query.until]
-        if q.unit is not None:
-            where.append("unit = ?")
-            args.append(q.unit)
-        if query.after is not None:
-            where.append(
-                "(at > COALESCE((SELECT at FROM charge_history WHERE id = ?), -1e18) OR "
-                "(at = (SELECT at FROM charge_history WHERE id = ?) AND id > ?))"
-            )
-            args += [query.after] * 3
-        rows = self._db.execute(
-            f"SELECT id, at, {_CHARGE_NAMES} FROM charge_history WHERE {' AND '.join(where)} "
-            "ORDER BY at, id LIMIT ?",
-            [*args, limit],
-        ).fetchall()
-        return [(int(row[0]), _charge(row[1:])) for row in rows]
 
     def query(self, query: JobHistoryQuery, now: datetime) -> tuple[list[Entry], str | None]:
         """One page of entries for `query` (until `now` if it gives none), and the next cursor."""
