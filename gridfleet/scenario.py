@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
 from pydantic_core import ErrorDetails
@@ -13,9 +14,13 @@ from gridfleet.energy import BatterySpec, ChargingSpec, thresholds_problem
 from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
+from gridfleet.paths import UNREACHABLE, adjacency, distance_field
 from gridfleet.protocol.constants import ID_PATTERN
 from gridfleet.shipped import resolve
 from gridfleet.textfile import TomlFile
+
+if TYPE_CHECKING:
+    from scipy.sparse import csr_matrix
 
 DEFAULT_COLORS = (
     "#d32f2f",
@@ -364,9 +369,9 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                     "a unit charging there would block it",
                 )
 
-    starts = [u.start for u in units]
+    graph = adjacency(grid) if units and chargers else None  # one graph for every charger
     for i, placed in enumerate(chargers):
-        if starts and not _reachable(grid, placed.square, set(starts)):
+        if graph is not None and not _reachable(grid, graph, placed.square, units):
             raise where.error(
                 where.table("chargers", i),
                 f"charger {placed.name!r}: square {list(placed.square)} cannot be reached from "
@@ -388,18 +393,10 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
     )
 
 
-def _reachable(grid: GridMap, square: Cell, starts: set[Cell]) -> bool:
-    """Whether any of `starts` can drive to `square` on the static map."""
-    seen, todo = {square}, [square]
-    while todo:
-        cell = todo.pop()
-        if cell in starts:
-            return True
-        for nxt in grid.free_neighbours(cell):
-            if nxt not in seen:
-                seen.add(nxt)
-                todo.append(nxt)
-    return False
+def _reachable(grid: GridMap, graph: csr_matrix, square: Cell, units: Sequence[UnitSpec]) -> bool:
+    """Whether any of `units` can drive from its start to `square` on the static map."""
+    field = distance_field(grid, square, graph)
+    return any(field[u.start.y, u.start.x] != UNREACHABLE for u in units)
 
 
 def _battery(default: _BatteryTable | None, own: _BatteryTable | None) -> BatterySpec | None:
