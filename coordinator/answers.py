@@ -46,12 +46,13 @@ class Answer:
             "accepted": o.accepted,
             "reason": o.reason,
             "job_id": o.job_id,
+            "code": o.code,
         }
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Answer:
         """Inverse of to_dict."""
-        outcome = Outcome(bool(d["accepted"]), d["reason"], d["job_id"])
+        outcome = Outcome(bool(d["accepted"]), d["reason"], d["job_id"], d.get("code"))
         return cls(str(d["sender"]), str(d["request_id"]), str(d["digest"]), outcome)
 
 
@@ -86,6 +87,7 @@ class Answers:
             False,
             f"request id {req.request_id!r} was already used by {req.header.sender} for a "
             "different request: give every request its own id",
+            code="conflict",
         )
 
     def remember(self, req: Request, outcome: Outcome) -> Answer:

@@ -89,6 +89,7 @@ class Messages:
             accepted=outcome.accepted,
             reason=outcome.reason,
             job_id=outcome.job_id,
+            code=None if outcome.accepted else outcome.code,
         )
         return Outbound.of("reply", self.topics.reply(reply_to), reply)
 

@@ -30,7 +30,7 @@ from gridfleet.protocol import (
     SubmitJob,
 )
 from gridfleet.protocol.constants import MAX_OPEN_JOBS, MAX_OPEN_JOBS_PER_ACCOUNT
-from gridfleet.protocol.messages import Request, UnitControlState
+from gridfleet.protocol.messages import RefusalCode, Request, UnitControlState
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,7 @@ class Outcome:
     accepted: bool
     reason: str | None = None
     job_id: str | None = None
+    code: RefusalCode | None = None  # why it was refused, for machines (Reply.code)
 
 
 @dataclass

@@ -66,6 +66,8 @@ REQUEST_KINDS = (
     "control_unit",
     "clear_obstacles",
     "remove_unit",  # a lost unit off the floor for good (protocol.md §6.11)
+    "close_zone",  # close a rectangle of squares (protocol.md §5.11)
+    "open_zone",
     "ack_alert",  # answered by the alerts process, not the coordinator
     "audit",  # a page of the audit trail (protocol.md §6.8): people, not viewers
     "job_history",  # a page of the job history (protocol.md §6.10)

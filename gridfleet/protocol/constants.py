@@ -5,7 +5,7 @@ them, and `make schemas` copies them into protocol/protocol.json, the dashboard'
 protocol_table.js and the firmware's protocol_table.h.
 """
 
-PROTOCOL_VERSION = "1.5"  # header.version of every JSON message (protocol.md §3, §9)
+PROTOCOL_VERSION = "1.6"  # header.version of every JSON message (protocol.md §3, §9)
 TOPIC_VERSION = "v1"  # the topic level after the root; changes only with a new major version
 DEFAULT_ROOT = "gridfleet"
 
@@ -26,6 +26,8 @@ MAX_RELEASED = 64  # squares one order may release
 MAX_PLANNED = 8192  # squares of the planned rest shown for display
 MAX_TEXT = 500  # characters of a reason or error message
 MAX_CHARGERS = 1024  # chargers one map may have
+MAX_PLACES = 4096  # named places one map may have (protocol.md §5.10)
+MAX_ZONES = 256  # zones closed at once (protocol.md §5.11)
 # A factsheet's energy rates a second at most (a run 1,000 times faster than life).
 MAX_PCT_PER_S = 100_000.0
 MAX_ENERGY_UNITS = 20000  # units the energy view may list (each a few dozen bytes)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints
 
@@ -13,9 +13,11 @@ from gridfleet.protocol.constants import (
     MAX_COORD,
     MAX_ENERGY_UNITS,
     MAX_PCT_PER_S,
+    MAX_PLACES,
     MAX_PLANNED,
     MAX_RELEASED,
     MAX_TEXT,
+    MAX_ZONES,
     PROTOCOL_VERSION,
 )
 from gridfleet.squares import Cell
@@ -35,6 +37,13 @@ if TYPE_CHECKING:
 else:
     Square = Annotated[tuple[Coord, Coord], AfterValidator(_as_cell)]
 """A square as a JSON array [x, y]; decoded into a Cell."""
+
+if TYPE_CHECKING:
+    Where = Cell | str
+else:
+    Where = Square | Id
+"""A square [x, y] or the name of a place on the map (protocol.md §5.10): the coordinator
+resolves a name to its square."""
 
 
 def _spoken_version(value: str) -> str:
@@ -79,7 +88,26 @@ WaitCode = Literal[
     "unit_out_of_service",
     "unit_charging",
     "battery_low",
+    "zone_closed",  # its pickup or dropoff lies in a closed zone
+    "unreachable",  # closed zones cut every way to its pickup or dropoff
 ]
+# Why a request was refused, for machines (protocol.md §6): the HTTP API's status comes from it.
+RefusalCode = Literal[
+    "invalid",  # not allowed as asked (e.g. the fleet is stopped for this)
+    "bad_square",  # off the map, a wall, or a charger's square
+    "unknown_place",
+    "unknown_job",
+    "unknown_unit",
+    "unknown_zone",
+    "too_heavy",  # heavier than every unit can carry
+    "unreachable",  # no unit able to carry it can reach it
+    "zone_closed",  # a square of it lies in a closed zone
+    "conflict",  # not in the state it must be (a finished job, a name taken)
+    "queue_full",
+    "too_many",  # the account has too many jobs not finished
+    "forbidden",  # the account may not do this
+]
+PlaceKind = Literal["pickup", "dropoff", "charger", "parking"]
 # An operator's control of one unit (protocol.md §6.4): paused keeps its job, out of service gives
 # up a job not picked up yet and takes no new one.
 UnitControlState = Literal["paused", "out_of_service"]
@@ -91,6 +119,10 @@ Side = Literal["N", "E", "S", "W"]
 
 def _all_sides() -> list[Side]:
     return ["N", "E", "S", "W"]
+
+
+# A map keyed by ids: its schema's patternProperties allow only ids as keys, as the model does.
+ID_KEYS_ONLY: dict[str, Any] = {"additionalProperties": False}
 
 
 class Model(BaseModel):
@@ -242,8 +274,16 @@ class Charger(Model):
     square: Square
 
 
+class Place(Model):
+    """A named square of the map and what may happen there (protocol.md §5.10)."""
+
+    name: Id
+    square: Square
+    kinds: Annotated[list[PlaceKind], Field(min_length=1, max_length=4)]
+
+
 class FleetMap(Message):
-    """`fleet/map`: the static map, its chargers and the obstacles units have discovered."""
+    """`fleet/map`: the static map, its chargers and places, and the obstacles units found."""
 
     name: Annotated[str, StringConstraints(max_length=128)]
     width: Annotated[int, Field(ge=1, le=MAX_COORD + 1, strict=True)]
@@ -251,6 +291,7 @@ class FleetMap(Message):
     rows: list[Annotated[str, StringConstraints(pattern=r"^[.@]+$")]]
     obstacles: list[Square] = Field(default_factory=list)
     chargers: Annotated[list[Charger], Field(max_length=MAX_CHARGERS)] = Field(default_factory=list)
+    places: Annotated[list[Place], Field(max_length=MAX_PLACES)] = Field(default_factory=list)
 
 
 # ---- energy (coordinator/energy.py: protocol.md §5.9) -------------------------------------------
@@ -293,7 +334,9 @@ class EnergyView(Message):
     chargers: Annotated[list[ChargerView], Field(max_length=MAX_CHARGERS)] = Field(
         default_factory=list
     )
-    units: Annotated[dict[Id, UnitEnergy], Field(max_length=MAX_ENERGY_UNITS)] = Field(
+    units: Annotated[
+        dict[Id, UnitEnergy], Field(max_length=MAX_ENERGY_UNITS, json_schema_extra=ID_KEYS_ONLY)
+    ] = Field(
         default_factory=dict
     )  # only units the policy sends to, holds at or queues for a charger, or cannot help
 
@@ -314,6 +357,8 @@ class JobView(Model):
     done_step: Annotated[int, Field(ge=0, strict=True)] | None = None
     wait: WaitCode | None = None
     wait_reason: Text | None = None
+    pickup_place: Id | None = None  # the place its pickup was named by, if it was
+    dropoff_place: Id | None = None
 
 
 FINISHED_LISTED = 20  # the queue view's latest finished jobs
@@ -346,16 +391,34 @@ class RouteView(Model):
     planned: list[Square] = Field(default_factory=list)
     target: Square | None = None
     control: UnitControlState | None = None  # an operator's control of the unit, if any
+    note: Text | None = None  # why the coordinator moves or holds it, e.g. leaving a closed zone
 
 
 class Routes(Message):
     """`fleet/routes`: every unit's route, for display."""
 
     step: Annotated[int, Field(ge=0, strict=True)]
-    routes: dict[Id, RouteView]
+    routes: Annotated[dict[Id, RouteView], Field(json_schema_extra=ID_KEYS_ONLY)]
 
 
-EventKind = Literal["job", "unit", "stop", "refusal"]
+class Zone(Model):
+    """A closed zone: a rectangle no unit is sent into, who closed it, when and why."""
+
+    name: Id
+    first: Square  # its corner of least x and y
+    last: Square  # its corner of greatest x and y
+    reason: Text
+    closed_by: Id | None = None  # the account that closed it (the request's sender)
+    closed_at: datetime
+
+
+class ZonesView(Message):
+    """`fleet/zones`: the zones closed now, in the order they were closed."""
+
+    zones: Annotated[list[Zone], Field(max_length=MAX_ZONES)] = Field(default_factory=list)
+
+
+EventKind = Literal["job", "unit", "stop", "refusal", "zone"]
 MAX_EVENTS = 100  # the events view keeps the latest this many
 
 
@@ -383,10 +446,10 @@ class Request(Message):
 
 
 class SubmitJob(Request):
-    """`requests/submit_job`: queue a pick-and-deliver job."""
+    """`requests/submit_job`: queue a pick-and-deliver job (its squares, or places by name)."""
 
-    pickup: Square
-    dropoff: Square
+    pickup: Where
+    dropoff: Where
     mass_kg: PositiveKg
     priority: Annotated[int, Field(ge=0, le=100, strict=True)] = 0
     job_id: Id | None = None
@@ -425,6 +488,21 @@ class RemoveUnit(Request):
     reason: Text | None = None  # why, in words, for the audit and the events
 
 
+class CloseZone(Request):
+    """`requests/close_zone`: close a rectangle of squares, with a reason (protocol.md §5.11)."""
+
+    name: Id
+    first: Square  # one corner
+    last: Square  # the opposite corner
+    reason: Annotated[str, StringConstraints(min_length=1, max_length=MAX_TEXT)]
+
+
+class OpenZone(Request):
+    """`requests/open_zone`: open a closed zone again."""
+
+    name: Id
+
+
 class Reply(Message):
     """`replies/<client>`: the answer to one request."""
 
@@ -432,6 +510,7 @@ class Reply(Message):
     accepted: bool
     reason: Text | None = None
     job_id: Id | None = None
+    code: RefusalCode | None = None  # why it was refused, for machines; null when accepted
 
 
 class ErrorReport(Message):
@@ -469,6 +548,7 @@ AlertRule = Literal[
     "battery_low",
     "battery_critical",
     "cannot_reach_charger",
+    "zone_wait",  # a job waits on a closed zone too long
 ]
 AlertSeverity = Literal["warning", "critical"]
 CLEARED_ALERTS_LISTED = 20  # the alerts view's latest cleared alerts
@@ -522,6 +602,8 @@ AuditAct = Literal[
     "charge",
     "clear_obstacles",
     "remove_unit",
+    "close_zone",
+    "open_zone",
     "login",
     "logout",
     "login_failed",
@@ -613,6 +695,8 @@ class JobHistoryEntry(Model):
     mass_kg: PositiveKg
     priority: Annotated[int, Field(ge=0, le=100, strict=True)] = 0
     submitted_by: Id | None = None
+    pickup_place: Id | None = None  # the place its pickup was named by, if it was
+    dropoff_place: Id | None = None
 
 
 ChargeEvent = Literal["started", "ended"]

@@ -87,6 +87,7 @@ TOPICS: dict[str, TopicSpec] = {
         TopicSpec("routes", "fleet/routes", 0, True, "json", "Routes", MAX_VIEW_BYTES),
         TopicSpec("events", "fleet/events", 1, True, "json", "EventsView", MAX_VIEW_BYTES),
         TopicSpec("energy", "fleet/energy", 1, True, "json", "EnergyView", MAX_VIEW_BYTES),
+        TopicSpec("zones", "fleet/zones", 1, True, "json", "ZonesView", MAX_VIEW_BYTES),
         TopicSpec(
             "submit_job", "requests/submit_job", 1, False, "json", "SubmitJob", MAX_REQUEST_BYTES
         ),
@@ -120,6 +121,12 @@ TOPICS: dict[str, TopicSpec] = {
             "json",
             "RemoveUnit",
             MAX_REQUEST_BYTES,
+        ),
+        TopicSpec(
+            "close_zone", "requests/close_zone", 1, False, "json", "CloseZone", MAX_REQUEST_BYTES
+        ),
+        TopicSpec(
+            "open_zone", "requests/open_zone", 1, False, "json", "OpenZone", MAX_REQUEST_BYTES
         ),
         TopicSpec(
             "ack_alert", "requests/ack_alert", 1, False, "json", "AckAlert", MAX_REQUEST_BYTES

@@ -478,7 +478,7 @@ def test_a_malformed_acknowledgement_is_refused_with_a_reply_when_it_can_be_addr
     assert errors(unreadable) == [
         "AckAlert: malformed JSON (Invalid JSON: key must be a string at line 1 column 2)"
     ]
-    header = {"version": "1.5", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "operator"}
+    header = {"version": "1.6", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "operator"}
     no_id = {"header": header, "request_id": "r-2", "reply_to": "operator"}
     refused = rig.send(41.0, topic, json.dumps(no_id).encode())
     assert replies(refused) == [
@@ -712,7 +712,7 @@ def test_an_unreadable_retained_view_is_reported_and_the_good_one_after_it_is_st
     None
 ):
     rig = Rig(retained=False)
-    bad = rig.send(0.1, T.fleet("alerts"), b'{"header": {"version": "1.5"}, "active": 7}')
+    bad = rig.send(0.1, T.fleet("alerts"), b'{"header": {"version": "1.6"}, "active": 7}')
     (error,) = errors(bad)
     assert error.startswith("AlertsView: ") and views(bad) == [] and bad.notices == []
     assert not rig.core.settled and rig.core.active == {}  # still waiting for a view to read

@@ -383,7 +383,7 @@ def test_who_sent_a_request_or_an_error_is_the_account_not_the_header(
     # As found: a job submitted with sender `coordinator` was listed `submitted_by: coordinator`,
     # and a device posted errors the page showed as the coordinator's, 200 a second.
     def signed(sender: str, n: int = 0) -> bytes:
-        header = {"version": "1.5", "seq": n, "timestamp": "2026-11-26T09:00:00Z"}
+        header = {"version": "1.6", "seq": n, "timestamp": "2026-11-26T09:00:00Z"}
         return json.dumps({"header": {**header, "sender": sender}, "n": n}).encode()
 
     submit, errors = T.request("submit_job"), T.fleet("errors")

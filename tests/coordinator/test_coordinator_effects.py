@@ -441,7 +441,7 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
             "UnitState: malformed JSON (Invalid JSON: EOF while parsing an object at line 1 column 1)",
         ),
         (
-            encode(state()).replace(b'"1.5"', b'"9.9"'),
+            encode(state()).replace(b'"1.6"', b'"9.9"'),
             "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.5'",
         ),
         (encode(state(Cell(1, 1))), "position [1, 1] is on a wall"),
@@ -875,7 +875,7 @@ def test_a_bad_request_without_a_readable_reply_address_is_reported_only(
     ("payload", "reason"),
     [
         (
-            encode(submit()).replace(b'"1.5"', b'"2.0"'),
+            encode(submit()).replace(b'"1.6"', b'"2.0"'),
             "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.5'",
         ),
         (
@@ -1128,7 +1128,7 @@ def test_a_malformed_clear_obstacles_is_refused_in_words_and_clears_nothing(
     seen = Sensors(N="wall", E="free", S="obstacle", W="wall")
     drive(core, state(Cell(0, 0), seq=1, obstacles=[Cell(0, 1)], sensors=seen))
     head = json.dumps(
-        {"version": "1.5", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "op"}
+        {"version": "1.6", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "op"}
     )
     raw = f'{{"header": {head}, "request_id": "c9", "reply_to": "op", "squares": {squares}}}'
     out = published(core.on_message(TOPICS.request("clear_obstacles"), raw.encode(), 2.0))

@@ -82,7 +82,7 @@ def test_refusals_are_told_once_a_second_with_how_many_came_since() -> None:
 
 
 def submit(request_id: str, sender: str = "op", **over: object) -> bytes:
-    header = {"version": "1.5", "seq": 0, "timestamp": "2026-11-21T10:00:00.000Z", "sender": sender}
+    header = {"version": "1.6", "seq": 0, "timestamp": "2026-11-21T10:00:00.000Z", "sender": sender}
     body = {"pickup": [3, 0], "dropoff": [3, 2], "mass_kg": 1.0, "reply_to": sender}
     return json.dumps({"header": header, "request_id": request_id, **body, **over}).encode()
 

@@ -24,7 +24,7 @@ pytestmark = (
 
 GRID = GridMap.from_rows(["....", ".@..", "...."])
 TOPICS = Topics("fuzz")
-HDR = {"version": "1.5", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "unit1"}
+HDR = {"version": "1.6", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "unit1"}
 READ_TOPICS = [
     TOPICS.unit("connection", "unit1"),
     TOPICS.unit("factsheet", "unit1"),

@@ -187,7 +187,7 @@ async def test_states_faster_than_the_fleet_drives_are_refused_over_the_broker(
     await asyncio.wait_for(shell.ready.wait(), 10)
     probe = MqttProbe(broker.url, f"{root}-unit1").connect()
     probe.subscribe(topics.fleet("errors"), qos=1)
-    hdr = {"version": "1.5", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "unit1"}
+    hdr = {"version": "1.6", "seq": 0, "timestamp": "2026-11-21T10:00:00Z", "sender": "unit1"}
 
     def publish(kind: str, body: dict[str, Any]) -> None:
         probe.publish(topics.unit(kind, "unit1"), json.dumps({"header": hdr, **body}).encode())

@@ -235,7 +235,7 @@ def test_a_forged_order_with_a_jumped_update_id_cannot_take_a_unit_over(
         # update of this order would look stale to the unit, which holds on the forged one.
         forged = {
             "header": {
-                "version": "1.5",
+                "version": "1.6",
                 "seq": 0,
                 # Stamped now: an order stamped long ago is not driven at all (§4.4 rule 7).
                 "timestamp": datetime.now(UTC).isoformat(timespec="milliseconds"),

@@ -274,7 +274,7 @@ def test_bad_energy_values_break_nothing(
     page = dash.page
     # A battery out of range: the unit's row stays, its battery is left out.
     bad_state = (
-        b'{"header": {"version": "1.5", "seq": 99, "timestamp": "2025-01-01T00:00:00Z", '
+        b'{"header": {"version": "1.6", "seq": 99, "timestamp": "2025-01-01T00:00:00Z", '
         b'"sender": "unit2"}, "step": 99, "position": [5, 5], "direction": "-", '
         b'"status": "idle", "battery_pct": 250, "charging": "yes"}'
     )

@@ -244,7 +244,7 @@ def test_the_history_pages_through_the_cursor_and_the_csv_takes_every_page(
 
         query = wait_for(ours, 20.0, what=f"the history request at cursor {cursor}")
         page = JobHistoryPage.model_validate(
-            {"header": {"version": "1.5", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
+            {"header": {"version": "1.6", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
              "request_id": query["request_id"], "accepted": True, "entries": entries,
              "next_cursor": next_cursor}
         )  # fmt: skip
@@ -316,7 +316,7 @@ def test_the_history_shows_the_charges_checked_entry_by_entry_page_by_page(
 
         query = wait_for(ours, 20.0, what=f"the {kind} history request at cursor {cursor}")
         page = json.loads(encode(JobHistoryPage.model_validate(
-            {"header": {"version": "1.5", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
+            {"header": {"version": "1.6", "seq": 0, "timestamp": datetime.now(UTC), "sender": "coordinator"},
              "request_id": query["request_id"], "accepted": True, "next_cursor": more}
         )))  # fmt: skip
         page[key] = entries  # as given: a bad entry too, as a faulty coordinator might send it

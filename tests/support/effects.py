@@ -42,7 +42,7 @@ def header(sender: str, seq: int = 0) -> Header:
 
 def header_json(sender: str, seq: int) -> dict[str, Any]:
     """A header from `sender` at FIXED as a payload carries it (parsed JSON)."""
-    return {"version": "1.5", "seq": seq, "timestamp": STAMP, "sender": sender}
+    return {"version": "1.6", "seq": seq, "timestamp": STAMP, "sender": sender}
 
 
 def published(

@@ -176,7 +176,7 @@ def _order(**changes: Any) -> bytes:
         (
             _order(
                 header={
-                    "version": "1.5",
+                    "version": "1.6",
                     "seq": 0,
                     "timestamp": "2026-01-01T00:00:00Z",
                     "sender": "a/b",
@@ -185,7 +185,7 @@ def _order(**changes: Any) -> bytes:
             "header.sender",
         ),
         (
-            _order(header={"version": "1.5", "seq": 0, "timestamp": "yesterday", "sender": "x"}),
+            _order(header={"version": "1.6", "seq": 0, "timestamp": "yesterday", "sender": "x"}),
             "header.timestamp",
         ),
     ],

@@ -11,7 +11,7 @@ const freeze = (value) => {
   return value;
 };
 
-export const PROTOCOL_VERSION = "1.5";
+export const PROTOCOL_VERSION = "1.6";
 export const TOPIC_VERSION = "v1";
 export const DEFAULT_ROOT = "gridfleet";
 export const IDS = freeze({
@@ -175,6 +175,16 @@ export const TOPICS = freeze({
     "schema": "schemas/EnergyView.json",
     "max_bytes": 8388608
   },
+  "zones": {
+    "pattern": "fleet/zones",
+    "placeholder": null,
+    "qos": 1,
+    "retained": true,
+    "payload": "json",
+    "model": "ZonesView",
+    "schema": "schemas/ZonesView.json",
+    "max_bytes": 8388608
+  },
   "submit_job": {
     "pattern": "requests/submit_job",
     "placeholder": null,
@@ -233,6 +243,26 @@ export const TOPICS = freeze({
     "payload": "json",
     "model": "RemoveUnit",
     "schema": "schemas/RemoveUnit.json",
+    "max_bytes": 16384
+  },
+  "close_zone": {
+    "pattern": "requests/close_zone",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "CloseZone",
+    "schema": "schemas/CloseZone.json",
+    "max_bytes": 16384
+  },
+  "open_zone": {
+    "pattern": "requests/open_zone",
+    "placeholder": null,
+    "qos": 1,
+    "retained": false,
+    "payload": "json",
+    "model": "OpenZone",
+    "schema": "schemas/OpenZone.json",
     "max_bytes": 16384
   },
   "ack_alert": {

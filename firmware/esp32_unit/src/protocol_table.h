@@ -11,7 +11,7 @@
 namespace gf {
 namespace proto {
 
-constexpr char kProtocolVersion[] = "1.5";
+constexpr char kProtocolVersion[] = "1.6";
 constexpr char kTopicVersion[] = "v1";
 constexpr char kDefaultRoot[] = "gridfleet";
 
