@@ -34,6 +34,7 @@ READ = {
     "coordinator": lambda _: T.fleet("coordinator"),
     "ack_alert": lambda _: T.request("ack_alert"),
     "alerts": lambda _: T.fleet("alerts"),
+    "energy": lambda _: T.fleet("energy"),
 }
 # Acknowledgements by accounts that may, may not, and by nobody's client; of the alert in force
 # (the stop's, n1-1), and of none.
@@ -62,7 +63,16 @@ def rig(kind: str) -> Rig:
 
 def snapshot(core: AlertsCore) -> Any:
     """What a message may change: the alerts, what the rules know, the stop, the status."""
-    kept = ("active", "cleared", "_units", "_queued", "_status", "_adopting", "_inheriting")
+    kept = (
+        "active",
+        "cleared",
+        "_units",
+        "_queued",
+        "_status",
+        "_adopting",
+        "_inheriting",
+        "_energy",
+    )
     return copy.deepcopy({k: getattr(core, k) for k in kept}), repr(core._stop)
 
 
@@ -77,7 +87,7 @@ def test_each_message_the_alerts_read_is_taken_as_its_schema_allows(kind: str) -
     model = getattr(models, SPECS[kind].model or "")
 
     # The views are large to draw and to compare: fewer of them (8 s each at 70, half at 30).
-    @settings(SETTINGS, max_examples=30 if kind in ("jobs", "alerts") else 70)
+    @settings(SETTINGS, max_examples=30 if kind in ("jobs", "alerts", "energy") else 70)
     @given(
         payload=payloads(kind, max_coord=12, narrow=NARROW.get(kind)),
         unit=st.sampled_from(["unit1", "unit2"]),
@@ -92,6 +102,10 @@ def test_each_message_the_alerts_read_is_taken_as_its_schema_allows(kind: str) -
             assert report.topic == topic and report.reason and "\n" not in report.reason, report
         if not valid and not payload and kind in ("connection", "state"):
             assert not said  # a retained message cleared: a unit removed, no message (§6.11)
+            return
+        if not valid and not payload and kind == "energy":
+            # The retained view cleared (`gridfleet clean`): no view, so no battery rules.
+            assert not said and r.core._energy is None
             return
         if not valid:
             assert snapshot(r.core) == before, payload

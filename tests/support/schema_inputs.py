@@ -87,8 +87,18 @@ def _as_draft7_tuple(node: dict[str, Any]) -> None:
 
 def _ecma_end(node: dict[str, Any]) -> None:
     pattern = node.get("pattern")
-    if isinstance(pattern, str) and pattern.endswith("$") and not pattern.endswith("\\$"):
-        node["pattern"] = pattern[:-1] + "\\Z"
+    if isinstance(pattern, str):
+        node["pattern"] = _ecma_pattern(pattern)
+    keyed = node.get("patternProperties")
+    if isinstance(keyed, dict):  # the keys of an id-keyed map: the same rule
+        node["patternProperties"] = {_ecma_pattern(k): v for k, v in keyed.items()}
+
+
+def _ecma_pattern(pattern: str) -> str:
+    """`pattern` with a final `$` read as ECMA-262 does: the end of the text, not of a line."""
+    if pattern.endswith("$") and not pattern.endswith("\\$"):
+        return pattern[:-1] + "\\Z"
+    return pattern
 
 
 # RFC 3339's date-time (section 5.6), which JSON Schema's `date-time` format names: jsonschema
