@@ -18,6 +18,11 @@ An accounts file is TOML, readable by its owner only, one table per account:
     role = "vda5050"
     vehicles = [{ unit = "agv1", topic = "uagv/v2/acme/sn-7" }]
 
+    [accounts.ann]              # a person; her scripts' API tokens (gridfleet/api_tokens.py)
+    password = "…"
+    role = "operator"
+    tokens = [{ id = "3f9c01ab", sha256 = "…", created = "2026-12-02T07:40:00Z" }]
+
 The broker hashes the passwords it checks; clients read theirs from this file (`--accounts FILE
 --account NAME`). A vehicle's `client_id` (optional, from the vehicles file) is bound to its vehicle
 account: the embedded broker lets no other account use it. `rules()` derives each account's topic rules from the protocol's topic table, so
@@ -26,11 +31,13 @@ an ACL never drifts from protocol.md.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import secrets
 import stat
+import tempfile
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -40,6 +47,7 @@ from typing import Literal, get_args
 from pydantic import BaseModel, ConfigDict, ValidationError
 from pydantic_core import ErrorDetails
 
+from gridfleet.api_tokens import TokenRecord, created_text, parse_created
 from gridfleet.config import CLIENT_ID, owner_of
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.protocol import TOPICS, Topics, validate_id
@@ -59,6 +67,10 @@ Role = Literal[
     "viewer",  # a person who may read the fleet but not change it (nor acknowledge alerts)
 ]
 ROLES: tuple[Role, ...] = get_args(Role)
+# The roles that may hold API tokens (the dashboard's HTTP API, gridfleet/api_tokens.py): people
+# and the dashboard's own; viewers read through it, the others change.
+TOKEN_ROLES: tuple[Role, ...] = ("operator", "dashboard", "viewer")
+TOKEN_ROLES_TEXT = f"{', '.join(TOKEN_ROLES[:-1])} and {TOKEN_ROLES[-1]}"
 REQUEST_KINDS = (
     "submit_job",
     "cancel_job",
@@ -112,13 +124,14 @@ class VehicleLink:
 @dataclass(frozen=True)
 class Account:
     """One broker account: its name (the MQTT username), password, role and, for units and
-    devices, the unit it belongs to."""
+    devices, the unit it belongs to; for people, the API tokens they hold."""
 
     name: str
     password: str
     role: Role
     unit: str | None = None
     vehicles: tuple[VehicleLink, ...] = ()
+    tokens: tuple[TokenRecord, ...] = ()
 
     def __post_init__(self) -> None:
         validate_id(self.name, "account name")
@@ -136,6 +149,14 @@ class Account:
         if self.unit is not None:
             validate_id(self.unit, f"account {self.name}: unit")
         self._check_vehicles()
+        if self.tokens and self.role not in TOKEN_ROLES:
+            raise ConfigError(
+                f"account {self.name}: a {self.role} account holds no API tokens (only "
+                f"{TOKEN_ROLES_TEXT} accounts do)"
+            )
+        twice = _repeated([t.id for t in self.tokens])
+        if twice is not None:
+            raise ConfigError(f"account {self.name}: API token id {twice!r} twice")
 
     def _check_vehicles(self) -> None:
         links = self.vehicles
@@ -163,9 +184,33 @@ class Accounts:
     """Every account, by name."""
 
     accounts: dict[str, Account] = field(default_factory=dict)
+    # Each API token id: the account holding it, and its record (made from `accounts`).
+    _tokens_by_id: dict[str, tuple[Account, TokenRecord]] = field(
+        init=False, repr=False, compare=False, default_factory=dict
+    )
 
     def __post_init__(self) -> None:
         self.bound_client_ids()  # ConfigError when two accounts would own one client id
+        object.__setattr__(self, "_tokens_by_id", self._index_tokens())
+
+    def _index_tokens(self) -> dict[str, tuple[Account, TokenRecord]]:
+        """Each API token id, with the account holding it and its record; ConfigError when two
+        accounts hold one id."""
+        held: dict[str, tuple[Account, TokenRecord]] = {}
+        for account in self.accounts.values():
+            for token in account.tokens:
+                other = held.get(token.id)
+                if other is not None:
+                    raise ConfigError(
+                        f"accounts {other[0].name} and {account.name} both hold API token id "
+                        f"{token.id!r}"
+                    )
+                held[token.id] = (account, token)
+        return held
+
+    def token_holder(self, token_id: str) -> tuple[Account, TokenRecord] | None:
+        """The account holding API token `token_id`, and its record (None: nobody)."""
+        return self._tokens_by_id.get(token_id)
 
     def bound_client_ids(self) -> dict[str, str]:
         """Each client id a vehicle account's `client_id` binds, and that account's name.
@@ -206,6 +251,12 @@ class Accounts:
         """These accounts and `account`; ConfigError when its name is taken."""
         if account.name in self.accounts:
             raise ConfigError(f"account {account.name!r} exists already")
+        return Accounts({**self.accounts, account.name: account})
+
+    def with_replaced(self, account: Account) -> Accounts:
+        """These accounts with `account` instead of the one of its name; ConfigError naming the
+        known ones when there is none."""
+        self.get(account.name)
         return Accounts({**self.accounts, account.name: account})
 
     def units(self) -> set[str]:
@@ -249,8 +300,17 @@ class _VehicleTable(BaseModel):
     client_id: str | None = None
 
 
+class _TokenTable(BaseModel):
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    id: str
+    sha256: str
+    created: str
+
+
 class _AccountTable(BaseModel):
-    """One [accounts.NAME] table: strings (checked by Account) and vehicles, no other key."""
+    """One [accounts.NAME] table: strings (checked by Account), vehicles and tokens, no other
+    key."""
 
     model_config = ConfigDict(extra="forbid", strict=True)
 
@@ -258,6 +318,7 @@ class _AccountTable(BaseModel):
     role: Role | None = None
     unit: str | None = None
     vehicles: list[_VehicleTable] = []
+    tokens: list[_TokenTable] = []
 
 
 class _AccountsFile(BaseModel):
@@ -276,7 +337,7 @@ def _shape_problem(error: ErrorDetails) -> str:
     name = loc[1]
     if len(loc) == 2:
         return f"accounts.{name} must be a table"
-    if error["type"] == "extra_forbidden":
+    if error["type"] == "extra_forbidden" and len(loc) == 3:
         return f"accounts.{name}: unknown key {loc[2]!r}"
     if error["type"] == "literal_error":
         return f"account {name}: role {error['input']!r} is not one of {ROLES}"
@@ -284,6 +345,11 @@ def _shape_problem(error: ErrorDetails) -> str:
         return (
             f'accounts.{name}: vehicles is a list of {{ unit = "…", topic = "…" }}'
             ' (and optionally client_id = "…")'
+        )
+    if loc[2] == "tokens":
+        return (
+            f'accounts.{name}: tokens is a list of {{ id = "…", sha256 = "…", created = "…" }}, '
+            "strings ('gridfleet accounts token' writes them)"
         )
     return f"accounts.{name}: password, role and unit are strings"
 
@@ -310,13 +376,25 @@ def load_accounts(path: str | Path) -> Accounts:
             raise ConfigError(f"{p}: accounts.{name}: needs a password and a role")
         try:
             links = tuple(VehicleLink(v.unit, v.topic, v.client_id) for v in entry.vehicles)
-            accounts[name] = Account(name, entry.password, entry.role, entry.unit, links)
+            tokens = _token_records(name, entry.tokens)
+            accounts[name] = Account(name, entry.password, entry.role, entry.unit, links, tokens)
         except (ConfigError, ProtocolError) as exc:
             raise ConfigError(f"{p}: {exc}") from None
     try:
         return Accounts(accounts)
     except ConfigError as exc:
         raise ConfigError(f"{p}: {exc}") from None
+
+
+def _token_records(name: str, tables: list[_TokenTable]) -> tuple[TokenRecord, ...]:
+    """Account `name`'s API tokens from its file; ConfigError naming the account and token."""
+    records = []
+    for n, table in enumerate(tables, 1):
+        try:
+            records.append(TokenRecord(table.id, table.sha256, parse_created(table.created)))
+        except ConfigError as exc:
+            raise ConfigError(f"account {name}: token {n}: {exc}") from None
+    return tuple(records)
 
 
 def dump_accounts(accounts: Accounts) -> str:
@@ -336,6 +414,14 @@ def dump_accounts(accounts: Accounts) -> str:
                     f"    {{ unit = {_string(v.unit)}, topic = {_string(v.topic)}{bound} }},"
                 )
             lines.append("]")
+        if a.tokens:
+            lines.append("tokens = [")
+            for t in a.tokens:
+                lines.append(
+                    f"    {{ id = {_string(t.id)}, sha256 = {_string(t.sha256)}, "
+                    f"created = {_string(created_text(t.created))} }},"
+                )
+            lines.append("]")
         lines.append("")
     return "\n".join(lines)
 
@@ -346,12 +432,23 @@ def _string(value: str) -> str:
 
 
 def write_accounts(accounts: Accounts, path: str | Path) -> None:
-    """Write an accounts file readable by its owner only (created 0600, never world-readable)."""
-    p = Path(path)
-    fd = os.open(p, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "w", encoding="utf-8") as out:
-        out.write(dump_accounts(accounts))
-    p.chmod(0o600)
+    """Write an accounts file readable by its owner only (created 0600, never world-readable).
+
+    Whole or not at all: written beside it and renamed over it (through a symlink, its target),
+    so a reader (the dashboard re-reads it when it changes) never sees half a file.
+    """
+    p = Path(path).resolve()
+    fd, temporary = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(dump_accounts(accounts))
+            out.flush()
+            os.fsync(out.fileno())
+        os.replace(temporary, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(temporary)
+        raise
 
 
 @dataclass(frozen=True)
@@ -422,6 +519,7 @@ def rules(account: Account, topics: Topics) -> Rules:
                     "routes",
                     "events",
                     "energy",
+                    "zones",  # the zones closed (protocol.md §5.11)
                     "errors",
                     "coordinator",
                     "estop",

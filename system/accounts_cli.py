@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import get_args
 
 from gridfleet.accounts import (
+    TOKEN_ROLES_TEXT,
     Account,
     Accounts,
     Role,
@@ -18,6 +19,7 @@ from gridfleet.accounts import (
     new_password,
     write_accounts,
 )
+from gridfleet.api_tokens import created_text, issue_token, revoke_tokens
 from gridfleet.broker.certs import DEFAULT_HOSTS, make_tls, write_tls
 from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
 from gridfleet.errors import ConfigError
@@ -56,6 +58,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="vehicle and vda5050 roles: the vehicles file naming the vehicles' topics",
     )
+    token = sub.add_parser(
+        "token",
+        help="make an API token for an account (printed once), list or revoke its tokens",
+        description="A new token for the dashboard's HTTP API (printed once, kept hashed in the "
+        f"file), for {TOKEN_ROLES_TEXT} accounts; --list shows the account's token ids, "
+        "--revoke takes one (or all) away: the dashboard refuses it at its next request.",
+    )
+    token.add_argument("name", help="the account the token acts as")
+    token.add_argument("--file", type=Path, required=True, help="accounts file")
+    what = token.add_mutually_exclusive_group()
+    what.add_argument(
+        "--revoke", metavar="ID", help="take token ID (8 hex digits, from --list) away, or 'all'"
+    )
+    what.add_argument("--list", action="store_true", help="the account's token ids and dates")
     mosq = sub.add_parser(
         "mosquitto", help="write Mosquitto's password, ACL and config files from them"
     )
@@ -131,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.action == "mosquitto":
         return _mosquitto(args)
+    if args.action == "token":
+        return _token(args)
     # A unit's or a vehicle's account is named after its unit unless --unit says otherwise.
     named = args.name if args.role in ("unit", "vehicle") else None
     unit = args.unit if args.unit is not None else named
@@ -140,6 +158,38 @@ def run(args: argparse.Namespace) -> int:
     accounts = accounts.with_account(account)
     write_accounts(accounts, args.file)
     print(f"added {args.role} account {args.name} to {args.file}")
+    return 0
+
+
+def _token(args: argparse.Namespace) -> int:
+    """`gridfleet accounts token`: a new token (its text alone on stdout), --list, --revoke."""
+    accounts = load_accounts(args.file)
+    name = args.name
+    if args.list:
+        tokens = accounts.get(name).tokens
+        for t in tokens:
+            print(f"{t.id}  {created_text(t.created)}")
+        if not tokens:
+            print(f"account {name} holds no API tokens", file=sys.stderr)
+        return 0
+    if args.revoke is not None:
+        gone, accounts = revoke_tokens(accounts, name, args.revoke)
+        if gone:
+            write_accounts(accounts, args.file)
+        for t in gone:
+            print(f"revoked API token {t.id} of {name}")
+        if not gone:
+            print(f"account {name} holds no API tokens: nothing revoked", file=sys.stderr)
+        return 0
+    text, record, accounts = issue_token(accounts, name)
+    write_accounts(accounts, args.file)
+    print(text)
+    print(
+        f"new API token {record.id} of {name} ({accounts.get(name).role}), shown this once: "
+        "the file keeps only its hash. Send it as 'Authorization: Bearer TOKEN'; revoke it with "
+        f"'gridfleet accounts token {name} --file {args.file} --revoke {record.id}'",
+        file=sys.stderr,
+    )
     return 0
 
 

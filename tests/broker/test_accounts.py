@@ -274,9 +274,11 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert T.fleet("events") in coordinator.publish  # the history the page shows
     assert T.fleet("energy") in coordinator.publish  # the energy view (protocol.md §5.9)
     assert T.fleet("energy") not in unit1.publish and T.fleet("energy") not in device.publish
+    assert T.fleet("zones") in coordinator.publish  # the zones closed (protocol.md §5.11)
     operator = rules(accounts.get("operator"), T)
+    assert T.fleet("zones") not in operator.publish and T.fleet("zones") not in unit1.publish
     people = ("submit_job", "cancel_job", "set_goal", "control_unit", "clear_obstacles")
-    for kind in (*people, "remove_unit"):
+    for kind in (*people, "remove_unit", "close_zone", "open_zone"):
         assert T.request(kind) in operator.publish, kind
         assert T.request(kind) not in device.publish, kind
         assert T.request(kind) not in unit1.publish, kind
