@@ -11,7 +11,13 @@ from pathlib import Path
 
 import aiomqtt
 
-from gridfleet.alerts.settings import AlertSettings, check_webhook_url, load_settings, with_flag
+from gridfleet.alerts.settings import (
+    AlertSettings,
+    check_webhook_url,
+    load_settings,
+    with_flag,
+    with_value,
+)
 from gridfleet.alerts.shell import AlertsShell
 from gridfleet.bus import make_client
 from gridfleet.config import owned_client_id, parse_broker_url
@@ -56,6 +62,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "estop=off (repeatable; wins over --config)",
     )
     parser.add_argument(
+        "--zone-wait-s",
+        metavar="S",
+        help="zone_wait: how long a job may wait on closed zones before a warning (default "
+        "600, as job_queued_s; off turns the rule off); the same as --rule zone_wait_s=S",
+    )
+    parser.add_argument(
         "--webhook", metavar="URL", help="POST each raise, clear and acknowledgement here (JSON)"
     )
     parser.add_argument(
@@ -68,10 +80,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from(args: argparse.Namespace) -> AlertSettings:
-    """Defaults, then the config file, then --rule flags, then --webhook and --webhook-queue."""
+    """Defaults, then the config file, then --rule flags, then --zone-wait-s, --webhook and
+    --webhook-queue."""
     settings = load_settings(args.config) if args.config else AlertSettings()
     for text in args.rule:
         settings = with_flag(settings, text)
+    if args.zone_wait_s is not None:
+        settings = with_value(settings, "zone_wait_s", args.zone_wait_s, "--zone-wait-s")
     if args.webhook is not None:
         settings = with_flag(settings, f"webhook={check_webhook_url(args.webhook)}")
     if args.webhook_queue is not None:

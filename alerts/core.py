@@ -64,7 +64,10 @@ SEVERITY: dict[AlertRule, AlertSeverity] = {
     "battery_low": "warning",
     "battery_critical": "critical",
     "cannot_reach_charger": "critical",
+    "zone_wait": "warning",
 }
+# Wait codes of a job held up by closed zones (protocol.md §5.3): the `zone_wait` rule's.
+ZONE_WAITS = ("zone_closed", "unreachable")
 # Plans of the energy view (fleet/energy) that mean the coordinator has a low unit in hand.
 IN_HAND = ("to_charger", "queued", "charging")
 # A restarted alerts process takes over the alerts in force from the retained view: each stays as
@@ -166,6 +169,7 @@ class AlertsCore:
         self._units: dict[str, _Unit] = {}
         self._failing: dict[str, _Failing] = {}  # component kind -> its failures of late
         self._queued: dict[str, tuple[float, str | None]] = {}  # job -> (queued since, why)
+        self._zone_waits: dict[str, tuple[float, str | None]] = {}  # job -> (since, why)
         self._stop = StopView()
         self._energy: EnergyView | None = None  # the coordinator's thresholds and plans
         self._since: dict[Key, float] = {}  # an energy condition -> since when it holds
@@ -282,6 +286,7 @@ class AlertsCore:
             "unit_lost": s.unit_lost_s,
             "unit_stuck": s.unit_stuck_s,
             "job_queued": s.job_queued_s,
+            "zone_wait": s.zone_wait_s,
             "coordinator_down": s.coordinator_down_s,
             "battery_low": s.battery_low_s,
             "battery_critical": s.battery_critical_s,
@@ -349,6 +354,12 @@ class AlertsCore:
             job: (self._queued[job][0] if job in self._queued else now, why)
             for job, why in queued.items()
         }
+        # Waiting on closed zones, queued or under way: counted from its first such wait.
+        zoned = {job.id: job.wait_reason for job in view.jobs if job.wait in ZONE_WAITS}
+        self._zone_waits = {
+            job: (self._zone_waits[job][0] if job in self._zone_waits else now, why)
+            for job, why in zoned.items()
+        }
 
     # ---- the rules --------------------------------------------------------------------------
 
@@ -394,8 +405,18 @@ class AlertsCore:
                     found["unit_stuck", name] = (
                         f"unit {name} {unit.status} on {where} for {still:.0f} s{reason}"
                     )
+        if s.zone_wait_s is not None:
+            for job, (since, why) in self._zone_waits.items():
+                waited = now - since
+                if waited > s.zone_wait_s:
+                    because = f": {why}" if why else ""
+                    found["zone_wait", job] = (
+                        f"job {job} held up by closed zones for {waited / 60:.1f} min{because}"
+                    )
         if s.job_queued_s is not None:
             for job, (since, why) in self._queued.items():
+                if s.zone_wait_s is not None and job in self._zone_waits:
+                    continue  # told by zone_wait, which says why
                 waited = now - since
                 if waited > s.job_queued_s:
                     because = f": {why}" if why else ""

@@ -28,6 +28,9 @@ class AlertSettings:
     unit_lost_s: float | None = 30.0  # a unit not heard from (no state) for this long
     unit_stuck_s: float | None = 120.0  # a unit waiting or holding on one square this long
     job_queued_s: float | None = 600.0  # a job still queued (not assigned) after this long
+    # A job waiting on closed zones (wait zone_closed or unreachable, protocol.md §5.3) this
+    # long: job_queued's 600 s by default (such a job is not told by job_queued as well).
+    zone_wait_s: float | None = 600.0
     estop: bool = True  # the emergency stop engaged (at once)
     step_rate_below: float | None = 0.5  # achieved step rate under this share of the nominal
     coordinator_down_s: float | None = 15.0  # no coordinator online (or no status) this long
@@ -48,6 +51,7 @@ class AlertSettings:
             "unit_lost_s",
             "unit_stuck_s",
             "job_queued_s",
+            "zone_wait_s",
             "broker_down_s",
             "handler_failures_s",
             "battery_low_s",

@@ -1,5 +1,5 @@
 """`gridfleet job`: an operator's command line: submit, cancel and list jobs, goals, units'
-controls (pause, out of service, charge) and removal, the stop."""
+controls (pause, out of service, charge) and removal, closed zones, the stop."""
 
 from __future__ import annotations
 
@@ -18,10 +18,24 @@ from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_actions, add_common, broker_url, moment, square
-from gridfleet.protocol import EstopSignal, JobHistoryEntry, JobsView, Reply, validate_id
-from gridfleet.protocol.constants import MAX_ESTOP_REASON
-from gridfleet.protocol.messages import FINAL_JOB_STATES, ChargeEntry, JobState
+from gridfleet.protocol import (
+    EstopSignal,
+    JobHistoryEntry,
+    JobsView,
+    Reply,
+    ZonesView,
+    validate_id,
+)
+from gridfleet.protocol.constants import MAX_ESTOP_REASON, MAX_TEXT
+from gridfleet.protocol.messages import (
+    FINAL_JOB_STATES,
+    ChargeEntry,
+    FleetMap,
+    JobState,
+    PlaceKind,
+)
 from gridfleet.protocol.topics import Topics
+from gridfleet.squares import Cell
 
 WAIT_S = 10.0
 
@@ -65,6 +79,19 @@ def identifier(what: str) -> Callable[[str], str]:
     return check
 
 
+def place_or_square(text: str) -> Cell | str:
+    """A job's pickup or dropoff: `X,Y` is a square, anything else a place's name (an id)."""
+    if "," in text:
+        return square(text)
+    try:
+        return validate_id(text, "place name")
+    except ProtocolError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a square X,Y nor a place's name (an id: 1-64 letters, digits, "
+            "'_', '.', '-', starting with a letter or digit)"
+        ) from None
+
+
 def reason(text: str) -> str:
     """An emergency stop's reason: one line of at most MAX_ESTOP_REASON characters."""
     if any(c in text for c in "\r\n\x00"):
@@ -73,6 +100,19 @@ def reason(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"{text[:20]!r}... has {len(text)} characters: a reason is one line of at most "
             f"{MAX_ESTOP_REASON}"
+        )
+    return text
+
+
+def zone_reason(text: str) -> str:
+    """Why a zone is closed: one line of 1 to MAX_TEXT characters."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("give a reason: why the zone is closed")
+    if any(c in text for c in "\r\n\x00"):
+        raise argparse.ArgumentTypeError(f"{text[:40]!r}: a reason is one line")
+    if len(text) > MAX_TEXT:
+        raise argparse.ArgumentTypeError(
+            f"{text[:20]!r}... has {len(text)} characters: a zone's reason has at most {MAX_TEXT}"
         )
     return text
 
@@ -95,10 +135,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = add_actions(parser, dest="action", required=True, metavar="ACTION")
     submit = sub.add_parser("submit", help="queue a pick-and-deliver job")
     submit.add_argument(
-        "--pickup", type=square, required=True, metavar="X,Y", help="square to fetch from"
+        "--pickup",
+        type=place_or_square,
+        required=True,
+        metavar="PLACE|X,Y",
+        help="place (by name: `gridfleet job places`) or square to fetch from",
     )
     submit.add_argument(
-        "--dropoff", type=square, required=True, metavar="X,Y", help="square to deliver to"
+        "--dropoff",
+        type=place_or_square,
+        required=True,
+        metavar="PLACE|X,Y",
+        help="place or square to deliver to",
     )
     submit.add_argument(
         "--mass", type=kilograms, required=True, metavar="KG", help="the item's mass in kg"
@@ -144,6 +192,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("squares", nargs="*", type=square, default=[], metavar="X,Y")
     which.add_argument("--all", action="store_true", help="every discovered obstacle")
     sub.add_parser("list", help="print the job queue")
+    close_zone = sub.add_parser(
+        "close-zone",
+        help="close a rectangle of squares: no unit is sent in, units inside leave",
+        description="Close the rectangle between two corners (protocol.md §6.12): planning "
+        "treats its squares as walls, a unit inside leaves by the shortest way (or holds, when "
+        "it cannot), and jobs with a pickup or dropoff inside wait until it opens. The stop is "
+        "not affected. Closing a zone again as it is changes nothing.",
+    )
+    close_zone.add_argument("name", type=identifier("zone name"))
+    close_zone.add_argument("first", type=square, metavar="X1,Y1", help="one corner")
+    close_zone.add_argument("last", type=square, metavar="X2,Y2", help="the opposite corner")
+    close_zone.add_argument(
+        "--reason", type=zone_reason, required=True, help="why, one line: everybody sees it"
+    )
+    open_zone = sub.add_parser("open-zone", help="open a closed zone again")
+    open_zone.add_argument("name", type=identifier("zone name"))
+    sub.add_parser("zones", help="print the closed zones")
+    places = sub.add_parser("places", help="print the map's named places (name, square, kinds)")
+    places.add_argument("--kind", choices=get_args(PlaceKind), help="only the places of this kind")
     history = sub.add_parser(
         "history", help="print every change of every job in a time range (table, CSV or JSON)"
     )
@@ -336,7 +403,9 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
     """The queue as a table: jobs not finished, then the latest finished, newest first."""
     print(f"{'job':<24} {'state':<11} {'unit':<10} {'mass':>6}  pickup -> dropoff", file=out)
     for job in view.listed():
-        route = f"{list(job.pickup)} -> {list(job.dropoff)}"
+        route = (
+            f"{_named(job.pickup_place, job.pickup)} -> {_named(job.dropoff_place, job.dropoff)}"
+        )
         line = f"{job.id:<24} {job.state:<11} {job.unit or '-':<10} {job.mass_kg:>6.2f}  {route}"
         if job.reason:
             line += f"  ({job.reason})"
@@ -347,6 +416,47 @@ def print_jobs(view: JobsView, out: TextIO) -> None:
     if ended > len(view.finished):
         counts = ", ".join(f"{n} {s}" for s, n in view.counts.items() if s in FINAL_JOB_STATES)
         print(f"... the latest {len(view.finished)} finished of {ended} ({counts})", file=out)
+
+
+def _named(place: str | None, at: Cell) -> str:
+    """A job's square, with the place it was named by: `A3 [3, 4]`."""
+    return str(list(at)) if place is None else f"{place} {list(at)}"
+
+
+def print_places(fleet_map: FleetMap, kind: str | None, out: TextIO) -> None:
+    """The map's places as a table (name, square, kinds), in name order; only `kind`'s if given."""
+    places = sorted(
+        (p for p in fleet_map.places if kind is None or kind in p.kinds), key=lambda p: p.name
+    )
+    if not places:
+        which = f" of kind {kind}" if kind else ""
+        print(
+            f"the map {fleet_map.name!r} has no places{which} (a scenario names them: [[places]])",
+            file=out,
+        )
+        return
+    print(f"{'place':<24} {'square':<12} kinds", file=out)
+    for p in places:
+        print(f"{p.name:<24} {list(p.square)!s:<12} {', '.join(p.kinds)}", file=out)
+    print(f"{len(places)} place{'s' if len(places) != 1 else ''}", file=out)
+
+
+def print_zones(view: ZonesView, out: TextIO) -> None:
+    """The closed zones as a table, in the order they were closed."""
+    if not view.zones:
+        print("no zone is closed", file=out)
+        return
+    print(
+        f"{'zone':<20} {'from':<12} {'to':<12} {'squares':>7}  {'closed by':<14} "
+        f"{'closed at (UTC)':<20} why",
+        file=out,
+    )
+    for z in view.zones:
+        squares = (z.last.x - z.first.x + 1) * (z.last.y - z.first.y + 1)
+        at = z.closed_at.astimezone(UTC).strftime("%Y-%m-%d %H:%M:%S")
+        line = f"{z.name:<20} {list(z.first)!s:<12} {list(z.last)!s:<12} {squares:>7}  "
+        print(f"{line}{z.closed_by or '-':<14} {at:<20} {z.reason}", file=out)
+    print(f"{len(view.zones)} zone{'s' if len(view.zones) != 1 else ''} closed", file=out)
 
 
 def _who(signal: EstopSignal) -> str:
@@ -466,6 +576,28 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             return 0
         if args.action == "history":
             return await print_history(operator, args, out)
+        if args.action == "zones":
+            try:
+                await asyncio.wait_for(operator.zones_changed.wait(), args.timeout)
+            except TimeoutError:
+                raise GridfleetError(
+                    f"no zones view on {redacted(args.broker)} under root {args.root!r} within "
+                    f"{args.timeout:.0f} s: is the coordinator running (1.6 or later)?"
+                ) from None
+            assert operator.zones is not None
+            print_zones(operator.zones, out)
+            return 0
+        if args.action == "places":
+            try:
+                await asyncio.wait_for(operator.map_changed.wait(), args.timeout)
+            except TimeoutError:
+                raise GridfleetError(
+                    f"no map on {redacted(args.broker)} under root {args.root!r} within "
+                    f"{args.timeout:.0f} s: is the coordinator running?"
+                ) from None
+            assert operator.map is not None
+            print_places(operator.map, args.kind, out)
+            return 0
         try:
             await asyncio.wait_for(operator.coordinator_online.wait(), args.timeout)
         except TimeoutError:
@@ -479,6 +611,16 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             )
         elif args.action == "cancel":
             reply = await operator.cancel_job(args.job_id, args.timeout)
+        elif args.action in ("close-zone", "open-zone"):
+            if args.action == "close-zone":
+                reply = await operator.close_zone(
+                    args.name, args.first, args.last, args.reason, args.timeout
+                )
+            else:
+                reply = await operator.open_zone(args.name, args.timeout)
+            if reply.accepted:  # its reason says what was closed or opened
+                print(f"accepted: {reply.reason or args.name}", file=out)
+                return 0
         elif args.action == "clear-obstacles":
             squares = None if args.all else args.squares
             reply = await operator.clear_obstacles(squares, args.timeout)

@@ -27,6 +27,7 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     ClearObstacles,
+    CloseZone,
     ControlUnit,
     CoordinatorStatus,
     EstopSignal,
@@ -35,12 +36,14 @@ from gridfleet.protocol import (
     JobHistoryPage,
     JobHistoryQuery,
     JobsView,
+    OpenZone,
     RemoveUnit,
     Reply,
     Routes,
     SetGoal,
     SubmitJob,
     Topics,
+    ZonesView,
     decode,
     encode_estop,
 )
@@ -85,6 +88,10 @@ class Operator:
         self._count = 0
         self._audit_followed = False  # its replies, subscribed at the first query (operators')
         self.obstacles: frozenset[Cell] = frozenset()  # found by the units (fleet/map)
+        self.map: FleetMap | None = None  # the latest fleet/map: its places too
+        self.map_changed = asyncio.Event()
+        self.zones: ZonesView | None = None  # the latest fleet/zones: the zones closed
+        self.zones_changed = asyncio.Event()
         # Request ids must be unique per sender across restarts (the coordinator remembers them),
         # and a client id may be reused: a random part per session.
         self._session = secrets.token_hex(3)
@@ -104,6 +111,7 @@ class Operator:
             ("jobs", t.fleet("jobs")),
             ("map", t.fleet("map")),
             ("routes", t.fleet("routes")),
+            ("zones", t.fleet("zones")),
             ("coordinator", t.fleet("coordinator")),
         ):
             await self.client.subscribe(topic, qos=TOPICS[kind].qos)
@@ -111,43 +119,51 @@ class Operator:
     async def listen(self) -> None:
         """Route inbound messages until the client disconnects."""
         async for message in self.client.messages:
-            payload = payload_of(message)
-            try:
-                kind, source = self.topics.parse(str(message.topic))
-                if kind in STOP_KINDS:
-                    self.stop.apply(kind, source, str(message.topic), payload)
-                    self.stop_changed.set()
-                elif kind in ("reply", "history_reply", "audit_reply"):
-                    answer: Answer
-                    if kind == "reply":
-                        answer = decode(Reply, payload)
-                    elif kind == "history_reply":
-                        answer = decode(JobHistoryPage, payload, TOPICS[kind].max_bytes)
-                    else:
-                        answer = decode(AuditPage, payload, TOPICS[kind].max_bytes)
-                    future = self._pending.pop(answer.request_id, None)
-                    if future is not None and not future.done():
-                        future.set_result(answer)
-                elif kind == "jobs":
-                    self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
-                    self.jobs_changed.set()
-                elif kind == "map":
-                    fleet_map = decode(FleetMap, payload, TOPICS["map"].max_bytes)
-                    self.obstacles = frozenset(fleet_map.obstacles)
-                elif kind == "routes":
-                    routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
-                    self.planned_units = set(routes.routes)
-                    self.routes_changed.set()
-                elif kind == "coordinator":
-                    status = decode(CoordinatorStatus, payload)
-                    self.coordinator = status
-                    self.coordinator_heard.set()
-                    if status.state == "online":
-                        self.coordinator_online.set()
-                    else:
-                        self.coordinator_online.clear()
-            except ProtocolError as exc:
-                log.warning("ignored a bad message on %s: %s", message.topic, exc)
+            self.handle(str(message.topic), payload_of(message))
+
+    def handle(self, topic: str, payload: bytes) -> None:
+        """Take one inbound message into the views; a bad one is logged and changes nothing."""
+        try:
+            kind, source = self.topics.parse(topic)
+            if kind in STOP_KINDS:
+                self.stop.apply(kind, source, topic, payload)
+                self.stop_changed.set()
+            elif kind in ("reply", "history_reply", "audit_reply"):
+                answer: Answer
+                if kind == "reply":
+                    answer = decode(Reply, payload)
+                elif kind == "history_reply":
+                    answer = decode(JobHistoryPage, payload, TOPICS[kind].max_bytes)
+                else:
+                    answer = decode(AuditPage, payload, TOPICS[kind].max_bytes)
+                future = self._pending.pop(answer.request_id, None)
+                if future is not None and not future.done():
+                    future.set_result(answer)
+            elif kind == "jobs":
+                self.jobs = decode(JobsView, payload, TOPICS["jobs"].max_bytes)
+                self.jobs_changed.set()
+            elif kind == "map":
+                fleet_map = decode(FleetMap, payload, TOPICS["map"].max_bytes)
+                self.obstacles = frozenset(fleet_map.obstacles)
+                self.map = fleet_map
+                self.map_changed.set()
+            elif kind == "zones":
+                self.zones = decode(ZonesView, payload, TOPICS["zones"].max_bytes)
+                self.zones_changed.set()
+            elif kind == "routes":
+                routes = decode(Routes, payload, TOPICS["routes"].max_bytes)
+                self.planned_units = set(routes.routes)
+                self.routes_changed.set()
+            elif kind == "coordinator":
+                status = decode(CoordinatorStatus, payload)
+                self.coordinator = status
+                self.coordinator_heard.set()
+                if status.state == "online":
+                    self.coordinator_online.set()
+                else:
+                    self.coordinator_online.clear()
+        except ProtocolError as exc:
+            log.warning("ignored a bad message on %s: %s", topic, exc)
 
     def _next_id(self) -> str:
         self._count += 1
@@ -228,14 +244,14 @@ class Operator:
 
     async def submit_job(
         self,
-        pickup: Cell,
-        dropoff: Cell,
+        pickup: Cell | str,
+        dropoff: Cell | str,
         mass_kg: float,
         job_id: str | None = None,
         priority: int = 0,
         timeout: float = WAIT_S,
     ) -> Reply:
-        """Queue a job; returns the coordinator's reply."""
+        """Queue a job (pickup and dropoff: squares, or places by name); returns the reply."""
         return await self._request(
             "submit_job",
             SubmitJob,
@@ -265,6 +281,18 @@ class Operator:
     ) -> Reply:
         """Remove a lost unit that is off the floor for good (protocol.md §6.11)."""
         return await self._request("remove_unit", RemoveUnit, timeout, unit=unit, reason=reason)
+
+    async def close_zone(
+        self, name: str, first: Cell, last: Cell, reason: str, timeout: float = WAIT_S
+    ) -> Reply:
+        """Close the rectangle `first`..`last` as zone `name`, for `reason` (protocol.md §6.12)."""
+        return await self._request(
+            "close_zone", CloseZone, timeout, name=name, first=first, last=last, reason=reason
+        )
+
+    async def open_zone(self, name: str, timeout: float = WAIT_S) -> Reply:
+        """Open the closed zone `name` again (protocol.md §6.13)."""
+        return await self._request("open_zone", OpenZone, timeout, name=name)
 
     async def clear_obstacles(self, squares: list[Cell] | None, timeout: float = WAIT_S) -> Reply:
         """Forget discovered obstacles that are gone (None: all of them; protocol.md §6.6)."""

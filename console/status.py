@@ -1,8 +1,8 @@
 """`gridfleet status`: the fleet at a glance in a terminal, from the broker's retained topics.
 
 The stop (latched or pressed, by whom), the coordinator (online or not, its step), every unit
-(connection, position, status, job, load, battery, why it waits), the chargers and the jobs (counts per state, the ones
-not final listed). `--once` prints it once; otherwise it is drawn again every second.
+(connection, position, status, job, load, battery, why it waits), the chargers, the closed zones
+and the jobs (counts per state, the ones not final listed). `--once` prints it once; otherwise it is drawn again every second.
 """
 
 from __future__ import annotations
@@ -40,6 +40,7 @@ from gridfleet.protocol import (
     Topics,
     UnitState,
     VehicleCondition,
+    ZonesView,
     decode,
 )
 from gridfleet.protocol.messages import FINAL_JOB_STATES, JobState, UnitEnergy
@@ -63,11 +64,15 @@ class FleetStatus:
     connections: dict[str, str] = field(default_factory=dict)  # unit -> online/offline/broken
     states: dict[str, UnitState] = field(default_factory=dict)
     controls: dict[str, str] = field(default_factory=dict)  # unit -> an operator's control of it
+    notes: dict[str, str] = field(
+        default_factory=dict
+    )  # unit -> why a closed zone moves or holds it
     models: dict[str, str] = field(default_factory=dict)  # unit -> its factsheet's model
     # unit -> a VDA 5050 vehicle's own battery and errors (protocol.md §4.7)
     vehicles: dict[str, VehicleCondition] = field(default_factory=dict)
     jobs: JobsView | None = None
     energy: EnergyView | None = None  # the energy policy's view: chargers, whom it moves
+    zones: ZonesView | None = None  # the zones closed (protocol.md §5.11)
 
     def apply(self, kind: str, source: str | None, topic: str, payload: bytes) -> None:
         """Read one message; a bad one raises ProtocolError and changes nothing."""
@@ -85,9 +90,12 @@ class FleetStatus:
             self.energy = (
                 None if cleared else decode(EnergyView, payload, TOPICS["energy"].max_bytes)
             )
+        elif kind == "zones":
+            self.zones = None if cleared else decode(ZonesView, payload, TOPICS["zones"].max_bytes)
         elif kind == "routes" and not cleared:
             routes = decode(Routes, payload, TOPICS["routes"].max_bytes).routes
             self.controls = {u: r.control for u, r in routes.items() if r.control is not None}
+            self.notes = {u: r.note for u, r in routes.items() if r.note is not None}
         elif kind == "connection" and source is not None:
             if cleared:
                 self.connections.pop(source, None)
@@ -215,6 +223,9 @@ def unit_lines(fleet: FleetStatus) -> list[str]:
             if own.errors:  # what the vehicle itself says is wrong, after why it waits
                 says = "vehicle: " + "; ".join(own.errors)
                 waits = f"{waits}; {says}" if waits else says
+        note = fleet.notes.get(unit)  # leaving a closed zone, waiting outside one
+        if note and note not in waits:
+            waits = f"{waits}; {note}" if waits else note
         plan = plans.get(unit)
         said = "" if plan is None else plan_words(plan)  # to a charger, queued, stranded...
         if said and said not in waits:
@@ -263,6 +274,22 @@ def charger_lines(fleet: FleetStatus) -> list[str]:
     ]
 
 
+def zone_lines(zones: ZonesView | None) -> list[str]:
+    """The closed zones (none closed: no lines): each one's corners, why, who closed it."""
+    if zones is None or not zones.zones:
+        return []
+    rows = [
+        (
+            z.name,
+            f"{z.first.x},{z.first.y} to {z.last.x},{z.last.y}",
+            z.closed_by or "-",
+            z.reason,
+        )
+        for z in zones.zones
+    ]
+    return [f"zones closed: {len(rows)}", *_table(("zone", "squares", "closed by", "why"), rows)]
+
+
 def job_lines(jobs: JobsView | None, most: int = MAX_JOBS) -> list[str]:
     """The count of jobs per state, then the jobs that are not final (at most `most` of them)."""
     if jobs is None:
@@ -283,14 +310,16 @@ def job_lines(jobs: JobsView | None, most: int = MAX_JOBS) -> list[str]:
 
 def render(fleet: FleetStatus, most_jobs: int = MAX_JOBS) -> list[str]:
     """The whole view as lines of text: the stop, the coordinator, the units, the chargers (when
-    the coordinator has any), the jobs."""
+    the coordinator has any), the closed zones (when any is), the jobs."""
     chargers = charger_lines(fleet)
+    zones = zone_lines(fleet.zones)
     return [
         stop_line(fleet),
         coordinator_line(fleet.coordinator),
         "",
         *unit_lines(fleet),
         *(["", *chargers] if chargers else []),
+        *(["", *zones] if zones else []),
         "",
         *job_lines(fleet.jobs, most_jobs),
     ]
@@ -320,6 +349,7 @@ class StatusReader:
             (t.fleet("jobs"), TOPICS["jobs"].qos),
             (t.fleet("routes"), TOPICS["routes"].qos),
             (t.fleet("energy"), TOPICS["energy"].qos),
+            (t.fleet("zones"), TOPICS["zones"].qos),
             (t.fleet("coordinator"), TOPICS["coordinator"].qos),
         ]:
             await self.client.subscribe(topic, qos=qos)

@@ -26,8 +26,10 @@ from gridfleet.coordinator.requests import Outcome
 from gridfleet.protocol import (
     CancelJob,
     ClearObstacles,
+    CloseZone,
     ControlUnit,
     EstopSignal,
+    OpenZone,
     RemoveUnit,
     SetGoal,
     SubmitJob,
@@ -41,6 +43,7 @@ from gridfleet.protocol.messages import (
     Request,
 )
 from gridfleet.protocol.stop import LATCH
+from gridfleet.squares import Cell
 
 if TYPE_CHECKING:  # the accounts' file models load pydantic's plugins, and with them sockets
     from gridfleet.accounts import Accounts, Role
@@ -114,7 +117,7 @@ class AuditNews:
 def request_act(req: Request) -> tuple[AuditAct, str | None, str | None]:
     """(act, target, detail) of an operator's request."""
     if isinstance(req, SubmitJob):
-        where = f"{list(req.pickup)} -> {list(req.dropoff)}"
+        where = f"{_asked(req.pickup)} -> {_asked(req.dropoff)}"  # a place by its name
         return "submit_job", req.job_id, f"{req.mass_kg:g} kg, {where}, priority {req.priority}"
     if isinstance(req, CancelJob):
         return "cancel_job", req.job_id, None
@@ -126,6 +129,10 @@ def request_act(req: Request) -> tuple[AuditAct, str | None, str | None]:
         return req.command, req.unit, None
     if isinstance(req, RemoveUnit):
         return "remove_unit", req.unit, req.reason
+    if isinstance(req, CloseZone):  # the rectangle as asked (its corners in either order)
+        return "close_zone", f"{req.name} {list(req.first)} to {list(req.last)}", req.reason
+    if isinstance(req, OpenZone):
+        return "open_zone", req.name, None
     if isinstance(req, ClearObstacles):
         if req.squares is None:
             return "clear_obstacles", "all", None
@@ -134,6 +141,11 @@ def request_act(req: Request) -> tuple[AuditAct, str | None, str | None]:
             squares = f"{squares[: TARGET_CHARS - 20]}... ({len(req.squares)} squares)"
         return "clear_obstacles", squares, None
     raise ValueError(f"{type(req).__name__} is no operator act")
+
+
+def _asked(where: Cell | str) -> str:
+    """A job's pickup or dropoff as the request gave it: a place's name, or a square."""
+    return where if isinstance(where, str) else str(list(where))
 
 
 class AuditLog:
@@ -155,7 +167,8 @@ class AuditLog:
     def request(self, at: datetime, req: Request, outcome: Outcome) -> None:
         """A new request the core answered (a retry is the same act: not passed in again)."""
         act, target, detail = request_act(req)
-        if isinstance(req, RemoveUnit) and outcome.accepted:  # and what became of its job
+        if isinstance(req, RemoveUnit | OpenZone) and outcome.accepted:
+            # What became of its job; the zone opened, its rectangle and why it was closed.
             detail = "; ".join(d for d in (outcome.reason, detail) if d)
         actor, verified = self.identity.actor(req.header.sender)
         self._fresh.append(

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+from dataclasses import dataclass, field
 
 from gridfleet.config import check_step
 from gridfleet.coordinator.audit import DEFAULT_AUDIT_DAYS, Identity
@@ -20,9 +21,9 @@ from gridfleet.heap import freeze_after_start
 from gridfleet.maps import load_map
 from gridfleet.metrics import add_metrics_arguments, metrics_options
 from gridfleet.options import accounts_of, add_common, broker_url
-from gridfleet.protocol import Charger
+from gridfleet.protocol import Charger, Place
 from gridfleet.protocol.constants import DEFAULT_STEP_S
-from gridfleet.scenario import load_scenario
+from gridfleet.scenario import Scenario, load_scenario
 from gridfleet.shipped import is_name, shipped_file
 from gridfleet.tasks import stop_on_signals
 
@@ -34,8 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--map",
         required=True,
         metavar="FILE",
-        help="Moving AI .map file, or a scenario .toml: its map, its [[chargers]] and its "
-        "[charging] thresholds (its units and jobs are not the coordinator's: they come over MQTT)",
+        help="Moving AI .map file, or a scenario .toml: its map, its [[chargers]], its [[places]] "
+        "and its [charging] thresholds (its units and jobs are not the coordinator's: they come "
+        "over MQTT)",
     )
     parser.add_argument(
         "--step",
@@ -137,12 +139,24 @@ def energy_settings(args: argparse.Namespace, charging: ChargingSpec) -> EnergyS
     return settings
 
 
-def map_and_chargers(path: str) -> tuple[GridMap, tuple[Charger, ...], ChargingSpec]:
-    """A .map (no chargers, default thresholds), or a scenario .toml's map, chargers and
-    [charging]; a bare name is a shipped map, else a shipped scenario (`warehouse-energy`)."""
+@dataclass(frozen=True)
+class Site:
+    """What the coordinator takes from its --map: the map, its chargers, its named places and
+    the charging thresholds."""
+
+    grid: GridMap
+    chargers: tuple[Charger, ...] = ()
+    places: tuple[Place, ...] = ()
+    charging: ChargingSpec = field(default_factory=ChargingSpec)
+
+
+def load_site(path: str) -> Site:
+    """A .map (no chargers, no places, default thresholds), or a scenario .toml's map, chargers,
+    places and [charging]; a bare name is a shipped map, else a shipped scenario
+    (`warehouse-energy`)."""
     if not path.endswith(".toml"):
         try:
-            return load_map(path), (), ChargingSpec()
+            return Site(load_map(path))
         except MapError:
             if not is_name(path) or not shipped_file(path, ".toml").is_file():
                 raise  # a file, or no shipped scenario of that name either: the map's error
@@ -150,8 +164,16 @@ def map_and_chargers(path: str) -> tuple[GridMap, tuple[Charger, ...], ChargingS
         scenario = load_scenario(path)
     except ScenarioError as exc:
         raise ConfigError(str(exc)) from exc
+    return site_of(scenario)
+
+
+def site_of(scenario: Scenario) -> Site:
+    """A loaded scenario's map, chargers, places and [charging], as the coordinator takes them."""
     chargers = tuple(Charger(name=c.name, square=c.square) for c in scenario.chargers)
-    return scenario.grid, chargers, scenario.charging
+    places = tuple(
+        Place(name=p.name, square=p.square, kinds=list(p.kinds)) for p in scenario.places
+    )
+    return Site(scenario.grid, chargers, places, scenario.charging)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,11 +186,11 @@ def run(args: argparse.Namespace) -> int:
     if not 0 < args.history_days < math.inf:
         raise ConfigError(f"--history-days {args.history_days:g}: give more than 0 days")
     identity = Identity(accounts_of(args), vouched=args.vouched_senders)
-    grid, chargers, charging = map_and_chargers(args.map)
-    energy = energy_settings(args, charging)
+    site = load_site(args.map)
+    energy = energy_settings(args, site.charging)
     coordinator = CoordinatorShell(
         broker_url(args, "coordinator"),
-        grid,
+        site.grid,
         root=args.root,
         step_s=args.step,
         db_path=args.db,
@@ -178,8 +200,9 @@ def run(args: argparse.Namespace) -> int:
         identity=identity,
         audit_days=args.audit_days,
         history_days=args.history_days,
-        chargers=chargers,
+        chargers=site.chargers,
         energy=energy,
+        places=site.places,
     )
 
     async def main() -> None:

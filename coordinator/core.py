@@ -16,6 +16,9 @@ batched views. Safety rules (protocol.md §4.4, §8), each in the module named:
 - With the emergency stop engaged every unit gets a halt order at once and nothing is planned or
   allocated; orders of a step that release squares and have not gone out when the stop arrives
   are withdrawn (`withdrawn`).
+- Closed zones (zones.py) only take squares out of plans: the planner plans on the map with them
+  blocked, and a unit inside one is given only the squares of its way out, each when nobody
+  stands on, holds or is given it, as any square (`_moves`).
 
 Lost units (connection offline/broken or state silent for 5 step periods): their squares stay
 reserved; a job not yet picked up goes back to the queue; a job whose item the unit had already
@@ -27,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import traceback
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -57,21 +60,42 @@ from gridfleet.coordinator.records import RecordKind, RecordQuery, range_problem
 from gridfleet.coordinator.removals import Removal, Removals
 from gridfleet.coordinator.stop import FleetStop
 from gridfleet.coordinator.views import Views, views_period_s
-from gridfleet.coordinator.waits import Stuck, StuckNews, blocker, explain_waits, stuck_after_s
+from gridfleet.coordinator.waits import (
+    Stuck,
+    StuckNews,
+    Wait,
+    blocker,
+    explain_waits,
+    stuck_after_s,
+)
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW, Claims
 from gridfleet.coordinator.world import UnitRecord, World
+from gridfleet.coordinator.zones import (
+    Exits,
+    WayOut,
+    ZoneBook,
+    clipped,
+    closed_words,
+    cut_words,
+    leaving_moves,
+    rectangle,
+)
 from gridfleet.errors import ProtocolError
 from gridfleet.failures import FailureReports
-from gridfleet.grid import Cell
+from gridfleet.grid import Cell, GridMap
 from gridfleet.outbound import Outbound
+from gridfleet.paths import UNREACHABLE, DistanceFieldCache, route
 from gridfleet.protocol import (
+    Action,
     CancelJob,
     ClearObstacles,
+    CloseZone,
     Connection,
     ControlUnit,
     Factsheet,
     HeaderStamper,
     JobHistoryQuery,
+    OpenZone,
     RemoveUnit,
     RouteView,
     SetGoal,
@@ -80,7 +104,13 @@ from gridfleet.protocol import (
     UnitState,
 )
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, REMOVED_UNIT_KINDS
-from gridfleet.protocol.messages import AuditLogin, AuditQuery, ChargeEntry, UnitControlState
+from gridfleet.protocol.messages import (
+    AuditLogin,
+    AuditQuery,
+    ChargeEntry,
+    UnitControlState,
+    Zone,
+)
 
 # A step that sent new squares waits for the units' acknowledgements (their states) until a step
 # period after it, or this long when the period is shorter, and only while more than a third of
@@ -89,7 +119,17 @@ ACK_WAIT_S = MIN_TIMEOUT_S / 2
 
 Note = tuple[int, str]  # a line for the shell's log: (logging level, text)
 # Requests the inbox takes (answered by `serve`, urgent kinds and each account in turn).
-QUEUED = (SubmitJob, CancelJob, SetGoal, ControlUnit, ClearObstacles, RemoveUnit, JobHistoryQuery)
+QUEUED = (
+    SubmitJob,
+    CancelJob,
+    SetGoal,
+    ControlUnit,
+    ClearObstacles,
+    RemoveUnit,
+    CloseZone,
+    OpenZone,
+    JobHistoryQuery,
+)
 # What the coordinator reads of a unit: none of it counts from a unit removed until it rejoins.
 UNIT_WORD = ("connection", "factsheet", "state")
 
@@ -120,6 +160,7 @@ class CoordinatorCore:
         identity: Identity | None = None,
         removals: Mapping[str, Removal] | None = None,
         energy: EnergySettings | None = None,
+        zones: Iterable[Zone] = (),
     ) -> None:
         if not 1 <= window <= MAX_WINDOW:
             raise ValueError(f"window {window}: give 1 to {MAX_WINDOW} squares")
@@ -133,7 +174,12 @@ class CoordinatorCore:
         self.topics = topics or Topics()
         self._own_status = self.topics.fleet("coordinator")
         self.say = Messages(self.topics, stamp or HeaderStamper("coordinator"))
-        self.planner = Planner(world.grid, seed=seed)
+        # Closed zones (kept across restarts): blocked for planning, but for a unit leaving one.
+        self.zones = ZoneBook(world.base.width, world.base.height, zones)
+        self.exits = Exits()  # each unit inside a closed zone: its way out
+        self._plain: DistanceFieldCache | None = None  # distances on the map, zones open
+        self._zone_told: dict[str, str] = {}  # unit -> what the events last said of it inside
+        self.planner = Planner(self._planning_grid(), seed=seed)
         self.step_no = 0
         self.stop = FleetStop(self.topics)  # the emergency stop, its state and what it says
         self._free_since = float("-inf")  # the latest step under the stop (jobs stuck: after it)
@@ -191,6 +237,7 @@ class CoordinatorCore:
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
         self.energy.dirty = True
+        self.zones.dirty = True  # the zones view goes out at start and after every reconnect
         persist = self._persist()
         notes: list[Note] = []
         clears = [out for unit in self.removals.uncleared() for out in self._clears(unit)]
@@ -238,7 +285,7 @@ class CoordinatorCore:
         publish: list[Outbound] = []
         notes: list[Note] = []
         if req.reply_to is not None:
-            outcome = requests.Outcome(False, refusal)
+            outcome = requests.Outcome(False, refusal, code="too_many")
             publish.append(self.say.reply(req.reply_to, req.request_id, outcome))
         reason = f"{type(req).__name__}: {refusal}"
         if self.inbox_refusals.refused(account, topic, reason, now):
@@ -284,7 +331,7 @@ class CoordinatorCore:
             reply_to = getattr(arrival.message, "reply_to", None)
             refused = [self._refuse(topic, str(exc), request_id, notes)]
             if request_id is not None and reply_to is not None:
-                outcome = requests.Outcome(False, str(exc))
+                outcome = requests.Outcome(False, str(exc), code="invalid")
                 refused.append(self.say.reply(reply_to, request_id, outcome))
             return self._effects([*refused, *self.stop.heal(topic)], log=notes)
         except Exception as exc:  # a bug must not take the coordinator down: say so, carry on
@@ -317,7 +364,7 @@ class CoordinatorCore:
             if self.topics.parse(topic)[0] == "audit":  # the audit's answer is its page (§6.8)
                 refused.append(self.say.page("audit", reply_to, request_id, refused=reason))
             else:
-                outcome = requests.Outcome(False, reason)
+                outcome = requests.Outcome(False, reason, code="invalid")
                 refused.append(self.say.reply(reply_to, request_id, outcome))
         return refused
 
@@ -346,7 +393,7 @@ class CoordinatorCore:
             moved_by_hand = self.directives.controls.get(unit) == "out_of_service"
             reach = self.orders.reach(unit)  # a window may be driven at once (world.motion)
             if self.world.on_state(unit, msg, now, relocatable=moved_by_hand, reach=reach):
-                self.planner.set_grid(self.world.grid)  # re-plan around the new obstacles
+                self._replan()  # re-plan around the new obstacles
                 self.views.map_dirty = True
             forged = self.orders.heard(unit, msg)
             if forged is not None:  # the state is the unit's own; the order it follows is not
@@ -356,7 +403,15 @@ class CoordinatorCore:
         elif isinstance(msg, StopPayload):
             return self._on_stop(arrival.kind, unit, topic, msg.payload)
         elif isinstance(
-            msg, SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles | RemoveUnit
+            msg,
+            SubmitJob
+            | CancelJob
+            | SetGoal
+            | ControlUnit
+            | ClearObstacles
+            | RemoveUnit
+            | CloseZone
+            | OpenZone,
         ):
             return self._on_request(topic, msg, now)
         elif isinstance(msg, JobHistoryQuery):
@@ -395,7 +450,7 @@ class CoordinatorCore:
         if why is not None:
             publish.append(self._refuse(topic, f"AuditLogin: {why}", report.request_id, notes))
         if report.reply_to is not None:
-            outcome = requests.Outcome(why is None, why)
+            outcome = requests.Outcome(why is None, why, code=None if why is None else "forbidden")
             publish.append(self.say.reply(report.reply_to, report.request_id, outcome))
         return self._effects(publish, log=notes)
 
@@ -426,15 +481,21 @@ class CoordinatorCore:
                 world=self.world,
                 jobs=self.jobs,
                 directives=self.directives,
-                cache=self.planner.cache,
+                cache=self.map_cache,  # what a job needs for good: zones open again
                 step_no=self.step_no,
                 sender=sender,
                 account=partial(self._open_jobs_of, sender),
                 requeue=self.progress.requeue,
                 now=now,
                 energy=self.energy,
+                zones=self.zones,
+                at=self.say.stamp.now(),
+                actor=self.identity.actor(sender)[0],
             )
+            version = self.zones.version
             outcome = requests.HANDLERS[type(req)](req, ctx)
+            if self.zones.version != version:
+                self._zone_changed(req, sender)
             controls = tuple(ctx.controls)
             for unit in ctx.removed:
                 clears, lifted = self._forget(unit, sender, getattr(req, "reason", None))
@@ -442,7 +503,7 @@ class CoordinatorCore:
                 controls += lifted
             cleared = ctx.cleared
             if cleared:
-                self.planner.set_grid(self.world.grid)
+                self._replan()
                 self.views.map_dirty = True
                 squares = ", ".join(str(list(c)) for c in cleared[:20])
                 more = f" and {len(cleared) - 20} more" if len(cleared) > 20 else ""
@@ -456,6 +517,8 @@ class CoordinatorCore:
             self.events.add(self.say.stamp.now(), "refusal", what, *about)
             reason = f"{type(req).__name__}: {outcome.reason}"
             publish.append(self._refuse(topic, reason, req.request_id, notes))
+        if self.zones.dirty:  # at once, before the reply: its requester may read it next
+            publish.append(self._zones_view())
         if req.reply_to is not None:
             publish.append(self.say.reply(req.reply_to, req.request_id, outcome))
         persist = self._persist()
@@ -556,6 +619,219 @@ class CoordinatorCore:
         notes.append((logging.INFO, f"refused a message on {topic}: {reason}"))
         return self.say.error(topic, reason, request_id)
 
+    # ---- closed zones (zones.py, protocol.md §5.11) -------------------------------------------
+
+    def _planning_grid(self) -> GridMap:
+        """The grid the planner plans on: the map with its obstacles, every closed square
+        blocked (as a wall, for routing: a unit inside one is moved out by `_moves`)."""
+        grid = self.world.grid
+        if not self.zones:
+            return grid
+        return GridMap(grid.blocked | self.zones.mask(), name=grid.name)
+
+    def _replan(self) -> None:
+        """Plan on the map as it is now: new obstacles, obstacles cleared, zones closed or opened."""
+        self.planner.set_grid(self._planning_grid())
+
+    @property
+    def map_cache(self) -> DistanceFieldCache:
+        """Distances on the map with its obstacles, every zone open: what a job needs for good
+        (a closed zone makes it wait, never fails or rejects it). The planner's own while no
+        zone is closed."""
+        if not self.zones:
+            self._plain = None
+            return self.planner.cache
+        if self._plain is None or self._plain.grid is not self.world.grid:
+            self._plain = DistanceFieldCache(self.world.grid)
+        return self._plain
+
+    def _distance(self, start: Cell, target: Cell) -> int:
+        """Squares from `start` to `target` as planned: round closed zones, and from inside one
+        along its way out first (UNREACHABLE: no such way)."""
+        d = self.planner.cache.distance(start, target)
+        if d != UNREACHABLE or not self.zones.covers(start):
+            return d
+        way = self.exits.way_out(self.world.grid, self.zones, start)
+        if way is None or not way.path:
+            return UNREACHABLE
+        rest = self.planner.cache.distance(way.path[-1], target)
+        return UNREACHABLE if rest == UNREACHABLE else len(way.path) + rest
+
+    def _zones_view(self) -> Outbound:
+        """The retained `fleet/zones`: the zones closed now."""
+        view = self.zones.view(self.say.stamp("zones"))
+        return Outbound.of("zones", self.topics.fleet("zones"), view)
+
+    def _zone_changed(self, req: Request, sender: str) -> None:
+        """A zone closed or opened: planned round from now on, and told in the events."""
+        self._replan()
+        at = self.say.stamp.now()
+        if isinstance(req, CloseZone):
+            zone = self.zones.zones[req.name]
+            text = f"zone {zone.name} closed by {sender}: {zone.reason} ({rectangle(zone)})"
+        else:
+            text = f"zone {getattr(req, 'name', '?')} opened by {sender}"
+        self.events.add(at, "zone", text)
+
+    def _inside(self, units: list[UnitRecord]) -> dict[str, WayOut]:
+        """Every unit standing in a closed zone, with its way out; the events tell once what
+        becomes of each (leaving, or held with no way out)."""
+        if not self.zones:
+            self._zone_told.clear()
+            return {}
+        out: dict[str, WayOut] = {}
+        for u in units:
+            assert u.state is not None
+            way = self.exits.way_out(self.world.grid, self.zones, u.state.position)
+            if way is not None:
+                out[u.id] = way
+        for uid in [uid for uid in self._zone_told if uid not in out]:
+            del self._zone_told[uid]
+        for uid, way in out.items():
+            note = way.note()
+            if self._zone_told.get(uid) == note:
+                continue
+            self._zone_told[uid] = note
+            if way.path is None:
+                text = f"unit {uid} holds inside closed zone {way.zone.name}: no way out"
+            else:
+                n = len(way.path)
+                text = (
+                    f"unit {uid} leaving closed zone {way.zone.name} by the shortest way "
+                    f"({n} square{'s' if n != 1 else ''}, to {list(way.path[-1])})"
+                )
+            self.events.add(self.say.stamp.now(), "zone", text, unit=uid)
+        return out
+
+    def _zone_targets(
+        self, units: list[UnitRecord], targets: dict[str, Cell | None], inside: Mapping[str, WayOut]
+    ) -> dict[str, str]:
+        """Where closed zones send each unit, in `targets`, and why in words (RouteView.note): a
+        unit inside one to the end of its way out (none: it holds), a unit whose errand lies in
+        one, or is cut off by them, nowhere (it waits outside, keeping its load)."""
+        notes: dict[str, str] = {}
+        if not self.zones:
+            return notes
+        for u in units:
+            assert u.state is not None
+            way = inside.get(u.id)
+            if way is not None:
+                targets[u.id] = None if way.path is None else way.path[-1]
+                notes[u.id] = way.note()
+                continue
+            target = targets.get(u.id)
+            if target is None:
+                continue
+            closed = self._errand_closed(u.id, target)
+            if closed is not None:
+                targets[u.id] = None
+                notes[u.id] = clipped(f"waiting outside: {closed}")
+                continue
+            here = u.state.position
+            cut = self.planner.cache.distance(here, target) == UNREACHABLE
+            if cut and self.map_cache.distance(here, target) != UNREACHABLE:
+                targets[u.id] = None
+                what = f"to {self._errand(u.id, target)} {list(target)}"
+                notes[u.id] = f"waiting: {cut_words(self._cutting(here, target), what)}"
+        return notes
+
+    def _errand(self, unit: str, target: Cell) -> str:
+        """What `target` is to `unit`, in words: its goal, its job's pickup or dropoff, ..."""
+        if self.directives.goals.get(unit) == target:
+            return "its goal"
+        stray = self.progress.returns.get(unit)
+        if stray is not None and stray.square == target:
+            return "where it puts an item back"
+        job = self.jobs.of_unit(unit)
+        if job is not None and target in (job.pickup, job.dropoff):
+            return "its dropoff" if job.state in CARRYING_STATES else "its pickup"
+        return "its charger"
+
+    def _errand_closed(self, unit: str, target: Cell) -> str | None:
+        """Why `unit` is not sent to `target` for a closed zone (its errand there, or its job's
+        dropoff when it goes to pick the item up), or None."""
+        checks = [(self._errand(unit, target), target)]
+        job = self.jobs.of_unit(unit)
+        if job is not None and job.state not in CARRYING_STATES and target == job.pickup:
+            checks.append(("its dropoff", job.dropoff))  # an item it could not deliver: left
+        for what, square in checks:
+            zone = self.zones.zone_at(square)
+            if zone is not None:
+                return f"{what} {list(square)} is in zone {zone.name} (closed: {zone.reason})"
+        return None
+
+    def _cutting(self, start: Cell, target: Cell) -> list[Zone]:
+        """The closed zones on the shortest way from `start` to `target` with every zone open
+        (all of them, should that way cross none)."""
+        field = self.map_cache.get(target)
+        found: list[Zone] = []
+        for c in route(field, start) or []:
+            for zone in self.zones.holding(c):
+                if zone not in found:
+                    found.append(zone)
+        return found or list(self.zones.zones.values())
+
+    def _zone_wait(
+        self,
+        inside: Mapping[str, WayOut],
+        cut: dict[tuple[Cell, Cell, float], Wait | None],
+        job: Job,
+    ) -> Wait | None:
+        """Why closed zones hold `job` up (waits.py), or None: its errand in one (`zone_closed`),
+        or every way to it cut by them (`unreachable`). `cut`: a queued job's answer, worked out
+        once a step for its squares and mass."""
+        carrying = job.state in CARRYING_STATES
+        for square in (job.dropoff,) if carrying else (job.pickup, job.dropoff):
+            zone = self.zones.zone_at(square)
+            if zone is not None:
+                return ("zone_closed", closed_words(zone))
+        if job.state == "queued":
+            key = (job.pickup, job.dropoff, job.mass_kg)
+            if key not in cut:
+                cut[key] = self._queued_cut_off(job)
+            return cut[key]
+        rec = self.world.units.get(job.unit or "")
+        if rec is None or rec.position is None:
+            return None
+        way = inside.get(rec.id)
+        if way is not None:
+            if way.path is not None:
+                return None  # on its way out
+            why = f"its unit {rec.id} is inside closed zone {way.zone.name} with no way out"
+            return ("unreachable", why)
+        errand = job.dropoff if carrying else job.pickup
+        here = rec.position
+        if self.planner.cache.distance(here, errand) != UNREACHABLE:
+            return None
+        if self.map_cache.distance(here, errand) == UNREACHABLE:
+            return None  # cut off for good: the job fails (progress.py)
+        what = f"from its unit {rec.id} to its {'dropoff' if carrying else 'pickup'} {list(errand)}"
+        return ("unreachable", cut_words(self._cutting(here, errand), what))
+
+    def _queued_cut_off(self, job: Job) -> Wait | None:
+        """`unreachable` for a queued job no unit able to carry it can do for closed zones."""
+        plain, zoned = self.map_cache, self.planner.cache
+        if zoned.distance(job.dropoff, job.pickup) == UNREACHABLE:
+            if plain.distance(job.dropoff, job.pickup) == UNREACHABLE:
+                return None
+            what = f"from its pickup {list(job.pickup)} to its dropoff {list(job.dropoff)}"
+            return ("unreachable", cut_words(self._cutting(job.pickup, job.dropoff), what))
+        capable = [sq for sq, kg in self.world.carriers() if kg >= job.mass_kg]
+        if not capable or any(self._distance(sq, job.pickup) != UNREACHABLE for sq in capable):
+            return None
+        able = [sq for sq in capable if plain.distance(sq, job.pickup) != UNREACHABLE]
+        if not able:
+            return None  # no zone's doing: rejected or failed (allocation.py)
+        what = f"to its pickup {list(job.pickup)} from every unit that can carry {job.mass_kg} kg"
+        return ("unreachable", cut_words(self._cutting(able[0], job.pickup), what))
+
+    def _action(self, unit: str) -> Action | None:
+        """What `unit` does at the end of its route (progress.py): nothing in a closed zone."""
+        action = self.progress.action(unit)
+        if action is not None and self.zones.covers(action.square):
+            return None
+        return action
+
     # ---- the step ------------------------------------------------------------------------
 
     def step(self, now: float) -> Effects:
@@ -616,14 +892,16 @@ class CoordinatorCore:
         settled = {u.id for u in units if u.id in active and self.orders.settled(u)}
         energy = self._energy(units, active, now)
         self._allocate(units, active, settled, now, energy)
-        self._explain_waits(now, active)
+        inside = self._inside(units)  # units in closed zones, and their ways out (zones.py)
+        self._explain_waits(now, active, inside)
         targets = {u.id: self.progress.target(u.id) for u in units}
         for uid, square in energy.targets.items():
             if targets.get(uid) is None:  # a job, a goal or an item to put back goes first
                 targets[uid] = square
+        notes = self._zone_targets(units, targets, inside)
         charges = {uid: sq for uid, sq in energy.targets.items() if targets.get(uid) == sq}
         self._tell_charges(self.energy.take_news())
-        moves = self._moves(units, active, settled, targets, energy.standing)
+        moves = self._moves(units, active, settled, targets, energy.standing, inside)
         self._park(targets)
         # While a way out of a livelock is due, searched or followed, no window goes beyond a
         # unit's next square, so units still driving stop and the search can begin (unjam.py).
@@ -632,19 +910,20 @@ class CoordinatorCore:
             step_no=self.step_no,
             now=now,
             estop=self.estop,
-            grid=self.world.grid,
+            grid=self.planner.grid,  # closed zones blocked: but for the ways out (`leaving`)
             heartbeat_s=self._heartbeat_s,
             window=window,
             settled=settled,
             moves=moves,
             targets=targets,
-            actions={u.id: self.progress.action(u.id) for u in units if u.id in active},
+            actions={u.id: self._action(u.id) for u in units if u.id in active},
             held=self.directives.controls,
             router=self.planner,
             claims=self._claims(units, moves, targets, window),
             charges=charges,
+            leaving={uid: frozenset(w.path) for uid, w in inside.items() if w.path},
         )
-        return self._orders(units, active, step)
+        return self._orders(units, active, step, notes, inside)
 
     def _roll_call(self, now: float) -> set[str]:
         """The units active this step; the events tell who went silent and who is heard again."""
@@ -709,7 +988,7 @@ class CoordinatorCore:
                     out_of_service=control == "out_of_service",
                 )
             )
-        step = self.energy.plan(batteries, self.planner.cache.distance, now, blocked, unknown)
+        step = self.energy.plan(batteries, self._distance, now, blocked, unknown)
         for uid, why in step.requeue.items():
             job = self.jobs.of_unit(uid)
             if job is not None and job.state not in CARRYING_STATES:
@@ -718,7 +997,7 @@ class CoordinatorCore:
 
     def _to_charger(self, square: Cell) -> int | None:
         """Squares from `square` to its nearest charger (None: none can be reached)."""
-        near = self.energy.chargers.nearest(square, self.planner.cache.distance)
+        near = self.energy.chargers.nearest(square, self._distance)
         return None if near is None else near[1]
 
     def _allocate(
@@ -741,6 +1020,7 @@ class CoordinatorCore:
             self.planner.cache,
             self.step_no,
             now,
+            plain=self.map_cache,  # a job fails for good only on the map, zones open
             energy=energy,
             to_charger=self._to_charger,
             charge_pcts=pcts,
@@ -779,7 +1059,7 @@ class CoordinatorCore:
                 )
                 self._charges.append(entry)
 
-    def _explain_waits(self, now: float, active: set[str]) -> None:
+    def _explain_waits(self, now: float, active: set[str], inside: Mapping[str, WayOut]) -> None:
         """Every waiting job's reason (waits.py); the events tell the jobs newly stuck."""
         if self.estop:
             self._free_since = now  # a unit held by the stop is not stuck: count from the release
@@ -793,7 +1073,8 @@ class CoordinatorCore:
             self.directives.goals,
             self.directives.controls,
             stuck,
-            self.energy.words(self.planner.cache.distance) if self.energy.active else None,
+            self.energy.words(self._distance) if self.energy.active else None,
+            zone_wait=partial(self._zone_wait, inside, {}) if self.zones else None,
         )
         for job in self.stuck_news.newly_stuck(self.jobs):
             at = self.say.stamp.now()
@@ -806,29 +1087,60 @@ class CoordinatorCore:
         settled: set[str],
         targets: dict[str, Cell | None],
         standing: set[str],
+        inside: Mapping[str, WayOut],
     ) -> dict[str, Cell]:
         """This step's collision-free move of every settled unit free to move (moves.py); a
-        unit charging on its charger stands, and the others go round it."""
+        unit charging on its charger stands, and the others go round it. A unit inside a
+        closed zone is not the planner's (its square is blocked there): it takes the next
+        square of its way out when nobody stands on, holds or is given it (zones.py), and the
+        planner keeps everyone else off its squares and that next one."""
         if self.estop:
             return {}
-        movable = {
+        free = {
             u.id
             for u in units
             if u.id in settled
             and u.id not in self.directives.controls  # paused or out of service: holds
-            and u.id not in standing
             and u.state is not None
             and not u.state.estop
             and u.state.mode == "coordinated"
         }
-        return self.moves.plan(
-            units,
+        movable = free - standing - inside.keys()  # a unit in a closed zone leaves, charging or not
+        driving = {u.id for u in units if u.id in active and u.id not in settled}
+        urgency = self.progress.urgency(units)
+        if not inside:
+            return self.moves.plan(
+                units, movable, self.orders.reserved, targets, urgency, driving=driving
+            )
+        for uid in inside:
+            self.moves.following.pop(uid, None)  # the planner's plans for it are over
+        taken = {f.square for f in self.moves.following.values()}  # followers' squares to be
+        held: set[Cell] = set()  # the squares of units inside: nobody else enters them
+        for u in units:
+            assert u.state is not None
+            squares = {u.state.position, *self.orders.reserved(u)}
+            taken |= squares
+            if u.id in inside:
+                held |= squares
+        ways = {uid: w.path for uid, w in inside.items() if w.path and uid in free}
+        leaving = leaving_moves(ways, taken)
+        keep_clear = set()
+        for uid, way in ways.items():
+            held.add(way[0])  # its next square, given now or waited for: nobody else's
+            if uid not in leaving and not self.zones.covers(way[0]):
+                keep_clear.add(way[0])  # outside: an idle unit standing there makes way
+        moves = self.moves.plan(
+            [u for u in units if u.id not in inside],
             movable,
             self.orders.reserved,
             targets,
-            self.progress.urgency(units),
-            driving={u.id for u in units if u.id in active and u.id not in settled},
+            urgency,
+            driving=driving,
+            elsewhere=held,
+            keep_clear=keep_clear,
         )
+        moves.update(leaving)
+        return moves
 
     def _park(self, targets: dict[str, Cell | None]) -> None:
         """An idle unit making way for another shows where it goes: its parking square."""
@@ -836,24 +1148,38 @@ class CoordinatorCore:
             if target is None:
                 targets[uid] = self.planner.parking(uid)
 
-    def _orders(self, units: list[UnitRecord], active: set[str], step: StepContext) -> StepResult:
-        """One order per unit that can hear it (orders.py), and every unit's route view."""
+    def _orders(
+        self,
+        units: list[UnitRecord],
+        active: set[str],
+        step: StepContext,
+        notes: Mapping[str, str],
+        inside: Mapping[str, WayOut],
+    ) -> StepResult:
+        """One order per unit that can hear it (orders.py), and every unit's route view: a unit
+        leaving a closed zone shows the rest of its way out, and `notes` say why a unit is moved
+        or held for a zone."""
         orders: dict[str, OrderPlan] = {}
         routes: dict[str, RouteView] = {}
         for u in units:
             if u.id not in active:
                 # Lost units get no orders: a unit that is alive but cut off holds still after
                 # 3 step periods without orders (protocol.md §8).
-                routes[u.id] = RouteView()
+                routes[u.id] = RouteView(note=notes.get(u.id))
                 continue
             order = self.orders.order(u, step)
             step.claims.hold(u.id, order.released)
             orders[u.id] = order
+            way = inside.get(u.id)
+            planned = order.planned
+            if way is not None and way.path and not step.estop:
+                planned = [c for c in way.path if c not in order.released]
             routes[u.id] = RouteView(
                 released=order.released,
-                planned=order.planned,
+                planned=planned,
                 target=order.target,
                 control=self.directives.controls.get(u.id),
+                note=notes.get(u.id),
             )
         return StepResult(self.step_no, orders, routes)
 
@@ -865,7 +1191,7 @@ class CoordinatorCore:
         window: int,
     ) -> Claims:
         """Who stands on, holds, enters this step or intends each square (window.py)."""
-        claims = Claims(self.world.grid)
+        claims = Claims(self.planner.grid)  # no window takes a closed zone's square
         if window == 1:
             return claims  # no unit is given more than its move: nothing to claim
         for u in units:
@@ -904,6 +1230,8 @@ class CoordinatorCore:
             if self.energy.active and self.energy.changed():
                 energy = self.energy.view(self.say.stamp("energy"))
                 out.append(Outbound.of("energy", self.topics.fleet("energy"), energy))
+            if self.zones.dirty:
+                out.append(self._zones_view())
             if self.events.dirty:  # stamped only when sent: a topic's seq counts its messages
                 view = self.events.take(self.say.stamp("events"))
                 out.append(Outbound.of("events", self.topics.fleet("events"), view))
@@ -941,6 +1269,7 @@ class CoordinatorCore:
             charges=charges,
             controls=controls,
             removals=self.removals.take(),
+            zones=self.zones.take_changes(),
             audit=self.audit.take(),
             awaiting=frozenset(self.orders.awaiting),
             acks_until=acks_until,

@@ -17,6 +17,7 @@ from gridfleet.coordinator.records import Entry, RecordKind, RecordQuery
 from gridfleet.coordinator.removals import Removal
 from gridfleet.coordinator.requests import Outcome
 from gridfleet.coordinator.world import World
+from gridfleet.coordinator.zones import ZoneChange
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
     CoordinatorStatus,
@@ -46,6 +47,7 @@ class Effects:
     controls: tuple[tuple[str, str | None], ...] = ()  # operators' controls changed (None: lifted)
     # Units removed for good, or (None) forgotten as removed once they rejoined: store them.
     removals: tuple[tuple[str, Removal | None], ...] = ()
+    zones: tuple[ZoneChange, ...] = ()  # zones closed (to store) or (None) opened: store them
     records: tuple[RecordQuery, ...] = ()  # checked queries: answer each from its store
     audit: AuditNews = field(default_factory=AuditNews)  # operators' acts, stop payloads seen
     awaiting: frozenset[str] = frozenset()  # units yet to acknowledge the last step's orders

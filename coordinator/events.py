@@ -15,6 +15,7 @@ from collections.abc import Iterable
 from datetime import datetime
 
 from gridfleet.coordinator.jobs import Job
+from gridfleet.coordinator.places import Spot
 from gridfleet.protocol import EventEntry, EventsView, Header
 from gridfleet.protocol.constants import MAX_TEXT
 from gridfleet.protocol.messages import MAX_EVENTS, EventKind
@@ -26,17 +27,19 @@ _HEARD = "heard again"
 
 
 def _is_safety(entry: EventEntry) -> bool:
-    """A stop engaged or released, a unit lost or removed: what a person asks about afterwards."""
+    """A stop engaged or released, a unit lost or removed, a zone closed or opened: what a person
+    asks about afterwards."""
     lost = " lost (" in entry.text or " removed by " in entry.text
-    return entry.kind == "stop" or (entry.kind == "unit" and lost)
+    zoned = entry.text.startswith("zone ") and (
+        " closed by " in entry.text or " opened by " in entry.text
+    )
+    return (
+        entry.kind == "stop" or (entry.kind == "unit" and lost) or (entry.kind == "zone" and zoned)
+    )
 
 
 def _kg(mass: float) -> str:
     return f"{mass:g} kg"
-
-
-def _square(cell: tuple[int, int]) -> str:
-    return f"[{cell[0]}, {cell[1]}]"
 
 
 class EventLog:
@@ -113,7 +116,8 @@ class EventLog:
             by = f" by {job.submitted_by}" if job.submitted_by else ""
             return (
                 f"{name} queued{by} ({_kg(job.mass_kg)}, "
-                f"{_square(job.pickup)} -> {_square(job.dropoff)})"
+                f"{Spot(job.pickup, job.pickup_place).words()} -> "
+                f"{Spot(job.dropoff, job.dropoff_place).words()})"
             )
         state, unit = before
         if job.state == "done":

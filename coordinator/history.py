@@ -42,6 +42,8 @@ def entry_of(job: Job, at: datetime, submitted_at: datetime) -> JobHistoryEntry:
         mass_kg=job.mass_kg,
         priority=job.priority,
         submitted_by=job.submitted_by,
+        pickup_place=job.pickup_place,
+        dropoff_place=job.dropoff_place,
     )
 
 

@@ -33,6 +33,8 @@ COLUMNS = (
     ("mass_kg", "REAL NOT NULL"),
     ("priority", "INTEGER NOT NULL"),
     ("submitted_by", "TEXT"),
+    ("pickup_place", "TEXT"),  # added in 1.6: a store made before gets them, null (`_add_columns`)
+    ("dropoff_place", "TEXT"),
 )
 _NAMES = ", ".join(c for c, _ in COLUMNS)
 # Each charge started or ended (protocol.md §6.10, query kind "charges"), in a table of its own.
@@ -64,13 +66,14 @@ def _row(e: JobHistoryEntry) -> tuple[object, ...]:
     return (
         e.at.timestamp(), e.job, e.state, e.unit, e.wait, e.reason, e.since_submitted_s,
         e.pickup.x, e.pickup.y, e.dropoff.x, e.dropoff.y, e.mass_kg, e.priority, e.submitted_by,
+        e.pickup_place, e.dropoff_place,
     )  # fmt: skip
 
 
 def _entry(row: tuple[Any, ...]) -> JobHistoryEntry:
     # Validated (a row written by another version must not pass for an entry), from plain data:
     # pydantic's core does it faster than the constructor, and reads `at` as Unix seconds, UTC.
-    at, job, state, unit, wait, reason, since, px, py, dx, dy, mass, priority, by = row
+    at, job, state, unit, wait, reason, since, px, py, dx, dy, mass, priority, by, pp, dp = row
     return JobHistoryEntry.model_validate(
         {
             "at": at,
@@ -85,6 +88,8 @@ def _entry(row: tuple[Any, ...]) -> JobHistoryEntry:
             "mass_kg": mass,
             "priority": priority,
             "submitted_by": by,
+            "pickup_place": pp,
+            "dropoff_place": dp,
         }
     )
 
@@ -109,6 +114,7 @@ class HistoryStore:
                 "CREATE TABLE IF NOT EXISTS job_history (id INTEGER PRIMARY KEY AUTOINCREMENT, "
                 f"at REAL NOT NULL, {', '.join(f'{c} {t}' for c, t in COLUMNS)})"
             )
+            self._add_columns()
             # AUTOINCREMENT: a pruned entry's id is never given again, so an old cursor cannot
             # point into newer entries. One index per filter a query may give, each ending in
             # the time it is ordered by.
@@ -132,6 +138,13 @@ class HistoryStore:
                 )
         self._pruned_at: datetime | None = None
         self.prune(datetime.now(UTC))
+
+    def _add_columns(self) -> None:
+        """The columns a store made by an older version lacks, added (its rows read them null)."""
+        have = {row[1] for row in self._db.execute("PRAGMA table_info(job_history)")}
+        for column, kind in COLUMNS:
+            if column not in have:
+                self._db.execute(f"ALTER TABLE job_history ADD COLUMN {column} {kind}")
 
     def close(self) -> None:
         """Close the database."""

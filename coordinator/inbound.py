@@ -13,10 +13,12 @@ from gridfleet.protocol import (
     TOPICS,
     CancelJob,
     ClearObstacles,
+    CloseZone,
     Connection,
     ControlUnit,
     Factsheet,
     JobHistoryQuery,
+    OpenZone,
     RemoveUnit,
     SetGoal,
     SubmitJob,
@@ -29,7 +31,16 @@ from gridfleet.protocol.constants import MAX_REQUEST_BYTES
 from gridfleet.protocol.messages import AuditLogin, AuditQuery
 from gridfleet.protocol.stop import STOP_KINDS, stop_filters
 
-Request = SubmitJob | CancelJob | SetGoal | ControlUnit | ClearObstacles | RemoveUnit
+Request = (
+    SubmitJob
+    | CancelJob
+    | SetGoal
+    | ControlUnit
+    | ClearObstacles
+    | RemoveUnit
+    | CloseZone
+    | OpenZone
+)
 
 
 @dataclass(frozen=True)
@@ -54,6 +65,8 @@ _REQUESTS: dict[str, type[Request]] = {
     "control_unit": ControlUnit,
     "clear_obstacles": ClearObstacles,
     "remove_unit": RemoveUnit,
+    "close_zone": CloseZone,
+    "open_zone": OpenZone,
 }
 # The records' requests: pages answered from the stores (records.py) and the dashboard's login
 # reports; no job changes, and no answer is kept for a retry.

@@ -6,7 +6,7 @@ units' states and cancels for minutes (the broker dropped its queued messages). 
 have at most `per_account` requests waiting; one more is refused at once, in words, and changes
 nothing. Each account's requests are answered in the order they came; accounts take turns, and
 one whose next request is urgent (a cancel, a control, a goal, cleared obstacles, a unit
-removed, rather than a new job or a history query) goes first: another operator's cancel waits behind at most one
+removed, a zone closed or opened, rather than a new job or a history query) goes first: another operator's cancel waits behind at most one
 request of a flooder's, never behind its whole queue.
 """
 
@@ -21,7 +21,17 @@ from gridfleet.coordinator.inbound import Arrival
 # bound): 200 waiting is a script's burst, not a console's.
 MAX_WAITING_PER_ACCOUNT = 200
 # Answered ahead of new work: what stops, frees or steers what is already moving.
-URGENT = frozenset({"cancel_job", "control_unit", "set_goal", "clear_obstacles", "remove_unit"})
+URGENT = frozenset(
+    {
+        "cancel_job",
+        "control_unit",
+        "set_goal",
+        "clear_obstacles",
+        "remove_unit",
+        "close_zone",
+        "open_zone",
+    }
+)
 
 
 @dataclass(frozen=True)

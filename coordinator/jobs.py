@@ -19,6 +19,7 @@ from gridfleet.protocol.messages import (
     FINAL_JOB_STATES,
     FINISHED_LISTED,
     JobState,
+    RefusalCode,
     WaitCode,
 )
 
@@ -44,6 +45,9 @@ class Job:
     order: int = 0  # submission order, so views and allocation are stable
     wait: WaitCode | None = None  # why it waits, while it is not final
     wait_reason: str | None = None  # the same in words
+    pickup_place: str | None = None  # the place its pickup was named by (None: a square)
+    dropoff_place: str | None = None
+    refusal: RefusalCode | None = None  # why it was rejected, for machines (Reply.code)
 
     @property
     def final(self) -> bool:
@@ -66,6 +70,8 @@ class Job:
             done_step=self.done_step,
             wait=None if self.final else self.wait,
             wait_reason=None if self.final else self.wait_reason,
+            pickup_place=self.pickup_place,
+            dropoff_place=self.dropoff_place,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -77,8 +83,11 @@ class Job:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Job:
-        """Inverse of to_dict."""
+        """Inverse of to_dict (a row stored before places and refusal codes loads without them)."""
         d = dict(d)
+        if d["state"] == "rejected" and d.get("refusal") is None:  # rejected before 1.6
+            too_heavy = "exceeds every unit's capacity" in (d.get("reason") or "")
+            d["refusal"] = "too_heavy" if too_heavy else "unreachable"
         d["pickup"] = Cell(*d["pickup"])
         d["dropoff"] = Cell(*d["dropoff"])
         return cls(**d)

@@ -86,6 +86,8 @@ class Snapshot:
     plans: Mapping[str, int] = field(default_factory=dict)  # energy plan -> units
     charges_started: int = 0
     charged_s: float = 0.0
+    zones: int = 0  # zones closed (protocol.md §5.11)
+    zoned_squares: int = 0  # squares they close
 
 
 def snapshot(core: CoordinatorCore, connected: bool) -> Snapshot:
@@ -119,6 +121,8 @@ def snapshot(core: CoordinatorCore, connected: bool) -> Snapshot:
         plans=Tally(u.plan for u in core.energy.units_view().values()),
         charges_started=core.energy.started,
         charged_s=core.energy.charged_s,
+        zones=len(core.zones),
+        zoned_squares=int(core.zones.mask().sum()) if core.zones else 0,
     )
 
 
@@ -183,6 +187,14 @@ class StateCollector:
             "gridfleet_obstacles_discovered",
             "Obstacles units discovered that the map did not have.",
             value=s.obstacles,
+        )
+        yield GaugeMetricFamily(
+            "gridfleet_zones_closed", "Zones closed now (no unit is sent in).", value=s.zones
+        )
+        yield GaugeMetricFamily(
+            "gridfleet_zone_squares_closed",
+            "Squares of the map the closed zones cover.",
+            value=s.zoned_squares,
         )
         yield GaugeMetricFamily(
             "gridfleet_coordinator_connected",

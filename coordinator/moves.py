@@ -43,15 +43,19 @@ class Moves:
         targets: dict[str, Cell | None],
         urgency: dict[str, float],
         driving: AbstractSet[str] = frozenset(),
+        elsewhere: AbstractSet[Cell] = frozenset(),
+        keep_clear: AbstractSet[Cell] = frozenset(),
     ) -> dict[str, Cell]:
         """The next square of each unit that moves; `reserved(u)` are squares `u` may still drive.
 
         `driving`: units that may not move this step only because they are still driving (or
         have yet to acknowledge) what they were given; they keep their targets, and so their
-        priorities.
+        priorities. `elsewhere`: squares of units planned elsewhere (leaving a closed zone, zones.py),
+        entered by nobody here; `keep_clear`: squares such a unit waits for (an idle unit on one
+        makes way).
         """
         agents: dict[str, AgentSpec] = {}
-        blocked: set[Cell] = set()
+        blocked: set[Cell] = set(elsewhere)
         seen: set[Cell] = set()
         waiting: dict[str, Cell] = {}
         released_to_others: set[Cell] = set()  # squares units may still drive into
@@ -65,7 +69,13 @@ class Moves:
             blocked |= held
             released_to_others |= held
             follow = self.following.get(u.id)
-            if follow is not None and u.id in movable and follow.steps < FOLLOW_PATIENCE:
+            if (
+                follow is not None
+                and u.id in movable
+                and follow.steps < FOLLOW_PATIENCE
+                and follow.square not in elsewhere
+                and self.planner.grid.is_free(follow.square)  # not closed since (zones.py)
+            ):
                 # It keeps its planned square (nobody else may take it) and waits for it to empty.
                 waiting[u.id] = follow.square
                 blocked.add(follow.square)
@@ -82,7 +92,7 @@ class Moves:
             agents[u.id] = AgentSpec(pos, targets[u.id] if keeps else None, frozen=still)
         # A reserved square may hold another unit (a follower waits for it to leave): that unit
         # may stay or leave, but nobody else may be released into it.
-        moves = self.planner.step(agents, reserved=blocked, urgency=urgency)
+        moves = self.planner.step(agents, reserved=blocked, urgency=urgency, keep_clear=keep_clear)
         out: dict[str, Cell] = {}
         for uid, nxt in moves.items():
             if nxt == agents[uid].position:
@@ -92,7 +102,7 @@ class Moves:
             else:
                 out[uid] = nxt
         for uid, square in waiting.items():
-            if square not in seen and square not in released_to_others:
+            if square not in seen and square not in released_to_others | elsewhere:
                 out[uid] = square
                 del self.following[uid]
         return out

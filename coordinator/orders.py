@@ -49,7 +49,7 @@ class StepContext:
     step_no: int
     now: float
     estop: bool  # the fleet is stopped: halt orders
-    grid: GridMap  # with every obstacle known
+    grid: GridMap  # with every obstacle known and every closed zone's square blocked
     heartbeat_s: float  # an order that changes nothing is repeated after this long
     window: int  # squares a unit may be released ahead this step (window.py)
     settled: Container[str]  # units acknowledged with nothing left to drive: they get moves
@@ -61,6 +61,9 @@ class StepContext:
     claims: Claims  # who stands on, holds, enters or intends each square (window.py)
     # The charger square each unit sent to charge (or charging) charges on (energy.py).
     charges: Mapping[str, Cell] = field(default_factory=dict)
+    # Each unit inside a closed zone: the squares of its way out, the only closed squares it may
+    # still drive (`grid` has every closed square blocked; zones.py).
+    leaving: Mapping[str, frozenset[Cell]] = field(default_factory=dict)
 
 
 def heartbeat_s(step_period_s: float) -> float:
@@ -225,7 +228,8 @@ class Orders:
             exact = True
         else:
             remaining = self._remaining(u, t)
-            blocked = any(not step.grid.is_free(c) for c in remaining)
+            way_out = step.leaving.get(u.id, frozenset())
+            blocked = any(not step.grid.is_free(c) and c not in way_out for c in remaining)
             released = [] if blocked or t.waiting >= WAIT_BEFORE_HOLD else remaining
             exact = self.acked(u) and st.status != "waiting"
         room = min(window, t.reach) - len(released)

@@ -173,6 +173,7 @@ class JobProgress:
         cache: DistanceFieldCache,
         step_no: int,
         now: float,
+        plain: DistanceFieldCache | None = None,
         energy: EnergyStep | None = None,
         to_charger: Callable[[Cell], int | None] = lambda _: 0,
         charge_pcts: Mapping[str, float] | None = None,
@@ -180,8 +181,9 @@ class JobProgress:
         """Reject what no unit can carry any more; assign queued jobs to idle, settled units.
 
         With `energy`, the units it holds back get none and the others only jobs they can finish
-        (their limits; `to_charger`: squares from a dropoff to its nearest charger). The jobs
-        given: job id -> unit id.
+        (their limits; `to_charger`: squares from a dropoff to its nearest charger). `cache`:
+        distances as planned (round closed zones); `plain`: on the map with every zone open,
+        what a job is rejected or failed by (default `cache`). The jobs given: job id -> unit id.
         """
         # Just after a restart, the units heard so far may be only some of the fleet: a queued
         # job that only an unheard unit can carry must wait for it, not be rejected.
@@ -190,8 +192,10 @@ class JobProgress:
             for job in self.jobs.queued():
                 reason = capacity_reason(job.mass_kg, capacities)
                 if reason is not None:
-                    self.jobs.set(job, "rejected", reason=reason, done_step=step_no)
-            self._fail_unreachable(cache, step_no)
+                    self.jobs.set(
+                        job, "rejected", reason=reason, done_step=step_no, refusal="too_heavy"
+                    )
+            self._fail_unreachable(plain or cache, step_no)
         busy = {j.unit for j in self.jobs.active()}
         slots = []
         for u in units:

@@ -11,20 +11,25 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 from gridfleet.coordinator.allocation import capacity_reason, reach_reason
 from gridfleet.coordinator.directives import Directives
 from gridfleet.coordinator.energy import EnergyPolicy
 from gridfleet.coordinator.jobs import CARRYING_STATES, Job, JobBook
+from gridfleet.coordinator.places import Refusal, Role, Spot
 from gridfleet.coordinator.world import World
+from gridfleet.coordinator.zones import ZoneBook, zone_refusal
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import (
     CancelJob,
     ClearObstacles,
+    CloseZone,
     ControlUnit,
+    OpenZone,
     RemoveUnit,
     SetGoal,
     SubmitJob,
@@ -65,6 +70,12 @@ class RequestContext:
     now: float = 0.0  # the core's clock (monotonic seconds): whether a unit is heard from
     removed: list[str] = field(default_factory=list)  # units removed for good: to forget
     energy: EnergyPolicy | None = None  # who charges where: `charge` asks it (energy.py)
+    zones: ZoneBook | None = None  # the closed zones: closed and opened here (zones.py)
+    at: datetime | None = None  # the core's wall clock: when a zone was closed
+    actor: str | None = None  # the account owning the sender (without accounts: the sender)
+
+
+_OUT_OF_SERVICE = "unit {unit} is out of service: put it back in service first"
 
 
 def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
@@ -76,6 +87,7 @@ def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
             False,
             f"the queue is full: {jobs.open_count} jobs are not finished yet (at most "
             f"{MAX_OPEN_JOBS}); wait for some to finish, or cancel some",
+            code="queue_full",
         )
     account = ctx.account() if new else None
     if account is not None and account[1] >= MAX_OPEN_JOBS_PER_ACCOUNT:
@@ -83,62 +95,90 @@ def submit(req: SubmitJob, ctx: RequestContext) -> Outcome:
             False,
             f"too many jobs: account {account[0]!r} has {account[1]} not finished yet (at most "
             f"{MAX_OPEN_JOBS_PER_ACCOUNT} an account); wait for some to finish, or cancel some",
+            code="too_many",
         )
-    try:
-        world.check_square(req.pickup, "pickup")
-        world.check_square(req.dropoff, "dropoff")
-    except ProtocolError as exc:
-        return Outcome(False, str(exc))
-    on_charger = _on_charger(req, ctx)
-    if on_charger is not None:
-        return Outcome(False, on_charger)
+    spots = _spots(req, ctx)
+    if isinstance(spots, Refusal):
+        return Outcome(False, spots.reason, code=spots.code)
+    pickup, dropoff = spots
     taken = jobs.get(req.job_id) if req.job_id is not None else None
     if taken is not None:
         if not _same_job(taken, req, sender):
-            return Outcome(False, f"job id {taken.id!r} is taken", taken.id)
+            return Outcome(False, f"job id {taken.id!r} is taken", taken.id, "conflict")
         # The same job again from the same client (a retry whose first answer is forgotten):
         # answered as it was then, and nothing changes.
         if taken.state == "rejected":
-            return Outcome(False, taken.reason, taken.id)
+            return Outcome(False, taken.reason, taken.id, taken.refusal or "too_heavy")
         return Outcome(True, None, taken.id)
+    closed = _in_closed_zone(pickup, dropoff, ctx)
+    if closed is not None:
+        return Outcome(False, closed, code="zone_closed")
     job_id = req.job_id or jobs.new_id()
     job = Job(
         id=job_id,
-        pickup=req.pickup,
-        dropoff=req.dropoff,
+        pickup=pickup.square,
+        dropoff=dropoff.square,
         mass_kg=req.mass_kg,
         priority=req.priority,
         submitted_by=sender,
         created_step=ctx.step_no,
+        pickup_place=pickup.place,
+        dropoff_place=dropoff.place,
     )
-    reason = None
-    if world.fleet_known():  # else queued: allocation rejects it once the fleet is known
-        reason = capacity_reason(req.mass_kg, world.capacities()) or reach_reason(
-            ctx.cache, req.pickup, req.dropoff, req.mass_kg, world.carriers()
-        )
-    if reason is not None:
+    refusal = _cannot(job, ctx) if world.fleet_known() else None  # else allocation judges it
+    if refusal is not None:
         # Listed as rejected (not merely refused) so the queue view shows why.
         job.state = "rejected"
-        job.reason = reason
+        job.reason = refusal.reason
+        job.refusal = refusal.code
         jobs.add(job)
-        return Outcome(False, reason, job_id)
+        return Outcome(False, refusal.reason, job_id, refusal.code)
     jobs.add(job)
     return Outcome(True, None, job_id)
 
 
-def _on_charger(req: SubmitJob, ctx: RequestContext) -> str | None:
-    """Why a job whose pickup or dropoff is a charger's square is refused, or None."""
+def _spots(req: SubmitJob, ctx: RequestContext) -> tuple[Spot, Spot] | Refusal:
+    """The job's pickup and dropoff (places resolved by name), each a free square of the map
+    and no charger's; or why not."""
+    spots = []
     chargers = {c.square: c.name for c in ctx.world.chargers}
-    for what, square in (("pickup", req.pickup), ("dropoff", req.dropoff)):
-        name = chargers.get(square)
+    asked: tuple[tuple[Role, Cell | str], ...] = (("pickup", req.pickup), ("dropoff", req.dropoff))
+    for role, where in asked:
+        spot = ctx.world.named.resolve(where, role)
+        if isinstance(spot, Refusal):
+            return spot
+        what = role if spot.place is None else f"{role} {spot.place}"
+        try:
+            ctx.world.check_square(spot.square, what)
+        except ProtocolError as exc:
+            return Refusal("bad_square", str(exc))
+        name = chargers.get(spot.square)
         if name is not None:
-            return f"{what} {list(square)} is charger {name}: a unit charging there would block it"
-    return None
+            return Refusal(
+                "bad_square",
+                f"{what} {list(spot.square)} is charger {name}: a unit charging there would "
+                "block it",
+            )
+        spots.append(spot)
+    return spots[0], spots[1]
+
+
+def _cannot(job: Job, ctx: RequestContext) -> Refusal | None:
+    """Why no unit of the fleet could ever do `job` (too heavy, or out of every capable unit's
+    reach), or None."""
+    world = ctx.world
+    heavy = capacity_reason(job.mass_kg, world.capacities())
+    if heavy is not None:
+        return Refusal("too_heavy", heavy)
+    far = reach_reason(ctx.cache, job.pickup, job.dropoff, job.mass_kg, world.carriers())
+    return None if far is None else Refusal("unreachable", far)
 
 
 def _same_job(job: Job, req: SubmitJob, sender: str | None) -> bool:
-    """Whether `req` from `sender` asks for exactly `job`."""
-    return (job.pickup, job.dropoff, job.mass_kg, job.priority, job.submitted_by) == (
+    """Whether `req` from `sender` asks for exactly `job` (a place by the same name)."""
+    pickup = job.pickup if job.pickup_place is None else job.pickup_place
+    dropoff = job.dropoff if job.dropoff_place is None else job.dropoff_place
+    return (pickup, dropoff, job.mass_kg, job.priority, job.submitted_by) == (
         req.pickup,
         req.dropoff,
         req.mass_kg,
@@ -152,9 +192,9 @@ def cancel(req: CancelJob, ctx: RequestContext) -> Outcome:
     world, jobs = ctx.world, ctx.jobs
     job = jobs.get(req.job_id)
     if job is None:
-        return Outcome(False, f"unknown job {req.job_id!r}", req.job_id)
+        return Outcome(False, f"unknown job {req.job_id!r}", req.job_id, "unknown_job")
     if job.final:
-        return Outcome(False, f"job {job.id} is already {job.state}", job.id)
+        return Outcome(False, f"job {job.id} is already {job.state}", job.id, "conflict")
     who = ctx.sender or "an operator"
     if job.state in CARRYING_STATES and job.unit is not None:
         rec = world.units.get(job.unit)
@@ -176,16 +216,20 @@ def set_goal(req: SetGoal, ctx: RequestContext) -> Outcome:
     world, directives = ctx.world, ctx.directives
     rec = world.units.get(req.unit)
     if rec is None or rec.state is None:
-        return Outcome(False, f"unknown unit {req.unit!r}")
+        return Outcome(False, f"unknown unit {req.unit!r}", code="unknown_unit")
     if req.target is None:
         directives.set_goal(req.unit, None)
         return Outcome(True)
     try:
         world.check_square(req.target, "target")
     except ProtocolError as exc:
-        return Outcome(False, str(exc))
+        return Outcome(False, str(exc), code="bad_square")
+    closed = zone_refusal(ctx.zones, req.target, "target")
+    if closed is not None:
+        return Outcome(False, closed, code="zone_closed")
     if rec.position is not None and ctx.cache.distance(rec.position, req.target) == UNREACHABLE:
-        return Outcome(False, f"unit {req.unit} cannot reach {list(req.target)}")
+        why = f"unit {req.unit} cannot reach {list(req.target)}"
+        return Outcome(False, why, code="unreachable")
     directives.set_goal(req.unit, req.target)
     job = ctx.jobs.of_unit(req.unit)
     if job is not None and job.state not in CARRYING_STATES:
@@ -213,25 +257,27 @@ def _charge(req: ControlUnit, ctx: RequestContext) -> Outcome:
     unit, energy = req.unit, ctx.energy
     rec = ctx.world.units.get(unit)
     if rec is None:
-        return Outcome(False, f"unknown unit {unit!r}")
+        return Outcome(False, f"unknown unit {unit!r}", code="unknown_unit")
     if (
         rec.factsheet is None
         or rec.factsheet.energy is None
         or rec.state is None
         or rec.state.battery_pct is None
     ):
-        return Outcome(False, f"unit {unit} reports no energy: it has nothing to charge")
+        why = f"unit {unit} reports no energy: it has nothing to charge"
+        return Outcome(False, why, code="invalid")
     if energy is None or not energy.chargers.chargers:
-        return Outcome(False, "the map has no chargers")
+        return Outcome(False, "the map has no chargers", code="invalid")
     if ctx.directives.controls.get(unit) == "out_of_service":
-        return Outcome(False, f"unit {unit} is out of service: put it back in service first")
+        return Outcome(False, _OUT_OF_SERVICE.format(unit=unit), code="conflict")
     if not ctx.world.is_active(rec, ctx.now):
-        return Outcome(False, f"unit {unit} is not heard from")
+        return Outcome(False, f"unit {unit} is not heard from", code="conflict")
     stranded = energy.cannot_charge(
         unit, rec.state.position, rec.state.battery_pct, ctx.cache.distance
     )
     if stranded is not None:
-        return Outcome(False, f"unit {unit} cannot be sent to charge: {stranded}")
+        why = f"unit {unit} cannot be sent to charge: {stranded}"
+        return Outcome(False, why, code="unreachable")
     job = ctx.jobs.of_unit(unit)
     if job is not None and job.state not in CARRYING_STATES:
         ctx.requeue(job, f"unit {unit} sent to charge by {ctx.sender or 'an operator'}")
@@ -242,17 +288,16 @@ def _charge(req: ControlUnit, ctx: RequestContext) -> Outcome:
 def _control(req: ControlUnit, world: World, jobs: JobBook, directives: Directives) -> Outcome:
     unit = req.unit
     if world.units.get(unit) is None:
-        return Outcome(False, f"unknown unit {unit!r}")
+        return Outcome(False, f"unknown unit {unit!r}", code="unknown_unit")
     held = directives.controls.get(unit)
     if req.command == "pause":
         if held == "out_of_service":
-            return Outcome(False, f"unit {unit} is out of service: put it back in service first")
+            return Outcome(False, _OUT_OF_SERVICE.format(unit=unit), code="conflict")
         directives.set_control(unit, "paused")
     elif req.command == "resume":
         if held != "paused":
-            return Outcome(
-                False, f"unit {unit} is not paused" + (" (out of service)" if held else "")
-            )
+            why = f"unit {unit} is not paused" + (" (out of service)" if held else "")
+            return Outcome(False, why, code="conflict")
         directives.set_control(unit, None)
     elif req.command == "out_of_service":
         directives.set_control(unit, "out_of_service")
@@ -261,7 +306,7 @@ def _control(req: ControlUnit, world: World, jobs: JobBook, directives: Directiv
             jobs.set(job, "queued", unit=None, reason=f"unit {unit} out of service; re-queued")
     else:
         if held != "out_of_service":
-            return Outcome(False, f"unit {unit} is not out of service")
+            return Outcome(False, f"unit {unit} is not out of service", code="conflict")
         directives.set_control(unit, None)
     return Outcome(True)
 
@@ -277,9 +322,8 @@ def clear_obstacles(req: ClearObstacles, ctx: RequestContext) -> Outcome:
         unknown = [c for c in req.squares if c not in world.obstacles]
         if unknown:
             known = ", ".join(str(list(c)) for c in sorted(world.obstacles)[:10]) or "none"
-            return Outcome(
-                False, f"{list(unknown[0])} is not a discovered obstacle (known: {known})"
-            )
+            why = f"{list(unknown[0])} is not a discovered obstacle (known: {known})"
+            return Outcome(False, why, code="bad_square")
     ctx.cleared += world.clear_obstacles(req.squares)
     return Outcome(True)
 
@@ -290,12 +334,13 @@ def remove(req: RemoveUnit, ctx: RequestContext) -> Outcome:
     world, jobs, unit = ctx.world, ctx.jobs, req.unit
     rec = world.units.get(unit)
     if rec is None:
-        return Outcome(False, f"unknown unit {unit!r}")
+        return Outcome(False, f"unknown unit {unit!r}", code="unknown_unit")
     if world.is_active(rec, ctx.now):
         return Outcome(
             False,
             f"unit {unit} is online and heard from: only a lost unit (offline, broken or "
             "silent) can be removed; take it out of service and switch it off first",
+            code="conflict",
         )
     who = ctx.sender or "an operator"
     job = jobs.of_unit(unit)
@@ -314,6 +359,33 @@ def remove(req: RemoveUnit, ctx: RequestContext) -> Outcome:
     return Outcome(True, fate, None if job is None else job.id)
 
 
+def _in_closed_zone(pickup: Spot, dropoff: Spot, ctx: RequestContext) -> str | None:
+    """Why a job is refused while its pickup or dropoff lies in a closed zone, or None."""
+    for role, spot in (("pickup", pickup), ("dropoff", dropoff)):
+        what = role if spot.place is None else f"{role} {spot.place}"
+        why = zone_refusal(ctx.zones, spot.square, what)
+        if why is not None:
+            return why
+    return None
+
+
+def close_zone(req: CloseZone, ctx: RequestContext) -> Outcome:
+    """Close a rectangle of squares (protocol.md §6.12); a zone closed again as it is changes
+    nothing, closed otherwise is refused (open it first)."""
+    if ctx.zones is None or ctx.at is None:
+        return Outcome(False, "this coordinator keeps no zones", code="invalid")
+    decision = ctx.zones.close(req, ctx.actor or ctx.sender, ctx.at)
+    return Outcome(decision.accepted, decision.reason, code=decision.code)
+
+
+def open_zone(req: OpenZone, ctx: RequestContext) -> Outcome:
+    """Open a closed zone again (protocol.md §6.13); refused for a zone not closed."""
+    if ctx.zones is None:
+        return Outcome(False, "this coordinator keeps no zones", code="invalid")
+    decision = ctx.zones.open(req.name)
+    return Outcome(decision.accepted, decision.reason, code=decision.code)
+
+
 # Each operator request's handler (each takes its own kind of request).
 HANDLERS: dict[type[Request], Callable[[Any, RequestContext], Outcome]] = {
     SubmitJob: submit,
@@ -322,4 +394,6 @@ HANDLERS: dict[type[Request], Callable[[Any, RequestContext], Outcome]] = {
     ControlUnit: control,
     ClearObstacles: clear_obstacles,
     RemoveUnit: remove,
+    CloseZone: close_zone,
+    OpenZone: open_zone,
 }

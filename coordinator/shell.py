@@ -32,7 +32,7 @@ from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
-from gridfleet.protocol import TOPICS, Charger, HeaderStamper, Topics
+from gridfleet.protocol import TOPICS, Charger, HeaderStamper, Place, Topics
 from gridfleet.tasks import cancel_and_wait, first_of
 
 if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
@@ -67,6 +67,7 @@ class CoordinatorShell:
         history_days: float = DEFAULT_RETENTION_DAYS,
         chargers: Sequence[Charger] = (),
         energy: EnergySettings | None = None,
+        places: Sequence[Place] = (),
     ) -> None:
         self.broker = broker
         self.topics = Topics(root)
@@ -90,7 +91,7 @@ class CoordinatorShell:
             "job_history": self.history,
         }
         self.core = CoordinatorCore(
-            World(grid, step_period_s=step_s, chargers=tuple(chargers)),
+            World(grid, step_period_s=step_s, chargers=tuple(chargers), places=tuple(places)),
             JobBook(self.store.load()),
             nonce=secrets.token_hex(3),
             seed=seed,
@@ -98,6 +99,7 @@ class CoordinatorShell:
             stamp=HeaderStamper(sender),
             controls=self.store.load_controls(),
             removals=self.store.load_removals(),
+            zones=self.store.load_zones(),  # closed before a restart: closed still
             window=window,
             identity=identity,
             energy=energy,
@@ -105,6 +107,13 @@ class CoordinatorShell:
         self.core.audit.restore(self.audit_store.load_seen())
         self.core.answers.restore(self.store.load_answers())  # retries across a restart
         self.core.events.restore(self.store.load_events())
+        for zone in self.core.zones.ignored:
+            log.warning(
+                "zone %s (%s to %s) is not on this map: not in force (open it to forget it)",
+                zone.name,
+                list(zone.first),
+                list(zone.last),
+            )
         self.world = self.core.world
         self._errors = self.topics.fleet("errors")
         self.endpoint = Endpoint(
@@ -290,6 +299,9 @@ class CoordinatorShell:
         removals = tuple(r for e in batch for r in e.removals)
         if removals:
             self.store.save_removals(removals)
+        zones = tuple(z for e in batch for z in e.zones)
+        if zones:
+            self.store.save_zones(zones)
         charges = tuple(c for e in batch for c in e.charges)
         if charges:
             self.history.add_charges(charges)

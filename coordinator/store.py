@@ -1,5 +1,5 @@
 """SQLite persistence of jobs, of the answers to requests, of operators' controls and removals
-of units, and of the recent history (stdlib sqlite3).
+of units, of the zones closed, and of the recent history (stdlib sqlite3).
 
 A restarted coordinator loses no job, and still recognises a request retried across the restart.
 """
@@ -17,7 +17,7 @@ import platformdirs
 from gridfleet.coordinator.answers import ANSWERS_KEPT, Answer
 from gridfleet.coordinator.jobs import Job
 from gridfleet.coordinator.removals import Removal
-from gridfleet.protocol import EventEntry
+from gridfleet.protocol import EventEntry, Zone
 from gridfleet.protocol.messages import MAX_EVENTS, UnitControlState
 
 # More than the view shows: the view keeps stop and loss lines that chatter would have pushed out
@@ -58,6 +58,10 @@ class JobStore:
         )
         # The recent history (fleet/events), newest last by rowid.
         self._db.execute("CREATE TABLE IF NOT EXISTS events (data TEXT NOT NULL)")
+        # The zones closed (protocol.md §5.11), in the order they were closed (by rowid).
+        self._db.execute(
+            "CREATE TABLE IF NOT EXISTS zones (name TEXT PRIMARY KEY, data TEXT NOT NULL)"
+        )
         self._db.commit()
 
     def load_events(self) -> list[EventEntry]:
@@ -119,6 +123,29 @@ class JobStore:
                     self._db.execute(
                         "INSERT OR REPLACE INTO removed_units (unit, data) VALUES (?, ?)",
                         (unit, removal.to_json()),
+                    )
+
+    def load_zones(self) -> list[Zone]:
+        """The zones closed, in the order they were closed; a row of another version's is
+        skipped."""
+        rows = self._db.execute("SELECT data FROM zones ORDER BY rowid").fetchall()
+        zones = []
+        for (data,) in rows:
+            try:
+                zones.append(Zone.model_validate_json(data))
+            except ValueError:
+                continue
+        return zones
+
+    def save_zones(self, changes: Iterable[tuple[str, Zone | None]]) -> None:
+        """Store zones closed, or (None) delete those opened, in one transaction."""
+        with self._db:
+            for name, zone in changes:
+                self._db.execute("DELETE FROM zones WHERE name = ?", (name,))
+                if zone is not None:
+                    self._db.execute(
+                        "INSERT INTO zones (name, data) VALUES (?, ?)",
+                        (name, zone.model_dump_json()),
                     )
 
     def load(self) -> list[Job]:

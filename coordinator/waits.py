@@ -131,8 +131,10 @@ def explain_waits(
     controls: Mapping[str, str] | None = None,
     stuck: Stuck | None = None,
     energy: EnergyWords | None = None,
+    zone_wait: Callable[[Job], Wait | None] | None = None,
 ) -> None:
-    """Set every non-final job's wait (the book lists the jobs whose wait changed)."""
+    """Set every non-final job's wait (the book lists the jobs whose wait changed); `zone_wait`:
+    why closed zones hold a job up, if they do (zones.py), before any other reason but the stop."""
     controls = controls or {}
     # A queued job's wait depends on its mass alone (which units could carry it, and are they
     # free): worked out once a mass, not once a job (5,000 queued jobs each listing the active
@@ -141,6 +143,8 @@ def explain_waits(
     for job in [*jobs.queued(), *jobs.active()]:
         if stopped:
             jobs.explain(job, ("fleet_stopped", "the emergency stop is engaged"))
+        elif zone_wait is not None and (closed := zone_wait(job)) is not None:
+            jobs.explain(job, _clipped(closed))
         elif job.state == "queued":
             key = (job.mass_kg, *((job.pickup, job.dropoff) if energy else (None, None)))
             if key not in queued_by:

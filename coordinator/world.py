@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from gridfleet.coordinator.places import Places
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction, GridMap
-from gridfleet.protocol import Charger, Connection, Factsheet, FleetMap, Header, UnitState
+from gridfleet.protocol import Charger, Connection, Factsheet, FleetMap, Header, Place, UnitState
 from gridfleet.protocol.constants import MIN_TIMEOUT_S, STALE_AFTER_STEPS
 
 REJOIN_SQUARES = 2  # how far from where it was last seen a unit may come back (a move under way)
@@ -71,11 +72,16 @@ class World:
     obstacles: set[Cell] = field(default_factory=set)
     units: dict[str, UnitRecord] = field(default_factory=dict)
     chargers: tuple[Charger, ...] = ()  # the map's chargers (protocol.md §5.2, §5.9)
+    places: tuple[Place, ...] = ()  # the map's named places (protocol.md §5.10)
 
     def __post_init__(self) -> None:
         for c in self.chargers:
             if not self.base.is_free(c.square):
                 raise ValueError(f"charger {c.name} at {list(c.square)} is off the map or a wall")
+        for p in self.places:
+            if not self.base.is_free(p.square):
+                raise ValueError(f"place {p.name} at {list(p.square)} is off the map or a wall")
+        self.named = Places(self.places)  # a job's pickup or dropoff by name (requests.py)
         self._grid = self.base.with_blocked(self.obstacles)
         self.map_id = self.base.map_id()
         self.foreign: set[str] = set()  # units whose factsheet names another map: ignored
@@ -426,4 +432,5 @@ class World:
             rows=self.base.rows(),
             obstacles=self._sorted_obstacles(),
             chargers=list(self.chargers),
+            places=list(self.places),
         )

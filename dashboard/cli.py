@@ -67,10 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--audit-broker",
         metavar="URL",
-        help="with --accounts: where the dashboard reports logins, logouts and failed logins "
-        "to the coordinator's audit, and (--session-passwords) takes page sessions' broker "
-        "passwords back, as the dashboard account (default: --broker-ws, a 0.0.0.0 host read "
-        "as 127.0.0.1)",
+        help="the broker the dashboard itself talks to: its HTTP API (/api/v1) reaches the fleet "
+        "there, as each caller's account; with --accounts it also reports logins, logouts and "
+        "failed logins to the coordinator's audit, and (--session-passwords) takes page "
+        "sessions' broker passwords back, as the dashboard account (default: --broker-ws, a "
+        "0.0.0.0 host read as 127.0.0.1)",
     )
     parser.add_argument(
         "--session-passwords",
@@ -113,9 +114,13 @@ def settings_from(
         map=grid,
         colors=colors,
         accounts=None if args.accounts is None else load_accounts(args.accounts),
+        accounts_file=None if args.accounts is None else Path(args.accounts),
         secret_key=secret_from(environ),
         https=args.tls_cert is not None,
-        audit_broker=None if args.accounts is None else audit_broker(args),
+        # Also the HTTP API's way to the fleet (without accounts too, when given).
+        audit_broker=None
+        if args.accounts is None and args.audit_broker is None
+        else audit_broker(args),
         session_passwords=args.session_passwords,
     )
 

@@ -88,6 +88,9 @@ class DashboardServer:
             return
         self._server.shutdown()
         self._server.server_close()
+        api = self.app.extensions.get("gridfleet_api")
+        if api is not None:
+            api.clients.close()  # the HTTP API's connections to the broker
         if self._thread is not None:
             self._thread.join(5)
         self._server = None

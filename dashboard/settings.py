@@ -28,6 +28,8 @@ INSTALL_HINT = (
 LOGIN_FIRST = "log in to see the fleet"
 # Who may read the audit trail (protocol.md §6.8), and so see the page's Audit view.
 AUDIT_ROLES = ("operator", "dashboard")
+# Who may change the fleet from the page (protocol.md §10: the roles that may send requests).
+CHANGE_ROLES = ("operator", "dashboard")
 # A broker listening on every address: the browser reaches it where it reached the page.
 WILDCARD_HOSTS = ("0.0.0.0", "::")
 
@@ -44,6 +46,8 @@ class DashboardSettings:
     node_modules: Path = NODE_MODULES
     # With accounts, people log in before the page gets any broker credentials.
     accounts: Accounts | None = field(default=None, repr=False)
+    # Their file: the HTTP API reads it again when it changes (a revoked token stops at once).
+    accounts_file: Path | None = None
     secret_key: bytes | None = field(default=None, repr=False)  # None: a random one per start
     https: bool = False  # the page is served over HTTPS: its cookie goes over HTTPS only
     # Where the dashboard itself reports logins for the audit (with accounts; None: nowhere).
@@ -145,6 +149,9 @@ def settings_payload(
         # Whether the page shows the Audit view: the audit is for operator and dashboard accounts
         # (protocol.md §6.8); without accounts anybody may read it.
         "audit": user is None or user.role in AUDIT_ROLES,
+        # Whether the page offers what changes the fleet beyond its forms (closing and opening
+        # zones): the people's accounts; a viewer's page shows the zones without buttons.
+        "may_change": user is None or user.role in CHANGE_ROLES,
         "mqtt": None
         if user is None
         else {"username": user.name, "password": broker_password or user.password},

@@ -1,11 +1,12 @@
-"""Scenario files (TOML): a map plus hidden obstacles, units, jobs, goals, batteries and chargers."""
+"""Scenario files (TOML): a map plus hidden obstacles, units, jobs, goals, batteries, chargers
+and named places."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, StrictFloat, StrictInt, ValidationError
 from pydantic_core import ErrorDetails
@@ -15,7 +16,8 @@ from gridfleet.errors import MapError, ScenarioError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.maps import load_map
 from gridfleet.paths import UNREACHABLE, adjacency, distance_field
-from gridfleet.protocol.constants import ID_PATTERN
+from gridfleet.protocol.constants import ID_PATTERN, MAX_PLACES
+from gridfleet.protocol.messages import PlaceKind
 from gridfleet.shipped import resolve
 from gridfleet.textfile import TomlFile
 
@@ -32,6 +34,8 @@ DEFAULT_COLORS = (
     "#ef6c00",
     "#5d4037",
 )
+PLACE_KINDS: tuple[PlaceKind, ...] = get_args(PlaceKind)
+DEFAULT_PLACE_KINDS: tuple[PlaceKind, ...] = ("pickup", "dropoff")  # a place that names no kinds
 
 
 @dataclass(frozen=True)
@@ -51,6 +55,15 @@ class ChargerSpec:
 
     name: str
     square: Cell
+
+
+@dataclass(frozen=True)
+class PlaceSpec:
+    """A named square of a scenario and what may happen there (protocol.md §5.10)."""
+
+    name: str
+    square: Cell
+    kinds: tuple[PlaceKind, ...]
 
 
 @dataclass(frozen=True)
@@ -88,6 +101,7 @@ class Scenario:
     extra: dict[str, Any] = field(default_factory=dict)
     chargers: tuple[ChargerSpec, ...] = ()
     charging: ChargingSpec = field(default_factory=ChargingSpec)  # [charging]; else defaults
+    places: tuple[PlaceSpec, ...] = ()  # [[places]], then each charger not named by one
 
     def unit(self, unit_id: str) -> UnitSpec:
         """The unit with `unit_id`; KeyError when there is none."""
@@ -131,6 +145,12 @@ class _ChargerTable(_Table):
     name: Id | None = None
 
 
+class _PlaceTable(_Table):
+    name: Id
+    square: Square
+    kinds: Annotated[list[PlaceKind], Field(min_length=1)] = list(DEFAULT_PLACE_KINDS)
+
+
 class _ChargingTable(_Table):
     critical_pct: Pct = 20.0
     good_pct: Pct = 50.0
@@ -163,6 +183,7 @@ class _ScenarioFile(_Table):
     battery: _BatteryTable | None = None
     chargers: list[_ChargerTable] = []
     charging: _ChargingTable | None = None
+    places: list[_PlaceTable] = []
 
 
 _TABLES: dict[str, tuple[str, type[_Table]]] = {
@@ -170,6 +191,7 @@ _TABLES: dict[str, tuple[str, type[_Table]]] = {
     "jobs": ("job", _JobTable),
     "goals": ("goal", _GoalTable),
     "chargers": ("charger", _ChargerTable),
+    "places": ("place", _PlaceTable),
 }
 _SECTIONS: dict[str, type[_Table]] = {"battery": _BatteryTable, "charging": _ChargingTable}
 _SQUARES = {"start", "pickup", "dropoff", "target", "square"}
@@ -212,6 +234,14 @@ def _words(field: str, kind: str, value: Any) -> str:
         return "'battery' must be a table, e.g. battery = { start_pct = 40.0 }"
     if field == "name":
         return f"name {value!r} is not a valid id (letters, digits, '_', '.', '-')"
+    if field == "kinds":
+        known = ", ".join(PLACE_KINDS)
+        if isinstance(value, list) and not value:
+            return f"kinds is empty: give one or more of {known}"
+        if isinstance(value, list):
+            odd = next((k for k in value if k not in PLACE_KINDS), None)
+            return f"kinds: unknown kind {odd!r} (known: {known})"
+        return f'kinds must be a list of {known}, e.g. kinds = ["pickup"]'
     return f"unknown unit {value!r}"  # a goal's unit
 
 
@@ -231,10 +261,7 @@ def _shape_error(
             return where.error(where.key(top), f"'{top}' must be a list of tables ([[{top}]])")
         index = int(loc[1])
         table, field = tables[index], str(loc[2])
-        uid = table.get("id")
-        what = (
-            f"unit {uid!r}" if noun == "unit" and isinstance(uid, str) else f"{noun} #{index + 1}"
-        )
+        what = _what(noun, index, table, field)
         if field == "battery" and len(loc) > 3 and isinstance(table.get("battery"), dict):
             inner, battery = str(loc[3]), table["battery"]
             if kind == "extra_forbidden":
@@ -271,6 +298,16 @@ def _shape_error(
     if top == "map":
         return where.error(where.key(top), "'map' must name a .map file relative to this scenario")
     return where.error(where.key(top), "'name' and 'description' must be strings")
+
+
+def _what(noun: str, index: int, table: dict[str, Any], field: str) -> str:
+    """How an error names a table: a unit by its id, a place by its name, else by its number."""
+    uid, name = table.get("id"), table.get("name")
+    if noun == "unit" and isinstance(uid, str):
+        return f"unit {uid!r}"
+    if noun == "place" and isinstance(name, str) and field != "name":
+        return f"place {name!r}"
+    return f"{noun} #{index + 1}"
 
 
 def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> Scenario:
@@ -378,6 +415,8 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
                 "any unit's start (walled in)",
             )
 
+    places = _places(shape.places, chargers, square, hidden, where)
+
     return Scenario(
         path=path,
         map_path=map_path,
@@ -390,7 +429,67 @@ def _build(path: Path, data: dict[str, Any], where: TomlFile[ScenarioError]) -> 
         description=shape.description,
         chargers=tuple(chargers),
         charging=_charging(shape.charging, where),
+        places=places,
     )
+
+
+def _places(
+    tables: Sequence[_PlaceTable],
+    chargers: Sequence[ChargerSpec],
+    square: Callable[[list[int], int, str], Cell],
+    hidden: Sequence[Cell],
+    where: TomlFile[ScenarioError],
+) -> tuple[PlaceSpec, ...]:
+    """The [[places]] (each checked: a free square of its own, a name of its own, known kinds,
+    a charger only where one is), then each charger that no place names or stands on, as a place
+    of kind charger named by the charger's name."""
+    if len(tables) > MAX_PLACES:
+        raise where.error(
+            where.table("places", MAX_PLACES),
+            f"place #{MAX_PLACES + 1}: more than {MAX_PLACES} places (a map has at most {MAX_PLACES})",
+        )
+    at_charger = {c.square: c.name for c in chargers}
+    by_name: dict[str, PlaceSpec] = {}
+    by_square: dict[Cell, str] = {}
+    for i, table in enumerate(tables):
+        line = where.table("places", i)
+        what = f"place {table.name!r}"
+        if table.name in by_name:
+            raise where.error(line, f"{what}: name used twice")
+        at = square(table.square, line, f"{what}: square")
+        if at in hidden:
+            raise where.error(line, f"{what}: square {list(at)} is a hidden obstacle")
+        if at in by_square:
+            raise where.error(line, f"{what}: square {list(at)} is place {by_square[at]!r} already")
+        twice = next((k for n, k in enumerate(table.kinds) if k in table.kinds[:n]), None)
+        if twice is not None:
+            raise where.error(line, f"{what}: kinds: {twice!r} given twice")
+        charger = at_charger.get(at)
+        if "charger" in table.kinds and charger is None:
+            raise where.error(
+                line, f"{what}: kind 'charger', but square {list(at)} has no charger ([[chargers]])"
+            )
+        carried = next((k for k in table.kinds if k in ("pickup", "dropoff")), None)
+        if carried is not None and charger is not None:
+            raise where.error(
+                line,
+                f"{what}: a {carried} on charger {charger!r} {list(at)}: a unit charging there "
+                "would block it",
+            )
+        by_name[table.name] = PlaceSpec(table.name, at, tuple(table.kinds))
+        by_square[at] = table.name
+    offered = [c for c in chargers if c.name not in by_name and c.square not in by_square]
+    if len(by_name) + len(offered) > MAX_PLACES:
+        first = offered[MAX_PLACES - len(by_name)]
+        index = next(i for i, c in enumerate(chargers) if c is first)
+        raise where.error(
+            where.table("chargers", index),
+            f"charger {first.name!r}: more than {MAX_PLACES} places with the chargers (each "
+            "charger is a place too, unless a place has its name or its square)",
+        )
+    places = list(by_name.values())
+    places += [PlaceSpec(c.name, c.square, ("charger",)) for c in offered]
+    return tuple(places)
 
 
 def _reachable(grid: GridMap, graph: csr_matrix, square: Cell, units: Sequence[UnitSpec]) -> bool:

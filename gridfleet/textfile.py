@@ -32,6 +32,7 @@ class TomlFile(Generic[E]):
         self._error = error
         text = read_text(path, what, error)
         self.lines = text.splitlines()
+        self._tables: dict[str, list[int]] = {}  # each [[name]]'s lines, once asked for
         try:
             self.data: dict[str, Any] = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -53,8 +54,12 @@ class TomlFile(Generic[E]):
 
     def table(self, name: str, index: int) -> int:
         """The line of the `index`-th `[[name]]` (else of `name = …`)."""
-        pattern = re.compile(rf"^\s*\[\[\s*{re.escape(name)}\s*\]\]")
-        hits = [i for i, line in enumerate(self.lines, 1) if pattern.match(line)]
+        hits = self._tables.get(name)
+        if hits is None:  # found once per name: a file may have thousands of tables
+            pattern = re.compile(rf"^\s*\[\[\s*{re.escape(name)}\s*\]\]")
+            hits = self._tables[name] = [
+                i for i, line in enumerate(self.lines, 1) if pattern.match(line)
+            ]
         return hits[index] if index < len(hits) else self.key(name)
 
     def error(self, line: int, problem: str) -> E:

@@ -17,6 +17,52 @@ from gridfleet.maps import load_map
 MAPS = Path(__file__).resolve().parents[1] / "maps"
 
 
+Place = tuple[str, tuple[int, int], tuple[str, ...]]  # name, square, kinds
+
+
+def warehouse_places() -> tuple[Place, ...]:
+    """The 16 x 16 warehouse's places: each aisle square beside a shelf a pickup (A-1 to F-8:
+    aisles A to F west to east, 1 to 8 north to south; not A1, which a charger may be called), pack stations P1 to P8 along the north wall, docks
+    dock-1 to dock-4 on the south road, and the parking row where the units start."""
+    shelves = [
+        (f"{aisle}-{n}", (x, y), ("pickup",))
+        for aisle, x in zip("ABCDEF", (0, 3, 6, 9, 12, 15), strict=True)
+        for n, y in enumerate((1, 2, 4, 5, 8, 9, 11, 12), start=1)
+    ]
+    pack = [(f"P{n}", (2 * (n - 1), 0), ("dropoff",)) for n in range(1, 9)]
+    docks = [(f"dock-{n}", (x, 14), ("pickup", "dropoff")) for n, x in enumerate((0, 3, 6, 15), 1)]
+    parking = [(f"park-{n}", (1 + n, 15), ("parking",)) for n in range(1, 13)]
+    return (*shelves, *pack, *docks, *parking)
+
+
+# The playfield's: a few shelves to fetch from, and stations to deliver to.
+PLAYFIELD_PLACES: tuple[Place, ...] = (
+    ("A1", (1, 1), ("pickup",)),
+    ("A2", (8, 1), ("pickup",)),
+    ("A3", (5, 0), ("pickup",)),
+    ("A4", (0, 5), ("pickup",)),
+    ("P1", (8, 8), ("dropoff",)),
+    ("P2", (1, 8), ("dropoff",)),
+    ("P3", (5, 9), ("dropoff",)),
+    ("P4", (9, 4), ("dropoff",)),
+)
+
+
+def places_toml(places: tuple[Place, ...]) -> list[str]:
+    """The `[[places]]` tables of `places`, as lines of a scenario file."""
+    lines = []
+    for name, (x, y), kinds in places:
+        quoted = ", ".join(f'"{k}"' for k in kinds)
+        lines += [
+            "[[places]]",
+            f'name = "{name}"',
+            f"square = [{x}, {y}]",
+            f"kinds = [{quoted}]",
+            "",
+        ]
+    return lines
+
+
 @dataclass(frozen=True)
 class EnergyScenario:
     """One scenario to write: a shipped map, its units, chargers, battery and jobs."""
@@ -31,6 +77,7 @@ class EnergyScenario:
     jobs: int
     masses: tuple[float, ...]  # drawn from, in turn weighted by the fleet's capacities
     seed: int
+    places: tuple[Place, ...] = ()  # the named places (the chargers are places of their own)
 
 
 WAREHOUSE = EnergyScenario(
@@ -54,6 +101,7 @@ WAREHOUSE = EnergyScenario(
     jobs=300,
     masses=(1.0, 2.0, 3.5, 4.5, 1.5, 2.5, 7.0, 9.0, 12.0, 18.0),
     seed=54,
+    places=warehouse_places(),
 )
 
 PLAYFIELD = EnergyScenario(
@@ -75,6 +123,7 @@ PLAYFIELD = EnergyScenario(
     jobs=60,
     masses=(1.0, 1.5, 3.0, 4.5, 8.0, 15.0),
     seed=54,
+    places=PLAYFIELD_PLACES,
 )
 
 
@@ -107,6 +156,7 @@ def render(spec: EnergyScenario) -> str:
         ]
     for name, square in spec.chargers:
         lines += ["[[chargers]]", f"square = [{square[0]}, {square[1]}]", f'name = "{name}"', ""]
+    lines += places_toml(spec.places)
     for _ in range(spec.jobs):
         pickup, dropoff = rng.sample(squares, 2)
         mass = rng.choice([m for m in spec.masses if m <= largest])

@@ -83,6 +83,8 @@ def protocol_table() -> dict[str, Any]:
             "max_released": c.MAX_RELEASED,
             "max_planned": c.MAX_PLANNED,
             "max_text": c.MAX_TEXT,
+            "max_places": c.MAX_PLACES,
+            "max_zones": c.MAX_ZONES,
         },
         "timing": {
             "default_step_s": c.DEFAULT_STEP_S,

@@ -280,7 +280,8 @@ class Assembly:
         common = ["--broker", system.url, "--root", spec.root, *logins]
         step = ["--step", str(spec.step_s)]
         scenario = str(spec.scenario.path)
-        # The scenario itself, not only its map: the coordinator takes its chargers and [charging].
+        # The scenario itself, not only its map: the coordinator takes its chargers, places and
+        # [charging].
         coordinator = ["coordinator", *common, "--map", scenario, *step]
         coordinator += ["--window", str(spec.window), "--energy-policy", spec.energy_policy]
         if spec.db_path is not None:
@@ -317,7 +318,9 @@ class Assembly:
                 scenario,
                 *logins,
                 *self.tls_files,
-                *(["--audit-broker", system.url] if logins else []),  # logins, for the audit
+                # Its own way to the broker: the HTTP API's (and, with logins, the audit's).
+                "--audit-broker",
+                system.url,
                 # Our own broker checks a page session's own password, taken back at logout.
                 *(["--session-passwords"] if logins and spec.broker is None else []),
             )

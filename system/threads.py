@@ -135,15 +135,15 @@ def coordinator_thread(
     energy_policy: str = "gridfleet",
     **kw: Any,
 ) -> ServiceThread[CoordinatorShell]:
-    """The real coordinator for a scenario's map, chargers and [charging] (under its energy
-    policy, unless `energy` is given), with its job store at `db_path`."""
+    """The real coordinator for a scenario's map, chargers, places and [charging] (under its
+    energy policy, unless `energy` is given), with its job store at `db_path`."""
     from gridfleet.coordinator.shell import CoordinatorShell
 
     def make() -> CoordinatorShell:
+        from gridfleet.coordinator.cli import site_of
         from gridfleet.coordinator.energy import EnergySettings
-        from gridfleet.protocol import Charger
 
-        chargers = [Charger(name=c.name, square=c.square) for c in scenario.chargers]
+        site = site_of(scenario)
         kw.setdefault("energy", EnergySettings.of(scenario.charging, energy_policy))
         return CoordinatorShell(
             broker_url,
@@ -151,7 +151,8 @@ def coordinator_thread(
             root=root,
             step_s=step_s,
             db_path=db_path,
-            chargers=chargers,
+            chargers=site.chargers,
+            places=site.places,
             **kw,
         )
 

@@ -115,14 +115,16 @@ class Planner:
         agents: dict[str, AgentSpec],
         reserved: Iterable[Cell] = (),
         urgency: dict[str, float] | None = None,
+        keep_clear: Iterable[Cell] = (),
     ) -> dict[str, Cell]:
         """Next square of every agent; `reserved` squares are entered by nobody this step.
 
         `urgency` adds to an agent's priority (e.g. job priority). Priorities are updated here:
         +1 for each agent with a target it has not reached, reset to 0 on arrival. An idle agent
-        on another's target is given a parking square to go to (`parking`).
+        on another's target, or on a square in `keep_clear` (one a unit not planned here waits
+        for: its way out of a closed zone), is given a parking square to go to (`parking`).
         """
-        agents = self._making_way(agents)
+        agents = self._making_way(agents, frozenset(keep_clear))
         w = self._grid.width
         names = list(agents)
         specs = list(agents.values())
@@ -175,9 +177,11 @@ class Planner:
         """Where idle `agent` is going to make way for another unit, if it is."""
         return self._parking.get(agent)
 
-    def _making_way(self, agents: dict[str, AgentSpec]) -> dict[str, AgentSpec]:
-        """The agents, each idle one on another's target sent to a parking square."""
-        wanted = {s.target for s in agents.values() if s.target is not None}
+    def _making_way(
+        self, agents: dict[str, AgentSpec], keep_clear: frozenset[Cell] = frozenset()
+    ) -> dict[str, AgentSpec]:
+        """The agents, each idle one on another's target (or `keep_clear`) sent to park."""
+        wanted = {s.target for s in agents.values() if s.target is not None} | keep_clear
         out = agents
         for a, s in agents.items():
             if s.target is not None:

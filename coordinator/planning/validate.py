@@ -1,9 +1,10 @@
 """Plan validator, the oracle of every planner test: continuity, walls, vertex, swap, rotation;
-and released windows, checked like a plan: contiguous, on free squares, nobody else's."""
+released windows, checked like a plan: contiguous, on free squares, nobody else's; and closed
+zones: nobody outside one stands on or holds a square of it."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Container, Sequence
 from dataclasses import dataclass
 
 from gridfleet.grid import Cell, GridMap
@@ -15,7 +16,7 @@ class Violation:
 
     step: int
     # "continuity" | "wall" | "vertex" | "swap" | "rotation"; windows: "occupied" | "overlap" |
-    # "length"
+    # "length"; closed zones: "zone"
     kind: str
     agents: tuple[int, ...]
     detail: str
@@ -129,4 +130,27 @@ def validate_windows(
             if k != i:
                 detail = f"agents {k} and {i} both hold {list(c)}"
                 out.append(Violation(0, "overlap", (k, i), detail))
+    return out
+
+
+def validate_zones(
+    positions: Sequence[Cell],
+    windows: Sequence[Sequence[Cell]],
+    closed: Container[Cell],
+    inside: Container[int] = (),
+) -> list[Violation]:
+    """Every violation of closed zones (coordinator/zones.py): an agent not `inside` (those that
+    stood in a closed zone, or held squares of one, when it closed, and have not left it since)
+    on a `closed` square, or with one in its window (windows[i]: what agent i may still drive).
+    """
+    out: list[Violation] = []
+    for i, (here, window) in enumerate(zip(positions, windows, strict=True)):
+        if i in inside:
+            continue
+        if here in closed:
+            out.append(Violation(0, "zone", (i,), f"agent {i} stands on closed {list(here)}"))
+        for c in window:
+            if c in closed:
+                detail = f"agent {i}'s window holds closed {list(c)}"
+                out.append(Violation(0, "zone", (i,), detail))
     return out

@@ -25,6 +25,10 @@ test("bad input is reported and changes nothing", () => {
   assert.match(v.apply("state", "u1", "{oops", 1), /malformed JSON/);
   assert.match(v.apply("state", "u1", JSON.stringify({ step: 2 }), 1), /without a position/);
   assert.match(v.apply("map", null, JSON.stringify({ width: 3 }), 1), /without rows/);
+  for (const [width, height] of [[0, 2], [-1, 2], [3, -4], [3, 4096 + 1], [2.5, 2]]) {
+    assert.match(v.apply("map", null, JSON.stringify({ ...MAP, width, height }), 1), /without its size/, `${width} x ${height}`);
+  }
+  assert.equal(v.map, null, "no map of no squares (nor fewer)");
   assert.deepEqual(v.units.get("u1").state.position, [1, 0]);
   v.apply("estop", null, "engaged|device1|x", 2);
   assert.match(v.apply("estop", null, "nonsense", 3), /invalid emergency-stop/);

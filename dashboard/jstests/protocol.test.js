@@ -62,7 +62,7 @@ test("headers count per kind; client ids are valid ids", () => {
   assert.equal(s.header("submit_job").seq, 1);
   const h = s.header("set_goal");
   assert.equal(h.seq, 0);
-  assert.equal(h.version, "1.5");
+  assert.equal(h.version, "1.6");
   assert.equal(h.sender, "dash-1");
   assert.match(h.timestamp, /^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$/);
   const id = makeClientId("dashboard");
@@ -113,10 +113,12 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
     if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
   }
-  // 16, and every unit's and device's stop press: the fleet's views (alerts and energy among
-  // them), the units' topics, and the answers to this page (its replies, history and audit pages).
-  assert.equal(Object.keys(subs).length, 18);
+  // 17, and every unit's and device's stop press: the fleet's views (alerts, energy and the
+  // closed zones among them), the units' topics, and the answers to this page (its replies,
+  // history and audit pages).
+  assert.equal(Object.keys(subs).length, 19);
   assert.equal(subs["lab/a/v1/fleet/energy"].qos, TABLE.topics.energy.qos);
+  assert.equal(subs["lab/a/v1/fleet/zones"].qos, TABLE.topics.zones.qos);
   const viewer = subscriptions(T, "dash-1", { audit: false });
   assert.ok(!(T.auditReply("dash-1") in viewer), "an account that may not read the audit does not ask for it");
   assert.ok(T.historyReply("dash-1") in viewer);

@@ -128,6 +128,21 @@ test("a big map fits whole at zoom 1; the wheel zooms about the pointer; panning
   assert.ok(edge.ox < 700 && edge.oy + edge.cell * 140 > 0, "part of the map stays in view");
 });
 
+test("a box or a map of no size, or less, lays out squares of a positive size (never a negative radius)", () => {
+  const sizes = [[0, 0, 10, 10], [-5, 300, 10, 10], [300, 300, 0, 10], [300, 300, -3, -1], [NaN, 300, 10, Infinity]];
+  for (const [w, h, cols, rows] of sizes) {
+    for (const zoom of [{ scale: 1, pan: [0, 0] }, { scale: 0, pan: [NaN, 1] }, { scale: -2, pan: [] }]) {
+      const L = fitLayout(w, h, cols, rows, zoom);
+      const said = JSON.stringify([w, h, cols, rows, zoom]);
+      assert.ok(L.cell > 0 && Number.isFinite(L.cell), `cell ${L.cell} for ${said}`);
+      assert.ok([L.w, L.h, L.cols, L.rows, L.ox, L.oy].every(Number.isFinite), said);
+      assert.ok(L.w > 0 && L.h > 0 && L.cols >= 1 && L.rows >= 1, said);
+    }
+  }
+  assert.deepEqual(fitLayout(300, 200, 3, 2), fitLayout(300, 200, 3, 2, { scale: 1, pan: [0, 0] }), "sizes that are fine stay as they are");
+  assert.equal(fitLayout(300, 200, 3, 2).cell, 100);
+});
+
 test("obstacles replayed on load are not new; ones found since are", () => {
   const v = new FleetView(MAP);
   v.apply("map", null, JSON.stringify({ ...MAP, obstacles: [[1, 1]] }), 1000, true);

@@ -3,7 +3,7 @@ import assert from "node:assert/strict";
 import { test } from "node:test";
 import { FleetView } from "../static/js/model.js";
 import {
-  controlButtons, coordinatorBadge, finishedCells, finishedCounts, jobCells, mapTitle, seenText, unitCells,
+  controlButtons, coordinatorBadge, finishedCells, finishedCounts, jobCells, mapTitle, routeText, seenText, unitCells,
 } from "../static/js/view.js";
 
 const text = (cells) => cells.map(([t]) => t);
@@ -64,6 +64,22 @@ test("a unit's row: link, square, status with its reason, job and load of capaci
   assert.equal(text(unitCells(v.units.get("unit1"), "job-1", null, stuck))[3], "moving", "under way: nothing to add");
 });
 
+test("a unit's status says why the coordinator moves or holds it (its route's note)", () => {
+  const v = new FleetView();
+  v.apply("state", "u1", JSON.stringify({ position: [3, 2], status: "moving", load_kg: 0 }), 0);
+  const leaving = "leaving zone aisle-4 (closed: cleaning)";
+  assert.equal(text(unitCells(v.units.get("u1"), null, null, null, null, null, leaving))[3], `moving · ${leaving}`);
+  v.apply("state", "u1", JSON.stringify({ position: [3, 2], status: "holding", load_kg: 0 }), 0);
+  const boxed = "holding: inside closed zone aisle-4 and no way out";
+  assert.equal(text(unitCells(v.units.get("u1"), null, "paused", null, null, null, boxed))[3], `paused · holding · ${boxed}`);
+  assert.equal(text(unitCells(v.units.get("u1")))[3], "holding", "no note: nothing added");
+  // From the routes view: only a note that is text.
+  v.apply("routes", null, JSON.stringify({ step: 1, routes: { u1: { released: [], planned: [], note: boxed }, u2: { note: 5 } } }), 0);
+  assert.equal(v.routeNote("u1"), boxed);
+  assert.equal(v.routeNote("u2"), null);
+  assert.equal(v.routeNote("nobody"), null);
+});
+
 test("a unit row's buttons follow its control", () => {
   const commands = (control) => controlButtons(control).map(([, c]) => c);
   assert.deepEqual(commands(null), ["pause", "out_of_service"]);
@@ -79,14 +95,20 @@ test("when a unit was last heard of", () => {
 
 test("job rows", () => {
   const j = { id: "job-2", state: "to_pickup", unit: "unit2", pickup: [8, 8], dropoff: [1, 8], mass_kg: 4 };
-  assert.deepEqual(text(jobCells(j, 3)), ["3", "job-2", "to_pickup", "", "unit2", "[8,8] → [1,8]", "4"]);
+  assert.deepEqual(text(jobCells(j, 3)), ["3", "job-2", "to_pickup", "", "unit2", "[8, 8] → [1, 8]", "4"]);
+  // A square named by a place says the place's name first.
+  const named = { ...j, pickup_place: "A3", dropoff: [3, 4], dropoff_place: "P-2" };
+  assert.equal(jobCells(named, 3)[5][0], "A3 [8, 8] → P-2 [3, 4]");
+  assert.equal(routeText({ ...j, pickup_place: null, dropoff_place: "P2" }), "[8, 8] → P2 [1, 8]");
+  assert.equal(routeText({ ...j, pickup_place: 7 }), "[8, 8] → [1, 8]", "a name that is not text is left out");
   assert.deepEqual(jobCells({ ...j, unit: null }, 3)[4], ["—", "unit"]);
   const waiting = { ...j, state: "queued", unit: null, wait: "no_unit_free", wait_reason: "every unit that can carry 4 kg is busy (unit1)" };
   assert.deepEqual(text(jobCells(waiting, 4)).slice(2, 4), ["queued", "every unit that can carry 4 kg is busy (unit1)"]);
-  assert.deepEqual(text(finishedCells({ id: "job-9", state: "rejected", unit: null, reason: "too heavy" }, 0.1)),
-    ["job-9", "rejected", "—", "—", "too heavy"]);
-  const done = { id: "job-0", state: "done", unit: "unit4", created_step: 10, done_step: 135 };
-  assert.deepEqual(text(finishedCells(done, 0.1)), ["job-0", "done", "unit4", "12.5 s", ""]);
+  const squares = { pickup: [1, 1], dropoff: [8, 8] };
+  assert.deepEqual(text(finishedCells({ id: "job-9", state: "rejected", unit: null, reason: "too heavy", ...squares }, 0.1)),
+    ["job-9", "rejected", "—", "[1, 1] → [8, 8]", "—", "too heavy"]);
+  const done = { id: "job-0", state: "done", unit: "unit4", created_step: 10, done_step: 135, ...squares, dropoff_place: "P2" };
+  assert.deepEqual(text(finishedCells(done, 0.1)), ["job-0", "done", "unit4", "[1, 1] → P2 [8, 8]", "12.5 s", ""]);
 });
 
 test("finished counts: the coordinator's counts for every final state, ours for the rest", () => {

@@ -274,8 +274,10 @@ def test_only_the_dashboard_reports_logins_and_a_retry_is_stored_once() -> None:
     )
     forged = desk.on_message(topic, login("operator", "login", "ann", "l-3"), 0.0)
     assert forged.audit.entries == ()
-    assert json.loads(forged.publish[-1].payload)["reason"] == (
-        "operator is an operator account's client: only dashboard accounts may report logins"
+    refusal = json.loads(forged.publish[-1].payload)
+    assert (refusal["reason"], refusal["code"]) == (
+        "operator is an operator account's client: only dashboard accounts may report logins",
+        "forbidden",
     )
 
 

@@ -29,13 +29,21 @@ REPLY = "gridfleet/v1/replies/op"
 STATUS = "gridfleet/v1/coordinator/status"
 
 
-def reply(seq: int, request_id: str, accepted: bool, reason: str | None, job_id: str | None) -> Any:
+def reply(
+    seq: int,
+    request_id: str,
+    accepted: bool,
+    reason: str | None,
+    job_id: str | None,
+    code: str | None = None,
+) -> Any:
     payload = {
         "header": header_json("coordinator", seq),
         "request_id": request_id,
         "accepted": accepted,
         "reason": reason,
         "job_id": job_id,
+        "code": code,
     }
     return (REPLY, payload, 1, False)
 
@@ -113,7 +121,7 @@ def test_a_retried_refusal_is_refused_again_with_the_same_reason(core: Coordinat
     reason = "pickup [12, 3] is off the 4x3 map"
     assert published(request(core, "submit_job", submit(pickup=(12, 3)), 1.0)) == [
         error(1, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
-        reply(1, "r1", False, reason, None),
+        reply(1, "r1", False, reason, None, "bad_square"),
     ]
 
 
@@ -128,7 +136,7 @@ def test_an_id_reused_for_a_different_request_is_refused_and_changes_nothing(
     )
     assert published(other) == [
         error(0, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
-        reply(1, "r1", False, reason, None),
+        reply(1, "r1", False, reason, None, "conflict"),
     ]
     assert (other.persist, other.answered, list(core.jobs.jobs)) == ((), (), ["job-1"])
     retry = request(core, "submit_job", submit(), 2.0)
@@ -153,10 +161,12 @@ def test_a_job_id_resubmitted_with_the_same_content_is_that_job_and_other_conten
     other = request(core, "submit_job", submit("r3", job_id="crate", mass_kg=2.0), 2.0)
     assert published(other) == [
         error(0, "gridfleet/v1/requests/submit_job", "SubmitJob: job id 'crate' is taken", "r3"),
-        reply(2, "r3", False, "job id 'crate' is taken", "crate"),
+        reply(2, "r3", False, "job id 'crate' is taken", "crate", "conflict"),
     ]
     elsewhere = request(core, "submit_job", submit("r4", sender="op2", job_id="crate"), 3.0)
-    assert published(elsewhere)[1] == reply(3, "r4", False, "job id 'crate' is taken", "crate")
+    assert published(elsewhere)[1] == reply(
+        3, "r4", False, "job id 'crate' is taken", "crate", "conflict"
+    )
 
 
 def test_a_submit_retried_after_a_restart_queues_no_second_job(tmp_path: Path) -> None:
@@ -228,9 +238,12 @@ def test_a_full_queue_refuses_a_new_job_in_words_and_changes_nothing(
         "or cancel some"
     )
     answers = [m for m in published(full) if "/fleet/" not in m[0]]  # a view may be due anyway
-    assert [(topic, body.get("accepted"), body.get("reason")) for topic, body, *_ in answers] == [
-        ("gridfleet/v1/errors", None, f"SubmitJob: {reason}"),
-        ("gridfleet/v1/replies/op", False, reason),
+    assert [
+        (topic, body.get("accepted"), body.get("reason"), body.get("code"))
+        for topic, body, *_ in answers
+    ] == [
+        ("gridfleet/v1/errors", None, f"SubmitJob: {reason}", None),
+        ("gridfleet/v1/replies/op", False, reason, "queue_full"),
     ]
     assert list(core.jobs.jobs) == ["j1", "j2"] and full.persist == ()
     # A retry of a queued job is still answered as before.

@@ -48,6 +48,7 @@ STATUS = "gridfleet/v1/coordinator/status"
 ERRORS = "gridfleet/v1/errors"
 JOBS = "gridfleet/v1/fleet/jobs"
 MAP = "gridfleet/v1/fleet/map"
+ZONES = "gridfleet/v1/fleet/zones"
 ROUTES = "gridfleet/v1/fleet/routes"
 ORDER = "gridfleet/v1/units/unit1/order"
 REPLY = "gridfleet/v1/replies/op"
@@ -78,13 +79,21 @@ def error(seq: int, topic: str, reason: str, request_id: str | None = None) -> A
     return (ERRORS, payload, 1, False)
 
 
-def reply(seq: int, request_id: str, accepted: bool, reason: str | None, job_id: str | None) -> Any:
+def reply(
+    seq: int,
+    request_id: str,
+    accepted: bool,
+    reason: str | None,
+    job_id: str | None,
+    code: str | None = None,
+) -> Any:
     payload = {
         "header": hdr(seq),
         "request_id": request_id,
         "accepted": accepted,
         "reason": reason,
         "job_id": job_id,
+        "code": code,
     }
     return (REPLY, payload, 1, False)
 
@@ -135,6 +144,7 @@ def routes(seq: int, step: int, released: Any = (), planned: Any = (), target: A
         "planned": list(planned),
         "target": target,
         "control": None,
+        "note": None,  # nothing to say: no closed zone moves or holds it
     }
     return {"header": hdr(seq), "step": step, "routes": {"unit1": route}}
 
@@ -192,7 +202,7 @@ def test_status_online_offline_and_the_last_will() -> None:
     ]
 
 
-def test_connecting_publishes_the_map_and_the_queue_view() -> None:
+def test_connecting_publishes_the_map_the_queue_and_the_zones_views() -> None:
     c = make_core(GRID)
     assert published(c.on_connect()) == [
         (
@@ -205,11 +215,13 @@ def test_connecting_publishes_the_map_and_the_queue_view() -> None:
                 "rows": ["....", ".@..", "...."],
                 "obstacles": [],
                 "chargers": [],
+                "places": [],
             },
             1,
             True,
         ),
         jobs_view(0),
+        (ZONES, {"header": hdr(0), "zones": []}, 1, True),  # none closed, said at start
     ]
     assert published(c.on_connect())[1] == jobs_view(1)  # every session gets them again
 
@@ -426,6 +438,7 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
                 "rows": ["....", ".@..", "...."],
                 "obstacles": [[0, 1]],
                 "chargers": [],
+                "places": [],
             },
             1,
             True,
@@ -442,7 +455,7 @@ def test_a_new_obstacle_goes_into_the_map_at_the_next_step(core: CoordinatorCore
         ),
         (
             encode(state()).replace(b'"1.6"', b'"9.9"'),
-            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.5'",
+            "UnitState: field 'header.version': Value error, protocol version '9.9' is not '1.6'",
         ),
         (encode(state(Cell(1, 1))), "position [1, 1] is on a wall"),
         (
@@ -756,7 +769,7 @@ def test_a_job_off_the_map_is_refused_and_not_listed(core: CoordinatorCore) -> N
     reason = "pickup [12, 3] is off the 4x3 map"
     assert published(effects) == [
         error(0, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
-        reply(0, "r1", False, reason, None),
+        reply(0, "r1", False, reason, None, "bad_square"),
     ]
     assert effects.persist == ()
 
@@ -768,7 +781,7 @@ def test_a_job_too_heavy_for_every_unit_is_refused_and_listed_as_rejected(
     reason = "mass 50.0 kg exceeds every unit's capacity (largest 5.0 kg)"
     assert published(effects) == [
         error(0, "gridfleet/v1/requests/submit_job", f"SubmitJob: {reason}", "r1"),
-        reply(0, "r1", False, reason, "job-1"),
+        reply(0, "r1", False, reason, "job-1", "too_heavy"),
         jobs_view(1, job("rejected", mass_kg=50.0, reason=reason)),
     ]
 
@@ -804,7 +817,7 @@ def test_a_job_history_query_goes_to_the_shell_and_a_bad_range_is_refused_with_a
     (refused, answer) = published(effects)
     assert refused[0] == ERRORS and refused[1]["request_id"] == "h3"
     assert "since" in refused[1]["reason"]
-    assert answer == reply(0, "h3", False, refused[1]["reason"], None)
+    assert answer == reply(0, "h3", False, refused[1]["reason"], None, "invalid")
     assert effects.records == () and core.jobs.jobs == {}
 
 
@@ -825,7 +838,7 @@ def test_cancelling_a_queued_job_and_an_unknown_one(core: CoordinatorCore) -> No
     again = cancel.model_copy(update={"request_id": "c2", "job_id": "nope"})
     assert published(request(core, "cancel_job", again, 2.0)) == [
         error(0, "gridfleet/v1/requests/cancel_job", "CancelJob: unknown job 'nope'", "c2"),
-        reply(2, "c2", False, "unknown job 'nope'", "nope"),
+        reply(2, "c2", False, "unknown job 'nope'", "nope", "unknown_job"),
     ]
 
 
@@ -839,7 +852,7 @@ def test_setting_a_goal_and_a_goal_on_a_wall(core: CoordinatorCore) -> None:
     reason = "target [1, 1] is on a wall"
     assert published(request(core, "set_goal", wall, 0.0)) == [
         error(0, "gridfleet/v1/requests/set_goal", f"SetGoal: {reason}", "g2"),
-        reply(1, "g2", False, reason, None),
+        reply(1, "g2", False, reason, None, "bad_square"),
     ]
 
 
@@ -876,7 +889,7 @@ def test_a_bad_request_without_a_readable_reply_address_is_reported_only(
     [
         (
             encode(submit()).replace(b'"1.6"', b'"2.0"'),
-            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.5'",
+            "SubmitJob: field 'header.version': Value error, protocol version '2.0' is not '1.6'",
         ),
         (
             encode(submit()).replace(b'"mass_kg":1.0', b'"mass_kg":0'),
@@ -896,7 +909,7 @@ def test_a_bad_request_with_a_readable_reply_address_gets_its_refusal_as_a_reply
     effects = request(core, "submit_job", payload, 0.0)
     assert published(effects) == [
         error(0, "gridfleet/v1/requests/submit_job", reason, "r1"),
-        reply(0, "r1", False, reason, None),
+        reply(0, "r1", False, reason, None, "invalid"),
     ]
     assert core.jobs.jobs == {}
 

@@ -469,32 +469,33 @@ def test_on_the_energy_playfield_no_unit_runs_empty_and_every_job_is_done() -> N
 def test_the_command_line_takes_a_scenario_and_refuses_thresholds_that_do_not_rise() -> None:
     import argparse
 
-    from gridfleet.coordinator.cli import add_arguments, energy_settings, map_and_chargers
+    from gridfleet.coordinator.cli import add_arguments, energy_settings, load_site
     from gridfleet.errors import ConfigError
 
     from support.paths import MAPS
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    grid, chargers, charging = map_and_chargers(str(MAPS / "playfield-energy.toml"))
-    assert (grid.width, [c.name for c in chargers]) == (10, ["C1", "C2"])
+    site = load_site(str(MAPS / "playfield-energy.toml"))
+    assert (site.grid.width, [c.name for c in site.chargers]) == (10, ["C1", "C2"])
+    charging = site.charging
     args = parser.parse_args(["--map", "x.toml", "--good-pct", "90", "--energy-policy", "naive"])
     with pytest.raises(ConfigError, match="charging thresholds: thresholds must rise"):
         energy_settings(args, charging)
     args = parser.parse_args(["--map", "x.toml", "--full-pct", "100"])
     assert energy_settings(args, charging) == EnergySettings(full_pct=100.0)
-    assert map_and_chargers(str(MAPS / "playfield.map"))[1] == ()
+    assert load_site(str(MAPS / "playfield.map")).chargers == ()
 
 
 def test_a_shipped_scenario_by_name_gives_the_coordinator_its_chargers() -> None:
-    from gridfleet.coordinator.cli import map_and_chargers
+    from gridfleet.coordinator.cli import load_site
     from gridfleet.errors import MapError
 
-    grid, chargers, _ = map_and_chargers("warehouse-energy")  # no such map: the scenario
-    assert (grid.width, [c.name for c in chargers]) == (16, ["C1", "C2", "C3"])
-    assert map_and_chargers("warehouse")[1] == ()  # the map of that name wins
+    site = load_site("warehouse-energy")  # no such map: the scenario
+    assert (site.grid.width, [c.name for c in site.chargers]) == (16, ["C1", "C2", "C3"])
+    assert load_site("warehouse").chargers == ()  # the map of that name wins
     with pytest.raises(MapError, match="no shipped map of that name"):
-        map_and_chargers("nowhere")
+        load_site("nowhere")
 
 
 def test_units_on_batteries_on_a_map_without_chargers_are_stranded_saying_so() -> None:

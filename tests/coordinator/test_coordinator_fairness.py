@@ -112,6 +112,7 @@ def test_a_flood_over_the_limit_is_answered_refused_told_once_and_changes_nothin
     ]
     assert [r.request_id for r in replies] == [f"x{n}" for n in range(10)]
     assert all(not r.accepted and "too many requests" in (r.reason or "") for r in replies)
+    assert {r.code for r in replies} == {"too_many"}
     errors = [out for e in refused for out in e.publish if out.topic.endswith("/errors")]
     assert len(errors) == 1  # told once; the other nine in a second, in one report
     later = [out for out in core.step(2.5).publish if out.topic.endswith("/errors")]

@@ -75,7 +75,7 @@ def test_an_online_unit_is_not_removed_and_says_how() -> None:
     )
     assert published(request(core, "remove_unit", remove("r1"), 0.5)) == [
         error(0, "gridfleet/v1/requests/remove_unit", f"RemoveUnit: {why}", "r1"),
-        reply(0, "r1", False, why, None),
+        reply(0, "r1", False, why, None, "conflict"),
     ]
     assert "unit1" in core.world.units and "unit1" not in core.removals
 
@@ -85,7 +85,7 @@ def test_an_unknown_unit_is_not_removed() -> None:
     effects = request(core, "remove_unit", remove("r1", "ghost"), 0.5)
     assert published(effects) == [
         error(0, "gridfleet/v1/requests/remove_unit", "RemoveUnit: unknown unit 'ghost'", "r1"),
-        reply(0, "r1", False, "unknown unit 'ghost'", None),
+        reply(0, "r1", False, "unknown unit 'ghost'", None, "unknown_unit"),
     ]
     (entry,) = effects.audit.entries
     assert (entry.act, entry.target, entry.outcome) == ("remove_unit", "ghost", "refused")

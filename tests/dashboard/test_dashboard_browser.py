@@ -293,14 +293,14 @@ def test_form_refuses_a_square_off_the_map_without_sending(
     topics: Topics,
 ) -> None:
     form = dash.page.locator("#job-form")
-    for name, value in (("px", "12"), ("py", "1"), ("dx", "8"), ("dy", "8")):
+    for name, value in (("pickup", "12,1"), ("dropoff", "8,8")):
         form.locator(f"input[name={name}]").fill(value)
     form.locator("button[type=submit]").click()
     expect(dash.page.locator("#job-feedback")).to_have_text(
         "pickup [12,1] is not a square of the map"
     )
     # A valid one afterwards is the first and only request on the topic.
-    form.locator("input[name=px]").fill("2")
+    form.locator("input[name=pickup]").fill("2,1")
     form.locator("button[type=submit]").click()
     probe.wait(topics.request("submit_job"))
     assert [
@@ -315,7 +315,7 @@ def test_rejection_is_shown_in_words(
     topics: Topics,
 ) -> None:
     form = dash.page.locator("#job-form")
-    for name, value in (("px", "0"), ("py", "5"), ("dx", "9"), ("dy", "5"), ("mass", "50")):
+    for name, value in (("pickup", "0,5"), ("dropoff", "9,5"), ("mass", "50")):
         form.locator(f"input[name={name}]").fill(value)
     form.locator("button[type=submit]").click()
     request = decode(SubmitJob, probe.wait(topics.request("submit_job")).payload)

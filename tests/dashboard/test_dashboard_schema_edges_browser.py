@@ -32,7 +32,7 @@ pytestmark = pytest.mark.browser
 GRID = GridMap.from_rows(["......", "..@...", "......", "......"])
 EDGE = 8  # squares on the map and off it, no further: the page's scale is another test's
 UNIT_KINDS = ["connection", "factsheet", "state", "vehicle"]
-FLEET_KINDS = ["map", "jobs", "routes", "coordinator", "errors", "events", "alerts"]
+FLEET_KINDS = ["map", "jobs", "routes", "coordinator", "errors", "events", "alerts", "zones"]
 CLIENT_KINDS = ["reply", "history_reply", "audit_reply"]
 # A map as large as the schema allows would be a test of the page's scale, not of its shapes.
 NARROW = {

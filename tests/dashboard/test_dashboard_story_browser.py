@@ -201,7 +201,7 @@ def test_an_answer_goes_when_the_form_is_edited_again(
     dash.submit_job((1, 1), (99, 99), 1.0)
     feedback = dash.page.locator("#job-feedback")
     expect(feedback).to_contain_text("is not a square of the map")
-    dash.page.locator("#job-form input[name=dx]").fill("8")
+    dash.page.locator("#job-form input[name=dropoff]").fill("8,8")
     expect(feedback).to_have_text("")
 
 

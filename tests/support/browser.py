@@ -47,6 +47,11 @@ WAIT_MS = 20_000
 expect.set_options(timeout=WAIT_MS)
 
 
+def as_typed(where: tuple[int, int] | str) -> str:
+    """A pickup or dropoff as an operator types it into the job form: "X,Y", or a place's name."""
+    return where if isinstance(where, str) else f"{where[0]},{where[1]}"
+
+
 @dataclass
 class OpenDashboard:
     """A dashboard served for one test and the Playwright page showing it."""
@@ -83,20 +88,21 @@ class OpenDashboard:
 
     def submit_job(
         self,
-        pickup: tuple[int, int],
-        dropoff: tuple[int, int],
+        pickup: tuple[int, int] | str,
+        dropoff: tuple[int, int] | str,
         mass_kg: float,
         priority: int = 0,
         job_id: str | None = None,
     ) -> None:
-        """Fill the job form and press "queue job" (as an operator would, once the map shows)."""
+        """Fill the job form and press "queue job" (as an operator would, once the map shows).
+
+        `pickup` and `dropoff`: a square (typed as "X,Y") or a place's name.
+        """
         self.wait_for_map()
         form = self.page.locator("#job-form")
         values = {
-            "px": pickup[0],
-            "py": pickup[1],
-            "dx": dropoff[0],
-            "dy": dropoff[1],
+            "pickup": as_typed(pickup),
+            "dropoff": as_typed(dropoff),
             "mass": mass_kg,
             "priority": priority,
             "job_id": job_id or "",

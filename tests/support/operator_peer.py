@@ -18,9 +18,11 @@ from typing import TypedDict, Unpack
 from gridfleet.grid import Cell
 from gridfleet.protocol import (
     CancelJob,
+    CloseZone,
     ControlUnit,
     EstopSignal,
     HeaderStamper,
+    OpenZone,
     Reply,
     SetGoal,
     SubmitJob,
@@ -143,6 +145,33 @@ class OperatorPeer(FleetReader):
         )
         self._send("cancel_job", request)
         return request
+
+    def close_zone(
+        self, name: str, first: Cell, last: Cell, reason: str, *, timeout: float = ASK_S
+    ) -> Reply:
+        """Close the rectangle `first`..`last` as zone `name`; the coordinator's reply."""
+        request = CloseZone(
+            header=self.stamp("close_zone"),
+            request_id=self._request_id(),
+            reply_to=self.name,
+            name=name,
+            first=first,
+            last=last,
+            reason=reason,
+        )
+        self._send("close_zone", request)
+        return self._answer("close_zone", request, timeout)
+
+    def open_zone(self, name: str, *, timeout: float = ASK_S) -> Reply:
+        """Open the closed zone `name` again; the coordinator's reply."""
+        request = OpenZone(
+            header=self.stamp("open_zone"),
+            request_id=self._request_id(),
+            reply_to=self.name,
+            name=name,
+        )
+        self._send("open_zone", request)
+        return self._answer("open_zone", request, timeout)
 
     def raw_request(self, kind: str, payload: bytes) -> None:
         """Send any bytes as a request of `kind` (to see the coordinator refuse them)."""

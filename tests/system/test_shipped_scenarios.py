@@ -28,10 +28,22 @@ def test_every_used_square_is_reachable_from_every_unit(path: Path) -> None:
     truth = s.grid.with_blocked(s.hidden_obstacles)
     fields = DistanceFieldCache(truth)
     squares = [j.pickup for j in s.jobs] + [j.dropoff for j in s.jobs]
-    squares += [g.target for g in s.goals]
+    squares += [g.target for g in s.goals] + [p.square for p in s.places]
     for unit in s.units:
         for square in squares:
             assert fields.distance(unit.start, square) != UNREACHABLE, (unit.id, square)
+
+
+def test_the_warehouses_name_their_places_alike_and_the_energy_ones_their_chargers_too() -> None:
+    plain, energy = load_scenario(MAPS / "warehouse.toml"), load_scenario("warehouse-energy")
+    kinds = {k for p in plain.places for k in p.kinds}
+    assert kinds == {"pickup", "dropoff", "parking"} and len(plain.places) == 72
+    chargers = tuple(p for p in energy.places if p.kinds == ("charger",))
+    assert [(p.name, p.square) for p in chargers] == [(c.name, c.square) for c in energy.chargers]
+    assert energy.places == plain.places + chargers
+    assert {p.name for p in load_scenario("playfield").places} == {
+        "A1", "A2", "A3", "A4", "P1", "P2", "P3", "P4",
+    }  # fmt: skip
 
 
 def test_a_shipped_scenario_or_map_loads_by_name_from_anywhere(

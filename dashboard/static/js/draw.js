@@ -2,19 +2,27 @@
 
 import { placeLabels, unitJob } from "./story.js";
 import { MANY_UNITS, STATE_COLORS, unitState } from "./units.js";
+import { rectText, zoneLabel } from "./zones.js";
 
 const ARROW = { N: [0, -1], E: [1, 0], S: [0, 1], W: [-1, 0] };
 export const MAX_ZOOM = 40;
 
+// A size that is a positive number, or 1: a box not laid out yet (0 x 0), a map that says it has
+// no squares or fewer, would make every size drawn from it zero or negative (a unit's circle of
+// negative radius throws, and stops the page drawing).
+const positive = (v) => (Number.isFinite(v) && v > 0 ? v : 1);
+
 /** The map fitted to the box (zoom 1), or `zoom.scale` times that, shifted by `zoom.pan` px. */
-export function fitLayout(w, h, cols, rows, zoom = { scale: 1, pan: [0, 0] }) {
+export function fitLayout(width, height, columns, lines, zoom = { scale: 1, pan: [0, 0] }) {
+  const [w, h, cols, rows] = [width, height, columns, lines].map(positive);
   const fit = Math.min(w / cols, h / rows);
   // Whole pixels once a square is big enough to show its grid lines; fractions below, so a map
   // of 500 x 140 squares still fits the box.
-  const raw = fit * zoom.scale;
+  const raw = fit * positive(zoom.scale);
   const cell = raw >= 6 ? Math.floor(raw) : raw;
-  const ox = Math.floor((w - cell * cols) / 2 + zoom.pan[0]);
-  const oy = Math.floor((h - cell * rows) / 2 + zoom.pan[1]);
+  const pan = (i) => (Number.isFinite(zoom.pan?.[i]) ? zoom.pan[i] : 0);
+  const ox = Math.floor((w - cell * cols) / 2 + pan(0));
+  const oy = Math.floor((h - cell * rows) / 2 + pan(1));
   return { w, h, cell, ox, oy, cols, rows };
 }
 
@@ -53,8 +61,13 @@ function clampPan(zoom, layout) {
 
 /** Which square a point (relative to the canvas) is on, or null. */
 export function squareAt(layout, px, py) {
-  const x = Math.floor((px - layout.ox) / layout.cell), y = Math.floor((py - layout.oy) / layout.cell);
+  const [x, y] = squaresAt(layout, px, py).map(Math.floor);
   return x >= 0 && y >= 0 && x < layout.cols && y < layout.rows ? [x, y] : null;
+}
+
+/** Where a point (relative to the canvas) is in squares, fractions kept, on the map or off it. */
+export function squaresAt(layout, px, py) {
+  return [(px - layout.ox) / layout.cell, (py - layout.oy) / layout.cell];
 }
 
 export function drawFleet(canvas, view, now, ui, box = null) {
@@ -102,6 +115,8 @@ export function drawFleet(canvas, view, now, ui, box = null) {
       g.strokeRect(sx + 2, sy + 2, c - 4, c - 4);
     }
   }
+  drawZones(g, canvas, view.zones, L);
+  tintPlaces(g, view.places.places, L);
   const chargers = view.chargers();
   drawChargers(g, canvas, chargers, L);
   // Pickup and dropoff markers of jobs still in play: redrawn only when the queue, the view or
@@ -194,6 +209,12 @@ export function drawFleet(canvas, view, now, ui, box = null) {
     drawn.push(`${u.id}@${x},${y}`);
   }
   labelChargers(g, chargers, L);
+  // The places' marks and names, over the units (a unit on a place does not hide its name).
+  const places = placesLayer(view.places.places, chargers, L, dpr);
+  g.drawImage(places.canvas, 0, 0, L.w, L.h);
+  if (canvas.dataset.places !== places.text) canvas.dataset.places = places.text;
+  if (canvas.dataset.placeNames !== places.named) canvas.dataset.placeNames = places.named;
+  labelZones(g, view.zones, L);
   // Names last, where they overlap no other name and no unit (placeLabels).
   const size = Math.max(10, Math.min(14, Math.floor(c * 0.35)));
   g.font = `${size}px sans-serif`;
@@ -216,6 +237,7 @@ export function drawFleet(canvas, view, now, ui, box = null) {
     g.lineWidth = 3;
     g.strokeRect(sx + 1.5, sy + 1.5, c - 3, c - 3);
   }
+  drawZoneDraft(g, canvas, ui.zone, L);
   // What was drawn, for people using assistive tools and for tests.
   canvas.dataset.units = drawn.sort().join(" ");
   canvas.dataset.headings = headings.sort().join(" ");
@@ -290,6 +312,173 @@ function labelChargers(g, chargers, L) {
   }
   g.textAlign = "left";
   g.textBaseline = "alphabetic";
+}
+
+/** A rectangle of squares ({first, last}) in px of the canvas: [x, y, width, height]. */
+function rectPx(z, L) {
+  const c = L.cell;
+  return [L.ox + z.first[0] * c, L.oy + z.first[1] * c, (z.last[0] - z.first[0] + 1) * c, (z.last[1] - z.first[1] + 1) * c];
+}
+
+/**
+ * The closed zones: a red tint, hatched, with a red frame (their names and reasons come with
+ * the labels, over the units). `data-zones` lists them: "aisle-4@3,0-4,9".
+ */
+function drawZones(g, canvas, zones, L) {
+  const said = [];
+  for (const z of zones) {
+    const [x, y, w, h] = rectPx(z, L);
+    said.push(`${z.name}@${z.first[0]},${z.first[1]}-${z.last[0]},${z.last[1]}`);
+    if (x > L.w || y > L.h || x + w < 0 || y + h < 0) continue; // out of view
+    g.save();
+    g.fillStyle = "rgba(198, 40, 40, 0.13)";
+    g.fillRect(x, y, w, h);
+    g.beginPath();
+    g.rect(x, y, w, h);
+    g.clip();
+    // Hatched every 8 px, the lines fixed to the map (they pan with it); only the part in
+    // view is drawn, however large the zone.
+    const x0 = Math.max(x, 0), x1 = Math.min(x + w, L.w), y0 = Math.max(y, 0), y1 = Math.min(y + h, L.h);
+    const step = 8, rise = y1 - y0, base = L.ox + L.oy;
+    g.strokeStyle = "rgba(198, 40, 40, 0.4)";
+    g.lineWidth = 1;
+    g.beginPath();
+    for (let d = Math.floor((x0 - rise + y1 - base) / step) * step + base - y1; d <= x1; d += step) {
+      g.moveTo(d, y1);
+      g.lineTo(d + rise, y0);
+    }
+    g.stroke();
+    g.restore();
+    g.strokeStyle = "#c62828";
+    g.lineWidth = 2;
+    g.strokeRect(x + 1, y + 1, w - 2, h - 2);
+  }
+  const text = said.join(" ");
+  if (canvas.dataset.zones !== text) canvas.dataset.zones = text;
+}
+
+/** Each closed zone's name and reason ("aisle-4 · cleaning") at its top left, over the units. */
+function labelZones(g, zones, L) {
+  if (!zones.length) return;
+  g.font = "bold 12px sans-serif";
+  g.textAlign = "left";
+  g.textBaseline = "top";
+  g.lineWidth = 3;
+  g.lineJoin = "round";
+  for (const z of zones) {
+    const [x, y, w, h] = rectPx(z, L);
+    if (x > L.w || y > L.h || x + w < 0 || y + h < 0) continue;
+    const text = zoneLabel(z);
+    // Inside its top left corner, or of the part in view when zoomed in on it; a narrow zone's
+    // words run on beyond it rather than being squeezed.
+    const lx = Math.max(x, 0) + 3, ly = Math.max(y, 0) + 3;
+    const room = Math.max(x + w - lx - 3, 140);
+    g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+    g.strokeText(text, lx, ly, room);
+    g.fillStyle = "#b71c1c";
+    g.fillText(text, lx, ly, room);
+  }
+  g.textBaseline = "alphabetic";
+}
+
+/** The zone being drawn (clicks.js `zone`): a dashed teal frame and its squares in words. */
+function drawZoneDraft(g, canvas, zone, L) {
+  const text = zone ? `${zone.first[0]},${zone.first[1]}-${zone.last[0]},${zone.last[1]}` : "";
+  if ((canvas.dataset.draft ?? "") !== text) canvas.dataset.draft = text;
+  if (!zone) return;
+  const [x, y, w, h] = rectPx(zone, L);
+  g.fillStyle = "rgba(0, 131, 143, 0.15)";
+  g.fillRect(x, y, w, h);
+  g.strokeStyle = "#00838f";
+  g.lineWidth = 2;
+  g.setLineDash([6, 4]);
+  g.strokeRect(x + 1, y + 1, w - 2, h - 2);
+  g.setLineDash([]);
+  g.font = "bold 12px sans-serif";
+  g.textAlign = "left";
+  g.textBaseline = "bottom";
+  const words = rectText(zone);
+  const ty = y > 16 ? y - 2 : y + h + 14; // above it, or below when it touches the top
+  g.lineWidth = 3;
+  g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+  g.strokeText(words, x, ty);
+  g.fillStyle = "#006064";
+  g.fillText(words, x, ty);
+  g.textBaseline = "alphabetic";
+}
+
+// A place's kinds as small marks in its square's lower left corner (a charger is drawn as one).
+const PLACE_MARKS = { pickup: "#00897b", dropoff: "#8e24aa", parking: "#1e88e5" };
+
+/** Each place's square tinted by its first kind, under the units: strong when too small for marks. */
+function tintPlaces(g, places, L) {
+  const c = L.cell;
+  g.globalAlpha = c < 8 ? 0.55 : 0.12;
+  for (const p of places) {
+    const kind = p.kinds.find((k) => PLACE_MARKS[k]);
+    const sx = L.ox + p.square[0] * c, sy = L.oy + p.square[1] * c;
+    if (!kind || p.square[0] >= L.cols || p.square[1] >= L.rows || sx > L.w || sy > L.h || sx + c < 0 || sy + c < 0) continue;
+    g.fillStyle = PLACE_MARKS[kind];
+    g.fillRect(sx, sy, c, c);
+  }
+  g.globalAlpha = 1;
+}
+
+const NAMED_FROM = 16; // px a square needs for its place's name to be written in it
+
+const placesCache = { places: null, key: "", canvas: null, text: "", named: "" };
+
+/**
+ * The places: a mark per kind (pickup ▲, dropoff ▼, parking ▬) in the square's lower left
+ * corner, a tint of the square when squares are too small for marks, and the name in the
+ * square's upper left once a square is NAMED_FROM px (a charger's place: its name is the
+ * charger's, written already). Drawn once per map and view, then copied. Its `text` lists
+ * every place ("A3@3,4:pickup"), `named` the names written.
+ */
+function placesLayer(places, chargers, L, dpr) {
+  const key = `${L.w}x${L.h}@${dpr}:${L.cell}:${L.ox},${L.oy}:${chargers.map((ch) => ch.name).join(",")}`;
+  if (placesCache.places === places && placesCache.key === key) return placesCache;
+  const [canvas, g] = layerCanvas(placesCache.canvas, L, dpr);
+  const c = L.cell;
+  const chargerAt = new Set(chargers.map((ch) => `${ch.name}@${ch.square[0]},${ch.square[1]}`));
+  // What the places are changes with the map alone, not with every zoom and pan.
+  const text = placesCache.places === places ? null : places.map((p) => `${p.name}@${p.square[0]},${p.square[1]}:${p.kinds.join("+")}`);
+  const named = [];
+  const font = Math.max(9, Math.min(13, Math.floor(c * 0.26)));
+  g.font = `bold ${font}px sans-serif`;
+  g.textAlign = "left";
+  g.textBaseline = "top";
+  g.lineJoin = "round";
+  for (const p of places) {
+    const [x, y] = p.square;
+    if (x >= L.cols || y >= L.rows) continue; // off this map
+    const sx = L.ox + x * c, sy = L.oy + y * c;
+    if (sx > L.w || sy > L.h || sx + c < 0 || sy + c < 0) continue; // out of view
+    const marks = p.kinds.filter((k) => PLACE_MARKS[k]);
+    if (c < 8) continue; // too small for marks: the tint under the units says it (tintPlaces)
+    const m = Math.max(4, c * 0.18);
+    marks.forEach((kind, i) => {
+      const mx = sx + c * 0.06 + i * (m + 2), my = sy + c * 0.94;
+      g.fillStyle = PLACE_MARKS[kind];
+      g.beginPath();
+      if (kind === "pickup") { g.moveTo(mx, my); g.lineTo(mx + m, my); g.lineTo(mx + m / 2, my - m); }
+      else if (kind === "dropoff") { g.moveTo(mx, my - m); g.lineTo(mx + m, my - m); g.lineTo(mx + m / 2, my); }
+      else g.rect(mx, my - m * 0.55, m, m * 0.55);
+      g.closePath();
+      g.fill();
+    });
+    if (c < NAMED_FROM || chargerAt.has(`${p.name}@${x},${y}`)) continue;
+    const room = c * 0.88;
+    g.lineWidth = 3;
+    g.strokeStyle = "rgba(255, 255, 255, 0.9)";
+    g.strokeText(p.name, sx + c * 0.06, sy + c * 0.05, room);
+    g.fillStyle = "#263238";
+    g.fillText(p.name, sx + c * 0.06, sy + c * 0.05, room);
+    named.push(p.name);
+  }
+  return Object.assign(placesCache, {
+    places, key, canvas, text: text ? text.sort().join(" ") : placesCache.text, named: named.sort().join(" "),
+  });
 }
 
 /** An off-screen canvas the size of the view (`canvas` again, or a new one), cleared. */

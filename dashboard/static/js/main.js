@@ -6,8 +6,10 @@
 //   hearing.js     whether the page hears anything at all, and the broker badge's words
 //   model.js       FleetView: the fleet as the page knows it, from messages alone
 //   requests.js    request ids, the requests waiting (sent again until answered), the words
-//   forms.js       the goal and job forms: checks, requests, messages
-//   clicks.js      what a click on the map means in each click mode
+//   forms.js       the goal, job and zone forms: checks, requests, messages
+//   clicks.js      what a click (or, closing a zone, a drag) on the map means in each click mode
+//   places.js, zones.js   the map's named places; the closed zones and their requests
+//   zones_view.js  the closed zones' list, with its "Open" buttons
 //   stop.js        STOP, hold to release, and how the stop shows
 //   view.js        the map, the tables, the badges and the message log (draw.js, rows.js)
 //   tabs.js        the tabs beside the map: the fleet now, History, Audit, Alerts
@@ -18,9 +20,11 @@
 import { mayReadAudit } from "./audit.js";
 import { AlertsView } from "./alerts_view.js";
 import { AuditView } from "./audit_view.js";
-import { initialClicks, mapClick, selectUnit, setMode } from "./clicks.js";
+import {
+  initialClicks, mapClick, pickInto, selectUnit, setMode, zoneDone, zoneEnd, zoneMove, zoneStart,
+} from "./clicks.js";
 import { BrokerConnection } from "./connection.js";
-import { drawDayChart, layoutFor, panBy, squareAt, zoomAt } from "./draw.js";
+import { drawDayChart, layoutFor, panBy, squareAt, squaresAt, zoomAt } from "./draw.js";
 import { Forms, removeQuestion } from "./forms.js";
 import { brokerBadge, newsPeriodS } from "./hearing.js";
 import { HistoryView } from "./history_view.js";
@@ -33,6 +37,8 @@ import { bindStopControls, estopLook, estopPayload, showEstop } from "./stop.js"
 import { Tabs } from "./tabs.js";
 import { DayThroughput, dayDue } from "./throughput.js";
 import { log, PageView, showConnection, showFatal } from "./view.js";
+import { inZone, mayChange } from "./zones.js";
+import { ZonesView } from "./zones_view.js";
 
 const $ = (sel) => document.querySelector(sel);
 const PANEL_MS = 250; // the tables, chart and badges are filled in at most 4 times a second
@@ -138,6 +144,7 @@ class Dashboard {
     this.panelAt = 0; // when the panel was last filled in
     this.localStop = false; // the operator pressed STOP and the broker has not echoed it yet
     this.mayAudit = mayReadAudit(settings); // the Audit tab, for accounts that may read it
+    this.mayChange = mayChange(settings); // closing and opening zones: not for a viewer
     this.day = new DayThroughput(); // jobs done an hour, from the job history
     this.dayQuery = new PagedQuery(); // the day chart's question to the history, page by page
     this.dayAsked = null; // {at, done}: when the history was last asked, and the jobs done then
@@ -147,7 +154,14 @@ class Dashboard {
     this.forms = new Forms(this.view, {
       send: (kind, form, what, body) => this.request(kind, form, what, body),
       onUnitChosen: (id) => { this.ui = selectUnit(this.ui, id); this.touched(); },
+      onPickField: (field) => { this.ui = pickInto(this.ui, field); },
+      onZoneDone: () => { this.ui = zoneDone(this.ui); this.touched(); },
     });
+    this.zones = new ZonesView({
+      send: (kind, form, what, body) => this.request(kind, form, what, body),
+      mayChange: this.mayChange,
+    });
+    $("#zone-mode").hidden = !this.mayChange;
     const subs = subscriptions(this.topics, clientId, { audit: this.mayAudit });
     this.client = new BrokerConnection(mqtt, settings.broker_ws, clientId, subs, {
       onStatus: (state, text) => {
@@ -313,6 +327,7 @@ class Dashboard {
     if (feedback) {
       this.forms.feedback(feedback.form, feedback.kind, feedback.text);
       if (RECORD_FORMS.has(feedback.form)) this.recordAnswered(feedback);
+      if (feedback.form === "zones" && feedback.kind === "refused") this.zones.answered();
     }
     if (line) log(line);
   }
@@ -365,6 +380,7 @@ class Dashboard {
     });
     for (const r of document.querySelectorAll("input[name=clickmode]")) {
       r.addEventListener("change", () => {
+        if (this.ui.zone && r.value !== "zone") this.forms.endZone(); // its form goes with it
         this.ui = setMode(this.ui, r.value);
         this.touched();
       });
@@ -377,7 +393,7 @@ class Dashboard {
     this.bindZoom(canvas);
     canvas.addEventListener("mousemove", (ev) => {
       const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
-      $("#hover").textContent = sq ? `[${sq[0]}, ${sq[1]}]` : "";
+      $("#hover").textContent = sq ? this.squareWords(sq) : "";
       this.page.hoverCard(sq ? this.view.unitAt(sq[0], sq[1])?.id ?? null : null, ev.offsetX, ev.offsetY);
     });
     canvas.addEventListener("mouseleave", () => this.page.hoverCard(null));
@@ -411,8 +427,13 @@ class Dashboard {
       this.touched();
     }, { passive: false });
     let from = null;
-    canvas.addEventListener("pointerdown", (ev) => { from = [ev.clientX, ev.clientY]; this.dragged = false; });
+    canvas.addEventListener("pointerdown", (ev) => {
+      this.dragged = false;
+      if (this.ui.mode === "zone") { this.zoneDown(canvas, ev); return; } // a drag draws, not pans
+      from = [ev.clientX, ev.clientY];
+    });
     canvas.addEventListener("pointermove", (ev) => {
+      if (this.ui.zone?.dragging) { this.zoneDrag(ev); return; }
       if (!from || ev.buttons === 0) { from = null; return; }
       const [dx, dy] = [ev.clientX - from[0], ev.clientY - from[1]];
       if (!this.dragged && Math.hypot(dx, dy) < 5) return; // a click that wobbled
@@ -423,12 +444,49 @@ class Dashboard {
       this.touched();
     });
     const end = () => { from = null; canvas.classList.remove("panning"); };
-    canvas.addEventListener("pointerup", end);
+    canvas.addEventListener("pointerup", (ev) => { end(); if (this.ui.zone?.dragging) this.zoneUp(ev); });
     canvas.addEventListener("pointerleave", end);
+    canvas.addEventListener("pointercancel", () => { if (this.ui.zone?.dragging) this.forms.endZone(); });
     $("#fit").addEventListener("click", () => {
       this.ui = { ...this.ui, zoom: { scale: 1, pan: [0, 0] } };
       this.touched();
     });
+  }
+
+  // ---- closing a zone: a drag over the map, then its name and reason ----
+  zoneDown(canvas, ev) {
+    const sq = this.layout && squareAt(this.layout, ev.offsetX, ev.offsetY);
+    if (!sq) return;
+    canvas.setPointerCapture?.(ev.pointerId); // the drag goes on beyond the map's edge
+    this.ui = zoneStart(this.ui, sq);
+    this.touched();
+  }
+
+  zoneDrag(ev) {
+    if (!this.layout) return;
+    const at = squaresAt(this.layout, ev.offsetX, ev.offsetY);
+    this.ui = zoneMove(this.ui, at, this.layout.cols, this.layout.rows);
+    this.touched();
+  }
+
+  zoneUp(ev) {
+    this.zoneDrag(ev);
+    const { state, effect } = zoneEnd(this.ui);
+    this.ui = state;
+    this.touched();
+    if (!effect) return;
+    // The form over the map's edge farther from the rectangle, so it hides none of it.
+    const L = this.layout;
+    const middle = L.oy + ((effect.first[1] + effect.last[1] + 1) / 2) * L.cell;
+    this.forms.askZone({ first: effect.first, last: effect.last }, middle < L.h / 2 ? "bottom" : "top");
+  }
+
+  /** The line under the map for the square under the pointer: its place and closed zones. */
+  squareWords(sq) {
+    const place = this.view.places.at(sq);
+    const zones = this.view.zones.filter((z) => inZone(z, sq)).map((z) => z.name);
+    return [`[${sq[0]}, ${sq[1]}]`, place ? `${place.name} (${place.kinds.join(", ")})` : null,
+      zones.length ? `in closed zone ${zones.join(", ")}` : null].filter(Boolean).join(" · ");
   }
 
   /** A job row chosen: its P and D stand out on the map, joined; chosen again, unchosen. */
@@ -475,6 +533,8 @@ class Dashboard {
   renderPanel(now) {
     this.page.renderPanel(now, this.ui);
     this.forms.syncUnits(this.page.unitIds(), this.ui.selectedUnit);
+    this.forms.syncPlaces(this.view.places);
+    this.zones.show(this.view.zones, now);
     this.renderEstop();
   }
 

@@ -1,9 +1,11 @@
 // The fleet as the page knows it, built only from MQTT messages. Pure: no DOM, no network, no clock
 // (callers pass `now` in milliseconds).
 
+import { PlaceIndex, readPlaces } from "./places.js";
 import { decodeEstop, decodePress, FINAL_JOB_STATES, ID_RE } from "./protocol.js";
 import { LIMITS } from "./protocol_table.js";
 import { JobNumbers, Utilisation } from "./story.js";
+import { readZones } from "./zones.js";
 
 // What the page keeps of a unit, each from its retained topic; a unit with none of them is gone.
 const UNIT_PARTS = ["state", "connection", "factsheet", "vehicle"];
@@ -67,7 +69,9 @@ const routesDrawable = (routes) => isObject(routes) && Object.values(routes).eve
 
 export class FleetView {
   constructor(initialMap = null, colors = {}) {
-    this.map = initialMap; // {name, width, height, rows, obstacles}
+    this.map = initialMap; // {name, width, height, rows, obstacles, chargers, places}
+    this.places = new PlaceIndex(initialMap?.places ?? []); // the map's named places
+    this.zones = []; // the closed zones (fleet/zones), in the order they were closed
     this.colors = colors; // fallback unit colours, e.g. from the scenario
     this.units = new Map(); // id -> {id, connection, factsheet, state, vehicle, lastSeen}
     this.jobs = []; // JobView objects of the jobs not finished (fleet/jobs `jobs`)
@@ -126,6 +130,7 @@ export class FleetView {
       if (press) this.presses.set(`${kind}/${id}`, press); else this.presses.delete(`${kind}/${id}`);
       return null;
     }
+    if (text === "" && kind === "zones") { this.zones = []; return null; } // cleared: none closed
     if (text === "") { // a cleared retained message
       if (id && UNIT_PARTS.includes(kind)) {
         const u = this.units.get(id);
@@ -159,16 +164,23 @@ export class FleetView {
       }
       case "map": {
         if (!Array.isArray(msg.rows)) return "ignored a map without rows";
-        if (!Number.isInteger(msg.width) || !Number.isInteger(msg.height) || !areSquares(msg.obstacles)) {
+        // A size of whole squares, at least one (the schema's): no map of no squares to draw.
+        const size = (v) => Number.isInteger(v) && v >= 1 && v <= LIMITS.max_coord + 1;
+        if (!size(msg.width) || !size(msg.height) || !areSquares(msg.obstacles)) {
           return "ignored a map without its size or with malformed obstacles";
         }
-        // Chargers that cannot be drawn are left out; the map stays.
+        // Chargers and places that cannot be drawn are left out; the map stays.
         const listed = Array.isArray(msg.chargers) ? msg.chargers : [];
         const chargers = listed.filter(isCharger);
-        this.map = { ...msg, chargers };
+        const { places, dropped } = readPlaces(msg.places);
+        this.map = { ...msg, chargers, places };
+        this.places = new PlaceIndex(places);
         for (const sq of msg.obstacles ?? []) this.noteObstacle(sq, seen);
         const bad = listed.length - chargers.length + (msg.chargers !== undefined && !Array.isArray(msg.chargers) ? 1 : 0);
-        if (bad) return `ignored ${bad} malformed charger${bad === 1 ? "" : "s"} on the map`;
+        const problems = [];
+        if (bad) problems.push(`${bad} malformed charger${bad === 1 ? "" : "s"}`);
+        if (dropped) problems.push(`${dropped} malformed place${dropped === 1 ? "" : "s"}`);
+        if (problems.length) return `ignored ${problems.join(" and ")} on the map`;
         break;
       }
       case "jobs":
@@ -180,6 +192,13 @@ export class FleetView {
         this.routes = msg.routes;
         if (Number.isInteger(msg.step)) this.routesStep = msg.step;
         break;
+      case "zones": {
+        // A view that breaks its schema changes nothing: the zones shown stay those last heard.
+        const read = readZones(msg);
+        if (read.error) return read.error;
+        this.zones = read.zones;
+        break;
+      }
       case "coordinator": this.coordinator = msg; break;
       case "errors":
         if (typeof msg.topic !== "string" || typeof msg.reason !== "string") return "ignored a malformed error report";
@@ -297,6 +316,12 @@ export class FleetView {
     return base.map((c) => ({
       name: c.name, square: c.square, unit: live.get(c.name)?.unit ?? null, queue: live.get(c.name)?.queue ?? [],
     }));
+  }
+
+  /** Why the coordinator moves or holds unit `id` (its route's `note`), or null. */
+  routeNote(id) {
+    const note = this.routes[id]?.note;
+    return typeof note === "string" && note ? note : null;
   }
 
   activeJobs() { return this.jobs; }

@@ -49,6 +49,7 @@ export function topicsFor(root) {
     routes: topicOf(p, "routes"),
     events: topicOf(p, "events"),
     energy: topicOf(p, "energy"),
+    zones: topicOf(p, "zones"),
     alerts: topicOf(p, "alerts"),
     errors: topicOf(p, "errors"),
     coordinator: topicOf(p, "coordinator"),
@@ -63,9 +64,12 @@ export function topicsFor(root) {
 }
 
 // What the page reads: every unit's connection, factsheet, state and (a VDA 5050 vehicle's) own
-// condition, the fleet views (the energy policy's too), its replies and the history's pages.
+// condition, the fleet views (the energy policy's and the closed zones too), its replies and the
+// history's pages.
 const SUBSCRIBED_UNIT_KINDS = ["connection", "factsheet", "state", "vehicle"];
-const SUBSCRIBED_FLEET_KINDS = ["estop", "map", "jobs", "routes", "coordinator", "errors", "events", "alerts", "energy"];
+const SUBSCRIBED_FLEET_KINDS = [
+  "estop", "map", "jobs", "routes", "coordinator", "errors", "events", "alerts", "energy", "zones",
+];
 
 /**
  * What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0).

@@ -26,7 +26,9 @@ export const LIMITS = freeze({
   "max_view_bytes": 8388608,
   "max_released": 64,
   "max_planned": 8192,
-  "max_text": 500
+  "max_text": 500,
+  "max_places": 4096,
+  "max_zones": 256
 });
 export const TIMING = freeze({
   "default_step_s": 1.0,

@@ -3,6 +3,7 @@
 // puts it on the page.
 
 import { drawChart, drawFleet } from "./draw.js";
+import { whereText } from "./places.js";
 import { TIMING } from "./protocol_table.js";
 import { syncRows } from "./rows.js";
 import { CHART_MINUTES, durationText, eventLines, latestFinished, tookSeconds, unitJob } from "./story.js";
@@ -80,9 +81,10 @@ export function linkTitle(said, battery, level) {
  * it works on (its own, or the queue's before pickup); `control`: an operator's control of it (paused, out of service);
  * `jobWait`: why that job waits, in the coordinator's words (a unit between orders says "idle"
  * while its job is stuck: the job's words say what holds it); `plan`: what the energy policy
- * does with it (fleet/energy), or null.
+ * does with it (fleet/energy), or null; `note`: why the coordinator moves or holds it (its
+ * route's note, e.g. "leaving zone aisle-4 (closed: cleaning)"), or null.
  */
-export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null, phase = null, plan = null) {
+export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobWait = null, phase = null, plan = null, note = null) {
   const s = u.state;
   const cap = u.factsheet ? `/${u.factsheet.capacity_kg}` : "";
   let status = s ? s.status + (s.wait_reason ? `: ${s.wait_reason}` : "") : "—";
@@ -91,6 +93,7 @@ export function unitCells(u, job = u.state?.job_id ?? null, control = null, jobW
   if (phase && s && (quiet || s.status === "moving")) status = `${s.status} · ${phase}`;
   if (jobWait && quiet) status = `${s.status} · ${jobWait}`;
   if (control) status = `${CONTROL_WORDS[control] ?? control} · ${status}`;
+  if (note && !status.includes(note)) status += ` · ${note}`;
   // A job whose item is on board is marked (the load says how heavy).
   const carrying = s && s.load_kg > 0 ? "job carrying" : "job";
   // A VDA 5050 vehicle (gridfleet vda5050 carries it) says so beside its link, with its battery;
@@ -143,15 +146,21 @@ export function seenText(u, now) {
   return u.lastSeen == null ? "never" : `${Math.max(0, Math.round((now - u.lastSeen) / 1000))} s ago`;
 }
 
+/** "A3 [3, 4] → [8, 8]": a job's pickup and dropoff, each with the place it was named by. */
+export function routeText(j) {
+  const named = (name) => (typeof name === "string" && name ? name : null);
+  return `${whereText(j.pickup, named(j.pickup_place))} → ${whereText(j.dropoff, named(j.dropoff_place))}`;
+}
+
 /** A job of the queue: `n` its number on the map (P n, D n), and why it waits, if it does. */
 export function jobCells(j, n) {
   return [[String(n), "no"], [j.id, "id"], [j.state, "state"], [j.wait_reason ?? "", "waits"],
-    [j.unit ?? "—", "unit"], [`[${j.pickup}] → [${j.dropoff}]`, "route"], [String(j.mass_kg), "mass"]];
+    [j.unit ?? "—", "unit"], [routeText(j), "route"], [String(j.mass_kg), "mass"]];
 }
 
 /** A finished job; `periodS` the coordinator's step period, for how long it took. */
 export function finishedCells(j, periodS) {
-  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"],
+  return [[j.id, "id"], [j.state, "state"], [j.unit ?? "—", "unit"], [routeText(j), "route"],
     [durationText(tookSeconds(j, periodS)), "took"], [j.reason ?? "", "reason"]];
 }
 
@@ -284,7 +293,7 @@ export class PageView {
     const queued = this.view.jobById.get(job);
     const control = this.view.routes[id]?.control ?? null;
     const phase = phaseText(queued, queued ? this.view.jobNumbers.of(queued.id) : null);
-    const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase, this.view.energyPlan(id));
+    const cells = unitCells(u, job, control, queued?.wait_reason ?? null, phase, this.view.energyPlan(id), this.view.routeNote(id));
     const state = unitState(u, control, !!job, this.view.isSilent(u, now));
     return { id, cells, state, status: cells[3][0], job, load: u.state?.load_kg ?? 0 };
   }
@@ -419,6 +428,7 @@ export class PageView {
         tr.className = `job-${j.state}`;
         tr.classList.toggle("selected", j.id === ui.selectedJob);
         tr.children[3].title = j.wait_reason ?? ""; // the whole reason, when the cell cuts it
+        tr.children[5].title = tr.children[5].textContent; // the whole route, places named
         if (!fresh) return;
         const td = document.createElement("td");
         const b = document.createElement("button");
