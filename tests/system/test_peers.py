@@ -230,7 +230,8 @@ def test_only_the_retained_kinds_reach_a_late_subscriber(
     late.subscribe(f"{topics.prefix}/#", qos=1)
     # The peers send no presses, device messages or a vehicle's condition (units and devices of
     # their own do, and the VDA 5050 adapter), nor the alerts process's view, nor the energy view
-    # (the coordinator's, for a fleet with chargers or batteries).
+    # (the coordinator's, for a fleet with chargers or batteries), nor the zones view (the
+    # coordinator's: tests/coordinator/test_coordinator_zones.py).
     retained = {k for k, spec in TOPICS.items() if spec.retained} - {
         "device_connection",
         "device_stop",
@@ -238,6 +239,7 @@ def test_only_the_retained_kinds_reach_a_late_subscriber(
         "vehicle",
         "alerts",
         "energy",
+        "zones",
     }
     wanted = {
         topics.unit(kind, "unit1")
