@@ -7,9 +7,13 @@ job` prints) and its `Reply.code` picks the status (STATUS_OF_CODE).
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 from flask import Response
 from flask_openapi3.types import ResponseDict
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from gridfleet.protocol.messages import Page, Reply
 
 PROBLEM_MEDIA = "application/problem+json"
 TYPE_PREFIX = "urn:gridfleet:problem:"
@@ -66,6 +70,7 @@ TITLES: dict[int, str] = {
 }
 # A refusal whose reply carries no code (a coordinator older than protocol 1.6).
 UNCODED = "invalid"
+P = TypeVar("P", bound=Page)
 
 
 class FieldError(BaseModel):
@@ -155,6 +160,23 @@ def status_of(code: str) -> int:
 def refusal(code: str | None, reason: str | None, job_id: str | None = None) -> ApiProblem:
     """The coordinator's refusal as a problem: its code picks the status, its reason is kept."""
     return ApiProblem(code or UNCODED, reason or "refused by the coordinator", job_id=job_id)
+
+
+def accepted(reply: Reply) -> Reply:
+    """The coordinator's reply to a request, or its refusal as a problem (`refusal`)."""
+    if not reply.accepted:
+        raise refusal(reply.code, reply.reason, reply.job_id)
+    return reply
+
+
+def accepted_page(page: P | Reply) -> P:
+    """The coordinator's page answering a query, or its refusal (a Reply in its place, or a
+    page not accepted) as a problem (`refusal`)."""
+    if isinstance(page, Reply):
+        raise refusal(page.code, page.reason)
+    if not page.accepted:
+        raise refusal(None, page.reason)
+    return page
 
 
 def field_errors(exc: ValidationError) -> list[FieldError]:

@@ -12,10 +12,10 @@ from gridfleet.dashboard.api.idempotency import derived_id, reused_words
 from gridfleet.dashboard.api.identity import Caller
 from gridfleet.dashboard.api.models import JobRequest, JobsPage
 from gridfleet.dashboard.api.params import JobPath, JobsQuery, SubmitHeaders
-from gridfleet.dashboard.api.problems import ApiProblem, refusal
+from gridfleet.dashboard.api.problems import ApiProblem, accepted, accepted_page
 from gridfleet.dashboard.api.web import also, answer, blueprint
 from gridfleet.protocol import JobHistoryEntry, JobsView
-from gridfleet.protocol.messages import FINAL_JOB_STATES, JobView, Reply
+from gridfleet.protocol.messages import FINAL_JOB_STATES, JobView
 
 api = blueprint("jobs", "pick-and-deliver jobs: submit, list, read, cancel")
 HISTORY_BACK = timedelta(days=3600)  # how far back a job is looked for (a range < ten years)
@@ -84,11 +84,9 @@ async def find_job(view: FleetView, who: Caller, job_id: str, request_s: float) 
     cursor: str | None = None
     last: JobHistoryEntry | None = None
     for _ in range(HISTORY_PAGES):
-        page = await view.job_history(
-            request_s, since=since, job_id=job_id, limit=1000, cursor=cursor
+        page = accepted_page(
+            await view.job_history(request_s, since=since, job_id=job_id, limit=1000, cursor=cursor)
         )
-        if isinstance(page, Reply) or not page.accepted:
-            raise refusal(page.code if isinstance(page, Reply) else None, page.reason)
         if page.entries:
             last = page.entries[-1]
         cursor = page.next_cursor
@@ -132,13 +130,10 @@ def submit_job(body: JobRequest, header: SubmitHeaders) -> Response:
 
     async def work(view: FleetView) -> JobView:
         reply = await view.submit(body, derived, config.request_s)
-        if not reply.accepted:
-            if key is not None and derived is not None and reply.code == "conflict":
-                raise ApiProblem(
-                    "idempotency_key_reused", reused_words(key, derived), job_id=derived
-                )
-            raise refusal(reply.code, reply.reason, reply.job_id)
-        job_id = reply.job_id
+        conflict = not reply.accepted and reply.code == "conflict"
+        if conflict and key is not None and derived is not None:
+            raise ApiProblem("idempotency_key_reused", reused_words(key, derived), job_id=derived)
+        job_id = accepted(reply).job_id
         if job_id is None:
             raise ApiProblem("no_reply", "the coordinator accepted the job but named none")
         shown = await view.until(lambda: listed_job(view, job_id), config.view_s)
@@ -185,9 +180,7 @@ def cancel_job(path: JobPath) -> Response:
     config = current().config
 
     async def work(view: FleetView) -> JobView:
-        reply = await view.cancel_job(path.job_id, config.request_s)
-        if not reply.accepted:
-            raise refusal(reply.code, reply.reason, reply.job_id)
+        accepted(await view.cancel_job(path.job_id, config.request_s))
 
         def final() -> JobView | None:
             job = listed_job(view, path.job_id)

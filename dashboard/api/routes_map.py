@@ -8,7 +8,7 @@ from gridfleet.dashboard.api.context import PREFIX, caller, current
 from gridfleet.dashboard.api.fleet import FleetView
 from gridfleet.dashboard.api.models import Accepted, PlacesList, ZoneRequest, ZonesList
 from gridfleet.dashboard.api.params import ZonePath
-from gridfleet.dashboard.api.problems import ApiProblem, refusal
+from gridfleet.dashboard.api.problems import ApiProblem, accepted
 from gridfleet.dashboard.api.web import also, answer, blueprint
 from gridfleet.protocol.messages import Zone
 
@@ -61,11 +61,9 @@ def close_zone(path: ZonePath, body: ZoneRequest) -> Response:
     config = current().config
 
     async def work(view: FleetView) -> Zone:
-        reply = await view.close_zone(
-            path.name, body.first, body.last, body.reason, config.request_s
+        accepted(
+            await view.close_zone(path.name, body.first, body.last, body.reason, config.request_s)
         )
-        if not reply.accepted:
-            raise refusal(reply.code, reply.reason, reply.job_id)
         shown = await view.until(lambda: closed_zone(view, path.name), config.view_s)
         if shown is None:
             raise ApiProblem(
@@ -87,9 +85,7 @@ def open_zone(path: ZonePath) -> Response:
     config = current().config
 
     async def work(view: FleetView) -> Accepted:
-        reply = await view.open_zone(path.name, config.request_s)
-        if not reply.accepted:
-            raise refusal(reply.code, reply.reason, reply.job_id)
+        reply = accepted(await view.open_zone(path.name, config.request_s))
         await view.until(lambda: closed_zone(view, path.name) is None or None, config.view_s)
         return Accepted(reason=reply.reason)
 

@@ -3,11 +3,13 @@ as JSON or as the CLI's CSV; the next page's address in a `Link` header (rel="ne
 
 from __future__ import annotations
 
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
-from typing import Any
+from typing import Any, TypeAlias
 from urllib.parse import urlencode
 
 from flask import Response, request
+from pydantic import BaseModel
 
 from gridfleet.dashboard.api.context import caller, current
 from gridfleet.dashboard.api.csv_out import (
@@ -25,11 +27,12 @@ from gridfleet.dashboard.api.params import (
     HistoryQuery,
     at_moment,
 )
-from gridfleet.dashboard.api.problems import ApiProblem, refusal
+from gridfleet.dashboard.api.problems import ApiProblem, P, accepted_page
 from gridfleet.dashboard.api.web import also, answer, blueprint
-from gridfleet.protocol.messages import AuditPage, JobHistoryPage, Reply
+from gridfleet.protocol.messages import Reply
 
 api = blueprint("records", "the job history, the charges and the audit trail")
+RecordQuery: TypeAlias = HistoryQuery | ChargesQuery | AuditQueryParams
 
 
 def both(model: str) -> dict[str, Any]:
@@ -60,13 +63,37 @@ def next_link(cursor: str | None) -> dict[str, str]:
     return {"Link": f'<{request.path}?{urlencode(args)}>; rel="next"'}
 
 
-def accepted_page(page: JobHistoryPage | AuditPage | Reply) -> JobHistoryPage | AuditPage:
-    """The page, or the coordinator's refusal as a problem (its reason kept)."""
-    if isinstance(page, Reply):
-        raise refusal(page.code, page.reason)
-    if not page.accepted:
-        raise ApiProblem("invalid", page.reason or "refused by the coordinator")
-    return page
+def record_page(
+    query: RecordQuery,
+    ask: Callable[..., Awaitable[P | Reply]],
+    filters: dict[str, object],
+    shown: Callable[[P], BaseModel],
+    csv: Callable[[P], str],
+    filename: str,
+) -> Response:
+    """One page of a record, for an account that may read them: `ask` (a FleetView method) with
+    the query's range, page and `filters`; JSON as `shown`, or `csv` as `filename`; the Link."""
+    who = caller("audit")
+    config = current().config
+    since, until = span(query.since, query.until)
+
+    async def work(view: FleetView) -> P:
+        page = await ask(
+            view,
+            config.request_s,
+            since=since,
+            until=until,
+            limit=query.limit,
+            cursor=query.cursor,
+            **filters,
+        )
+        return accepted_page(page)
+
+    page = current().run(who, work, online=True)
+    link = next_link(page.next_cursor)
+    if query.format == "csv":
+        return csv_answer(csv(page), filename, link)
+    return answer(shown(page), headers=link)
 
 
 @api.get(
@@ -76,30 +103,14 @@ def accepted_page(page: JobHistoryPage | AuditPage | Reply) -> JobHistoryPage | 
 )
 def job_history(query: HistoryQuery) -> Response:
     """The range and filters of `gridfleet job history`; CSV in its columns."""
-    who = caller("audit")
-    config = current().config
-    since, until = span(query.since, query.until)
-
-    async def work(view: FleetView) -> JobHistoryPage | AuditPage:
-        return accepted_page(
-            await view.job_history(
-                config.request_s,
-                since=since,
-                until=until,
-                unit=query.unit,
-                job_id=query.job,
-                state=query.state,
-                limit=query.limit,
-                cursor=query.cursor,
-            )
-        )
-
-    page = current().run(who, work, online=True)
-    assert isinstance(page, JobHistoryPage)
-    link = next_link(page.next_cursor)
-    if query.format == "csv":
-        return csv_answer(history_csv(page.entries), "job-history.csv", link)
-    return answer(HistoryPage(entries=page.entries, next_cursor=page.next_cursor), headers=link)
+    return record_page(
+        query,
+        FleetView.job_history,
+        {"unit": query.unit, "job_id": query.job, "state": query.state},
+        lambda page: HistoryPage(entries=page.entries, next_cursor=page.next_cursor),
+        lambda page: history_csv(page.entries),
+        "job-history.csv",
+    )
 
 
 @api.get(
@@ -109,29 +120,14 @@ def job_history(query: HistoryQuery) -> Response:
 )
 def charge_history(query: ChargesQuery) -> Response:
     """The range of `gridfleet job history --charges`; CSV in its columns."""
-    who = caller("audit")
-    config = current().config
-    since, until = span(query.since, query.until)
-
-    async def work(view: FleetView) -> JobHistoryPage | AuditPage:
-        return accepted_page(
-            await view.job_history(
-                config.request_s,
-                kind="charges",
-                since=since,
-                until=until,
-                unit=query.unit,
-                limit=query.limit,
-                cursor=query.cursor,
-            )
-        )
-
-    page = current().run(who, work, online=True)
-    assert isinstance(page, JobHistoryPage)
-    link = next_link(page.next_cursor)
-    if query.format == "csv":
-        return csv_answer(charges_csv(page.charges), "charges.csv", link)
-    return answer(ChargesPage(charges=page.charges, next_cursor=page.next_cursor), headers=link)
+    return record_page(
+        query,
+        FleetView.job_history,
+        {"kind": "charges", "unit": query.unit},
+        lambda page: ChargesPage(charges=page.charges, next_cursor=page.next_cursor),
+        lambda page: charges_csv(page.charges),
+        "charges.csv",
+    )
 
 
 @api.get(
@@ -141,25 +137,11 @@ def charge_history(query: ChargesQuery) -> Response:
 )
 def audit_trail(query: AuditQueryParams) -> Response:
     """The range of `gridfleet audit`; CSV in its columns."""
-    who = caller("audit")
-    config = current().config
-    since, until = span(query.since, query.until)
-
-    async def work(view: FleetView) -> JobHistoryPage | AuditPage:
-        return accepted_page(
-            await view.audit(
-                config.request_s,
-                since=since,
-                until=until,
-                actor=query.actor,
-                limit=query.limit,
-                cursor=query.cursor,
-            )
-        )
-
-    page = current().run(who, work, online=True)
-    assert isinstance(page, AuditPage)
-    link = next_link(page.next_cursor)
-    if query.format == "csv":
-        return csv_answer(audit_csv(page.entries), "audit.csv", link)
-    return answer(AuditList(entries=page.entries, next_cursor=page.next_cursor), headers=link)
+    return record_page(
+        query,
+        FleetView.audit,
+        {"actor": query.actor},
+        lambda page: AuditList(entries=page.entries, next_cursor=page.next_cursor),
+        lambda page: audit_csv(page.entries),
+        "audit.csv",
+    )

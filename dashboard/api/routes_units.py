@@ -9,7 +9,7 @@ from gridfleet.dashboard.api.context import caller, current
 from gridfleet.dashboard.api.fleet import FleetView
 from gridfleet.dashboard.api.models import Accepted, ControlRequest, UnitsList, UnitView
 from gridfleet.dashboard.api.params import UnitPath
-from gridfleet.dashboard.api.problems import ApiProblem, refusal
+from gridfleet.dashboard.api.problems import ApiProblem, accepted
 from gridfleet.dashboard.api.web import also, answer, blueprint
 
 api = blueprint("units", "the units: their state, factsheet, control, battery and route")
@@ -61,9 +61,7 @@ def control_unit(path: UnitPath, body: ControlRequest) -> Response:
     config = current().config
 
     async def work(view: FleetView) -> Accepted:
-        reply = await view.control_unit(path.unit_id, body.command, config.request_s)
-        if not reply.accepted:
-            raise refusal(reply.code, reply.reason, reply.job_id)
+        reply = accepted(await view.control_unit(path.unit_id, body.command, config.request_s))
         return Accepted(reason=reply.reason, job_id=reply.job_id)
 
     return answer(current().run(who, work, online=True))

@@ -109,6 +109,7 @@ def test_tokens_say_who_calls_and_roles_say_what_they_may(site: Site) -> None:
             vera.put("/zones/z1", json={"first": [0, 0], "last": [1, 1], "reason": "x"}),
             vera.post("/stop", json={"reason": "no"}),
             vera.get("/history"),
+            vera.get("/history/charges"),
             vera.get("/audit"),
         ):
             body = problem(refused, 403, "role")

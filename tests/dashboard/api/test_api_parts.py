@@ -161,7 +161,11 @@ def test_tokens_and_roles_are_checked_before_anything_reaches_the_fleet() -> Non
         assert answer.status_code == 403, (path, answer.get_json())
         assert answer.get_json()["code"] == "role"
     for path in ("/api/v1/history", "/api/v1/audit", "/api/v1/history/charges"):
-        assert web.get(path, headers=as_viewer).get_json()["code"] == "role"
+        records = web.get(path, headers=as_viewer)
+        assert records.status_code == 403 and records.mimetype == "application/problem+json"
+        problem = records.get_json()
+        said = "account vera is a viewer account: it may not read the audit or the records"
+        assert problem["code"] == "role" and problem["detail"].startswith(said), (path, problem)
     board = web.delete("/api/v1/stop", headers={"Authorization": f"Bearer {dashboard}"})
     assert board.status_code == 403 and "only an operator" in board.get_json()["detail"]
 
