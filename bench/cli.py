@@ -10,7 +10,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.options import GridfleetParser
 
 # What pyproject's `bench` extra brings; a bench that needs one missing says how to install it.
-BENCH_EXTRA = {"psutil", "playwright", "matplotlib"}
+BENCH_EXTRA = {"psutil", "playwright", "matplotlib", "httpx"}
 
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
 BENCHES: dict[str, tuple[str, str]] = {
@@ -45,6 +45,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "vda5050": (
         "gridfleet.bench.vda5050",
         "a mixed fleet with VDA 5050 vehicles: jobs a minute, stop to every vehicle paused",
+    ),
+    "api": (
+        "gridfleet.bench.api",
+        "the HTTP API with a fleet moving: requests a second, and their cost to the step rate",
     ),
     "energy": (
         "gridfleet.bench.energy",
