@@ -6,7 +6,9 @@ from __future__ import annotations
 import base64
 import hashlib
 import os
+import pwd
 import secrets
+from dataclasses import dataclass
 from pathlib import Path
 
 from gridfleet.accounts import Account, Accounts, bridge_topics, rules
@@ -15,6 +17,69 @@ from gridfleet.protocol import Topics
 
 DEFAULT_LIMITS = Limits()
 ITERATIONS = 101  # mosquitto_passwd's default for its $7$ (PBKDF2-SHA512) hashes
+# Started as root, Mosquitto drops to this user (its default `user`) before it opens its password,
+# ACL, TLS key and persistence files; started as anyone else, it stays that user.
+MOSQUITTO_USER = "mosquitto"
+
+
+@dataclass(frozen=True)
+class RunAs:
+    """The user Mosquitto runs as: it reads passwd, acl and any TLS key, and writes its data."""
+
+    name: str
+    uid: int
+    gid: int
+
+
+def runs_as() -> RunAs | None:
+    """Whom Mosquitto will run as from files written now: user `mosquitto` when this runs as root
+    (it drops to that user), else this user; None as root with no user `mosquitto` (or a uid with
+    no name)."""
+    try:
+        entry = pwd.getpwnam(MOSQUITTO_USER) if os.geteuid() == 0 else pwd.getpwuid(os.geteuid())
+    except KeyError:
+        return None
+    return RunAs(entry.pw_name, entry.pw_uid, entry.pw_gid)
+
+
+def hand_over(path: Path | int, owner: RunAs | None) -> None:
+    """Make `path` (or an open file descriptor) `owner`'s, user and group, when this runs as root;
+    anyone else's files are theirs already. Mosquitto 2 warns of a password or ACL file whose
+    owner or group is not its own, or that others may read, and says later versions refuse it."""
+    if owner is not None and os.geteuid() == 0:
+        os.chown(path, owner.uid, owner.gid)
+
+
+def _allowed(owner: RunAs, groups: set[int], st: os.stat_result, want: int) -> bool:
+    """Whether `owner` (in `groups`) may `want` (os.R_OK, W_OK, X_OK bits) by `st`'s mode bits."""
+    if owner.uid == 0:
+        return True
+    shift = 6 if st.st_uid == owner.uid else 3 if st.st_gid in groups else 0
+    return (st.st_mode >> shift) & want == want
+
+
+def _whose(st: os.stat_result) -> str:
+    """`owner NAME, mode 700` of a stat result."""
+    try:
+        name = pwd.getpwuid(st.st_uid).pw_name
+    except KeyError:
+        name = str(st.st_uid)
+    return f"owner {name}, mode {st.st_mode & 0o7777:o}"
+
+
+def blocked(owner: RunAs, path: Path, write: bool = False) -> str | None:
+    """Why `owner` cannot read (or, `write`, create files in) `path`, by the mode bits of it and
+    of every folder above it (ACLs aside); None when it can."""
+    groups = set(os.getgrouplist(owner.name, owner.gid))
+    path = path.resolve()
+    for folder in reversed(path.parents):
+        st = folder.stat()
+        if not _allowed(owner, groups, st, os.X_OK):
+            return f"cannot enter {folder} ({_whose(st)})"
+    st = path.stat()
+    if not _allowed(owner, groups, st, os.W_OK | os.X_OK if write else os.R_OK):
+        return f"cannot {'write in' if write else 'read'} {path} ({_whose(st)})"
+    return None
 
 
 def password_hash(password: str, salt: bytes | None = None) -> str:
@@ -42,14 +107,19 @@ def acl_file(accounts: Accounts, topics: Topics) -> str:
     return "\n".join(lines)
 
 
-def write_files(accounts: Accounts, topics: Topics, directory: Path) -> tuple[Path, Path]:
-    """Write `passwd` and `acl` (owner-readable only) into `directory`; their paths."""
+def write_files(
+    accounts: Accounts, topics: Topics, directory: Path, owner: RunAs | None = None
+) -> tuple[Path, Path]:
+    """Write `passwd` and `acl` (owner-readable only, `owner`'s when run as root) into
+    `directory`; their paths."""
     directory.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in (("passwd", password_file(accounts)), ("acl", acl_file(accounts, topics))):
         path = directory / name
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "w", encoding="utf-8") as out:
+            os.fchmod(fd, 0o600)  # a file that was there keeps its mode through O_TRUNC
+            hand_over(fd, owner)
             out.write(text)
         written.append(path)
     return written[0], written[1]
@@ -66,8 +136,13 @@ def mosquitto_conf(
     tls_key: Path | None = None,
     persistence_dir: Path | None = None,
     limits: Limits = DEFAULT_LIMITS,
+    user: str | None = None,
 ) -> str:
-    """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits."""
+    """The `mosquitto.conf` for a gridfleet fleet: accounts only, and the embedded broker's limits.
+
+    `user`: whom Mosquitto drops to when started as root (the owner of passwd, acl and the
+    persistence folder); None leaves Mosquitto's default, user mosquitto.
+    """
     # persistence_dir None: nothing survives a restart of Mosquitto, the latched emergency stop (a
     # retained message) included; a directory keeps retained messages across restarts.
     tls = tls_cert is not None and tls_key is not None
@@ -79,7 +154,15 @@ def mosquitto_conf(
         "# Small packets go out at once: with Nagle's algorithm a unit's state, then its direction,",
         "# waits for a delayed ACK (~40 ms) and the fleet's step rate halves (docs/brokers.md).",
         "set_tcp_nodelay true",
-        "# Started as root, Mosquitto reads these as user mosquitto: let that user read them.",
+        *(
+            [
+                "# Started as root, Mosquitto drops to this user, who owns passwd, acl and the",
+                "# persistence folder (and reads them); started as anyone else, it stays that user.",
+                f"user {user}",
+            ]
+            if user is not None
+            else []
+        ),
         f"password_file {password_file}",
         f"acl_file {acl_file}",
         "# Client ids: these files cannot bind them to accounts, so any account may take over any",
@@ -113,8 +196,9 @@ def mosquitto_conf(
         ]
     else:
         lines += [
-            "# Retained messages (the latched emergency stop among them) survive a restart; a crash",
-            "# loses at most the last minute.",
+            "# Retained messages (the latched emergency stop among them) survive a restart: saved",
+            "# on SIGTERM, every autosave_interval seconds and on SIGUSR1; a kill -9 or a power cut",
+            "# loses what changed since the last save (at most the last minute).",
             "persistence true",
             f"persistence_location {str(persistence_dir).rstrip('/')}/",
             "autosave_interval 60",

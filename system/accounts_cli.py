@@ -4,6 +4,7 @@ the broker's TLS certificate."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import get_args
@@ -21,7 +22,16 @@ from gridfleet.accounts import (
 )
 from gridfleet.api_tokens import created_text, issue_token, revoke_tokens
 from gridfleet.broker.certs import DEFAULT_HOSTS, make_tls, write_tls
-from gridfleet.broker.mosquitto import bridge_conf, mosquitto_conf, write_files
+from gridfleet.broker.mosquitto import (
+    MOSQUITTO_USER,
+    RunAs,
+    blocked,
+    bridge_conf,
+    hand_over,
+    mosquitto_conf,
+    runs_as,
+    write_files,
+)
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -218,19 +228,37 @@ def _vehicles_of(role: str, unit: str | None, path: Path | None) -> tuple[Vehicl
 
 
 def _mosquitto(args: argparse.Namespace) -> int:
-    """`gridfleet accounts mosquitto`: passwd, acl and a mosquitto.conf that uses them."""
+    """`gridfleet accounts mosquitto`: passwd, acl and a mosquitto.conf that uses them, owned by
+    the user Mosquitto runs as (user mosquitto when this runs as root)."""
     if (args.tls_cert is None) != (args.tls_key is None):
         raise ConfigError("TLS needs both --tls-cert FILE and --tls-key FILE")
+    for flag, given in (("--tls-cert", args.tls_cert), ("--tls-key", args.tls_key)):
+        if given is not None and not given.is_file():
+            raise ConfigError(
+                f"{flag} {given}: no such file ('accounts tls' writes server.pem and server.key)"
+            )
     accounts = load_accounts(args.file)
     bridge = _bridge(
         accounts, args.bridge_to, args.bridge_account, Topics(args.root), args.bridge_ca
     )
     out = args.out.resolve()
-    passwd, acl = write_files(accounts, Topics(args.root), out)
     persistence = args.persistence if args.persistence is not None else out / "data"
     keep = None if str(persistence) == "none" else persistence.resolve()
-    if keep is not None:
+    if keep is not None and out.is_relative_to(keep):
+        # Mosquitto's user may write there: it could put a mosquitto.conf of its own, read as root.
+        raise ConfigError(
+            f"--persistence {persistence}: it holds mosquitto.conf; give Mosquitto's data a "
+            "folder of its own (default OUT/data)"
+        )
+    owner = runs_as()
+    passwd, acl = write_files(accounts, Topics(args.root), out, owner)
+    # Mosquitto writes mosquitto.db.new there and renames it: its own folder. One this command
+    # makes (the default OUT/data above all) becomes the owner's; one that was there
+    # (/var/lib/mosquitto, say) is left as it is, and checked below.
+    if keep is not None and (keep == out / "data" or not keep.exists()):
         keep.mkdir(parents=True, exist_ok=True)
+        keep.chmod(0o700)
+        hand_over(keep, owner)
     conf = out / "mosquitto.conf"
     conf.write_text(
         mosquitto_conf(
@@ -242,14 +270,32 @@ def _mosquitto(args: argparse.Namespace) -> int:
             tls_cert=None if args.tls_cert is None else args.tls_cert.resolve(),
             tls_key=None if args.tls_key is None else args.tls_key.resolve(),
             persistence_dir=keep,
+            user=None if owner is None else owner.name,
         )
         + bridge,
         encoding="utf-8",
     )
-    print(
-        f"wrote {passwd}, {acl} and {conf} (allow_anonymous false): run 'mosquitto -c {conf}'; "
-        "started as root, Mosquitto reads passwd and acl as user mosquitto: chown them to it"
-    )
+    ran = f"wrote {passwd}, {acl} and {conf} (allow_anonymous false): run 'mosquitto -c {conf}'"
+    if owner is None:
+        print(ran)
+        if os.geteuid() == 0:
+            print(
+                f"note: there is no user {MOSQUITTO_USER} here, whom Mosquitto started as root "
+                "runs as, and passwd and acl are root's only: install Mosquitto's package (it "
+                "makes the user) and run this again",
+                file=sys.stderr,
+            )
+    else:
+        name, kept = owner.name, "" if keep is None else f" and {keep}"
+        how = (
+            f"as {name}, or as root: it drops" if owner.uid == os.geteuid() else "as root: it drops"
+        )
+        print(
+            f"{ran} ({how} to {name}, 'user {name}' in it); user {name} owns passwd, acl{kept}, "
+            "and none but it may read them"
+        )
+        for line in _unusable(owner, passwd, acl, keep, args):
+            print(f"note: user {name}, whom Mosquitto runs as, {line}", file=sys.stderr)
     bound = sorted(accounts.bound_client_ids())
     if bound:
         print(
@@ -259,6 +305,32 @@ def _mosquitto(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _unusable(
+    owner: RunAs, passwd: Path, acl: Path, keep: Path | None, args: argparse.Namespace
+) -> list[str]:
+    """What Mosquitto, running as `owner`, could not open of what it is given: a line for each
+    cause, with its fix; none when it can open it all."""
+    given = [passwd, acl, *(p for p in (args.tls_cert, args.tls_key, args.bridge_ca) if p)]
+    found = [(p, blocked(owner, p)) for p in given]
+    if keep is not None:
+        found.append((keep, blocked(owner, keep, write=True)))
+    causes: dict[str, list[Path]] = {}
+    for path, why in found:
+        if why is not None:
+            causes.setdefault(why, []).append(path.resolve())
+    lines = []
+    for why, paths in causes.items():
+        if why.startswith("cannot enter"):
+            names = ", ".join(p.name for p in paths)
+            fix = "put them where it can enter every folder (--out /etc/mosquitto/gridfleet, say)"
+            lines.append(f"{why}, so it cannot open {names}: {fix}")
+        elif paths[0].stat().st_uid == owner.uid:
+            lines.append(f"{why}: chmod u+{'rwx' if paths[0] == keep else 'r'} {paths[0]}")
+        else:
+            lines.append(f"{why}: chown {owner.name}: {paths[0]}")
+    return lines
 
 
 def _bridge(

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import pwd
 import stat
 import subprocess
 import sys
@@ -11,11 +13,11 @@ from pathlib import Path
 import pytest
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
-from gridfleet.broker.mosquitto import password_hash
+from gridfleet.broker.mosquitto import RunAs, blocked, password_hash
 from gridfleet.protocol import Topics
 
 from support.cli import gridfleet
-from support.mosquitto import mosquitto_with_accounts
+from support.mosquitto import folder_anyone_may_enter, mosquitto_with_accounts
 from support.security import (
     VEHICLES,
     check_a_bridge_carries_only_the_halls_topics,
@@ -170,3 +172,71 @@ def test_a_bridge_asked_for_wrongly_is_one_line_and_writes_nothing(
     done = accounts_mosquitto("--file", str(accounts_file), "--out", str(out), *args)
     assert done.returncode == 2 and says in done.stderr, done.stderr
     assert done.stderr.count("\n") == 1 and not out.exists()
+
+
+def test_blocked_names_the_folder_a_user_cannot_enter_or_the_file_it_cannot_read() -> None:
+    me = pwd.getpwuid(os.geteuid()).pw_name
+    stranger = RunAs("gridfleet-test-stranger", os.geteuid() + 54321, os.getegid() + 54321)
+    with folder_anyone_may_enter() as site:
+        closed, shared, private = site / "closed", site / "ca.pem", site / "server.key"
+        closed.mkdir(mode=0o700)
+        (closed / "passwd").write_text("")
+        for path, mode in ((shared, 0o644), (private, 0o600)):
+            path.write_text("")
+            path.chmod(mode)
+        assert (
+            blocked(stranger, closed / "passwd") == f"cannot enter {closed} (owner {me}, mode 700)"
+        )
+        assert blocked(stranger, private) == f"cannot read {private} (owner {me}, mode 600)"
+        assert blocked(stranger, shared) is None
+        assert (
+            blocked(stranger, site, write=True) == f"cannot write in {site} (owner {me}, mode 755)"
+        )
+        owner = RunAs(me, os.geteuid(), os.getegid())
+        assert all(blocked(owner, p) is None for p in (closed / "passwd", private, shared))
+
+
+def test_the_command_names_a_tls_key_mosquitto_could_not_read(tmp_path: Path) -> None:
+    accounts_file = tmp_path / "accounts.toml"
+    write_accounts(default_accounts(["unit1"]), accounts_file)
+    as_root = os.geteuid() == 0
+    with folder_anyone_may_enter() as site:
+        cert, key = site / "server.pem", site / "server.key"
+        cert.write_text("")
+        key.write_text("")
+        key.chmod(0o600 if as_root else 0o200)  # root's alone; or not even readable by its owner
+        done = accounts_mosquitto(
+            *("--file", str(accounts_file), "--out", str(site / "m")),
+            *("--tls-cert", str(cert), "--tls-key", str(key)),
+        )
+    assert done.returncode == 0, done.stderr
+    runs_as = "mosquitto" if as_root else pwd.getpwuid(os.geteuid()).pw_name
+    fix = f"chown mosquitto: {key}" if as_root else f"chmod u+r {key}"
+    assert done.stderr == (
+        f"note: user {runs_as}, whom Mosquitto runs as, cannot read {key} (owner "
+        f"{pwd.getpwuid(os.geteuid()).pw_name}, mode {600 if as_root else 200}): {fix}\n"
+    )
+    assert f"run 'mosquitto -c {site / 'm' / 'mosquitto.conf'}'" in done.stdout
+
+
+def test_tls_files_that_are_not_there_are_refused_in_one_line(tmp_path: Path) -> None:
+    accounts_file = tmp_path / "accounts.toml"
+    write_accounts(default_accounts(["unit1"]), accounts_file)
+    done = accounts_mosquitto(
+        *("--file", str(accounts_file), "--out", str(tmp_path / "m")),
+        *("--tls-cert", str(tmp_path / "server.pem"), "--tls-key", str(tmp_path / "server.key")),
+    )
+    assert done.returncode == 2 and "--tls-cert" in done.stderr and "no such file" in done.stderr
+    assert done.stderr.count("\n") == 1 and not (tmp_path / "m").exists()
+
+
+def test_persistence_in_the_configs_own_folder_is_refused(tmp_path: Path) -> None:
+    # Mosquitto's user owns its data folder: holding mosquitto.conf, it could rewrite what root
+    # reads at the next start.
+    accounts_file, out = tmp_path / "accounts.toml", tmp_path / "m"
+    write_accounts(default_accounts(["unit1"]), accounts_file)
+    for keep in (out, tmp_path):
+        done = accounts_mosquitto("--file", str(accounts_file), "--out", str(out),
+                                  "--persistence", str(keep))  # fmt: skip
+        assert done.returncode == 2 and "it holds mosquitto.conf" in done.stderr, done.stderr
+        assert done.stderr.count("\n") == 1 and not out.exists()

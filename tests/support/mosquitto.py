@@ -6,6 +6,7 @@ import os
 import shutil
 import socket
 import subprocess
+import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -30,6 +31,42 @@ def _popen(conf: Path, log: Path, on: Sequence[str] = ()) -> subprocess.Popen[by
     command that runs it elsewhere (`ip netns exec NS`: a host of a test LAN)."""
     with log.open("ab") as out:
         return subprocess.Popen([*on, MOSQUITTO, "-c", str(conf)], stdout=out, stderr=out)
+
+
+@contextmanager
+def folder_anyone_may_enter() -> Iterator[Path]:
+    """A new folder under the system's temporary one that every user may enter, as /etc/mosquitto
+    is (pytest's own are their owner's only: Mosquitto dropped to its user could not reach files
+    there); removed after."""
+    made = Path(tempfile.mkdtemp(prefix="gridfleet-mosquitto-")).resolve()
+    made.chmod(0o755)
+    try:
+        yield made
+    finally:
+        shutil.rmtree(made)
+
+
+def started_from(
+    conf: Path, log: Path, port: int, on: Sequence[str] = ()
+) -> subprocess.Popen[bytes]:
+    """Mosquitto on `conf` as it is (nothing added, as a site runs it), run by the command `on`
+    (default: this user), once it listens on loopback `port`; its log into `log`."""
+    if not Path(MOSQUITTO).exists():
+        pytest.fail("mosquitto is not installed: make test installs it (apt-get install mosquitto)")
+    proc = _popen(conf, log, on)
+
+    def listening() -> bool:
+        assert proc.poll() is None, f"mosquitto exited: {log.read_text()}"
+        with socket.socket() as probe:
+            return probe.connect_ex(("127.0.0.1", port)) == 0
+
+    try:
+        wait_for(listening, 10, what="mosquitto listening")
+    except BaseException:
+        proc.kill()
+        proc.wait(10)
+        raise
+    return proc
 
 
 @contextmanager
