@@ -19,8 +19,8 @@ from gridfleet.alerts.settings import (
     with_value,
 )
 from gridfleet.alerts.shell import AlertsShell
-from gridfleet.bus import make_client
-from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.bus import connect_first
+from gridfleet.config import broker_login, owned_client_id
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.heap import freeze_after_start
@@ -131,12 +131,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _client_id(url: str) -> str:
     """This command's client id (one its account owns), with a random part: one per run."""
-    return owned_client_id(parse_broker_url(url).username, f"alerts-cli-{secrets.token_hex(3)}")
+    return owned_client_id(broker_login(url), f"alerts-cli-{secrets.token_hex(3)}")
 
 
 async def list_alerts(url: str, topics: Topics, timeout: float) -> int:
     """Print the retained alerts view; 2 when none comes within `timeout`."""
-    async with make_client(url, _client_id(url)) as client:
+    async with connect_first(url, _client_id(url)) as client:
         await client.subscribe(topics.fleet("alerts"), qos=TOPICS["alerts"].qos)
         try:
             async with asyncio.timeout(timeout):
@@ -198,7 +198,7 @@ async def ack_alert(url: str, topics: Topics, alert_id: str, timeout: float) -> 
         alert_id=alert_id,
     )
     out = Outbound.of("ack_alert", topics.request("ack_alert"), request)
-    async with make_client(url, client_id) as client:
+    async with connect_first(url, client_id) as client:
         await client.subscribe(topics.reply(client_id), qos=TOPICS["reply"].qos)
         reply = await _until_replied(client, out, request.request_id, timeout)
     if reply is None:

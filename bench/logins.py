@@ -87,7 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "this one: DIR first, then this checkout, --repeat times",
     )
     parser.add_argument("--repeat", type=int, default=1, help="runs of each tree (default 1)")
-    parser.add_argument("--broker", help="a running broker with accounts (default: its own)")
+    parser.add_argument(
+        "--broker", help="a running broker with accounts, one URL (default: its own)"
+    )
     parser.add_argument("--accounts", help="that broker's accounts file (with --broker)")
     parser.add_argument("--root", default=ROOT, help=f"topic root of those accounts ({ROOT})")
     parser.add_argument("--json", action="store_true", help="print JSON (every phase of every run)")

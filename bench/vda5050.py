@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from gridfleet.broker.embedded import BrokerSettings
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.console.feed import random_job
 from gridfleet.console.operator import operator_session
 from gridfleet.endpoint import payload_of
@@ -76,7 +76,7 @@ async def _paused_listener(
     url: str, serials: set[str], seen: list[tuple[float, str, bool]]
 ) -> None:
     """Every vehicle state's `paused`, with when it arrived."""
-    async with make_client(url, f"bench-vda-listen-{random.randrange(10**6)}") as client:
+    async with connect_first(url, f"bench-vda-listen-{random.randrange(10**6)}") as client:
         await client.subscribe("uagv/v2/bench/+/state", qos=0)
         async for message in client.messages:
             serial = str(message.topic).split("/")[3]

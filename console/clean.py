@@ -15,7 +15,7 @@ import uuid
 
 import aiomqtt
 
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.options import add_common, broker_url
 from gridfleet.protocol import Topics
@@ -53,11 +53,11 @@ async def clean_root(url: str, root: str) -> tuple[int, int]:
     Some may stay: an account may not write every topic of the root (protocol.md §10).
     """
     client_id = f"clean-{uuid.uuid4().hex[:8]}"
-    async with make_client(url, client_id) as client:
+    async with connect_first(url, client_id) as client:
         found = await retained_topics(client, root)
         for topic in sorted(found):
             await client.publish(topic, b"", qos=1, retain=True)
-    async with make_client(url, client_id) as client:
+    async with connect_first(url, client_id) as client:
         left = await retained_topics(client, root)
     return len(found - left), len(left)
 

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, TextIO, get_args
 
-from gridfleet.config import redacted
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_actions, add_common, broker_url, moment, square
@@ -554,6 +553,19 @@ async def release(operator: Operator, why: str, timeout: float, out: TextIO) -> 
     return 1
 
 
+async def _first_view(
+    operator: Operator, changed: asyncio.Event, what: str, args: argparse.Namespace, hint: str = ""
+) -> None:
+    """Wait for a view's first message (`changed`); none within the timeout: an error naming it."""
+    try:
+        await asyncio.wait_for(changed.wait(), args.timeout)
+    except TimeoutError:
+        raise GridfleetError(
+            f"no {what} on {operator.broker} under root {args.root!r} within "
+            f"{args.timeout:.0f} s: is the coordinator running{hint}?"
+        ) from None
+
+
 async def act(args: argparse.Namespace, out: TextIO) -> int:
     """Do what the action says and print the outcome; 1 when the coordinator refused it."""
     client_id = f"cli-{uuid.uuid4().hex[:6]}"
@@ -564,37 +576,21 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
         if args.action == "release":
             return await release(operator, args.reason, args.timeout, out)
         if args.action == "list":
-            try:
-                await asyncio.wait_for(operator.jobs_changed.wait(), args.timeout)
-            except TimeoutError:
-                raise GridfleetError(
-                    f"no job queue on {redacted(args.broker)} under root {args.root!r} within "
-                    f"{args.timeout:.0f} s: is the coordinator running?"
-                ) from None
+            await _first_view(operator, operator.jobs_changed, "job queue", args)
             assert operator.jobs is not None
             print_jobs(operator.jobs, out)
             return 0
         if args.action == "history":
             return await print_history(operator, args, out)
         if args.action == "zones":
-            try:
-                await asyncio.wait_for(operator.zones_changed.wait(), args.timeout)
-            except TimeoutError:
-                raise GridfleetError(
-                    f"no zones view on {redacted(args.broker)} under root {args.root!r} within "
-                    f"{args.timeout:.0f} s: is the coordinator running (1.6 or later)?"
-                ) from None
+            await _first_view(
+                operator, operator.zones_changed, "zones view", args, " (1.6 or later)"
+            )
             assert operator.zones is not None
             print_zones(operator.zones, out)
             return 0
         if args.action == "places":
-            try:
-                await asyncio.wait_for(operator.map_changed.wait(), args.timeout)
-            except TimeoutError:
-                raise GridfleetError(
-                    f"no map on {redacted(args.broker)} under root {args.root!r} within "
-                    f"{args.timeout:.0f} s: is the coordinator running?"
-                ) from None
+            await _first_view(operator, operator.map_changed, "map", args)
             assert operator.map is not None
             print_places(operator.map, args.kind, out)
             return 0
@@ -602,7 +598,7 @@ async def act(args: argparse.Namespace, out: TextIO) -> int:
             await asyncio.wait_for(operator.coordinator_online.wait(), args.timeout)
         except TimeoutError:
             raise GridfleetError(
-                f"the coordinator is not online on {redacted(args.broker)} under root {args.root!r}"
+                f"the coordinator is not online on {operator.broker} under root {args.root!r}"
             ) from None
         reply: Reply
         if args.action == "submit":

@@ -18,8 +18,8 @@ from typing import TypeVar
 import aiomqtt
 from pydantic import ValidationError
 
-from gridfleet.bus import make_client
-from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.bus import reach_first
+from gridfleet.config import broker_login, owned_client_id
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.outbound import Outbound
@@ -72,6 +72,7 @@ class Operator:
         self.client = client
         self.topics = topics
         self.client_id = client_id
+        self.broker = ""  # the broker it is on, as messages name it (set by operator_session)
         self.stamp = HeaderStamper(client_id)
         self.jobs: JobsView | None = None
         self.jobs_changed = asyncio.Event()
@@ -352,9 +353,10 @@ async def operator_session(
 ) -> AsyncIterator[Operator]:
     """A connected Operator, subscribed and listening in the background until the block ends."""
     # Logged in with an account, the id (the requests' sender) is one that account owns.
-    client_id = owned_client_id(parse_broker_url(url).username, client_id)
-    async with make_client(url, client_id) as client:
-        operator = Operator(client, topics, client_id, retry_s)
+    client_id = owned_client_id(broker_login(url), client_id)
+    async with reach_first(url, client_id) as reached:
+        operator = Operator(reached.client, topics, client_id, retry_s)
+        operator.broker = str(reached)
         await operator.start()
         listener = asyncio.create_task(operator.listen())
         try:

@@ -22,8 +22,7 @@ from typing import TextIO, get_args
 
 import aiomqtt
 
-from gridfleet.bus import make_client
-from gridfleet.config import redacted
+from gridfleet.bus import reach_first
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_common, broker_url
@@ -371,9 +370,9 @@ class StatusReader:
 async def show(url: str, root: str, once: bool, timeout: float, out: TextIO) -> int:
     """Print the fleet's status once (after the coordinator's status) or every second."""
     topics = Topics(root)
-    where = redacted(url)
-    async with make_client(url, f"status-{uuid.uuid4().hex[:6]}") as client:
-        reader = StatusReader(client, topics)
+    async with reach_first(url, f"status-{uuid.uuid4().hex[:6]}") as reached:
+        where = str(reached)  # the broker of a list it got on, and those that did not answer
+        reader = StatusReader(reached.client, topics)
         await reader.start()
         listener = asyncio.create_task(reader.listen())
         try:
@@ -386,7 +385,7 @@ async def show(url: str, root: str, once: bool, timeout: float, out: TextIO) -> 
                         f"{timeout:g} s: is it running?"
                     ) from None
                 await asyncio.sleep(SETTLE_S)
-                print("\n".join(render(reader.fleet)), file=out)
+                print("\n".join([f"broker: {where}", *render(reader.fleet)]), file=out)
                 return 0
             with contextlib.suppress(TimeoutError):  # the first drawing waits for it a little
                 await asyncio.wait_for(reader.coordinator_heard.wait(), REDRAW_S)

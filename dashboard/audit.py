@@ -31,7 +31,7 @@ from datetime import UTC, datetime, timedelta
 import aiomqtt
 
 from gridfleet.accounts import Account, Accounts
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.config import owned_client_id, with_credentials
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import ProtocolError
@@ -251,7 +251,7 @@ class LoginReporter:
         current: _Pending | None = None
         while True:
             try:
-                async with make_client(self.url, self.client_id) as client:
+                async with connect_first(self.url, self.client_id) as client:
                     replies: dict[str, asyncio.Future[Reply]] = {}
                     await client.subscribe(self.topics.reply(self.client_id), qos=1)
                     listener = asyncio.create_task(self._listen(client, replies))

@@ -32,9 +32,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--broker-ws",
         default=DEFAULT_WS_URL,
-        metavar="URL",
+        metavar="URL[,URL...]",
         help=f"the broker's MQTT-over-websocket URL, ws:// or wss://, as the browser reaches it "
-        f"(default {DEFAULT_WS_URL}; a 0.0.0.0 host: the host the browser loaded the page from)",
+        f"(default {DEFAULT_WS_URL}; a 0.0.0.0 host: the host the browser loaded the page from); "
+        "a comma-separated list of a cluster's brokers: the page is on one at a time and moves "
+        "to the next when it dies",
     )
     parser.add_argument(
         "--accounts",
@@ -66,12 +68,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--map", metavar="FILE", help="show this .map file until fleet/map arrives")
     parser.add_argument(
         "--audit-broker",
-        metavar="URL",
+        metavar="URL[,URL...]",
         help="the broker the dashboard itself talks to: its HTTP API (/api/v1) reaches the fleet "
         "there, as each caller's account; with --accounts it also reports logins, logouts and "
         "failed logins to the coordinator's audit, and (--session-passwords) takes page "
         "sessions' broker passwords back, as the dashboard account (default: --broker-ws, a "
-        "0.0.0.0 host read as 127.0.0.1)",
+        "0.0.0.0 host read as 127.0.0.1); a comma-separated list: the first that answers",
     )
     parser.add_argument(
         "--session-passwords",
@@ -126,7 +128,8 @@ def settings_from(
 
 
 def audit_broker(args: argparse.Namespace) -> str:
-    """Where the dashboard reports logins: --audit-broker, else the broker's websocket URL."""
+    """Where the dashboard reports logins: --audit-broker, else the broker's websocket URL (or
+    URLs)."""
     if args.audit_broker is not None:
         return str(args.audit_broker)
     return browser_broker_url(args.broker_ws, "127.0.0.1")

@@ -19,7 +19,7 @@ from collections.abc import Callable
 import aiomqtt
 
 from gridfleet.accounts import Accounts
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.config import owned_client_id, with_credentials
 from gridfleet.dashboard.audit import reporting_account
 from gridfleet.endpoint import send
@@ -90,7 +90,7 @@ class SessionRevoker:
             self._loop, self._wake = asyncio.get_running_loop(), wake
         while not self._stopping:
             try:
-                async with make_client(self.url, self.client_id) as client:
+                async with connect_first(self.url, self.client_id) as client:
                     with self._lock:
                         batch = list(self._revoked.live(self.wall()).items())
                         self._pending.clear()

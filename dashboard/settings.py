@@ -9,7 +9,14 @@ from typing import Any
 from urllib.parse import urlsplit
 
 from gridfleet.accounts import Account, Accounts
-from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.config import (
+    BrokerURL,
+    each_broker,
+    owned_client_id,
+    parse_broker_url,
+    parse_brokers,
+    redacted,
+)
 from gridfleet.dashboard.login import LOGIN_ROLES
 from gridfleet.errors import ConfigError
 from gridfleet.grid import GridMap
@@ -57,22 +64,11 @@ class DashboardSettings:
     session_passwords: bool = False
 
     def __post_init__(self) -> None:
-        url = parse_broker_url(self.broker_ws)
-        if not url.websocket:
-            raise ConfigError(
-                f"dashboard broker URL {self.broker_ws!r}: the page needs a websocket URL, "
-                "ws://host:port or wss://host:port"
-            )
-        if url.username is not None:
-            raise ConfigError(
-                f"dashboard broker URL {url}: no login in the URL (every visitor would get it): "
-                "give --accounts FILE and people log in at the page"
-            )
-        if url.ca_file is not None:
-            raise ConfigError(
-                f"dashboard broker URL {url}: a browser trusts a CA only from its own "
-                "certificate store: import the CA file there and leave out ?cafile="
-            )
+        brokers = parse_brokers(self.broker_ws)  # a bad, empty or repeated item, named
+        for url in brokers:
+            self._check_page_broker(url, len(brokers) > 1)
+        if self.audit_broker is not None:
+            parse_brokers(self.audit_broker)
         if self.accounts is not None and not any(
             a.role in LOGIN_ROLES for a in self.accounts.accounts.values()
         ):
@@ -84,6 +80,25 @@ class DashboardSettings:
             self._check_session_passwords()
         Topics(self.root)  # raises ProtocolError naming a bad root
         validate_id(self.client_prefix, "client id prefix")
+
+    def _check_page_broker(self, url: BrokerURL, in_list: bool) -> None:
+        """Refuse a broker URL (`url`, one of --broker-ws's) the browser cannot use as given."""
+        where = f" (in the list {redacted(self.broker_ws)!r})" if in_list else ""
+        if not url.websocket:
+            raise ConfigError(
+                f"dashboard broker URL {str(url)!r}{where}: the page needs a websocket URL, "
+                "ws://host:port or wss://host:port"
+            )
+        if url.username is not None:
+            raise ConfigError(
+                f"dashboard broker URL {url}{where}: no login in the URL (every visitor would "
+                "get it): give --accounts FILE and people log in at the page"
+            )
+        if url.ca_file is not None:
+            raise ConfigError(
+                f"dashboard broker URL {url}{where}: a browser trusts a CA only from its own "
+                "certificate store: import the CA file there and leave out ?cafile="
+            )
 
     def _check_session_passwords(self) -> None:
         """Session passwords need accounts, a dashboard account and a broker to tell logouts."""
@@ -111,17 +126,21 @@ class DashboardSettings:
 
 
 def browser_broker_url(broker_ws: str, page_host: str | None) -> str:
-    """The broker's websocket URL as the browser reaches it.
+    """The broker's websocket URL (or each of a list) as the browser reaches it.
 
     A broker on a wildcard address (0.0.0.0) is reached at the host the page came from (its Host
     header): the dashboard cannot know which of the machine's addresses a browser used.
     """
-    url = parse_broker_url(broker_ws)
     host = urlsplit(f"//{page_host}").hostname if page_host else None
-    if url.host not in WILDCARD_HOSTS or not host:
-        return broker_ws
-    netloc = f"[{host}]" if ":" in host else host
-    return urlsplit(broker_ws)._replace(netloc=f"{netloc}:{url.port}").geturl()
+
+    def reached(one: str) -> str:
+        url = parse_broker_url(one)
+        if url.host not in WILDCARD_HOSTS or not host:
+            return one
+        netloc = f"[{host}]" if ":" in host else host
+        return urlsplit(one)._replace(netloc=f"{netloc}:{url.port}").geturl()
+
+    return each_broker(broker_ws, reached)
 
 
 def settings_payload(

@@ -2,12 +2,23 @@
 
 from __future__ import annotations
 
+import logging
 import socket
 import ssl
+from collections.abc import AsyncIterator
+from contextlib import AsyncExitStack, asynccontextmanager
+from dataclasses import dataclass
+from typing import Any
 
 import aiomqtt
 
-from gridfleet.config import BrokerURL, owned_client_id, parse_broker_url
+from gridfleet.config import (
+    BrokerURL,
+    broker_urls,
+    owned_client_id,
+    parse_broker_url,
+    parse_brokers,
+)
 from gridfleet.errors import ConfigError
 
 # Without TCP_NODELAY a unit's direction, sent right after its state, waits for the broker's
@@ -74,3 +85,60 @@ def make_client(
     # its own acknowledgement: that many in flight is the normal case, not a sign of trouble.
     client.pending_calls_threshold = max_inflight
     return client
+
+
+log = logging.getLogger("gridfleet.bus")
+
+
+@dataclass(frozen=True)
+class Reached:
+    """The broker of a list that `reach_first` got on, and those before it that did not answer
+    (as messages show them: never a password)."""
+
+    client: aiomqtt.Client
+    broker: str
+    index: int  # its place in the list, from 0
+    count: int  # brokers in the list
+    missed: tuple[str, ...] = ()
+
+    def __str__(self) -> str:
+        if self.count == 1:
+            return self.broker
+        tail = f"; {', '.join(self.missed)} did not answer" if self.missed else ""
+        return f"{self.broker} ({self.index + 1} of {self.count}{tail})"
+
+
+@asynccontextmanager
+async def reach_first(urls: str, client_id: str, **options: Any) -> AsyncIterator[Reached]:
+    """connect_first's client, with which broker of the list it is on (`Reached`)."""
+    parse_brokers(urls)  # a bad list is a ConfigError before anything connects
+    items = broker_urls(urls)
+    failures: list[str] = []
+    missed: list[str] = []
+    for index, url in enumerate(items):
+        stack = AsyncExitStack()
+        try:
+            client = await stack.enter_async_context(make_client(url, client_id, **options))
+        except aiomqtt.MqttError as exc:
+            if len(items) == 1:
+                raise
+            missed.append(str(parse_broker_url(url)))
+            failures.append(f"{missed[-1]}: {exc}")
+            if index + 1 < len(items):  # the last one's is in the error raised below
+                log.info("broker %s: %s; trying the next", missed[-1], exc)
+            continue
+        async with stack:
+            yield Reached(client, str(parse_broker_url(url)), index, len(items), tuple(missed))
+        return
+    raise aiomqtt.MqttError("no broker answered: " + "; ".join(failures))
+
+
+@asynccontextmanager
+async def connect_first(urls: str, client_id: str, **options: Any) -> AsyncIterator[aiomqtt.Client]:
+    """A client connected to the first broker of `urls` (a comma-separated list, or one URL)
+    that answers, in the list's order; MqttError naming each when none does.
+
+    `options` are make_client's. With one URL, its own error is raised as it came.
+    """
+    async with reach_first(urls, client_id, **options) as reached:
+        yield reached.client

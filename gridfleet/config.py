@@ -1,7 +1,9 @@
 """Broker URLs: `mqtt://host:port` for TCP clients, `ws://host:port/path` for websocket clients.
 
 Over TLS: `mqtts://` (default port 8883) and `wss://`; `?cafile=/path/ca.pem` names the CA that
-signed the broker's certificate (without it the system's trusted CAs count).
+signed the broker's certificate (without it the system's trusted CAs count). Where a component
+takes a broker, it takes a list of them too, comma-separated (the nodes of one cluster): it is
+on one at a time and moves to the next when that one dies or stops answering.
 """
 
 from __future__ import annotations
@@ -9,7 +11,7 @@ from __future__ import annotations
 import ipaddress
 import os
 import re
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from urllib.parse import parse_qs, quote, unquote, urlsplit
 
@@ -58,8 +60,42 @@ class BrokerURL:
         return f"{self.scheme}://{user}{self.host}:{self.port}{tail}"
 
 
+def broker_urls(text: str) -> list[str]:
+    """The URLs of a comma-separated list of brokers (one URL is a list of one), as given."""
+    return [item.strip() for item in text.split(",")]
+
+
+def parse_brokers(text: str) -> tuple[BrokerURL, ...]:
+    """Parse a comma-separated list of broker URLs; ConfigError naming an empty, bad or repeated
+    one, or URLs that log in as different accounts (one component is one account)."""
+    items = broker_urls(text)
+    if len(items) > 1 and not all(items):
+        raise ConfigError(
+            f"broker list {redacted(text)!r}: an empty item (two commas, or one at an end)"
+        )
+    brokers = tuple(parse_broker_url(item) for item in items)
+    seen: set[tuple[str, str, int, str]] = set()
+    for broker in brokers:
+        where = (broker.scheme, broker.host.lower(), broker.port, broker.path)
+        if where in seen:
+            raise ConfigError(f"broker list {redacted(text)!r}: {broker} is in it twice")
+        seen.add(where)
+    if len({b.username for b in brokers}) > 1:
+        raise ConfigError(
+            f"broker list {redacted(text)!r}: every broker of a list logs in as one account"
+        )
+    return brokers
+
+
+def broker_login(text: str) -> str | None:
+    """The account a broker URL, or a list of them, logs in as (None: anonymous)."""
+    return parse_brokers(text)[0].username
+
+
 def parse_broker_url(url: str) -> BrokerURL:
-    """Parse a broker URL; a bad one raises ConfigError saying what is wrong."""
+    """Parse one broker URL; a bad one raises ConfigError saying what is wrong."""
+    if "," in url:
+        raise ConfigError(f"broker URL {redacted(url)!r}: one URL here, not a list")
     try:
         parts = urlsplit(url)
         port = parts.port
@@ -110,19 +146,36 @@ def _ca_file(url: str, scheme: str, query: str) -> str | None:
     return ca_file
 
 
+def each_broker(url: str, change: Callable[[str], str]) -> str:
+    """A list of broker URLs (or one) with `change` made to each."""
+    return ",".join(change(item) for item in broker_urls(url))
+
+
 def with_ca_file(url: str, ca_file: str) -> str:
-    """`url` trusting the CA in `ca_file` (an absolute path in `?cafile=`; any earlier one goes)."""
-    parts = urlsplit(url)
+    """`url` (or each of a list) trusting the CA in `ca_file` (an absolute path in `?cafile=`;
+    any earlier one goes). In a list that mixes TLS and plain URLs, the TLS ones only."""
     # Absolute: the URL is handed to child processes that may run elsewhere.
-    return parts._replace(query="cafile=" + quote(os.path.abspath(ca_file), safe="/")).geturl()
+    query = "cafile=" + quote(os.path.abspath(ca_file), safe="/")
+    any_tls = any(urlsplit(one).scheme.lower() in _TLS for one in broker_urls(url))
+
+    def change(one: str) -> str:
+        parts = urlsplit(one)
+        if any_tls and parts.scheme.lower() not in _TLS:
+            return one  # a plain URL of the list: a CA is not its business
+        return parts._replace(query=query).geturl()
+
+    return each_broker(url, change)
 
 
 def with_credentials(url: str, username: str, password: str) -> str:
-    """`url` logging in as `username` (any credentials it had are replaced)."""
-    parts = urlsplit(url)
-    host = parts.netloc.rsplit("@", 1)[-1]
+    """`url` (or each of a list) logging in as `username` (any credentials it had are replaced)."""
     login = f"{quote(username, safe='')}:{quote(password, safe='')}@"
-    return parts._replace(netloc=login + host).geturl()
+
+    def change(one: str) -> str:
+        parts = urlsplit(one)
+        return parts._replace(netloc=login + parts.netloc.rsplit("@", 1)[-1]).geturl()
+
+    return each_broker(url, change)
 
 
 def names_owned_id(name: str, client_id: str) -> bool:
@@ -177,11 +230,13 @@ def host_of(authority: str) -> str:
 
 
 def redacted(url: str) -> str:
-    """`url` with any password replaced by `***`, for messages."""
-    parts = urlsplit(url)
-    if parts.password is None:
-        return url
-    return url.replace(f":{parts.password}@", ":***@", 1)
+    """`url` (or each of a list) with any password replaced by `***`, for messages."""
+
+    def hide(one: str) -> str:
+        password = urlsplit(one).password
+        return one if password is None else one.replace(f":{password}@", ":***@", 1)
+
+    return each_broker(url, hide)
 
 
 MAX_STEP_S = 60.0

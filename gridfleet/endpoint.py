@@ -25,7 +25,7 @@ from typing import Any
 import aiomqtt
 
 from gridfleet.bus import make_client
-from gridfleet.config import parse_broker_url
+from gridfleet.config import broker_urls, parse_broker_url, parse_brokers
 from gridfleet.failures import OTHER, FailureReports
 from gridfleet.outbound import Outbound
 from gridfleet.tasks import cancel_and_wait
@@ -97,7 +97,9 @@ class Endpoint:
         self.url = url
         # A send not acknowledged within this ends the session (then it is sent again on the next).
         self.ack_s = ack_s
-        self.where = str(parse_broker_url(url))  # for messages: never the password
+        parse_brokers(url)  # a bad list is refused now, not retried forever
+        self.urls = broker_urls(url)  # one broker, or the nodes of a cluster: one at a time
+        self._at = 0  # the one it is on, or tries next
         self.client_id = client_id
         self.name = name or client_id
         self._subscriptions = subscriptions
@@ -134,19 +136,29 @@ class Endpoint:
         stop just before `offline`.
         """
         delay = self.backoff.first
+        tried = 0  # brokers tried since the last session, in this round of the list
         try:
             while not shutdown.is_set() and not self.killed:
                 try:
                     await self._session(shutdown, handle, on_connect, during, on_stop)
-                    delay = self.backoff.first
+                    delay, tried = self.backoff.first, 0
                 except aiomqtt.MqttError as exc:
                     if self.killed:
                         return
-                    if self._client is not None or delay == self.backoff.first:
+                    was_on = self._client is not None
+                    if was_on or delay == self.backoff.first:
                         log.warning("%s: broker %s: %s; retrying", self.name, self.where, exc)
                     self._lose()
                     if on_disconnect is not None:
                         on_disconnect(str(exc))
+                    if was_on:
+                        delay, tried = self.backoff.first, 0
+                    # The next broker of a list at once; once each was tried, wait and go round.
+                    self._at = (self._at + 1) % len(self.urls)
+                    tried += 1
+                    if tried < len(self.urls):
+                        continue
+                    tried = 0
                     with contextlib.suppress(TimeoutError):
                         await asyncio.wait_for(shutdown.wait(), delay)
                     delay = min(delay * 2, self.backoff.most)
@@ -164,12 +176,15 @@ class Endpoint:
         on_stop: Hook | None,
     ) -> None:
         will = as_will(self._will()) if self._will is not None else None
-        async with make_client(self.url, self.client_id, will=will, timeout=CONNECT_S) as client:
+        url = self.urls[self._at]
+        async with make_client(url, self.client_id, will=will, timeout=CONNECT_S) as client:
             for topic, qos in self._subscriptions():
                 await client.subscribe(topic, qos=qos, timeout=ACK_S)
             self._client = client
             self._broken = asyncio.Event()
             self.connects += 1
+            if len(self.urls) > 1 or self.connects == 1:
+                log.info("%s: on broker %s", self.name, self.where)
             if self._online is not None:
                 await self.publish(self._online())
             if on_connect is not None:
@@ -213,6 +228,18 @@ class Endpoint:
             except Exception as exc:  # a bug must not take the component off the broker
                 self._failed(message.topic.value, exc)
         raise aiomqtt.MqttError("message stream ended")
+
+    @property
+    def where(self) -> str:
+        """The broker it is on, or tries next, for messages: never the password."""
+        return str(parse_broker_url(self.urls[self._at]))
+
+    @property
+    def brokers(self) -> str:
+        """The broker it uses, or of a list each it may be on, for messages (not the password)."""
+        if len(self.urls) == 1:
+            return self.where
+        return "one of " + ", ".join(str(parse_broker_url(url)) for url in self.urls)
 
     @property
     def handler_failures(self) -> int:

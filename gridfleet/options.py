@@ -123,16 +123,17 @@ def add_common(
         parser.add_argument(
             "--broker",
             default=default(None if own_broker else DEFAULT_MQTT_URL),
-            metavar="URL",
-            help=f"MQTT broker URL, mqtt://[user:pass@]host:port, or mqtts:// (TLS, port 8883) "
-            f"(default {own_broker or DEFAULT_MQTT_URL})",
+            metavar="URL[,URL...]",
+            help=f"MQTT broker URL, mqtt://[user:pass@]host:port, or mqtts:// (TLS, port 8883), "
+            f"or a comma-separated list of a cluster's nodes (on one at a time, the next when it "
+            f"dies) (default {own_broker or DEFAULT_MQTT_URL})",
         )
         parser.add_argument(
             "--ca-file",
             metavar="FILE",
             default=default(None),
-            help="with an mqtts:// or wss:// broker: the CA that signed its certificate "
-            "(ca.pem from 'gridfleet accounts tls'; default: the system's trusted CAs)",
+            help="with an mqtts:// or wss:// broker (a list's TLS ones): the CA that signed its "
+            "certificate (ca.pem from 'gridfleet accounts tls'; default: the system's trusted CAs)",
         )
         if own_broker is None:
             parser.add_argument(

@@ -7,7 +7,7 @@ import asyncio
 import logging
 from pathlib import Path
 
-from gridfleet.config import check_step, parse_broker_url
+from gridfleet.config import check_step, parse_brokers
 from gridfleet.errors import ConfigError
 from gridfleet.heap import freeze_after_start
 from gridfleet.options import accounts_of, add_common
@@ -101,7 +101,7 @@ def _run_sharded(args: argparse.Namespace) -> int:
     """`--workers N`: the scenario's units over N processes (checked here, before any starts)."""
     if args.units is not None:
         raise ConfigError("--workers shards every unit of the scenario: leave out --units")
-    parse_broker_url(args.broker)
+    parse_brokers(args.broker)
     check_step(args.step)
     accounts_of(args)  # a bad accounts file: one line now, not one per worker
     return run_sharded(
@@ -125,7 +125,7 @@ async def _main(fleet: Fleet, truth: Path | None = None, step: float = DEFAULT_S
     log.info(
         "running %s on %s (%s)",
         ", ".join(fleet.shells),
-        fleet.shells[next(iter(fleet.shells))].endpoint.where,
+        fleet.shells[next(iter(fleet.shells))].endpoint.brokers,
         fleet.logic[next(iter(fleet.shells))].mode,
     )
     await fleet.run(stop)

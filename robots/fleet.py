@@ -8,7 +8,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from gridfleet.accounts import Accounts
-from gridfleet.config import check_step, parse_broker_url, with_credentials
+from gridfleet.config import check_step, parse_brokers, with_credentials
 from gridfleet.errors import ConfigError
 from gridfleet.grid import Cell
 from gridfleet.protocol import Topics
@@ -46,7 +46,7 @@ class Fleet:
         state_path: Path | None = None,
         world: SimulatedWorld | None = None,
     ) -> None:
-        parse_broker_url(broker_url)  # a bad URL is a clear error now, not a retry loop later
+        parse_brokers(broker_url)  # a bad URL or list: a clear error now, not a retry loop later
         known = [u.id for u in with_units(scenario).units]
         local = list(known if units is None else units)
         for uid in local:

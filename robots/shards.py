@@ -91,7 +91,7 @@ def _worker(spec: WorkerSpec) -> None:
                 "worker %d running %d units on %s",
                 os.getpid(),
                 len(spec.units),
-                next(iter(fleet.shells.values())).endpoint.where,
+                next(iter(fleet.shells.values())).endpoint.brokers,
             )
             await fleet.run(stop)
 

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import aiomqtt
 
-from gridfleet.bus import make_client
-from gridfleet.config import check_step, owned_client_id, parse_broker_url
+from gridfleet.bus import connect_first
+from gridfleet.config import broker_login, check_step, owned_client_id
 from gridfleet.console.clean import clean_root
 from gridfleet.console.feed import scenario_job_id, submit_scenario
 from gridfleet.console.monitor import FleetMonitor
@@ -190,10 +190,11 @@ async def simulate(
         # Read once the run is over: each battery is its unit's, in the fleet's thread.
         batteries = {uid: lg.battery for uid, lg in system.fleet.service.logic.items()}
         broker_url = system.url
-        login = parse_broker_url(broker_url).username
-        client_id = owned_client_id(login, f"simulate-{uuid.uuid4().hex[:6]}")
-        client = await stack.enter_async_context(make_client(broker_url, client_id))
-        monitor_client = await stack.enter_async_context(make_client(broker_url, client_id + "-m"))
+        client_id = owned_client_id(broker_login(broker_url), f"simulate-{uuid.uuid4().hex[:6]}")
+        client = await stack.enter_async_context(connect_first(broker_url, client_id))
+        monitor_client = await stack.enter_async_context(
+            connect_first(broker_url, client_id + "-m")
+        )
         operator = Operator(client, topics, client_id)
         monitor = FleetMonitor(monitor_client, topics, record=record)
         outcome.monitor = monitor

@@ -8,7 +8,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from gridfleet.accounts import Accounts, load_accounts
-from gridfleet.config import check_step, is_loopback
+from gridfleet.config import check_step, is_loopback, parse_brokers
 from gridfleet.errors import ConfigError
 from gridfleet.metrics import MetricsOptions
 from gridfleet.options import add_common
@@ -89,7 +89,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="websocket port of the embedded broker (default 9001; 0 free)",
     )
     parser.add_argument(
-        "--broker-ws", metavar="URL", help="websocket URL of an external broker (with --broker)"
+        "--broker-ws",
+        metavar="URL",
+        help="websocket URL of an external broker (with --broker), or a comma-separated list "
+        "of a cluster's nodes",
     )
     parser.add_argument("--port", type=int, default=5000, help="dashboard port (default 5000)")
     parser.add_argument("--db", type=Path, help="coordinator job database (default: per user)")
@@ -176,6 +179,18 @@ def check_adapter_account(
             )
 
 
+def check_brokers(args: argparse.Namespace) -> None:
+    """--broker and --broker-ws, a URL or a list each, are ones the parts can use; else one line."""
+    if args.broker is not None:
+        parse_brokers(args.broker)  # a bad, empty or repeated item, named
+    if args.broker_ws is not None:
+        for broker in parse_brokers(args.broker_ws):
+            if not broker.websocket:
+                raise ConfigError(
+                    f"--broker-ws {broker}: the page needs a websocket URL, ws:// or wss://"
+                )
+
+
 def check_tls(args: argparse.Namespace) -> None:
     """--tls-cert, --tls-key and --ca-file go together, for the embedded broker; else ConfigError."""
     if args.tls_cert is None and args.tls_key is None:
@@ -196,6 +211,7 @@ def check_tls(args: argparse.Namespace) -> None:
 def spec_from(args: argparse.Namespace) -> SystemSpec:
     """What to run; every mistake raises ConfigError in one line before anything starts."""
     check_step(args.step)
+    check_brokers(args)
     if not is_loopback(args.listen) and args.accounts is None:
         raise ConfigError(
             f"--listen {args.listen} lets anyone on that network drive the fleet: give "

@@ -14,7 +14,7 @@ from gridfleet.bench.lan import can_make_lans
 from gridfleet.bench.soak.faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
 from gridfleet.bench.soak.run import MOSQUITTO, SoakConfig, SoakResult
 from gridfleet.bench.soak.topologies import run_soak
-from gridfleet.config import check_step, parse_broker_url
+from gridfleet.config import check_step, parse_brokers, redacted
 from gridfleet.errors import ConfigError
 
 
@@ -33,7 +33,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="fault schedule and extra units")
     parser.add_argument("--step", type=float, default=0.1, help="step period, s (default 0.1)")
     parser.add_argument(
-        "--broker", help="an external broker (default: an embedded one, restarted as a fault)"
+        "--broker",
+        help="an external broker, one URL: its proxy stands in front of it (default: an "
+        "embedded one, restarted as a fault)",
     )
     parser.add_argument(
         "--faults",
@@ -82,8 +84,11 @@ def config(args: argparse.Namespace) -> SoakConfig:
     if args.units < 1:
         raise ConfigError(f"--units {args.units}: give at least 1")
     check_step(args.step)
-    if args.broker is not None:
-        parse_broker_url(args.broker)
+    if args.broker is not None and len(parse_brokers(args.broker)) > 1:
+        raise ConfigError(
+            f"--broker {redacted(args.broker)}: one broker, not a list (the soak's proxy "
+            "stands in front of one)"
+        )
     faults = args.faults or (FAMILIES if args.network else LOCAL_FAMILIES)
     if args.network:
         if args.broker is not None:

@@ -10,7 +10,7 @@ import time
 import aiomqtt
 
 from gridfleet.bench.soak.check import Event, JobSeen, StateSeen, Stop
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import (
@@ -57,7 +57,7 @@ class SoakListener:
         """Listen for ever, reconnecting whenever the broker goes away."""
         while True:
             try:
-                async with make_client(self.url, self.client_id, keepalive=2) as client:
+                async with connect_first(self.url, self.client_id, keepalive=2) as client:
                     self.reconnected()
                     await client.subscribe(f"{self.topics.prefix}/#", qos=1)
                     self.connected.set()

@@ -56,7 +56,7 @@ from gridfleet.bench.soak.faults import (
 from gridfleet.bench.soak.listen import SoakListener
 from gridfleet.bench.soak.proxy import FaultyProxy
 from gridfleet.bench.soak.scenario import make_soak_scenario
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.config import parse_broker_url
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
@@ -499,7 +499,7 @@ class Soak:
         while True:
             try:
                 client_id = self._client_id(f"op-{uuid.uuid4().hex[:4]}", as_device)
-                async with make_client(url, client_id) as c:
+                async with connect_first(url, client_id) as c:
                     await c.publish(topic, payload.encode(), qos=1, retain=True)
                 return
             except aiomqtt.MqttError:

@@ -12,7 +12,7 @@ from typing import Any, TextIO
 
 from gridfleet.bench.system.result import SystemResult, summarise
 from gridfleet.bench.system.run import run_system
-from gridfleet.config import check_step, parse_broker_url
+from gridfleet.config import check_step, parse_brokers
 from gridfleet.coordinator.window import DEFAULT_WINDOW, MAX_WINDOW
 from gridfleet.errors import ConfigError
 from gridfleet.tasks import stop_on_signals
@@ -57,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--estops", type=int, default=3, help="stop engagements per run (default 3)"
     )
     parser.add_argument(
-        "--broker", help="broker URL, e.g. mqtt://127.0.0.1:1883 (default: embedded amqtt)"
+        "--broker",
+        help="broker URL, e.g. mqtt://127.0.0.1:1883, or a comma-separated list of a cluster's "
+        "nodes (default: embedded amqtt)",
     )
     parser.add_argument("--seed", type=int, default=0, help="map, starts and jobs (default 0)")
     parser.add_argument(
@@ -101,7 +103,7 @@ def check(args: argparse.Namespace) -> None:
     if args.workers not in (None, 1) and args.deploy == "threads":
         raise ConfigError("--workers: unit workers are processes, not with --deploy threads")
     if args.broker is not None:
-        parse_broker_url(args.broker)
+        parse_brokers(args.broker)
     if isinstance(args.windows, str):
         args.windows = window_list(args.windows)
 

@@ -31,7 +31,7 @@ from gridfleet.bench.system.monitor import BenchMonitor
 from gridfleet.bench.system.procs import ProcessWatch
 from gridfleet.bench.system.result import SystemResult
 from gridfleet.bench.system.scenario import make_scenario
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.config import check_step
 from gridfleet.console.feed import random_job
 from gridfleet.console.operator import Operator, operator_session
@@ -289,7 +289,7 @@ async def _measure(
     topics = Topics(root)
     freeze_after_start()  # the listener is an instrument: no pauses of its own
     async with contextlib.AsyncExitStack() as stack:
-        monitor_client = await stack.enter_async_context(make_client(url, f"{root}-monitor"))
+        monitor_client = await stack.enter_async_context(connect_first(url, f"{root}-monitor"))
         monitor = BenchMonitor(monitor_client, topics, units)
         await monitor.start()
         listener = asyncio.create_task(monitor.listen())
@@ -353,6 +353,6 @@ def _round(value: float | None) -> float | None:
 
 async def _clear_retained(url: str, topics: set[str]) -> None:
     """Leave an external broker as it was: an empty retained message deletes each one."""
-    async with make_client(url, f"bench-clean-{uuid.uuid4().hex[:6]}") as client:
+    async with connect_first(url, f"bench-clean-{uuid.uuid4().hex[:6]}") as client:
         for topic in sorted(topics):
             await client.publish(topic, b"", qos=1, retain=True)

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 import aiomqtt
 
-from gridfleet.bus import make_client
+from gridfleet.bus import connect_first
 from gridfleet.config import owned_client_id, redacted, with_credentials
 from gridfleet.console.operator import RETRY_S, Operator
 from gridfleet.dashboard.api.events import ChangeTracker, EventLog
@@ -290,7 +290,7 @@ class Link:
         pause = RECONNECT_S[0]
         while True:
             try:
-                async with make_client(self.login(), self.client_id) as client:
+                async with connect_first(self.login(), self.client_id) as client:
                     view = FleetView(
                         client, self.topics, self.client_id, self.retry_s, self._changed
                     )

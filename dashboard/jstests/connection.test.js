@@ -2,7 +2,9 @@
 import assert from "node:assert/strict";
 import { EventEmitter } from "node:events";
 import { test } from "node:test";
-import { BrokerConnection, CLIENT_OPTIONS } from "../static/js/connection.js";
+import {
+  BrokerConnection, BrokerRotation, CLIENT_OPTIONS, NEXT_BROKER_MS, brokerName, brokerUrls,
+} from "../static/js/connection.js";
 
 /** What MQTT.js's `connect` returns, as far as the page uses it. */
 class FakeClient extends EventEmitter {
@@ -14,12 +16,12 @@ class FakeClient extends EventEmitter {
   publish(topic, payload, options) { this.published.push({ topic, payload, options }); }
 }
 
-function open(login = undefined) {
+function open(login = undefined, url = "ws://broker:9001") {
   const calls = { status: [], messages: [], log: [] };
   let client = null;
   const mqtt = { connect: (url, options) => (client = new FakeClient(url, options)) };
   const subs = { "lab/v1/fleet/estop": { qos: 1 } };
-  const conn = new BrokerConnection(mqtt, "ws://broker:9001", "dash-1", subs, {
+  const conn = new BrokerConnection(mqtt, url, "dash-1", subs, {
     onStatus: (state, text) => calls.status.push([state, text]),
     onMessage: (topic, payload) => calls.messages.push([topic, payload]),
     onLog: (text) => calls.log.push(text),
@@ -99,4 +101,88 @@ test("with an account the client logs in with it; stop ends the client", async (
   client.end = (force, options, cb) => { ended = force; cb(); };
   await conn.stop();
   assert.equal(ended, true);
+});
+
+// ---- a list of brokers (a cluster's) ----
+
+const LIST = "ws://a:9001, wss://b.lan:443/mqtt,ws://[fd00::5]:9001/";
+
+/** One attempt to connect, as MQTT.js makes it: it asks transformWsUrl for its websocket's URL. */
+function attempt(client) {
+  return client.options.transformWsUrl("ws://what-mqtt-built:80/", client.options, client);
+}
+
+test("a list is split at its commas; an empty item or none is refused", () => {
+  assert.deepEqual(brokerUrls("ws://h:9001"), ["ws://h:9001"]);
+  assert.deepEqual(brokerUrls(LIST), ["ws://a:9001", "wss://b.lan:443/mqtt", "ws://[fd00::5]:9001/"]);
+  assert.deepEqual(brokerUrls(["ws://a:1", " ws://b:2 "]), ["ws://a:1", "ws://b:2"]);
+  assert.throws(() => brokerUrls("ws://a:1,,ws://b:2"), /no broker URL/);
+  assert.throws(() => brokerUrls(""), /no broker URL/);
+  assert.throws(() => brokerUrls([]), /no broker URL/);
+  assert.equal(brokerName("wss://b.lan:443/mqtt"), "b.lan:443/mqtt");
+  assert.equal(brokerName("ws://[fd00::5]:9001/"), "[fd00::5]:9001");
+});
+
+test("one broker: MQTT.js connects to it as given, with no rotation", () => {
+  const { client, conn, calls } = open(undefined, "ws://solo:9001");
+  assert.equal(client.url, "ws://solo:9001");
+  assert.equal(client.options.transformWsUrl, undefined);
+  client.emit("connect");
+  assert.deepEqual(calls.status, [["connected", "broker: connected"]]);
+  assert.equal(conn.where, "ws://solo:9001");
+});
+
+test("each attempt goes to the next broker of the list, whole URLs, round and round", () => {
+  const { client } = open(undefined, LIST);
+  assert.equal(client.url, "ws://a:9001");
+  const urls = [attempt(client), attempt(client), attempt(client), attempt(client)];
+  assert.deepEqual(urls, ["ws://a:9001", "wss://b.lan:443/mqtt", "ws://[fd00::5]:9001/", "ws://a:9001"]);
+});
+
+test("the next broker is tried quickly; after a whole round has failed, every second", () => {
+  const { client } = open(undefined, LIST);
+  const pauses = [];
+  for (let i = 0; i < 5; i++) { attempt(client); pauses.push(client.options.reconnectPeriod); }
+  const round = CLIENT_OPTIONS.reconnectPeriod;
+  assert.deepEqual(pauses, [NEXT_BROKER_MS, NEXT_BROKER_MS, round, round, round]);
+  assert.ok(NEXT_BROKER_MS < round);
+  // Connected (to the fifth attempt's broker, b): when it dies, the next one is tried at once.
+  client.emit("connect");
+  assert.equal(client.options.reconnectPeriod, NEXT_BROKER_MS);
+  assert.equal(attempt(client), "ws://[fd00::5]:9001/");
+  assert.equal(client.options.reconnectPeriod, NEXT_BROKER_MS);
+});
+
+test("with a list the badge's words name the broker the page is on, and the one it tries", () => {
+  const { client, calls, conn } = open(undefined, LIST);
+  attempt(client);
+  client.emit("connect");
+  assert.equal(conn.where, "ws://a:9001");
+  client.emit("close"); // a dies
+  client.emit("reconnect");
+  attempt(client);
+  client.emit("error", new Error("refused"));
+  client.emit("connect");
+  assert.equal(conn.where, "wss://b.lan:443/mqtt");
+  assert.deepEqual(calls.status, [
+    ["connected", "broker: connected to a:9001"],
+    ["reconnecting", "broker a:9001: connection lost, reconnecting…"],
+    ["reconnecting", "broker: reconnecting to b.lan:443/mqtt…"],
+    ["connected", "broker: connected to b.lan:443/mqtt"],
+  ]);
+  assert.deepEqual(calls.log, ["broker error b.lan:443/mqtt: refused"]);
+});
+
+test("the rotation alone: where it is, where it goes next", () => {
+  const rotation = new BrokerRotation(["ws://a:1", "ws://b:2"], 1000);
+  assert.equal(rotation.where, "ws://a:1");
+  assert.equal(rotation.upcoming, "ws://a:1");
+  assert.equal(rotation.next(), "ws://a:1");
+  assert.equal(rotation.upcoming, "ws://b:2");
+  assert.equal(rotation.pauseAfter(), NEXT_BROKER_MS);
+  assert.equal(rotation.next(), "ws://b:2");
+  assert.equal(rotation.pauseAfter(), 1000);
+  rotation.connected();
+  assert.equal(rotation.pauseAfter(), NEXT_BROKER_MS);
+  assert.equal(rotation.where, "ws://b:2");
 });

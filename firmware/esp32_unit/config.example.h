@@ -5,11 +5,15 @@
 #define GF_WIFI_SSID "your-network"
 #define GF_WIFI_PASSWORD "your-password"
 
-// MQTT broker: the LAN address of the machine running `gridfleet broker` (not 127.0.0.1: that
-// would be the ESP32 itself). With TLS (below) port 8883, and the broker's certificate must be
-// made for this address: `gridfleet accounts tls --out DIR --host 127.0.0.1 --host 192.168.1.10`.
-#define GF_MQTT_HOST "192.168.1.10"
-#define GF_MQTT_PORT 8883
+// MQTT broker: `host:port`, the LAN address of the machine running `gridfleet broker` (not
+// 127.0.0.1: that would be the ESP32 itself). With TLS (below) port 8883, and the broker's
+// certificate must be made for this address: `gridfleet accounts tls --out DIR --host 127.0.0.1
+// --host 192.168.1.10`. A cluster of brokers: each node, comma-separated, e.g.
+// "192.168.1.10:8883,192.168.1.11:8883": the device is on one at a time, moves to the next when
+// its broker is lost or refuses it, and backs off (GF_MQTT_BACKOFF_*) only once every broker of
+// the list has failed. An item may also be `mqtt://host:port` (no CA below) or
+// `mqtts://host:port` (with one); the port defaults to 8883 with TLS, 1883 without.
+#define GF_MQTT_BROKERS "192.168.1.10:8883"
 
 // The CA that signed the broker's certificate: the whole of DIR/ca.pem from `gridfleet accounts
 // tls`, BEGIN and END lines included (it is public; the key stays on the broker). The device

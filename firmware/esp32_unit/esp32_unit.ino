@@ -13,16 +13,22 @@
 #include "src/pubsub_transport.h"
 #include "src/tls_config.h"
 
+#ifdef GF_MQTT_BROKERS
+const std::string kMqttBrokers = GF_MQTT_BROKERS;
+#else  // a config.h from before broker lists: its one broker
+const std::string kMqttBrokers = std::string(GF_MQTT_HOST) + ":" + std::to_string(GF_MQTT_PORT);
+#endif
+
 WiFiClient wifiClient;
 gf::SecureClient secureClient;
-// TLS when config.h gives the broker's CA (the broker's certificate must be signed by it and
-// name GF_MQTT_HOST); plain TCP when GF_MQTT_CA_PEM is empty.
+// TLS when config.h gives the broker's CA (each broker's certificate must be signed by it and
+// name its address in GF_MQTT_BROKERS); plain TCP when GF_MQTT_CA_PEM is empty.
 WiFiClient& netClient = gf::chooseClient(wifiClient, secureClient, GF_MQTT_CA_PEM);
 gf::WatchedClient watchedClient(netClient, gf::usesTls(GF_MQTT_CA_PEM) ? &secureClient : nullptr,
                                 gf::kMqttBufferBytes);
 PubSubClient mqttClient(watchedClient);
-gf::PubSubTransport transport(mqttClient, watchedClient, GF_MQTT_HOST, GF_MQTT_PORT, GF_MQTT_USER,
-                              GF_MQTT_PASSWORD);
+// The Device tells it which broker of the list before each attempt (PubSubClient's setServer).
+gf::PubSubTransport transport(mqttClient, watchedClient, GF_MQTT_USER, GF_MQTT_PASSWORD);
 gf::WiFiLink wifiLink(GF_WIFI_SSID, GF_WIFI_PASSWORD);
 gf::ArduinoClock arduinoClock;
 gf::SerialLog serialLog;
@@ -93,7 +99,9 @@ void setup() {
   attachInterrupt(digitalPinToInterrupt(GF_PIN_BUTTON), onButtonFalling, FALLING);
 
   static gf::DeviceConfig config = makeConfig();
-  std::string problem = config.problem();
+  std::string problem =
+      gf::parseBrokers(kMqttBrokers, gf::usesTls(GF_MQTT_CA_PEM), config.brokers);
+  if (problem.empty()) problem = config.problem();
   if (problem.empty()) problem = gf::caProblem(GF_MQTT_CA_PEM);
   // Room for the longest estop (512 bytes) with its topic and header; larger ones are dropped.
   if (problem.empty()) problem = gf::configureClient(mqttClient, gf::kMqttBufferBytes);
@@ -103,15 +111,16 @@ void setup() {
   }
   configOk = true;
   WiFi.setAutoReconnect(true);
-  mqttClient.setServer(GF_MQTT_HOST, GF_MQTT_PORT);
+  transport.setBroker(config.brokers.front());  // the Device sets it again before each attempt
   mqttClient.setCallback(onMqttMessage);
   if (gf::usesTls(GF_MQTT_CA_PEM)) secureClient.setHandshakeTimeout(gf::kTlsHandshakeTimeoutS);
   transport.setBlockingHook(&ledsWhileConnecting);
   ledTicker.attach_ms(kLedTickMs, showLedsWhileConnecting);
   static gf::Device dev(config, transport, wifiLink, arduinoClock, &serialLog);
   device = &dev;
-  Serial.println(("gridfleet: device " + config.device + " shows unit " + config.unit + ", broker " +
-                  GF_MQTT_HOST + ":" + std::to_string(GF_MQTT_PORT) +
+  Serial.println(("gridfleet: device " + config.device + " shows unit " + config.unit +
+                  (config.brokers.size() > 1 ? ", brokers " : ", broker ") +
+                  gf::brokerNames(config.brokers) +
                   (gf::usesTls(GF_MQTT_CA_PEM) ? " (TLS)" : " (plain TCP)"))
                      .c_str());
 }

@@ -40,7 +40,8 @@ class FakeLog : public gf::Log {
 };
 
 // Behaves like a broker with one client: keeps retained values, delivers to subscriptions on
-// loop() (as PubSubClient does), and records what the device published.
+// loop() (as PubSubClient does), and records what the device published. With a list of brokers
+// it is a cluster: one store of retained values, nodes that can be down (`down`) one by one.
 class FakeMqtt : public gf::MqttTransport {
  public:
   struct Msg {
@@ -49,14 +50,17 @@ class FakeMqtt : public gf::MqttTransport {
     bool retained;
   };
 
+  void setBroker(const gf::Broker& broker) override { target = broker.name(); }
   bool connect(const std::string& clientId, const std::string& willTopic,
                const std::string& willPayload) override {
     ++connectCalls;
+    attempts.push_back(target);
     if (clock != nullptr) clock->advance(connectTakesMs);  // the attempt blocks
     // As PubSubClient does: while the old session looks open, true without a new CONNECT.
     if (isConnected) return true;
-    if (!brokerUp) return false;
+    if (!brokerUp || down.count(target)) return false;
     ++connectPackets;
+    on = target;
     isConnected = true;
     refused = false;
     this->clientId = clientId;
@@ -104,6 +108,11 @@ class FakeMqtt : public gf::MqttTransport {
     if (isRetained) retained[topic] = payload;
     if (isConnected && subscriptions.count(topic)) inbox.emplace_back(topic, payload);
   }
+  // The node the device is on dies: its connection drops, and it refuses new ones.
+  void kill(const std::string& broker) {
+    down.insert(broker);
+    if (on == broker) drop();
+  }
   // The connection drops (or the device closes it without DISCONNECT): the broker publishes
   // the will.
   void drop() override {
@@ -122,6 +131,10 @@ class FakeMqtt : public gf::MqttTransport {
   FakeClock* clock = nullptr;
   uint32_t connectTakesMs = 0;
   bool brokerUp = true;
+  std::string target;  // where the next connect() goes (setBroker)
+  std::string on;  // the broker of the last session
+  std::set<std::string> down;  // brokers of the list that are down
+  std::vector<std::string> attempts;  // each connect()'s broker
   bool isConnected = false;
   bool dropPublishes = false;
   bool failSubscribe = false;

@@ -42,8 +42,9 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
   CHECK(host::pinMode[GF_PIN_LED_W] == OUTPUT);
   CHECK(host::pinMode[GF_PIN_BUTTON] == INPUT_PULLUP);
   REQUIRE(host::isr.count(GF_PIN_BUTTON) == 1);
-  CHECK(mqttClient.host == GF_MQTT_HOST);
-  CHECK(mqttClient.port == GF_MQTT_PORT);
+  // The first broker of config.h's list (the stand-in's: two, host_test/stubs/config.h).
+  CHECK(mqttClient.host == "192.168.1.10");
+  CHECK(mqttClient.port == 8883);
   CHECK(mqttClient.bufferSize >= 512 + 100);
 
   loops(3);  // joins WiFi, connects MQTT
@@ -152,6 +153,12 @@ TEST_CASE("while a connection attempt blocks, a timer runs the LEDs and shows a 
   loops(3);
   host::duringConnect = nullptr;
   REQUIRE(blocked == 1);
+  // Its broker lost, the sketch went to the next of the list: PubSubClient and the TLS client
+  // were both told (setServer, and the connection the transport opens itself).
+  CHECK(secureClient.lastHost == "192.168.1.11");
+  CHECK(secureClient.lastPort == 8883);  // mqtts:// without a port: TLS's
+  CHECK(mqttClient.host == "192.168.1.11");
+  CHECK(mqttClient.connected());
   // The offline chase ran round (one LED at a time), and the press showed the stop blink.
   CHECK(chase == std::set<std::string>{"N...", ".E..", "..S.", "...W"});
   CHECK(afterPress == std::set<std::string>{"NESW", "...."});

@@ -21,7 +21,7 @@ TEST_CASE("with a CA in config.h the sketch talks MQTT through WiFiClientSecure 
   CHECK(watchedClient.usesTls());
   CHECK(secureClient.caCert == GF_MQTT_CA_PEM);
   CHECK(secureClient.caCertCalls == 1);
-  CHECK(GF_MQTT_PORT == 8883);
+  CHECK(std::string(kExampleBrokers) == "192.168.1.10:8883");  // the example: TLS's port
 }
 
 TEST_CASE("a TLS connection attempt is bounded: TCP connect and handshake timeouts are set") {
@@ -29,8 +29,10 @@ TEST_CASE("a TLS connection attempt is bounded: TCP connect and handshake timeou
   CHECK(secureClient.handshakeTimeoutS == gf::kTlsHandshakeTimeoutS);
   REQUIRE(secureClient.connects > 0);
   CHECK(secureClient.lastTimeoutMs == static_cast<int32_t>(gf::kTcpConnectTimeoutMs));
-  CHECK(secureClient.lastHost == GF_MQTT_HOST);
-  CHECK(secureClient.lastPort == GF_MQTT_PORT);
+  // To the broker of the list the device is on, the one PubSubClient was told too.
+  CHECK(secureClient.lastHost == mqttClient.host);
+  CHECK(secureClient.lastPort == mqttClient.port);
+  CHECK(secureClient.lastPort == 8883);
   CHECK(gf::kConnectAttemptBoundMs <= 10000);
 }
 

@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         log.info(
             "carrying %s on %s",
             ", ".join(f"{c.id} ({c.vehicle.prefix})" for c in adapter.cores),
-            adapter.endpoint.where,
+            adapter.endpoint.brokers,
         )
         await adapter.run(stop)
 

@@ -17,7 +17,7 @@ import time
 import uuid
 from collections.abc import Sequence
 
-from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.config import broker_login, owned_client_id
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
@@ -55,7 +55,7 @@ class AdapterShell:
         client_id = f"vda5050-{run_id}"
         # Its reports on `errors` are signed with its own client id, as the broker sees it (one
         # its account owns: a vehicle's unit id is that vehicle's account's, not the adapter's).
-        reporter = HeaderStamper(owned_client_id(parse_broker_url(broker_url).username, client_id))
+        reporter = HeaderStamper(owned_client_id(broker_login(broker_url), client_id))
         self.cores = [
             VehicleCore(
                 config,

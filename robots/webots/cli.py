@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 from gridfleet.accounts import load_accounts
-from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_broker_url, with_credentials
+from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_brokers, with_credentials
 from gridfleet.errors import ConfigError
 from gridfleet.protocol.constants import DEFAULT_ROOT, DEFAULT_STEP_S
 from gridfleet.protocol.topics import Topics
@@ -36,8 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--broker",
-        metavar="URL",
-        help="the broker every unit joins (default: none written; each unit then uses "
+        metavar="URL[,URL...]",
+        help="the broker every unit joins, or a comma-separated list of a cluster's nodes "
+        "(default: none written; each unit then uses "
         f"$GRIDFLEET_BROKER, else {DEFAULT_MQTT_URL})",
     )
     parser.add_argument(
@@ -78,7 +79,7 @@ def options(args: argparse.Namespace, scenario: Scenario) -> WorldOptions:
     Topics(args.root)
     broker = args.broker or ""
     if broker:
-        parse_broker_url(broker)
+        parse_brokers(broker)
     return WorldOptions(
         protos=protos_from(args.out.parent),
         source=str(args.scenario),

@@ -33,5 +33,5 @@ def run_controller(robot: Supervisor) -> int:
 async def _serve(robot: Supervisor, settings: UnitSettings) -> None:
     unit = MirrorUnit(robot, settings) if settings.mirror else WebotsUnit(robot, settings)
     role = "mirrors its state from" if settings.mirror else "joins the fleet on"
-    log.info("%s %s %s (root %s)", settings.unit_id, role, unit.endpoint.where, settings.root)
+    log.info("%s %s %s (root %s)", settings.unit_id, role, unit.endpoint.brokers, settings.root)
     await unit.run(stop_on_signals())

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
-from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_broker_url
+from gridfleet.config import DEFAULT_MQTT_URL, check_step, parse_brokers
 from gridfleet.energy import BatterySpec
 from gridfleet.errors import ConfigError, GridfleetError
 from gridfleet.grid import FREE_CHARS, Cell, GridMap
@@ -76,7 +76,7 @@ def read_settings(robot: Supervisor, environ: dict[str, str] | None = None) -> U
         broker, source = env[BROKER_ENV], f"${BROKER_ENV}"
     broker = broker or DEFAULT_MQTT_URL
     try:
-        parse_broker_url(broker)
+        parse_brokers(broker)
     except ConfigError as exc:
         raise ConfigError(f"{where}: {source}: {exc}") from None
     root = field("root").getSFString() or DEFAULT_ROOT

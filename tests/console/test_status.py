@@ -214,9 +214,10 @@ def test_status_once_on_the_real_system(
     out = status("--once", "--broker", broker.url, "--root", root)
     assert out.returncode == 0, out.stderr
     lines = out.stdout.splitlines()
-    assert lines[0] == "stop: ENGAGED, latched by ann (spill in aisle 3)"
-    assert lines[1].startswith("coordinator: online, step ")
-    assert lines[3] == "units: 4, 4 online"
+    assert lines[0] == f"broker: {broker.url}"  # the one it reached
+    assert lines[1] == "stop: ENGAGED, latched by ann (spill in aisle 3)"
+    assert lines[2].startswith("coordinator: online, step ")
+    assert lines[4] == "units: 4, 4 online"
     for unit in units:
         assert any(line.split()[:2] == [unit, "online"] for line in lines), out.stdout
     assert lines[-1] == "jobs: none"

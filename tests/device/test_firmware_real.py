@@ -408,3 +408,55 @@ def test_a_dead_tls_broker_costs_each_attempt_at_most_the_bound_and_leds_and_but
     # ... and the next attempt keeps showing it: the press is pending, not yet sent.
     took, end = tries[during + 1]
     assert {shown for at, shown in leds if end - took < at < end} == {"NESW", "...."}
+
+
+def test_the_sketch_given_two_brokers_moves_to_the_second_when_the_first_dies(
+    device_host: Path,
+) -> None:
+    root = f"t/fw-{uuid.uuid4().hex[:8]}"
+    device_id = "dev-two"
+    direction = f"{root}/v1/units/unit1/direction"
+    connection = f"{root}/v1/devices/{device_id}/connection"
+    with BrokerThread() as first, BrokerThread() as second:
+        # Two brokers that share nothing: what the device shows after the move is the second's.
+        for broker, shown in ((first, "E"), (second, "W")):
+            with MqttProbe(broker.url) as probe:
+                probe.publish(direction, shown, retain=True)
+        one, two = f"127.0.0.1:{first.port}", f"127.0.0.1:{second.port}"  # known while up
+        brokers = f"{one},mqtt://{two}"
+        device = Device(
+            device_host,
+            {
+                "GF_HOST_MQTT_BROKERS": brokers,
+                "GF_HOST_ROOT": root,
+                "GF_HOST_DEVICE": device_id,
+                "GF_HOST_UNIT": "unit1",
+            },
+        )
+        try:
+            on_first = f"{CONNECTED}{device_id} to broker {one}"
+            on_second = f"{CONNECTED}{device_id} to broker {two}"
+            wait_for(lambda: device.lines(on_first), 20, what="connected to the first broker")
+            device.wait_leds(lambda s: s == ".E..", "showing the first broker's E")
+            assert device.lines(
+                f"[serial] gridfleet: device {device_id} shows unit unit1, brokers {one}, {two}"
+            )
+
+            first.stop()
+            wait_for(
+                lambda: device.lines(on_second),
+                20,
+                what="connected to the second broker",
+                context=lambda: "\n".join(device.lines("[serial]")),
+            )
+            device.wait_leds(lambda s: s == "...W", "showing the second broker's W")
+            assert device.lines(f"{LOST} (broker {one}); trying broker {two}")
+            # A session there: it says online, and what comes next shows.
+            with MqttProbe(second.url) as probe:
+                probe.subscribe(connection)
+                probe.wait(connection, lambda m: m.payload == b"online")
+                probe.publish(direction, "S", retain=True)
+                device.wait_leds(lambda s: s == "..S.", "showing S from the second broker")
+            assert not device.lines(CONNECT_FAILED)  # the second was tried at once, and took
+        finally:
+            device.close()

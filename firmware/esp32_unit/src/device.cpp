@@ -3,6 +3,7 @@
 namespace gf {
 
 std::string DeviceConfig::problem() const {
+  if (brokers.empty()) return "no broker in GF_MQTT_BROKERS";
   if (!isValidRoot(root)) {
     return "topic root '" + root + "' is not valid ('/'-separated ids, at most " +
            std::to_string(kMaxRootBytes) + " bytes, so that the longest stop fits the " +
@@ -27,6 +28,7 @@ Device::Device(const DeviceConfig& config, MqttTransport& mqtt, NetLink& link, C
       stopPayload_(buttonEstopPayload(config.device)),
       debouncer_(config.debounceMs),
       mqttBackoff_(config.mqttBackoffInitialMs, config.mqttBackoffMaxMs),
+      rotation_(config.brokers.size()),
       linkBackoff_(config.linkBackoffInitialMs, config.linkBackoffMaxMs),
       stop_(config.stopRetryMs) {}
 
@@ -38,7 +40,7 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
   if (!link_.up()) {
     if (linkWasUp_) say("WiFi: lost (" + link_.status() + ")");
     linkWasUp_ = false;
-    if (online_) lost();
+    if (online_) lost(false);  // WiFi's doing: the same broker when it is back
     // WiFi.begin() returns at once; give each try time to join before starting over.
     if (!linkStarted_ || uint32_t(now - linkStartMs_) >= linkWaitMs_) {
       if (linkStarted_) say("WiFi: not joined yet (" + link_.status() + "); joining again");
@@ -54,13 +56,13 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
   linkBackoff_.reset();
   linkStarted_ = false;
 
-  if (online_ && !mqtt_.connected()) lost();
+  if (online_ && !mqtt_.connected()) lost(true);
   if (!online_) connectIfDue(now);
   if (!online_) return;
 
   mqtt_.loop();  // may deliver messages, may find the connection gone
   if (!mqtt_.connected()) {
-    lost();
+    lost(true);
     return;
   }
   if (mqtt_.refusedSubscription()) {
@@ -76,16 +78,17 @@ void Device::tick(bool buttonEdge, bool buttonPressed) {
 
 void Device::connectIfDue(uint32_t now) {
   if (attempted_ && uint32_t(now - lastAttemptMs_) < waitMs_) return;
+  if (config_.brokers.empty()) return;  // a configuration problem (DeviceConfig::problem)
   attempted_ = true;
   lastAttemptMs_ = now;
   ++connectAttempts_;
+  const Broker target = broker();
+  mqtt_.setBroker(target);
   if (!mqtt_.connect(config_.device, connectionTopic_, proto::kDeviceWill)) {
     // The wait runs from the attempt's end: one against a dead TLS broker blocks for seconds,
     // and measured from its start the next would follow at once.
     lastAttemptMs_ = clock_.nowMs();
-    waitMs_ = mqttBackoff_.next();
-    say("MQTT: connect failed: " + mqtt_.lastError() + "; next try in " +
-        std::to_string(waitMs_) + " ms");
+    retry("connect failed" + naming(" at broker ", target, "") + ": " + mqtt_.lastError());
     return;
   }
   bool ok = mqtt_.publish(connectionTopic_, proto::kDeviceOnline,
@@ -99,31 +102,55 @@ void Device::connectIfDue(uint32_t now) {
     // A half-set-up session would miss the stop: drop it (no DISCONNECT: the broker then
     // replaces the `online` just sent with the will) and try again later.
     mqtt_.drop();
-    waitMs_ = mqttBackoff_.next();
-    say("MQTT: could not send the subscriptions; next try in " + std::to_string(waitMs_) +
-        " ms");
+    retry("could not send the subscriptions" + naming(" to broker ", target, ""));
     return;
   }
   mqttBackoff_.reset();
+  rotation_.connected();
   waitMs_ = 0;
   online_ = true;
-  say("MQTT: connected as " + config_.device + ", showing " + directionTopic_);
+  say("MQTT: connected as " + config_.device + naming(" to broker ", target, "") + ", showing " +
+      directionTopic_);
+}
+
+void Device::retry(const std::string& why) {
+  const bool atOnce = rotation_.failed();  // with one broker: never, always the back-off
+  waitMs_ = atOnce ? 0 : mqttBackoff_.next();
+  std::string next = atOnce ? "trying broker " + broker().name() + " at once"
+                            : "next try in " + std::to_string(waitMs_) + " ms";
+  if (!atOnce && config_.brokers.size() > 1) {
+    next = "every broker failed; " + next + ", at broker " + broker().name();
+  }
+  say("MQTT: " + why + "; " + next);
 }
 
 void Device::abandon(uint32_t now, const std::string& why) {
-  lost();
+  const Broker was = broker();
+  lost(false);
   attempted_ = true;
   lastAttemptMs_ = now;
-  waitMs_ = mqttBackoff_.next();
-  say("MQTT: " + why + "; next try in " + std::to_string(waitMs_) + " ms");
+  retry(why + naming(" (broker ", was, ")"));
+}
+
+std::string Device::naming(const std::string& before, const Broker& broker,
+                           const std::string& after) const {
+  if (config_.brokers.size() < 2) return "";
+  return before + broker.name() + after;
 }
 
 void Device::say(const std::string& text) {
   if (log_ != nullptr) log_->line(text);
 }
 
-void Device::lost() {
-  if (online_) say("MQTT: connection lost");
+void Device::lost(bool brokerLost) {
+  if (online_) {
+    std::string words = "MQTT: connection lost" + naming(" (broker ", broker(), ")");
+    if (brokerLost && config_.brokers.size() > 1) {
+      rotation_.lost();  // on to the next broker, at once (a new round of the list)
+      words += "; trying broker " + broker().name();
+    }
+    say(words);
+  }
   // Close what is left of the old session: PubSubClient's connect() would otherwise reuse a
   // socket that still looks open (after a WiFi drop) and send no new CONNECT.
   mqtt_.drop();

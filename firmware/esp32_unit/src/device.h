@@ -5,6 +5,9 @@
 #include <cstdint>
 #include <string>
 
+#include <vector>
+
+#include "brokers.h"
 #include "leds.h"
 #include "protocol.h"
 #include "timing.h"
@@ -15,6 +18,8 @@ namespace gf {
 class MqttTransport {
  public:
   virtual ~MqttTransport() = default;
+  // Where the next connect() goes (one broker of the configured list).
+  virtual void setBroker(const Broker& broker) = 0;
   // Connect with clean session and a last will (QoS 1, retained); true when connected.
   virtual bool connect(const std::string& clientId, const std::string& willTopic,
                        const std::string& willPayload) = 0;
@@ -58,6 +63,8 @@ class Clock {
 };
 
 struct DeviceConfig {
+  // The brokers, in order (parseBrokers; one, or the nodes of a cluster).
+  std::vector<Broker> brokers = std::vector<Broker>(1, Broker("127.0.0.1", kMqttPort));
   std::string root = proto::kDefaultRoot;
   std::string unit = "unit1";
   std::string device = "device-unit1";
@@ -92,6 +99,8 @@ class Device {
   bool pressed() const { return pressed_; }  // the broker holds this device's press
   bool stopPending() const { return stop_.pending(); }
   uint32_t connectAttempts() const { return connectAttempts_; }
+  // The broker the device is on, or tries next.
+  const Broker& broker() const { return config_.brokers[rotation_.current()]; }
   const std::string& directionTopic() const { return directionTopic_; }
   const std::string& estopTopic() const { return estopTopic_; }
   const std::string& pressTopic() const { return pressTopic_; }
@@ -100,9 +109,15 @@ class Device {
 
  private:
   void connectIfDue(uint32_t now);
-  void lost();
+  // The session is over; `brokerLost`: its broker's fault (not WiFi's), so on to the next one.
+  void lost(bool brokerLost);
   // Give up this session without a DISCONNECT (the will stays) and try again after back-off.
   void abandon(uint32_t now, const std::string& why);
+  // An attempt on this broker failed (`why`): the next broker at once, or after back-off once
+  // every broker of the list has failed.
+  void retry(const std::string& why);
+  // " (broker host:port)"-like words naming `broker` when there is a list of them; "" with one.
+  std::string naming(const std::string& before, const Broker& broker, const std::string& after) const;
   void say(const std::string& text);
 
   DeviceConfig config_;
@@ -117,6 +132,7 @@ class Device {
   std::string stopPayload_;
   Debouncer debouncer_;
   Backoff mqttBackoff_;
+  BrokerRotation rotation_;
   Backoff linkBackoff_;
   PendingStop stop_;
   bool online_ = false;

@@ -129,12 +129,21 @@ class BlockingHook {
 
 class PubSubTransport : public MqttTransport {
  public:
-  // `user` empty: connect without credentials (a broker on a trusted network only).
-  PubSubTransport(PubSubClient& client, WatchedClient& net, const char* host, uint16_t port,
-                  const char* user, const char* password)
-      : client_(client), net_(net), host_(host), port_(port), user_(user), password_(password) {}
+  // `user` empty: connect without credentials (a broker on a trusted network only). The broker
+  // comes with setBroker (the Device's, before each attempt).
+  PubSubTransport(PubSubClient& client, WatchedClient& net, const char* user,
+                  const char* password)
+      : client_(client), net_(net), user_(user), password_(password) {}
 
   void setBlockingHook(BlockingHook* hook) { hook_ = hook; }
+
+  void setBroker(const Broker& broker) override {
+    host_ = broker.host;
+    port_ = broker.port;
+    // PubSubClient keeps the pointer: host_ lives as long as this transport, unchanged until
+    // the next setBroker. Its connect() uses it only when the socket is not open already.
+    client_.setServer(host_.c_str(), port_);
+  }
 
   bool connect(const std::string& clientId, const std::string& willTopic,
                const std::string& willPayload) override {
@@ -143,12 +152,12 @@ class PubSubTransport : public MqttTransport {
     // believes an old one is open.
     net_.stop();
     const unsigned long start = millis();
-    if (!net_.open(host_, port_, kTcpConnectTimeoutMs)) {
+    if (!net_.open(host_.c_str(), port_, kTcpConnectTimeoutMs)) {
       error_ = std::string(net_.usesTls() ? "no TLS connection" : "no TCP connection") + " to " +
                host_ + ":" + std::to_string(port_) + " after " +
                std::to_string(millis() - start) + " ms (broker down, wrong address or port";
       error_ += net_.usesTls() ? ", or its certificate not signed by GF_MQTT_CA_PEM / not "
-                                 "naming GF_MQTT_HOST)"
+                                 "naming its address in GF_MQTT_BROKERS)"
                                : ")";
       const std::string tls = net_.tlsError();
       if (!tls.empty()) error_ += ": " + tls;
@@ -196,8 +205,8 @@ class PubSubTransport : public MqttTransport {
 
   PubSubClient& client_;
   WatchedClient& net_;
-  const char* host_;
-  uint16_t port_;
+  std::string host_;
+  uint16_t port_ = 0;
   const char* user_;
   const char* password_;
   BlockingHook* hook_ = nullptr;

@@ -1,6 +1,7 @@
-// Host build against the real libraries: the example configuration, with the broker, account,
+// Host build against the real libraries: the example configuration, with the brokers, account,
 // ids and root from the environment (tests start their brokers on free ports), and TLS (a
-// CA-shaped text) when GF_HOST_TLS is set.
+// CA-shaped text) when GF_HOST_TLS is set. The brokers: GF_HOST_MQTT_BROKERS (a list, as
+// GF_MQTT_BROKERS takes it), else GF_HOST_MQTT_HOST and GF_HOST_MQTT_PORT.
 #pragma once
 #include "../../esp32_unit/config.example.h"
 
@@ -9,18 +10,17 @@
 namespace host {
 const char* env(const char* name, const char* fallback);
 uint16_t mqttPort();
+const char* brokers();
 const char* caPem();
 }  // namespace host
 
-#undef GF_MQTT_HOST
-#undef GF_MQTT_PORT
+#undef GF_MQTT_BROKERS
 #undef GF_MQTT_USER
 #undef GF_MQTT_PASSWORD
 #undef GF_UNIT_ID
 #undef GF_DEVICE_ID
 #undef GF_TOPIC_ROOT
-#define GF_MQTT_HOST host::env("GF_HOST_MQTT_HOST", "127.0.0.1")
-#define GF_MQTT_PORT host::mqttPort()
+#define GF_MQTT_BROKERS host::brokers()
 #define GF_MQTT_CA_PEM host::caPem()
 #define GF_MQTT_USER host::env("GF_HOST_MQTT_USER", "")
 #define GF_MQTT_PASSWORD host::env("GF_HOST_MQTT_PASSWORD", "")

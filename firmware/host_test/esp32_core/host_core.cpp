@@ -93,6 +93,11 @@ const char* env(const char* name, const char* fallback) {
   return value != nullptr ? value : fallback;
 }
 uint16_t mqttPort() { return static_cast<uint16_t>(std::atoi(env("GF_HOST_MQTT_PORT", "1883"))); }
+const char* brokers() {
+  static const std::string kOne =
+      std::string(env("GF_HOST_MQTT_HOST", "127.0.0.1")) + ":" + std::to_string(mqttPort());
+  return env("GF_HOST_MQTT_BROKERS", kOne.c_str());
+}
 const char* caPem() {
   // Shaped like a PEM certificate: the host's TLS stand-in never reads it.
   static const char kPem[] =

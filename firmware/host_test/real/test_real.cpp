@@ -41,7 +41,8 @@ TEST_CASE("a broker that is not there: connect() fails at once and says why in w
   PubSubClient client(watched);
   REQUIRE(gf::configureClient(client, gf::kMqttBufferBytes).empty());
   const uint16_t port = closedPort();
-  gf::PubSubTransport transport(client, watched, "127.0.0.1", port, "", "");
+  gf::PubSubTransport transport(client, watched, "", "");
+  transport.setBroker(gf::Broker("127.0.0.1", port));
   const unsigned long start = millis();
   CHECK_FALSE(transport.connect("dev1", "t/v1/devices/dev1/connection", "broken"));
   CHECK(millis() - start < 1000);
@@ -64,7 +65,8 @@ TEST_CASE("the TLS client's timeouts bound an attempt against a broker that neve
   tls.setHandshakeTimeout(1);  // seconds, as arduino-esp32 takes it
   gf::WatchedClient watched(tls, &tls, gf::kMqttBufferBytes);
   PubSubClient client(watched);
-  gf::PubSubTransport transport(client, watched, "127.0.0.1", ntohs(addr.sin_port), "", "");
+  gf::PubSubTransport transport(client, watched, "", "");
+  transport.setBroker(gf::Broker("127.0.0.1", ntohs(addr.sin_port)));
   const unsigned long start = millis();
   CHECK_FALSE(transport.connect("dev1", "t/v1/devices/dev1/connection", "broken"));
   const unsigned long took = millis() - start;
