@@ -373,6 +373,7 @@ def cli(*args: str) -> subprocess.CompletedProcess[str]:
     return gridfleet(*args)
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_the_cli_prints_a_token_once_lists_and_revokes_it(tmp_path: Path) -> None:
     path = tmp_path / "accounts.toml"
     write_accounts(people(), path)
@@ -408,6 +409,7 @@ def test_the_cli_prints_a_token_once_lists_and_revokes_it(tmp_path: Path) -> Non
     assert account_of_token(load_accounts(path), viewer.stdout.strip()) is not None
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_the_cli_refuses_in_words_and_changes_nothing(tmp_path: Path) -> None:
     path = tmp_path / "accounts.toml"
     accounts, _ = with_tokens(people(), "operator")

@@ -56,6 +56,7 @@ def listed(job: Job, name: str) -> str:
     return next((line for line in lines if line.startswith(f"{name} ")), "")
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 @pytest.mark.usefixtures("coordinator")
 def test_the_places_are_listed_from_the_map(job: Job) -> None:
     out = job("places")
@@ -72,6 +73,7 @@ def test_the_places_are_listed_from_the_map(job: Job) -> None:
     )
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 @pytest.mark.usefixtures("coordinator")
 def test_a_job_by_place_names_is_queued_at_their_squares_and_listed_by_them(job: Job) -> None:
     out = job("submit", "--pickup", "A3", "--dropoff", "P2", "--mass", "1.5", "--id", "tote")
@@ -98,6 +100,7 @@ def test_a_job_by_place_names_is_queued_at_their_squares_and_listed_by_them(job:
     ],
     ids=["unknown", "not a pickup", "not a dropoff"],
 )
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_a_bad_place_is_refused_in_the_coordinators_words_and_queues_nothing(
     job: Job, pickup: str, dropoff: str, words: str
 ) -> None:

@@ -42,6 +42,7 @@ def coordinator(
         yield running  # type: ignore[misc]
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 @pytest.mark.usefixtures("coordinator")
 def test_a_zone_is_closed_listed_refused_again_otherwise_and_opened(cli: Run) -> None:
     none = cli("job", "zones")

@@ -47,6 +47,7 @@ def test_the_settings_offer_closing_and_opening_zones_to_people_not_viewers() ->
     assert settings_payload(settings, True, viewer)["may_change"] is False
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 @pytest.mark.skipif(shutil.which("node") is None, reason="Node.js is not installed")
 def test_the_page_keeps_exactly_the_zones_views_their_schema_allows() -> None:
     drawn: list[bytes] = []

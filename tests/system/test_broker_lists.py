@@ -323,6 +323,7 @@ def test_status_says_which_broker_it_reached(live: BrokerThread, root: str) -> N
     assert lines[1] == "stop: clear"
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_a_coordinator_on_a_list_keeps_working_when_its_broker_stops(
     two_brokers: tuple[BrokerThread, BrokerThread], root: str, tmp_path: Path
 ) -> None:

@@ -58,6 +58,7 @@ def site(tmp_path: Path) -> Iterator[Site]:
         assembly.stop()
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_tokens_say_who_calls_and_roles_say_what_they_may(site: Site) -> None:
     operator, operator_id, accounts = with_token(site.path, site.accounts, "operator")
     viewer, _, accounts = with_token(site.path, accounts, "vera")
@@ -147,6 +148,7 @@ def test_tokens_say_who_calls_and_roles_say_what_they_may(site: Site) -> None:
         assert vera.get("/jobs").status_code == 200
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_wrong_tokens_are_throttled_and_told_to_the_audit(site: Site) -> None:
     operator, _, accounts = with_token(site.path, site.accounts, "operator")
     served = serving(site.url, site.root, accounts=accounts, accounts_file=site.path)

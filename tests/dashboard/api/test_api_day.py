@@ -25,6 +25,7 @@ RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
 pytestmark = pytest.mark.every_broker
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_a_warehouse_systems_day(
     broker: BrokerThread, root: str, run_system: RunSystem, playfield: Path
 ) -> None:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import httpx
+import pytest
 
 from gridfleet.system.broker_thread import BrokerThread
 from gridfleet.system.threads import ServiceThread
@@ -88,6 +89,7 @@ def until(test: Callable[[], object], what: str = "the events") -> None:
     wait_for(test, timeout=15, interval=0.05, what=what)
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_the_fleets_changes_are_pushed_and_a_stream_resumes_where_it_broke(
     broker: BrokerThread, root: str, run_system: RunSystem, playfield: Path
 ) -> None:

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import httpx
+import pytest
 
 from gridfleet.dashboard.api.idempotency import derived_id
 from gridfleet.scenario import load_scenario
@@ -28,6 +29,7 @@ def order(n: int) -> dict[str, object]:
     return {"pickup": "A1", "dropoff": ["P1", "P2", "P3", "P4"][n % 4], "mass_kg": 1.0 + n}
 
 
+@pytest.mark.slow  # a fleet, a CLI process or the API over a real broker: make test, not test-fast
 def test_a_coordinator_restart_mid_use_gives_503_and_the_retry_one_job(
     broker: BrokerThread,
     root: str,
