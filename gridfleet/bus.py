@@ -12,13 +12,7 @@ from typing import Any
 
 import aiomqtt
 
-from gridfleet.config import (
-    BrokerURL,
-    broker_urls,
-    owned_client_id,
-    parse_broker_url,
-    parse_brokers,
-)
+from gridfleet.config import BrokerURL, owned_client_id, parse_broker_url, parse_brokers
 from gridfleet.errors import ConfigError
 
 # Without TCP_NODELAY a unit's direction, sent right after its state, waits for the broker's
@@ -111,24 +105,23 @@ class Reached:
 @asynccontextmanager
 async def reach_first(urls: str, client_id: str, **options: Any) -> AsyncIterator[Reached]:
     """connect_first's client, with which broker of the list it is on (`Reached`)."""
-    parse_brokers(urls)  # a bad list is a ConfigError before anything connects
-    items = broker_urls(urls)
+    brokers = parse_brokers(urls)  # a bad list is a ConfigError before anything connects
     failures: list[str] = []
     missed: list[str] = []
-    for index, url in enumerate(items):
+    for index, broker in enumerate(brokers):
         stack = AsyncExitStack()
         try:
-            client = await stack.enter_async_context(make_client(url, client_id, **options))
+            client = await stack.enter_async_context(make_client(broker, client_id, **options))
         except aiomqtt.MqttError as exc:
-            if len(items) == 1:
+            if len(brokers) == 1:
                 raise
-            missed.append(str(parse_broker_url(url)))
-            failures.append(f"{missed[-1]}: {exc}")
-            if index + 1 < len(items):  # the last one's is in the error raised below
-                log.info("broker %s: %s; trying the next", missed[-1], exc)
+            missed.append(str(broker))
+            failures.append(f"{broker}: {exc}")
+            if index + 1 < len(brokers):  # the last one's is in the error raised below
+                log.info("broker %s: %s; trying the next", broker, exc)
             continue
         async with stack:
-            yield Reached(client, str(parse_broker_url(url)), index, len(items), tuple(missed))
+            yield Reached(client, str(broker), index, len(brokers), tuple(missed))
         return
     raise aiomqtt.MqttError("no broker answered: " + "; ".join(failures))
 

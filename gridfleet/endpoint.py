@@ -25,7 +25,7 @@ from typing import Any
 import aiomqtt
 
 from gridfleet.bus import make_client
-from gridfleet.config import broker_urls, parse_broker_url, parse_brokers
+from gridfleet.config import parse_brokers
 from gridfleet.failures import OTHER, FailureReports
 from gridfleet.outbound import Outbound
 from gridfleet.tasks import cancel_and_wait
@@ -97,8 +97,9 @@ class Endpoint:
         self.url = url
         # A send not acknowledged within this ends the session (then it is sent again on the next).
         self.ack_s = ack_s
-        parse_brokers(url)  # a bad list is refused now, not retried forever
-        self.urls = broker_urls(url)  # one broker, or the nodes of a cluster: one at a time
+        # One broker, or the nodes of a cluster, on one at a time; a bad list is refused now,
+        # not retried forever.
+        self._brokers = parse_brokers(url)
         self._at = 0  # the one it is on, or tries next
         self.client_id = client_id
         self.name = name or client_id
@@ -154,9 +155,9 @@ class Endpoint:
                     if was_on:
                         delay, tried = self.backoff.first, 0
                     # The next broker of a list at once; once each was tried, wait and go round.
-                    self._at = (self._at + 1) % len(self.urls)
+                    self._at = (self._at + 1) % len(self._brokers)
                     tried += 1
-                    if tried < len(self.urls):
+                    if tried < len(self._brokers):
                         continue
                     tried = 0
                     with contextlib.suppress(TimeoutError):
@@ -176,14 +177,14 @@ class Endpoint:
         on_stop: Hook | None,
     ) -> None:
         will = as_will(self._will()) if self._will is not None else None
-        url = self.urls[self._at]
-        async with make_client(url, self.client_id, will=will, timeout=CONNECT_S) as client:
+        broker = self._brokers[self._at]
+        async with make_client(broker, self.client_id, will=will, timeout=CONNECT_S) as client:
             for topic, qos in self._subscriptions():
                 await client.subscribe(topic, qos=qos, timeout=ACK_S)
             self._client = client
             self._broken = asyncio.Event()
             self.connects += 1
-            if len(self.urls) > 1 or self.connects == 1:
+            if len(self._brokers) > 1 or self.connects == 1:
                 log.info("%s: on broker %s", self.name, self.where)
             if self._online is not None:
                 await self.publish(self._online())
@@ -232,14 +233,14 @@ class Endpoint:
     @property
     def where(self) -> str:
         """The broker it is on, or tries next, for messages: never the password."""
-        return str(parse_broker_url(self.urls[self._at]))
+        return str(self._brokers[self._at])
 
     @property
     def brokers(self) -> str:
         """The broker it uses, or of a list each it may be on, for messages (not the password)."""
-        if len(self.urls) == 1:
+        if len(self._brokers) == 1:
             return self.where
-        return "one of " + ", ".join(str(parse_broker_url(url)) for url in self.urls)
+        return "one of " + ", ".join(str(broker) for broker in self._brokers)
 
     @property
     def handler_failures(self) -> int:
