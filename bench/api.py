@@ -24,6 +24,7 @@ import threading
 import time
 import uuid
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -203,24 +204,24 @@ def measure(
     steps: StepCounter,
     dashboard: psutil.Process,
     seconds: float,
-    clients: list[Client] | None,
-    stop: threading.Event | None = None,
+    load: Callable[[threading.Event], list[Client]] | None,
 ) -> Phase:
-    """One phase, idle (`clients` None) or with the clients started now and stopped at its end."""
+    """One phase, idle (`load` None) or with the clients `load` makes, each stopped at its end by
+    the event it is given."""
+    stop = threading.Event()
+    clients = load(stop) if load is not None else []
     cpu0, first, t0 = _cpu(dashboard), steps.step, time.monotonic()
-    if clients:
-        for c in clients:
-            c.start()
+    for c in clients:
+        c.start()
     time.sleep(seconds)  # the phase's span: the clients and the fleet run meanwhile
     last, elapsed, cpu1 = steps.step, time.monotonic() - t0, _cpu(dashboard)
     phase = Phase(
-        loaded=clients is not None,
+        loaded=load is not None,
         seconds=round(elapsed, 1),
         steps_per_s=round(((last or 0) - (first or 0)) / elapsed, 2),
         dashboard_cpu_pct=round(100 * (cpu1 - cpu0) / elapsed, 1),
     )
     if clients:
-        assert stop is not None
         stop.set()
         for c in clients:
             c.join(60)
@@ -267,12 +268,14 @@ def run_api_bench(
             interval = clients / rate if rate else 0.0
             for n in range(phases):
                 result.phases.append(measure(steps, dashboard, phase_s, None))
-                stop = threading.Event()
-                group = [
-                    Client(base, fleet, stop, interval, seed * 1000 + n * 100 + i)
-                    for i in range(clients)
-                ]
-                result.phases.append(measure(steps, dashboard, phase_s, group, stop))
+
+                def load(stop: threading.Event, n: int = n) -> list[Client]:
+                    return [
+                        Client(base, fleet, stop, interval, seed * 1000 + n * 100 + i)
+                        for i in range(clients)
+                    ]
+
+                result.phases.append(measure(steps, dashboard, phase_s, load))
         finally:
             steps.close()
     return result
