@@ -29,6 +29,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 
 from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.errors import ConfigError
+from gridfleet.lifeline import PARENT_ENV
 from gridfleet.ports import free_port
 from gridfleet.protocol import TOPICS, JobsView, Routes, Topics, decode
 
@@ -169,7 +170,11 @@ def running_fleet(units: int, jobs: int, step: float, seed: int) -> Iterator[tup
         cmd += [str(scenario.path), "--step", str(step), "--mqtt-port", str(mqtt_port)]
         cmd += ["--ws-port", str(ws_port), "--port", str(web_port), "--db", f"{tmp}/jobs.db"]
         log = open(f"{tmp}/up.log", "wb")  # noqa: SIM115 - closed below, after the process
-        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        # The fleet ends with this process however it ends (a bench killed left one running).
+        env = {**os.environ, PARENT_ENV: str(os.getpid())}
+        proc = subprocess.Popen(
+            cmd, stdout=log, stderr=subprocess.STDOUT, start_new_session=True, env=env
+        )
         try:
             _await_page(web_port, proc, Path(f"{tmp}/up.log"))
             yield mqtt_port, web_port
