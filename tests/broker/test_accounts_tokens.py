@@ -216,7 +216,7 @@ def test_tokens_are_written_hashed_and_read_back_the_same(tmp_path: Path) -> Non
     assert load_accounts(path) == accounts
     written = path.read_text(encoding="utf-8")
     for text in texts.values():
-        assert text not in written and text.split("_")[2] not in written  # only the hash
+        assert text not in written and text.split("_", 2)[2] not in written  # only the hash
         assert token_sha256(text) in written
     assert 'created = "2026-12-02T07:40:00Z"' in written
     # A time in another zone, or to the microsecond, reads as the same instant and is kept.
