@@ -86,6 +86,7 @@ def fleet(probe_factory: Callable[..., MqttProbe], topics: Topics) -> tuple[Mqtt
     return probe, unit
 
 
+@pytest.mark.timeout(180)  # over 60 s on a slow make test run (fresh clone, 2026-12-02)
 def test_the_page_survives_every_shape_of_message_and_shows_the_next_good_one(
     open_dashboard: Callable[..., OpenDashboard],
     fleet: tuple[MqttProbe, UnitPeer],

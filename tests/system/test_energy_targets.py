@@ -20,6 +20,7 @@ def test_the_shipped_energy_scenarios_are_what_their_script_writes() -> None:
         assert shipped == script.render(spec), f"run script/gen_energy_scenarios.py ({spec.name})"
 
 
+@pytest.mark.timeout(180)  # over 60 s on a slow make test run (fresh clone, 2026-12-02)
 @pytest.mark.slow  # 300 jobs in lockstep (about 15 s): make test, not test-fast
 def test_the_energy_warehouse_does_every_job_on_several_charges_and_none_runs_empty() -> None:
     scenario = load_scenario(MAPS / "warehouse-energy.toml")

@@ -104,6 +104,7 @@ def served(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[tuple[Api
         yield api, token
 
 
+@pytest.mark.timeout(180)  # 45 s alone on a quiet machine; over 60 s beside make test's others
 def test_every_answer_fits_the_document_and_none_is_a_server_error(
     served: tuple[ApiServer, str],
 ) -> None:
