@@ -37,6 +37,7 @@ class Battery:
         self.lowest_pct = self.pct
         self.charges = 0  # spells of charging steps begun
         self.charging_steps = 0  # steps spent charging, all spells together
+        self.standing_steps = 0  # steps it neither moved nor charged
         self.reached_empty = self.empty
         self._charging = False  # the last step charged
 
@@ -84,6 +85,7 @@ class Battery:
             self.pct = max(0.0, self.pct - m.move_pct)
         else:
             self.pct = max(0.0, self.pct - m.idle_pct_per_s * step_s)
+            self.standing_steps += 1
         self._charging = charging
         self.lowest_pct = min(self.lowest_pct, self.pct)
         self.reached_empty = self.reached_empty or self.empty

@@ -307,6 +307,7 @@ def units_json(
                 "lowest_battery_pct": None if b is None else round(b.lowest_pct, 1),
                 "charges": 0 if b is None else b.charges,
                 "charging_steps": 0 if b is None else b.charging_steps,
+                "standing_steps": 0 if b is None else b.standing_steps,
                 "reached_empty": b is not None and b.reached_empty,
             }
         )

@@ -228,10 +228,11 @@ def _check_energy_figures(result: dict[str, Any]) -> None:
     runner, flat, mains = units["runner"], units["flat"], units["mains"]
     assert runner["moves"] >= 4 and runner["charges"] == 0 and runner["charging_steps"] == 0
     # A move costs 1 %, a step standing 0.1 %: a simulated step is a second of a battery's life
-    # at any step period (the units' steps over MQTT are their own: a few more than the
-    # coordinator's, while the run shuts down).
+    # at any step period. Counted in the unit's own steps: over MQTT they are more than the
+    # coordinator's, by as many as the run's shutdown takes (16 more on a slow machine).
     assert runner["lowest_battery_pct"] == runner["battery_pct"]  # it only ever drained
-    assert 90.0 - runner["moves"] - 0.1 * result["steps"] - 1.0 <= runner["battery_pct"]
+    assert runner["standing_steps"] >= 1
+    assert 90.0 - runner["moves"] - 0.1 * runner["standing_steps"] - 1.0 <= runner["battery_pct"]
     assert runner["battery_pct"] <= 90.0 - runner["moves"]
     assert runner["reached_empty"] is False
     # At 0 % from the start: it never moved, and it is counted as having been empty.
