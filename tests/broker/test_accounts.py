@@ -14,8 +14,10 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from paho.mqtt.client import topic_matches_sub
 
 from gridfleet.accounts import (
+    ROLES,
     Account,
     Accounts,
     VehicleLink,
@@ -288,6 +290,28 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert T.fleet("alerts") in alerts.publish and T.fleet("alerts") in alerts.subscribe
     for other in (unit1, device, coordinator, operator):
         assert T.fleet("alerts") not in other.publish
+
+
+def test_only_people_close_and_open_zones_and_only_the_coordinator_says_which_are_closed() -> None:
+    """protocol.md §10: `requests/close_zone` and `requests/open_zone` are the operators' and the
+    dashboard's; `fleet/zones` the coordinator's alone. An account of every role, its publish
+    rules read as the broker reads them (MQTT wildcards)."""
+    secret = "a long enough password"
+    accounts = default_accounts(["unit1"], VEHICLES).with_account(
+        Account("watcher", secret, "viewer")
+    )
+    accounts = accounts.with_account(Account("hall-1", secret, "bridge"))
+    roles = {a.name: a.role for a in accounts.accounts.values()}
+    assert set(roles.values()) == set(ROLES)
+
+    def publishes(name: str, topic: str) -> bool:
+        return any(topic_matches_sub(f, topic) for f in rules(accounts.get(name), T).publish)
+
+    for name, role in roles.items():
+        for kind in ("close_zone", "open_zone"):
+            people = role in ("operator", "dashboard")
+            assert publishes(name, T.request(kind)) == people, (name, role, kind)
+        assert publishes(name, T.fleet("zones")) == (role == "coordinator"), (name, role)
 
 
 # ---- the broker enforces them --------------------------------------------------------------------
