@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import IO
 
 from gridfleet.errors import ConfigError
+from gridfleet.lifeline import PARENT_ENV
 
 READY_S = 60.0  # a component that has not said it is ready within this failed to start
 STOP_S = 20.0  # a component that has not ended this long after SIGTERM is killed
@@ -137,7 +138,9 @@ class Component:
             stdout=subprocess.PIPE if name == "broker" else self._out,
             stderr=self._out,
             text=True,
-            env=tree.env(),
+            # It ends with this process however that ends (a flood's test timed out and left its
+            # broker, coordinator and units running); a tree without the lifeline ignores it.
+            env={**tree.env(), PARENT_ENV: str(os.getpid())},
             cwd=work,  # not a checkout: its gridfleet/ folder would shadow the tree's
         )
 
