@@ -32,6 +32,7 @@ from typing import Any
 import psutil
 
 from gridfleet.bench.busy_scenario import make_busy
+from gridfleet.bench.figures import percentile
 from gridfleet.bench.page import StepCounter, running_fleet
 from gridfleet.config import check_step
 from gridfleet.errors import ConfigError
@@ -167,9 +168,12 @@ class Client(threading.Thread):
         return kind, self._http.get(f"/{kind}").status_code
 
 
-def _percentile(samples: list[float], q: float) -> float:
-    ordered = sorted(samples)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+def _ms(samples: list[float], q: float) -> float:
+    """The measured latency at or above quantile `q`, to 0.1 ms (kinds without samples are not
+    reported)."""
+    value = percentile(samples, q)
+    assert value is not None, "a kind is reported only with samples"
+    return round(value, 1)
 
 
 def _await_units(base: str, units: int, timeout_s: float = 60.0) -> list[str]:
@@ -233,7 +237,7 @@ def measure(
         for kind, _, ms in samples:
             by_kind.setdefault(kind, []).append(ms)
         phase.latency_ms = {
-            k: {"p50": round(_percentile(v, 0.5), 1), "p99": round(_percentile(v, 0.99), 1)}
+            k: {q: _ms(v, at) for q, at in (("p50", 0.5), ("p99", 0.99))}
             for k, v in sorted(by_kind.items())
         }
     return phase

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
+from gridfleet.bench.figures import percentile
 from gridfleet.bench.flood_clients import Asked, FleetWatch, MetricsSampler, Requester, ViewCount
 from gridfleet.bench.flood_tree import (
     Components,
@@ -403,12 +404,9 @@ def _stop(clients: _Clients, topics: Topics, window: _Window) -> float | None:
 
 
 def _percentile(values: Sequence[float], q: float) -> float | None:
-    """The value at or above quantile `q` (a measured one); None when it is infinite (never)."""
-    if not values:
-        return None
-    ordered = sorted(values)
-    value = ordered[min(len(ordered) - 1, math.ceil(q * len(ordered)) - 1 if q else 0)]
-    return None if math.isinf(value) else round(value, 1)
+    """The measured value at or above quantile `q`, to 0.1; None when it is infinite (never)."""
+    value = percentile(values, q)
+    return None if value is None else round(value, 1)
 
 
 def _median(values: Sequence[float | None]) -> float | None:

@@ -26,6 +26,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from gridfleet.bench.figures import percentile
 from gridfleet.bench.system.broker import check_broker
 from gridfleet.bench.system.monitor import BenchMonitor
 from gridfleet.bench.system.procs import ProcessWatch
@@ -55,13 +56,6 @@ Deploy = Literal["processes", "threads"]
 TRUTH_TAIL = 1 << 20  # bytes read from the truth file's end: its last lines, whatever the fleet
 
 STOP_WAIT_S = 20.0  # an engagement not shown by every unit within this is reported as None
-
-
-def _percentile(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
 
 
 async def _keep_jobs(
@@ -335,9 +329,9 @@ async def _measure(
         "jobs_done": done,
         "jobs_submitted": jobs_submitted,
         "state_latency_ms_p50": _round(statistics.median(latencies) if latencies else None),
-        "state_latency_ms_p99": _round(_percentile(latencies, 0.99)),
+        "state_latency_ms_p99": _round(percentile(latencies, 0.99)),
         "estop_ms": tuple(seen),
-        "estop_ms_p99": _round(_percentile(done_ms, 0.99) if len(done_ms) == len(seen) else None),
+        "estop_ms_p99": _round(percentile(done_ms, 0.99) if len(done_ms) == len(seen) else None),
         "estop_applied_ms": tuple(applied),
         "moved_while_stopped": moved,
         "collisions": end.collisions,
