@@ -50,6 +50,19 @@ def hand_over(path: Path | int, owner: RunAs | None) -> None:
         os.chown(path, owner.uid, owner.gid)
 
 
+def write_conf(path: Path, text: str, owner: RunAs | None) -> None:
+    """Write mosquitto.conf where only Mosquitto may read it (a bridge's `remote_password` is in
+    it): as root, root's with `owner`'s group and mode 640 (Mosquitto reads it as root, and again
+    as its own user on SIGHUP, but may not rewrite what root reads); else this user's, 600."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as out:
+        os.fchmod(fd, 0o600)  # a file that was there keeps its mode through O_TRUNC
+        if owner is not None and os.geteuid() == 0:
+            os.fchown(fd, 0, owner.gid)
+            os.fchmod(fd, 0o640)
+        out.write(text)
+
+
 def _allowed(owner: RunAs, groups: set[int], st: os.stat_result, want: int) -> bool:
     """Whether `owner` (in `groups`) may `want` (os.R_OK, W_OK, X_OK bits) by `st`'s mode bits."""
     if owner.uid == 0:

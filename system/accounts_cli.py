@@ -30,6 +30,7 @@ from gridfleet.broker.mosquitto import (
     hand_over,
     mosquitto_conf,
     runs_as,
+    write_conf,
     write_files,
 )
 from gridfleet.errors import ConfigError
@@ -260,7 +261,8 @@ def _mosquitto(args: argparse.Namespace) -> int:
         keep.chmod(0o700)
         hand_over(keep, owner)
     conf = out / "mosquitto.conf"
-    conf.write_text(
+    write_conf(
+        conf,
         mosquitto_conf(
             passwd,
             acl,
@@ -273,7 +275,7 @@ def _mosquitto(args: argparse.Namespace) -> int:
             user=None if owner is None else owner.name,
         )
         + bridge,
-        encoding="utf-8",
+        owner,
     )
     ran = f"wrote {passwd}, {acl} and {conf} (allow_anonymous false): run 'mosquitto -c {conf}'"
     if owner is None:

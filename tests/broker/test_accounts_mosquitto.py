@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
-from gridfleet.broker.mosquitto import RunAs, blocked, password_hash
+from gridfleet.broker.mosquitto import RunAs, blocked, password_hash, runs_as
 from gridfleet.protocol import Topics
 
 from support.cli import gridfleet
@@ -137,6 +137,13 @@ def test_a_halls_broker_gets_a_bridge_carrying_the_protocols_topics(tmp_path: Pa
     conf = (out / "mosquitto.conf").read_text()
     bridge = conf[conf.index("connection hall1") :]
     assert "address 10.0.0.5:1883\n" in bridge and f"remote_password {hall1.password}\n" in bridge
+    # The password is Mosquitto's alone: root's, readable by its group, as root; else 600.
+    st = (out / "mosquitto.conf").stat()
+    owner = runs_as()
+    if os.geteuid() == 0 and owner is not None:
+        assert (st.st_uid, st.st_gid, stat.S_IMODE(st.st_mode)) == (0, owner.gid, 0o640)
+    else:
+        assert (st.st_uid, stat.S_IMODE(st.st_mode)) == (os.geteuid(), 0o600)
     assert "cleansession false\n" in bridge  # queued both ways across a cut
     topics = [line.split()[1:] for line in bridge.splitlines() if line.startswith("topic ")]
     assert ["lab/v1/units/+/state", "both", "0"] in topics
