@@ -14,7 +14,9 @@ from collections.abc import Iterator
 # counter: no two workers, and no two calls in one, are handed the same port. The OS's pick of
 # port 0 may hand one worker the port another was given a moment earlier and has not bound yet
 # (a CI run lost a dashboard's port that way). A run beside the workers (make test's soak, which
-# restarts its broker on the port it was given) names a band of its own in PORT_BAND_ENV.
+# restarts its broker on the port it was given) names a band of its own in PORT_BAND_ENV; a second
+# run of workers beside the first (make test's lane on the broker clusters) names the first band
+# of its own followed by "+" ("6+": worker gw1 takes band 7).
 _BANDS_START, _BAND_SIZE, _BANDS = 20000, 1000, 12
 PORT_BAND_ENV = "GRIDFLEET_PORT_BAND"
 _band: Iterator[int] | None = None
@@ -26,7 +28,8 @@ def _band_number() -> int | None:
     if named.isdigit():
         return int(named)
     worker = re.fullmatch(r"gw(\d+)", os.environ.get("PYTEST_XDIST_WORKER", ""))
-    return None if worker is None else int(worker[1])
+    first = int(named[:-1]) if re.fullmatch(r"\d+\+", named) else 0
+    return None if worker is None else first + int(worker[1])
 
 
 def free_port() -> int:

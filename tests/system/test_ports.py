@@ -44,6 +44,17 @@ def test_a_run_beside_the_workers_takes_the_band_it_names(monkeypatch: pytest.Mo
     assert all(30000 <= p < 31000 for p in handed)
 
 
+def test_a_second_run_of_workers_takes_the_bands_from_the_one_it_names(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("PYTEST_XDIST_WORKER", "gw1")
+    monkeypatch.setenv(ports.PORT_BAND_ENV, "6+")
+    monkeypatch.setattr(ports, "_band", None)
+    handed = [ports.free_port() for _ in range(20)]
+    assert len(set(handed)) == 20
+    assert all(27000 <= p < 28000 for p in handed)  # band 7: after 6, as worker gw1
+
+
 def test_outside_xdist_the_os_picks(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("PYTEST_XDIST_WORKER", raising=False)
     monkeypatch.delenv(ports.PORT_BAND_ENV, raising=False)
