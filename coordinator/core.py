@@ -230,10 +230,15 @@ class CoordinatorCore:
         period = self.world.step_period_s
         return self.say.status(state, self.step_no, period, self.estop, self.pace.achieved_step_s)
 
-    def on_connect(self, now: float = 0.0) -> Effects:
+    def on_connect(self, now: float = 0.0, *, moved: bool = False) -> Effects:
         """Connected (and `online` said): every view goes out again, and the clears of removed
-        units whose clear has not come back yet."""
-        self.stop.connected(now)
+        units whose clear has not come back yet.
+
+        `moved`: this session is on another broker than the one before (a failover): its
+        retained latch is not taken as a release of the stop held (stop.py, protocol.md §5.1).
+        """
+        self.stop.connected(now, moved)
+        self.world.listening(now)  # its own time away is no unit's silence
         self.views.reconnected()
         self.events.dirty = True  # the history goes out again with the other views
         self.energy.dirty = True
@@ -259,14 +264,22 @@ class CoordinatorCore:
 
     # ---- inbound --------------------------------------------------------------------------
 
-    def on_message(self, topic: str, payload: bytes, now: float) -> Effects:
-        """React to one message; a bad one is reported on `errors` and changes nothing."""
+    def on_message(
+        self, topic: str, payload: bytes, now: float, *, retained: bool = False
+    ) -> Effects:
+        """React to one message; a bad one is reported on `errors` and changes nothing.
+
+        `retained`: the broker replayed it from what it kept, on subscribing (the stop reads a
+        failover's retained latch with care: stop.py).
+        """
         arrival = self._read(topic, payload, now)
         if isinstance(arrival, Effects):
             return arrival
-        return self._guarded(topic, arrival, now)
+        return self._guarded(topic, arrival, now, retained)
 
-    def offer(self, topic: str, payload: bytes, now: float) -> tuple[Effects, bool]:
+    def offer(
+        self, topic: str, payload: bytes, now: float, *, retained: bool = False
+    ) -> tuple[Effects, bool]:
         """Like `on_message`, but a readable request waits in the inbox for `serve_one`.
 
         (its Effects, whether it waits); refused at once, in words, when its account has too
@@ -276,7 +289,7 @@ class CoordinatorCore:
         if isinstance(arrival, Effects):
             return arrival, False
         if not isinstance(arrival.message, QUEUED):
-            return self._guarded(topic, arrival, now), False
+            return self._guarded(topic, arrival, now, retained), False
         req = arrival.message
         account, _ = self.identity.actor(req.header.sender)
         refusal = self.inbox.offer(Waiting(account, arrival.kind, topic, arrival))
@@ -321,10 +334,10 @@ class CoordinatorCore:
             return self._failed(topic, exc, now)
         return self._effects([]) if arrival is None else arrival
 
-    def _guarded(self, topic: str, arrival: Arrival, now: float) -> Effects:
+    def _guarded(self, topic: str, arrival: Arrival, now: float, retained: bool = False) -> Effects:
         """`_on`, with a refusal or a bug reported instead of raised."""
         try:
-            return self._on(arrival, topic, now)
+            return self._on(arrival, topic, now, retained)
         except ProtocolError as exc:
             notes: list[Note] = []
             request_id = getattr(arrival.message, "request_id", None)
@@ -368,7 +381,7 @@ class CoordinatorCore:
                 refused.append(self.say.reply(reply_to, request_id, outcome))
         return refused
 
-    def _on(self, arrival: Arrival, topic: str, now: float) -> Effects:
+    def _on(self, arrival: Arrival, topic: str, now: float, retained: bool = False) -> Effects:
         msg = arrival.message
         unit = arrival.unit
         if unit is not None and unit in self.removals and arrival.kind in UNIT_WORD:
@@ -401,7 +414,7 @@ class CoordinatorCore:
                 error = self.say.error(topic, forged, None)
                 return self._effects([error], log=((logging.WARNING, forged),))
         elif isinstance(msg, StopPayload):
-            return self._on_stop(arrival.kind, unit, topic, msg.payload)
+            return self._on_stop(arrival.kind, unit, topic, msg.payload, retained)
         elif isinstance(
             msg,
             SubmitJob
@@ -454,9 +467,14 @@ class CoordinatorCore:
             publish.append(self.say.reply(report.reply_to, report.request_id, outcome))
         return self._effects(publish, log=notes)
 
-    def _on_stop(self, kind: str, source: str | None, topic: str, payload: bytes) -> Effects:
+    def _on_stop(
+        self, kind: str, source: str | None, topic: str, payload: bytes, retained: bool = False
+    ) -> Effects:
         """The latch or a press (protocol.md §5.1); a bad payload raises before changing anything."""
-        news = self.stop.on_payload(kind, source, topic, payload)
+        news = self.stop.on_payload(kind, source, topic, payload, retained)
+        if news.stale is not None:  # nothing applied: no act for the audit, the fleet as it was
+            self.events.add(self.say.stamp.now(), "stop", news.stale)
+            return self._effects(news.publish, log=((logging.WARNING, news.stale),))
         self.audit.stop(self.say.stamp.now(), kind, source, topic, payload)  # valid: applied
         if news.line is None:
             return self._effects(news.publish)

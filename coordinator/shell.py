@@ -129,6 +129,7 @@ class CoordinatorShell:
             backoff=Backoff(0.1, 2.0),
         )
         self.ready = asyncio.Event()
+        self.on_broker: str | None = None  # the broker of the latest session (None: none yet)
         self._acked = asyncio.Event()  # set whenever nothing is awaited any more
         self._views_later: asyncio.Task[None] | None = None
         self._requests = asyncio.Event()  # set when requests wait in the core's inbox
@@ -178,7 +179,13 @@ class CoordinatorShell:
             self.history.close()
 
     async def _on_connect(self) -> None:
-        await self._apply(self.core.on_connect(self.clock()))
+        # Another broker than the session before: a failover, whose retained latch may be stale.
+        broker, before = self.endpoint.where, self.on_broker
+        self.on_broker = broker
+        moved = before is not None and before != broker
+        if moved:
+            log.warning("coordinator failed over from %s to %s", before, broker)
+        await self._apply(self.core.on_connect(self.clock(), moved=moved))
         self.ready.set()
         log.info("coordinator online at %s (root %s)", self.endpoint.where, self.topics.root)
 
@@ -189,7 +196,8 @@ class CoordinatorShell:
                 self.metrics.error_reported(payload)
             return
         errors = self.core.errors_reported
-        effects, waits = self.core.offer(topic, payload, self.clock())
+        retained = self.endpoint.retained  # of this message: read before anything awaits
+        effects, waits = self.core.offer(topic, payload, self.clock(), retained=retained)
         if waits:
             self._requests.set()  # answered by _serve, between what else arrives
         elif self.metrics is not None:

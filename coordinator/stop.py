@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import EstopSignal, Topics, encode_estop
+from gridfleet.protocol import EstopSignal, Topics, decode_estop, encode_estop
 from gridfleet.protocol.stop import LATCH, StopView
 
 # After connecting, how long the retained latch may take to arrive before the broker is taken to
@@ -25,6 +25,8 @@ class StopNews:
 
     publish: list[Outbound] = field(default_factory=list)
     line: str | None = None  # None: the fleet was stopped (or running) before and still is
+    # A retained latch not taken (a failover's stale `released`), in words; nothing was applied.
+    stale: str | None = None
 
 
 class FleetStop:
@@ -40,11 +42,20 @@ class FleetStop:
         # Likewise for the presses we hold: those the broker did not replay by then it lost.
         self._presses_due: float | None = None
         self._replayed: set[str] = set()  # press topics replayed since the last (re)connect
+        # The session is on another broker than the one before (a failover): its retained latch
+        # may be one that broker kept while the fleet was stopped elsewhere (node-local retained
+        # messages: RabbitMQ's), so one saying other than the stop we hold is not taken.
+        self._moved = False
         self._releasing: set[Outbound] = set()  # the last step's orders that release squares
 
-    def connected(self, now: float) -> None:
-        """(Re)connected: the retained latch and presses are due within LATCH_WAIT_S."""
+    def connected(self, now: float, moved: bool = False) -> None:
+        """(Re)connected: the retained latch and presses are due within LATCH_WAIT_S.
+
+        `moved`: on another broker than the session before (a failover, not a reconnect to the
+        same one): a retained latch that would release the stop held is re-asserted, not taken.
+        """
         self._latch_due = now + LATCH_WAIT_S
+        self._moved = moved
         self._presses_due = now + LATCH_WAIT_S
         self._replayed = set()
 
@@ -52,8 +63,17 @@ class FleetStop:
         """`signal` on the latch, retained (restored, re-asserted or copied from a press)."""
         return Outbound.of(LATCH, self.topics.fleet(LATCH), encode_estop(signal))
 
-    def on_payload(self, kind: str, source: str | None, topic: str, payload: bytes) -> StopNews:
-        """The latch or a press; a bad payload raises ProtocolError before changing anything."""
+    def on_payload(
+        self, kind: str, source: str | None, topic: str, payload: bytes, retained: bool = False
+    ) -> StopNews:
+        """The latch or a press; a bad payload raises ProtocolError before changing anything.
+
+        `retained`: the broker replayed it on subscribing (it was not published since).
+        """
+        if kind == LATCH and retained:
+            stale = self._stale(payload)
+            if stale is not None:
+                return stale
         was_latched = self.view.latch_engaged
         signal = self.view.apply(kind, source, topic, payload)
         if kind != LATCH:
@@ -83,6 +103,29 @@ class FleetStop:
             # its copy on the latch may still be on its way and would engage again.
             line = f"emergency stop released: {source}'s press was cleared"
         return StopNews(publish, line)
+
+    def _stale(self, payload: bytes) -> StopNews | None:
+        """The retained latch of a broker failed over to, when it would release the stop held.
+
+        That broker may never have seen the stop (a cluster whose retained messages are
+        node-local, or brokers that share nothing): its `released` (or `released` with no press
+        it knows) is no operator's release. The stop held goes out on the latch again, retained,
+        and an operator releases it there. Only the first latch of the session counts (the
+        broker replays it before anything published since), and only while it is due: a
+        broker that marks live messages retained cannot keep a release from ever being taken.
+        """
+        cause = self.view.cause
+        if not self._moved or self._latch_due is None or not self.engaged or cause is None:
+            return None
+        signal = decode_estop(payload)  # a bad one raises: healed, as on any connection
+        if signal.engaged:
+            return None  # agrees: the fleet stays stopped, by whoever it names
+        self._latch_due = None  # answered: what it has is replaced now
+        line = (
+            f"emergency stop held: the retained latch on the broker failed over to says released "
+            f"by {signal.by}, which is no release; re-asserted ({cause.by})"
+        )
+        return StopNews([self.latch_out(cause)], stale=line)
 
     def heal(self, topic: str) -> list[Outbound]:
         """The retained engaged stop again, when a payload that is no signal replaced it.

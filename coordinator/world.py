@@ -89,6 +89,9 @@ class World:
         self.heard_again: list[str] = []
         self.heard_at: float | None = None  # when the coordinator last heard anything at all
         self.first_heard_at: float | None = None
+        # Since when its present session is up: its own time off the broker (a failover, a
+        # reconnect) is no unit's silence, which counts from here at the earliest.
+        self.listening_since = float("-inf")
         self.heard_itself = False  # its own status came back: the retained factsheets are in
         # Square -> the units whose latest state is there (each state is checked against them).
         self._holders: dict[Cell, set[str]] = {}
@@ -157,6 +160,11 @@ class World:
         for rec in self.units.values():
             if rec.lost_since is not None:
                 rec.lost_since = now if rec.lost_since > last else rec.lost_since + (now - last)
+
+    def listening(self, now: float) -> None:
+        """The coordinator's session is up (again): units' silence counts from `now` at the
+        earliest (a unit whose broker died too is not lost while back within its timeout)."""
+        self.listening_since = now
 
     def fleet_known(self) -> bool:
         """Whether the coordinator has listened long enough to know every unit's factsheet."""
@@ -377,7 +385,7 @@ class World:
         """Online (not offline/broken) with a fresh state."""
         if rec.connection in ("offline", "broken") or rec.state is None or rec.state_at is None:
             return False
-        return now - rec.state_at <= self.stale_after_s(rec)
+        return now - max(rec.state_at, self.listening_since) <= self.stale_after_s(rec)
 
     def roll_call(self, now: float) -> set[str]:
         """Ids of the units heard from that are active now; notes since when each other one is lost.

@@ -109,6 +109,10 @@ class Endpoint:
         self._offline = offline
         self.backoff = backoff
         self.online = asyncio.Event()  # set while connected, subscribed and announced
+        # Whether the message the handler is given now is one the broker kept and replayed on
+        # subscribing (MQTT's retain flag on delivery), not one published since: read it before
+        # the handler's first await (the coordinator does, for the stop across a failover).
+        self.retained = False
         self.connects = 0  # sessions begun (tests watch reconnects)
         self.killed = False
         self._client: aiomqtt.Client | None = None
@@ -222,6 +226,7 @@ class Endpoint:
 
     async def _receive(self, client: aiomqtt.Client, handle: Handler) -> None:
         async for message in client.messages:
+            self.retained = bool(message.retain)
             try:
                 await handle(message.topic.value, payload_of(message))
             except aiomqtt.MqttError:

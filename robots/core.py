@@ -104,7 +104,7 @@ class UnitCore:
     def start(self, now: float) -> None:
         """The unit starts at `now`, not connected yet: it holds still until it is."""
         self.logic.start(now)
-        self.logic.on_disconnect(now)
+        self.logic.on_disconnect(now, first=True)
 
     def will(self) -> Outbound:
         """The last will of the coming connection: `broken` (stamped before its `online`)."""
@@ -126,7 +126,8 @@ class UnitCore:
         return [self.side.connection("online"), factsheet, *self.state()]
 
     def on_disconnect(self, now: float) -> None:
-        """Lost the broker: hold still (nothing can be sent until the next connect)."""
+        """Lost the broker: hold still (nothing can be sent until the next connect), and drive
+        nothing released before: it moves again on an order heard on the next connection."""
         # The stop is read afresh from the retained messages: a press cleared meanwhile is not
         # replayed, so one kept from before would hold the unit for good.
         self.stop = StopView()

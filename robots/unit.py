@@ -254,9 +254,20 @@ class UnitLogic:
         self._estop_wait_until = now + wait
         self._refresh(now)
 
-    def on_disconnect(self, now: float) -> None:
-        """Lost the broker (or not connected yet): hold still until connected again."""
+    def on_disconnect(self, now: float, *, first: bool = False) -> None:
+        """Lost the broker (or, `first`, not connected yet): hold still, and drop what it was
+        told to drive (not yet connected, it keeps its scenario's goal).
+
+        It moves again only on what it hears on its next connection (protocol.md §5.1, "Across
+        a broker's death"): a broker failed over to may never have seen the stop engaged, and a
+        unit reading no stop there must not drive the rest of a window released before it. The
+        released squares not yet driven go (an order on the new connection releases again), and
+        in standalone mode the goal (an operator sends it again).
+        """
         self.connected = False
+        self.orders.drop()
+        if self.mode == "standalone" and self.navigator.goal is not None and not first:
+            self.navigator.set_goal(None)
         self._refresh(now)
 
     def _sense(self, readings: Readings) -> None:

@@ -125,6 +125,9 @@ class VehicleCore:
         self.instants = PauseCancel()  # our pause, resume and cancel, until the vehicle shows them
         self.resend = OrderResend()  # the latest order sent, until a state shows it
         self.controlled = False  # an operator paused it or took it out of service
+        # Since the adapter lost the broker, no order heard that lets the vehicle drive on: it
+        # is paused meanwhile (a broker failed over to may never have seen the stop engaged).
+        self.unheard = False
         self.pressed = False  # its own emergency stop pressed on the fleet's behalf
         self.announced = False  # the fleet was told `online` (and not `broken` since)
         self.order_id: str | None = None  # gridfleet's order, as acknowledged
@@ -378,8 +381,9 @@ class VehicleCore:
         return self._on_order(topic, payload, now) if where == ("order", self.id) else []
 
     def _held(self) -> bool:
-        """Whether the vehicle must stay paused: the fleet's stop, or an operator's control."""
-        return self.stop.engaged or self.controlled
+        """Whether the vehicle must stay paused: the fleet's stop, an operator's control, or no
+        order heard yet on the adapter's present connection (`unheard`)."""
+        return self.stop.engaged or self.controlled or self.unheard
 
     def on_control(self, control: str | None, now: float) -> list[Outbound]:
         """An operator's control of the unit (fleet/routes): paused or out of service pauses
@@ -411,6 +415,19 @@ class VehicleCore:
             order = decode(Order, payload, TOPICS["order"].max_bytes)
         except ProtocolError as exc:
             return self._refuse(topic, str(exc))
+        before = (self.order_id, self.update_id)
+        outs = self._take_order(topic, order, now)
+        taken = (self.order_id, self.update_id) != before
+        if self.unheard and taken and (order.released or not self.released()):
+            # The coordinator's word on this connection: squares to drive (its base ahead among
+            # them), or a halt with nothing left to drive. A halt order cannot take back a base
+            # already sent, so one with a base ahead keeps it paused (under a stop the adapter
+            # has not read yet, the coordinator sends nothing else).
+            self.unheard = False
+            outs += self._follow_stop(now)
+        return outs
+
+    def _take_order(self, topic: str, order: Order, now: float) -> list[Outbound]:
         if order.order_id == self.order_id and order.update_id <= self.update_id:
             return []  # stale or repeated (rule 1)
         if self.square is None or not self.announced:
@@ -693,8 +710,10 @@ class VehicleCore:
         )
 
     def on_broker_lost(self) -> None:
-        """The adapter lost the broker: all is heard afresh (the retained messages come again)."""
+        """The adapter lost the broker: all is heard afresh (the retained messages come again),
+        and the vehicle is paused until an order on the next connection lets it drive on."""
         self.announced = False  # the next word from the vehicle announces the unit again
+        self.unheard = True
         self.stop = StopView()  # a press cleared meanwhile is not replayed
         self.side.new_connection()
         self._condition_sent = None

@@ -525,9 +525,59 @@ def test_after_the_adapter_lost_the_broker_the_unit_is_back_at_once_and_the_vehi
     online(c)
     c.on_broker_lost()
     outs = c.on_vehicle("connection", connection(), T0 + 1)  # retained: it comes again
-    assert kinds(outs)[:3] == ["instantActions", "units/agv1/connection", "units/agv1/factsheet"]
+    assert kinds(outs)[:4] == [
+        "instantActions",
+        "instantActions",  # paused until an order on this connection (the test below)
+        "units/agv1/connection",
+        "units/agv1/factsheet",
+    ]
     assert json.loads(outs[0].payload)["actions"][0]["actionType"] == "stateRequest"
-    assert decode(Connection, outs[1].payload).state == "online"
+    assert json.loads(outs[1].payload)["actions"][0]["actionType"] == "startPause"
+    assert decode(Connection, outs[2].payload).state == "online"
+
+
+def actions_in(outs: list[Outbound]) -> list[str]:
+    """The instant actions among `outs`, by type."""
+    return [
+        a["actionType"]
+        for o in outs
+        if kinds([o]) == ["instantActions"]
+        for a in json.loads(o.payload)["actions"]
+    ]
+
+
+def test_after_the_broker_was_lost_the_vehicle_drives_its_base_only_on_an_order_heard_since() -> (
+    None
+):
+    # protocol.md §5.1, "Across a broker's death": the broker failed over to may never have
+    # seen the stop engaged. The vehicle drives on only once the coordinator speaks again.
+    c = core()
+    online(c)
+    c.on_fleet(TOPICS.unit("order", "agv1"), order(1, [Cell(1, 0), Cell(2, 0)]), T0)
+    c.on_broker_lost()
+    back = c.on_vehicle("connection", connection(), T0 + 1)
+    assert "startPause" in actions_in(back)
+    driving = state(agvPosition=at(0, 0), orderId=c.orders.order_id)
+    c.on_vehicle("state", vda({**driving, "paused": True}), T0 + 1.1)
+    # No stop retained on this broker: still paused, as a halt order does not take back a base.
+    assert actions_in(c.on_fleet(TOPICS.fleet("estop"), b"released|op|x", T0 + 1.2)) == []
+    assert "stopPause" not in actions_in(
+        c.on_fleet(TOPICS.unit("order", "agv1"), order(2, []), T0 + 1.3)
+    )
+    # An order that releases squares (the base ahead): it drives on.
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(3, [Cell(1, 0), Cell(2, 0)]), T0 + 1.4)
+    assert actions_in(outs)[-1:] == ["stopPause"]
+    assert not c.unheard
+
+
+def test_after_the_broker_was_lost_a_vehicle_with_no_base_left_resumes_on_a_halt_order() -> None:
+    c = core()
+    online(c)
+    c.on_broker_lost()
+    c.on_vehicle("connection", connection(), T0 + 1)
+    c.on_vehicle("state", vda(state(agvPosition=at(0, 0), paused=True)), T0 + 1.1)
+    outs = c.on_fleet(TOPICS.unit("order", "agv1"), order(1, []), T0 + 1.2)
+    assert actions_in(outs) == ["stopPause"] and not c.unheard
 
 
 def test_states_the_adapter_fails_on_show_on_the_unit_then_break_it_until_one_is_read(
