@@ -546,6 +546,8 @@ def rules(account: Account, topics: Topics) -> Rules:
         subscribe = [
             t.unit("order", account.unit),
             t.unit("goal", account.unit),
+            # Its own record, set right when a late last will overwrites it (protocol.md §4.1).
+            t.unit("connection", account.unit),
             t.fleet("estop"),
             *presses,
             t.fleet("coordinator"),
@@ -571,6 +573,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         ]
         subscribe = [
             *(t.unit("order", v.unit) for v in links),
+            *(t.unit("connection", v.unit) for v in links),  # each unit's record, set right
             t.fleet("estop"),
             *presses,
             t.fleet("routes"),  # operators' pauses

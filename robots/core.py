@@ -1,11 +1,13 @@
 """One unit's side of the protocol, pure: what arrives in, exactly what to publish out.
 
 `UnitCore` wraps a `UnitLogic` with the wire: it reads every inbound topic a unit follows (the stop,
-orders, goals, the coordinator's status), connects, disconnects and steps, and returns the
-messages to publish as `Outbound`s, in the order they must leave: the state after a step that
-changed something (an accepted order's included) and at once on the stop, the direction whenever
-it changed (an order's first move at once), an error report (with the reason) for every refused
-message, `online` and the factsheet on connect. Time comes in as `now`; headers come from the
+orders, goals, the coordinator's status, its own `connection`), connects, disconnects and steps,
+and returns the messages to publish as `Outbound`s, in the order they must leave: the state after
+a step that changed something (an accepted order's included) and at once on the stop, the
+direction whenever it changed (an order's first move at once), an error report (with the reason)
+for every refused message, `online` and the factsheet on connect, and `online` again while
+connected whenever its own `connection` reads otherwise (a clustered broker's late last will of
+an earlier session, protocol.md §4.1). Time comes in as `now`; headers come from the
 stamper it is given, so tests can pin every payload.
 """
 
@@ -16,6 +18,7 @@ from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
+    Connection,
     CoordinatorStatus,
     Goal,
     HeaderStamper,
@@ -81,6 +84,10 @@ class UnitCore:
         self.stop = StopView()  # the latch and the held presses, as this unit read them
         self.map_id = logic.grid.map_id()  # the static map, before any obstacle is found
         self.lateness = Lateness()  # of orders, against this unit's own clock (its stamper's)
+        self.leaving = False  # its clean stop's `offline` is made: its record is not set right
+        # Times its own `connection` read other than `online` while connected, and it said
+        # `online` again (a late last will of an earlier session; tests and logs watch it).
+        self.connection_corrections = 0
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
         """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
@@ -90,6 +97,8 @@ class UnitCore:
             topics += [t.unit("order", self.id), t.fleet("coordinator")]
         else:
             topics.append(t.unit("goal", self.id))
+        # Its own record, set right while connected (protocol.md §4.1).
+        topics.append(t.unit("connection", self.id))
         if watch_peers:
             topics.append(t.all_units("state"))
         subs = []
@@ -113,6 +122,7 @@ class UnitCore:
     def on_connect(self, now: float) -> list[Outbound]:
         """Connected and subscribed: `online`, the factsheet, then the state and direction."""
         self.logic.on_connect(now)
+        self.leaving = False
         self.lateness.reset()  # a new session: whatever piled up on the old one is gone
         self.side.new_connection()  # say the direction again
         factsheet = self.side.factsheet(
@@ -134,7 +144,8 @@ class UnitCore:
         self.logic.on_disconnect(now)
 
     def offline(self) -> Outbound:
-        """The goodbye of a clean stop."""
+        """The goodbye of a clean stop (its own `offline`, read back, is not set right)."""
+        self.leaving = True
         return self.side.connection("offline")
 
     # ---- what arrives -------------------------------------------------------------------------
@@ -151,6 +162,8 @@ class UnitCore:
             return self._on_order(topic, payload, now)
         if kind == "goal" and who == self.id:
             return self._on_goal(topic, payload, now)
+        if kind == "connection" and who == self.id:
+            return self._on_own_connection(topic, payload)
         if kind == "coordinator":
             if not payload:
                 return []  # the retained status cleared (`gridfleet clean`): nothing to read
@@ -164,6 +177,28 @@ class UnitCore:
                 self.lateness.reset()  # a coordinator (re)started: its clock may be another's
             self.logic.on_coordinator(status.step_period_s)
         return []
+
+    def _on_own_connection(self, topic: str, payload: bytes) -> list[Outbound]:
+        """Its own `connection` read back: anything but `online` while connected is set right.
+
+        On a clustered broker a node that dies leaves its clients' last wills to a survivor,
+        which may publish them seconds to minutes later: by then the unit may be online on
+        another node, and its old session's `broken` would stand as its record (retained) for
+        the coordinator and everyone who reads it later. The unit says `online` again, with a
+        fresh header. Its own `online` read back changes nothing; nor does a cleared record (an
+        empty payload: a removed unit's, §6.11), nor anything once its clean stop's `offline` is
+        made, nor anything while disconnected (the next connection says `online` anyway).
+        """
+        if not payload or not self.logic.connected or self.leaving:
+            return []
+        try:
+            said = decode(Connection, payload)
+        except ProtocolError as exc:
+            return [self.side.report(topic, str(exc))]  # nothing to set right by
+        if said.state == "online":
+            return []
+        self.connection_corrections += 1
+        return [self.side.connection("online")]
 
     def _on_stop(
         self, kind: str, who: str | None, topic: str, payload: bytes, now: float

@@ -42,6 +42,7 @@ from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
     TOPICS,
     Action,
+    Connection,
     HeaderStamper,
     Leds,
     Order,
@@ -154,9 +155,15 @@ class VehicleCore:
         return [(v.topic("state"), 0), (v.topic("connection"), 1), (v.topic("factsheet"), 0)]
 
     def fleet_subscriptions(self) -> list[tuple[str, int]]:
-        """The fleet's topics this unit follows: the stop and its orders."""
+        """The fleet's topics this unit follows: the stop, its orders and its own `connection`
+        (set right while announced, as a gridfleet unit's: protocol.md §4.1)."""
         order = self.topics.unit("order", self.id)
-        return [*stop_filters(self.topics), (order, TOPICS["order"].qos)]
+        connection = self.topics.unit("connection", self.id)
+        return [
+            *stop_filters(self.topics),
+            (order, TOPICS["order"].qos),
+            (connection, TOPICS["connection"].qos),
+        ]
 
     # ---- the vehicle --------------------------------------------------------------------------
 
@@ -378,7 +385,22 @@ class VehicleCore:
             except ProtocolError as exc:
                 return [self.side.report(topic, str(exc))]  # never a release
             return self._follow_stop(now) + self.state()
+        if where == ("connection", self.id):
+            return self._on_own_connection(topic, payload)
         return self._on_order(topic, payload, now) if where == ("order", self.id) else []
+
+    def _on_own_connection(self, topic: str, payload: bytes) -> list[Outbound]:
+        """The unit's `connection` read back: anything but `online` while the fleet was told
+        `online` (and not `offline` or `broken` since) is set right with `online` again, as a
+        gridfleet unit does (robots/core.py): a stale word of a clustered broker's. Its own
+        `offline` or `broken` comes back after it stopped announcing, and changes nothing."""
+        if not payload or not self.announced:
+            return []
+        try:
+            said = decode(Connection, payload)
+        except ProtocolError as exc:
+            return [self.side.report(topic, str(exc))]
+        return [] if said.state == "online" else [self.side.connection("online")]
 
     def _held(self) -> bool:
         """Whether the vehicle must stay paused: the fleet's stop, an operator's control, or no

@@ -265,6 +265,10 @@ def test_each_role_may_publish_only_what_protocol_md_gives_it() -> None:
     assert T.unit("state", "unit2") not in unit1.publish
     assert not any("order" in topic or "requests" in topic for topic in unit1.publish)
     assert T.unit("order", "unit1") in unit1.subscribe
+    # Its own record, to set it right (protocol.md §4.1); nobody else's.
+    assert T.unit("connection", "unit1") in unit1.subscribe
+    assert T.unit("connection", "unit2") not in unit1.subscribe
+    assert T.all_units("connection") not in unit1.subscribe
     assert T.unit("stop", "unit1") in unit1.publish  # its own press, never the latch
     assert T.unit("stop", "unit2") not in unit1.publish and T.fleet("estop") not in unit1.publish
     device = rules(accounts.get("device-unit1"), T)
@@ -345,6 +349,9 @@ def test_a_vehicle_and_the_adapter_may_use_only_their_vda_5050_topics() -> None:
     assert (
         f"{agv2.topic}/state" in adapter.subscribe and T.unit("order", "agv2") in adapter.subscribe
     )
+    # Each of its units' records, to set them right (protocol.md §4.1); no other unit's.
+    assert {T.unit("connection", v.unit) for v in VEHICLES} <= set(adapter.subscribe)
+    assert not any("unit1" in topic or "+/connection" in topic for topic in adapter.subscribe)
 
 
 def test_listening_beyond_loopback_needs_accounts() -> None:

@@ -148,10 +148,12 @@ def test_subscriptions_follow_the_mode() -> None:
         *stop,
         ("gf/v1/units/u1/order", 1),
         ("gf/v1/coordinator/status", 1),
+        ("gf/v1/units/u1/connection", 1),  # its own, set right (protocol.md §4.1)
     ]
     assert make("standalone").subscriptions(watch_peers=True) == [
         *stop,
         ("gf/v1/units/u1/goal", 1),
+        ("gf/v1/units/u1/connection", 1),
         ("gf/v1/units/+/state", 0),
     ]
 
