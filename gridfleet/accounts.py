@@ -574,6 +574,7 @@ def rules(account: Account, topics: Topics) -> Rules:
         subscribe = [
             *(t.unit("order", v.unit) for v in links),
             *(t.unit("connection", v.unit) for v in links),  # each unit's record, set right
+            t.fleet("coordinator"),  # a new session is told again who each unit is (§5.5)
             t.fleet("estop"),
             *presses,
             t.fleet("routes"),  # operators' pauses

@@ -7,8 +7,9 @@ a step that changed something (an accepted order's included) and at once on the 
 direction whenever it changed (an order's first move at once), an error report (with the reason)
 for every refused message, `online` and the factsheet on connect, and `online` again while
 connected whenever its own `connection` reads otherwise (a clustered broker's late last will of
-an earlier session, protocol.md §4.1). Time comes in as `now`; headers come from the
-stamper it is given, so tests can pin every payload.
+an earlier session, protocol.md §4.1), and `online`, the factsheet and the state again to every
+new coordinator session (whose broker may not have given it the retained ones, §5.5). Time comes
+in as `now`; headers come from the stamper it is given, so tests can pin every payload.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from gridfleet.protocol import (
 )
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.robots.fleet_side import Condition, FleetSide
+from gridfleet.robots.sessions import CoordinatorSessions
 from gridfleet.robots.unit import Move, Sense, UnitLogic
 
 
@@ -88,6 +90,9 @@ class UnitCore:
         # Times its own `connection` read other than `online` while connected, and it said
         # `online` again (a late last will of an earlier session; tests and logs watch it).
         self.connection_corrections = 0
+        # The coordinator sessions told who it is on this connection (protocol.md §5.5).
+        self.sessions = CoordinatorSessions()
+        self.announcements = 0  # times it told a new coordinator session again (tests watch it)
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
         """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
@@ -125,7 +130,11 @@ class UnitCore:
         self.leaving = False
         self.lateness.reset()  # a new session: whatever piled up on the old one is gone
         self.side.new_connection()  # say the direction again
-        factsheet = self.side.factsheet(
+        return [self.side.connection("online"), self._factsheet(), *self.state()]
+
+    def _factsheet(self) -> Outbound:
+        """Its factsheet, with a fresh header."""
+        return self.side.factsheet(
             capacity_kg=self.logic.capacity_kg,
             step_s=self.logic.step_s,
             color=self.color,
@@ -133,7 +142,6 @@ class UnitCore:
             map_id=self.map_id,
             energy=None if self.logic.battery is None else self.logic.battery.model,
         )
-        return [self.side.connection("online"), factsheet, *self.state()]
 
     def on_disconnect(self, now: float) -> None:
         """Lost the broker: hold still (nothing can be sent until the next connect), and drive
@@ -141,6 +149,7 @@ class UnitCore:
         # The stop is read afresh from the retained messages: a press cleared meanwhile is not
         # replayed, so one kept from before would hold the unit for good.
         self.stop = StopView()
+        self.sessions.reset()  # the next connection announces itself anyway
         self.logic.on_disconnect(now)
 
     def offline(self) -> Outbound:
@@ -150,8 +159,13 @@ class UnitCore:
 
     # ---- what arrives -------------------------------------------------------------------------
 
-    def on_message(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
-        """React to one inbound message; what to publish because of it."""
+    def on_message(
+        self, topic: str, payload: bytes, now: float, *, retained: bool = False
+    ) -> list[Outbound]:
+        """React to one inbound message; what to publish because of it.
+
+        `retained`: the broker replayed it on subscribing (MQTT's retain flag on delivery).
+        """
         where = self.side.parse(topic)
         if where is None:
             return []
@@ -165,18 +179,30 @@ class UnitCore:
         if kind == "connection" and who == self.id:
             return self._on_own_connection(topic, payload)
         if kind == "coordinator":
-            if not payload:
-                return []  # the retained status cleared (`gridfleet clean`): nothing to read
-            try:
-                status = decode(CoordinatorStatus, payload)
-            except ProtocolError as exc:
-                # Nothing changes (the hold timeout stays), and the unit says why (§7); not in
-                # its state's errors: the fault is the coordinator's, not the unit's.
-                return [self.side.report(topic, str(exc))]
-            if status.header.seq == 0:
-                self.lateness.reset()  # a coordinator (re)started: its clock may be another's
-            self.logic.on_coordinator(status.step_period_s)
+            return self._on_coordinator(topic, payload, retained)
         return []
+
+    def _on_coordinator(self, topic: str, payload: bytes, retained: bool) -> list[Outbound]:
+        """The coordinator's status: its step period sizes the hold timeout; a new session of
+        it is told again who this unit is (`online`, the factsheet and the state, fresh headers):
+        its broker may not have given it the retained ones (RabbitMQ's retained messages are
+        each node's own and never reach a wildcard subscription; a broker restarted empty)."""
+        if not payload:
+            return []  # the retained status cleared (`gridfleet clean`): nothing to read
+        try:
+            status = decode(CoordinatorStatus, payload)
+        except ProtocolError as exc:
+            # Nothing changes (the hold timeout stays), and the unit says why (§7); not in
+            # its state's errors: the fault is the coordinator's, not the unit's.
+            return [self.side.report(topic, str(exc))]
+        new = self.sessions.new_session(status, retained=retained)
+        if new or status.header.seq == 0:
+            self.lateness.reset()  # a coordinator (re)started: its clock may be another's
+        self.logic.on_coordinator(status.step_period_s)
+        if not new or not self.logic.connected or self.leaving:
+            return []
+        self.announcements += 1
+        return [self.side.connection("online"), self._factsheet(), *self.state()]
 
     def _on_own_connection(self, topic: str, payload: bytes) -> list[Outbound]:
         """Its own `connection` read back: anything but `online` while connected is set right.

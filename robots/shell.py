@@ -99,11 +99,12 @@ class UnitShell:
         await self._send(self.core.on_connect(self._now()))
 
     async def _handle(self, topic: str, payload: bytes) -> None:
+        retained = self.endpoint.retained  # of this message: read before anything awaits
         seen = self.core.peer_position(topic, payload)
         if seen is not None:
             self.world.observe(*seen)
             return
-        await self._send(self.core.on_message(topic, payload, self._now()))
+        await self._send(self.core.on_message(topic, payload, self._now(), retained=retained))
 
     async def _ticks(self, shutdown: asyncio.Event) -> None:
         step_s = self.logic.step_s

@@ -23,6 +23,8 @@ and `instantActions` to pause, resume and cancel.
   `energy` model (else the unit reports no energy).
 - **Heartbeat**: a vehicle may stay silent for 30 s; the fleet hears the unit every
   `STATE_HEARTBEAT_STEPS` steps anyway, from what the vehicle said last (`tick`).
+- **A new coordinator**: an announced unit says `online`, its factsheet and its state again to
+  every new coordinator session, as a gridfleet unit does (robots/sessions.py, protocol.md §5.5).
 
 Its parts: what it says to the fleet, and when, is every unit's (`robots/fleet_side.py`); our
 pause, resume and cancel are one state machine (pause_cancel.py); an order not yet seen is sent
@@ -43,6 +45,7 @@ from gridfleet.protocol import (
     TOPICS,
     Action,
     Connection,
+    CoordinatorStatus,
     HeaderStamper,
     Leds,
     Order,
@@ -57,6 +60,7 @@ from gridfleet.protocol.device import EstopSignal, encode_estop
 from gridfleet.protocol.messages import SensorReading, UnitError, UnitStatus
 from gridfleet.protocol.stop import STOP_KINDS, StopView, stop_filters
 from gridfleet.robots.fleet_side import Condition, FleetSide, letter
+from gridfleet.robots.sessions import CoordinatorSessions
 from gridfleet.robots.vda5050.charging import Charge, Charging
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.inbound import VdaConnection, VdaFactsheet, VdaState, read_vda
@@ -131,6 +135,8 @@ class VehicleCore:
         self.unheard = False
         self.pressed = False  # its own emergency stop pressed on the fleet's behalf
         self.announced = False  # the fleet was told `online` (and not `broken` since)
+        # The coordinator sessions told who it is on this connection (protocol.md §5.5).
+        self.sessions = CoordinatorSessions()
         self.order_id: str | None = None  # gridfleet's order, as acknowledged
         self.update_id = 0
         self.actions: dict[str, Action] = {}  # VDA action id -> the gridfleet action it does
@@ -155,14 +161,16 @@ class VehicleCore:
         return [(v.topic("state"), 0), (v.topic("connection"), 1), (v.topic("factsheet"), 0)]
 
     def fleet_subscriptions(self) -> list[tuple[str, int]]:
-        """The fleet's topics this unit follows: the stop, its orders and its own `connection`
-        (set right while announced, as a gridfleet unit's: protocol.md §4.1)."""
+        """The fleet's topics this unit follows: the stop, its orders, its own `connection`
+        (set right while announced, as a gridfleet unit's: protocol.md §4.1) and the
+        coordinator's status (a new session is told again who the unit is: §5.5)."""
         order = self.topics.unit("order", self.id)
         connection = self.topics.unit("connection", self.id)
         return [
             *stop_filters(self.topics),
             (order, TOPICS["order"].qos),
             (connection, TOPICS["connection"].qos),
+            (self.topics.fleet("coordinator"), TOPICS["coordinator"].qos),
         ]
 
     # ---- the vehicle --------------------------------------------------------------------------
@@ -376,8 +384,11 @@ class VehicleCore:
 
     # ---- the fleet ----------------------------------------------------------------------------
 
-    def on_fleet(self, topic: str, payload: bytes, now: float) -> list[Outbound]:
-        """One message on one of the fleet's topics this unit follows."""
+    def on_fleet(
+        self, topic: str, payload: bytes, now: float, *, retained: bool = False
+    ) -> list[Outbound]:
+        """One message on one of the fleet's topics this unit follows (`retained`: replayed by
+        the broker on subscribing)."""
         where = self.side.parse(topic)
         if where is not None and where[0] in STOP_KINDS:
             try:
@@ -387,6 +398,8 @@ class VehicleCore:
             return self._follow_stop(now) + self.state()
         if where == ("connection", self.id):
             return self._on_own_connection(topic, payload)
+        if where is not None and where[0] == "coordinator":
+            return self._on_coordinator(topic, payload, retained)
         return self._on_order(topic, payload, now) if where == ("order", self.id) else []
 
     def _on_own_connection(self, topic: str, payload: bytes) -> list[Outbound]:
@@ -401,6 +414,20 @@ class VehicleCore:
         except ProtocolError as exc:
             return [self.side.report(topic, str(exc))]
         return [] if said.state == "online" else [self.side.connection("online")]
+
+    def _on_coordinator(self, topic: str, payload: bytes, retained: bool) -> list[Outbound]:
+        """The coordinator's status: a new session of it is told again who the unit is, once
+        announced (`online`, the factsheet, the state; fresh headers): its broker may not have
+        given it the retained ones. Before that, the announcement tells it anyway."""
+        if not payload:
+            return []  # cleared (`gridfleet clean`)
+        try:
+            status = decode(CoordinatorStatus, payload)
+        except ProtocolError as exc:
+            return [self.side.report(topic, str(exc))]
+        if not self.sessions.new_session(status, retained=retained) or not self.announced:
+            return []
+        return [self.side.connection("online"), self._factsheet(), *self.state()]
 
     def _held(self) -> bool:
         """Whether the vehicle must stay paused: the fleet's stop, an operator's control, or no
@@ -735,6 +762,7 @@ class VehicleCore:
         """The adapter lost the broker: all is heard afresh (the retained messages come again),
         and the vehicle is paused until an order on the next connection lets it drive on."""
         self.announced = False  # the next word from the vehicle announces the unit again
+        self.sessions.reset()
         self.unheard = True
         self.stop = StopView()  # a press cleared meanwhile is not replayed
         self.side.new_connection()

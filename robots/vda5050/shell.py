@@ -115,6 +115,7 @@ class AdapterShell:
         await self._send([out for core in self.cores for out in core.offline()])
 
     async def _handle(self, topic: str, payload: bytes) -> None:
+        retained = self.endpoint.retained  # of this message: read before anything awaits
         now = self._now()
         found = self._by_vda.get(topic)
         if found is not None:
@@ -134,6 +135,11 @@ class AdapterShell:
             await self._send([o for core in self.cores for o in core.on_fleet(topic, payload, now)])
         elif kind == "routes":
             await self._send(self._controls(payload, now))
+        elif kind == "coordinator":  # a new session is told again who every unit is
+            outs = [
+                o for c in self.cores for o in c.on_fleet(topic, payload, now, retained=retained)
+            ]
+            await self._send(outs)
         elif who in self._by_unit:
             await self._send(self._by_unit[who].on_fleet(topic, payload, now))
 

@@ -355,7 +355,13 @@ def test_clocks_that_disagree_are_no_lateness_and_a_restarted_coordinator_is_lea
         assert core.logic.late_by_s is None and core.logic.released == [Cell(1, 1)]
     # A coordinator started afresh (its status from seq 0), on a host whose clock is right.
     restarted = CoordinatorStatus(header=header("coordinator"), state="online", step_period_s=0.1)
-    assert core.on_message(ROOT + "coordinator/status", encode(restarted), 0.35) == []
+    told = core.on_message(ROOT + "coordinator/status", encode(restarted), 0.35)
+    # A new session is told again who the unit is (tests/robots/test_robots_sessions.py).
+    assert [t for t, *_ in published(told, ROOT)] == [
+        "units/u1/connection",
+        "units/u1/factsheet",
+        "units/u1/state",
+    ]
     core.on_message(ROOT + "units/u1/order", order_bytes("c2", 1, [Cell(1, 1)]), 0.4)
     assert core.logic.late_by_s is None and core.logic.order_id == "c2"
     # Without a restart, that same hour would have been lateness.
@@ -491,7 +497,8 @@ def test_a_press_that_is_no_press_is_reported_and_changes_nothing(
 def test_the_coordinators_status_sizes_the_hold_timeout_and_a_bad_one_is_refused() -> None:
     core = ready()
     status = CoordinatorStatus(header=COORDINATOR("coordinator"), state="online", step_period_s=1.0)
-    assert core.on_message(ROOT + "coordinator/status", encode(status), 0.3) == []
+    # Replayed on subscribing: the coordinator was there before the unit announced itself.
+    assert core.on_message(ROOT + "coordinator/status", encode(status), 0.3, retained=True) == []
     assert core.logic.hold_timeout_s == 3.0
     ((topic, report, _, _),) = published(
         core.on_message(ROOT + "coordinator/status", b"{broken", 0.3), ROOT

@@ -37,7 +37,9 @@ def test_a_late_will_on_the_next_broker_is_set_right_by_the_unit_and_it_stays_in
             """The coordinator's `connection` of the unit, and whether it counts it active."""
 
             def read() -> tuple[str | None, bool]:
-                rec = world.units[unit]
+                rec = world.units.get(unit)  # None: not heard yet
+                if rec is None:
+                    return None, False
                 return rec.connection, world.is_active(rec, asyncio.get_running_loop().time())
 
             return coordinator.call(read)
