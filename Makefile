@@ -4,25 +4,30 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: constraints run test test-fast test-mosquitto check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
+.PHONY: constraints run test test-fast test-mosquitto pytest-clusters check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
-# dashboard, doctest and g++ for the firmware's host tests, Prometheus to scrape a fleet's metrics.
-DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make prometheus
+# dashboard, doctest and g++ for the firmware's host tests, Prometheus to scrape a fleet's metrics,
+# Redis and RabbitMQ for the broker clusters (aedes on Redis, three RabbitMQ nodes).
+DEBIAN_PACKAGES := mosquitto mosquitto-clients chromium libnss3-tools doctest-dev g++ make prometheus \
+	redis-server rabbitmq-server
 
-# npm: the dashboard's packages, and vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, fetched
+# npm: the dashboard's packages, vda-5050-lib for the tests' VDA 5050 2.0.0 vehicles, and aedes for
+# the aedes cluster's launcher (broker/aedes), fetched
 # while pip installs. pip byte-compiles every module at install: where PYTHONDONTWRITEBYTECODE is
 # set, nothing compiled later is kept, and every process of every test would compile again; so
 # gridfleet's own modules are compiled here too, and the test modules as pytest rewrites them (a
 # collection: the first runs of make test start their pytest processes all at once).
 NPM_CI := npm ci --no-audit --no-fund --loglevel=error
-$(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json
+$(STAMP): pyproject.toml constraints.txt dashboard/package-lock.json tests/vda5050_lib/package-lock.json \
+		broker/aedes/package-lock.json
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	(cd dashboard && $(NPM_CI)) & dashboard=$$!; \
 	(cd tests/vda5050_lib && $(NPM_CI)) & vda=$$!; \
+	(cd broker/aedes && $(NPM_CI)) & aedes=$$!; \
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[test]"; pip=$$?; \
-	wait $$dashboard && wait $$vda && exit $$pip
+	wait $$dashboard && wait $$vda && wait $$aedes && exit $$pip
 	$(BIN)/python -m compileall -q -j 0 -x node_modules gridfleet $(PARTS) tests >/dev/null
 	$(KEEP_BYTECODE) $(BIN)/pytest --collect-only -q -p no:cacheprovider >/dev/null || true
 	touch $(STAMP)
@@ -38,8 +43,8 @@ run: $(STAMP)
 # a unit that moves later than two steps after a stop: its fleet must never be the one kept
 # waiting for a core (five units moved 0.55 s after one, beside mypy and g++ at its priority).
 test: system-deps $(STAMP)
-	$(MAKE) --no-print-directory -j4 --output-sync=target soak check firmware-checkout pytest \
-		PRIORITY="nice -n 10"
+	$(MAKE) --no-print-directory -j5 --output-sync=target soak check firmware-checkout pytest \
+		pytest-clusters PRIORITY="nice -n 10"
 
 # Installs the missing Debian packages as root (or with password-less sudo); otherwise says the
 # one command to run, and stops: no test is skipped for want of a tool.
@@ -108,6 +113,14 @@ pytest: $(STAMP)
 	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=amqtt,mosquitto $(PRIORITY) $(BIN)/pytest $(XDIST) \
 		-m "not soak and not firmware"
 
+# The tests whose verdict is the broker's doing (`every_broker`) on the two clusters too: aedes
+# instances sharing a Redis, and three RabbitMQ nodes (tests/support/aedes.py, rabbitmq.py), each
+# client of a test starting on the next node. Two workers, each with a cluster of each kind, on
+# port bands of their own (6 and 7) beside the main run's.
+pytest-clusters: $(STAMP)
+	$(KEEP_BYTECODE) GRIDFLEET_TEST_BROKER=aedes,rabbitmq GRIDFLEET_PORT_BAND=6+ $(PRIORITY) \
+		$(BIN)/pytest -n 2 --dist worksteal -m "every_broker and not soak and not firmware"
+
 # Only the tests that talk to the suite's broker, on Mosquitto alone; the tests about amqtt itself
 # stay out.
 test-mosquitto: system-deps $(STAMP)
@@ -128,4 +141,5 @@ schemas: $(STAMP)
 	$(BIN)/python script/gen_protocol.py
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules tests/vda5050_lib/node_modules
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache dashboard/node_modules tests/vda5050_lib/node_modules \
+		broker/aedes/node_modules

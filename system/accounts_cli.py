@@ -21,6 +21,7 @@ from gridfleet.accounts import (
     write_accounts,
 )
 from gridfleet.api_tokens import created_text, issue_token, revoke_tokens
+from gridfleet.broker.aedes import launcher_command, write_accounts_json
 from gridfleet.broker.certs import DEFAULT_HOSTS, make_tls, write_tls
 from gridfleet.broker.mosquitto import (
     MOSQUITTO_USER,
@@ -33,6 +34,10 @@ from gridfleet.broker.mosquitto import (
     write_conf,
     write_files,
 )
+from gridfleet.broker.rabbitmq import CONF_FILE as RABBITMQ_CONF_FILE
+from gridfleet.broker.rabbitmq import VHOST as RABBITMQ_VHOST
+from gridfleet.broker.rabbitmq import rabbitmq_conf
+from gridfleet.broker.rabbitmq import write_definitions as write_rabbitmq_definitions
 from gridfleet.errors import ConfigError
 from gridfleet.protocol import Topics
 from gridfleet.protocol.constants import DEFAULT_ROOT
@@ -124,6 +129,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --bridge-to: the bridge speaks TLS to the central broker, trusting this CA "
         "('accounts tls' wrote it as ca.pem; HOST must be a name or address its certificate has)",
     )
+    aedes = sub.add_parser(
+        "aedes", help="write the accounts file of the aedes cluster's launcher from them"
+    )
+    aedes.add_argument("out", type=Path, metavar="DIR", help="directory for aedes-accounts.json")
+    aedes.add_argument("--file", type=Path, required=True, help="accounts file")
+    aedes.add_argument(
+        "--root", default=DEFAULT_ROOT, help=f"topic root (default {DEFAULT_ROOT!r})"
+    )
+    rabbit = sub.add_parser(
+        "rabbitmq", help="write RabbitMQ's definitions (users, topic permissions) and config"
+    )
+    rabbit.add_argument(
+        "out", type=Path, metavar="DIR", help="directory for definitions.json and rabbitmq.conf"
+    )
+    rabbit.add_argument("--file", type=Path, required=True, help="accounts file")
+    rabbit.add_argument(
+        "--root", default=DEFAULT_ROOT, help=f"topic root (default {DEFAULT_ROOT!r})"
+    )
+    rabbit.add_argument(
+        "--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)"
+    )
+    rabbit.add_argument("--port", type=int, default=1883, help="MQTT port (default 1883)")
+    rabbit.add_argument(
+        "--ws-port", type=int, default=15675, help="websocket port, path /ws (default 15675)"
+    )
+    rabbit.add_argument("--no-ws", action="store_true", help="no websocket listener")
     tls = sub.add_parser("tls", help="make a local CA and the broker's TLS certificate")
     tls.add_argument("--out", type=Path, required=True, help="directory for the three files")
     tls.add_argument(
@@ -158,6 +189,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.action == "mosquitto":
         return _mosquitto(args)
+    if args.action == "aedes":
+        return _aedes(args)
+    if args.action == "rabbitmq":
+        return _rabbitmq(args)
     if args.action == "token":
         return _token(args)
     # A unit's or a vehicle's account is named after its unit unless --unit says otherwise.
@@ -226,6 +261,46 @@ def _vehicles_of(role: str, unit: str | None, path: Path | None) -> tuple[Vehicl
     if not mine:
         raise ConfigError(f"{path}: no vehicle of unit {unit!r}")
     return mine
+
+
+def _aedes(args: argparse.Namespace) -> int:
+    """`gridfleet accounts aedes DIR`: the launcher's accounts file (mode 600), and how to run a
+    cluster instance with it."""
+    accounts = load_accounts(args.file)
+    written = write_accounts_json(accounts, Topics(args.root), args.out.resolve())
+    command = " ".join(launcher_command(written, instance_id="aedes-0"))
+    print(
+        f"wrote {written} ({len(accounts.accounts)} accounts, password hashes only; keep it "
+        f"private): run each instance on the same Redis, e.g. '{command}' (docs/brokers.md)"
+    )
+    return 0
+
+
+def _rabbitmq(args: argparse.Namespace) -> int:
+    """`gridfleet accounts rabbitmq DIR`: definitions.json (mode 600) and a rabbitmq.conf that
+    loads it, and how to run a node with them."""
+    accounts = load_accounts(args.file)
+    out = args.out.resolve()
+    definitions = write_rabbitmq_definitions(accounts, Topics(args.root), out)
+    conf = out / RABBITMQ_CONF_FILE
+    conf.write_text(
+        rabbitmq_conf(
+            host=args.host,
+            port=args.port,
+            ws_port=None if args.no_ws else args.ws_port,
+            definitions=definitions,
+        ),
+        encoding="utf-8",
+    )
+    print(
+        f"wrote {definitions} ({len(accounts.accounts)} accounts, password hashes only; keep it "
+        f"private) and {conf} (mqtt.allow_anonymous false, vhost {RABBITMQ_VHOST}): enable "
+        "the plugins ('rabbitmq-plugins enable rabbitmq_mqtt rabbitmq_web_mqtt') and run each "
+        f"node with RABBITMQ_CONFIG_FILE={conf}; the definitions load at its boot "
+        f"('rabbitmqctl import_definitions {definitions}' loads them into a running cluster; "
+        "docs/brokers.md)"
+    )
+    return 0
 
 
 def _mosquitto(args: argparse.Namespace) -> int:

@@ -215,6 +215,16 @@ def broker_with_accounts(
         settings = BrokerSettings(port=0, ws_port=None, accounts=accounts, root=root)
         with BrokerThread(settings) as running:
             yield running.url, True
+    elif kind == "aedes":
+        from support.aedes import aedes_with_accounts  # (imports this module)
+
+        with aedes_with_accounts(accounts, Topics(root), directory) as cluster:
+            yield cluster.url, False
+    elif kind == "rabbitmq":
+        from support.rabbitmq import rabbitmq_with_accounts  # only when a run asks for it
+
+        with rabbitmq_with_accounts(accounts, Topics(root), directory) as running:
+            yield running.url, False
     else:
         with mosquitto_with_accounts(accounts, Topics(root), directory) as url:
             yield url, False

@@ -16,7 +16,7 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from gridfleet.config import owned_client_id, parse_broker_url
+from gridfleet.config import owned_client_id, parse_brokers
 
 from support.wait import wait_for
 
@@ -36,7 +36,7 @@ class MqttProbe:
     """Connects, subscribes, records messages by topic; publish and wait helpers for tests."""
 
     def __init__(self, url: str, client_id: str | None = None) -> None:
-        broker = parse_broker_url(url)
+        broker = parse_brokers(url)[0]  # a cluster's list: a probe speaks to its first
         self.client = mqtt.Client(
             CallbackAPIVersion.VERSION2,
             # An explicit id is used as given (tests of who may use which id).

@@ -59,6 +59,17 @@ def mosquitto(tmp_path: Path) -> Iterator[Restartable]:
         running[0].__exit__(None, None, None)
 
 
+@pytest.fixture
+def rabbitmq(tmp_path: Path) -> Iterator[Restartable]:
+    """A three-node RabbitMQ cluster; its restart is a new cluster that kept nothing."""
+    from support.rabbitmq import SBIN, RabbitCluster
+
+    if not (SBIN / "rabbitmq-server").exists():
+        pytest.skip("no rabbitmq-server 3.10.8")
+    with RabbitCluster(tmp_path / "rabbitmq") as cluster:
+        yield cluster.url, cluster.restart
+
+
 def latch_on(url: str) -> bytes | None:
     """The retained latch a client connecting now reads (None: nothing retained)."""
     with MqttProbe(url) as probe:
@@ -72,7 +83,15 @@ def latch_on(url: str) -> bytes | None:
 
 # `kind`, not `broker`: the suite's broker fixture is `broker`, and a test named as using it runs
 # again on Mosquitto (conftest.py); this one starts both brokers of its own, once is enough.
-@pytest.mark.parametrize("kind", ["amqtt", "mosquitto"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "amqtt",
+        "mosquitto",
+        # A RabbitMQ cluster forms in 25-40 s, twice here (start, restart).
+        pytest.param("rabbitmq", marks=pytest.mark.timeout(180)),
+    ],
+)
 def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
     kind: str, request: pytest.FixtureRequest, tmp_path: Path
 ) -> None:
