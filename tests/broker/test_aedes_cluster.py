@@ -33,6 +33,9 @@ from support.security import (
 )
 from support.wait import wait_for
 
+# Three instances and a Redis per module, killed and restarted: make test, not test-fast.
+pytestmark = pytest.mark.slow
+
 T = Topics("aedes")
 
 

@@ -30,6 +30,7 @@ pytestmark = [
     pytest.mark.skipif(not (SBIN / "rabbitmq-server").exists(), reason="no rabbitmq-server 3.10.8"),
     # Each cluster takes 20-30 s to form on two shared cores; a node killed, ~10 s to come back.
     pytest.mark.timeout(240),
+    pytest.mark.slow,  # clusters that form in tens of seconds: make test, not test-fast
 ]
 
 T = Topics("rmq")

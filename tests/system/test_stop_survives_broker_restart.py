@@ -89,7 +89,7 @@ def latch_on(url: str) -> bytes | None:
         "amqtt",
         "mosquitto",
         # A RabbitMQ cluster forms in 25-40 s, twice here (start, restart).
-        pytest.param("rabbitmq", marks=pytest.mark.timeout(180)),
+        pytest.param("rabbitmq", marks=[pytest.mark.timeout(180), pytest.mark.slow]),
     ],
 )
 def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
