@@ -405,7 +405,12 @@ class CoordinatorCore:
             # Out of service, a unit may be moved by hand: it comes back wherever it is put.
             moved_by_hand = self.directives.controls.get(unit) == "out_of_service"
             reach = self.orders.reach(unit)  # a window may be driven at once (world.motion)
-            if self.world.on_state(unit, msg, now, relocatable=moved_by_hand, reach=reach):
+            known = self.world.units.get(unit)
+            # Where it may stand after a silence: the squares released to it, kept for it.
+            mine = frozenset(self.orders.reserved(known)) if known and known.state else frozenset()
+            if self.world.on_state(
+                unit, msg, now, relocatable=moved_by_hand, reach=reach, reserved=mine
+            ):
                 self._replan()  # re-plan around the new obstacles
                 self.views.map_dirty = True
             forged = self.orders.heard(unit, msg)

@@ -207,6 +207,7 @@ class World:
         now: float,
         relocatable: bool = False,
         reach: int = 1,
+        reserved: frozenset[Cell] = frozenset(),
     ) -> list[Cell]:
         """A unit's state; returns the squares whose obstacle changed (new ones, then cleared).
 
@@ -219,7 +220,9 @@ class World:
           fleet's clock (`motion`: `reach` squares, its window, a step period, with a small
           slack; the unit's step counter and factsheet alone could be made up);
         - it rejoins (after a connection message, or lost) further than REJOIN_SQUARES from where
-          it was last seen, unless an operator has it out of service (`relocatable`: moved by hand);
+          it was last seen and not on a square released to it (`reserved`, kept for it while it
+          was unheard: it may have driven them, as when the coordinator's own broker died),
+          unless an operator has it out of service (`relocatable`: moved by hand);
         - it reports an obstacle that is not next to it (here, or where it was last accepted).
         A sensor reading `free` towards a discovered obstacle takes back this unit's own word: the
         obstacle is cleared once no unit that saw it still does (one unit's `free`, faulty or
@@ -229,7 +232,7 @@ class World:
         self.check_square(msg.position, "position")
         rec = self.units.get(unit_id)
         self._check_square_is_free_of_others(unit_id, msg)
-        allowance = None if relocatable else self._check_move(rec, msg, now, reach)
+        allowance = None if relocatable else self._check_move(rec, msg, now, reach, reserved)
         here = msg.position
         was = None if rec is None else rec.position
         for c in msg.obstacles:
@@ -313,7 +316,12 @@ class World:
                 )
 
     def _check_move(
-        self, rec: UnitRecord | None, msg: UnitState, now: float, reach: int
+        self,
+        rec: UnitRecord | None,
+        msg: UnitState,
+        now: float,
+        reach: int,
+        reserved: frozenset[Cell] = frozenset(),
     ) -> float | None:
         """Raise ProtocolError for a move the unit could not have made; else its allowance
         after the move (None: it starts afresh, first heard of or rejoined)."""
@@ -322,7 +330,7 @@ class World:
         last = rec.state
         away = last.position.manhattan(msg.position)
         if rec.rejoined or not self.is_active(rec, now):
-            if away > REJOIN_SQUARES:
+            if away > REJOIN_SQUARES and msg.position not in reserved | set(last.released):
                 raise ProtocolError(
                     f"position {list(msg.position)} is {away} squares from {list(last.position)}, "
                     f"where unit {rec.id} was last seen: a unit rejoins where it left (an "

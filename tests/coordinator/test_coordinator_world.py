@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from gridfleet.coordinator.jobs import Job
 from gridfleet.coordinator.world import DEAF_AFTER_S, World
+from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, GridMap
 from gridfleet.protocol import HeaderStamper, Leds, Sensors, UnitState
 
@@ -127,3 +130,25 @@ def test_a_unit_lost_while_the_coordinator_heard_nothing_counts_from_when_it_hea
     world.heard(40.0)
     assert world.units["u"].lost_since == 40.0
     assert world.away_s(world.units["u"], 40.0) == 0.0
+
+
+def test_a_unit_back_from_a_silence_may_stand_on_a_square_released_to_it_not_elsewhere() -> None:
+    # As found by the cluster soak: the coordinator's broker died, it missed a unit's states while
+    # the unit drove on through its released squares, and then refused it for good (3 squares
+    # from where it was last seen). Those squares were kept for it: it may be on any of them.
+    world = World(GridMap.from_rows(["." * 10, "." * 10]), step_period_s=0.1)
+
+    def at(x: int, y: int = 0, released: tuple[Cell, ...] = ()) -> UnitState:
+        return state(Cell(x, y), {}, []).model_copy(update={"released": list(released)})
+
+    world.on_state("u", at(0, released=(Cell(1, 0), Cell(2, 0))), 0.0)
+    world.roll_call(5.0)  # silent for seconds: lost
+    ordered = frozenset({Cell(3, 0)})  # released by an order it had not acknowledged yet
+    with pytest.raises(ProtocolError, match="a unit rejoins where it left"):
+        world.on_state("u", at(3, 1), 5.0, reserved=ordered)  # 4 squares off, not released
+    world.on_state("u", at(3), 5.0, reserved=ordered)
+    assert world.units["u"].position == Cell(3, 0)
+    world.on_state("u", at(3, released=tuple(Cell(x, 0) for x in range(4, 8))), 5.1)
+    world.roll_call(10.0)
+    world.on_state("u", at(7), 10.0)  # its own last state's released square, 4 squares on
+    assert world.units["u"].position == Cell(7, 0)
