@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: constraints run test test-fast test-mosquitto pytest-clusters check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
+.PHONY: constraints run test test-fast test-mosquitto pytest-clusters soak-clusters check lint typecheck pytest soak firmware-test firmware-checkout install schemas clean system-deps
 
 # What the tests need from Debian: a real Mosquitto and its clients, headless Chromium for the
 # dashboard, doctest and g++ for the firmware's host tests, Prometheus to scrape a fleet's metrics,
@@ -99,7 +99,12 @@ test-fast: $(STAMP)
 # run that way, before the tests beside it ran niced): make test runs it first in line for the
 # cores, on ports of a band no test worker takes (its broker comes back on the port it was given).
 soak: $(STAMP)
-	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m soak
+	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m "soak and not cluster_soak"
+
+# The one-minute chaos soak on each broker cluster (aedes, RabbitMQ): some six minutes, and
+# RabbitMQ's is an open finding (bench/README.md, "Chaos soak on a cluster"); not in make test.
+soak-clusters: $(STAMP)
+	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m cluster_soak
 
 # The firmware's host tests, built with g++ from the files git tracks alone (tests/device/test_firmware.py).
 firmware-checkout: $(STAMP)

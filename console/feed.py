@@ -12,10 +12,13 @@ import random
 import signal
 import time
 import uuid
-from collections.abc import Collection
+from collections.abc import Collection, Coroutine
 from pathlib import Path
+from typing import Any
 
-from gridfleet.config import check_step
+import aiomqtt
+
+from gridfleet.config import broker_urls, check_step
 from gridfleet.console.operator import Operator, operator_session
 from gridfleet.errors import ConfigError
 from gridfleet.options import add_common, broker_url
@@ -23,9 +26,13 @@ from gridfleet.paths import UNREACHABLE, DistanceFieldCache
 from gridfleet.protocol import Reply, Topics
 from gridfleet.scenario import JobSpec, Scenario, load_scenario
 from gridfleet.squares import Cell
-from gridfleet.tasks import stop_on_signals, until_stopped
+from gridfleet.tasks import cancel_and_wait, stop_on_signals, until_stopped
 
 DEMO_KEEP_MIN = 6  # jobs the demo keeps queued at least (by default one per unit)
+# After its session ends, the feed tries the next broker of its list at once, then waits this
+# long before each round of the list, doubling up to the most.
+RETRY_FIRST_S = 0.1
+RETRY_MOST_S = 5.0
 
 log = logging.getLogger("gridfleet.feed")
 
@@ -97,23 +104,60 @@ async def feed(
     keep, pace = demo_queue(len(scenario.units), step, keep_active)
     client_id = f"feeder-{uuid.uuid4().hex[:6]}"
     topics = Topics(root)
-    async with operator_session(url, topics, client_id) as operator:
-        await operator.coordinator_online.wait()
-        # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's
-        # jobs from clashing with the ids of the last one.
-        await submit_scenario(operator, scenario, run_tag=time.strftime("%H%M%S"))
-        if not demo:
-            return
-        rng = random.Random(seed)
-        fields = DistanceFieldCache(scenario.grid)
-        while True:
-            await operator.jobs_changed.wait()
-            operator.jobs_changed.clear()
-            while operator.active_jobs() < keep:
-                # Not onto obstacles the units have found (the coordinator would refuse it).
-                pickup, dropoff, mass = random_job(scenario, rng, fields, operator.obstacles)
-                await operator.submit_job(pickup, dropoff, mass)
-                await asyncio.sleep(pace)  # pacing for the demo, not synchronisation
+    # The coordinator keeps jobs across runs (SQLite): a tag per run keeps this run's jobs from
+    # clashing with the ids of the last one.
+    tag = time.strftime("%H%M%S")
+    rng = random.Random(seed)
+    fields = DistanceFieldCache(scenario.grid)
+    brokers = broker_urls(url)
+    submitted = False
+    tried, delay = 0, RETRY_FIRST_S
+    # A session lost (its broker died, a link cut) is begun again on the next broker of the
+    # list, as every component's: a demo feed that stayed on a dead session fed nothing more.
+    while True:
+        try:
+            async with operator_session(",".join(brokers), topics, client_id) as operator:
+                await _in_session(operator, operator.coordinator_online.wait())
+                tried, delay = 0, RETRY_FIRST_S
+                if not submitted:
+                    await _in_session(operator, submit_scenario(operator, scenario, tag))
+                    submitted = True
+                if not demo:
+                    return
+                while True:
+                    await _in_session(operator, operator.jobs_changed.wait())
+                    operator.jobs_changed.clear()
+                    while operator.active_jobs() < keep:
+                        # Not onto obstacles the units have found (the coordinator would refuse).
+                        pickup, dropoff, mass = random_job(
+                            scenario, rng, fields, operator.obstacles
+                        )
+                        await operator.submit_job(pickup, dropoff, mass)
+                        await asyncio.sleep(pace)  # pacing for the demo, not synchronisation
+        except aiomqtt.MqttError as exc:
+            log.warning("feed: session lost (%s); trying %s", exc, brokers[1 % len(brokers)])
+        brokers = brokers[1:] + brokers[:1]
+        tried += 1
+        if tried >= len(brokers):  # each was tried: wait before the next round
+            tried = 0
+            await asyncio.sleep(delay)  # back-off between rounds of the list
+            delay = min(2 * delay, RETRY_MOST_S)
+
+
+async def _in_session(operator: Operator, work: Coroutine[Any, Any, object]) -> None:
+    """Await `work`, or raise MqttError if the operator's session ends first."""
+    task = asyncio.create_task(work)
+    ended = asyncio.create_task(operator.ended.wait())
+    try:
+        await asyncio.wait({task, ended}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        await cancel_and_wait(ended)
+        lost = not task.done()
+        if lost:
+            await cancel_and_wait(task)
+    if lost:
+        raise aiomqtt.MqttError("the session ended")
+    task.result()
 
 
 def demo_queue(units: int, step: float, keep_active: int | None = None) -> tuple[int, float]:

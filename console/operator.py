@@ -77,6 +77,7 @@ class Operator:
         self.jobs: JobsView | None = None
         self.jobs_changed = asyncio.Event()
         self.coordinator_online = asyncio.Event()
+        self.ended = asyncio.Event()  # set when `listen` ends: the session is gone
         self.coordinator: CoordinatorStatus | None = None  # its latest status, retained
         self.coordinator_heard = asyncio.Event()
         self.stop = StopView()  # the latch and the held presses, as the broker keeps them
@@ -118,9 +119,12 @@ class Operator:
             await self.client.subscribe(topic, qos=TOPICS[kind].qos)
 
     async def listen(self) -> None:
-        """Route inbound messages until the client disconnects."""
-        async for message in self.client.messages:
-            self.handle(str(message.topic), payload_of(message))
+        """Route inbound messages until the client disconnects (then `ended` is set)."""
+        try:
+            async for message in self.client.messages:
+                self.handle(str(message.topic), payload_of(message))
+        finally:
+            self.ended.set()
 
     def handle(self, topic: str, payload: bytes) -> None:
         """Take one inbound message into the views; a bad one is logged and changes nothing."""

@@ -11,8 +11,21 @@ import sys
 from pathlib import Path
 
 from gridfleet.bench.lan import can_make_lans
-from gridfleet.bench.soak.faults import FAMILIES, LOCAL_FAMILIES, NETWORK_FAMILIES, parse_families
-from gridfleet.bench.soak.run import MOSQUITTO, SoakConfig, SoakResult
+from gridfleet.bench.soak.cluster import (
+    CLUSTER_FAULT_GAP_S,
+    CLUSTER_STOP_GAP_S,
+    CLUSTER_UNITS,
+    CLUSTERS,
+)
+from gridfleet.bench.soak.faults import (
+    CLUSTER_DEFAULT,
+    CLUSTER_FAMILIES,
+    FAMILIES,
+    LOCAL_FAMILIES,
+    NETWORK_FAMILIES,
+    parse_families,
+)
+from gridfleet.bench.soak.run import MOSQUITTO, RECOVERY_WAIT_S, SoakConfig, SoakResult
 from gridfleet.bench.soak.topologies import run_soak
 from gridfleet.config import check_step, parse_brokers, redacted
 from gridfleet.errors import ConfigError
@@ -29,7 +42,9 @@ def families(text: str) -> tuple[str, ...]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Flags of `gridfleet bench soak`."""
     parser.add_argument("--minutes", type=float, default=5.0, help="minutes of faults (default 5)")
-    parser.add_argument("--units", type=int, default=12, help="units (default 12)")
+    parser.add_argument(
+        "--units", type=int, default=None, help=f"units (default 12; {CLUSTER_UNITS} on a cluster)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="fault schedule and extra units")
     parser.add_argument("--step", type=float, default=0.1, help="step period, s (default 0.1)")
     parser.add_argument(
@@ -42,7 +57,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=families,
         default=None,
         help=f"fault families to inject (default all: {','.join(LOCAL_FAMILIES)}, and with "
-        f"--network {','.join(NETWORK_FAMILIES)})",
+        f"--network {','.join(NETWORK_FAMILIES)}; with --cluster {','.join(CLUSTER_DEFAULT)})",
+    )
+    parser.add_argument(
+        "--cluster",
+        choices=sorted(CLUSTERS),
+        help="run on a broker cluster the soak starts on loopback (aedes instances on one Redis, "
+        "or three RabbitMQ nodes), each component's broker list beginning at another node; adds "
+        "node faults (one killed and started again, paused, cut off from its clients) and says "
+        "how long the fleet took to move again after each (median, p99, worst)",
     )
     parser.add_argument(
         "--network",
@@ -81,15 +104,23 @@ def config(args: argparse.Namespace) -> SoakConfig:
     """The run the flags describe; one clear line (ConfigError) for each bad flag."""
     if not args.minutes > 0:
         raise ConfigError(f"--minutes {args.minutes}: give a positive number of minutes")
-    if args.units < 1:
-        raise ConfigError(f"--units {args.units}: give at least 1")
+    units = args.units if args.units is not None else CLUSTER_UNITS if args.cluster else 12
+    if units < 1:
+        raise ConfigError(f"--units {units}: give at least 1")
     check_step(args.step)
     if args.broker is not None and len(parse_brokers(args.broker)) > 1:
         raise ConfigError(
             f"--broker {redacted(args.broker)}: one broker, not a list (the soak's proxy "
             "stands in front of one)"
         )
-    faults = args.faults or (FAMILIES if args.network else LOCAL_FAMILIES)
+    everything = tuple(f for f in FAMILIES if f not in CLUSTER_FAMILIES)
+    faults = args.faults or (
+        CLUSTER_DEFAULT if args.cluster else everything if args.network else LOCAL_FAMILIES
+    )
+    if args.cluster and (args.broker is not None or args.network):
+        raise ConfigError(f"--cluster {args.cluster} runs its own nodes: no --broker, no --network")
+    if set(faults) & set(CLUSTER_FAMILIES) and not args.cluster:
+        raise ConfigError(f"--faults {','.join(CLUSTER_FAMILIES)} need --cluster")
     if args.network:
         if args.broker is not None:
             raise ConfigError(
@@ -106,7 +137,7 @@ def config(args: argparse.Namespace) -> SoakConfig:
         raise ConfigError(f"--faults {','.join(NETWORK_FAMILIES)} need --network")
     return SoakConfig(
         minutes=args.minutes,
-        units=args.units,
+        units=units,
         seed=args.seed,
         broker=args.broker,
         step_s=args.step,
@@ -115,6 +146,11 @@ def config(args: argparse.Namespace) -> SoakConfig:
         bridge=args.bridge,
         drain_s=args.drain,
         stranded_s=args.stranded,
+        cluster=args.cluster,
+        # On a cluster the fleet works between faults: its jobs are part of the figures.
+        fault_gap_s=CLUSTER_FAULT_GAP_S if args.cluster else SoakConfig.fault_gap_s,
+        stop_gap_s=CLUSTER_STOP_GAP_S if args.cluster else SoakConfig.stop_gap_s,
+        keep_active=units if args.cluster else None,
     )
 
 
@@ -128,6 +164,16 @@ def print_result(result: SoakResult) -> None:
         "jobs_duplicated", "units_stranded", "faults_unrecovered", "max_recovery_s",
     ):  # fmt: skip
         print(f"  {key:<20} {out[key]}")
+    if out["cluster"] is not None:
+        print(f"  {'unasked_stops':<20} {out['unasked_stops']}")
+        print(f"  on a {out['cluster']} cluster: from a node fault to the fleet moving again:")
+        for kind, took in out["node_recovery_s"].items():
+            print(
+                f"    {kind:<10} {took['n']:>4} times: median {took['median']} s, "
+                f"p99 {took['p99']} s, worst {took['max']} s"
+            )
+        for kind, count in out["node_unrecovered"].items():
+            print(f"    {kind:<10} {count:>4} times not within {RECOVERY_WAIT_S:g} s")
     if out["worst_stop_to_hall_s"] is not None:  # --bridge: the stop across the bridge
         print(
             f"  the stop reached the hall's broker {out['worst_stop_to_hall_s']} s late at worst;"

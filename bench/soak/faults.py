@@ -9,13 +9,23 @@ from dataclasses import dataclass
 # Families the CLI's --faults selects from; each gives one or more counted kinds.
 FAMILIES = (
     "units", "coordinator", "broker", "pause", "cut", "delay", "estop", "press",
-    "silent", "stall", "narrow",
+    "silent", "stall", "narrow", "node", "node_pause", "node_cut",
 )  # fmt: skip
 STOP_FAMILIES = ("estop", "press")  # the stop lane; the rest are the main lane's
 # Only with --network (the units and the coordinator on hosts of a LAN of namespaces): a host's
 # link cut without a word, every packet dropped with both ends up, or a thin lossy link.
 NETWORK_FAMILIES = ("silent", "stall", "narrow")
-LOCAL_FAMILIES = tuple(f for f in FAMILIES if f not in NETWORK_FAMILIES)
+# Only with --cluster: one broker node killed (SIGKILL, then started again), paused (SIGSTOP …
+# SIGCONT) or cut off from the fleet's clients, the node that one component is on.
+CLUSTER_FAMILIES = ("node", "node_pause", "node_cut")
+LOCAL_FAMILIES = tuple(f for f in FAMILIES if f not in NETWORK_FAMILIES + CLUSTER_FAMILIES)
+# On a cluster: the local families but the embedded broker's restart, and the node faults.
+CLUSTER_DEFAULT = tuple(f for f in LOCAL_FAMILIES if f != "broker") + CLUSTER_FAMILIES
+# The components whose broker node a node fault strikes: the coordinator, the units process, the
+# feed (the supervisor's name for it: operator).
+NODE_TARGETS = ("coordinator", "robots", "operator")
+# A node's death is what a cluster soak measures (median, p99, worst): three in each round.
+PER_ROUND = {"node": 3}
 NETWORK_HOSTS = ("units", "office")  # the robots' host, the coordinator's
 # With a bridge the robots' host is a hall with a broker of its own: its link is the bridge's.
 BRIDGED_HOSTS = ("hall", "office")
@@ -47,12 +57,12 @@ def main_faults(
     hosts: Sequence[str] = NETWORK_HOSTS,
     will_slack_s: tuple[float, float] = WILL_SLACK_S,
 ) -> Iterator[Fault]:
-    """Process and link faults for ever: every selected family once per round, in seeded order;
-    the network's on one of `hosts` at random."""
+    """Process and link faults for ever: every selected family once per round (a node's death
+    PER_ROUND times), in seeded order; the network's on one of `hosts` at random."""
     staleness = 5 * step_s  # the coordinator's and units' staleness timeout
     chosen = [f for f in FAMILIES if f in families and f not in STOP_FAMILIES]
     while chosen:
-        order = list(chosen)
+        order = [f for f in chosen for _ in range(PER_ROUND.get(f, 1))]
         rng.shuffle(order)
         for family in order:
             if family in ("units", "coordinator", "broker"):
@@ -68,6 +78,8 @@ def main_faults(
                 yield Fault("cut", hold_s=rng.uniform(0.0, 1.0))
             elif family == "delay":
                 yield Fault("delay", hold_s=rng.uniform(1.0, 3.0), latency_s=rng.uniform(0.05, 0.5))
+            elif family in CLUSTER_FAMILIES:
+                yield _node_fault(rng, family)
             elif family == "silent":
                 host = rng.choice(hosts)
                 if rng.random() < LONG_SILENCE_SHARE:  # past the keep-alive: the will is sent
@@ -82,6 +94,22 @@ def main_faults(
             elif family == "narrow":
                 host = rng.choice(hosts)
                 yield Fault(f"narrow_{host}", host, rng.uniform(1.0, 5.0), kbit=rng.choice(KBITS))
+
+
+def _node_fault(rng: random.Random, family: str) -> Fault:
+    """A node fault on the node one of NODE_TARGETS is on: killed, paused (some past the
+    clients' keep-alive, so that they give up on it and move to the next node) or cut off."""
+    target = rng.choice(NODE_TARGETS)
+    if family == "node":
+        return Fault("kill_node", target)
+    if family == "node_pause":
+        if rng.random() < LONG_SILENCE_SHARE:
+            least, most = WILL_SLACK_S
+            hold = rng.uniform(1.5 * KEEP_ALIVE_S + least, 1.5 * KEEP_ALIVE_S + most)
+        else:
+            hold = rng.uniform(1.0, 5.0)
+        return Fault("pause_node", target, hold)
+    return Fault("cut_node", target, rng.uniform(0.5, 5.0))
 
 
 def stop_faults(rng: random.Random, families: Sequence[str]) -> Iterator[Fault]:

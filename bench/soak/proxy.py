@@ -26,6 +26,11 @@ class FaultyProxy:
         self.port = self._server.sockets[0].getsockname()[1]
         return self.port
 
+    @property
+    def open_links(self) -> int:
+        """Connections forwarded now (a client on the broker behind, through this proxy)."""
+        return len(self._links)
+
     def cut(self) -> int:
         """Drop every open connection (both ends see a reset); returns how many were dropped."""
         # Aborted, not cancelled: asyncio logs a cancelled connection handler as an error.

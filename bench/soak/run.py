@@ -45,6 +45,7 @@ from gridfleet.bench.soak.check import (
     check,
 )
 from gridfleet.bench.soak.faults import (
+    CLUSTER_FAMILIES,
     LOCAL_FAMILIES,
     NETWORK_FAMILIES,
     NETWORK_HOSTS,
@@ -91,6 +92,13 @@ class SoakConfig:
     # With `network`: the units on a hall's Mosquitto bridged to a central Mosquitto (no broker
     # restarts: Mosquitto keeps the latch only as often as it saves).
     bridge: bool = False
+    # A broker cluster the soak starts ("aedes", "rabbitmq"; bench.soak.cluster), whose nodes it
+    # kills, pauses and cuts off; None: one broker.
+    cluster: str | None = None
+    # Seconds between two main-lane faults, and between two stops (drawn at random in each).
+    fault_gap_s: tuple[float, float] = (0.1, 0.5)
+    stop_gap_s: tuple[float, float] = (1.0, 4.0)
+    keep_active: int | None = None  # jobs the feed keeps active (None: half as many as units)
 
 
 @dataclass
@@ -107,6 +115,10 @@ class SoakResult:
     fault_s: dict[str, list[float]] = field(default_factory=dict)  # main-lane fault to flowing
     # --network: a host's link cut for longer than the keep-alive, to its will seen (`broken`)
     detections_s: list[float] = field(default_factory=list)
+    # --cluster: per node fault's kind, from the fault to the fleet moving again (seconds)
+    node_recoveries_s: dict[str, list[float]] = field(default_factory=dict)
+    cluster: str | None = None
+    extra: dict[str, object] = field(default_factory=dict)  # the topology's own figures
 
     @property
     def ok(self) -> bool:
@@ -144,9 +156,26 @@ class SoakResult:
                 kind: round(statistics.median(took), 2)
                 for kind, took in sorted(self.fault_s.items())
             },
+            "cluster": self.cluster,
+            "node_recovery_s": {
+                kind: spread(took) for kind, took in sorted(self.node_recoveries_s.items())
+            },
+            **self.extra,
             "ok": self.ok,
             "details": v.details + self.unrecovered,
         }
+
+
+def spread(seconds: list[float]) -> dict[str, float | int]:
+    """How many, median, p99 (nearest rank: the worst of fewer than 100) and worst, in s."""
+    ordered = sorted(seconds)
+    rank = max(0, -(-99 * len(ordered) // 100) - 1)  # nearest-rank p99, as an index
+    return {
+        "n": len(ordered),
+        "median": round(statistics.median(ordered), 2),
+        "p99": round(ordered[rank], 2),
+        "max": round(ordered[-1], 2),
+    }
 
 
 def hall_stops(path: Path, topics: Topics) -> list[Stop]:
@@ -188,6 +217,8 @@ class Soak:
     WILL_SLACK: tuple[float, float] = WILL_SLACK_S
     NETWORK_FAULTS = False  # whether the network's faults (cut, stall, narrow a host) can strike
     RESTARTS_BROKER = True  # whether the broker faults restart an embedded broker
+    CLUSTER_FAULTS = False  # whether the node faults (a cluster's node killed, paused, cut) can
+    LIVE_ONLY = False  # whether the listener ignores retained replays (a cluster's nodes differ)
 
     def __init__(self, cfg: SoakConfig, workdir: Path, log: TextIO) -> None:
         self.cfg = cfg
@@ -212,6 +243,7 @@ class Soak:
         self.calm = asyncio.Lock()  # held by a main-lane fault, and while a stop is engaged
         self.broker_url = ""
         self.proxy: FaultyProxy | None = None
+        self.proxies: list[FaultyProxy] = []  # every proxy: the cut and delay faults strike all
         self.listener: SoakListener | None = None
         self.truth = workdir / "truth.jsonl"
         self.listen = "127.0.0.1"  # where the soak's broker and proxy listen
@@ -230,29 +262,41 @@ class Soak:
         self.broker_url = await self._start_broker(logins)
         self.operator_url = self._login("operator")
         self.device_url = self._login(DEVICE)
-        target = parse_broker_url(self.broker_url)
-        self.proxy = FaultyProxy(target.host, target.port, listen=self.listen)
-        proxy_port = await self.proxy.start()
-        via = await self._units_broker(proxy_port)
-        self.listener = SoakListener(self.operator_url, self.topics, self._client_id("listener"))
+        urls = await self._links()
+        self.listener = SoakListener(
+            self._listener_url(), self.topics, self._client_id("listener"), self.LIVE_ONLY
+        )
         self.tasks.append(asyncio.create_task(self.listener.run()))
         common = ["--root", self.root, "--step", str(cfg.step_s), *logins]
-        proxied = ["--broker", via, *common]
-        direct = ["--broker", self._coordinator_broker(via), *common]
         scenario = str(self.scenario.path)
-        coordinator = cli("coordinator", *direct, "--map", str(self.scenario.map_path))
-        coordinator += ["--db", str(self.dir / "jobs.db")]
-        robots = cli("robots", *proxied, "--scenario", scenario)
+        coordinator = cli("coordinator", "--broker", urls["coordinator"], *common)
+        coordinator += ["--map", str(self.scenario.map_path), "--db", str(self.dir / "jobs.db")]
+        robots = cli("robots", "--broker", urls["robots"], *common, "--scenario", scenario)
         robots += ["--state", str(self.dir / "units.sqlite3"), "--truth", str(self.truth)]
         coordinator, robots = self._place(coordinator, robots)
-        keep = str(max(2, cfg.units // 2))
-        feed = cli("feed", *direct, "--scenario", scenario, "--demo", "--keep-active", keep)
+        keep = str(cfg.keep_active or max(2, cfg.units // 2))
+        feed = cli("feed", "--broker", urls["operator"], *common, "--scenario", scenario)
+        feed += ["--demo", "--keep-active", keep]
         for name, argv in (("coordinator", coordinator), ("robots", robots), ("operator", feed)):
             self.children[name] = await self.sup.start(ChildSpec(name, argv))
         await self._wait_flowing(time.time(), "start-up")
         self.progress += 1
 
     # ---- the topology's hooks -----------------------------------------------------------
+
+    async def _links(self) -> dict[str, str]:
+        """The proxy (or proxies) the components reach the broker through; each component's
+        broker URL (`robots`, `coordinator`, `operator`: the feed)."""
+        target = parse_broker_url(self.broker_url)
+        self.proxy = FaultyProxy(target.host, target.port, listen=self.listen)
+        self.proxies = [self.proxy]
+        via = await self._units_broker(await self.proxy.start())
+        direct = self._coordinator_broker(via)
+        return {"robots": via, "coordinator": direct, "operator": direct}
+
+    def _listener_url(self) -> str:
+        """Where the soak's listener listens: straight on the broker, as the operator."""
+        return self.operator_url
 
     def _open(self) -> list[str]:
         """Make what the topology needs before its broker; the flags that log each component in."""
@@ -323,11 +367,13 @@ class Soak:
         families = [
             f
             for f in cfg.faults
-            if (f != "broker" or restartable) and (self.NETWORK_FAULTS or f not in NETWORK_FAMILIES)
+            if (f != "broker" or restartable)
+            and (self.NETWORK_FAULTS or f not in NETWORK_FAMILIES)
+            and (self.CLUSTER_FAULTS or f not in CLUSTER_FAMILIES)
         ]
         hosts, slack = self.FAULT_HOSTS, self.WILL_SLACK
         for fault in main_faults(self.rng, families, self.cfg.step_s, hosts, slack):
-            await asyncio.sleep(self.rng.uniform(0.1, 0.5))  # the schedule's pacing
+            await asyncio.sleep(self.rng.uniform(*cfg.fault_gap_s))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return
             async with self.calm:
@@ -342,8 +388,6 @@ class Soak:
                 self.fault_times.append((start, flowing, fault.kind))
 
     async def _apply(self, fault: Fault) -> None:
-        proxy = self.proxy
-        assert proxy is not None
         if fault.kind.startswith(("kill_", "term_")):
             await self._restart(
                 fault.target, signal.SIGKILL if "kill" in fault.kind else signal.SIGTERM
@@ -357,18 +401,22 @@ class Soak:
             finally:
                 process.send_signal(signal.SIGCONT)
         elif fault.kind == "cut":
-            proxy.refusing = True
-            proxy.cut()
+            for proxy in self.proxies:
+                proxy.refusing = True
+                proxy.cut()
             try:
                 await asyncio.sleep(fault.hold_s)  # the fault itself: the link stays down
             finally:
-                proxy.refusing = False
+                for proxy in self.proxies:
+                    proxy.refusing = False
         elif fault.kind == "delay":
-            proxy.latency_s = fault.latency_s
+            for proxy in self.proxies:
+                proxy.latency_s = fault.latency_s
             try:
                 await asyncio.sleep(fault.hold_s)  # the fault itself: a slow link for a while
             finally:
-                proxy.latency_s = 0.0
+                for proxy in self.proxies:
+                    proxy.latency_s = 0.0
         elif fault.kind.startswith(("silent_", "stall_", "narrow_")):
             host = self.hosts[fault.target]
             since = time.time()
@@ -434,7 +482,7 @@ class Soak:
     async def stop_lane(self, deadline: float) -> None:
         """Stops engaged (only between main-lane faults) and released, until `deadline`."""
         for fault in stop_faults(self.rng, self.cfg.faults):
-            await asyncio.sleep(self.rng.uniform(1.0, 4.0))  # the schedule's pacing
+            await asyncio.sleep(self.rng.uniform(*self.cfg.stop_gap_s))  # the schedule's pacing
             if time.monotonic() >= deadline:
                 return
             async with self.calm:
@@ -542,7 +590,7 @@ class Soak:
         """
         listener = self.listener
         assert listener is not None
-        if listener.stopped:
+        if self._held():
             await self.release()
         feed = self.children["operator"]
         feed.spec.restart = False
@@ -558,7 +606,7 @@ class Soak:
         while time.monotonic() < deadline:
             if listener.jobs and all(s in FINAL for s in listener.jobs.values()):
                 return
-            if listener.stopped:
+            if self._held():
                 self.release_repeats += 1
                 await self.release()
             await asyncio.sleep(0.2)  # polling the listener, with a deadline
@@ -588,12 +636,14 @@ class Soak:
             for task in self.tasks:
                 task.cancel()
             await asyncio.gather(*self.tasks, return_exceptions=True)
-            if self.proxy is not None:
-                await self.proxy.close()
+            for proxy in self.proxies:
+                await proxy.close()
             self._close()
         assert self.listener is not None
         for at, report in self.listener.errors:
             print(f"[errors     ] {at:.2f} {report}", file=self.log)
+        for at, said in self.listener.sessions:  # where the listener was, to read a gap against
+            print(f"[listener   ] {at:.2f} {said}", file=self.log)
         # The stop as the listener saw it and the releases given, to read a verdict against.
         hall = self._hall_stops()
         stops = [
@@ -633,4 +683,20 @@ class Soak:
             self.release_repeats,
             dict(fault_s),
             self.detections,
+            self._node_recoveries(),
+            self.cfg.cluster,
+            self._extra(),
         )
+
+    def _node_recoveries(self) -> dict[str, list[float]]:
+        """Per node fault's kind, the seconds to the fleet moving again (a cluster's)."""
+        return {}
+
+    def _held(self) -> bool:
+        """Whether the fleet is held by a stop the soak's operator should release."""
+        assert self.listener is not None
+        return self.listener.stopped
+
+    def _extra(self) -> dict[str, object]:
+        """Figures of the topology's own, for the JSON."""
+        return {}

@@ -24,6 +24,7 @@ from typing import TextIO
 from gridfleet.accounts import Account, Accounts, default_accounts, new_password, write_accounts
 from gridfleet.bench.lan import lan
 from gridfleet.bench.soak.check import Stop
+from gridfleet.bench.soak.cluster import ClusterSoak
 from gridfleet.bench.soak.faults import BRIDGED_HOSTS, MOSQUITTO_WILL_SLACK_S
 from gridfleet.bench.soak.run import (
     DEVICE,
@@ -162,7 +163,10 @@ class BridgeSoak(NetworkSoak):
 
 
 def soak_for(cfg: SoakConfig, workdir: Path, log: TextIO) -> Soak:
-    """The soak of `cfg`'s topology: on loopback, on a LAN, or with a hall's bridge."""
+    """The soak of `cfg`'s topology: on loopback, on a LAN, with a hall's bridge, or on a broker
+    cluster."""
+    if cfg.cluster is not None:
+        return ClusterSoak(cfg, workdir, log)
     if cfg.bridge:
         return BridgeSoak(cfg, workdir, log)
     if cfg.network:
