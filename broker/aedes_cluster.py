@@ -4,14 +4,13 @@ kind `aedes`, `gridfleet bench soak --cluster aedes`)."""
 
 from __future__ import annotations
 
-import itertools
 import shutil
 import signal
 import subprocess
 from pathlib import Path
 
 from gridfleet.broker.aedes import LAUNCHER, launcher_command
-from gridfleet.broker.cluster_nodes import ClusterError, end, listening, wait_until
+from gridfleet.broker.cluster_nodes import ClusterError, NodeList, end, listening, wait_until
 from gridfleet.ports import free_port
 
 REDIS = shutil.which("redis-server") or "/usr/bin/redis-server"
@@ -21,7 +20,7 @@ NODE = shutil.which("node") or "node"
 HEARTBEAT_MS = 1000
 
 
-class AedesCluster:
+class AedesCluster(NodeList):
     """aedes instances on one Redis as the suite's broker (GRIDFLEET_TEST_BROKER=aedes): the
     interface of MosquittoBroker the tests use, and the cluster's own (`node_urls`, `kill_node`,
     `start_node`, `pause_node`, `resume_node`, `pids`).
@@ -43,53 +42,14 @@ class AedesCluster:
         self.accounts_file = accounts_file
         self.heartbeat_ms = heartbeat_ms
         self.redis_port = free_port()
-        self.ports = [free_port() for _ in range(nodes)]
-        self.ws_ports = [free_port() for _ in range(nodes)]
+        super().__init__(nodes)
         self._redis: subprocess.Popen[bytes] | None = None
         self._nodes: list[subprocess.Popen[bytes] | None] = [None] * nodes
-        self._turn = itertools.count()
-        self._ws_turn = itertools.count()
 
     @property
     def redis_url(self) -> str:
         """The Redis every instance shares."""
         return f"redis://127.0.0.1:{self.redis_port}"
-
-    @property
-    def node_urls(self) -> list[str]:
-        """Each instance's TCP URL, in order."""
-        return [f"mqtt://127.0.0.1:{p}" for p in self.ports]
-
-    @property
-    def node_ws_urls(self) -> list[str]:
-        """Each instance's websocket URL, in order."""
-        return [f"ws://127.0.0.1:{p}" for p in self.ws_ports]
-
-    @staticmethod
-    def _rotated(urls: list[str], start: int) -> str:
-        """`urls` from index `start` on, wrapping round, comma-separated."""
-        start %= len(urls)
-        return ",".join(urls[start:] + urls[:start])
-
-    @property
-    def url(self) -> str:
-        """Every instance's TCP URL, beginning at the next instance on each read."""
-        return self._rotated(self.node_urls, next(self._turn))
-
-    @property
-    def ws_url(self) -> str:
-        """Every instance's websocket URL (the page's list), beginning at the next on each read."""
-        return self._rotated(self.node_ws_urls, next(self._ws_turn))
-
-    @property
-    def port(self) -> int:
-        """The first instance's TCP port."""
-        return self.ports[0]
-
-    @property
-    def ws_port(self) -> int:
-        """The first instance's websocket port."""
-        return self.ws_ports[0]
 
     @property
     def pids(self) -> list[int]:

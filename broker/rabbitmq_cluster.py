@@ -5,7 +5,6 @@ cookie, everything in a folder of its own; no system service is used (the test s
 
 from __future__ import annotations
 
-import itertools
 import os
 import secrets
 import shutil
@@ -17,7 +16,7 @@ import time
 from contextlib import suppress
 from pathlib import Path
 
-from gridfleet.broker.cluster_nodes import ClusterError, wait_until
+from gridfleet.broker.cluster_nodes import ClusterError, NodeList, wait_until
 from gridfleet.broker.rabbitmq import rabbitmq_conf
 from gridfleet.ports import free_port
 
@@ -81,7 +80,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
-class RabbitCluster:
+class RabbitCluster(NodeList):
     """Three clustered RabbitMQ nodes as the suite's broker (GRIDFLEET_TEST_BROKER=rabbitmq): the
     interface of MosquittoBroker the tests use, and the cluster's own (`node_urls`, `kill_node`,
     `start_node`, `pause_node`, `resume_node`, `pids`).
@@ -109,55 +108,16 @@ class RabbitCluster:
         self.login = login
         self.epmd_port = free_port()
         self.dist_ports = [free_port() for _ in range(nodes)]
-        self.ports = [free_port() for _ in range(nodes)]
-        self.ws_ports = [free_port() for _ in range(nodes)]
+        super().__init__(nodes)
         tag = secrets.token_hex(3)
         self.names = [f"rabbit-{tag}-{i}@localhost" for i in range(nodes)]
         self._cookie = secrets.token_hex(20)
         self._epmd: subprocess.Popen[bytes] | None = None
         self._nodes: list[subprocess.Popen[bytes] | None] = [None] * nodes
         self._beams: list[int | None] = [None] * nodes
-        self._turn = itertools.count()
-        self._ws_turn = itertools.count()
         self.started_in_s: float | None = None  # how long the last `start` took
 
     # The interface the tests use.
-
-    @property
-    def node_urls(self) -> list[str]:
-        """Each node's TCP URL, in order."""
-        return [f"mqtt://127.0.0.1:{p}" for p in self.ports]
-
-    @property
-    def node_ws_urls(self) -> list[str]:
-        """Each node's websocket URL (path /ws, as the web MQTT plugin serves it), in order."""
-        return [f"ws://127.0.0.1:{p}/ws" for p in self.ws_ports]
-
-    @staticmethod
-    def _rotated(urls: list[str], start: int) -> str:
-        """`urls` from index `start` on, wrapping round, comma-separated."""
-        start %= len(urls)
-        return ",".join(urls[start:] + urls[:start])
-
-    @property
-    def url(self) -> str:
-        """Every node's TCP URL, beginning at the next node on each read."""
-        return self._rotated(self.node_urls, next(self._turn))
-
-    @property
-    def ws_url(self) -> str:
-        """Every node's websocket URL (the page's list), beginning at the next on each read."""
-        return self._rotated(self.node_ws_urls, next(self._ws_turn))
-
-    @property
-    def port(self) -> int:
-        """The first node's TCP port."""
-        return self.ports[0]
-
-    @property
-    def ws_port(self) -> int:
-        """The first node's websocket port."""
-        return self.ws_ports[0]
 
     @property
     def pids(self) -> list[int]:

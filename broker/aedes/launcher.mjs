@@ -134,7 +134,11 @@ const broker = await Aedes.createBroker({
   id: opts.id,
   heartbeatInterval: Number(opts['heartbeat-interval']),
   persistence: persistenceRedis(redisOptions(opts.redis)),
-  mq: mqemitterRedis(redisOptions(opts.redis)),
+  // No ready check on the emitter's connections: ioredis 5.8.2 and later may run its INFO on the
+  // subscriber connection once it is subscribed, and the instance died of it seconds after a
+  // restart ("Connection in subscriber mode, only subscriber commands may be used"; ioredis
+  // #2037, #2099).
+  mq: mqemitterRedis({ ...redisOptions(opts.redis), enableReadyCheck: false }),
   ...hooks
 })
 // One publish at a time, in the order they come, each once aedes is done with it (stored,
