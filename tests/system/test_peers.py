@@ -99,10 +99,14 @@ def recording(broker: BrokerThread) -> Iterator[Callable[[], RecordingProbe]]:
 class Wire:
     """What one probe sent, as a listener under the test's root heard it."""
 
-    def __init__(self, sender: RecordingProbe, listener: MqttProbe, topics: Topics) -> None:
+    def __init__(
+        self, sender: RecordingProbe, listener: MqttProbe, topics: Topics, twice_ok: bool = False
+    ) -> None:
         self.sender = sender
         self.listener = listener
         self.topics = topics
+        # QoS 1 is at least once: a cluster may deliver a message twice (aedes' did, under load)
+        self.twice_ok = twice_ok
 
     def one(self, topic: str) -> bytes:
         """The payload of the one message on `topic`, sent with its kind's QoS and retain flag."""
@@ -112,16 +116,22 @@ class Wire:
             (spec.qos, spec.retained)
         ], kind
         seen = self.listener.wait(topic)
-        assert self.listener.received(topic) == [seen]
+        heard = self.listener.received(topic)
+        if self.twice_ok and spec.qos == 1:  # the same message again, never another
+            heard = [h for h in heard if (h.payload, h.retain) != (seen.payload, seen.retain)]
+            heard.insert(0, seen)
+        assert heard == [seen]
         return seen.payload
 
 
 @pytest.fixture
-def wire(recording: Callable[[], RecordingProbe], probe_factory: Probes, topics: Topics) -> Wire:
+def wire(
+    recording: Callable[[], RecordingProbe], probe_factory: Probes, topics: Topics, broker_kind: str
+) -> Wire:
     """A recording sender, and a listener that hears everything under this test's root."""
     listener = probe_factory()
     listener.subscribe(f"{topics.prefix}/#", qos=1)
-    return Wire(recording(), listener, topics)
+    return Wire(recording(), listener, topics, twice_ok=broker_kind in ("aedes", "rabbitmq"))
 
 
 def test_a_unit_peer_publishes_the_protocols_messages(wire: Wire, topics: Topics) -> None:
