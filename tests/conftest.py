@@ -76,6 +76,9 @@ RABBITMQ_CANNOT = {
     "test_a_units_host_cut_silently_is_broken_its_job_waits_and_it_resumes_in_place": (
         RABBITMQ_RETAINED
     ),
+    # Its monitor reads the units' first states by a wildcard: given no retained one, it missed
+    # the first when it subscribed after it (a fresh-clone run: first seen a move on).
+    "test_01_a_unit_moves_in_the_simulated_space": RABBITMQ_RETAINED,
     "test_broker_restarts_on_the_same_ports": RABBITMQ_RESTART,
     "test_reconnects_and_resubscribes_after_a_broker_restart": RABBITMQ_RESTART,
     "test_press_while_broker_is_down_is_sent_after_reconnect": RABBITMQ_RESTART,
