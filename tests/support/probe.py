@@ -17,6 +17,7 @@ import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from gridfleet.config import owned_client_id, parse_brokers
+from gridfleet.protocol import Topics
 
 from support.wait import wait_for
 
@@ -187,3 +188,15 @@ def login_refused(url: str) -> bool:
     except AssertionError as exc:
         assert "Not authorized" in str(exc), exc
         return True
+
+
+def retained_latch(url: str, topics: Topics) -> bytes | None:
+    """The retained latch a client connecting to `url` now reads (None: nothing retained)."""
+    with MqttProbe(url) as probe:
+        probe.subscribe(topics.fleet("estop"))
+        marker = f"{topics.root}/marker"
+        probe.subscribe(marker)
+        probe.publish(marker, b"m")  # comes back after any retained latch
+        probe.wait(marker)
+        seen = probe.received(topics.fleet("estop"))
+        return seen[-1].payload if seen else None

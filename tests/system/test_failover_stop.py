@@ -24,7 +24,7 @@ from gridfleet.system.threads import ServiceThread, coordinator_thread, fleet_th
 
 from support.operator_peer import OperatorPeer
 from support.paths import MAPS
-from support.probe import MqttProbe
+from support.probe import MqttProbe, retained_latch
 from support.wait import wait_for
 
 if TYPE_CHECKING:
@@ -66,17 +66,6 @@ def fleet_on(
             fleet.stop(30)
     finally:
         coordinator.stop(30)
-
-
-def latch_on(url: str) -> bytes | None:
-    """The retained latch a client connecting to `url` now reads (None: nothing retained)."""
-    with MqttProbe(url) as probe:
-        probe.subscribe(T.fleet("estop"))
-        probe.subscribe(f"{ROOT}/marker")
-        probe.publish(f"{ROOT}/marker", b"m")  # comes back after any retained latch
-        probe.wait(f"{ROOT}/marker")
-        seen = probe.received(T.fleet("estop"))
-        return seen[-1].payload if seen else None
 
 
 def moves(fleet: ServiceThread[Fleet]) -> int:
@@ -150,7 +139,9 @@ def watch_held(
         return True
 
     wait_for(lambda: still() and all_on(coordinator, fleet, url), 30, what="all on the next broker")
-    engaged = wait_for(lambda: still() and latch_on(url), 20, what="a latch on the next broker")
+    engaged = wait_for(
+        lambda: still() and retained_latch(url, T), 20, what="a latch on the next broker"
+    )
     assert decode_estop(engaged).engaged and decode_estop(engaged).by == "ann", engaged
     core = coordinator.service.core
     assert coordinator.call(lambda: core.estop)
@@ -170,7 +161,7 @@ def test_a_stop_engaged_on_a_broker_that_dies_holds_on_the_next_one_until_releas
     tmp_path: Path,
 ) -> None:
     with brokers(2) as (a, b), fleet_on(tmp_path, f"{a.url},{b.url}") as (coordinator, fleet):
-        assert latch_on(b.url) is None  # B never sees what A keeps
+        assert retained_latch(b.url, T) is None  # B never sees what A keeps
         before = stopped_on_a_then_failed_over(a, b, coordinator, fleet)
         watch_held(coordinator, fleet, before, b.url)
         released_flows(b.url, fleet, before[0])
@@ -182,7 +173,7 @@ def test_a_stale_release_kept_by_the_next_broker_does_not_release_the_fleet(
     with brokers(2) as (a, b):
         with MqttProbe(b.url) as probe:  # B keeps a release of long ago, A never hears of it
             probe.publish(T.fleet("estop"), STALE, qos=1, retain=True)
-        assert latch_on(b.url) == STALE
+        assert retained_latch(b.url, T) == STALE
         with fleet_on(tmp_path, f"{a.url},{b.url}") as (coordinator, fleet):
             before = stopped_on_a_then_failed_over(a, b, coordinator, fleet)
             watch_held(coordinator, fleet, before, b.url)

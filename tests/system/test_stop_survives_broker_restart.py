@@ -18,7 +18,7 @@ from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.mosquitto import running_mosquitto
 from support.paths import MAPS
-from support.probe import MqttProbe
+from support.probe import MqttProbe, retained_latch
 from support.wait import wait_for
 
 pytestmark = pytest.mark.every_broker  # a broker restarted with nothing kept
@@ -70,17 +70,6 @@ def rabbitmq(tmp_path: Path) -> Iterator[Restartable]:
         yield cluster.url, cluster.restart
 
 
-def latch_on(url: str) -> bytes | None:
-    """The retained latch a client connecting now reads (None: nothing retained)."""
-    with MqttProbe(url) as probe:
-        probe.subscribe(T.fleet("estop"))
-        probe.subscribe(f"{ROOT}/marker")
-        probe.publish(f"{ROOT}/marker", b"m")  # comes back after any retained latch
-        probe.wait(f"{ROOT}/marker")
-        seen = probe.received(T.fleet("estop"))
-        return seen[-1].payload if seen else None
-
-
 # `kind`, not `broker`: the suite's broker fixture is `broker`, and a test named as using it runs
 # again on Mosquitto (conftest.py); this one starts both brokers of its own, once is enough.
 @pytest.mark.parametrize(
@@ -105,8 +94,11 @@ def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
             core = coordinator.service.core
             wait_for(lambda: coordinator.call(lambda: core.estop), what="the coordinator stopped")
         restart()
-        assert latch_on(url) in (None, b"engaged|operator|soak")  # the broker may be empty now
-        engaged = wait_for(lambda: latch_on(url), 20, what="the latch back on the broker")
+        assert retained_latch(url, T) in (
+            None,
+            b"engaged|operator|soak",
+        )  # the broker may be empty now
+        engaged = wait_for(lambda: retained_latch(url, T), 20, what="the latch back on the broker")
         assert decode_estop(engaged).engaged and decode_estop(engaged).by == "operator"
     finally:
         coordinator.stop(30)
