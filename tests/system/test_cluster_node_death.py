@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import pytest
-from test_failover_stop import ROOT, SCENARIO, T, latch_on
+from test_failover_stop import ROOT, SCENARIO, T
 
 from gridfleet.broker.cluster_nodes import listening
 from gridfleet.grid import Cell
@@ -34,7 +34,7 @@ from gridfleet.scenario import Scenario
 from gridfleet.system.threads import ServiceThread, coordinator_thread
 
 from support.operator_peer import OperatorPeer
-from support.probe import MqttProbe
+from support.probe import MqttProbe, retained_latch
 from support.wait import wait_for
 
 if TYPE_CHECKING:
@@ -250,7 +250,7 @@ def watch_held(watch: Watch, before: Truth) -> None:
 def assert_latch_engaged(watch: Watch, node: int) -> None:
     """The latch a client of `node` reads is the operator's engaged stop."""
     url = watch.cluster.node_urls[node]
-    kept = wait_for(lambda: latch_on(url), 20, what=f"a latch on node {node}")
+    kept = wait_for(lambda: retained_latch(url, T), 20, what=f"a latch on node {node}")
     assert kept is not None
     signal = decode_estop(kept)
     assert signal.engaged and signal.by == "ann", kept
@@ -362,7 +362,9 @@ def test_the_stop_holds_and_no_job_is_lost_across_a_cluster_node_death(
         # node-local retained messages; aedes's nodes share theirs) finds none, and moves not.
         mover, fresh = "unit1", 2
         if kind == "rabbitmq":
-            assert latch_on(urls[fresh]) is None, "node 2 holds a latch: the premise is gone"
+            assert retained_latch(urls[fresh], T) is None, (
+                "node 2 holds a latch: the premise is gone"
+            )
         shell = fleet.service.shells[mover]
         connects = fleet.call(lambda: shell.endpoint.connects)
         fleet.call(shell.endpoint.drop)
@@ -388,7 +390,7 @@ def test_the_stop_holds_and_no_job_is_lost_across_a_cluster_node_death(
         movers = [u for u, n in watch.unit_nodes().items() if n == dead]
         assert movers == ["unit1", "unit3"], watch.unit_nodes()
         if kind == "rabbitmq":
-            assert latch_on(urls[0]) is None, "node 0 holds a latch: the premise is gone"
+            assert retained_latch(urls[0], T) is None, "node 0 holds a latch: the premise is gone"
         events_before = len(watch.events())
         killed_at = time.monotonic()
         back = kill_and_fail_over(watch, dead, movers, still)
