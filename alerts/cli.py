@@ -27,7 +27,15 @@ from gridfleet.heap import freeze_after_start
 from gridfleet.metrics import add_metrics_arguments, metrics_options
 from gridfleet.options import accounts_of, add_common, broker_url
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import TOPICS, HeaderStamper, Reply, Topics, decode, validate_id
+from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
+    TOPICS,
+    HeaderStamper,
+    Reply,
+    Topics,
+    decode,
+    validate_id,
+)
 from gridfleet.protocol.messages import AckAlert, AlertEntry, AlertsView
 from gridfleet.tasks import stop_on_signals
 
@@ -137,7 +145,7 @@ def _client_id(url: str) -> str:
 async def list_alerts(url: str, topics: Topics, timeout: float) -> int:
     """Print the retained alerts view; 2 when none comes within `timeout`."""
     async with connect_first(url, _client_id(url)) as client:
-        await client.subscribe(topics.fleet("alerts"), qos=TOPICS["alerts"].qos)
+        await client.subscribe(topics.fleet("alerts"), qos=SUBSCRIBE_QOS)
         try:
             async with asyncio.timeout(timeout):
                 async for message in client.messages:
@@ -199,7 +207,7 @@ async def ack_alert(url: str, topics: Topics, alert_id: str, timeout: float) -> 
     )
     out = Outbound.of("ack_alert", topics.request("ack_alert"), request)
     async with connect_first(url, client_id) as client:
-        await client.subscribe(topics.reply(client_id), qos=TOPICS["reply"].qos)
+        await client.subscribe(topics.reply(client_id), qos=SUBSCRIBE_QOS)
         reply = await _until_replied(client, out, request.request_id, timeout)
     if reply is None:
         raise GridfleetError(

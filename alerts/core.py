@@ -25,6 +25,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.failures import parse_failure
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Connection,
     CoordinatorStatus,
@@ -184,14 +185,14 @@ class AlertsCore:
     # ---- what the shell calls -----------------------------------------------------------
 
     def subscriptions(self) -> list[tuple[str, int]]:
-        """Every filter the rules follow, with its QoS (states at 0: they are many)."""
+        """Every filter the rules follow, with its subscription QoS."""
         t = self.topics
         return [
-            (t.all_units("connection"), TOPICS["connection"].qos),
-            (t.all_units("state"), TOPICS["state"].qos),
-            (t.fleet("jobs"), TOPICS["jobs"].qos),
-            (t.fleet("coordinator"), TOPICS["coordinator"].qos),
-            (t.fleet("energy"), TOPICS["energy"].qos),  # thresholds and plans: battery rules
+            (t.all_units("connection"), SUBSCRIBE_QOS),
+            (t.all_units("state"), SUBSCRIBE_QOS),
+            (t.fleet("jobs"), SUBSCRIBE_QOS),
+            (t.fleet("coordinator"), SUBSCRIBE_QOS),
+            (t.fleet("energy"), SUBSCRIBE_QOS),  # thresholds and plans: battery rules
             *stop_filters(t),
             (t.request("ack_alert"), TOPICS["ack_alert"].qos),
             (t.fleet("alerts"), TOPICS["alerts"].qos),  # the last run's view, to take over

@@ -18,7 +18,7 @@ import aiomqtt
 from gridfleet.bus import connect_first
 from gridfleet.errors import ConfigError, ProtocolError
 from gridfleet.options import add_common, broker_url
-from gridfleet.protocol import Topics
+from gridfleet.protocol import SUBSCRIBE_QOS, Topics
 
 QUIET_S = 0.5  # the retained replay after subscribing is over once nothing came for this long
 MOST_S = 10.0  # and at most this long, even on a root where a fleet is still running
@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 async def retained_topics(client: aiomqtt.Client, root: str) -> set[str]:
     """Topics under `root` that hold a retained message (subscribes, collects the replay)."""
-    await client.subscribe(f"{root}/#", qos=1)
+    await client.subscribe(f"{root}/#", qos=SUBSCRIBE_QOS)
     found: set[str] = set()
     loop = asyncio.get_running_loop()
     deadline = loop.time() + MOST_S

@@ -24,6 +24,7 @@ from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     CancelJob,
     ClearObstacles,
@@ -107,16 +108,16 @@ class Operator:
         t = self.topics
         for topic, qos in stop_filters(t):
             await self.client.subscribe(topic, qos=qos)
-        for kind, topic in (
-            ("reply", t.reply(self.client_id)),
-            ("history_reply", t.history_reply(self.client_id)),
-            ("jobs", t.fleet("jobs")),
-            ("map", t.fleet("map")),
-            ("routes", t.fleet("routes")),
-            ("zones", t.fleet("zones")),
-            ("coordinator", t.fleet("coordinator")),
+        for topic in (
+            t.reply(self.client_id),
+            t.history_reply(self.client_id),
+            t.fleet("jobs"),
+            t.fleet("map"),
+            t.fleet("routes"),
+            t.fleet("zones"),
+            t.fleet("coordinator"),
         ):
-            await self.client.subscribe(topic, qos=TOPICS[kind].qos)
+            await self.client.subscribe(topic, qos=SUBSCRIBE_QOS)
 
     async def listen(self) -> None:
         """Route inbound messages until the client disconnects (then `ended` is set)."""
@@ -207,7 +208,7 @@ class Operator:
         if not self._audit_followed:
             # Only operators may read the audit: other accounts never follow its replies.
             reply = self.topics.audit_reply(self.client_id)
-            await self.client.subscribe(reply, qos=TOPICS["audit_reply"].qos)
+            await self.client.subscribe(reply, qos=SUBSCRIBE_QOS)
             self._audit_followed = True
         why = "is it running, and may this account read the audit?"
         answer = await self._send("audit", request, timeout, why)

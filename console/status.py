@@ -27,6 +27,7 @@ from gridfleet.endpoint import payload_of
 from gridfleet.errors import ConfigError, GridfleetError, ProtocolError
 from gridfleet.options import add_common, broker_url
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Connection,
     CoordinatorStatus,
@@ -341,15 +342,15 @@ class StatusReader:
         t = self.topics
         for topic, qos in [
             *stop_filters(t),
-            (t.all_units("connection"), TOPICS["connection"].qos),
-            (t.all_units("state"), TOPICS["state"].qos),
-            (t.all_units("factsheet"), TOPICS["factsheet"].qos),
-            (t.all_units("vehicle"), TOPICS["vehicle"].qos),
-            (t.fleet("jobs"), TOPICS["jobs"].qos),
-            (t.fleet("routes"), TOPICS["routes"].qos),
-            (t.fleet("energy"), TOPICS["energy"].qos),
-            (t.fleet("zones"), TOPICS["zones"].qos),
-            (t.fleet("coordinator"), TOPICS["coordinator"].qos),
+            (t.all_units("connection"), SUBSCRIBE_QOS),
+            (t.all_units("state"), SUBSCRIBE_QOS),
+            (t.all_units("factsheet"), SUBSCRIBE_QOS),
+            (t.all_units("vehicle"), SUBSCRIBE_QOS),
+            (t.fleet("jobs"), SUBSCRIBE_QOS),
+            (t.fleet("routes"), SUBSCRIBE_QOS),
+            (t.fleet("energy"), SUBSCRIBE_QOS),
+            (t.fleet("zones"), SUBSCRIBE_QOS),
+            (t.fleet("coordinator"), SUBSCRIBE_QOS),
         ]:
             await self.client.subscribe(topic, qos=qos)
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import (
-    TOPICS,
+    SUBSCRIBE_QOS,
     CancelJob,
     ClearObstacles,
     CloseZone,
@@ -87,13 +87,13 @@ class Arrival:
 
 
 def subscriptions(topics: Topics) -> list[tuple[str, int]]:
-    """Every filter the coordinator follows, with the QoS it subscribes at (states at 0)."""
-    out = [(topics.all_units(kind), TOPICS[kind].qos) for kind in _FROM_UNITS]
+    """Every filter the coordinator follows, with the QoS it subscribes at."""
+    out = [(topics.all_units(kind), SUBSCRIBE_QOS) for kind in _FROM_UNITS]
     out += stop_filters(topics)
-    out.append((topics.all_requests, 1))
+    out.append((topics.all_requests, SUBSCRIBE_QOS))
     # Its own status comes back every few seconds: hearing nothing, not even that, the
     # coordinator knows the silence is its own link's, not its units' (world.py, heard).
-    out.append((topics.fleet("coordinator"), TOPICS["coordinator"].qos))
+    out.append((topics.fleet("coordinator"), SUBSCRIBE_QOS))
     return out
 
 

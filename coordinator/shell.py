@@ -32,7 +32,7 @@ from gridfleet.coordinator.window import DEFAULT_WINDOW
 from gridfleet.coordinator.world import World
 from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.grid import GridMap
-from gridfleet.protocol import TOPICS, Charger, HeaderStamper, Place, Topics
+from gridfleet.protocol import SUBSCRIBE_QOS, Charger, HeaderStamper, Place, Topics
 from gridfleet.tasks import cancel_and_wait, first_of
 
 if TYPE_CHECKING:  # prometheus_client and its HTTP server: imported only with --metrics
@@ -148,7 +148,7 @@ class CoordinatorShell:
         """The core's, and with metrics `errors`, where every component tells its failures."""
         followed = list(self.core.subscriptions())
         if self.metrics is not None:
-            followed.append((self._errors, TOPICS["errors"].qos))
+            followed.append((self._errors, SUBSCRIBE_QOS))
         return followed
 
     @property

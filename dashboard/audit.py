@@ -36,7 +36,7 @@ from gridfleet.config import owned_client_id, with_credentials
 from gridfleet.endpoint import payload_of, send
 from gridfleet.errors import ProtocolError
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import HeaderStamper, Reply, Topics, decode, validate_id
+from gridfleet.protocol import SUBSCRIBE_QOS, HeaderStamper, Reply, Topics, decode, validate_id
 from gridfleet.protocol.messages import AuditLogin, LoginEvent
 from gridfleet.tasks import cancel_and_wait
 
@@ -253,7 +253,7 @@ class LoginReporter:
             try:
                 async with connect_first(self.url, self.client_id) as client:
                     replies: dict[str, asyncio.Future[Reply]] = {}
-                    await client.subscribe(self.topics.reply(self.client_id), qos=1)
+                    await client.subscribe(self.topics.reply(self.client_id), qos=SUBSCRIBE_QOS)
                     listener = asyncio.create_task(self._listen(client, replies))
                     try:
                         while True:

@@ -17,6 +17,7 @@ from typing import Literal
 from gridfleet.errors import ProtocolError
 from gridfleet.outbound import Outbound, error_report
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     DeviceConnection,
     EstopSignal,
@@ -76,11 +77,11 @@ class DeviceCore:
     # -- the session -----------------------------------------------------------------------------
 
     def subscriptions(self) -> list[tuple[str, int]]:
-        """What the device follows: its unit's direction (high rate: QoS 0), the stop, its press."""
+        """What the device follows (its unit's direction, the stop, its press), with the QoS."""
         return [
-            (self.direction_topic, 0),
-            (self.estop_topic, TOPICS["estop"].qos),
-            (self.press_topic, TOPICS["device_stop"].qos),
+            (self.direction_topic, SUBSCRIBE_QOS),
+            (self.estop_topic, SUBSCRIBE_QOS),
+            (self.press_topic, SUBSCRIBE_QOS),
         ]
 
     def connection(self, state: DeviceConnection) -> Outbound:

@@ -18,6 +18,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Connection,
     CoordinatorStatus,
@@ -95,7 +96,7 @@ class UnitCore:
         self.announcements = 0  # times it told a new coordinator session again (tests watch it)
 
     def subscriptions(self, watch_peers: bool = False) -> list[tuple[str, int]]:
-        """Topics to follow with their QoS; `watch_peers` adds every unit's state."""
+        """Topics to follow with their subscription QoS; `watch_peers` adds every unit's state."""
         t = self.topics
         topics: list[str] = []
         if self.logic.mode == "coordinated":
@@ -106,12 +107,7 @@ class UnitCore:
         topics.append(t.unit("connection", self.id))
         if watch_peers:
             topics.append(t.all_units("state"))
-        subs = []
-        for topic in topics:
-            kind, _ = t.parse(topic.replace("+", self.id))
-            # High-rate topics at QoS 0: amqtt upgrades delivery to the subscription's QoS.
-            subs.append((topic, TOPICS[kind].qos if kind != "state" else 0))
-        return [*stop_filters(t), *subs]
+        return [*stop_filters(t), *((topic, SUBSCRIBE_QOS) for topic in topics)]
 
     # ---- the session --------------------------------------------------------------------------
 

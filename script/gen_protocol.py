@@ -69,6 +69,7 @@ def protocol_table() -> dict[str, Any]:
     return {
         "protocol_version": c.PROTOCOL_VERSION,
         "topic_version": c.TOPIC_VERSION,
+        "subscribe_qos": c.SUBSCRIBE_QOS,
         "default_root": c.DEFAULT_ROOT,
         "ids": {
             "pattern": c.ID_PATTERN,
@@ -180,6 +181,8 @@ def render_c(table: dict[str, Any]) -> str:
         f"constexpr char kProtocolVersion[] = {_c_str(table['protocol_version'])};",
         f"constexpr char kTopicVersion[] = {_c_str(table['topic_version'])};",
         f"constexpr char kDefaultRoot[] = {_c_str(table['default_root'])};",
+        "// Every subscription's QoS (a clean session gains nothing from more: protocol.md §2).",
+        f"constexpr uint8_t kSubscribeQos = {table['subscribe_qos']};",
         "",
         "// Ids: 1 to kMaxIdChars letters, digits or kIdPunctuation, starting with a letter or digit;",
         "// a topic root: '/'-separated segments of 1 to kMaxIdChars of the same characters.",

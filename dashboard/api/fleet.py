@@ -33,6 +33,7 @@ from gridfleet.dashboard.api.problems import ApiProblem
 from gridfleet.dashboard.login import SESSION_S
 from gridfleet.errors import GridfleetError, ProtocolError
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Connection,
     Factsheet,
@@ -91,9 +92,9 @@ class FleetView(Operator):
         """Subscribe to the views of the units, zones and energy, then to the Operator's."""
         t = self.topics
         for kind in UNIT_KINDS:
-            await self.client.subscribe(t.all_units(kind), qos=TOPICS[kind].qos)
+            await self.client.subscribe(t.all_units(kind), qos=SUBSCRIBE_QOS)
         for kind in ("zones", "energy"):
-            await self.client.subscribe(t.fleet(kind), qos=TOPICS[kind].qos)
+            await self.client.subscribe(t.fleet(kind), qos=SUBSCRIBE_QOS)
         await super().start()  # the coordinator's status last: it marks the end of the rest
 
     def handle(self, topic: str, payload: bytes) -> None:

@@ -20,10 +20,11 @@ test("topics follow protocol.md", () => {
   const subs = subscriptions(T, "dash-1");
   assert.equal(subs["lab/a/v1/units/+/state"].qos, 0);
   assert.equal(subs["lab/a/v1/fleet/routes"].qos, 0);
-  assert.equal(subs["lab/a/v1/fleet/estop"].qos, 1);
+  // Every subscription at QoS 0, the stop's too (published at 1): protocol.md §2.
+  assert.equal(subs["lab/a/v1/fleet/estop"].qos, 0);
   assert.ok("lab/a/v1/replies/dash-1" in subs);
-  assert.equal(subs["lab/a/v1/units/+/stop"].qos, 1);
-  assert.equal(subs["lab/a/v1/devices/+/stop"].qos, 1);
+  assert.equal(subs["lab/a/v1/units/+/stop"].qos, 0);
+  assert.equal(subs["lab/a/v1/devices/+/stop"].qos, 0);
 });
 
 test("a stop press is engage-only and names its source", () => {
@@ -107,18 +108,18 @@ test("protocol.js takes version, topics, QoS, ids and estop words from the table
       assert.deepEqual(parsed, { kind, id: null });
       assert.equal(T[kind], topic);
     }
-    // Every topic the page subscribes to, at the topic's own QoS.
+    // Every topic the page subscribes to, at the table's subscription QoS (protocol.md §2).
     const filter = spec.placeholder === "unit" ? T.allUnits(kind)
       : spec.placeholder === "client" ? topic.replace("/x1", "/dash-1")
       : spec.placeholder === "device" ? T.allDevices(kind) : topic;
-    if (filter in subs) assert.equal(subs[filter].qos, spec.qos, kind);
+    if (filter in subs) assert.equal(subs[filter].qos, TABLE.subscribe_qos, kind);
   }
   // 17, and every unit's and device's stop press: the fleet's views (alerts, energy and the
   // closed zones among them), the units' topics, and the answers to this page (its replies,
   // history and audit pages).
   assert.equal(Object.keys(subs).length, 19);
-  assert.equal(subs["lab/a/v1/fleet/energy"].qos, TABLE.topics.energy.qos);
-  assert.equal(subs["lab/a/v1/fleet/zones"].qos, TABLE.topics.zones.qos);
+  assert.equal(subs["lab/a/v1/fleet/energy"].qos, TABLE.subscribe_qos);
+  assert.equal(subs["lab/a/v1/fleet/zones"].qos, TABLE.subscribe_qos);
   const viewer = subscriptions(T, "dash-1", { audit: false });
   assert.ok(!(T.auditReply("dash-1") in viewer), "an account that may not read the audit does not ask for it");
   assert.ok(T.historyReply("dash-1") in viewer);

@@ -39,9 +39,9 @@ TEST_CASE("connects with its last will, says online, subscribes to direction, es
   CHECK(r.mqtt.will.topic == kConn);
   CHECK(r.mqtt.will.payload == "broken");
   CHECK(r.mqtt.count(kConn, "online") == 1);
-  CHECK(r.mqtt.subscriptions.at(kDir) == 0);
-  CHECK(r.mqtt.subscriptions.at(kEstop) == 1);
-  CHECK(r.mqtt.subscriptions.at(kPress) == 1);
+  CHECK(r.mqtt.subscriptions.at(kDir) == 0);  // every subscription at QoS 0 (protocol.md 2)
+  CHECK(r.mqtt.subscriptions.at(kEstop) == 0);
+  CHECK(r.mqtt.subscriptions.at(kPress) == 0);
   CHECK(r.mqtt.retained.at(kConn) == "online");
 }
 
@@ -298,10 +298,11 @@ TEST_CASE("what the device subscribes to and publishes is what protocol_table.h 
   const std::string press = prefix + p::kTopicDeviceStopBefore + "dev1" + p::kTopicDeviceStopAfter;
   const std::string conn =
       prefix + p::kTopicDeviceConnectionBefore + "dev1" + p::kTopicDeviceConnectionAfter;
-  // Exactly its unit's direction, the fleet's stop and its own press, each at the topic's QoS.
-  CHECK(r.mqtt.subscriptions == std::map<std::string, uint8_t>{{dir, p::kTopicDirectionQos},
-                                                               {estop, p::kTopicEstopQos},
-                                                               {press, p::kTopicDeviceStopQos}});
+  // Exactly its unit's direction, the fleet's stop and its own press, each at kSubscribeQos (0).
+  static_assert(p::kSubscribeQos == 0, "protocol.md 2: every subscription at QoS 0");
+  CHECK(r.mqtt.subscriptions == std::map<std::string, uint8_t>{{dir, p::kSubscribeQos},
+                                                               {estop, p::kSubscribeQos},
+                                                               {press, p::kSubscribeQos}});
   CHECK(r.mqtt.will.topic == conn);
   CHECK(r.mqtt.will.payload == p::kDeviceWill);
   REQUIRE(r.mqtt.published.size() == 1);

@@ -94,10 +94,10 @@ TEST_CASE("the sketch wires pins, WiFi, PubSubClient and the button to the devic
   CHECK(mqttClient.subscriptions ==
         std::vector<std::pair<std::string, uint8_t>>{
             {prefix + p::kTopicDirectionBefore + GF_UNIT_ID + p::kTopicDirectionAfter,
-             p::kTopicDirectionQos},
-            {prefix + p::kTopicEstop, p::kTopicEstopQos},
+             p::kSubscribeQos},
+            {prefix + p::kTopicEstop, p::kSubscribeQos},
             {prefix + p::kTopicDeviceStopBefore + GF_DEVICE_ID + p::kTopicDeviceStopAfter,
-             p::kTopicDeviceStopQos}});
+             p::kSubscribeQos}});
   CHECK(mqttClient.will ==
         prefix + p::kTopicDeviceConnectionBefore + GF_DEVICE_ID + p::kTopicDeviceConnectionAfter);
   CHECK(mqttClient.willPayload == p::kDeviceWill);

@@ -7,7 +7,7 @@ firmware's protocol_table.h; see script/gen_protocol.py). Tests keep them all in
 """
 
 from gridfleet.protocol.codec import HeaderStamper, decode, encode
-from gridfleet.protocol.constants import PROTOCOL_VERSION
+from gridfleet.protocol.constants import PROTOCOL_VERSION, SUBSCRIBE_QOS
 from gridfleet.protocol.device import (
     DeviceConnection,
     EstopSignal,
@@ -66,6 +66,7 @@ from gridfleet.protocol.topics import TOPICS, Topics, TopicSpec, validate_id
 
 __all__ = [
     "PROTOCOL_VERSION",
+    "SUBSCRIBE_QOS",
     "TOPICS",
     "Action",
     "CancelJob",

@@ -7,6 +7,10 @@ protocol_table.js and the firmware's protocol_table.h.
 
 PROTOCOL_VERSION = "1.6"  # header.version of every JSON message (protocol.md §3, §9)
 TOPIC_VERSION = "v1"  # the topic level after the root; changes only with a new major version
+# Every subscription, whatever QoS its topic is published at (protocol.md §2): each gridfleet
+# client is a clean session, which ends with its connection, so QoS 1 from the broker adds no
+# delivery; and on RabbitMQ 3.10 it is a durable queue that pins the client to its node.
+SUBSCRIBE_QOS = 0
 DEFAULT_ROOT = "gridfleet"
 
 MAX_ID_CHARS = 64

@@ -10,8 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from gridfleet.protocol.constants import SUBSCRIBE_QOS
 from gridfleet.protocol.device import EstopSignal, decode_estop, decode_press
-from gridfleet.protocol.topics import TOPICS, Topics
+from gridfleet.protocol.topics import Topics
 
 LATCH = "estop"
 PRESS_KINDS = ("stop", "device_stop")  # units/<unit>/stop, devices/<device>/stop
@@ -19,11 +20,11 @@ STOP_KINDS = (LATCH, *PRESS_KINDS)
 
 
 def stop_filters(topics: Topics) -> list[tuple[str, int]]:
-    """The filters that carry the stop (the latch and every press), at their QoS."""
+    """The filters that carry the stop (the latch and every press), with their subscription QoS."""
     return [
-        (topics.fleet(LATCH), TOPICS[LATCH].qos),
-        (topics.all_units("stop"), TOPICS["stop"].qos),
-        (topics.all_devices("device_stop"), TOPICS["device_stop"].qos),
+        (topics.fleet(LATCH), SUBSCRIBE_QOS),
+        (topics.all_units("stop"), SUBSCRIBE_QOS),
+        (topics.all_devices("device_stop"), SUBSCRIBE_QOS),
     ]
 
 

@@ -42,6 +42,7 @@ from gridfleet.errors import ProtocolError
 from gridfleet.grid import Cell, Direction, GridMap
 from gridfleet.outbound import Outbound
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Action,
     Connection,
@@ -156,9 +157,9 @@ class VehicleCore:
     # ---- subscriptions ------------------------------------------------------------------------
 
     def vehicle_subscriptions(self) -> list[tuple[str, int]]:
-        """The vehicle's topics to follow (QoS 0 as the spec's; its connection at 1)."""
+        """The vehicle's topics to follow, as every subscription at SUBSCRIBE_QOS (a clean session)."""
         v = self.vehicle
-        return [(v.topic("state"), 0), (v.topic("connection"), 1), (v.topic("factsheet"), 0)]
+        return [(v.topic(name), SUBSCRIBE_QOS) for name in ("state", "connection", "factsheet")]
 
     def fleet_subscriptions(self) -> list[tuple[str, int]]:
         """The fleet's topics this unit follows: the stop, its orders, its own `connection`
@@ -168,9 +169,9 @@ class VehicleCore:
         connection = self.topics.unit("connection", self.id)
         return [
             *stop_filters(self.topics),
-            (order, TOPICS["order"].qos),
-            (connection, TOPICS["connection"].qos),
-            (self.topics.fleet("coordinator"), TOPICS["coordinator"].qos),
+            (order, SUBSCRIBE_QOS),
+            (connection, SUBSCRIBE_QOS),
+            (self.topics.fleet("coordinator"), SUBSCRIBE_QOS),
         ]
 
     # ---- the vehicle --------------------------------------------------------------------------

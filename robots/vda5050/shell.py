@@ -22,7 +22,7 @@ from gridfleet.endpoint import Backoff, Endpoint
 from gridfleet.errors import ProtocolError
 from gridfleet.grid import GridMap
 from gridfleet.outbound import Outbound
-from gridfleet.protocol import TOPICS, HeaderStamper, Routes, Topics, decode
+from gridfleet.protocol import SUBSCRIBE_QOS, TOPICS, HeaderStamper, Routes, Topics, decode
 from gridfleet.protocol.stop import STOP_KINDS
 from gridfleet.robots.vda5050.config import VehicleConfig
 from gridfleet.robots.vda5050.core import Check, VehicleCore
@@ -85,7 +85,7 @@ class AdapterShell:
 
     def subscriptions(self) -> list[tuple[str, int]]:
         """Every vehicle's topics and every unit's, once each, and the operators' controls."""
-        seen: dict[str, int] = {self.topics.fleet("routes"): 0}  # high rate: QoS 0
+        seen: dict[str, int] = {self.topics.fleet("routes"): SUBSCRIBE_QOS}
         for core in self.cores:
             for topic, qos in (*core.vehicle_subscriptions(), *core.fleet_subscriptions()):
                 seen[topic] = max(qos, seen.get(topic, 0))

@@ -78,7 +78,7 @@ def rig(settings: AlertSettings = ENERGY) -> Rig:
 def test_the_core_follows_the_energy_view() -> None:
     core = rig().core
     assert isinstance(core, AlertsCore)
-    assert (T.fleet("energy"), 1) in core.subscriptions()
+    assert (T.fleet("energy"), 0) in core.subscriptions()  # every subscription at QoS 0
 
 
 def test_a_low_battery_left_alone_raises_after_its_threshold_and_clears_once_in_hand() -> None:

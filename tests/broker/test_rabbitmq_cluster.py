@@ -11,6 +11,7 @@ import json
 import re
 import stat
 import subprocess
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -202,6 +203,68 @@ def test_a_node_killed_comes_back_on_its_data_and_the_others_carry_on(
     with _as(cluster, 0, accounts, "coordinator") as back:
         back.subscribe(latch)  # its retained store outlived the SIGKILL (on its disk)
         assert back.wait(latch).payload == b'{"latched": "before the kill"}'
+
+
+def _takes(cluster: RabbitCluster, node: int, accounts: Accounts, client_id: str, qos: int) -> bool:
+    """Whether `client_id`, a clean session as the coordinator, connects on `node` and is granted
+    every unit's state at `qos` (3.10 closes the connection when it cannot: no SUBACK)."""
+    probe = MqttProbe(login(cluster.node_urls[node], accounts, "coordinator"), client_id=client_id)
+    try:
+        probe.connect()
+        probe.subscribe(T.all_units("state"), qos=qos, timeout=5)
+        return True
+    except AssertionError:  # refused, or closed before its SUBACK (WaitTimeout is one too)
+        return False
+    finally:
+        probe.close()
+
+
+@contextlib.contextmanager
+def _publishing_qos1(url: str, topic: str) -> Iterator[None]:
+    """QoS 1 messages on `topic` every 10 ms while inside (a unit's states; its link may drop)."""
+    feeder = MqttProbe(url)
+    feeder.connect()
+    done = threading.Event()
+
+    def feed() -> None:
+        while not done.wait(0.01):  # a rate, not a synchronisation
+            feeder.client.publish(topic, b"{}", qos=1)
+
+    thread = threading.Thread(target=feed, name="qos1-feeder", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        done.set()
+        thread.join(5)
+        feeder.close()
+
+
+def test_a_clean_sessions_qos1_subscription_pins_its_client_id_to_a_dead_node_qos0_does_not(
+    cluster: RabbitCluster, accounts: Accounts
+) -> None:
+    """Why every gridfleet subscription is QoS 0 (protocol.md §2): RabbitMQ 3.10 keeps a clean
+    session's QoS 1 subscription in a durable queue on the client's node; killed with QoS 1
+    messages under way, that queue keeps its client id off the survivors until the node is back."""
+    with _publishing_qos1(login(cluster.node_urls[1], accounts, "unit1"), T.unit("state", "unit1")):
+        watchers = {}
+        for qos in (0, 1):
+            watcher = MqttProbe(
+                login(cluster.node_urls[0], accounts, "coordinator"), client_id=f"pinned-at-{qos}"
+            )
+            watcher.connect()
+            watcher.subscribe(T.all_units("state"), qos=qos)
+            watchers[qos] = watcher
+        for watcher in watchers.values():  # deliveries under way to each when node 0 dies
+            watcher.wait(T.unit("state", "unit1"), timeout=10)
+        cluster.kill_node(0)
+        for watcher in watchers.values():
+            watcher.close()
+        wait_for(lambda: _takes(cluster, 1, accounts, "pinned-at-0", 0), 20, what="QoS 0 on node 1")
+        for _ in range(3):  # ~15 s: not a moment's election, a queue whose home is dead
+            assert not _takes(cluster, 1, accounts, "pinned-at-1", 1)
+    cluster.start_node(0)
+    wait_for(lambda: _takes(cluster, 1, accounts, "pinned-at-1", 1), 60, what="its queue's home")
 
 
 def _beams_under(directory: Path) -> list[str]:

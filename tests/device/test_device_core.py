@@ -170,7 +170,7 @@ def report(seq: int, topic: str, reason: str) -> dict[str, object]:
 def test_session_messages_are_exact() -> None:
     logic = stamped_logic()
     conn = T.device("device_connection", "dev1")
-    assert logic.subscriptions() == [(DIR, 0), (ESTOP, 1), (PRESS, 1)]
+    assert logic.subscriptions() == [(DIR, 0), (ESTOP, 0), (PRESS, 0)]  # every one at QoS 0
     assert published([logic.connection(s) for s in ("online", "offline", "broken")]) == [
         (conn, "online", 1, True),
         (conn, "offline", 1, True),

@@ -36,7 +36,7 @@ def online(seq: int) -> tuple[str, object, int, bool]:
 
 
 def test_a_unit_follows_its_own_connection_in_either_mode() -> None:
-    own = ("gf/v1/units/u1/connection", 1)
+    own = ("gf/v1/units/u1/connection", 0)
     assert own in make().subscriptions() and own in make("standalone").subscriptions()
 
 
@@ -95,7 +95,7 @@ def test_another_units_connection_is_none_of_its_business() -> None:
 def test_a_vda_5050_vehicles_unit_sets_its_connection_right_while_announced() -> None:
     c = vehicle_core()
     topic = VDA_TOPICS.unit("connection", "agv1")
-    assert (topic, 1) in c.fleet_subscriptions()
+    assert (topic, 0) in c.fleet_subscriptions()
     stale = encode(Connection(header=header("agv1"), state="broken"))
     assert c.on_fleet(topic, stale, 0.0) == []  # not announced yet: nothing to set right
     outs = vehicle_online(c)

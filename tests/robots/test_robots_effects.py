@@ -143,17 +143,18 @@ def test_connect_says_online_then_the_factsheet_then_a_state_holding_for_the_sto
 
 
 def test_subscriptions_follow_the_mode() -> None:
-    stop = [("gf/v1/fleet/estop", 1), ("gf/v1/units/+/stop", 1), ("gf/v1/devices/+/stop", 1)]
+    # Every one at QoS 0, whatever its topic's QoS (protocol.md §2).
+    stop = [("gf/v1/fleet/estop", 0), ("gf/v1/units/+/stop", 0), ("gf/v1/devices/+/stop", 0)]
     assert make().subscriptions() == [
         *stop,
-        ("gf/v1/units/u1/order", 1),
-        ("gf/v1/coordinator/status", 1),
-        ("gf/v1/units/u1/connection", 1),  # its own, set right (protocol.md §4.1)
+        ("gf/v1/units/u1/order", 0),
+        ("gf/v1/coordinator/status", 0),
+        ("gf/v1/units/u1/connection", 0),  # its own, set right (protocol.md §4.1)
     ]
     assert make("standalone").subscriptions(watch_peers=True) == [
         *stop,
-        ("gf/v1/units/u1/goal", 1),
-        ("gf/v1/units/u1/connection", 1),
+        ("gf/v1/units/u1/goal", 0),
+        ("gf/v1/units/u1/connection", 0),
         ("gf/v1/units/+/state", 0),
     ]
 

@@ -147,7 +147,7 @@ def test_a_bad_or_cleared_status_tells_nothing() -> None:
 def test_a_vda_5050_unit_is_told_again_to_a_new_coordinator_once_announced() -> None:
     c = vehicle_core()
     topic = VDA_TOPICS.fleet("coordinator")
-    assert (topic, 1) in c.fleet_subscriptions()
+    assert (topic, 0) in c.fleet_subscriptions()
 
     def status_of(seq: int, said: Said = "online") -> bytes:
         return encode(

@@ -317,23 +317,7 @@ def start_again(watch: Watch, node: int, still: Callable[[], bool]) -> None:
 # 300 s: a RabbitMQ cluster boots in 20-30 s on two shared cores, each of two killed nodes takes
 # ~10 s to come back, and the jobs run to the end across a third failover.
 @pytest.mark.timeout(300)
-@pytest.mark.parametrize(
-    "kind",
-    [
-        "aedes",
-        pytest.param(
-            "rabbitmq",
-            marks=pytest.mark.xfail(
-                strict=True,
-                reason="gridfleet bug: on RabbitMQ 3.10 the coordinator cannot fail over while "
-                "its node is dead: its reconnect to a survivor (same client id) is refused, "
-                "'home node ... of durable queue mqtt-subscription-coordinator@<root>qos1 ... is "
-                "down or inaccessible' (its clean session's QoS 1 queue, classic, on the dead "
-                "node); the test times out waiting for it on another node",
-            ),
-        ),
-    ],
-)
+@pytest.mark.parametrize("kind", ["aedes", "rabbitmq"])
 def test_the_stop_holds_and_no_job_is_lost_across_a_cluster_node_death(
     kind: str, tmp_path: Path
 ) -> None:
@@ -360,42 +344,51 @@ def test_the_stop_holds_and_no_job_is_lost_across_a_cluster_node_death(
         watch_held(watch, before)
         # A unit that reconnects now to a node that never held the latch (RabbitMQ's node 2:
         # node-local retained messages; aedes's nodes share theirs) finds none, and moves not.
-        mover, fresh = "unit1", 2
+        assert now_on == 1  # the next of its list
+        fresh = 2
         if kind == "rabbitmq":
             assert retained_latch(urls[fresh], T) is None, (
                 "node 2 holds a latch: the premise is gone"
             )
-        shell = fleet.service.shells[mover]
-        connects = fleet.call(lambda: shell.endpoint.connects)
-        fleet.call(shell.endpoint.drop)
-        on = wait_for(
-            lambda: (
-                still()
-                and fleet.call(lambda: shell.endpoint.connects) > connects
-                and watch.unit_nodes()[mover]
-            ),
-            FAILOVER_S,
-            what=f"{mover} on its next node",
-        )
-        assert on == fresh
+        # RabbitMQ 3.10 also drops a QoS 1 publisher on a live node whose message went to a queue
+        # on the dead one (its MQTT plugin crashes on the channel's basic.nack): units may have
+        # moved on already. A unit on node 1 dropped now goes to node 2, the next of every list.
+        placed = watch.unit_nodes()
+        mover = next((u for u, n in placed.items() if n == 1), None)
+        if mover is not None:
+            shell = fleet.service.shells[mover]
+            connects = fleet.call(lambda: shell.endpoint.connects)
+            fleet.call(shell.endpoint.drop)
+            on = wait_for(
+                lambda: (
+                    still()
+                    and fleet.call(lambda: shell.endpoint.connects) > connects
+                    and watch.unit_nodes()[mover]
+                ),
+                FAILOVER_S,
+                what=f"{mover} on its next node",
+            )
+            assert on == fresh
+        assert fresh in watch.unit_nodes().values(), placed
         watch_held(watch, before)
         start_again(watch, dead, still)
         watch_held(watch, before)
         assert_latch_engaged(watch, now_on)
 
-        # 2. Still engaged: the node of unit1 and unit3 (node 2) dies; they go to node 0, back
-        # from the dead (on RabbitMQ a node that never held the latch).
+        # 2. Still engaged: node 2 dies, with units on it; they go to node 0, back from the dead
+        # (on RabbitMQ a node that never held the latch), or node 1.
         dead = fresh
         assert watch.coordinator_node() != dead
         movers = [u for u, n in watch.unit_nodes().items() if n == dead]
-        assert movers == ["unit1", "unit3"], watch.unit_nodes()
+        assert movers, watch.unit_nodes()
         if kind == "rabbitmq":
             assert retained_latch(urls[0], T) is None, "node 0 holds a latch: the premise is gone"
         events_before = len(watch.events())
         killed_at = time.monotonic()
         back = kill_and_fail_over(watch, dead, movers, still)
         watch_held(watch, before)
-        assert watch.coordinator_node() == now_on  # its own node lives: it stayed there
+        if kind == "aedes":  # its own node lives: it stayed there (RabbitMQ may drop it: above)
+            assert watch.coordinator_node() == now_on
         for unit in movers:
             loss_s = watch.loss_s(unit)
             if back[unit] + STEP_S < loss_s:  # back within the silence timeout

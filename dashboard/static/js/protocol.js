@@ -3,7 +3,8 @@
 // which `make schemas` generates from the Python protocol package.
 
 import {
-  ESTOP, FINAL_JOB_STATES as FINAL_STATES, IDS, PROTOCOL_VERSION, TOPIC_VERSION, TOPICS,
+  ESTOP, FINAL_JOB_STATES as FINAL_STATES, IDS, PROTOCOL_VERSION, SUBSCRIBE_QOS, TOPIC_VERSION,
+  TOPICS,
 } from "./protocol_table.js";
 
 export { PROTOCOL_VERSION };
@@ -72,21 +73,22 @@ const SUBSCRIBED_FLEET_KINDS = [
 ];
 
 /**
- * What the page subscribes to, with each topic's QoS from the table (high-rate topics at 0).
+ * What the page subscribes to, every topic at SUBSCRIBE_QOS (protocol.md §2: a clean session).
  * `audit`: this login may read the audit (protocol.md §6.8); the broker refuses the audit's
  * replies to any other account, so the page does not ask for them then.
  */
 export function subscriptions(topics, clientId, { audit = true } = {}) {
-  const subs = {};
-  for (const kind of SUBSCRIBED_UNIT_KINDS) subs[topics.allUnits(kind)] = { qos: TOPICS[kind].qos };
-  for (const kind of SUBSCRIBED_FLEET_KINDS) subs[topics[kind]] = { qos: TOPICS[kind].qos };
-  // Every stop press, so a press shows even before the coordinator copies it into the latch.
-  subs[topics.allUnits("stop")] = { qos: TOPICS.stop.qos };
-  subs[topics.allDevices("device_stop")] = { qos: TOPICS.device_stop.qos };
-  subs[topics.reply(clientId)] = { qos: TOPICS.reply.qos };
-  subs[topics.historyReply(clientId)] = { qos: TOPICS.history_reply.qos };
-  if (audit) subs[topics.auditReply(clientId)] = { qos: TOPICS.audit_reply.qos };
-  return subs;
+  const filters = [
+    ...SUBSCRIBED_UNIT_KINDS.map((kind) => topics.allUnits(kind)),
+    ...SUBSCRIBED_FLEET_KINDS.map((kind) => topics[kind]),
+    // Every stop press, so a press shows even before the coordinator copies it into the latch.
+    topics.allUnits("stop"),
+    topics.allDevices("device_stop"),
+    topics.reply(clientId),
+    topics.historyReply(clientId),
+    ...(audit ? [topics.auditReply(clientId)] : []),
+  ];
+  return Object.fromEntries(filters.map((filter) => [filter, { qos: SUBSCRIBE_QOS }]));
 }
 
 /** Split a topic into {kind, id}; null for anything that is not ours. */

@@ -13,6 +13,7 @@ const freeze = (value) => {
 
 export const PROTOCOL_VERSION = "1.6";
 export const TOPIC_VERSION = "v1";
+export const SUBSCRIBE_QOS = 0;
 export const DEFAULT_ROOT = "gridfleet";
 export const IDS = freeze({
   "pattern": "^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$",

@@ -93,11 +93,11 @@ void Device::connectIfDue(uint32_t now) {
   }
   bool ok = mqtt_.publish(connectionTopic_, proto::kDeviceOnline,
                           proto::kTopicDeviceConnectionRetained);
-  // Each at its topic's QoS: direction is high-rate, 0 (amqtt upgrades delivery to the
-  // subscription's QoS); the stop 1.
-  ok = ok && mqtt_.subscribe(directionTopic_, proto::kTopicDirectionQos);
-  ok = ok && mqtt_.subscribe(estopTopic_, proto::kTopicEstopQos);
-  ok = ok && mqtt_.subscribe(pressTopic_, proto::kTopicDeviceStopQos);
+  // Every subscription at kSubscribeQos (protocol.md §2): a clean session gains nothing from
+  // more, and on RabbitMQ 3.10 a QoS 1 one would pin the device to its broker's node.
+  ok = ok && mqtt_.subscribe(directionTopic_, proto::kSubscribeQos);
+  ok = ok && mqtt_.subscribe(estopTopic_, proto::kSubscribeQos);
+  ok = ok && mqtt_.subscribe(pressTopic_, proto::kSubscribeQos);
   if (!ok) {
     // A half-set-up session would miss the stop: drop it (no DISCONNECT: the broker then
     // replaces the `online` just sent with the will) and try again later.

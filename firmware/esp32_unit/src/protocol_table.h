@@ -14,6 +14,8 @@ namespace proto {
 constexpr char kProtocolVersion[] = "1.6";
 constexpr char kTopicVersion[] = "v1";
 constexpr char kDefaultRoot[] = "gridfleet";
+// Every subscription's QoS (a clean session gains nothing from more: protocol.md §2).
+constexpr uint8_t kSubscribeQos = 0;
 
 // Ids: 1 to kMaxIdChars letters, digits or kIdPunctuation, starting with a letter or digit;
 // a topic root: '/'-separated segments of 1 to kMaxIdChars of the same characters.
