@@ -31,7 +31,7 @@ from gridfleet.bench.busy_scenario import make_busy
 from gridfleet.errors import ConfigError
 from gridfleet.lifeline import PARENT_ENV
 from gridfleet.ports import free_port
-from gridfleet.protocol import TOPICS, JobsView, Routes, Topics, decode
+from gridfleet.protocol import SUBSCRIBE_QOS, TOPICS, JobsView, Routes, Topics, decode
 
 CHROMIUM = Path("/usr/bin/chromium")
 ROUTES_WAIT_S = 60.0  # how long the bench waits for a started fleet's first routes
@@ -125,7 +125,9 @@ class StepCounter:
         self._client = mqtt.Client(CallbackAPIVersion.VERSION2, client_id="bench-page-steps")
         self._client.on_message = self._on_message
         self._client.connect("127.0.0.1", port)
-        self._client.subscribe([(topics.fleet("routes"), 0), (topics.fleet("jobs"), 1)])
+        self._client.subscribe(
+            [(topics.fleet("routes"), SUBSCRIBE_QOS), (topics.fleet("jobs"), SUBSCRIBE_QOS)]
+        )
         self._client.loop_start()
 
     def _on_message(self, _c: object, _u: object, msg: mqtt.MQTTMessage) -> None:

@@ -96,6 +96,8 @@ class RabbitCluster(NodeList):
     boot and refuse anonymous clients; `login` is then the account the readiness check logs in as.
     """
 
+    WS_PATH = "/ws"  # where the web MQTT plugin serves MQTT over websockets
+
     def __init__(
         self,
         directory: Path,

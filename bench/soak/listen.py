@@ -14,6 +14,7 @@ from gridfleet.bus import reach_first
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
 from gridfleet.protocol import (
+    SUBSCRIBE_QOS,
     TOPICS,
     Connection,
     CoordinatorStatus,
@@ -86,7 +87,7 @@ class SoakListener:
                     self.on = reached.broker
                     self.sessions.append((time.time(), f"on {reached}"))
                     self.reconnected()
-                    await client.subscribe(f"{self.topics.prefix}/#", qos=1)
+                    await client.subscribe(f"{self.topics.prefix}/#", qos=SUBSCRIBE_QOS)
                     self.connected.set()
                     self.heard = time.time()
                     settle = asyncio.create_task(self._settle())
