@@ -95,7 +95,7 @@ XDIST := $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist worksteal)
 
 # The edit-test loop: every test but the browser, soak and slow end-to-end ones (no lint).
 test-fast: $(STAMP)
-	$(KEEP_BYTECODE) $(BIN)/pytest -q $(XDIST) -m "not browser and not soak and not slow"
+	$(KEEP_BYTECODE) GRIDFLEET_FEWER_EXAMPLES=1 $(BIN)/pytest -q $(XDIST) -m "not browser and not soak and not slow"
 
 # The one-minute chaos soak. Its verdict is about the fleet under injected faults, not about a
 # machine shared with four test workers (a job still under way at the end of the drain failed a CI
@@ -104,9 +104,10 @@ test-fast: $(STAMP)
 soak: $(STAMP)
 	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m "soak and not cluster_soak"
 
-# Chaos on each broker cluster (aedes, RabbitMQ): the one-minute soaks and a fleet across its
-# nodes' deaths (tests/system/test_cluster_node_death.py), some ten minutes; RabbitMQ's are open
-# findings, expected failures (bench/README.md, "Chaos soak on a cluster"); not in make test.
+# Chaos on each broker cluster (aedes, RabbitMQ): the one-minute soaks, a fleet across its nodes'
+# deaths (tests/system/test_cluster_node_death.py) and the page across its node's
+# (test_cluster_page_node_death.py), some ten minutes (bench/README.md, "Chaos soak on a
+# cluster"); not in make test.
 soak-clusters: $(STAMP)
 	$(KEEP_BYTECODE) GRIDFLEET_PORT_BAND=10 $(BIN)/pytest -q -m cluster_soak
 

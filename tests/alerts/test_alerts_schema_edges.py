@@ -25,7 +25,7 @@ from gridfleet.protocol import TOPICS as SPECS
 from gridfleet.protocol import ErrorReport, decode
 from gridfleet.protocol import messages as models
 
-from support.schema_inputs import allowed, edge_settings, parsed, payloads
+from support.schema_inputs import allowed, edge_examples, edge_settings, parsed, payloads
 
 READ = {
     "connection": lambda unit: T.unit("connection", unit),
@@ -87,7 +87,9 @@ def test_each_message_the_alerts_read_is_taken_as_its_schema_allows(kind: str) -
     model = getattr(models, SPECS[kind].model or "")
 
     # The views are large to draw and to compare: fewer of them (8 s each at 70, half at 30).
-    @settings(SETTINGS, max_examples=30 if kind in ("jobs", "alerts", "energy") else 70)
+    @settings(
+        SETTINGS, max_examples=edge_examples(30 if kind in ("jobs", "alerts", "energy") else 70)
+    )
     @given(
         payload=payloads(kind, max_coord=12, narrow=NARROW.get(kind)),
         unit=st.sampled_from(["unit1", "unit2"]),

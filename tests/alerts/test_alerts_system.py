@@ -45,6 +45,8 @@ from support.probe import MqttProbe
 from support.security import login
 from support.wait import wait_for
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 # Only the rules a test drives: the others (the coordinator's absence above all) stay quiet.
 QUIET = AlertSettings(
     unit_lost_s=0.5,

@@ -34,6 +34,8 @@ from gridfleet.paths import DistanceFieldCache
 
 from support.paths import REPO
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 CORRIDOR = GridMap.from_rows(["....."])
 BAY = GridMap.from_rows([".....", "@@.@@"])  # a corridor with one passing bay
 SHARED_ANCHORS = Path(__file__).resolve().parents[3] / "shared" / "anchors"

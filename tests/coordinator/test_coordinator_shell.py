@@ -26,6 +26,8 @@ from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import async_wait_for
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 STEP = 0.03
 PLAYFIELD_UNITS = [
     ("unit1", (0, 0), 2.0),

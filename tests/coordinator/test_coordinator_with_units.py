@@ -29,6 +29,8 @@ from support.operator_peer import OperatorPeer
 from support.probe import MqttProbe
 from support.wait import WaitTimeout, wait_for
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 RunSystem = Callable[..., tuple[ServiceThread, ServiceThread]]
 System = Callable[..., tuple[ServiceThread, ServiceThread]]
 STEP = 0.05

@@ -25,9 +25,10 @@ from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import wait_for
 
-pytestmark = (
-    pytest.mark.every_broker
-)  # the course's acceptance, broker items included (the latest messages kept)
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.every_broker,
+]  # the course's acceptance, broker items included (the latest messages kept)
 
 STEP_S = 0.05
 MAX_STEPS = 600  # a few times what any of these scenarios needs; ends well inside the timeout

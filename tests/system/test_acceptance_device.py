@@ -28,6 +28,8 @@ from support.paths import MAPS
 from support.probe import MqttProbe
 from support.wait import async_wait_for, wait_for
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 STEP_S = 0.05
 ALL = Leds(N=True, E=True, S=True, W=True)
 T = TypeVar("T")

@@ -17,6 +17,8 @@ from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import pytest
+
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
 from gridfleet.system.broker_thread import BrokerThread
@@ -26,6 +28,8 @@ from support.operator_peer import OperatorPeer
 from support.paths import MAPS
 from support.probe import MqttProbe, retained_latch
 from support.wait import wait_for
+
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
 
 if TYPE_CHECKING:
     from gridfleet.coordinator.shell import CoordinatorShell

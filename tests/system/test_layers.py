@@ -13,6 +13,8 @@ import pytest
 
 from support.paths import REPO
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 BASE = "gridfleet"
 COMPONENTS = ("broker", "coordinator", "robots", "dashboard", "device", "console", "alerts")
 COMPOSITION = ("system", "bench")  # bench stands on system: system never imports bench

@@ -16,6 +16,8 @@ from gridfleet.scenario import load_scenario
 from support.cli import gridfleet
 from support.paths import MAPS
 
+pytestmark = pytest.mark.slow  # seconds a test: in make test, not in test-fast
+
 SCENARIOS = sorted(MAPS.glob("*.toml"))
 
 
@@ -34,7 +36,6 @@ def failure_report(out: subprocess.CompletedProcess[str]) -> str:
     return json.dumps(kept) + out.stderr[-2000:]
 
 
-@pytest.mark.slow  # every scenario through the whole system: make test, not test-fast
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
 def test_every_shipped_scenario_finishes_safely(path: Path) -> None:
@@ -143,7 +144,6 @@ def test_a_scenario_without_units_is_refused_before_anything_starts(tmp_path: Pa
     )
 
 
-@pytest.mark.slow
 @pytest.mark.timeout(300)
 def test_a_busy_fleet_at_a_5_ms_step_finishes_every_job(tmp_path: Path) -> None:
     # Issue 13's overload: 16 units and 40 jobs at 5 ms once ended with "no reply from the
@@ -164,7 +164,6 @@ def _without_wall_time(out: subprocess.CompletedProcess[str]) -> dict[str, Any]:
     return result
 
 
-@pytest.mark.slow  # two whole warehouse runs: make test, not test-fast
 def test_a_deterministic_run_is_the_same_every_time() -> None:
     # Issue 14: warehouse took 184-417 steps over repeated runs; nobody could compare two
     # scenarios or two planner versions with it.
@@ -261,7 +260,6 @@ def test_a_deterministic_run_reports_each_units_battery_charges_and_moves(tmp_pa
     assert "batteries: lowest 0.0 % (flat), 0 charges, 1 ran empty" in human.stdout
 
 
-@pytest.mark.slow  # over MQTT: make test, not test-fast
 def test_a_run_over_mqtt_reports_the_same_battery_figures(tmp_path: Path) -> None:
     path = _energy_scenario(tmp_path)
     out = simulate(str(path), "--step", "0.05", "--max-steps", "600", "--json")
