@@ -15,7 +15,13 @@ from gridfleet.accounts import Account, Accounts, bridge_topics, rules
 from gridfleet.broker.limits import Limits
 from gridfleet.protocol import Topics
 
-DEFAULT_LIMITS = Limits()
+# Mosquitto counts a late subscriber's retained replay against max_queued_messages, and drops a
+# QoS 0 delivery (every gridfleet subscription: protocol.md §2) once that many packets wait for
+# the client: 500 units' records are 1,500 retained messages, and past 1,000 a page had no map.
+# The count is set past any fleet's replay; max_queued_bytes (32 MiB) still bounds what a client
+# that does not read costs.
+MOSQUITTO_QUEUED_MESSAGES = 100_000
+DEFAULT_LIMITS = Limits(max_queued_messages=MOSQUITTO_QUEUED_MESSAGES)
 ITERATIONS = 101  # mosquitto_passwd's default for its $7$ (PBKDF2-SHA512) hashes
 # Started as root, Mosquitto drops to this user (its default `user`) before it opens its password,
 # ACL, TLS key and persistence files; started as anyone else, it stays that user.

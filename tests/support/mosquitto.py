@@ -15,7 +15,8 @@ import pytest
 
 from gridfleet.accounts import Accounts
 from gridfleet.broker.embedded import BrokerSettings
-from gridfleet.broker.mosquitto import mosquitto_conf, write_files
+from gridfleet.broker.limits import MAX_QUEUED_BYTES
+from gridfleet.broker.mosquitto import MOSQUITTO_QUEUED_MESSAGES, mosquitto_conf, write_files
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics
 from gridfleet.system.broker_thread import BrokerThread
@@ -153,6 +154,9 @@ class MosquittoBroker:
                 f"listener {self.port} 127.0.0.1",
                 f"listener {self.ws_port} 127.0.0.1",
                 "protocol websockets",
+                # As gridfleet writes it: past a late reader's retained replay (docs/brokers.md).
+                f"max_queued_messages {MOSQUITTO_QUEUED_MESSAGES}",
+                f"max_queued_bytes {MAX_QUEUED_BYTES}",
                 "",
             ]
         )

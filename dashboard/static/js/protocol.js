@@ -78,9 +78,12 @@ const SUBSCRIBED_FLEET_KINDS = [
  * replies to any other account, so the page does not ask for them then.
  */
 export function subscriptions(topics, clientId, { audit = true } = {}) {
+  // The fleet's views (the latch, the map) before every unit's records: a broker replays the
+  // retained messages of a SUBSCRIBE filter by filter, and Mosquitto drops a QoS 0 delivery once
+  // a client has max_queued_messages (1000) packets waiting; 500 units' records come to 1,500.
   const filters = [
-    ...SUBSCRIBED_UNIT_KINDS.map((kind) => topics.allUnits(kind)),
     ...SUBSCRIBED_FLEET_KINDS.map((kind) => topics[kind]),
+    ...SUBSCRIBED_UNIT_KINDS.map((kind) => topics.allUnits(kind)),
     // Every stop press, so a press shows even before the coordinator copies it into the latch.
     topics.allUnits("stop"),
     topics.allDevices("device_stop"),
