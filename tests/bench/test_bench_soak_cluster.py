@@ -5,12 +5,11 @@ from __future__ import annotations
 import io
 import json
 import random
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
+from test_bench_soak import soak
 
 from gridfleet.bench.soak import listen as soak_listen
 from gridfleet.bench.soak.check import Stop
@@ -27,21 +26,8 @@ from gridfleet.bench.soak.run import SoakConfig, spread
 from gridfleet.bench.soak.topologies import soak_for
 from gridfleet.protocol import Topics
 
-from support.paths import REPO
-
 # The benchmark's own runs: in make test, not in make test-fast.
 pytestmark = pytest.mark.slow
-
-
-def soak(*args: str, timeout: float) -> subprocess.CompletedProcess[str]:
-    """Run `python -m gridfleet bench soak ARGS` and capture its output."""
-    return subprocess.run(
-        [sys.executable, "-m", "gridfleet", "bench", "soak", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=REPO,
-    )
 
 
 class NoCluster:
