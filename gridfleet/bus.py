@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import logging
 import socket
 import ssl
 from collections.abc import AsyncIterator
 from contextlib import AsyncExitStack, asynccontextmanager
 from dataclasses import dataclass
-from typing import Any
+from types import TracebackType
+from typing import Any, Self
 
 import aiomqtt
 
@@ -41,6 +44,49 @@ MAX_INFLIGHT = 1000
 # Every gridfleet client's MQTT keep-alive: a broker ends a session silent for 1.5 times it and
 # sends the client's will (protocol.md §4.1).
 KEEP_ALIVE_S = 10
+GOODBYE_S = 5.0  # the longest a client's DISCONNECT may take to go out before its socket is closed
+
+
+class Client(aiomqtt.Client):
+    """aiomqtt's client, whose socket is closed when its block ends, however it ends.
+
+    aiomqtt leaves it open when connecting or saying goodbye is cut short (cancelled: aiomqtt
+    #377); paho then closes it when the client is collected, after the event loop has closed,
+    and prints the loop's error (seen as `gridfleet up` stopped its feed mid-connect).
+    """
+
+    async def __aenter__(self) -> Self:
+        """Connect; if that fails or is cancelled, close what was opened."""
+        try:
+            return await super().__aenter__()
+        except BaseException:
+            self._close_socket()
+            raise
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        """Say goodbye, for at most GOODBYE_S (aiomqtt waits without a limit), then close."""
+        try:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(GOODBYE_S):
+                    await super().__aexit__(exc_type, exc, tb)
+        finally:
+            self._close_socket()
+
+    def _close_socket(self) -> None:
+        """Close the socket now, while the loop runs: aiomqtt unregisters it and its timer."""
+        if self._client.socket() is not None:
+            self._client._reset_sockets()
+
+    def _on_socket_close(self, client: Any, userdata: Any, sock: Any) -> None:
+        """aiomqtt's, unless the loop has closed (a socket opened as connecting was cancelled,
+        in aiomqtt's connect thread, is closed when collected): nothing is left to unregister."""
+        if not self._loop.is_closed():
+            super()._on_socket_close(client, userdata, sock)
 
 
 def make_client(
@@ -58,7 +104,7 @@ def make_client(
     in with an account, the client id is one that account owns (`owned_client_id`).
     """
     broker = url if isinstance(url, BrokerURL) else parse_broker_url(url)
-    client = aiomqtt.Client(
+    client = Client(
         hostname=broker.host,
         port=broker.port,
         identifier=owned_client_id(broker.username, client_id),

@@ -31,7 +31,7 @@ from gridfleet.outbound import Outbound
 from gridfleet.tasks import cancel_and_wait
 
 log = logging.getLogger("gridfleet.endpoint")
-GOODBYE_S = 2.0  # the longest a clean stop waits for its goodbye to be acknowledged
+GOODBYE_S = 5.0  # the longest a clean stop waits for its goodbye to be acknowledged
 # A connection accepted and then dropped before the CONNACK (a broker going down, a proxy whose
 # broker is down) is never refused: without a bound of its own the connect waits out aiomqtt's
 # 10 s, and recovery after a broker restart took ~11 s (bench soak). Acknowledgements of
