@@ -47,6 +47,18 @@ class Released:
 
 
 @dataclass(frozen=True)
+class Held:
+    """The coordinator's status said the fleet held (its stop) or not, at `t` by its own stamp.
+
+    Units move only on the coordinator's orders, which it gives only while it holds no stop: its
+    stamped release is when moves may begin, however late the listener heard of it.
+    """
+
+    t: float
+    engaged: bool
+
+
+@dataclass(frozen=True)
 class JobSeen:
     """A job's state in a `fleet/jobs` view the listener received."""
 
@@ -73,7 +85,7 @@ class Disturbed:
     end: float
 
 
-Event = Truth | Stop | Released | JobSeen | StateSeen | Disturbed
+Event = Truth | Stop | Released | Held | JobSeen | StateSeen | Disturbed
 
 
 @dataclass(frozen=True)
@@ -122,7 +134,8 @@ def check(events: Iterable[Event], limits: SoakLimits) -> SoakVerdict:
     verdict.collisions = _collisions(truths, verdict.details)
     releases = [e.t for e in ordered if isinstance(e, Released)]
     central = [e for e in ordered if isinstance(e, Stop) and e.where == "central"]
-    stops = _stop_windows(central, releases)
+    held = [e for e in ordered if isinstance(e, Held)]
+    stops = _stop_windows(central, releases, held)
     hall = [e for e in ordered if isinstance(e, Stop) and e.where == "hall"]
     if hall:
         # A hall's units are stopped from when its broker has the stop: nothing reaches them
@@ -160,12 +173,17 @@ def _collisions(truths: Sequence[Truth], details: list[str]) -> int:
     return total
 
 
-def _stop_windows(stops: Sequence[Stop], releases: Sequence[float]) -> list[tuple[float, float]]:
+def _stop_windows(
+    stops: Sequence[Stop], releases: Sequence[float], held: Sequence[Held] = ()
+) -> list[tuple[float, float]]:
     """[engaged, released) windows; one still engaged at the end lasts for ever.
 
     The listener hears the release after the units may have: it shares one broker queue with
-    all the fleet's traffic (`#`), and under load lags by seconds. A window therefore ends at
-    the operator's latest release before the listener saw the fleet released, when there is one.
+    all the fleet's traffic (`#`), under load lags by seconds, and on a cluster may sit on a
+    node that relays late. A window therefore ends at the coordinator's own stamped release
+    (`Held`) if one came after the operator's first release in the window; else at the
+    operator's latest release before the listener saw the fleet released (a release that did
+    not take, with a press still held, was given again: moves before that one count).
     """
     windows: list[tuple[float, float]] = []
     since: float | None = None
@@ -174,7 +192,11 @@ def _stop_windows(stops: Sequence[Stop], releases: Sequence[float]) -> list[tupl
             since = stop.t
         elif not stop.engaged and since is not None:
             given = [r for r in releases if since <= r <= stop.t]
-            windows.append((since, max(given, default=stop.t)))
+            end = max(given, default=stop.t)
+            if given:
+                took = [h.t for h in held if not h.engaged and given[0] <= h.t <= stop.t]
+                end = min([end, *took[:1]])
+            windows.append((since, end))
             since = None
     if since is not None:
         windows.append((since, float("inf")))

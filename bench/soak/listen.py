@@ -9,7 +9,7 @@ import time
 
 import aiomqtt
 
-from gridfleet.bench.soak.check import Event, JobSeen, StateSeen, Stop
+from gridfleet.bench.soak.check import Event, Held, JobSeen, StateSeen, Stop
 from gridfleet.bus import reach_first
 from gridfleet.endpoint import payload_of
 from gridfleet.errors import ProtocolError
@@ -56,6 +56,7 @@ class SoakListener:
         # the coordinator obeys, and which nobody publishes live: the fleet is held, by no stop
         # anybody engaged (not a stop the units must obey: the checks do not count it as one).
         self.coordinator_stop = False
+        self.coordinator_held: bool | None = None  # the stop in its latest status, as heard
         self.unasked_stops: list[float] = []  # when the coordinator held a stop nobody engaged
         self.connected = asyncio.Event()
         self.last_routes = 0.0  # wall time of the coordinator's latest routes view here
@@ -181,7 +182,11 @@ class SoakListener:
                 status = decode(CoordinatorStatus, payload)
                 if status.state == "broken":
                     self.broken["coordinator"] = now
-                elif self.live_only:
+                elif status.state == "online" and status.estop != self.coordinator_held:
+                    # Stamped by the coordinator: when it held or let go, however late heard.
+                    self.coordinator_held = status.estop
+                    self.events.append(Held(status.header.timestamp.timestamp(), status.estop))
+                if status.state != "broken" and self.live_only:
                     if status.estop and not self.coordinator_stop and not self.stopped:
                         self.unasked_stops.append(now)
                     self.coordinator_stop = status.estop

@@ -26,6 +26,7 @@ import uuid
 from collections import Counter, defaultdict
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -37,6 +38,7 @@ from gridfleet.bench.soak.check import (
     FINAL,
     Disturbed,
     Event,
+    JobSeen,
     Released,
     SoakLimits,
     SoakVerdict,
@@ -59,8 +61,9 @@ from gridfleet.bench.soak.proxy import FaultyProxy
 from gridfleet.bench.soak.scenario import make_soak_scenario
 from gridfleet.bus import connect_first
 from gridfleet.config import parse_broker_url
+from gridfleet.console.operator import operator_session
 from gridfleet.ports import free_port
-from gridfleet.protocol import Topics
+from gridfleet.protocol import JobHistoryPage, Topics
 from gridfleet.system.assembly import SystemSpec, cli, start_broker_process
 from gridfleet.system.supervisor import Child, ChildSpec, Supervisor
 
@@ -119,6 +122,7 @@ class SoakResult:
     node_recoveries_s: dict[str, list[float]] = field(default_factory=dict)
     cluster: str | None = None
     extra: dict[str, object] = field(default_factory=dict)  # the topology's own figures
+    job_ends_from_history: int = 0  # jobs whose end only the coordinator's history told
 
     @property
     def ok(self) -> bool:
@@ -145,6 +149,7 @@ class SoakResult:
             "units_stranded": v.units_stranded,
             "faults_unrecovered": len(self.unrecovered),
             "release_repeats": self.release_repeats,
+            "job_ends_from_history": self.job_ends_from_history,
             "max_recovery_s": round(max(self.recoveries_s), 3) if self.recoveries_s else None,
             "max_fault_s": {
                 kind: round(max(took), 2) for kind, took in sorted(self.fault_s.items())
@@ -237,6 +242,7 @@ class Soak:
         self.stalled = False  # set by the watchdog when it gave up on the run
         self.recoveries: list[float] = []
         self.release_repeats = 0
+        self.ends_from_history = 0  # jobs whose end only the coordinator's history told
         self.unrecovered: list[str] = []
         self.recorded: list[Event] = []  # the soak's own events: disturbances and releases
         self.tasks: list[asyncio.Task[None]] = []
@@ -611,6 +617,41 @@ class Soak:
                 await self.release()
             await asyncio.sleep(0.2)  # polling the listener, with a deadline
 
+    async def read_unheard_ends(self) -> None:
+        """The jobs the listener never heard end: their ends as the coordinator's history has
+        them (its SQLite store, asked over the protocol), so a deaf listener loses no job.
+
+        Each is recorded just after the listener's last word of the job, so that an end heard
+        by neither still counts lost, and two ends in the history still count twice.
+        """
+        listener = self.listener
+        assert listener is not None
+        unheard = [job for job, state in listener.jobs.items() if state not in FINAL]
+        if not unheard:
+            return
+        last_heard = {e.job: e.t for e in listener.events if isinstance(e, JobSeen)}
+        since = datetime.now(UTC) - timedelta(seconds=self.cfg.minutes * 60 + 2 * 3600)
+        try:
+            client_id = self._client_id(f"hist-{uuid.uuid4().hex[:4]}")
+            async with operator_session(self.operator_url, self.topics, client_id) as operator:
+                for job in unheard:
+                    page = await operator.job_history(since=since, job_id=job, limit=1000)
+                    if not isinstance(page, JobHistoryPage):
+                        self.unrecovered.append(f"job {job}: history refused: {page.reason}")
+                        continue
+                    ends = [e for e in page.entries if e.state in FINAL]
+                    for n, entry in enumerate(ends, start=1):
+                        at = max(entry.at.timestamp(), last_heard.get(job, 0.0) + 0.001 * n)
+                        self.recorded.append(JobSeen(at, job, entry.state))
+                    self.ends_from_history += bool(ends)
+        except (aiomqtt.MqttError, TimeoutError) as exc:
+            self.unrecovered.append(f"the coordinator's history not read: {exc}")
+        print(
+            f"[history    ] {len(unheard)} jobs not heard ending; "
+            f"{self.ends_from_history} of them ended in the coordinator's history",
+            file=self.log,
+        )
+
     async def _start_and_inject(self) -> None:
         """Start the system, then both lanes of faults for the configured minutes."""
         await self.start()
@@ -631,6 +672,7 @@ class Soak:
                 watchdog.cancel()
                 await asyncio.gather(watchdog, return_exceptions=True)
             await self.drain()
+            await self.read_unheard_ends()
         finally:
             await self.sup.stop()
             for task in self.tasks:
@@ -686,6 +728,7 @@ class Soak:
             self._node_recoveries(),
             self.cfg.cluster,
             self._extra(),
+            self.ends_from_history,
         )
 
     def _node_recoveries(self) -> dict[str, list[float]]:

@@ -7,6 +7,7 @@ from pathlib import Path
 from gridfleet.bench.soak.check import (
     Disturbed,
     Event,
+    Held,
     JobSeen,
     Released,
     SoakLimits,
@@ -99,6 +100,43 @@ def test_a_move_before_a_release_given_again_fails() -> None:
         Stop(1.0, True),
         Released(2.0),
         truth(2.5),
+        truth(3.0, u1=(1, 0)),
+        Released(7.0),
+        truth(7.5, u1=(2, 0)),
+        Stop(8.0, False),
+    ]
+    verdict = check(events, LIMITS)
+    assert verdict.moved_while_stopped == 1
+    assert "moved [0, 0] -> [1, 0] at 3.00" in verdict.details[0]
+
+
+def test_a_move_after_the_coordinators_stamped_release_passes_though_released_again() -> None:
+    # The aedes soak: the listener sat on a restarted node and heard the release 40 s late; the
+    # soak released again and again meanwhile. The coordinator's status, stamped 2.3 and heard
+    # late, says when it let the fleet go: the moves after it are no moves in a stop.
+    events: list[Event] = [
+        truth(0.0),
+        Stop(1.0, True),
+        truth(1.5),
+        Released(2.0),
+        Held(2.3, False),
+        truth(3.0, u1=(1, 0)),
+        Released(7.0),
+        truth(7.5, u1=(2, 0)),
+        Released(12.0),
+        Stop(40.0, False),
+    ]
+    assert check(events, LIMITS).ok
+
+
+def test_a_release_the_coordinator_stamped_before_any_operator_gave_one_is_no_release() -> None:
+    # Only an operator's release lets the fleet go: a coordinator letting go before it is a
+    # fault the checks must see, not a window's end.
+    events: list[Event] = [
+        truth(0.0),
+        Stop(1.0, True),
+        truth(1.5),
+        Held(1.8, False),
         truth(3.0, u1=(1, 0)),
         Released(7.0),
         truth(7.5, u1=(2, 0)),
