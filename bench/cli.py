@@ -10,7 +10,7 @@ from gridfleet.errors import ConfigError
 from gridfleet.options import GridfleetParser
 
 # What pyproject's `bench` extra brings; a bench that needs one missing says how to install it.
-BENCH_EXTRA = {"psutil", "playwright", "matplotlib", "httpx"}
+BENCH_EXTRA = {"psutil", "playwright", "matplotlib", "httpx", "msgspec", "orjson"}
 
 # name -> (module, help). Each module offers add_arguments(parser) and run(args) -> int.
 BENCHES: dict[str, tuple[str, str]] = {
@@ -49,6 +49,10 @@ BENCHES: dict[str, tuple[str, str]] = {
     "api": (
         "gridfleet.bench.api",
         "the HTTP API with a fleet moving: requests a second, and their cost to the step rate",
+    ),
+    "codec": (
+        "gridfleet.bench.codec",
+        "the hot path's messages read and written: pydantic beside orjson and msgspec",
     ),
     "energy": (
         "gridfleet.bench.energy",
