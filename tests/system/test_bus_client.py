@@ -20,6 +20,7 @@ from gridfleet.system.broker_thread import BrokerThread
 def test_a_client_cancelled_in_its_goodbye_closes_its_socket_before_the_loop_ends(
     broker: BrokerThread, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setattr(bus, "GOODBYE_S", 120.0)  # only the second cancel ends the goodbye
     clients: list[aiomqtt.Client] = []
 
     async def hold(client: aiomqtt.Client) -> None:
