@@ -23,7 +23,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from gridfleet.errors import ConfigError
-from gridfleet.protocol import JobsView, UnitState, decode, encode
+from gridfleet.protocol import PROTOCOL_VERSION, JobsView, UnitState, decode, encode
 from gridfleet.protocol import Order as OrderMessage
 from gridfleet.protocol.messages import Message
 
@@ -32,7 +32,7 @@ Timed = Callable[[], object]
 
 def _header(sender: str) -> dict[str, Any]:
     return {
-        "version": "1.6",
+        "version": PROTOCOL_VERSION,
         "seq": 41_234,
         "timestamp": datetime(2026, 12, 4, 18, 0, tzinfo=UTC).isoformat(),
         "sender": sender,
@@ -144,11 +144,12 @@ def measure(repeat: int, number: int) -> dict[str, dict[str, dict[str, float]]]:
                 write, read = ways[way]
                 writes[way].append(_per_call_us(write, number))
                 reads[way].append(_per_call_us(read, number))
+        size = len(encode(message))
         out[name] = {
             way: {
                 "write_us": round(statistics.median(writes[way]), 2),
                 "read_us": round(statistics.median(reads[way]), 2),
-                "bytes": len(encode(message)),
+                "bytes": size,
             }
             for way in ways
         }

@@ -2,12 +2,22 @@
 spells them: what `gridfleet bench codec` times msgspec's validated reading with. A bench's copy
 of two messages, not the protocol's (gridfleet.protocol.messages is that)."""
 
+import re
 from datetime import datetime
 from typing import Annotated, Literal
 
 import msgspec
 
-from gridfleet.protocol.constants import ID_PATTERN, MAX_COORD, MAX_PLANNED, MAX_RELEASED, MAX_TEXT
+from gridfleet.protocol.constants import (
+    ID_PATTERN,
+    MAX_COORD,
+    MAX_PLANNED,
+    MAX_RELEASED,
+    MAX_TEXT,
+    PROTOCOL_VERSION,
+)
+
+SPOKEN_VERSION = f"^{re.escape(PROTOCOL_VERSION)}$"  # the protocol's own, not a copy of its number
 
 coord = Annotated[int, msgspec.Meta(ge=0, le=MAX_COORD)]
 square = tuple[coord, coord]
@@ -17,7 +27,7 @@ reading = Literal["free", "wall", "obstacle", "unit"]
 
 
 class Header(msgspec.Struct, forbid_unknown_fields=True):
-    version: Literal["1.6"]
+    version: Annotated[str, msgspec.Meta(pattern=SPOKEN_VERSION)]
     seq: count
     timestamp: datetime
     sender: ident

@@ -44,7 +44,7 @@ MAX_INFLIGHT = 1000
 # Every gridfleet client's MQTT keep-alive: a broker ends a session silent for 1.5 times it and
 # sends the client's will (protocol.md §4.1).
 KEEP_ALIVE_S = 10
-GOODBYE_S = 5.0  # the longest a client's DISCONNECT may take to go out before its socket is closed
+DISCONNECT_S = 5.0  # the longest a client's DISCONNECT may take to go out before its socket closes
 
 
 class Client(aiomqtt.Client):
@@ -69,10 +69,10 @@ class Client(aiomqtt.Client):
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        """Say goodbye, for at most GOODBYE_S (aiomqtt waits without a limit), then close."""
+        """Say goodbye, for at most DISCONNECT_S (aiomqtt waits without a limit), then close."""
         try:
             with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(GOODBYE_S):
+                async with asyncio.timeout(DISCONNECT_S):
                     await super().__aexit__(exc_type, exc, tb)
         finally:
             self._close_socket()

@@ -20,7 +20,7 @@ from gridfleet.system.broker_thread import BrokerThread
 def test_a_client_cancelled_in_its_goodbye_closes_its_socket_before_the_loop_ends(
     broker: BrokerThread, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(bus, "GOODBYE_S", 120.0)  # only the second cancel ends the goodbye
+    monkeypatch.setattr(bus, "DISCONNECT_S", 120.0)  # only the second cancel ends the goodbye
     clients: list[aiomqtt.Client] = []
 
     async def hold(client: aiomqtt.Client) -> None:
@@ -55,7 +55,7 @@ def test_a_client_cancelled_in_its_goodbye_closes_its_socket_before_the_loop_end
 def test_a_goodbye_that_cannot_go_out_ends_the_block_in_its_time_with_the_socket_closed(
     broker: BrokerThread, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    monkeypatch.setattr(bus, "GOODBYE_S", 0.5)
+    monkeypatch.setattr(bus, "DISCONNECT_S", 0.5)
 
     async def main() -> None:
         client = make_client(broker.url, "goodbye-stuck")
