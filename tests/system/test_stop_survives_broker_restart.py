@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from gridfleet.config import broker_urls
 from gridfleet.ports import free_port
 from gridfleet.protocol import Topics, decode_estop
 from gridfleet.scenario import load_scenario
@@ -98,7 +99,15 @@ def test_the_latched_stop_is_back_on_a_broker_that_restarted_empty(
             None,
             b"engaged|operator|soak",
         )  # the broker may be empty now
-        engaged = wait_for(lambda: retained_latch(url, T), 20, what="the latch back on the broker")
+        # On any node of the list: a cluster's retained messages may be node-local (RabbitMQ's
+        # are), and the coordinator re-asserts on the node it came back on, any of its list.
+        # Nothing but the coordinator writes the latch here, on a broker that kept nothing.
+        nodes = broker_urls(url)
+        engaged = wait_for(
+            lambda: next(filter(None, (retained_latch(node, T) for node in nodes)), None),
+            20,
+            what="the latch back on the broker",
+        )
         assert decode_estop(engaged).engaged and decode_estop(engaged).by == "operator"
     finally:
         coordinator.stop(30)
